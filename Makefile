@@ -1,0 +1,47 @@
+# placeloc: every experiment and benchmark is a target. `make demo` and `make test` work
+# on a fresh machine with only Python 3.10+: they create .venv and install placeloc.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+PL      = $(BIN)/placeloc
+STAMP   = $(VENV)/.installed
+
+.PHONY: help venv demo test lint bench experiment-seqslam bench-seqslam clean
+
+help:
+	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print where results are"
+	@echo "make test               set up .venv, run the test suite"
+	@echo "make lint               ruff"
+	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
+	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark"
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(PL) run configs/demo.yaml --run-dir runs/demo
+	@echo
+	@echo "Results in runs/demo: metrics.json, matches.csv, difference_matrix.png, pr_curve.png"
+	@$(BIN)/python -c "import json; m=json.load(open('runs/demo/metrics.json')); print({k: m[k] for k in ('recall_at_1','auc_pr','recall_at_100_precision','n_queries')})"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+experiment-seqslam: $(STAMP)
+	$(PL) experiment seqslam
+
+bench-seqslam: $(STAMP)
+	$(BIN)/python bench/bench_seqslam.py
+
+clean:
+	rm -rf runs .pytest_cache
+
+-include mk/*.mk

@@ -1,0 +1,221 @@
+"""YAML run configuration: load, override with ``--set``, validate, resolve paths, hash.
+
+A config is a plain nested dict. Its schema is the union of ``COMMON_DEFAULTS`` and the
+chosen method's ``defaults`` (see :mod:`pipeline.methods`): every key has exactly one
+default there, and the type of that default is the type a user value must have. Values
+whose default is ``None`` accept any scalar. Relative paths resolve against the folder of
+the config file, so a config can be moved together with its data.
+"""
+
+from __future__ import annotations
+
+import copy
+import glob
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A config value is missing, unknown, of the wrong type or points nowhere."""
+
+
+# Sections shared by every method. ``query`` omitted means loop closure within reference.
+COMMON_DEFAULTS: dict[str, Any] = {
+    "method": None,
+    "seed": 0,
+    "reference": {"images": None, "on_error": "stop"},
+    "query": {"images": None, "on_error": "stop"},
+    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 1.0},
+    "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
+    "plots": True,
+}
+COMMON_CHOICES: dict[str, tuple] = {
+    "reference.on_error": ("stop", "skip"),
+    "query.on_error": ("stop", "skip"),
+    "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses"),
+    "executor.kind": ("local", "dask"),
+}
+COMMON_PATH_KEYS = ("reference.images", "query.images", "ground_truth.path")
+# Sections a user may leave out entirely (their absence means something).
+OPTIONAL_SECTIONS = ("query",)
+
+
+def load_config(
+    path: str | Path | None = None,
+    overrides: list[str] | None = None,
+    data: dict | None = None,
+    base_dir: str | Path | None = None,
+) -> dict[str, Any]:
+    """Read a YAML config (or take ``data``), apply ``key.path=value`` overrides, validate.
+
+    Returns the full config with every default filled in and paths made absolute.
+    Raises :class:`ConfigError` naming the offending key and the fix.
+    """
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        base_dir = path.resolve().parent
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path or 'config'}: the top level must be a mapping of keys to values")
+    data = copy.deepcopy(data)
+    for item in overrides or []:
+        apply_override(data, item)
+    return validate(data, Path(base_dir or Path.cwd()))
+
+
+def apply_override(data: dict, item: str) -> None:
+    """Apply one ``--set a.b.c=value`` (value parsed as YAML) to a raw config dict."""
+    if "=" not in item:
+        raise ConfigError(f"--set {item!r}: expected key.path=value, e.g. --set seqslam.ds=20")
+    key, raw = item.split("=", 1)
+    value = yaml.safe_load(raw) if raw.strip() else None
+    node = data
+    parts = key.strip().split(".")
+    for part in parts[:-1]:
+        if not isinstance(node.get(part), dict):
+            node[part] = {}
+        node = node[part]
+    node[parts[-1]] = value
+
+
+def validate(data: dict, base_dir: Path) -> dict[str, Any]:
+    """Check ``data`` against the schema of its method and return the completed config."""
+    from pipeline.methods import METHOD_NAMES, get_method
+
+    method_name = data.get("method")
+    if method_name is None:
+        raise ConfigError(f"key 'method' is missing: set it to one of {', '.join(METHOD_NAMES)}")
+    if method_name not in METHOD_NAMES:
+        raise ConfigError(f"method: {method_name!r} is not known; choose one of {', '.join(METHOD_NAMES)}")
+    method = get_method(method_name)
+    schema = copy.deepcopy(COMMON_DEFAULTS)
+    schema[method.name] = copy.deepcopy(method.defaults)
+    choices = {**COMMON_CHOICES, **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
+    path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
+
+    query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
+    config = _merge(schema, data, prefix="", choices=choices)
+    config["method"] = method_name
+    for key in path_keys:
+        _resolve_path(config, key, base_dir)
+    if not query_given:
+        config["query"] = None
+    if method.uses_images:
+        if config["reference"]["images"] is None:
+            raise ConfigError("reference.images is missing: give the folder (or glob) of the reference traverse")
+        _check_image_source(config["reference"]["images"], "reference.images")
+        if config["query"] is not None:
+            _check_image_source(config["query"]["images"], "query.images")
+    gt = config["ground_truth"]
+    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+        raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
+    if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
+        raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
+    if config["executor"]["workers"] < 1:
+        raise ConfigError("executor.workers must be >= 1")
+    method.check(config)
+    return config
+
+
+def _merge(schema: dict, data: dict, prefix: str, choices: dict) -> dict:
+    out = {}
+    for key in data:
+        if key not in schema:
+            where = prefix.rstrip(".") or "the top level"
+            known = ", ".join(sorted(schema))
+            raise ConfigError(f"unknown key {prefix}{key!r} in {where}; known keys: {known}")
+    for key, default in schema.items():
+        dotted = f"{prefix}{key}"
+        if key not in data:
+            out[key] = copy.deepcopy(default)
+            continue
+        value = data[key]
+        if isinstance(default, dict):
+            if value is None and key in OPTIONAL_SECTIONS:
+                out[key] = copy.deepcopy(default)
+                continue
+            if not isinstance(value, dict):
+                raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
+            out[key] = _merge(default, value, f"{dotted}.", choices)
+            continue
+        out[key] = _check_type(dotted, value, default)
+        if dotted in choices and out[key] not in choices[dotted]:
+            raise ConfigError(f"{dotted}: {out[key]!r} is not allowed; choose one of {', '.join(map(str, choices[dotted]))}")
+    return out
+
+
+def _check_type(key: str, value: Any, default: Any) -> Any:
+    def fail(kind: str) -> ConfigError:
+        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}); e.g. {key}: {default!r}")
+
+    if default is None or value is None and not isinstance(default, (bool, int, float, list)):
+        return value
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise fail("true or false")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail("an integer")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fail("a number")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise fail("a string")
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise fail("a list")
+        if default and len(default) in (2, 3) and len(value) != len(default):
+            raise fail(f"a list of {len(default)} items")
+        if default:
+            return [_check_type(f"{key}[{i}]", v, default[0]) for i, v in enumerate(value)]
+        return value
+    return value
+
+
+def _get(config: dict, dotted: str) -> tuple[dict | None, str]:
+    node: Any = config
+    parts = dotted.split(".")
+    for part in parts[:-1]:
+        node = node.get(part) if isinstance(node, dict) else None
+    return (node if isinstance(node, dict) else None), parts[-1]
+
+
+def _resolve_path(config: dict, dotted: str, base_dir: Path) -> None:
+    node, leaf = _get(config, dotted)
+    if node is None or node.get(leaf) is None:
+        return
+    value = str(node[leaf])
+    p = Path(value).expanduser()
+    node[leaf] = str(p if p.is_absolute() else (base_dir / p).resolve())
+
+
+def _check_image_source(spec: str, key: str) -> None:
+    p = Path(spec)
+    if p.is_dir():
+        return
+    if any(ch in spec for ch in "*?[") and glob.glob(spec):
+        return
+    raise ConfigError(f"{key}: {spec} is neither a folder nor a glob that matches files; fix the path (relative paths start at the config's folder)")
+
+
+def config_hash(obj: Any) -> str:
+    """Stable SHA-256 of a JSON-able object (dict key order does not matter)."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def to_yaml(config: dict) -> str:
+    return yaml.safe_dump(config, sort_keys=False)

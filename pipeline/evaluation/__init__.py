@@ -1,0 +1,43 @@
+"""Shared evaluation: ground truth, metrics, plots, and writing metrics.json."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return None if math.isnan(v) or math.isinf(v) else v
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def write_metrics(run_dir: str | Path, metrics: dict[str, Any], group: Any = None) -> dict[str, Any]:
+    """Write ``run_dir/metrics.json`` atomically (NaN/inf become null) and mirror the
+    scalar figures as attributes of ``group`` (the evaluate artifact) when given."""
+    clean = _clean(metrics)
+    path = Path(run_dir) / "metrics.json"
+    tmp = path.with_name(f".metrics.json.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(clean, indent=2, sort_keys=False))
+    os.replace(tmp, path)
+    if group is not None:
+        g = group.require_group("metrics")
+        for k, v in clean.items():
+            if isinstance(v, (int, float, str, bool)):
+                g.attrs[k] = v
+        g.attrs["json"] = json.dumps(clean)
+    return clean

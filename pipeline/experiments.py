@@ -1,0 +1,48 @@
+"""Experiment drivers (``placeloc experiment NAME``), one per method, plus shared helpers.
+
+An experiment runs several configs into ``runs/experiment-<name>/<run>/`` and leaves
+``summary.json`` there: one object per run, keyed by run name, holding that run's
+metrics.json figures.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+EXPERIMENTS: dict[str, str] = {
+    "seqslam": "pipeline.seqslam.experiment",
+}
+
+
+def run_experiment(name: str, out_dir: str | Path | None = None, quick: bool = False, quiet: bool = False) -> Path:
+    if name not in EXPERIMENTS:
+        raise KeyError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    out = Path(out_dir or f"runs/experiment-{name}")
+    out.mkdir(parents=True, exist_ok=True)
+    module = importlib.import_module(EXPERIMENTS[name])
+    return module.main(out, quick=quick, quiet=quiet)
+
+
+def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
+    """Write ``summary.json`` atomically (run name -> metrics)."""
+    path = out_dir / "summary.json"
+    tmp = path.with_name(f".summary.json.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(runs, indent=2, sort_keys=True, default=float))
+    os.replace(tmp, path)
+    return path
+
+
+def shared_data_dir() -> Path | None:
+    """``../shared/data`` beside the checkout (or $PLACELOC_SHARED_DATA), if present."""
+    env = os.environ.get("PLACELOC_SHARED_DATA")
+    candidates = [Path(env)] if env else []
+    here = Path(__file__).resolve().parent.parent
+    candidates += [here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"]
+    for c in candidates:
+        if c.is_dir():
+            return c
+    return None

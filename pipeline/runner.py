@@ -1,0 +1,180 @@
+"""Run stages in order, skip the ones whose artifact is up to date, write atomically.
+
+``run_stage(config, run_dir, "localize")`` first brings every earlier stage up to date
+(running only those whose stamp changed), then runs ``localize`` if its own stamp changed
+or ``force`` is set. Each stage's function gets a :class:`StageContext`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import h5py
+from tqdm import tqdm
+
+from pipeline import __version__
+from pipeline.artifacts import atomic_h5, provenance_attrs, read_stamp, remove_stale_tmp
+from pipeline.config import config_hash, to_yaml
+from pipeline.executor import Executor, make_executor
+from pipeline.images import ImageSet, list_images
+from pipeline.methods import STAGES, Method, get_method
+
+log = logging.getLogger("placeloc")
+
+STAGE_ALIASES = {"build": "build-dictionary"}
+# Common config sections every stage depends on; evaluate also reads the ground truth.
+COMMON_STAGE_KEYS = ("method", "seed", "reference", "query")
+
+
+class StageError(RuntimeError):
+    """A stage cannot run (missing parent, bad input); the message says what to do."""
+
+
+@dataclass
+class StageContext:
+    """What a stage function sees. It writes its results into ``out`` (an HDF5 group)."""
+
+    stage: str
+    method: Method
+    config: dict[str, Any]
+    run_dir: Path
+    out: h5py.Group
+    executor: Executor
+    quiet: bool = False
+    images: dict[str, ImageSet] = field(default_factory=dict)
+    _open: list[h5py.File] = field(default_factory=list)
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """This method's config section."""
+        return self.config[self.method.name]
+
+    def artifact(self, stage: str) -> h5py.File:
+        """Open the artifact of an earlier stage read-only (closed by the runner)."""
+        path = self.run_dir / f"{stage}.h5"
+        if not path.is_file():
+            raise StageError(f"{path} is missing: run `placeloc {stage}` first")
+        f = h5py.File(path, "r")
+        self._open.append(f)
+        return f
+
+    def progress(self, iterable: Iterable[Any], total: int | None = None, desc: str = "") -> Iterator[Any]:
+        return iter(tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
+                         file=sys.stderr, dynamic_ncols=True, leave=False))
+
+    def close(self) -> None:
+        for f in self._open:
+            f.close()
+        self._open.clear()
+
+
+def normalise_stage(name: str) -> str:
+    name = STAGE_ALIASES.get(name, name)
+    if name not in STAGES:
+        raise StageError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}")
+    return name
+
+
+def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
+    sets = {}
+    for role in ("reference", "query"):
+        section = config.get(role)
+        if section and section.get("images"):
+            sets[role] = list_images(section["images"], section.get("on_error", "stop"))
+    return sets
+
+
+def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
+                 parent_stamp: str | None) -> dict[str, Any]:
+    """Everything a stage's result depends on, as JSON-able fingerprints."""
+    keys = method.stage_keys.get(stage)
+    section = config.get(method.name, {})
+    method_part = {k: section[k] for k in keys} if keys is not None else section
+    common = {k: config.get(k) for k in COMMON_STAGE_KEYS}
+    if stage == "evaluate":
+        common["ground_truth"] = config.get("ground_truth")
+        common["plots"] = config.get("plots")
+    inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
+    if stage == "extract":
+        for role, s in images.items():
+            inputs[f"images.{role}"] = s.fingerprint()
+    gt_path = (config.get("ground_truth") or {}).get("path")
+    if stage == "evaluate" and gt_path and Path(gt_path).is_file():
+        st = Path(gt_path).stat()
+        inputs["ground_truth_file"] = f"{st.st_size}:{st.st_mtime_ns}"
+    if parent_stamp is not None:
+        inputs["parent"] = parent_stamp
+    return inputs
+
+
+def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bool = False,
+              quiet: bool = False, force_all: bool = False) -> Path:
+    """Bring ``stage`` (and every stage before it) up to date; return its artifact path.
+
+    ``force`` re-runs ``stage`` even when up to date; ``force_all`` every stage up to it.
+    """
+    stage = normalise_stage(stage)
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_tmp(run_dir)
+    method = get_method(config["method"])
+    (run_dir / "config.yaml").write_text(to_yaml(config))
+    images = image_sets(config) if method.uses_images else {}
+    parent_stamp: str | None = None
+    executor: Executor | None = None
+    try:
+        for name in STAGES[: STAGES.index(stage) + 1]:
+            path = run_dir / f"{name}.h5"
+            inputs = stage_inputs(config, method, name, images, parent_stamp)
+            stamp = config_hash({"version": __version__, "stage": name, "inputs": inputs})
+            forced = force_all or (force and name == stage)
+            if read_stamp(path) == stamp and not forced:
+                log.info("%s: up to date (%s), skipped", name, path)
+                parent_stamp = stamp
+                continue
+            if executor is None:
+                executor = make_executor(config["executor"])
+            _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
+            parent_stamp = stamp
+    finally:
+        if executor is not None:
+            executor.close()
+    return run_dir / f"{stage}.h5"
+
+
+def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, path: Path,
+             inputs: dict[str, Any], stamp: str, images: dict[str, ImageSet], executor: Executor,
+             quiet: bool) -> None:
+    fn = method.stages.get(name)
+    note = "" if fn is not None else f"{method.name} has no work in {name}: input passed through"
+    attrs = provenance_attrs(name, method.name, __version__, to_yaml(config),
+                             config_hash(config), inputs, stamp, passthrough=fn is None, note=note)
+    t0 = time.perf_counter()
+    with atomic_h5(path, attrs) as f:
+        if fn is None:
+            log.info("%s: %s", name, note)
+            return
+        log.info("%s: running %s", name, method.name)
+        ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
+                           executor=executor, quiet=quiet, images=images)
+        try:
+            fn(ctx)
+        finally:
+            ctx.close()
+        f.attrs["seconds"] = time.perf_counter() - t0
+    log.info("%s: wrote %s in %.2f s", name, path, time.perf_counter() - t0)
+
+
+def run_all(config: dict[str, Any], run_dir: str | Path, force: bool = False, quiet: bool = False) -> Path:
+    """All stages in order (each skipped when up to date); returns the evaluate artifact."""
+    return run_stage(config, run_dir, STAGES[-1], quiet=quiet, force_all=force)
+
+
+def read_metrics(run_dir: str | Path) -> dict[str, Any]:
+    return json.loads((Path(run_dir) / "metrics.json").read_text())

@@ -103,18 +103,21 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
+    reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
     config = _merge(schema, data, prefix="", choices=choices)
     config["method"] = method_name
     for key in path_keys:
         _resolve_path(config, key, base_dir)
     if not query_given:
         config["query"] = None
-    if method.uses_images:
-        if config["reference"]["images"] is None:
-            raise ConfigError("reference.images is missing: give the folder (or glob) of the reference traverse")
-        _check_image_source(config["reference"]["images"], "reference.images")
-        if config["query"] is not None:
-            _check_image_source(config["query"]["images"], "query.images")
+    if not reference_given:
+        config["reference"] = None
+    for role in method.required_images:
+        if config[role] is None or config[role]["images"] is None:
+            raise ConfigError(f"{role}.images is missing: give the folder (or glob) of the {role} images")
+    for role in ("reference", "query"):
+        if config[role] is not None and config[role]["images"] is not None:
+            _check_image_source(config[role]["images"], f"{role}.images")
     gt = config["ground_truth"]
     if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")

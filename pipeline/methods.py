@@ -30,10 +30,15 @@ class Method:
     path_keys: tuple[str, ...] = ()
     # Method-section keys each stage depends on; a stage not listed depends on all of them.
     stage_keys: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    uses_images: bool = True
+    # Image traverses the method needs (validated up front); the others are optional.
+    required_images: tuple[str, ...] = ("reference",)
     # Extra whole-config checks (cross-field rules); raise ConfigError.
     checker: Callable[[dict], None] | None = None
     description: str = ""
+
+    @property
+    def uses_images(self) -> bool:
+        return bool(self.required_images)
 
     def check(self, config: dict) -> None:
         if self.checker is not None:

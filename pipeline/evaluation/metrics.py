@@ -1,0 +1,100 @@
+"""Place-recognition metrics, as the field uses them.
+
+Inputs are per query: the ranked candidate references (``-1`` = none), a confidence for
+the top candidate (higher = more sure) and whether each candidate is correct.
+
+- Recall@K: queries with a correct reference among their K best, over *all* queries; a
+  query with no match (too early for a full sequence, say) is a miss.
+- Precision-recall: one point per distinct confidence threshold ``c``; the queries with
+  ``confidence >= c`` (and a match) are accepted; precision = correct accepted / accepted,
+  recall = correct accepted / all queries.
+- AUC: area under the PR curve by the trapezoid rule over recall, starting at recall 0
+  with the precision of the first (most confident) point.
+- Recall at 100 % precision: the largest recall of a point with precision 1 (0 if none).
+- Max F1 over the points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class PRCurve:
+    thresholds: np.ndarray  # descending
+    precision: np.ndarray
+    recall: np.ndarray
+
+    @property
+    def auc(self) -> float:
+        if self.recall.size == 0:
+            return 0.0
+        r = np.concatenate([[0.0], self.recall])
+        p = np.concatenate([[self.precision[0]], self.precision])
+        return float(np.sum(np.diff(r) * (p[1:] + p[:-1]) * 0.5))
+
+    @property
+    def recall_at_100_precision(self) -> float:
+        ok = self.precision >= 1.0 - 1e-12
+        return float(self.recall[ok].max()) if ok.any() else 0.0
+
+    @property
+    def max_f1(self) -> float:
+        denom = self.precision + self.recall
+        f1 = np.where(denom > 0, 2 * self.precision * self.recall / np.where(denom > 0, denom, 1), 0.0)
+        return float(f1.max()) if f1.size else 0.0
+
+
+def pr_curve(confidence: np.ndarray, correct: np.ndarray, n_queries: int | None = None,
+             has_match: np.ndarray | None = None) -> PRCurve:
+    """PR points over every distinct confidence threshold.
+
+    ``correct[i]``: the top candidate of query i is right (False if it has no match).
+    ``has_match[i]``: query i produced a candidate at all (unmatched queries are never
+    accepted). Recall divides by ``n_queries`` (default: all queries).
+    """
+    confidence = np.asarray(confidence, np.float64)
+    correct = np.asarray(correct, bool)
+    n = len(confidence) if n_queries is None else int(n_queries)
+    keep = np.ones(len(confidence), bool) if has_match is None else np.asarray(has_match, bool)
+    conf, corr = confidence[keep], correct[keep]
+    if conf.size == 0 or n == 0:
+        return PRCurve(np.zeros(0), np.zeros(0), np.zeros(0))
+    order = np.argsort(-conf, kind="stable")
+    conf, corr = conf[order], corr[order]
+    tp = np.cumsum(corr)
+    accepted = np.arange(1, conf.size + 1)
+    # Only the last index of each run of equal confidences is a reachable threshold.
+    last = np.r_[conf[1:] != conf[:-1], True]
+    return PRCurve(conf[last], (tp / accepted)[last], (tp / n)[last])
+
+
+def recall_at_k(candidates_correct: np.ndarray, ks: tuple[int, ...] = (1, 5, 10)) -> dict[int, float]:
+    """``candidates_correct``: (n_queries, K) bool, ranked. Recall over all rows."""
+    n = candidates_correct.shape[0]
+    out = {}
+    for k in ks:
+        kk = min(k, candidates_correct.shape[1])
+        out[k] = float(candidates_correct[:, :kk].any(axis=1).sum() / n) if n else 0.0
+    return out
+
+
+def dissimilarity_ratios(min_correct: np.ndarray, min_wrong: np.ndarray) -> np.ndarray:
+    """Seed 004's measure per reference image: the difference to its correct query over the
+    smallest difference to any wrong query. Smaller is better; >= 1 means a wrong query
+    looked at least as alike. References with no correct or no wrong query are NaN."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.asarray(min_correct, np.float64) / np.asarray(min_wrong, np.float64)
+    ratio[~np.isfinite(min_correct) | ~np.isfinite(min_wrong)] = np.nan
+    ratio[(min_wrong <= 0) & (min_correct <= 0)] = 1.0
+    return ratio
+
+
+def summarise_ratios(ratio: np.ndarray) -> tuple[float, int]:
+    """Mean ratio and count of ratios >= 1 over the references that have one."""
+    ok = ~np.isnan(ratio)
+    if not ok.any():
+        return float("nan"), 0
+    return float(ratio[ok].mean()), int((ratio[ok] >= 1.0).sum())

@@ -1,0 +1,224 @@
+"""The eight image comparisons of seed 004 (SeqSLAM with illumination-robust matching).
+
+Every comparison has two halves:
+
+- ``prepare(thumbnail, comparison, params)`` turns one greyscale thumbnail into the
+  feature vector that comparison works on (done once per image, in ``extract``);
+- ``difference_block(ref_features, query_features, comparison, params)`` returns the
+  difference block ``D[i, j]`` between reference ``i`` and query ``j``.
+
+Matrix convention, everywhere in placeloc's SeqSLAM: rows = reference, columns = query,
+and *lower = more alike*. Similarities ``R`` are turned into differences ``1 - R``.
+
+Readings of the paper where it is terse (recorded here, the one place they are used):
+
+- ``sad``: patch normalisation (min-max to 0..255 by default, or z-score), then the mean
+  absolute difference over pixels, as SeqSLAM.
+- ``histeq``: ``cv2.equalizeHist`` on the thumbnail, then the mean absolute difference.
+- ``zncc``: eq. (4) on the thumbnail; ``abs_zncc`` takes ``|R|`` so a contrast-inverted
+  image (day/night) still matches.
+- ``isc``: eq. (5)-(6): ``b_n = [g_{n+1} > g_n]`` over the raster-ordered pixels of the
+  Gaussian-filtered thumbnail, ``R = (1/N) sum (b b' + (1-b)(1-b'))`` with ``N`` bits.
+- ``ocm``: eq. (7)-(8): Sobel gradient angle in 16 codes of 22.5 deg; pixels whose
+  gradient magnitude is below ``ocm_epsilon`` get code 16 and count for nothing; weight
+  1 / 0.5 / 0.25 for circular code difference 0 / 1 / 2; divided by the pixel count.
+- ``*_ext``: the paper extends "the pixel of interest and the compared pixel from one pixel
+  to the average of four". We take non-overlapping 2x2 averages (the image at half
+  resolution) and apply ISC/OCM to those, which is what absorbs the small shifts.
+
+The kernels: SAD is a numba-parallel uint8 L1 kernel (the compiler turns it into SIMD
+sum-of-absolute-differences); ZNCC, ISC and OCM are matrix products (BLAS) of suitably
+encoded vectors, which is why their features are stored encoded.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numba
+import numpy as np
+
+COMPARISONS = ("sad", "histeq", "zncc", "abs_zncc", "isc", "isc_ext", "ocm", "ocm_ext")
+OCM_CODES = 16
+
+# Circular weights of eq. (8): code difference 0 -> 1, 1 or 15 -> 0.5, 2 or 14 -> 0.25.
+_OCM_DIFF_WEIGHT = np.zeros(OCM_CODES, np.float32)
+_OCM_DIFF_WEIGHT[[0, 1, 15, 2, 14]] = [1.0, 0.5, 0.5, 0.25, 0.25]
+OCM_WEIGHTS = np.array([[_OCM_DIFF_WEIGHT[(a - b) % OCM_CODES] for b in range(OCM_CODES)] for a in range(OCM_CODES)],
+                       np.float32)
+
+
+# ---------------------------------------------------------------------------------------
+# Per-image preparation
+# ---------------------------------------------------------------------------------------
+def thumbnail(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize to ``size = (width, height)`` with area averaging (SeqSLAM's down-sampling)."""
+    w, h = int(size[0]), int(size[1])
+    if gray.shape[1] == w and gray.shape[0] == h:
+        return gray
+    return cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def patch_normalise(img: np.ndarray, patch: int, mode: str = "minmax") -> np.ndarray:
+    """Normalise each ``patch x patch`` block on its own.
+
+    ``minmax`` (the paper's "existing method") stretches each block to 0..255 and returns
+    uint8; a flat block becomes 0. ``zscore`` (OpenSeqSLAM) returns float32 with zero mean
+    and unit standard deviation per block. Edge blocks may be smaller than ``patch``.
+    """
+    h, w = img.shape
+    x = img.astype(np.float32)
+    out = np.zeros_like(x)
+    for y0 in range(0, h, patch):
+        for x0 in range(0, w, patch):
+            blk = x[y0:y0 + patch, x0:x0 + patch]
+            if mode == "minmax":
+                lo, hi = blk.min(), blk.max()
+                out[y0:y0 + patch, x0:x0 + patch] = 0.0 if hi <= lo else (blk - lo) * (255.0 / (hi - lo))
+            else:
+                sd = blk.std()
+                out[y0:y0 + patch, x0:x0 + patch] = 0.0 if sd <= 1e-6 else (blk - blk.mean()) / sd
+    if mode == "minmax":
+        return np.rint(out).astype(np.uint8)
+    return out
+
+
+def half_resolution(img: np.ndarray) -> np.ndarray:
+    """Average non-overlapping 2x2 blocks: each new pixel is the mean of four (``*_ext``)."""
+    h, w = (img.shape[0] // 2) * 2, (img.shape[1] // 2) * 2
+    x = img[:h, :w].astype(np.float32)
+    return 0.25 * (x[0::2, 0::2] + x[1::2, 0::2] + x[0::2, 1::2] + x[1::2, 1::2])
+
+
+def increment_signs(img: np.ndarray) -> np.ndarray:
+    """ISC bits ``b_n = [g_{n+1} > g_n]`` over the raster-ordered pixels (N-1 bits)."""
+    g = img.astype(np.float32).ravel()
+    return (g[1:] > g[:-1]).astype(np.uint8)
+
+
+def orientation_codes(img: np.ndarray, epsilon: float) -> np.ndarray:
+    """OCM codes 0..15 (22.5 deg bins of the gradient angle); 16 where |grad| < epsilon."""
+    x = img.astype(np.float32)
+    gx = cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3)
+    angle = np.degrees(np.arctan2(gy, gx)) % 360.0
+    codes = np.floor(angle / (360.0 / OCM_CODES)).astype(np.int64) % OCM_CODES
+    codes[np.hypot(gx, gy) < epsilon] = OCM_CODES
+    return codes.astype(np.uint8).ravel()
+
+
+def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma <= 0:
+        return img.astype(np.float32)
+    return cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
+
+
+def prepare(thumb: np.ndarray, comparison: str, params: dict[str, Any]) -> np.ndarray:
+    """Feature vector of one thumbnail for ``comparison`` (see the module docstring)."""
+    if comparison == "sad":
+        return patch_normalise(thumb, int(params["patch"]), params["normalisation"]).ravel()
+    if comparison == "histeq":
+        return cv2.equalizeHist(thumb).ravel()
+    if comparison in ("zncc", "abs_zncc"):
+        v = thumb.astype(np.float32).ravel()
+        v = v - v.mean()
+        n = float(np.linalg.norm(v))
+        return (v / n if n > 0 else v).astype(np.float32)
+    sigma = float(params.get("gaussian_sigma", 1.0))
+    img = _gaussian(thumb, sigma)
+    if comparison.endswith("_ext"):
+        img = half_resolution(img)
+    if comparison.startswith("isc"):
+        return increment_signs(img)
+    if comparison.startswith("ocm"):
+        return orientation_codes(img, float(params.get("ocm_epsilon", 5.0)))
+    raise ValueError(f"unknown comparison {comparison!r}; choose one of {', '.join(COMPARISONS)}")
+
+
+def feature_dtype(comparison: str, params: dict[str, Any]) -> np.dtype:
+    if comparison == "sad" and params["normalisation"] == "zscore":
+        return np.dtype(np.float32)
+    if comparison in ("zncc", "abs_zncc"):
+        return np.dtype(np.float32)
+    return np.dtype(np.uint8)
+
+
+# ---------------------------------------------------------------------------------------
+# Difference blocks
+# ---------------------------------------------------------------------------------------
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def _l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    n, d = a.shape
+    m = b.shape[0]
+    for i in numba.prange(n):
+        ai = a[i]
+        for j in range(m):
+            bj = b[j]
+            s = 0
+            for k in range(d):
+                x = np.int32(ai[k]) - np.int32(bj[k])
+                s += x if x >= 0 else -x
+            out[i, j] = s / d
+
+
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def _l1_float(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    n, d = a.shape
+    m = b.shape[0]
+    for i in numba.prange(n):
+        ai = a[i]
+        for j in range(m):
+            bj = b[j]
+            s = np.float32(0.0)
+            for k in range(d):
+                s += abs(ai[k] - bj[k])
+            out[i, j] = s / d
+
+
+def mean_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``out[i, j] = mean_k |a[i, k] - b[j, k]|`` as float32 (numba, all cores)."""
+    out = np.empty((a.shape[0], b.shape[0]), np.float32)
+    if a.dtype == np.uint8 and b.dtype == np.uint8:
+        _l1_uint8(np.ascontiguousarray(a), np.ascontiguousarray(b), out)
+    else:
+        _l1_float(np.ascontiguousarray(a, dtype=np.float32), np.ascontiguousarray(b, dtype=np.float32), out)
+    return out
+
+
+def _ocm_onehot(codes: np.ndarray, weighted: bool) -> np.ndarray:
+    """(n, N*16) encoding: one-hot of each pixel's code, or its row of OCM weights.
+
+    Code 16 (low contrast) encodes as all zeros, so it contributes nothing either way.
+    """
+    n, npx = codes.shape
+    table = np.vstack([OCM_WEIGHTS if weighted else np.eye(OCM_CODES, dtype=np.float32),
+                       np.zeros((1, OCM_CODES), np.float32)])
+    return table[codes].reshape(n, npx * OCM_CODES)
+
+
+def difference_block(ref: np.ndarray, query: np.ndarray, comparison: str) -> np.ndarray:
+    """Difference block (rows = reference, columns = query, lower = more alike), float32."""
+    if comparison in ("sad", "histeq"):
+        return mean_abs_difference(ref, query)
+    if comparison == "zncc":
+        return (1.0 - ref @ query.T).astype(np.float32)
+    if comparison == "abs_zncc":
+        return (1.0 - np.abs(ref @ query.T)).astype(np.float32)
+    if comparison in ("isc", "isc_ext"):
+        # Agreement count = (N + s.s') / 2 with s = 2b - 1: one BLAS product.
+        nbits = ref.shape[1]
+        s_ref = ref.astype(np.float32) * 2.0 - 1.0
+        s_q = query.astype(np.float32) * 2.0 - 1.0
+        agree = (nbits + s_ref @ s_q.T) * 0.5
+        return (1.0 - agree / nbits).astype(np.float32)
+    if comparison in ("ocm", "ocm_ext"):
+        npx = ref.shape[1]
+        out = np.empty((ref.shape[0], query.shape[0]), np.float32)
+        qw = _ocm_onehot(query, weighted=True)
+        step = max(1, int(2**27 // max(1, npx * OCM_CODES * 4)))  # ~128 MB of one-hot rows at a time
+        for r0 in range(0, ref.shape[0], step):
+            onehot = _ocm_onehot(ref[r0:r0 + step], weighted=False)
+            out[r0:r0 + step] = 1.0 - (onehot @ qw.T) / npx
+        return out
+    raise ValueError(f"unknown comparison {comparison!r}; choose one of {', '.join(COMPARISONS)}")

@@ -1,0 +1,195 @@
+"""Local contrast enhancement (eq. 1) and sequence search (eqs. 2-3), numba kernels.
+
+Matrix convention: ``D[r, q]``, rows = reference, columns = query, lower = more alike.
+Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that the inner loops walk
+contiguous reference rows.
+
+Trajectories (OpenSeqSLAM2's precomputed offsets): a trajectory is anchored at reference
+``r`` for the current query ``T`` and passes through ``(T + t, r + round(V t))`` for the
+query offsets ``t`` of the window: ``t = -ds..0`` (``causal``, the paper: only the past)
+or ``t = -ds//2..ds - ds//2`` (``centred``, OpenSeqSLAM). The score is
+``S(r, T) = min_V sum_t D^[r + round(V t), T + t]``; a trajectory that leaves the matrix
+is not scored. The match is the ``r`` with the smallest score; its confidence compares it
+with the best score outside ``+-window`` rows of it (see :func:`sequence_search`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+INVALID = np.float32(np.inf)
+
+
+def velocities(v_min: float, v_max: float, v_step: float) -> np.ndarray:
+    n = int(math.floor((v_max - v_min) / v_step + 1e-9)) + 1
+    return np.round(v_min + v_step * np.arange(n), 9)
+
+
+def query_offsets(ds: int, search: str) -> np.ndarray:
+    """Query offsets ``t`` of the window (ds + 1 frames, as ``sum_{T-ds}^{T}`` in eq. 2)."""
+    if search == "causal":
+        return np.arange(-ds, 1, dtype=np.int64)
+    before = ds // 2
+    return np.arange(-before, ds - before + 1, dtype=np.int64)
+
+
+def trajectory_offsets(vels: np.ndarray, t_offsets: np.ndarray) -> np.ndarray:
+    """``round(V t)`` for every velocity (rows) and query offset (columns)."""
+    # Round half away from zero so +t and -t give mirror offsets.
+    x = vels[:, None] * t_offsets[None, :].astype(np.float64)
+    return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
+
+
+def enhancement_shift(window: int) -> float:
+    """A z-score over n <= 2R+1 samples is >= -sqrt(n-1); adding sqrt(2R) makes D^ >= 0.
+
+    A constant shift keeps every argmin (all trajectories have the same length) and makes
+    the ratio-based confidence and the dissimilarity ratio meaningful after enhancement.
+    """
+    return math.sqrt(2 * window)
+
+
+@numba.njit(parallel=True, cache=True)
+def _enhance_t(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
+    nq, nr = dt.shape
+    for q in numba.prange(nq):
+        row = dt[q]
+        c1 = np.zeros(nr + 1)
+        c2 = np.zeros(nr + 1)
+        for r in range(nr):
+            x = np.float64(row[r])
+            c1[r + 1] = c1[r] + x
+            c2[r + 1] = c2[r] + x * x
+        for r in range(nr):
+            lo = max(0, r - window)
+            hi = min(nr, r + window + 1)
+            n = hi - lo
+            mean = (c1[hi] - c1[lo]) / n
+            var = (c2[hi] - c2[lo]) / n - mean * mean
+            sd = math.sqrt(var) if var > 1e-12 else 0.0
+            out[q, r] = ((row[r] - mean) / sd if sd > 0.0 else 0.0) + shift
+
+
+def enhance(d: np.ndarray, window: int) -> np.ndarray:
+    """Eq. (1), per query column over reference rows ``r-R..r+R`` (clipped at the ends),
+    plus the constant :func:`enhancement_shift`. Input and output are ``D[r, q]``."""
+    dt = np.ascontiguousarray(d.T, dtype=np.float32)
+    out = np.empty_like(dt)
+    _enhance_t(dt, int(window), float(enhancement_shift(window)), out)
+    return out.T
+
+
+def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
+    """As :func:`enhance` but on and to the query-major ``Dt[q, r]``."""
+    dt = np.ascontiguousarray(dt, dtype=np.float32)
+    out = np.empty_like(dt)
+    _enhance_t(dt, int(window), float(enhancement_shift(window)), out)
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray,
+            window: int, k: int, exclude_after: np.ndarray, best: np.ndarray, scores: np.ndarray) -> None:
+    ncols, nr = et.shape
+    nv, nt = traj.shape
+    for qi in numba.prange(q_hi - q_lo):
+        T = q_lo + qi  # column of the current query inside et
+        s = np.full(nr, np.inf, dtype=np.float32)
+        ok = True
+        for j in range(nt):
+            c = T + t_off[j]
+            if c < 0 or c >= ncols:
+                ok = False
+        if ok:
+            limit = exclude_after[qi]  # references >= limit are excluded (loop closure)
+            acc = np.empty(nr, dtype=np.float32)
+            for v in range(nv):
+                omin = traj[v, 0]
+                omax = traj[v, 0]
+                for j in range(nt):
+                    omin = min(omin, traj[v, j])
+                    omax = max(omax, traj[v, j])
+                r_lo = max(0, -omin)
+                r_hi = min(nr, nr - omax, limit)
+                if r_hi <= r_lo:
+                    continue
+                for r in range(r_lo, r_hi):
+                    acc[r] = 0.0
+                for j in range(nt):
+                    col = et[T + t_off[j]]
+                    o = traj[v, j]
+                    for r in range(r_lo, r_hi):
+                        acc[r] += col[r + o]
+                for r in range(r_lo, r_hi):
+                    if acc[r] < s[r]:
+                        s[r] = acc[r]
+        # Greedy non-maximum suppression: the k best references at least window+1 apart.
+        for kk in range(k):
+            bi = -1
+            bv = np.inf
+            for r in range(nr):
+                if s[r] < bv:
+                    bv = s[r]
+                    bi = r
+            best[qi, kk] = bi
+            scores[qi, kk] = bv
+            if bi < 0:
+                for rest in range(kk + 1, k):
+                    best[qi, rest] = -1
+                    scores[qi, rest] = np.inf
+                break
+            for r in range(max(0, bi - window), min(nr, bi + window + 1)):
+                s[r] = np.inf
+
+
+def sequence_search(
+    et: np.ndarray,
+    q_lo: int,
+    q_hi: int,
+    ds: int,
+    vels: np.ndarray,
+    search: str,
+    window: int,
+    k: int = 10,
+    exclude_recent: int | None = None,
+    query_index0: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
+
+    Returns ``best`` (n, k) reference indices (-1 = none) and their ``scores`` (n, k),
+    ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
+    closure, reference == query) drops references ``r > T_global - exclude_recent`` where
+    ``T_global = query_index0 + column``.
+    """
+    t_off = query_offsets(ds, search)
+    traj = trajectory_offsets(vels, t_off)
+    n = q_hi - q_lo
+    nr = et.shape[1]
+    if exclude_recent is None:
+        exclude_after = np.full(n, nr, np.int64)
+    else:
+        tg = query_index0 + np.arange(q_lo, q_hi)
+        exclude_after = np.clip(tg - int(exclude_recent) + 1, 0, nr).astype(np.int64)
+    best = np.full((n, k), -1, np.int64)
+    scores = np.full((n, k), np.inf, np.float32)
+    if n > 0:
+        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, int(window), int(k),
+                exclude_after, best, scores)
+    return best, scores
+
+
+def confidence(scores: np.ndarray) -> np.ndarray:
+    """Match confidence from the two best (NMS-separated) scores: ``1 - S_best / S_second``.
+
+    In [0, 1], higher = more distinct; 0 when there is no second candidate or no match.
+    Scores are non-negative thanks to :func:`enhancement_shift`.
+    """
+    s1 = scores[:, 0].astype(np.float64)
+    s2 = scores[:, 1].astype(np.float64) if scores.shape[1] > 1 else np.full_like(s1, np.inf)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = 1.0 - s1 / s2
+    c[~np.isfinite(s1) | ~np.isfinite(s2) | (s2 <= 0)] = 0.0
+    return np.clip(c, 0.0, 1.0)

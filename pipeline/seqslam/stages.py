@@ -1,0 +1,356 @@
+"""SeqSLAM on the staged pipeline: extract -> (no dictionary, no index) -> localize -> evaluate.
+
+Artifacts:
+
+- ``extract.h5``: per traverse (``reference/``, ``query/``) the ``features`` the chosen
+  comparison works on (one row per image), the ``thumbnails``, image ``names``, their
+  original positions ``index`` and the ``skipped`` files.
+- ``localize.h5``: ``difference`` D[r, q] (rows = reference, columns = query, lower = more
+  alike; chunked, written block by block), ``candidates``/``scores`` (n_query, K) ranked
+  sequence matches, ``confidence`` of the best, and the single-image baseline
+  ``single_best``/``single_confidence``. Indices are positions in the extracted lists.
+- ``evaluate.h5`` + ``metrics.json``, ``pr_curve.png``, ``difference_matrix.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import os
+from typing import Any
+
+import h5py
+import numpy as np
+
+from pipeline.artifacts import read_strings
+from pipeline.evaluation import write_metrics
+from pipeline.evaluation.ground_truth import GroundTruth
+from pipeline.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
+from pipeline.images import ImageError, read_gray
+from pipeline.methods import Method
+from pipeline.seqslam.comparisons import COMPARISONS, difference_block, feature_dtype, prepare, thumbnail
+from pipeline.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, velocities
+
+DEFAULTS: dict[str, Any] = {
+    "comparison": "sad",  # sad|histeq|zncc|abs_zncc|isc|isc_ext|ocm|ocm_ext
+    "thumbnail": [64, 32],  # width, height
+    "patch": 8,  # patch normalisation block size (sad)
+    "normalisation": "minmax",  # minmax (paper) or zscore (OpenSeqSLAM)
+    "gaussian_sigma": 1.0,  # Gaussian filter before isc*/ocm*
+    "ocm_epsilon": 5.0,  # OCM: |Sobel gradient| below this -> code 16 (ignored)
+    "enhance_window": 10,  # R_window: local contrast enhancement, and match separation
+    "ds": 10,  # sequence length (the window has ds + 1 query frames)
+    "v_min": 0.8,
+    "v_max": 1.2,
+    "v_step": 0.1,
+    "search": "causal",  # causal (paper) or centred (OpenSeqSLAM)
+    "exclude_recent": 50,  # loop closure only: ignore the last N frames of the same traverse
+    "top_k": 10,  # candidates kept per query (Recall@K)
+    "block_size": 1024,  # query columns per difference-matrix block (bounds memory)
+    "store_difference": True,  # keep D in localize.h5 (needed for the dissimilarity ratio and plot)
+}
+CHOICES = {
+    "comparison": COMPARISONS,
+    "normalisation": ("minmax", "zscore"),
+    "search": ("causal", "centred"),
+}
+log = logging.getLogger("placeloc")
+EXTRACT_KEYS = ("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")
+
+
+def _check(config: dict) -> None:
+    from pipeline.config import ConfigError
+
+    p = config["seqslam"]
+    if min(p["thumbnail"]) < 4:
+        raise ConfigError("seqslam.thumbnail: width and height must be >= 4 pixels, e.g. [64, 32]")
+    if p["patch"] < 1:
+        raise ConfigError("seqslam.patch must be >= 1")
+    if p["v_min"] <= 0 or p["v_max"] < p["v_min"] or p["v_step"] <= 0:
+        raise ConfigError("seqslam velocities: need 0 < v_min <= v_max and v_step > 0, e.g. 0.8, 1.2, 0.1")
+    if p["ds"] < 1 or p["enhance_window"] < 1 or p["top_k"] < 2 or p["block_size"] < 1:
+        raise ConfigError("seqslam: ds, enhance_window and block_size must be >= 1, top_k >= 2")
+
+
+# ---------------------------------------------------------------------------------------
+# extract
+# ---------------------------------------------------------------------------------------
+def extract_chunk(job: tuple[list[str], dict[str, Any], str]) -> tuple[np.ndarray, np.ndarray, list[int], list[str]]:
+    """Read and prepare a chunk of images (runs in a worker). Returns features, thumbnails,
+    the positions that succeeded and the errors of those that did not (on_error: skip)."""
+    paths, params, on_error = job
+    size = params["thumbnail"]
+    dtype = feature_dtype(params["comparison"], params)
+    feats, thumbs, ok, errors = [], [], [], []
+    for i, path in enumerate(paths):
+        try:
+            thumb = thumbnail(read_gray(path), size)
+        except ImageError as exc:
+            if on_error != "skip":
+                raise
+            errors.append(str(exc))
+            continue
+        thumbs.append(thumb)
+        feats.append(prepare(thumb, params["comparison"], params).astype(dtype, copy=False))
+        ok.append(i)
+    w, h = size
+    f = np.stack(feats) if feats else np.zeros((0, 0), dtype)
+    t = np.stack(thumbs) if thumbs else np.zeros((0, h, w), np.uint8)
+    return f, t, ok, errors
+
+
+def extract(ctx: Any) -> None:
+    params = ctx.params
+    chunk = 64
+    for role, images in ctx.images.items():
+        paths = [str(p) for p in images.paths]
+        jobs = [(paths[i:i + chunk], params, images.on_error) for i in range(0, len(paths), chunk)]
+        feats, thumbs, index, skipped = [], [], [], []
+        bar = ctx.progress(ctx.executor.map(extract_chunk, jobs), total=len(jobs), desc=f"extract {role}")
+        for c, (f, t, ok, errors) in enumerate(bar):
+            feats.append(f)
+            thumbs.append(t)
+            index.extend(c * chunk + i for i in ok)
+            skipped.extend(errors)
+        if not index:
+            raise ImageError(f"{images.source}: no image could be read; check the folder")
+        g = ctx.out.create_group(role)
+        features = np.concatenate([f for f in feats if len(f)])
+        g.create_dataset("features", data=features, chunks=(min(len(features), 1024), features.shape[1]))
+        g.create_dataset("thumbnails", data=np.concatenate([t for t in thumbs if len(t)]), compression="gzip",
+                         compression_opts=1)
+        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
+                         dtype=h5py.string_dtype())
+        g.create_dataset("index", data=np.asarray(index, np.int64))
+        g.attrs["source"] = images.source
+        g.attrs["n_listed"] = len(paths)
+        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
+        for msg in skipped:
+            log.warning("skipped: %s", msg)
+
+
+# ---------------------------------------------------------------------------------------
+# localize
+# ---------------------------------------------------------------------------------------
+def localize(ctx: Any) -> None:
+    p = ctx.params
+    ex = ctx.artifact("extract")
+    ref = ex["reference/features"][()]
+    loop_closure = "query" not in ex
+    query = ref if loop_closure else ex["query/features"][()]
+    n_ref, n_q = len(ref), len(query)
+    window, ds, k = int(p["enhance_window"]), int(p["ds"]), int(p["top_k"])
+    vels = velocities(p["v_min"], p["v_max"], p["v_step"])
+    t_off = query_offsets(ds, p["search"])
+    before, after = int(-t_off.min()), int(t_off.max())
+    exclude = int(p["exclude_recent"]) if loop_closure else None
+    block = int(p["block_size"])
+
+    out = ctx.out
+    d_ds = None
+    if p["store_difference"]:
+        d_ds = out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32,
+                                  chunks=(min(n_ref, 512), min(n_q, 256)))
+        d_ds.attrs["convention"] = "rows = reference, columns = query, lower = more alike"
+        d_ds.attrs["comparison"] = p["comparison"]
+    candidates = np.full((n_q, k), -1, np.int64)
+    scores = np.full((n_q, k), np.inf, np.float32)
+    single_best = np.full(n_q, -1, np.int64)
+    single_conf = np.zeros(n_q, np.float64)
+
+    starts = range(0, n_q, block)
+    for c0 in ctx.progress(starts, total=len(starts), desc="localize blocks"):
+        c1 = min(n_q, c0 + block)
+        lo, hi = max(0, c0 - before), min(n_q, c1 + after)
+        d = difference_block(ref, query[lo:hi], p["comparison"])  # (n_ref, hi - lo)
+        if d_ds is not None:
+            d_ds[:, c0:c1] = d[:, c0 - lo:c1 - lo]
+        dt = np.ascontiguousarray(d.T)
+        # single-image baseline on the raw differences
+        sb, ss = _single_image(dt[c0 - lo:c1 - lo], window, exclude, c0)
+        single_best[c0:c1], single_conf[c0:c1] = sb, ss
+        et = enhance_t(dt, window)
+        del dt, d
+        b, s = sequence_search(et, c0 - lo, c1 - lo, ds, vels, p["search"], window, k=k,
+                               exclude_recent=exclude, query_index0=lo)
+        candidates[c0:c1], scores[c0:c1] = b, s
+
+    conf = confidence(scores)
+    out.create_dataset("candidates", data=candidates)
+    out.create_dataset("scores", data=scores)
+    out.create_dataset("confidence", data=conf)
+    out.create_dataset("single_best", data=single_best)
+    out.create_dataset("single_confidence", data=single_conf)
+    out.attrs["loop_closure"] = loop_closure
+    out.attrs["velocities"] = vels
+    _write_matches_csv(ctx, ex, candidates[:, 0], conf, loop_closure)
+
+
+def _single_image(dt: np.ndarray, window: int, exclude: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Best reference per query on raw differences, confidence as for sequences."""
+    x = dt.astype(np.float64, copy=True)
+    n, nr = x.shape
+    if exclude is not None:
+        limit = np.clip(q0 + np.arange(n) - exclude + 1, 0, nr)
+        x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
+    best = np.argmin(x, axis=1)
+    s1 = x[np.arange(n), best]
+    r = np.arange(nr)[None, :]
+    masked = np.where(np.abs(r - best[:, None]) <= window, np.inf, x)
+    s2 = masked.min(axis=1)
+    shift = min(0.0, float(np.nanmin(np.where(np.isfinite(x), x, np.nan)))) if np.isfinite(x).any() else 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conf = 1.0 - (s1 - shift) / (s2 - shift)
+    conf[~np.isfinite(conf)] = 0.0
+    best[~np.isfinite(s1)] = -1
+    return best, np.clip(conf, 0, 1)
+
+
+def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, loop_closure: bool) -> None:
+    ref_names = read_strings(ex["reference/names"])
+    ref_index = ex["reference/index"][()]
+    qg = ex["reference" if loop_closure else "query"]
+    q_names, q_index = read_strings(qg["names"]), qg["index"][()]
+    tmp = ctx.run_dir / f".matches.csv.tmp-{os.getpid()}"
+    with tmp.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "reference", "confidence", "query_image", "reference_image"])
+        for q, (r, c) in enumerate(zip(best, conf)):
+            if r < 0:
+                w.writerow([int(q_index[q]), "", "", q_names[q], ""])
+            else:
+                w.writerow([int(q_index[q]), int(ref_index[r]), f"{c:.6f}", q_names[q], ref_names[r]])
+    tmp.replace(ctx.run_dir / "matches.csv")
+
+
+# ---------------------------------------------------------------------------------------
+# evaluate
+# ---------------------------------------------------------------------------------------
+def evaluate(ctx: Any) -> None:
+    from pipeline.seqslam.search import enhance
+
+    cfg = ctx.config
+    p = ctx.params
+    ex = ctx.artifact("extract")
+    lo_art = ctx.artifact("localize")
+    loop_closure = bool(lo_art.attrs["loop_closure"])
+    ref_index = ex["reference/index"][()]
+    q_group = ex["reference" if loop_closure else "query"]
+    q_index = q_group["index"][()]
+    n_ref_orig = int(ex["reference"].attrs["n_listed"])
+    n_q_orig = int(q_group.attrs["n_listed"])
+    gt_section = cfg["ground_truth"]
+    if gt_section["kind"] == "none":
+        from pipeline.runner import StageError
+
+        raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv or hdf5)")
+    gt = GroundTruth.from_config(gt_section, n_ref_orig, n_q_orig)
+
+    candidates = lo_art["candidates"][()]
+    conf = lo_art["confidence"][()]
+    n_q = len(candidates)
+    cand_orig = np.where(candidates >= 0, ref_index[np.clip(candidates, 0, None)], -1)
+    cand_correct = gt.correct(q_index[:, None], cand_orig)
+    rk = recall_at_k(cand_correct)
+    has = candidates[:, 0] >= 0
+    pr = pr_curve(conf, cand_correct[:, 0], n_queries=n_q, has_match=has)
+
+    single = lo_art["single_best"][()]
+    single_orig = np.where(single >= 0, ref_index[np.clip(single, 0, None)], -1)
+    single_correct = gt.correct(q_index, single_orig)
+    pr_single = pr_curve(lo_art["single_confidence"][()], single_correct, n_queries=n_q, has_match=single >= 0)
+
+    metrics: dict[str, Any] = {
+        "recall_at_1": rk[1],
+        "recall_at_5": rk[5],
+        "recall_at_10": rk[10],
+        "auc_pr": pr.auc,
+        "recall_at_100_precision": pr.recall_at_100_precision,
+        "max_f1": pr.max_f1,
+        "n_queries": int(n_q),
+        "dissimilarity_mean": None,
+        "dissimilarity_count_ge1": None,
+        "dissimilarity_mean_enhanced": None,
+        "dissimilarity_count_ge1_enhanced": None,
+        "n_reference": int(len(ref_index)),
+        "n_matched": int(has.sum()),
+        "single_image_recall_at_1": float(single_correct.mean()) if n_q else 0.0,
+        "single_image_auc_pr": pr_single.auc,
+        "comparison": p["comparison"],
+        "ds": int(p["ds"]),
+        "search": p["search"],
+        "queries_with_ground_truth": int(gt.has_match()[q_index].sum()),
+        "localize_seconds": float(lo_art.attrs.get("seconds", float("nan"))),
+    }
+
+    # One streaming pass over D: the paper's dissimilarity ratio before/after enhancement,
+    # and a subsampled copy of D for the plot.
+    band = None
+    plot_d = None
+    if "difference" in lo_art:
+        d_ds = lo_art["difference"]
+        n_ref = d_ds.shape[0]
+        inf = np.full(n_ref, np.inf)
+        mins = {"raw": [inf.copy(), inf.copy()], "enh": [inf.copy(), inf.copy()]}
+        stride_r = max(1, n_ref // 800)
+        stride_q = max(1, n_q // 800)
+        plot_cols = []
+        band = (np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64))
+        step = max(1, int(p["block_size"]))
+        for c0 in ctx.progress(range(0, n_q, step), total=(n_q + step - 1) // step, desc="evaluate blocks"):
+            c1 = min(n_q, c0 + step)
+            d = d_ds[:, c0:c1]
+            g = gt.block_idx(ref_index, q_index[c0:c1])
+            rows_any = g.any(axis=0)
+            first = np.argmax(g, axis=0)
+            last = n_ref - 1 - np.argmax(g[::-1], axis=0)
+            band[0][c0:c1] = np.where(rows_any, first, 1)
+            band[1][c0:c1] = np.where(rows_any, last, 0)
+            e = enhance(d, int(p["enhance_window"]))
+            for key, mat in (("raw", d), ("enh", e)):
+                mc, mw = mins[key]
+                np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
+                np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
+            sel = np.arange(c0, c1)
+            sel = sel[sel % stride_q == 0] - c0
+            plot_cols.append(d[::stride_r][:, sel])
+        plot_d = np.concatenate(plot_cols, axis=1) if plot_cols else None
+        if not loop_closure:
+            for key, suffix in (("raw", ""), ("enh", "_enhanced")):
+                ratio = dissimilarity_ratios(*mins[key])
+                mean, count = summarise_ratios(ratio)
+                metrics[f"dissimilarity_mean{suffix}"] = mean
+                metrics[f"dissimilarity_count_ge1{suffix}"] = count
+                ctx.out.create_dataset(f"dissimilarity{suffix or '_raw'}", data=ratio)
+
+    pr_group = ctx.out.create_group("pr")
+    pr_group.create_dataset("threshold", data=pr.thresholds)
+    pr_group.create_dataset("precision", data=pr.precision)
+    pr_group.create_dataset("recall", data=pr.recall)
+    ctx.out.create_dataset("correct", data=cand_correct[:, 0])
+    write_metrics(ctx.run_dir, metrics, ctx.out)
+
+    if cfg.get("plots", True):
+        from pipeline.evaluation.plots import plot_difference_matrix, plot_pr_curves
+
+        plot_pr_curves({f"SeqSLAM {p['comparison']} ds={p['ds']}": (pr.recall, pr.precision),
+                        "single image": (pr_single.recall, pr_single.precision)},
+                       ctx.run_dir / "pr_curve.png", title=f"PR, {p['comparison']}")
+        if plot_d is not None:
+            sr = max(1, len(ref_index) // 800)
+            sq = max(1, n_q // 800)
+            plot_difference_matrix(plot_d, ctx.run_dir / "difference_matrix.png",
+                                   matches=candidates[:, 0], correct=cand_correct[:, 0],
+                                   gt_lo=band[0] if band else None, gt_hi=band[1] if band else None, stride=(sr, sq),
+                                   title=f"{p['comparison']}: D (rows = reference, cols = query); green correct, red wrong")
+
+
+METHOD = Method(
+    name="seqslam",
+    defaults=DEFAULTS,
+    choices=CHOICES,
+    stages={"extract": extract, "localize": localize, "evaluate": evaluate},
+    stage_keys={"extract": EXTRACT_KEYS},
+    checker=_check,
+    description="SeqSLAM sequence matching with eight illumination-robust image comparisons (seed 004).",
+)

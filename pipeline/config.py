@@ -135,7 +135,7 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict) -> dict:
         if key not in schema:
             where = prefix.rstrip(".") or "the top level"
             known = ", ".join(sorted(schema))
-            raise ConfigError(f"unknown key {prefix}{key!r} in {where}; known keys: {known}")
+            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; known keys: {known}")
     for key, default in schema.items():
         dotted = f"{prefix}{key}"
         if key not in data:

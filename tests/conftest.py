@@ -1,0 +1,23 @@
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLES = ROOT / "data-samples" / "route"
+
+
+@pytest.fixture
+def route(tmp_path: Path) -> Path:
+    """A private copy of the bundled route pair (tests may touch or corrupt files)."""
+    dst = tmp_path / "route"
+    shutil.copytree(SAMPLES, dst)
+    return dst
+
+
+def shared_data() -> Path | None:
+    from pipeline.experiments import shared_data_dir
+
+    return shared_data_dir()

@@ -1,0 +1,115 @@
+"""Known answers for the eight image comparisons (seed 004)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.seqslam.comparisons import (
+    COMPARISONS,
+    difference_block,
+    half_resolution,
+    increment_signs,
+    mean_abs_difference,
+    orientation_codes,
+    patch_normalise,
+    prepare,
+)
+
+PARAMS = {"patch": 8, "normalisation": "minmax", "gaussian_sigma": 1.0, "ocm_epsilon": 5.0}
+
+
+def _img(seed: int = 0, shape=(32, 64)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(20, 200, shape).astype(np.uint8)
+
+
+def test_sad_matches_numpy_reference_uint8_and_float():
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, 256, (7, 50), dtype=np.uint8)
+    b = rng.integers(0, 256, (5, 50), dtype=np.uint8)
+    ref = np.abs(a.astype(int)[:, None] - b.astype(int)[None]).mean(-1)
+    np.testing.assert_allclose(mean_abs_difference(a, b), ref, rtol=1e-6)
+    af, bf = a.astype(np.float32) / 7, b.astype(np.float32) / 7
+    np.testing.assert_allclose(mean_abs_difference(af, bf), ref / 7, rtol=1e-5)
+
+
+def test_patch_normalise_minmax_stretches_each_patch_and_zscore_standardises():
+    img = _img(2)
+    out = patch_normalise(img, 8, "minmax")
+    for y in range(0, 32, 8):
+        for x in range(0, 64, 8):
+            blk = out[y:y + 8, x:x + 8]
+            assert blk.min() == 0 and blk.max() == 255
+    z = patch_normalise(img, 8, "zscore")
+    blk = z[8:16, 16:24]
+    assert abs(blk.mean()) < 1e-5 and abs(blk.std() - 1) < 1e-4
+    flat = np.full((8, 8), 77, np.uint8)
+    assert (patch_normalise(flat, 8) == 0).all()
+
+
+def test_zncc_is_invariant_to_gain_and_offset():
+    img = _img(3)
+    brighter = np.clip(img.astype(np.float32) * 1.2 + 30, 0, 255).astype(np.uint8)
+    other = _img(4)
+    f = np.stack([prepare(x, "zncc", PARAMS) for x in (img, brighter, other)])
+    d = difference_block(f[:1], f, "zncc")[0]
+    assert d[0] == pytest.approx(0.0, abs=1e-5)
+    assert d[1] == pytest.approx(0.0, abs=2e-3)  # only uint8 rounding differs
+    assert d[2] > 0.5
+
+
+def test_abs_zncc_matches_contrast_inversion_and_zncc_does_not():
+    img = _img(5)
+    inverted = (255 - img).astype(np.uint8)
+    fa = prepare(img, "zncc", PARAMS)[None]
+    fb = prepare(inverted, "zncc", PARAMS)[None]
+    assert difference_block(fa, fb, "zncc")[0, 0] == pytest.approx(2.0, abs=1e-5)  # R = -1
+    assert difference_block(fa, fb, "abs_zncc")[0, 0] == pytest.approx(0.0, abs=1e-5)
+
+
+def test_isc_bits_and_similarity_by_hand():
+    g = np.array([[1, 3, 2], [5, 4, 6]], np.uint8)  # raster: 1 3 2 5 4 6
+    np.testing.assert_array_equal(increment_signs(g), [1, 0, 1, 0, 1])
+    h = np.array([[2, 1, 3], [4, 5, 0]], np.uint8)  # raster: 2 1 3 4 5 0 -> 0 1 1 1 0
+    np.testing.assert_array_equal(increment_signs(h), [0, 1, 1, 1, 0])
+    # agreements: positions 3 only (1 vs 1 at index 2) -> b = 10101 vs 01110 agree at index 2 -> R = 1/5
+    d = difference_block(increment_signs(g)[None], increment_signs(h)[None], "isc")
+    assert d[0, 0] == pytest.approx(1 - 1 / 5)
+    assert difference_block(increment_signs(g)[None], increment_signs(g)[None], "isc")[0, 0] == pytest.approx(0.0)
+
+
+def test_orientation_codes_of_ramps_and_flat_image():
+    x = np.tile(np.arange(16, dtype=np.float32) * 10, (16, 1))  # brightness grows to the right: 0 deg
+    assert set(orientation_codes(x, 5.0)[5 * 16 + 2:5 * 16 + 14]) == {0}
+    y = x.T.copy()  # grows downward: +90 deg in image coordinates -> code 4
+    assert set(orientation_codes(y, 5.0)[2 * 16 + 5:14 * 16:16]) == {4}
+    flat = np.full((8, 8), 100, np.float32)
+    assert (orientation_codes(flat, 5.0) == 16).all()
+    diag = np.add.outer(np.arange(16.0) * 1.5, np.arange(16.0)) * 10  # atan(1.5) = 56.3 deg -> code 2
+    assert orientation_codes(diag, 5.0)[8 * 16 + 8] == 2
+
+
+def test_ocm_weights_by_hand():
+    a = np.array([[0, 1, 2, 16, 5, 15]], np.uint8)
+    b = np.array([[0, 2, 4, 3, 5, 0]], np.uint8)
+    # weights: diff 0 -> 1, diff 1 -> .5, diff 2 -> .25, code 16 -> 0, diff 0 -> 1, 15 vs 0 (diff 1 circular) -> .5
+    expected = 1 - (1 + 0.5 + 0.25 + 0 + 1 + 0.5) / 6
+    assert difference_block(a, b, "ocm")[0, 0] == pytest.approx(expected)
+
+
+def test_half_resolution_averages_four_pixels():
+    x = np.array([[0, 4, 8, 8], [4, 8, 0, 0]], np.float32)
+    np.testing.assert_allclose(half_resolution(x), [[4, 4]])
+
+
+@pytest.mark.parametrize("comparison", COMPARISONS)
+def test_every_comparison_prefers_the_same_place_under_light_change(comparison):
+    rng = np.random.default_rng(7)
+    scene = [np.clip(np.kron(rng.integers(0, 255, (8, 16)), np.ones((4, 4))), 0, 255).astype(np.uint8) for _ in range(4)]
+    darker = [np.clip(s.astype(np.float32) * 0.6 + 10 + rng.normal(0, 2, s.shape), 0, 255).astype(np.uint8) for s in scene]
+    ref = np.stack([prepare(s, comparison, PARAMS) for s in scene])
+    qry = np.stack([prepare(s, comparison, PARAMS) for s in darker])
+    d = difference_block(ref, qry, comparison)
+    assert d.shape == (4, 4)
+    np.testing.assert_array_equal(np.argmin(d, axis=0), np.arange(4))

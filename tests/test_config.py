@@ -1,0 +1,58 @@
+"""Config validation: unknown keys, types, paths, overrides."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from pipeline.config import ConfigError, load_config
+
+
+def _write(tmp_path, data):
+    p = tmp_path / "c.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+def test_defaults_relative_paths_and_overrides(route):
+    cfg = load_config(route / "config.yaml", ["seqslam.ds=20", "seqslam.comparison=ocm"])
+    assert cfg["seqslam"]["ds"] == 20 and cfg["seqslam"]["comparison"] == "ocm"
+    assert cfg["seqslam"]["v_min"] == 0.8  # default filled in
+    assert cfg["reference"]["images"] == str((route / "reference").resolve())
+    assert cfg["ground_truth"]["path"] == str((route / "ground_truth.csv").resolve())
+
+
+def test_loop_closure_when_query_omitted(route):
+    cfg = load_config(data={"method": "seqslam", "reference": {"images": "reference"}}, base_dir=route)
+    assert cfg["query"] is None
+
+
+@pytest.mark.parametrize(
+    "patch, message",
+    [
+        ({"seqslam": {"dss": 3}}, "unknown key 'seqslam.dss'"),
+        ({"seqslam": {"ds": "ten"}}, "seqslam.ds must be an integer"),
+        ({"seqslam": {"comparison": "foo"}}, "seqslam.comparison: 'foo' is not allowed"),
+        ({"seqslam": {"thumbnail": [64]}}, "a list of 2 items"),
+        ({"method": "nope"}, "not known"),
+        ({"reference": {"images": "missing-folder"}}, "reference.images"),
+        ({"ground_truth": {"kind": "csv"}}, "ground_truth.path is missing"),
+        ({"colour": 1}, "unknown key 'colour'"),
+    ],
+)
+def test_bad_configs_name_the_key(route, patch, message):
+    data = {"method": "seqslam", "reference": {"images": "reference"}, "query": {"images": "query"}}
+    for k, v in patch.items():
+        data[k] = {**data[k], **v} if isinstance(v, dict) and isinstance(data.get(k), dict) else v
+    with pytest.raises(ConfigError, match=message):
+        load_config(data=data, base_dir=route)
+
+
+def test_bad_override_syntax(route):
+    with pytest.raises(ConfigError, match="key.path=value"):
+        load_config(route / "config.yaml", ["seqslam.ds"])
+
+
+def test_missing_config_file(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "none.yaml")

@@ -1,0 +1,167 @@
+"""The staged pipeline: artifacts, skip/re-run logic, atomic writes, bad input, CLI smoke."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from pipeline.artifacts import atomic_h5, describe, read_stamp
+from pipeline.config import load_config
+from pipeline.images import ImageError, list_images, natural_key
+from pipeline.runner import run_all, run_stage
+from pipeline.seqslam import stages as seqslam_stages
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _mtimes(run_dir: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in run_dir.glob("*.h5")}
+
+
+def test_natural_sort_and_empty_folder(tmp_path):
+    assert sorted(["img10.png", "img2.png", "img1.png"], key=natural_key) == ["img1.png", "img2.png", "img10.png"]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ImageError, match="no images found"):
+        list_images(tmp_path / "empty")
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "x.h5"
+    with pytest.raises(RuntimeError):
+        with atomic_h5(target, {"stamp": "s"}) as f:
+            f["a"] = np.arange(3)
+            raise RuntimeError("boom")
+    assert not target.exists() and list(tmp_path.iterdir()) == []
+    with atomic_h5(target, {"stamp": "s"}) as f:
+        f["a"] = np.arange(3)
+    assert read_stamp(target) == "s"
+
+
+def test_run_skips_up_to_date_and_reruns_what_changed(route, tmp_path):
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run_all(cfg, run, quiet=True)
+    first = _mtimes(run)
+    assert set(first) == {"extract.h5", "build-dictionary.h5", "index.h5", "localize.h5", "evaluate.h5"}
+    run_all(cfg, run, quiet=True)
+    assert _mtimes(run) == first  # everything up to date
+
+    # a search parameter: extract stays, localize and evaluate re-run
+    cfg2 = load_config(route / "config.yaml", ["plots=false", "seqslam.ds=5"])
+    run_all(cfg2, run, quiet=True)
+    after = _mtimes(run)
+    assert after["extract.h5"] == first["extract.h5"]
+    assert after["localize.h5"] != first["localize.h5"] and after["evaluate.h5"] != first["evaluate.h5"]
+
+    # an input image changed: everything from extract re-runs
+    img = sorted((route / "query").iterdir())[3]
+    img.write_bytes(img.read_bytes())
+    run_all(cfg2, run, quiet=True)
+    assert _mtimes(run)["extract.h5"] != after["extract.h5"]
+
+    # --force on one stage re-runs only that stage
+    before = _mtimes(run)
+    run_stage(cfg2, run, "localize", force=True, quiet=True)
+    now = _mtimes(run)
+    assert now["localize.h5"] != before["localize.h5"] and now["extract.h5"] == before["extract.h5"]
+
+    text = describe(run / "extract.h5")
+    assert "stage: extract" in text and "images.query" in text and "comparison: sad" in text
+
+
+def test_interrupted_stage_leaves_no_trusted_artifact(route, tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run_stage(cfg, run, "extract", quiet=True)
+
+    def interrupted(ctx):
+        ctx.out.create_dataset("difference", data=np.zeros(3))
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(seqslam_stages.METHOD.stages, "localize", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(cfg, run, "localize", quiet=True)
+    assert not (run / "localize.h5").exists()
+    assert not [p for p in run.iterdir() if ".tmp-" in p.name]
+    monkeypatch.undo()
+    run_stage(cfg, run, "localize", quiet=True)
+    with h5py.File(run / "localize.h5") as f:
+        assert f["difference"].shape == (80, 81)
+
+
+def test_corrupt_image_stops_with_its_path_or_is_skipped(route, tmp_path):
+    bad = route / "query" / "frame5.png"
+    bad.write_bytes(b"not a png")
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    with pytest.raises(ImageError, match="frame5.png"):
+        run_stage(cfg, tmp_path / "a", "extract", quiet=True)
+    cfg = load_config(route / "config.yaml", ["plots=false", "query.on_error=skip"])
+    run_all(cfg, tmp_path / "b", quiet=True)
+    with h5py.File(tmp_path / "b" / "extract.h5") as f:
+        assert len(f["query/features"]) == 80
+        assert 5 not in f["query/index"][()]
+        assert "frame5.png" in f["query/skipped"][0].decode()
+    # ground truth still lines up by original index: the accuracy is that of the full run
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert m["n_queries"] == 80 and m["recall_at_1"] > 0.5
+
+
+def test_loop_closure_on_a_route_driven_twice(route, tmp_path):
+    """Reference = the route then the same route again: frame i + 80 must close on frame i."""
+    both = tmp_path / "both"
+    both.mkdir()
+    frames = sorted((route / "reference").iterdir(), key=lambda p: natural_key(p.name))
+    for i, p in enumerate(frames + frames):
+        (both / f"f{i}.png").write_bytes(p.read_bytes())
+    gt = tmp_path / "gt.csv"
+    with gt.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "ref_first", "ref_last"])
+        for q in range(160):
+            if q >= 80:
+                w.writerow([q, q - 82, q - 78])
+    cfg = load_config(data={"method": "seqslam", "reference": {"images": str(both)}, "plots": False,
+                            "ground_truth": {"kind": "csv", "path": str(gt)},
+                            "seqslam": {"exclude_recent": 40}}, base_dir=tmp_path)
+    run_all(cfg, tmp_path / "lc", quiet=True)
+    with h5py.File(tmp_path / "lc" / "localize.h5") as f:
+        best = f["candidates"][:, 0]
+        assert bool(f.attrs["loop_closure"])
+    q = np.arange(160)
+    assert (best[q >= 95] == q[q >= 95] - 80).all()
+    matched = best >= 0
+    assert (best[matched] <= q[matched] - 40).all()
+
+
+def test_cli_run_end_to_end_on_data_samples(tmp_path):
+    run = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, str(ROOT / "cli.py"), "run", str(ROOT / "configs" / "demo.yaml"),
+                           "--run-dir", str(run), "--quiet"], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((run / "metrics.json").read_text())
+    for key in ("recall_at_1", "recall_at_5", "recall_at_10", "auc_pr", "recall_at_100_precision", "max_f1",
+                "n_queries", "dissimilarity_mean", "dissimilarity_count_ge1"):
+        assert key in m
+    assert m["n_queries"] == 81
+    # abs_zncc survives the night segment of the sample route (known-answer ground truth)
+    assert m["recall_at_1"] >= 0.8
+    rows = list(csv.DictReader((run / "matches.csv").open()))
+    assert len(rows) == 81 and rows[0].keys() >= {"query", "reference", "confidence"}
+    assert (run / "pr_curve.png").stat().st_size > 1000 and (run / "difference_matrix.png").stat().st_size > 1000
+    assert (run / "config.yaml").is_file()
+    again = subprocess.run([sys.executable, str(ROOT / "cli.py"), "run", str(ROOT / "configs" / "demo.yaml"),
+                            "--run-dir", str(run)], capture_output=True, text=True, cwd=ROOT)
+    assert "up to date" in again.stderr
+    bad = subprocess.run([sys.executable, str(ROOT / "cli.py"), "run", str(ROOT / "configs" / "demo.yaml"),
+                          "--run-dir", str(run), "--set", "seqslam.comparison=nope"], capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 2 and "seqslam.comparison" in bad.stderr
+    ins = subprocess.run([sys.executable, str(ROOT / "cli.py"), "inspect", str(run / "localize.h5")],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert ins.returncode == 0 and "difference" in ins.stdout and "rows = reference" in ins.stdout

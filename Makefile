@@ -6,14 +6,15 @@ BIN     = $(VENV)/bin
 PL      = $(BIN)/placeloc
 STAMP   = $(VENV)/.installed
 
-.PHONY: help venv demo test lint bench experiment-seqslam bench-seqslam clean
+.PHONY: help venv demo test lint experiment-seqslam bench-seqslam bench-seqslam-large clean
 
 help:
 	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print where results are"
 	@echo "make test               set up .venv, run the test suite"
 	@echo "make lint               ruff"
 	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
-	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark"
+	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark (3576 x 3576)"
+	@echo "make bench-seqslam-large  ... plus a 36,000 x 36,000 run (several minutes, ~10 GB disk)"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,6 +41,9 @@ experiment-seqslam: $(STAMP)
 
 bench-seqslam: $(STAMP)
 	$(BIN)/python bench/bench_seqslam.py
+
+bench-seqslam-large: $(STAMP)
+	$(BIN)/python bench/bench_seqslam.py --large
 
 clean:
 	rm -rf runs .pytest_cache

@@ -27,6 +27,7 @@ def run_experiment(name: str, out_dir: str | Path | None = None, quick: bool = F
     return module.main(out, quick=quick, quiet=quiet)
 
 
+
 def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
     """Write ``summary.json`` atomically (run name -> metrics)."""
     path = out_dir / "summary.json"

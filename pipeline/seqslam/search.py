@@ -90,7 +90,7 @@ def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=True)
 def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray,
             window: int, k: int, exclude_after: np.ndarray, best: np.ndarray, scores: np.ndarray) -> None:
     ncols, nr = et.shape

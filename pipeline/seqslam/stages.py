@@ -187,21 +187,24 @@ def localize(ctx: Any) -> None:
 
 
 def _single_image(dt: np.ndarray, window: int, exclude: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
-    """Best reference per query on raw differences, confidence as for sequences."""
-    x = dt.astype(np.float64, copy=True)
-    n, nr = x.shape
+    """Best reference per query on raw differences (``dt[q, r]``), confidence as for
+    sequences: ``1 - best / best outside +-window`` (differences are >= 0 for every
+    comparison)."""
+    n, nr = dt.shape
+    rows = np.arange(n)[:, None]
+    x = dt
     if exclude is not None:
+        x = dt.copy()
         limit = np.clip(q0 + np.arange(n) - exclude + 1, 0, nr)
         x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
     best = np.argmin(x, axis=1)
-    s1 = x[np.arange(n), best]
-    r = np.arange(nr)[None, :]
-    masked = np.where(np.abs(r - best[:, None]) <= window, np.inf, x)
-    s2 = masked.min(axis=1)
-    shift = min(0.0, float(np.nanmin(np.where(np.isfinite(x), x, np.nan)))) if np.isfinite(x).any() else 0.0
+    s1 = x[np.arange(n), best].astype(np.float64)
+    x = x.copy() if x is dt else x
+    x[rows, np.clip(best[:, None] + np.arange(-window, window + 1)[None, :], 0, nr - 1)] = np.inf
+    s2 = x.min(axis=1).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        conf = 1.0 - (s1 - shift) / (s2 - shift)
-    conf[~np.isfinite(conf)] = 0.0
+        conf = 1.0 - np.maximum(s1, 0) / s2
+    conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0
     best[~np.isfinite(s1)] = -1
     return best, np.clip(conf, 0, 1)
 

@@ -1,0 +1,194 @@
+"""SeqSLAM speed and memory: placeloc's kernels and stage against straightforward NumPy.
+
+    python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails
+    python bench/bench_seqslam.py --large    # also a 36,000 x 36,000 run through the pipeline
+
+The problem is built from nordland-dev (../shared/data, tiled with noise to 3576 frames per
+traverse) when present, else from a generated route. Naive baselines whose full run would
+take minutes are timed on a slice and scaled linearly (printed as such).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from pipeline.experiments import shared_data_dir  # noqa: E402
+from pipeline.images import list_images, read_gray  # noqa: E402
+from pipeline.seqslam.comparisons import difference_block, prepare  # noqa: E402
+from pipeline.seqslam.search import enhance_t, query_offsets, sequence_search, trajectory_offsets, velocities  # noqa: E402
+
+PARAMS = {"patch": 8, "normalisation": "minmax", "gaussian_sigma": 1.0, "ocm_epsilon": 5.0}
+
+
+def make_traverses(out: Path, n: int, seed: int = 0) -> tuple[Path, Path]:
+    """Write two traverses of ``n`` 64x32 PNGs (nordland-dev tiled with noise, or synthetic)."""
+    rng = np.random.default_rng(seed)
+    data = shared_data_dir()
+    ref_dir, q_dir = out / "reference", out / "query"
+    ref_dir.mkdir(parents=True, exist_ok=True)
+    q_dir.mkdir(parents=True, exist_ok=True)
+    if data is not None and (data / "nordland-dev").is_dir():
+        src = [[read_gray(p) for p in list_images(data / "nordland-dev" / s).paths] for s in ("summer", "winter")]
+        source = "nordland-dev tiled with noise"
+    else:
+        from pipeline.synth.route import generate
+
+        generate(out / "route", seed=seed, frames=1200, width=64, height=32)
+        src = [[read_gray(p) for p in list_images(out / "route" / s).paths] for s in ("reference", "query")]
+        source = "synthetic route tiled with noise"
+    m = min(len(src[0]), len(src[1]))
+    for i in range(n):
+        for imgs, d in ((src[0], ref_dir), (src[1], q_dir)):
+            img = imgs[i % m].astype(np.float32) + rng.normal(0, 3, imgs[0].shape)
+            cv2.imwrite(str(d / f"f{i}.png"), np.clip(img, 0, 255).astype(np.uint8))
+    print(f"data: {n} + {n} images, {source}")
+    return ref_dir, q_dir
+
+
+def naive_sad(ref: np.ndarray, q: np.ndarray) -> np.ndarray:
+    a, b = ref.astype(np.int16), q.astype(np.int16)
+    return np.stack([np.abs(b - a[i]).mean(axis=1) for i in range(len(a))]).astype(np.float32)
+
+
+def naive_enhance(d: np.ndarray, window: int) -> np.ndarray:
+    out = np.empty_like(d)
+    for r in range(d.shape[0]):
+        w = d[max(0, r - window):r + window + 1]
+        sd = w.std(axis=0)
+        out[r] = np.where(sd > 0, (d[r] - w.mean(axis=0)) / np.where(sd > 0, sd, 1), 0)
+    return out
+
+
+def naive_search(e: np.ndarray, queries: np.ndarray, ds: int, vels: np.ndarray) -> np.ndarray:
+    t = query_offsets(ds, "causal")
+    traj = trajectory_offsets(vels, t)
+    n_ref = e.shape[0]
+    best = np.full(len(queries), -1)
+    for qi, T in enumerate(queries):
+        s_best = np.full(n_ref, np.inf)
+        for o in traj:
+            r = np.arange(max(0, -o.min()), n_ref - max(0, o.max()))
+            s = e[r[:, None] + o[None, :], T + t[None, :]].sum(axis=1)
+            s_best[r] = np.minimum(s_best[r], s)
+        best[qi] = int(np.argmin(s_best))
+    return best
+
+
+def timed(fn, *a, repeat: int = 1, **k):
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn(*a, **k)
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float, float]:
+    """Run a placeloc stage in a child process; return (seconds, peak RSS of the child in GB)."""
+    code = ("import resource,sys,time; sys.path.insert(0, %r); from pipeline.config import load_config; "
+            "from pipeline.runner import run_stage; c = load_config(%r); t = time.perf_counter(); "
+            "run_stage(c, %r, %r, quiet=True); dt = time.perf_counter() - t; "
+            "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)") % (
+        str(ROOT), str(config), str(run_dir), stage)
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
+    return float(out[0]), float(out[1])
+
+
+def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store: bool = True) -> Path:
+    path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
+                                "plots": False, "seqslam": {"comparison": comparison, "store_difference": store}}))
+    return path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=3576)
+    ap.add_argument("--large", action="store_true", help="also run 36,000 x 36,000 through the pipeline")
+    ap.add_argument("--keep", type=Path, default=None, help="keep generated data here")
+    args = ap.parse_args()
+    print(f"cores: {os.cpu_count()}, numba threads: {os.environ.get('NUMBA_NUM_THREADS', 'all')}")
+    work = Path(tempfile.mkdtemp(prefix="bench-seqslam-")) if args.keep is None else args.keep
+    try:
+        n = args.n
+        ref_dir, q_dir = make_traverses(work / "data", n)
+        thumbs = [np.stack([read_gray(p) for p in list_images(d).paths]) for d in (ref_dir, q_dir)]
+        feats = {c: [np.stack([prepare(t, c, PARAMS) for t in ts]) for ts in thumbs] for c in ("sad", "zncc")}
+        difference_block(feats["sad"][0][:8], feats["sad"][1][:8], "sad")  # JIT warm-up (cached after first run)
+
+        rows = []
+        t_sad, d = timed(difference_block, *feats["sad"], "sad", repeat=2)
+        m = 256
+        t_naive_part, d_naive = timed(naive_sad, feats["sad"][0][:m], feats["sad"][1])
+        assert np.allclose(d_naive, d[:m], atol=1e-3), "naive and fast SAD disagree"
+        t_naive_sad = t_naive_part * n / m
+        rows.append(("difference matrix, sad", t_sad, t_naive_sad, f"naive timed on {m} rows, scaled"))
+        t_zncc, _ = timed(difference_block, *feats["zncc"], "zncc", repeat=2)
+        rows.append(("difference matrix, zncc", t_zncc, None, "BLAS"))
+
+        dt = np.ascontiguousarray(d.T)
+        enhance_t(dt[:4], 10)
+        t_enh, et = timed(enhance_t, dt, 10, repeat=2)
+        t_naive_enh, e_naive = timed(naive_enhance, d, 10)
+        from pipeline.seqslam.search import enhancement_shift
+
+        assert np.allclose(e_naive + enhancement_shift(10), et.T, atol=1e-3), "naive and fast enhancement disagree"
+        rows.append(("contrast enhancement", t_enh, t_naive_enh, ""))
+
+        vels = velocities(0.8, 1.2, 0.1)
+        sequence_search(et[:50], 20, 30, 10, vels, "causal", 10)
+        t_search, (best, _) = timed(sequence_search, et, 0, n, 10, vels, "causal", 10, repeat=2)
+        qs = np.arange(10, 10 + 200)
+        t_ns_part, best_naive = timed(naive_search, et.T, qs, 10, vels)
+        agree = float((best_naive == best[qs, 0]).mean())
+        rows.append(("sequence search (ds=10, 5 velocities)", t_search, t_ns_part * n / len(qs),
+                     f"naive timed on {len(qs)} queries, scaled; argmin agreement {agree:.3f}"))
+
+        cfg = write_config(work / "bench.yaml", ref_dir, q_dir)
+        t_extract, _ = run_stage_subprocess(cfg, work / "run", "extract")
+        t_localize, rss = run_stage_subprocess(cfg, work / "run", "localize")
+        total_naive = t_naive_sad + t_naive_enh + rows[-1][2]
+        rows.append(("whole localize stage (sad, store D in HDF5)", t_localize, total_naive, f"child peak RSS {rss:.2f} GB"))
+        rows.append(("extract stage (read + thumbnails + features)", t_extract, None, ""))
+
+        print(f"\nSeqSLAM {n} x {n}, 64x32 thumbnails")
+        print(f"{'what':48s} {'placeloc s':>11s} {'naive s':>10s} {'speed-up':>9s}  note")
+        for name, t, tn, note in rows:
+            ratio = f"{tn / t:8.1f}x" if tn else "        -"
+            tn_s = f"{tn:10.2f}" if tn else "         -"
+            print(f"{name:48s} {t:11.3f} {tn_s} {ratio}  {note}")
+        print(f"target: whole localize stage < 3 s -> {'met' if t_localize < 3 else 'NOT met'} ({t_localize:.2f} s)")
+
+        if args.large:
+            big = 36000
+            shutil.rmtree(work / "data", ignore_errors=True)
+            ref_dir, q_dir = make_traverses(work / "data-large", big)
+            cfg = write_config(work / "large.yaml", ref_dir, q_dir)
+            t_ex, rss_ex = run_stage_subprocess(cfg, work / "run-large", "extract")
+            t_lo, rss_lo = run_stage_subprocess(cfg, work / "run-large", "localize")
+            size = (work / "run-large" / "localize.h5").stat().st_size / 1e9
+            print(f"\nSeqSLAM {big} x {big}: extract {t_ex:.1f} s (peak {rss_ex:.2f} GB), "
+                  f"localize {t_lo:.1f} s (peak {rss_lo:.2f} GB), localize.h5 {size:.1f} GB")
+            print(f"target: peak memory < 6 GB -> {'met' if max(rss_ex, rss_lo) < 6 else 'NOT met'}")
+    finally:
+        if args.keep is None:
+            shutil.rmtree(work, ignore_errors=True)
+    print(f"bench process peak RSS: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576:.2f} GB")
+
+
+if __name__ == "__main__":
+    main()

@@ -186,6 +186,9 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
                 ax, ay = walls[idx, 0], walls[idx, 1]
                 s = wall_s0[idx] + math.hypot(qx - ax, qy - ay)
                 col = 0.66 + 0.16 * (_noise(s, qz, 0.012, 7) - 0.5) + 0.10 * (_noise(s, qz, 0.2, 8) - 0.5)
+                # walls along x are lit more than walls along y, so corners show as edges
+                wl = math.hypot(walls[idx, 2] - ax, walls[idx, 3] - ay)
+                col *= 0.72 + 0.28 * abs(walls[idx, 2] - ax) / max(wl, 1e-9)
                 if qz < 0.1:
                     col = 0.3 + 0.05 * _noise(s, qz, 0.02, 9)
                 for k in range(doors.shape[0]):
@@ -200,7 +203,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
                         if _noise(s, qz, 0.15, sd + 1) > 0.6:
                             col = 0.95 - 0.5 * _noise(s, qz, 0.02, sd + 2)
             elif kind == 4:
-                col = 0.35 + 0.25 * boxes[k, 6] + 0.1 * _noise(qx + qy, qz, 0.04, 13)
+                col = 0.35 + 0.25 * boxes[idx, 6] + 0.1 * _noise(qx + qy, qz, 0.04, 13)
                 if abs(qz - boxes[idx, 5]) < 1e-3:
                     col = 0.55 + 0.25 * boxes[idx, 6]
             # distance fall-off of the light
@@ -227,7 +230,7 @@ def _scene(plan: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarr
             a, e = np.array([ax, ay]), np.array([bx - ax, by - ay])
             L = np.hypot(*e)
             sp, sq = (p - a) @ e / L, (q - a) @ e / L
-            off = abs(np.cross(e / L, p - a))
+            off = abs(e[0] * (p - a)[1] - e[1] * (p - a)[0]) / L
             if off < 1e-6 and -1e-6 <= min(sp, sq) and max(sp, sq) <= L + 1e-6:
                 doors.append([w, wall_s0[w] + min(sp, sq), wall_s0[w] + max(sp, sq), d["height"]])
     posters = []

@@ -45,7 +45,7 @@ DEFAULTS: dict[str, Any] = {
     "near_m": 0.05,
     "hidden_lines": True,
     "block": 2048,
-    "tolerance_px": 1,
+    "tolerance_px": 2,
     "query_kind": "pinhole",
     "lsd_min_length_px": 6.0,
     "query_thickness_px": 1,

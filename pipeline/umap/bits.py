@@ -46,15 +46,23 @@ def _popcount64(x: np.uint64) -> np.uint64:
 
 
 @njit(parallel=True, cache=True)
-def _and_count_sparse(db: np.ndarray, q: np.ndarray, cols: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
-    # Only the query's non-zero words can contribute to the AND, so only those are read.
+def _and_count_rows(db: np.ndarray, q: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
+    # Contiguous inner loop over a row's words: LLVM vectorizes AND + popcount.
     for r in prange(rows.shape[0]):
         i = rows[r]
         s = np.uint64(0)
-        for k in range(cols.shape[0]):
-            j = cols[k]
+        for j in range(q.shape[0]):
             s += _popcount64(db[i, j] & q[j])
         out[r] = s
+
+
+@njit(parallel=True, cache=True)
+def _and_count_all(db: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
+    for i in prange(db.shape[0]):
+        s = np.uint64(0)
+        for j in range(q.shape[0]):
+            s += _popcount64(db[i, j] & q[j])
+        out[i] = s
 
 
 @njit(parallel=True, cache=True)
@@ -73,11 +81,14 @@ def and_count(db: np.ndarray, query: np.ndarray, rows: np.ndarray | None = None)
     q = np.ascontiguousarray(query, dtype=np.uint64)
     if db.shape[1] != q.shape[0]:
         raise ValueError(f"query has {q.shape[0]} words but the database {db.shape[1]}: the line images differ in size")
-    rows = np.arange(db.shape[0], dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
-    cols = np.flatnonzero(q).astype(np.int64)
+    if rows is None:
+        out = np.zeros(db.shape[0], dtype=np.int64)
+        _and_count_all(db, q, out)
+        return out
+    rows = np.asarray(rows, dtype=np.int64)
     out = np.zeros(rows.shape[0], dtype=np.int64)
-    if cols.size and rows.size:
-        _and_count_sparse(db, q, cols, rows, out)
+    if rows.size:
+        _and_count_rows(db, q, rows, out)
     return out
 
 

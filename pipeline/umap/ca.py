@@ -1,0 +1,103 @@
+"""Consistency Adjustment (sec. 4 of the paper): how far did the camera move between two
+consecutive frames, from AKAZE matches, a majority vote and the laser distance to the wall?"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+
+def akaze_create(threshold: float = 0.001) -> cv2.Feature2D:
+    """AKAZE lives in ``cv2.xfeatures2d`` in OpenCV 5 and in ``cv2`` in 4.x."""
+    if hasattr(cv2, "AKAZE_create"):
+        return cv2.AKAZE_create(threshold=threshold)
+    return cv2.xfeatures2d.AKAZE_create(threshold=threshold)
+
+
+def akaze(gray: np.ndarray, threshold: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
+    """Keypoint positions (N, 2) float32 and binary descriptors (N, 61) uint8."""
+    kps, desc = akaze_create(threshold).detectAndCompute(gray, None)
+    pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
+    if desc is None:
+        desc = np.zeros((0, 61), dtype=np.uint8)
+    return pts, desc
+
+
+def match(desc_a: np.ndarray, desc_b: np.ndarray) -> np.ndarray:
+    """Brute-force Hamming matching with cross check: (M, 2) index pairs (a, b)."""
+    if len(desc_a) == 0 or len(desc_b) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    ms = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(desc_a, desc_b)
+    return np.array([[m.queryIdx, m.trainIdx] for m in ms], dtype=np.int64).reshape(-1, 2)
+
+
+def majority_vote(disp: np.ndarray, bin_px: float = 8.0) -> np.ndarray:
+    """Keep the largest group of matches that move the same way.
+
+    ``disp`` (M, 2) displacement vectors. They are binned on a ``bin_px`` grid; the most
+    populated bin's median vector is the consensus, and every match within ``bin_px`` of it
+    (on both axes) is kept, so a group split by a bin border is not cut in half.
+    Returns a boolean mask over the matches.
+    """
+    disp = np.asarray(disp, dtype=np.float64).reshape(-1, 2)
+    if len(disp) == 0:
+        return np.zeros(0, dtype=bool)
+    cells = np.floor(disp / bin_px).astype(np.int64)
+    uniq, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    best = np.argmax(counts)
+    centre = np.median(disp[inverse.ravel() == best], axis=0)
+    return np.all(np.abs(disp - centre) <= bin_px, axis=1)
+
+
+def effective_phi(hfov_deg: float) -> float:
+    """The phi for eq. (2) under which it is exact pinhole geometry for a camera of horizontal
+    field of view ``hfov_deg``: |n| tan(phi) / width = |n| / f  <=>  tan(phi) = 2 tan(hfov / 2).
+    (Eq. (2) as printed with phi = the full field of view would overstate the angle.)"""
+    return math.degrees(math.atan(2.0 * math.tan(math.radians(hfov_deg) / 2.0)))
+
+
+def moved_distance_paper(n: float, d: float, theta_deg: float, phi_deg: float, width: int) -> float:
+    """Eqs. (2)-(3) as printed:
+
+        omega = 90 - arctan(|n| tan(phi) / width)
+        m     = d tan(theta + 90 - omega) - d tan(theta)
+
+    ``n`` the horizontal shift of the matched-feature centroid (pixels), ``d`` the laser
+    distance to the wall, ``theta`` the camera angle to the wall normal, ``phi`` the angle
+    of view, ``width`` the image width (pixels). Angles in degrees.
+    """
+    omega = 90.0 - math.degrees(math.atan(abs(n) * math.tan(math.radians(phi_deg)) / width))
+    return d * math.tan(math.radians(theta_deg + 90.0 - omega)) - d * math.tan(math.radians(theta_deg))
+
+
+def moved_distance_exact(u_a: float, u_b: float, d: float, theta_deg: float, focal: float, cx: float, wall_right: bool = True) -> float:
+    """The same wall geometry without assuming the centroid starts at the image centre:
+    a wall point seen at horizontal angle beta from the optical axis lies at
+    d tan(theta -/+ beta) along the wall, so the camera moved by the difference of the two.
+    ``wall_right``: the wall is on the image's right side (beta towards it lowers the angle)."""
+    sgn = -1.0 if wall_right else 1.0
+    ba = math.atan((u_a - cx) / focal)
+    bb = math.atan((u_b - cx) / focal)
+    th = math.radians(theta_deg)
+    lim = math.radians(89.0)  # a point at the wall normal +-90 deg is at infinity
+    a = min(max(th + sgn * ba, -lim), lim)
+    b = min(max(th + sgn * bb, -lim), lim)
+    return abs(d * math.tan(b) - d * math.tan(a))
+
+
+def centroid_shift(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray,
+                   bin_px: float = 8.0, min_matches: int = 8) -> tuple[float, float, float, int] | None:
+    """Match, vote, and return (n_N, centroid u in a, centroid u in b, kept matches), or None
+    when fewer than ``min_matches`` survive the vote."""
+    m = match(desc_a, desc_b)
+    if len(m) < min_matches:
+        return None
+    pa, pb = pts_a[m[:, 0]], pts_b[m[:, 1]]
+    keep = majority_vote(pb - pa, bin_px)
+    if keep.sum() < min_matches:
+        return None
+    ua = float(pa[keep, 0].mean())
+    ub = float(pb[keep, 0].mean())
+    return ub - ua, ua, ub, int(keep.sum())

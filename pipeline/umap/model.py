@@ -1,0 +1,170 @@
+"""The pre-map: a 3-D wireframe (line segments) and optional wall faces, read from a
+wireframe file (YAML/JSON/OBJ) or built from a floor plan (YAML).
+
+Wireframe YAML/JSON: either a list of segments ``[x0, y0, z0, x1, y1, z1]`` or a mapping
+``{segments: [...], faces: [[x0, y0, x1, y1, z0, z1], ...]}``. OBJ: ``v x y z`` vertices
+and ``l i j [k ...]`` polylines (1-based, negative indices relative); other records ignored.
+
+Floor plan YAML (``outline`` key present)::
+
+    floor_z: 0.0
+    ceiling_z: 2.6
+    outline: [[x, y], ...]           # free-space boundary, walls along its edges
+    obstacles: [[[x, y], ...], ...]  # pillars / blocks inside (walls along their edges)
+    doors: [{from: [x, y], to: [x, y], height: 2.0}, ...]   # door frames on a wall
+
+From it we build floor and ceiling edges, wall corners (verticals at every vertex) and
+door frames (two jambs and a lintel), and one vertical wall face per polygon edge.
+
+Faces are vertical rectangles ``[x0, y0, x1, y1, z0, z1]`` (a wall from (x0, y0) to
+(x1, y1), from height z0 to z1). That is what a floor plan gives, and it lets hidden-line
+removal run as a cheap 2-D ray/segment test plus a height check. Floor and ceiling never
+hide anything from a camera inside the storey, so they need no faces.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+
+class ModelError(ValueError):
+    """The model file cannot be used; the message names the file and the fix."""
+
+
+@dataclass
+class Model:
+    segments: np.ndarray            # (N, 6) float64 x0 y0 z0 x1 y1 z1
+    faces: np.ndarray               # (F, 6) float64 x0 y0 x1 y1 z0 z1
+    polygons: list[np.ndarray] = field(default_factory=list)  # plan outlines, for plots and grid filtering
+    source: str = ""
+
+    def inside(self, xy: np.ndarray) -> np.ndarray:
+        """True for plan points inside the outline and outside every obstacle (no polygons: all True)."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        if not self.polygons:
+            return np.ones(len(xy), dtype=bool)
+        ok = point_in_polygon(xy, self.polygons[0])
+        for poly in self.polygons[1:]:
+            ok &= ~point_in_polygon(xy, poly)
+        return ok
+
+
+def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule, vectorized over points."""
+    x, y = xy[:, 0][:, None], xy[:, 1][:, None]
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    cond = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
+
+
+def load_model(path: str | Path) -> Model:
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found; set umap.model to a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    text = path.read_text()
+    if path.suffix.lower() == ".obj":
+        return _load_obj(path, text)
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
+    if isinstance(data, dict) and "outline" in data:
+        return floor_plan_model(data, str(path))
+    if isinstance(data, list):
+        data = {"segments": data}
+    if not isinstance(data, dict) or "segments" not in data:
+        raise ModelError(f"{path}: expected a list of segments [x0, y0, z0, x1, y1, z1], a mapping with 'segments', "
+                         "or a floor plan with 'outline'")
+    segs = _rows(data["segments"], 6, path, "segments", "[x0, y0, z0, x1, y1, z1]")
+    faces = _rows(data.get("faces") or [], 6, path, "faces", "[x0, y0, x1, y1, z0, z1]")
+    return Model(segs, faces, source=str(path))
+
+
+def _rows(items: Any, n: int, path: Path, key: str, form: str) -> np.ndarray:
+    if not isinstance(items, list):
+        raise ModelError(f"{path}: '{key}' must be a list of {form}")
+    out = np.zeros((len(items), n))
+    for i, row in enumerate(items):
+        ok = isinstance(row, (list, tuple)) and len(row) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        if not ok:
+            raise ModelError(f"{path}: {key}[{i}] = {row!r} is malformed; each entry must be {form} (numbers, metres)")
+        out[i] = row
+    if not np.isfinite(out).all():
+        raise ModelError(f"{path}: {key} contains NaN or infinite coordinates; fix the file")
+    if key == "segments" and len(out) == 0:
+        raise ModelError(f"{path}: the model has no segments; a wireframe needs at least one line")
+    return out
+
+
+def _load_obj(path: Path, text: str) -> Model:
+    verts: list[list[float]] = []
+    segs: list[list[float]] = []
+    for ln, line in enumerate(text.splitlines(), 1):
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        try:
+            if parts[0] == "v":
+                verts.append([float(v) for v in parts[1:4]])
+                if len(verts[-1]) != 3:
+                    raise ValueError("needs x y z")
+            elif parts[0] == "l":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                if len(idx) < 2:
+                    raise ValueError("a line needs at least two vertices")
+                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                for a, b in zip(idx[:-1], idx[1:]):
+                    if not (0 <= a < len(verts) and 0 <= b < len(verts)):
+                        raise ValueError(f"vertex index out of range (have {len(verts)} vertices)")
+                    segs.append(verts[a] + verts[b])
+        except ValueError as exc:
+            raise ModelError(f"{path}:{ln}: malformed OBJ record {line.strip()!r} ({exc}); fix or remove that line") from exc
+    if not segs:
+        raise ModelError(f"{path}: no 'l' (line) elements found; the OBJ wireframe needs line segments")
+    return Model(np.asarray(segs, float), np.zeros((0, 6)), source=str(path))
+
+
+def _poly(pts: Any, path: str, key: str) -> np.ndarray:
+    arr = np.asarray(pts, dtype=float) if isinstance(pts, list) else None
+    if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3:
+        raise ModelError(f"{path}: {key} must be a list of at least three [x, y] points")
+    return arr
+
+
+def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
+    """Build the wireframe and wall faces of a floor plan (see the module docstring)."""
+    try:
+        zf = float(plan.get("floor_z", 0.0))
+        zc = float(plan["ceiling_z"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{source}: floor plan needs numeric floor_z and ceiling_z ({exc})") from exc
+    if zc <= zf:
+        raise ModelError(f"{source}: ceiling_z {zc} must be above floor_z {zf}")
+    polys = [_poly(plan["outline"], source, "outline")]
+    polys += [_poly(p, source, f"obstacles[{i}]") for i, p in enumerate(plan.get("obstacles") or [])]
+    segs, faces = [], []
+    for poly in polys:
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            segs.append([a[0], a[1], zf, b[0], b[1], zf])
+            segs.append([a[0], a[1], zc, b[0], b[1], zc])
+            segs.append([a[0], a[1], zf, a[0], a[1], zc])
+            faces.append([a[0], a[1], b[0], b[1], zf, zc])
+    for i, door in enumerate(plan.get("doors") or []):
+        try:
+            p, q = np.asarray(door["from"], float), np.asarray(door["to"], float)
+            h = float(door.get("height", 2.0))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"{source}: doors[{i}] needs from: [x, y], to: [x, y] and a numeric height ({exc})") from exc
+        segs.append([p[0], p[1], zf, p[0], p[1], zf + h])
+        segs.append([q[0], q[1], zf, q[0], q[1], zf + h])
+        segs.append([p[0], p[1], zf + h, q[0], q[1], zf + h])
+    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source)

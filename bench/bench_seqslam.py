@@ -100,11 +100,10 @@ def timed(fn, *a, repeat: int = 1, **k):
 
 def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float, float]:
     """Run a placeloc stage in a child process; return (seconds, peak RSS of the child in GB)."""
-    code = ("import resource,sys,time; sys.path.insert(0, %r); from pipeline.config import load_config; "
-            "from pipeline.runner import run_stage; c = load_config(%r); t = time.perf_counter(); "
-            "run_stage(c, %r, %r, quiet=True); dt = time.perf_counter() - t; "
-            "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)") % (
-        str(ROOT), str(config), str(run_dir), stage)
+    code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from pipeline.config import load_config; "
+            f"from pipeline.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
+            f"run_stage(c, {str(run_dir)!r}, {stage!r}, quiet=True); dt = time.perf_counter() - t; "
+            "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
     return float(out[0]), float(out[1])
 

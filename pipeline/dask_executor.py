@@ -30,6 +30,10 @@ class DaskExecutor(Executor):
         self.retries = max(0, int(section.get("retries", 2)))
         self.scheduler = str(section.get("scheduler") or "local-cluster")
         self._cluster: LocalCluster | None = None
+        # Dask's INFO chatter (nanny/scheduler lifecycle, set by its own config) would drown
+        # placeloc's log in this process; keep its warnings and errors.
+        dask_log = logging.getLogger("distributed")
+        dask_log.setLevel(max(dask_log.getEffectiveLevel(), logging.WARNING))
         if self.scheduler == "local-cluster":
             # Loopback only, no dashboard (bokeh is not a dependency), quiet worker logs.
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,

@@ -4,19 +4,56 @@ Stages call :func:`make_executor` with the ``executor:`` config section and then
 ``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
 reference) and its results small enough to send back; the calling process alone writes
 artifacts. ``workers: 1`` runs in-process, which is also what tests use by default.
+
+Large read-only inputs every item needs (e.g. the reference feature matrix) go in
+``shared``: ``executor.map(fn, items, shared=x)`` calls ``fn(item, x)``. Each executor
+ships ``shared`` to its workers once per ``map`` (inline: by reference; local: a
+memory-mapped ``.npy`` file per array; dask: ``client.scatter(..., broadcast=True)``)
+instead of once per task. ``describe(item)`` names an item in the error raised when it
+fails for good.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import shutil
+import tempfile
+from collections import deque
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+Describe = Callable[[Any], str]
+
+
+class WorkItemError(RuntimeError):
+    """A work item failed in a worker (after the executor's retries); the message names it."""
+
+    def __init__(self, kind: str, fn: Callable, description: str, exc: BaseException, retries: int = 0) -> None:
+        tries = f" after {retries} retr{'y' if retries == 1 else 'ies'}" if retries else ""
+        super().__init__(f"{kind} executor: {getattr(fn, '__name__', fn)} failed on {description}{tries}: "
+                         f"{type(exc).__name__}: {exc}")
+        self.description = description
+        self.original = exc
+
+
+def describe_item(item: Any, limit: int = 160) -> str:
+    """Default readable name of a work item: a chunk of paths as first .. last, else a short repr."""
+    head = item[0] if isinstance(item, tuple) and item else item
+    if isinstance(head, (list, tuple)) and head and all(isinstance(p, (str, Path)) for p in head):
+        return f"chunk of {len(head)} item(s) {head[0]} .. {head[-1]}"
+    text = repr(item)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 class Executor:
     kind = "base"
 
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+    def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
+            describe: Describe | None = None) -> Iterator[Any]:
+        """Yield ``fn(item)`` (or ``fn(item, shared)`` when ``shared`` is given) in item order."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -30,11 +67,53 @@ class Executor:
 
 
 class InlineExecutor(Executor):
+    """In-process: no copies, no serialisation; exceptions propagate unchanged (with a note)."""
+
     kind = "inline"
 
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+    def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
+            describe: Describe | None = None) -> Iterator[Any]:
         for item in items:
-            yield fn(item)
+            try:
+                yield fn(item) if shared is None else fn(item, shared)
+            except Exception as exc:
+                exc.add_note(f"while running {getattr(fn, '__name__', fn)} on {(describe or describe_item)(item)}")
+                raise
+
+
+# --- shared arrays for the process pool: memory-mapped .npy files, loaded once per worker ---
+_WORKER_SHARED: dict[str, Any] = {}
+
+
+def _pack_shared(shared: Any, folder: Path) -> Any:
+    """Replace arrays (top level or values of a dict) by the path of a .npy file holding them."""
+    def one(name: str, value: Any) -> Any:
+        if isinstance(value, np.ndarray) and value.dtype != object:
+            path = folder / f"{name}.npy"
+            np.save(path, value, allow_pickle=False)
+            return ("__npy__", str(path))
+        return value
+
+    if isinstance(shared, dict):
+        return {k: one(f"v{i}", v) for i, (k, v) in enumerate(shared.items())}
+    return one("shared", shared)
+
+
+def _unpack_shared(handle: Any, token: str) -> Any:
+    if token not in _WORKER_SHARED:
+        def one(v: Any) -> Any:
+            if isinstance(v, tuple) and len(v) == 2 and v[0] == "__npy__":
+                # np.asarray drops the memmap subclass (numba wants plain arrays); pages are shared via the OS cache.
+                return np.asarray(np.load(v[1], mmap_mode="r", allow_pickle=False))
+            return v
+
+        _WORKER_SHARED.clear()  # one map at a time per run: keep only the current shared input
+        _WORKER_SHARED[token] = {k: one(v) for k, v in handle.items()} if isinstance(handle, dict) else one(handle)
+    return _WORKER_SHARED[token]
+
+
+def _call_with_shared(fn: Callable[..., Any], item: Any, handle: Any, token: str) -> Any:
+    return fn(item, _unpack_shared(handle, token))
 
 
 class LocalExecutor(Executor):
@@ -46,18 +125,40 @@ class LocalExecutor(Executor):
         self.workers = workers
         self._pool: ProcessPoolExecutor | None = None
 
-    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+    def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
+            describe: Describe | None = None) -> Iterator[Any]:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+        tmp = None
+        if shared is not None:
+            tmp = Path(tempfile.mkdtemp(prefix="placeloc-shared-"))
+            handle, token = _pack_shared(shared, tmp), tmp.name
+
+            def submit(item: Any) -> Any:
+                return self._pool.submit(_call_with_shared, fn, item, handle, token)
+        else:
+            def submit(item: Any) -> Any:
+                return self._pool.submit(fn, item)
         # Bounded look-ahead keeps memory flat however many items there are.
-        items = iter(items)
-        window = []
-        for item in items:
-            window.append(self._pool.submit(fn, item))
-            if len(window) >= 2 * self.workers:
-                yield window.pop(0).result()
-        for fut in window:
-            yield fut.result()
+        window: deque = deque()
+        try:
+            for item in items:
+                window.append((item, submit(item)))
+                if len(window) >= 2 * self.workers:
+                    yield self._result(fn, *window.popleft(), describe)
+            while window:
+                yield self._result(fn, *window.popleft(), describe)
+        finally:
+            for _, fut in window:
+                fut.cancel()
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    def _result(self, fn: Callable, item: Any, fut: Any, describe: Describe | None) -> Any:
+        try:
+            return fut.result()
+        except Exception as exc:
+            raise WorkItemError(self.kind, fn, (describe or describe_item)(item), exc) from exc
 
     def close(self) -> None:
         if self._pool is not None:

@@ -158,11 +158,14 @@ def localize(ctx: Any) -> None:
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
 
-    starts = range(0, n_q, block)
-    for c0 in ctx.progress(starts, total=len(starts), desc="localize blocks"):
-        c1 = min(n_q, c0 + block)
-        lo, hi = max(0, c0 - before), min(n_q, c1 + after)
-        d = difference_block(ref, query[lo:hi], p["comparison"])  # (n_ref, hi - lo)
+    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
+    # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
+    # enhancement, search and writing stay here, in order.
+    jobs = ((span, query[span[2]:span[3]], p["comparison"]) for span in spans)
+    blocks = ctx.executor.map(difference_job, jobs, shared=ref,
+                              describe=lambda job: f"difference block, query columns {job[0][2]}:{job[0][3]}")
+    # blocks first in zip: its exhaustion runs the executor's clean-up (release the shared input).
+    for d, (c0, c1, lo, _hi) in ctx.progress(zip(blocks, spans), total=len(spans), desc="localize blocks"):
         if d_ds is not None:
             d_ds[:, c0:c1] = d[:, c0 - lo:c1 - lo]
         dt = np.ascontiguousarray(d.T)
@@ -184,6 +187,12 @@ def localize(ctx: Any) -> None:
     out.attrs["loop_closure"] = loop_closure
     out.attrs["velocities"] = vels
     _write_matches_csv(ctx, ex, candidates[:, 0], conf, loop_closure)
+
+
+def difference_job(job: tuple[tuple[int, int, int, int], np.ndarray, str], ref: np.ndarray) -> np.ndarray:
+    """One difference-matrix block (runs in a worker), (n_ref, hi - lo); ``ref`` is shared."""
+    _, query_block, comparison = job
+    return difference_block(ref, query_block, comparison)
 
 
 def _single_image(dt: np.ndarray, window: int, exclude: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,93 @@
+"""The ``executor: dask`` backend: the same ``map`` contract over a ``dask.distributed`` cluster.
+
+``scheduler: local-cluster`` starts a :class:`distributed.LocalCluster` of ``workers``
+single-threaded processes (closed again by :meth:`DaskExecutor.close`);
+``scheduler: tcp://host:port`` connects to a running ``dask scheduler``. Workers must be
+able to import ``pipeline`` and read the image paths the config names (shared filesystem).
+
+Failed tasks are retried by Dask itself (``retries``); a task on a worker that dies is
+rescheduled by the scheduler. A task that still fails raises :class:`WorkItemError`
+naming the item. Importing this module needs the optional extra ``placeloc[dask]``.
+"""
+
+from __future__ import annotations
+
+import logging
+import uuid
+from collections import deque
+from typing import Any, Callable, Iterable, Iterator
+
+from distributed import Client, LocalCluster
+
+from pipeline.executor import Describe, Executor, WorkItemError, describe_item
+
+
+class DaskExecutor(Executor):
+    kind = "dask"
+
+    def __init__(self, section: dict[str, Any]) -> None:
+        self.workers = max(1, int(section.get("workers", 1)))
+        self.retries = max(0, int(section.get("retries", 2)))
+        self.scheduler = str(section.get("scheduler") or "local-cluster")
+        self._cluster: LocalCluster | None = None
+        # Dask's INFO chatter (nanny/scheduler lifecycle, set by its own config) would drown
+        # placeloc's log in this process; keep its warnings and errors.
+        dask_log = logging.getLogger("distributed")
+        dask_log.setLevel(max(dask_log.getEffectiveLevel(), logging.WARNING))
+        if self.scheduler == "local-cluster":
+            # Loopback only, no dashboard (bokeh is not a dependency), quiet worker logs.
+            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                         host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
+            self.client = Client(self._cluster)
+        elif self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
+            self.client = Client(self.scheduler, timeout="30s")
+        else:
+            raise ValueError(f"executor.scheduler: {self.scheduler!r} is neither local-cluster nor an address "
+                             "like tcp://host:8786")
+
+    def _window(self) -> int:
+        # Two tasks per worker thread keep every worker busy while bounding memory on both sides.
+        threads = sum(self.client.nthreads().values()) or self.workers
+        return max(2, 2 * threads)
+
+    def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
+            describe: Describe | None = None) -> Iterator[Any]:
+        describe = describe or describe_item
+        tag = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex[:8]}"
+        extra: tuple = ()
+        if shared is not None:
+            # One copy per worker up front; tasks then reference it by key. Wrapped in a list so
+            # a dict is scattered as one object, not one future per value.
+            extra = (self.client.scatter([shared], broadcast=True, hash=False)[0],)
+        window: deque = deque()
+        limit = self._window()
+        try:
+            for i, item in enumerate(items):
+                fut = self.client.submit(fn, item, *extra, key=f"{tag}-{i}", retries=self.retries, pure=False)
+                window.append((item, fut))
+                if len(window) >= limit:
+                    yield self._result(fn, *window.popleft(), describe)
+            while window:
+                yield self._result(fn, *window.popleft(), describe)
+        finally:
+            for _, fut in window:
+                fut.cancel()
+            window.clear()
+            for fut in extra:
+                fut.release()
+
+    def _result(self, fn: Callable, item: Any, fut: Any, describe: Describe) -> Any:
+        try:
+            return fut.result()
+        except Exception as exc:  # the task's own exception, or KilledWorker after repeated worker deaths
+            raise WorkItemError(self.kind, fn, describe(item), exc, self.retries) from exc
+        finally:
+            fut.release()  # drop the result from the cluster as soon as we hold it
+
+    def close(self) -> None:
+        try:
+            self.client.close()
+        finally:
+            if self._cluster is not None:
+                self._cluster.close()
+                self._cluster = None

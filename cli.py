@@ -42,6 +42,7 @@ def _fail(exc: Exception) -> None:
 def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | None, force: bool,
            quiet: bool, all_stages: bool = False) -> None:
     from pipeline.config import ConfigError, load_config
+    from pipeline.executor import WorkItemError
     from pipeline.images import ImageError
     from pipeline.runner import StageError, run_stage
 
@@ -50,7 +51,7 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
         cfg = load_config(config, sets)
         out = run_dir or Path("runs") / config.stem
         path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages)
-    except (ConfigError, ImageError, StageError, FileNotFoundError, KeyError) as exc:
+    except (ConfigError, ImageError, StageError, WorkItemError, FileNotFoundError, KeyError, RuntimeError) as exc:
         _fail(exc)
     typer.echo(f"{stage}: {path}")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
@@ -146,9 +147,8 @@ def compare(config: Path = ConfigArg,
             methods: str = typer.Option("sad,histeq,zncc,abs_zncc,isc,isc_ext,ocm,ocm_ext", help="Comma-separated SeqSLAM comparisons."),
             run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt, quiet: bool = QuietOpt) -> None:
     """Run several SeqSLAM image comparisons on one data set; write a table and one PR plot."""
-    from pipeline.seqslam.compare import compare_methods
-
     from pipeline.config import ConfigError, load_config
+    from pipeline.seqslam.compare import compare_methods
 
     _setup_logging(quiet)
     try:

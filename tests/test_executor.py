@@ -81,7 +81,7 @@ def test_failures_name_the_item():
 
 def test_corrupt_image_in_a_worker_names_the_image(route, tmp_path):
     (route / "query" / "frame5.png").write_bytes(b"not a png")
-    cfg = load_config(route / "config.yaml", ["plots=false", "executor.workers=2"])
+    cfg = load_config(route / "config.yaml", ["plots=false", "executor.workers=2", "seqslam.images_per_task=64"])
     with pytest.raises(WorkItemError, match=r"extract_chunk failed on chunk of 64 item\(s\) .*frame0.png .. .*frame63.png.*frame5.png"):
         run_stage(cfg, tmp_path / "run", "extract", quiet=True)
 

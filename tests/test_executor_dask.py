@@ -34,7 +34,9 @@ def inline(tmp_path_factory):
 
 
 def dask_args(cluster) -> list[str]:
-    return ["executor.kind=dask", "executor.workers=2", f"executor.scheduler={cluster.scheduler_address}"]
+    # 16 images per task: several tasks per map, so a worker can die mid-map
+    return ["executor.kind=dask", "executor.workers=2", f"executor.scheduler={cluster.scheduler_address}",
+            "seqslam.images_per_task=16"]
 
 
 def count_and_fail(item: int, log: str) -> int:

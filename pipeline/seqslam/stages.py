@@ -46,6 +46,7 @@ DEFAULTS: dict[str, Any] = {
     "search": "causal",  # causal (paper) or centred (OpenSeqSLAM)
     "exclude_recent": 50,  # loop closure only: ignore the last N frames of the same traverse
     "top_k": 10,  # candidates kept per query (Recall@K)
+    "images_per_task": 256,  # images per extraction task (bigger amortises process/Dask overhead)
     "block_size": 1024,  # query columns per difference-matrix block (bounds memory)
     "store_difference": True,  # keep D in localize.h5 (needed for the dissimilarity ratio and plot)
 }
@@ -100,25 +101,35 @@ def extract_chunk(job: tuple[list[str], dict[str, Any], str]) -> tuple[np.ndarra
 
 
 def extract(ctx: Any) -> None:
+    """Features of every image, appended chunk by chunk to resizable datasets, so the
+    writing process holds one chunk at a time however long the traverse is."""
     params = ctx.params
-    chunk = 64
+    chunk = int(params["images_per_task"])
+    w, h = params["thumbnail"]
     for role, images in ctx.images.items():
         paths = [str(p) for p in images.paths]
         jobs = [(paths[i:i + chunk], params, images.on_error) for i in range(0, len(paths), chunk)]
-        feats, thumbs, index, skipped = [], [], [], []
+        g = ctx.out.create_group(role)
+        thumbs = g.create_dataset("thumbnails", shape=(0, h, w), maxshape=(None, h, w), dtype=np.uint8,
+                                  chunks=(min(1024, max(1, len(paths))), h, w), compression="gzip", compression_opts=1)
+        features = None
+        index: list[int] = []
+        skipped: list[str] = []
         bar = ctx.progress(ctx.executor.map(extract_chunk, jobs), total=len(jobs), desc=f"extract {role}")
         for c, (f, t, ok, errors) in enumerate(bar):
-            feats.append(f)
-            thumbs.append(t)
-            index.extend(c * chunk + i for i in ok)
             skipped.extend(errors)
+            if not ok:
+                continue
+            if features is None:
+                features = g.create_dataset("features", shape=(0, f.shape[1]), maxshape=(None, f.shape[1]), dtype=f.dtype,
+                                            chunks=(min(1024, max(1, len(paths))), f.shape[1]))
+            n0 = len(index)
+            index.extend(c * chunk + i for i in ok)
+            for ds, arr in ((features, f), (thumbs, t)):
+                ds.resize(len(index), axis=0)
+                ds[n0:] = arr
         if not index:
             raise ImageError(f"{images.source}: no image could be read; check the folder")
-        g = ctx.out.create_group(role)
-        features = np.concatenate([f for f in feats if len(f)])
-        g.create_dataset("features", data=features, chunks=(min(len(features), 1024), features.shape[1]))
-        g.create_dataset("thumbnails", data=np.concatenate([t for t in thumbs if len(t)]), compression="gzip",
-                         compression_opts=1)
         g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
                          dtype=h5py.string_dtype())
         g.create_dataset("index", data=np.asarray(index, np.int64))

@@ -17,8 +17,36 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
+
+
+@numba.njit(cache=True)
+def _projected_gram(colptr: np.ndarray, rows: np.ndarray, a: np.ndarray, v: np.ndarray, m: int) -> np.ndarray:
+    """sum_j K_j^T (U_j^T U_j)^+ K_j: block (i, i') gains (a_i . a_i') v_j v_j^T for i, i' observed in column j.
+
+    Only the observed pairs of each column are visited (n * nnz_j^2 work instead of the dense
+    (n r) x (m r) product, ~10x fewer operations at 30 % fill).
+    """
+    r = v.shape[1]
+    h = np.zeros((m * r, m * r))
+    for j in range(len(colptr) - 1):
+        s, e = colptr[j], colptr[j + 1]
+        for p in range(s, e):
+            i = rows[p]
+            for q in range(p, e):
+                i2 = rows[q]
+                c = 0.0
+                for k in range(a.shape[1]):
+                    c += a[p, k] * a[q, k]
+                for x in range(r):
+                    for y in range(r):
+                        w = c * v[j, x] * v[j, y]
+                        h[i * r + x, i2 * r + y] += w
+                        if q != p:
+                            h[i2 * r + y, i * r + x] += w
+    return h
 
 
 class WibergError(ValueError):
@@ -61,6 +89,11 @@ def wiberg(rows: np.ndarray, cols: np.ndarray, y: np.ndarray, shape: tuple[int, 
         raise WibergError(f"{len(y)} observed entries cannot determine a rank-{r} {m} x {n} matrix "
                           f"(it has {(m + n) * r - r * r} degrees of freedom)")
     q = sp.csr_matrix((np.ones(len(y)), (rows, cols)), shape=(m, n))
+    # Observations grouped by column for the projected Gram kernel.
+    order = np.argsort(cols, kind="stable")
+    rows_s, cols_s = rows[order], cols[order]
+    colptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cols, minlength=n), out=colptr[1:])
     qy = sp.csr_matrix((y, (rows, cols)), shape=(m, n))
     if init is None:
         # SVD of the row-mean-filled matrix: cheap and usually inside Wiberg's wide basin.
@@ -92,12 +125,8 @@ def wiberg(rows: np.ndarray, cols: np.ndarray, y: np.ndarray, shape: tuple[int, 
         blocks = np.asarray(q @ vv).reshape(m, r, r)
         w, evec = np.linalg.eigh(ginv)
         lmat = evec * np.sqrt(np.maximum(w, 0.0))[:, None, :]      # L_j with L_j L_j^T = (U_j^T U_j)^+
-        a = np.einsum("nba,nb->na", lmat[cols], u[rows])            # L_j^T u_i per observation
-        vals = (a[:, :, None] * v[cols][:, None, :]).ravel()         # (L_j^T u_i) v_j^T
-        ra = np.repeat(cols * r, r * r) + np.tile(np.repeat(np.arange(r), r), len(y))
-        rb = np.repeat(rows * r, r * r) + np.tile(np.tile(np.arange(r), r), len(y))
-        rmat = sp.csr_matrix((vals, (ra, rb)), shape=(n * r, m * r))
-        h = -(rmat.T @ rmat).toarray()
+        a = np.einsum("nba,nb->na", lmat[cols_s], u[rows_s])        # L_j^T u_i per observation, by column
+        h = -_projected_gram(colptr, rows_s, a, v, m)
         for i0 in range(r):
             for j0 in range(r):
                 h[np.arange(m) * r + i0, np.arange(m) * r + j0] += blocks[:, i0, j0]

@@ -51,7 +51,8 @@ def _sample_polylines(lines: list[np.ndarray], count: int) -> np.ndarray:
     return segs[k, :2] + f * (segs[k, 2:] - segs[k, :2])
 
 
-def abcd_features(rng: np.random.Generator, n_features: int = 200, n_letter: int = 100, n_landmarks: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def abcd_features(rng: np.random.Generator, n_features: int = 200, n_letter: int = 100,
+                  n_landmarks: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Positions (N, 2), letter flags, landmark flags."""
     if n_letter % 4 or n_letter > n_features:
         raise ValueError("letter features must be a multiple of 4 and at most n_features")

@@ -3,9 +3,8 @@
 A 20 m x 20 m square with N = 200 point features: 100 spell "ABCD" (25 per letter, evenly
 spaced along the strokes), 100 are uniform at random; 11 of the random ones, spread by
 farthest-point sampling, are landmarks with known positions. A robot drives like the
-paper's Pioneer: straight runs at ``speed`` m/step and turns on the spot at ``turn_rate``
-rad/step, turning back toward the centre when a run would leave the square. It sees the
-features within ``max_range`` (8 m) and within its forward field of view (180 degrees).
+paper's Pioneer: straight runs at ``speed`` m/step between random waypoints and turns on
+the spot at ``turn_rate`` rad/step. It sees the features within ``max_range`` (8 m) and within its forward field of view (180 degrees).
 Two sensors: bearing only (radians, left positive) and range only (metres), each with
 Gaussian noise.
 
@@ -83,28 +82,28 @@ def abcd_features(rng: np.random.Generator, n_features: int = 200, n_letter: int
 
 def robot_path(rng: np.random.Generator, steps: int, speed: float = 0.1, turn_rate: float = np.deg2rad(5.0),
                margin: float = 1.0) -> np.ndarray:
-    """(steps, 3) poses x, y, heading: straight runs and turns on the spot."""
+    """(steps, 3) poses x, y, heading: straight runs and turns on the spot.
+
+    The robot picks a waypoint uniformly in the square (inside ``margin``), turns on the spot
+    toward it at ``turn_rate`` and drives straight to it at ``speed``; waypoints spread the
+    runs over the whole square, so every feature is seen from several places.
+    """
     poses = np.empty((steps, 3))
-    x, y, th = rng.uniform(margin + 2, WORLD - margin - 2, 2).tolist() + [rng.uniform(-np.pi, np.pi)]
-    run, turn = int(rng.integers(20, 80)), 0.0
+    x, y = rng.uniform(margin, WORLD - margin, 2)
+    th = rng.uniform(-np.pi, np.pi)
+    goal = rng.uniform(margin, WORLD - margin, 2)
     for t in range(steps):
         poses[t] = (x, y, th)
-        if turn != 0.0:
-            dth = np.sign(turn) * min(turn_rate, abs(turn))
-            th = (th + dth + np.pi) % (2 * np.pi) - np.pi
-            turn -= dth
-            if abs(turn) < 1e-9:
-                turn, run = 0.0, int(rng.integers(20, 120))
+        dx, dy = goal[0] - x, goal[1] - y
+        dist = np.hypot(dx, dy)
+        if dist < speed:
+            goal = rng.uniform(margin, WORLD - margin, 2)
             continue
-        nx, ny = x + speed * np.cos(th), y + speed * np.sin(th)
-        if run <= 0 or not (margin <= nx <= WORLD - margin and margin <= ny <= WORLD - margin):
-            # Turn toward the centre (plus a random swing) so the robot explores the whole square.
-            to_c = np.arctan2(WORLD / 2 - y, WORLD / 2 - x) + rng.uniform(-np.pi / 3, np.pi / 3)
-            turn = (to_c - th + np.pi) % (2 * np.pi) - np.pi
-            if abs(turn) < turn_rate:
-                turn = turn_rate * (1 if turn >= 0 else -1)
+        turn = (np.arctan2(dy, dx) - th + np.pi) % (2 * np.pi) - np.pi
+        if abs(turn) > 1e-9:
+            th = (th + np.sign(turn) * min(turn_rate, abs(turn)) + np.pi) % (2 * np.pi) - np.pi
             continue
-        x, y, run = nx, ny, run - 1
+        x, y = x + speed * np.cos(th), y + speed * np.sin(th)
     return poses
 
 

@@ -158,7 +158,8 @@ def test_tears_of_steel_real_tracks(tmp_path):
     if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
         pytest.skip("../shared/data/tears-of-steel is absent")
     d = root / "tears-of-steel"
-    lm = [0, 4, 8, 12, 16, 20, 24, 25]
+    # Landmarks spread in depth (5 m to 50 m): the camera looks forward, so depth comes only from them.
+    lm = [1, 5, 7, 10, 14, 17, 21, 22, 23, 25]
     config = load_config(data={"method": "coembed", "coembed": {
         "observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_ids": lm,
         "truth": str(d / "points.csv"), "dim": 3}})
@@ -169,4 +170,4 @@ def test_tears_of_steel_real_tracks(tmp_path):
     # Better than placing every unknown point at the landmarks' centroid (the no-information answer).
     centroid = pts[np.isin(pts[:, 0], lm), 1:].mean(axis=0)
     blind = np.sqrt(np.mean(np.sum((rest - centroid) ** 2, axis=1)))
-    assert m["n_evaluated"] == 18 and m["map_rmse"] < 0.7 * blind
+    assert m["n_evaluated"] == 16 and m["map_rmse"] < 0.5 * blind

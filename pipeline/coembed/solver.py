@@ -145,7 +145,11 @@ def coembed_map_dense(obs: Observations, landmark_cols: np.ndarray, landmark_xyz
     xs = np.zeros((n, xstar.shape[1]))
     xs[landmark_cols] = xstar
     a_mat = dmat + vmat.T @ ((alpha * jx - 1.0)[:, None] * vmat)
-    t_hat = np.linalg.lstsq(a_mat, alpha * vmat.T @ (jx[:, None] * xs), rcond=None)[0]
+    rhs = alpha * vmat.T @ (jx[:, None] * xs)
+    try:
+        t_hat = np.linalg.solve(a_mat, rhs)
+    except np.linalg.LinAlgError:
+        t_hat = np.linalg.lstsq(a_mat, rhs, rcond=None)[0]   # a step with too few sightings: min-norm T_t
     return vmat @ t_hat
 
 

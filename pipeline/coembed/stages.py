@@ -234,7 +234,9 @@ def evaluate(ctx) -> None:  # noqa: ANN001
         err = np.linalg.norm(est_eval - truth_eval, axis=1)
         metrics.update(map_rmse=float(np.sqrt(np.mean(err ** 2))) if len(err) else None,
                        map_max_error=float(err.max()) if len(err) else None,
-                       map_median_error=float(np.median(err)) if len(err) else None, n_evaluated=int(len(err)))
+                       map_median_error=float(np.median(err)) if len(err) else None, n_evaluated=int(len(err)),
+                       # Features with a true position that were never observed cannot be mapped: counted, not hidden.
+                       n_truth_unobserved=int((~np.isin(tid, ids)).sum()))
         lm_rows = np.array([order[int(f)] for f in ids[is_lm] if int(f) in order], dtype=np.int64)
         if len(lm_rows) == int(is_lm.sum()):
             metrics["landmark_rmse"] = float(np.sqrt(np.mean(np.sum((coords[is_lm] - txyz[lm_rows, :d]) ** 2, axis=1))))

@@ -46,7 +46,7 @@ DEFAULTS = {
     "isomap_neighbors": 8,
     "isomap_min_common": 1,          # steps two features must share to have a distance
     "pcamd_rank": 3,
-    "pcamd_max_iter": 100,
+    "pcamd_max_iter": 200,
     "pcamd_tol": 1e-6,               # stop when the relative cost decrease falls below this
     "truth": None,                   # CSV feature,x,y[,z][,...]: true positions for evaluate
 }

@@ -195,3 +195,14 @@ def test_alignment_errors_are_clear():
     line = np.column_stack([np.arange(5.0), 2 * np.arange(5.0)])
     with pytest.raises(AlignmentError, match="degenerate"):
         fit_affine(line, line)
+
+
+def test_poses_are_sorted_and_duplicates_rejected(tmp_path):
+    from pipeline.coembed.observations import read_poses_csv
+
+    (tmp_path / "p.csv").write_text("t,x,y,heading\n2,1,1,0\n0,0,0,0.5\n1,0.5,0.5,0.2\n")
+    steps, xy, heading = read_poses_csv(tmp_path / "p.csv")
+    assert steps.tolist() == [0, 1, 2] and xy[:, 0].tolist() == [0, 0.5, 1] and heading.tolist() == [0.5, 0.2, 0]
+    (tmp_path / "d.csv").write_text("t,x,y\n1,0,0\n1,1,1\n")
+    with pytest.raises(ObservationError, match="step 1 twice"):
+        read_poses_csv(tmp_path / "d.csv")

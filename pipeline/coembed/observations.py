@@ -144,12 +144,17 @@ def read_points_csv(path: str | Path, what: str = "landmarks") -> tuple[np.ndarr
 
 
 def read_poses_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """``t,x,y[,heading]`` (heading in radians): step ids, positions (n, 2), headings or None."""
+    """``t,x,y[,heading]`` (heading in radians): step ids (sorted, unique), positions (n, 2), headings or None."""
     header, data = _read_numeric_csv(path, 3, "poses")
     if data.shape[1] > 4:
         raise ObservationError(f"poses: {path}: expected columns t,x,y[,heading], got {header}")
+    steps = _ids(data[:, 0], path, "poses")
+    order = np.argsort(steps, kind="stable")
+    steps, data = steps[order], data[order]
+    if np.any(np.diff(steps) == 0):
+        raise ObservationError(f"poses: {path} lists step {steps[np.flatnonzero(np.diff(steps) == 0)[0]]} twice")
     heading = data[:, 3] if data.shape[1] == 4 else None
-    return _ids(data[:, 0], path, "poses"), data[:, 1:3], heading
+    return steps, data[:, 1:3], heading
 
 
 def write_observations(group: h5py.Group, obs: Observations) -> None:

@@ -10,7 +10,9 @@ evaluate  map error after the method's alignment, path error, fig. 4-style figur
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
+import h5py
 import numpy as np
 
 from pipeline.coembed.observations import (
@@ -70,7 +72,7 @@ def _check(config: dict) -> None:
     if p["source"] != "csv" and p["images"] is None:
         raise ConfigError(f"coembed.images is missing: source {p['source']!r} reads a folder of frames")
     for key in PATH_KEYS:
-        if p[key] is not None and not __import__("pathlib").Path(p[key]).exists():
+        if p[key] is not None and not Path(p[key]).exists():
             raise ConfigError(f"coembed.{key}: {p[key]} does not exist (relative paths start at the config's folder)")
     if p["landmarks"] is None:
         raise ConfigError("coembed.landmarks is missing: co-embedding and the baselines' alignment need known feature positions")
@@ -95,8 +97,7 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
         paths = list_images(p["images"]).paths
         s, f, v = observations_from_images(paths, p, lambda fn, items: ctx.progress(ctx.executor.map(fn, items), total=len(items)))
         obs = from_triplets(s, f, v)
-        ctx.out.create_dataset("frames", data=np.array([q.name for q in paths], dtype=object),
-                               dtype=__import__("h5py").string_dtype())
+        ctx.out.create_dataset("frames", data=np.array([q.name for q in paths], dtype=object), dtype=h5py.string_dtype())
     ids, coords = read_points_csv(p["landmarks"], "landmarks")
     if p["landmark_ids"]:
         want = np.asarray(p["landmark_ids"], dtype=np.int64)
@@ -247,8 +248,8 @@ def evaluate(ctx) -> None:  # noqa: ANN001
         pxy = loc["path/xy"][()]
         labelled = np.isin(pst, loc["path/label_steps"][()])
         common = np.isin(pst, steps) & ~labelled
-        idx = np.searchsorted(steps, pst[common]) if np.all(np.diff(steps) > 0) else None
-        if idx is not None and common.any():
+        idx = np.searchsorted(steps, pst[common])   # read_poses_csv returns steps sorted and unique
+        if common.any():
             perr = np.linalg.norm(pxy[common] - xy[idx], axis=1)
             metrics.update(path_rmse=float(np.sqrt(np.mean(perr ** 2))), path_max_error=float(perr.max()),
                            n_path_evaluated=int(common.sum()), n_pose_labels=int(labelled.sum()))

@@ -171,3 +171,32 @@ def test_tears_of_steel_real_tracks(tmp_path):
     centroid = pts[np.isin(pts[:, 0], lm), 1:].mean(axis=0)
     blind = np.sqrt(np.mean(np.sum((rest - centroid) ** 2, axis=1)))
     assert m["n_evaluated"] == 16 and m["map_rmse"] < 0.5 * blind
+
+
+def test_markers_plus_sift_tracks_through_the_extract_stage(tmp_path):
+    """Experiment 2's set-up: ArUco markers are the landmarks, SIFT tracks the other features."""
+    rng = np.random.default_rng(1)
+    scene = cv2.GaussianBlur((rng.random((300, 700)) * 255).astype(np.uint8), (0, 0), 2.0)
+    scene = cv2.normalize(scene, None, 0, 255, cv2.NORM_MINMAX)
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    for mid, x0 in [(5, 120), (9, 260), (13, 400)]:
+        scene[100:180, x0 - 10:x0 + 70] = 255                     # white quiet zone around the marker
+        scene[110:170, x0:x0 + 60] = cv2.aruco.generateImageMarker(d, mid, 60)
+    (tmp_path / "frames").mkdir()
+    for t in range(5):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{t}.png"), scene[:, 8 * t: 8 * t + 560])
+    np.savetxt(tmp_path / "lm.csv", [[5, 0, 0], [9, 1, 0], [13, 2, 0]], delimiter=",", header="feature,x,y", comments="", fmt="%g")
+    config = load_config(data={"method": "coembed", "coembed": {"source": "aruco+sift", "images": str(tmp_path / "frames"),
+                                                                 "landmarks": str(tmp_path / "lm.csv"), "sift_min_track": 5}})
+    run_stage(config, tmp_path / "run", "extract", quiet=True)
+    with h5py.File(tmp_path / "run" / "extract.h5") as f:
+        ids = f["observations/feature_ids"][()]
+        cols, vals, indptr = f["observations/indices"][()], f["observations/values"][()][:, 0], f["observations/indptr"][()]
+        assert len(f["frames"]) == 5
+    assert set(ids[ids < 100000].tolist()) == {5, 9, 13}
+    assert (ids >= 100000).sum() >= 20                               # SIFT tracks, ids offset past the markers
+    rows = np.repeat(np.arange(5), np.diff(indptr))
+    for c in range(len(ids)):                                        # every feature moves 8 px left per frame
+        sel = cols == c
+        assert np.array_equal(rows[sel], np.arange(5))
+        assert np.allclose(np.diff(vals[sel]), -8.0, atol=1.0)

@@ -16,6 +16,7 @@ from typing import Any
 EXPERIMENTS: dict[str, str] = {
     "seqslam": "pipeline.seqslam.experiment",
     "umap": "pipeline.umap.experiment",
+    "coembed": "pipeline.coembed.experiment",
 }
 
 

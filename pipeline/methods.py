@@ -18,6 +18,7 @@ STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
 METHOD_MODULES: dict[str, str] = {
     "seqslam": "pipeline.seqslam.stages",
     "umap": "pipeline.umap.stages",
+    "coembed": "pipeline.coembed.stages",
 }
 METHOD_NAMES = tuple(METHOD_MODULES)
 

@@ -14,6 +14,7 @@ from typing import Any
 SYNTH_KINDS: dict[str, str] = {
     "route": "pipeline.synth.route",
     "corridor": "pipeline.synth.corridor",
+    "coembed": "pipeline.synth.coembed",
 }
 
 

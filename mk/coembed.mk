@@ -1,0 +1,8 @@
+# Co-embedding mapper (issue 4): the paper's simulation and tears-of-steel, and the solver benchmark.
+.PHONY: experiment-coembed bench-coembed
+
+experiment-coembed: $(STAMP)
+	$(PL) experiment coembed
+
+bench-coembed: $(STAMP)
+	$(BIN)/python bench/bench_coembed.py

@@ -15,6 +15,13 @@ help:
 	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
 	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark (3576 x 3576)"
 	@echo "make bench-seqslam-large  ... plus a 36,000 x 36,000 run (several minutes, ~10 GB disk)"
+	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building"
+	@echo "make bench-umap         UMap database rendering and scoring speed"
+	@echo "make experiment-coembed co-embedding vs Isomap vs PCAMD (simulation, tears-of-steel)"
+	@echo "make bench-coembed      co-embedding sparse solve at 10,000 x 2,000"
+	@echo "make experiment-pirf    PIRF-nav2 tables 2-4 and figs 4-7 on generated omni video"
+	@echo "make bench-pirf         PIRF m_t: ANN backends vs brute force at 500,000 entries"
+	@echo "make bench-scale        extraction throughput: inline, process pool, Dask LocalCluster"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)

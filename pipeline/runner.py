@@ -101,9 +101,17 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
         common["ground_truth"] = config.get("ground_truth")
         common["plots"] = config.get("plots")
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
-    if stage == "extract":
+    if stage == STAGES[0]:
         for role, s in images.items():
             inputs[f"images.{role}"] = s.fingerprint()
+        # Files named by the method's own path keys (models, observation CSVs, ...): a change
+        # re-runs the first stage and so, through the parent stamps, everything after it.
+        for key in method.path_keys:
+            node: Any = section
+            for part in key.split("."):
+                node = node.get(part) if isinstance(node, dict) else None
+            if node:
+                inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
     gt_path = (config.get("ground_truth") or {}).get("path")
     if stage == "evaluate" and gt_path and Path(gt_path).is_file():
         st = Path(gt_path).stat()
@@ -111,6 +119,17 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     if parent_stamp is not None:
         inputs["parent"] = parent_stamp
     return inputs
+
+
+def _path_fingerprint(path: Path) -> str:
+    """Size and modification time of a file, or of every file below a folder."""
+    if path.is_file():
+        st = path.stat()
+        return f"{st.st_size}:{st.st_mtime_ns}"
+    if path.is_dir():
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+        return config_hash([f"{p.relative_to(path)}:{p.stat().st_size}:{p.stat().st_mtime_ns}" for p in files])
+    return "missing"
 
 
 def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bool = False,

@@ -165,3 +165,19 @@ def test_cli_run_end_to_end_on_data_samples(tmp_path):
     ins = subprocess.run([sys.executable, str(ROOT / "cli.py"), "inspect", str(run / "localize.h5")],
                          capture_output=True, text=True, cwd=ROOT)
     assert ins.returncode == 0 and "difference" in ins.stdout and "rows = reference" in ins.stdout
+
+
+def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
+    """Files named by a method's path keys are fingerprinted like images."""
+    from pipeline.methods import Method
+    from pipeline.runner import stage_inputs
+
+    obs = tmp_path / "obs.csv"
+    obs.write_text("t,feature,value\n0,1,0.5\n")
+    method = Method(name="toy", defaults={"observations": None}, stages={}, path_keys=("observations",), required_images=())
+    cfg = {"method": "toy", "seed": 0, "reference": None, "query": None, "toy": {"observations": str(obs)}}
+    before = stage_inputs(cfg, method, "extract", {}, None)
+    assert stage_inputs(cfg, method, "extract", {}, None) == before
+    obs.write_text("t,feature,value\n0,1,0.75\n")
+    assert stage_inputs(cfg, method, "extract", {}, None)["file.observations"] != before["file.observations"]
+    assert "file.observations" not in stage_inputs(cfg, method, "localize", {}, "parent")

@@ -101,3 +101,54 @@ def centroid_shift(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, des
     ua = float(pa[keep, 0].mean())
     ub = float(pb[keep, 0].mean())
     return ub - ua, ua, ub, int(keep.sum())
+
+
+def wall_tangent(heading_deg: float, theta_deg: float, wall_right: bool = True) -> np.ndarray:
+    """Unit plan vector along the wall that :func:`wall_steps` measures displacement on.
+
+    The laser (wall normal) points at heading - theta (wall on the right) or heading + theta
+    (left); the tangent is that normal turned +90 deg (counter-clockwise)."""
+    n = math.radians(heading_deg - theta_deg if wall_right else heading_deg + theta_deg)
+    return np.array([-math.sin(n), math.cos(n)])
+
+
+def wall_steps(pa: np.ndarray, pb: np.ndarray, d: float, theta_deg: float, focal: float, cx: float,
+               wall_right: bool = True) -> np.ndarray:
+    """Signed camera displacement along :func:`wall_tangent` implied by each match (pa -> pb,
+    (M, 2) pixels): a wall point at angle alpha from the wall normal lies at d tan(alpha) along
+    the wall, so the camera moved by d (tan alpha_a - tan alpha_b). Matches on the wall agree;
+    matches on the floor, furniture or far walls scatter, which the vote then discards."""
+    lim = math.radians(89.0)  # a point at the wall normal +-90 deg is at infinity
+    th = math.radians(theta_deg)
+    sgn = -1.0 if wall_right else 1.0
+    aa = np.clip(th + sgn * np.arctan((np.asarray(pa)[:, 0] - cx) / focal), -lim, lim)
+    ab = np.clip(th + sgn * np.arctan((np.asarray(pb)[:, 0] - cx) / focal), -lim, lim)
+    # the left-wall angles run clockwise, so their tangent coordinate flips sign
+    return (d * (np.tan(aa) - np.tan(ab))) * (1.0 if wall_right else -1.0)
+
+
+def metric_vote(steps: np.ndarray, tol_m: float = 0.05, rel_tol: float = 0.03) -> np.ndarray:
+    """Majority vote in metres rather than pixels: the largest group of per-match steps lying
+    within +-(tol_m + rel_tol |step|) of each other. Pixel displacements of an oblique wall
+    differ across the image (depth varies), metric steps of wall points do not."""
+    s = np.asarray(steps, dtype=np.float64).ravel()
+    if len(s) == 0:
+        return np.zeros(0, dtype=bool)
+    o = np.sort(s)
+    width = 2.0 * (tol_m + rel_tol * np.abs(o))
+    counts = np.searchsorted(o, o + width, side="right") - np.arange(len(o))
+    i = int(np.argmax(counts))
+    return (s >= o[i]) & (s <= o[i] + width[i])
+
+
+def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray, d: float, theta_deg: float,
+                focal: float, cx: float, wall_right: bool = True, tol_m: float = 0.05,
+                rel_tol: float = 0.03) -> tuple[float, int, int]:
+    """CA step between two frames: (median signed step along the wall of the winning group,
+    group size, raw matches). (nan, 0, raw) when nothing matched."""
+    m = match(desc_a, desc_b)
+    if len(m) == 0:
+        return math.nan, 0, 0
+    steps = wall_steps(pts_a[m[:, 0]], pts_b[m[:, 1]], d, theta_deg, focal, cx, wall_right)
+    keep = metric_vote(steps, tol_m, rel_tol)
+    return float(np.median(steps[keep])), int(keep.sum()), len(m)

@@ -152,3 +152,37 @@ def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b
     steps = wall_steps(pts_a[m[:, 0]], pts_b[m[:, 1]], d, theta_deg, focal, cx, wall_right)
     keep = metric_vote(steps, tol_m, rel_tol)
     return float(np.median(steps[keep])), int(keep.sum()), len(m)
+
+
+def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np.ndarray, theta_deg: np.ndarray,
+              hfov_deg: float, params: dict) -> dict[str, float]:
+    """CA error statistics from a calibration sequence with ground truth (never the test one).
+
+    ``images`` the frames in order, ``truth_xy`` (N, 2) their true positions, ``d`` and
+    ``theta_deg`` the sensor rows, ``params`` the ``umap.ca`` section. Returns error_mean_m and
+    error_std_m of the reliable CA steps (measured - true, along the wall; median and 1.4826 x
+    median absolute deviation, so the few confidently wrong votes, which re-localization has to
+    catch anyway, do not inflate every gate) and fallback_step_m,
+    the median true step length of the frames whose CA vote was unreliable."""
+    feats = []
+    width = focal = 0.0
+    for path in images:
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        width = gray.shape[1]
+        focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        feats.append(akaze(gray, params["akaze_threshold"]))
+    right = params["wall_side"] == "right"
+    errs, failed = [], []
+    for k in range(1, len(images)):
+        true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], right))
+        st, kept, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
+                                  params["vote_tol_m"], params["vote_rel_tol"])
+        if kept >= params["reliable_matches"]:
+            errs.append(st - true)
+        else:
+            failed.append(abs(true))
+    e = np.asarray(errs)
+    med = float(np.median(e)) if len(e) else 0.0
+    mad = 1.4826 * float(np.median(np.abs(e - med))) if len(e) else 0.0
+    return {"error_mean_m": med, "error_std_m": mad,
+            "fallback_step_m": float(np.median(failed)) if failed else None, "n_reliable": len(errs), "n_failed": len(failed)}

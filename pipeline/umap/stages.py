@@ -54,7 +54,7 @@ DEFAULTS: dict[str, Any] = {
     "ca": {"formula": "exact", "wall_side": "right", "phi_deg": 0.0, "error_mean_m": 0.15, "error_std_m": 0.3,
            "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.0001, "anchor": "chain", "keep_heading": True,
            "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 10,
-           "tie_tol": 0.003, "recover_ratio": 1.15},
+           "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None},
 }
 CHOICES = {"mode": ("umap", "umap+ca"), "query_kind": ("pinhole", "equirect"), "ca.formula": ("exact", "paper"),
            "ca.wall_side": ("right", "left"), "ca.anchor": ("best", "chain"),
@@ -327,7 +327,8 @@ def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: n
     frame k-1. Each frame's search is centred on the position CA predicts (previous estimate +
     step along the wall), within ``|error_mean| + 2 error_std`` (+0.1 m grid quantisation).
     An unreliable or missing CA step falls back to the sequence's median reliable step with
-    ``fallback_radius_m``. If the best score inside the gate is ``recover_ratio`` times below
+    ``fallback_radius_m`` (or ``fallback_step_m`` in its direction when calibrated: CA fails
+    mostly on large steps, so the median reliable step underestimates them). If the best score inside the gate is ``recover_ratio`` times below
     the best within ``fallback_radius_m`` of the previous estimate, the CA step is taken to be
     wrong and the wider search wins (re-localization). Returns (best rows, scores, radii)."""
     n = len(umap_best)
@@ -337,6 +338,8 @@ def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: n
     gate = abs(c["error_mean_m"]) + 2.0 * c["error_std_m"] + 0.1
     ok = reliable & np.isfinite(step)
     typical = float(np.median(step[ok])) if ok.any() else 0.0
+    if c["fallback_step_m"] is not None:  # calibrated size of the steps CA fails on (large ones), same direction
+        typical = math.copysign(float(c["fallback_step_m"]), typical)
     order = [(k, k - 1, k, 1.0) for k in range(anchor + 1, n)] + [(k, k + 1, k + 1, -1.0) for k in range(anchor - 1, -1, -1)]
     for k, prev, st, sgn in order:
         pp = poses[best[prev]]

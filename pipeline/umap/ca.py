@@ -145,13 +145,21 @@ def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b
                 focal: float, cx: float, wall_right: bool = True, tol_m: float = 0.05,
                 rel_tol: float = 0.03) -> tuple[float, int, int]:
     """CA step between two frames: (median signed step along the wall of the winning group,
-    group size, raw matches). (nan, 0, raw) when nothing matched."""
+    its size, the size of the runner-up group among the other matches). (nan, 0, 0) when
+    nothing matched. A winner barely larger than the runner-up is a coin toss (often floor
+    texture or a far wall against the near wall), which the tracker treats as unreliable."""
     m = match(desc_a, desc_b)
     if len(m) == 0:
         return math.nan, 0, 0
     steps = wall_steps(pts_a[m[:, 0]], pts_b[m[:, 1]], d, theta_deg, focal, cx, wall_right)
     keep = metric_vote(steps, tol_m, rel_tol)
-    return float(np.median(steps[keep])), int(keep.sum()), len(m)
+    second = int(metric_vote(steps[~keep], tol_m, rel_tol).sum())
+    return float(np.median(steps[keep])), int(keep.sum()), second
+
+
+def is_reliable(kept: int, second: int, params: dict) -> bool:
+    """Enough matches in the vote's winning group, and clearly more than in the runner-up."""
+    return kept >= params["reliable_matches"] and kept >= params["reliable_ratio"] * second
 
 
 def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np.ndarray, theta_deg: np.ndarray,
@@ -175,9 +183,9 @@ def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np
     errs, failed = [], []
     for k in range(1, len(images)):
         true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], right))
-        st, kept, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
+        st, kept, second = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
                                   params["vote_tol_m"], params["vote_rel_tol"])
-        if kept >= params["reliable_matches"]:
+        if is_reliable(kept, second, params):
             errs.append(st - true)
         else:
             failed.append(abs(true))

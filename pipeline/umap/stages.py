@@ -52,8 +52,8 @@ DEFAULTS: dict[str, Any] = {
     "mode": "umap+ca",
     "sensor_csv": None,
     "ca": {"formula": "exact", "wall_side": "right", "phi_deg": 0.0, "error_mean_m": 0.15, "error_std_m": 0.3,
-           "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.0001, "anchor": "chain", "keep_heading": True,
-           "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 10,
+           "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.00003, "anchor": "chain", "keep_heading": True,
+           "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 15, "reliable_ratio": 1.5,
            "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None},
 }
 CHOICES = {"mode": ("umap", "umap+ca"), "query_kind": ("pinhole", "equirect"), "ca.formula": ("exact", "paper"),
@@ -398,9 +398,9 @@ def localize(ctx: Any) -> None:
             a, b = slice(off[k - 1], off[k]), slice(off[k], off[k + 1])
             d, theta[k] = sensor[names[k - 1]]
             if c["tracker"] == "robust":
-                step[k], n_kept[k], _ = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
+                step[k], n_kept[k], second = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
                                                            c["wall_side"] == "right", c["vote_tol_m"], c["vote_rel_tol"])
-                reliable[k] = n_kept[k] >= c["reliable_matches"]
+                reliable[k] = ca_mod.is_reliable(int(n_kept[k]), second, c)
                 ca_dist[k] = abs(step[k])
                 continue
             shift = ca_mod.centroid_shift(pts[a], desc[a], pts[b], desc[b], c["bin_px"], c["min_matches"])

@@ -143,18 +143,20 @@ def metric_vote(steps: np.ndarray, tol_m: float = 0.05, rel_tol: float = 0.03) -
 
 def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray, d: float, theta_deg: float,
                 focal: float, cx: float, wall_right: bool = True, tol_m: float = 0.05,
-                rel_tol: float = 0.03) -> tuple[float, int, int]:
+                rel_tol: float = 0.03) -> tuple[float, int, int, float]:
     """CA step between two frames: (median signed step along the wall of the winning group,
-    its size, the size of the runner-up group among the other matches). (nan, 0, 0) when
-    nothing matched. A winner barely larger than the runner-up is a coin toss (often floor
+    its size, the size of the runner-up group among the other matches, the runner-up's median
+    step). (nan, 0, 0, nan) when nothing matched. A winner barely larger than the runner-up is a coin toss (often floor
     texture or a far wall against the near wall), which the tracker treats as unreliable."""
     m = match(desc_a, desc_b)
     if len(m) == 0:
-        return math.nan, 0, 0
+        return math.nan, 0, 0, math.nan
     steps = wall_steps(pts_a[m[:, 0]], pts_b[m[:, 1]], d, theta_deg, focal, cx, wall_right)
     keep = metric_vote(steps, tol_m, rel_tol)
-    second = int(metric_vote(steps[~keep], tol_m, rel_tol).sum())
-    return float(np.median(steps[keep])), int(keep.sum()), second
+    rest = steps[~keep]
+    keep2 = metric_vote(rest, tol_m, rel_tol)
+    alt = float(np.median(rest[keep2])) if keep2.any() else math.nan
+    return float(np.median(steps[keep])), int(keep.sum()), int(keep2.sum()), alt
 
 
 def is_reliable(kept: int, second: int, params: dict) -> bool:
@@ -183,7 +185,7 @@ def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np
     errs, failed = [], []
     for k in range(1, len(images)):
         true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], right))
-        st, kept, second = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
+        st, kept, second, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
                                   params["vote_tol_m"], params["vote_rel_tol"])
         if is_reliable(kept, second, params):
             errs.append(st - true)

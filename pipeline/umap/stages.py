@@ -54,7 +54,7 @@ DEFAULTS: dict[str, Any] = {
     "ca": {"formula": "exact", "wall_side": "right", "phi_deg": 0.0, "error_mean_m": 0.15, "error_std_m": 0.3,
            "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.00003, "anchor": "chain", "keep_heading": True,
            "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 15, "reliable_ratio": 1.5,
-           "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None},
+           "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None, "laser_tol_m": 0.15, "use_laser": True},
 }
 CHOICES = {"mode": ("umap", "umap+ca"), "query_kind": ("pinhole", "equirect"), "ca.formula": ("exact", "paper"),
            "ca.wall_side": ("right", "left"), "ca.anchor": ("best", "chain"),
@@ -299,6 +299,25 @@ def _ca_chain(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, ca_dis
     return best, score, radius
 
 
+def laser_ranges(xy: np.ndarray, angle_deg: float, faces: np.ndarray) -> np.ndarray:
+    """Plan ray cast: distance from each point along ``angle_deg`` to the first wall face
+    (``faces`` (F, >=4) x0 y0 x1 y1 ...); inf where no face is hit."""
+    h = math.radians(angle_deg)
+    dx, dy = math.cos(h), math.sin(h)
+    out = np.full(len(xy), np.inf)
+    for ax, ay, bx, by in faces[:, :4]:
+        ex, ey = bx - ax, by - ay
+        den = dx * ey - dy * ex
+        if abs(den) < 1e-12:
+            continue
+        wx, wy = ax - xy[:, 0], ay - xy[:, 1]
+        t = (wx * ey - wy * ex) / den
+        u = (wx * dy - wy * dx) / den
+        hit = (t > 1e-9) & (u >= 0) & (u <= 1)
+        out[hit] = np.minimum(out[hit], t[hit])
+    return out
+
+
 def _pick(scorer: Scorer, lines: np.ndarray, rows: np.ndarray, xy: np.ndarray, pred: np.ndarray,
           tie_tol: float) -> tuple[int, float]:
     """Best-scoring row; rows scoring within ``tie_tol`` of the best are ties (a wall without
@@ -319,7 +338,8 @@ def _pick(scorer: Scorer, lines: np.ndarray, rows: np.ndarray, xy: np.ndarray, p
 
 def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: np.ndarray, reliable: np.ndarray,
              theta: np.ndarray, poses: np.ndarray, lines: np.ndarray, scorer: Scorer,
-             c: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             c: dict[str, Any], alt: np.ndarray | None = None,
+             laser: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust UMap+CA from one anchor frame, forward then backward.
 
     ``step[k]``: signed CA step along the wall from frame k-1 to k (nan if none), ``reliable[k]``
@@ -330,7 +350,13 @@ def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: n
     ``fallback_radius_m`` (or ``fallback_step_m`` in its direction when calibrated: CA fails
     mostly on large steps, so the median reliable step underestimates them). If the best score inside the gate is ``recover_ratio`` times below
     the best within ``fallback_radius_m`` of the previous estimate, the CA step is taken to be
-    wrong and the wider search wins (re-localization). Returns (best rows, scores, radii)."""
+    wrong and the wider search wins (re-localization). ``alt[k]`` (optional) is the vote's
+    runner-up step, a second motion hypothesis tried before the wide search under the same
+    ratio: a wrong winning group often has the true motion as runner-up. ``laser`` (optional)
+    = (d per frame, theta per frame, wall faces): candidate poses whose plan ray cast towards the wall differs
+    from the measured laser distance by more than ``laser_tol_m`` are dropped (the laser CA
+    already relies on fixes the distance across the wall, which the line images of a corridor
+    barely constrain). Returns (best rows, scores, radii)."""
     n = len(umap_best)
     best, score = umap_best.copy(), umap_score.copy()
     radius = np.full(n, np.nan)
@@ -349,16 +375,37 @@ def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: n
         else:
             pred, r = pp[:2] + sgn * typical * t, c["fallback_radius_m"]
         heading_ok = np.isclose(poses[:, 3], pp[3]) if c["keep_heading"] else np.ones(len(poses), bool)
+        if laser is not None:
+            th_k = laser[1][k]  # frame k's laser points at heading -/+ theta
+            near_prev = heading_ok & (np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"] + 2 * abs(typical) + gate)
+            cand = np.flatnonzero(near_prev)
+            ang = poses[cand, 3] - th_k if c["wall_side"] == "right" else poses[cand, 3] + th_k
+            rng_ = np.full(len(cand), np.inf)
+            for a_ in np.unique(ang):
+                on = ang == a_
+                rng_[on] = laser_ranges(xy[cand[on]], float(a_), laser[2])
+            fits = np.abs(rng_ - laser[0][k]) <= c["laser_tol_m"]
+            if fits.any():
+                heading_ok = np.zeros(len(poses), bool)
+                heading_ok[cand[fits]] = True
         dist = np.hypot(*(xy - pred).T)
         rows = np.flatnonzero((dist <= r) & heading_ok)
         if rows.size == 0:  # gate below the grid step: the nearest grid positions
             rows = np.flatnonzero(heading_ok & (dist <= dist[heading_ok].min() + 1e-9))
         i, s = _pick(scorer, lines[k], rows, xy, pred, c["tie_tol"])
+        if alt is not None and np.isfinite(alt[st]):
+            pred2 = pp[:2] + sgn * alt[st] * t
+            rows2 = np.flatnonzero((np.hypot(*(xy - pred2).T) <= gate) & heading_ok)
+            if rows2.size:
+                j, s2 = _pick(scorer, lines[k], rows2, xy, pred2, c["tie_tol"])
+                if s2 > s * c["recover_ratio"]:
+                    i, s, r, pred = j, s2, gate, pred2
         if r < c["fallback_radius_m"]:
             wide = np.flatnonzero((np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"]) & heading_ok)
-            j, sw = _pick(scorer, lines[k], wide, xy, pred, c["tie_tol"])
-            if sw > s * c["recover_ratio"]:
-                i, s, r = j, sw, c["fallback_radius_m"]
+            if wide.size:
+                j, sw = _pick(scorer, lines[k], wide, xy, pred, c["tie_tol"])
+                if sw > s * c["recover_ratio"]:
+                    i, s, r = j, sw, c["fallback_radius_m"]
         best[k], score[k], radius[k] = i, s, r
     return best, score, radius
 
@@ -393,12 +440,16 @@ def localize(ctx: Any) -> None:
         phi = c["phi_deg"] if c["phi_deg"] > 0 else ca_mod.effective_phi(float(idx.attrs["hfov_deg"]))
         step = np.full(n, np.nan)
         reliable = np.zeros(n, dtype=bool)
+        alt = np.full(n, np.nan)  # the vote's runner-up step: a second motion hypothesis
+        laser_d = np.array([sensor[nm][0] for nm in names])
+        laser_theta = np.array([sensor[nm][1] for nm in names])
+        faces = ctx.artifact("build-dictionary")["faces"][()]
         theta = np.zeros(n)
         for k in range(1, n):  # ca_dist[k]: moved distance between frames k-1 and k
             a, b = slice(off[k - 1], off[k]), slice(off[k], off[k + 1])
             d, theta[k] = sensor[names[k - 1]]
             if c["tracker"] == "robust":
-                step[k], n_kept[k], second = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
+                step[k], n_kept[k], second, alt[k] = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
                                                            c["wall_side"] == "right", c["vote_tol_m"], c["vote_rel_tol"])
                 reliable[k] = ca_mod.is_reliable(int(n_kept[k]), second, c)
                 ca_dist[k] = abs(step[k])
@@ -418,7 +469,8 @@ def localize(ctx: Any) -> None:
         best_total = -1.0
         for a in ctx.progress(anchors, total=len(anchors), desc="CA chains"):
             if c["tracker"] == "robust":
-                b, s, r = ca_track(int(a), umap_best, umap_score, step, reliable, theta, poses, lines, scorer, c)
+                b, s, r = ca_track(int(a), umap_best, umap_score, step, reliable, theta, poses, lines, scorer, c, alt,
+                                   (laser_d, laser_theta, faces) if c["use_laser"] else None)
             else:
                 b, s, r = _ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer, c)
             if s.sum() > best_total:

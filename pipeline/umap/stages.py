@@ -14,7 +14,12 @@ paper is silent or ambiguous:
   that matched best"); CA then chains forward and backward from it. ``ca.formula: paper``
   uses eqs. (2)-(3) as printed (with phi = :func:`pipeline.umap.ca.effective_phi` unless
   ``ca.phi_deg`` is set); ``exact`` uses both centroid positions (the paper assumes the
-  first centroid sits at the image centre).
+  first centroid sits at the image centre). These belong to ``ca.tracker: paper``.
+- ``ca.tracker: robust`` (default, :func:`ca_track`): each match gives a signed step along
+  the wall, the majority vote runs on those steps in metres, a vote whose winner is small or
+  barely ahead of the runner-up is unreliable, the search is centred on the CA prediction,
+  ties on a featureless wall follow the prediction, a much better score nearby re-localizes,
+  and candidate poses must agree with the laser distance.
 """
 
 from __future__ import annotations

@@ -114,3 +114,20 @@ def test_synthetic_corridor_has_its_junction():
     outline = np.array(building()["outline"])
     assert (outline[:, 1] > 8.0).sum() == 2
     assert sorted(outline[outline[:, 1] > 8.0, 0].tolist()) == pytest.approx([43.8, 46.2])
+
+
+def test_signed_step_on_rendered_corridor_views():
+    # Two ray-cast views of the synthetic corridor 0.6 m apart along +x (heading 315, the
+    # laser at 270 deg hits the y = 0 wall at d = 1.6 m, theta 45): CA must measure +0.6 m.
+    from pipeline.geometry import Camera
+    from pipeline.synth.corridor import _scene, render_view
+
+    scene = _scene(building(), np.random.default_rng(0))
+    cam = Camera(320, 240, 60.0)
+    views = []
+    for x in (14.0, 14.6):
+        img = render_view(np.array([x, 1.6, 1.14, 315.0]), cam, scene)
+        views.append(ca.akaze((np.clip(img, 0, 1) * 255).astype(np.uint8), 0.00003))
+    st, kept, second, _ = ca.signed_step(*views[0], *views[1], 1.6, 45.0, cam.focal, (cam.width - 1) / 2.0, True)
+    assert st == pytest.approx(0.6, abs=0.05)
+    assert ca.is_reliable(kept, second, {"reliable_matches": 15, "reliable_ratio": 1.5})

@@ -45,14 +45,18 @@ def building(length: float = LENGTH, width: float = WIDTH) -> dict[str, Any]:
     top = [[length - x, width - y] for x, y in bottom]      # 180 deg twin, same order
     # junction: a cross corridor towards +y at the centre (breaks the symmetry)
     jw = 2.4
-    top_pts = top[:-1]
+    top_pts = top
     # insert the junction in the y = width wall, walking from x = length down to 0
     out = bottom[:-1] + [[length, 0.0]]
+    # A flag, and the walk includes the last corner (0, width): testing "no point above the
+    # wall yet" (the top alcoves come first) and stopping before x < c had silently dropped
+    # the junction, leaving the building fully point-symmetric (identical 180 deg twins).
+    inserted = False
     for p in top_pts:
-        if p[0] < c + jw / 2 and not any(q[1] > width + 1.0 for q in out):
+        if p[0] < c + jw / 2 and not inserted:
             out += [[c + jw / 2, width], [c + jw / 2, width + 6.0], [c - jw / 2, width + 6.0], [c - jw / 2, width]]
+            inserted = True
         out.append(p)
-    out.append([0.0, width])
     outline = _dedupe(out)
     doors = []
     for x in (4.0, 16.0, 30.0, 41.0):

@@ -101,3 +101,98 @@ def centroid_shift(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, des
     ua = float(pa[keep, 0].mean())
     ub = float(pb[keep, 0].mean())
     return ub - ua, ua, ub, int(keep.sum())
+
+
+def wall_tangent(heading_deg: float, theta_deg: float, wall_right: bool = True) -> np.ndarray:
+    """Unit plan vector along the wall that :func:`wall_steps` measures displacement on.
+
+    The laser (wall normal) points at heading - theta (wall on the right) or heading + theta
+    (left); the tangent is that normal turned +90 deg (counter-clockwise)."""
+    n = math.radians(heading_deg - theta_deg if wall_right else heading_deg + theta_deg)
+    return np.array([-math.sin(n), math.cos(n)])
+
+
+def wall_steps(pa: np.ndarray, pb: np.ndarray, d: float, theta_deg: float, focal: float, cx: float,
+               wall_right: bool = True) -> np.ndarray:
+    """Signed camera displacement along :func:`wall_tangent` implied by each match (pa -> pb,
+    (M, 2) pixels): a wall point at angle alpha from the wall normal lies at d tan(alpha) along
+    the wall, so the camera moved by d (tan alpha_a - tan alpha_b). Matches on the wall agree;
+    matches on the floor, furniture or far walls scatter, which the vote then discards."""
+    lim = math.radians(89.0)  # a point at the wall normal +-90 deg is at infinity
+    th = math.radians(theta_deg)
+    sgn = -1.0 if wall_right else 1.0
+    aa = np.clip(th + sgn * np.arctan((np.asarray(pa)[:, 0] - cx) / focal), -lim, lim)
+    ab = np.clip(th + sgn * np.arctan((np.asarray(pb)[:, 0] - cx) / focal), -lim, lim)
+    # the left-wall angles run clockwise, so their tangent coordinate flips sign
+    return (d * (np.tan(aa) - np.tan(ab))) * (1.0 if wall_right else -1.0)
+
+
+def metric_vote(steps: np.ndarray, tol_m: float = 0.05, rel_tol: float = 0.03) -> np.ndarray:
+    """Majority vote in metres rather than pixels: the largest group of per-match steps lying
+    within +-(tol_m + rel_tol |step|) of each other. Pixel displacements of an oblique wall
+    differ across the image (depth varies), metric steps of wall points do not."""
+    s = np.asarray(steps, dtype=np.float64).ravel()
+    if len(s) == 0:
+        return np.zeros(0, dtype=bool)
+    o = np.sort(s)
+    width = 2.0 * (tol_m + rel_tol * np.abs(o))
+    counts = np.searchsorted(o, o + width, side="right") - np.arange(len(o))
+    i = int(np.argmax(counts))
+    return (s >= o[i]) & (s <= o[i] + width[i])
+
+
+def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray, d: float, theta_deg: float,
+                focal: float, cx: float, wall_right: bool = True, tol_m: float = 0.05,
+                rel_tol: float = 0.03) -> tuple[float, int, int, float]:
+    """CA step between two frames: (median signed step along the wall of the winning group,
+    its size, the size of the runner-up group among the other matches, the runner-up's median
+    step). (nan, 0, 0, nan) when nothing matched. A winner barely larger than the runner-up is a coin toss (often floor
+    texture or a far wall against the near wall), which the tracker treats as unreliable."""
+    m = match(desc_a, desc_b)
+    if len(m) == 0:
+        return math.nan, 0, 0, math.nan
+    steps = wall_steps(pts_a[m[:, 0]], pts_b[m[:, 1]], d, theta_deg, focal, cx, wall_right)
+    keep = metric_vote(steps, tol_m, rel_tol)
+    rest = steps[~keep]
+    keep2 = metric_vote(rest, tol_m, rel_tol)
+    alt = float(np.median(rest[keep2])) if keep2.any() else math.nan
+    return float(np.median(steps[keep])), int(keep.sum()), int(keep2.sum()), alt
+
+
+def is_reliable(kept: int, second: int, params: dict) -> bool:
+    """Enough matches in the vote's winning group, and clearly more than in the runner-up."""
+    return kept >= params["reliable_matches"] and kept >= params["reliable_ratio"] * second
+
+
+def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np.ndarray, theta_deg: np.ndarray,
+              hfov_deg: float, params: dict) -> dict[str, float]:
+    """CA error statistics from a calibration sequence with ground truth (never the test one).
+
+    ``images`` the frames in order, ``truth_xy`` (N, 2) their true positions, ``d`` and
+    ``theta_deg`` the sensor rows, ``params`` the ``umap.ca`` section. Returns error_mean_m and
+    error_std_m of the reliable CA steps (measured - true, along the wall; median and 1.4826 x
+    median absolute deviation, so the few confidently wrong votes, which re-localization has to
+    catch anyway, do not inflate every gate) and fallback_step_m,
+    the median true step length of the frames whose CA vote was unreliable."""
+    feats = []
+    width = focal = 0.0
+    for path in images:
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        width = gray.shape[1]
+        focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        feats.append(akaze(gray, params["akaze_threshold"]))
+    right = params["wall_side"] == "right"
+    errs, failed = [], []
+    for k in range(1, len(images)):
+        true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], right))
+        st, kept, second, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
+                                  params["vote_tol_m"], params["vote_rel_tol"])
+        if is_reliable(kept, second, params):
+            errs.append(st - true)
+        else:
+            failed.append(abs(true))
+    e = np.asarray(errs)
+    med = float(np.median(e)) if len(e) else 0.0
+    mad = 1.4826 * float(np.median(np.abs(e - med))) if len(e) else 0.0
+    return {"error_mean_m": med, "error_std_m": mad,
+            "fallback_step_m": float(np.median(failed)) if failed else None, "n_reliable": len(errs), "n_failed": len(failed)}

@@ -14,7 +14,12 @@ paper is silent or ambiguous:
   that matched best"); CA then chains forward and backward from it. ``ca.formula: paper``
   uses eqs. (2)-(3) as printed (with phi = :func:`pipeline.umap.ca.effective_phi` unless
   ``ca.phi_deg`` is set); ``exact`` uses both centroid positions (the paper assumes the
-  first centroid sits at the image centre).
+  first centroid sits at the image centre). These belong to ``ca.tracker: paper``.
+- ``ca.tracker: robust`` (default, :func:`ca_track`): each match gives a signed step along
+  the wall, the majority vote runs on those steps in metres, a vote whose winner is small or
+  barely ahead of the runner-up is unreliable, the search is centred on the CA prediction,
+  ties on a featureless wall follow the prediction, a much better score nearby re-localizes,
+  and candidate poses must agree with the laser distance.
 """
 
 from __future__ import annotations
@@ -52,10 +57,13 @@ DEFAULTS: dict[str, Any] = {
     "mode": "umap+ca",
     "sensor_csv": None,
     "ca": {"formula": "exact", "wall_side": "right", "phi_deg": 0.0, "error_mean_m": 0.15, "error_std_m": 0.3,
-           "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.0001, "anchor": "chain", "keep_heading": True},
+           "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.00003, "anchor": "chain", "keep_heading": True,
+           "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 15, "reliable_ratio": 1.5,
+           "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None, "laser_tol_m": 0.15, "use_laser": True},
 }
 CHOICES = {"mode": ("umap", "umap+ca"), "query_kind": ("pinhole", "equirect"), "ca.formula": ("exact", "paper"),
-           "ca.wall_side": ("right", "left"), "ca.anchor": ("best", "chain")}
+           "ca.wall_side": ("right", "left"), "ca.anchor": ("best", "chain"),
+           "ca.tracker": ("robust", "paper")}
 
 
 def _camera(p: dict[str, Any]) -> Camera:
@@ -296,6 +304,117 @@ def _ca_chain(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, ca_dis
     return best, score, radius
 
 
+def laser_ranges(xy: np.ndarray, angle_deg: float, faces: np.ndarray) -> np.ndarray:
+    """Plan ray cast: distance from each point along ``angle_deg`` to the first wall face
+    (``faces`` (F, >=4) x0 y0 x1 y1 ...); inf where no face is hit."""
+    h = math.radians(angle_deg)
+    dx, dy = math.cos(h), math.sin(h)
+    out = np.full(len(xy), np.inf)
+    for ax, ay, bx, by in faces[:, :4]:
+        ex, ey = bx - ax, by - ay
+        den = dx * ey - dy * ex
+        if abs(den) < 1e-12:
+            continue
+        wx, wy = ax - xy[:, 0], ay - xy[:, 1]
+        t = (wx * ey - wy * ex) / den
+        u = (wx * dy - wy * dx) / den
+        hit = (t > 1e-9) & (u >= 0) & (u <= 1)
+        out[hit] = np.minimum(out[hit], t[hit])
+    return out
+
+
+def _pick(scorer: Scorer, lines: np.ndarray, rows: np.ndarray, xy: np.ndarray, pred: np.ndarray,
+          tie_tol: float) -> tuple[int, float]:
+    """Best-scoring row; rows scoring within ``tie_tol`` of the best are ties (a wall without
+    doors looks the same from everywhere along it) and go to the one nearest ``pred``."""
+    if len(scorer.view_heading) == 1 and math.isnan(scorer.view_heading[0]):
+        sc = iou_scores(scorer.bits, scorer.counts, lines[0], rows)
+    else:  # panorama cut views: each row is compared with the view cut at its own heading
+        sc = np.full(len(rows), -1.0)
+        for v, hd in enumerate(scorer.view_heading):
+            on = np.isclose(scorer.poses[rows, 3] % 360, hd % 360)
+            if on.any():
+                sc[on] = iou_scores(scorer.bits, scorer.counts, lines[v], rows[on])
+    top = float(sc.max())
+    tied = np.flatnonzero(sc >= top - tie_tol)
+    j = tied[np.argmin(np.hypot(*(xy[rows[tied]] - pred).T))]
+    return int(rows[j]), float(sc[j])
+
+
+def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: np.ndarray, reliable: np.ndarray,
+             theta: np.ndarray, poses: np.ndarray, lines: np.ndarray, scorer: Scorer,
+             c: dict[str, Any], alt: np.ndarray | None = None,
+             laser: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robust UMap+CA from one anchor frame, forward then backward.
+
+    ``step[k]``: signed CA step along the wall from frame k-1 to k (nan if none), ``reliable[k]``
+    whether its vote group had enough matches, ``theta[k]`` the camera angle to the wall at
+    frame k-1. Each frame's search is centred on the position CA predicts (previous estimate +
+    step along the wall), within ``|error_mean| + 2 error_std`` (+0.1 m grid quantisation).
+    An unreliable or missing CA step falls back to the sequence's median reliable step with
+    ``fallback_radius_m`` (or ``fallback_step_m`` in its direction when calibrated: CA fails
+    mostly on large steps, so the median reliable step underestimates them). If the best score inside the gate is ``recover_ratio`` times below
+    the best within ``fallback_radius_m`` of the previous estimate, the CA step is taken to be
+    wrong and the wider search wins (re-localization). ``alt[k]`` (optional) is the vote's
+    runner-up step, a second motion hypothesis tried before the wide search under the same
+    ratio: a wrong winning group often has the true motion as runner-up. ``laser`` (optional)
+    = (d per frame, theta per frame, wall faces): candidate poses whose plan ray cast towards the wall differs
+    from the measured laser distance by more than ``laser_tol_m`` are dropped (the laser CA
+    already relies on fixes the distance across the wall, which the line images of a corridor
+    barely constrain). Returns (best rows, scores, radii)."""
+    n = len(umap_best)
+    best, score = umap_best.copy(), umap_score.copy()
+    radius = np.full(n, np.nan)
+    xy = poses[:, :2]
+    gate = abs(c["error_mean_m"]) + 2.0 * c["error_std_m"] + 0.1
+    ok = reliable & np.isfinite(step)
+    typical = float(np.median(step[ok])) if ok.any() else 0.0
+    if c["fallback_step_m"] is not None:  # calibrated size of the steps CA fails on (large ones), same direction
+        typical = math.copysign(float(c["fallback_step_m"]), typical)
+    order = [(k, k - 1, k, 1.0) for k in range(anchor + 1, n)] + [(k, k + 1, k + 1, -1.0) for k in range(anchor - 1, -1, -1)]
+    for k, prev, st, sgn in order:
+        pp = poses[best[prev]]
+        t = ca_mod.wall_tangent(float(pp[3]), float(theta[st]), c["wall_side"] == "right")
+        if ok[st]:
+            pred, r = pp[:2] + sgn * step[st] * t, gate
+        else:
+            pred, r = pp[:2] + sgn * typical * t, c["fallback_radius_m"]
+        heading_ok = np.isclose(poses[:, 3], pp[3]) if c["keep_heading"] else np.ones(len(poses), bool)
+        if laser is not None:
+            th_k = laser[1][k]  # frame k's laser points at heading -/+ theta
+            near_prev = heading_ok & (np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"] + 2 * abs(typical) + gate)
+            cand = np.flatnonzero(near_prev)
+            ang = poses[cand, 3] - th_k if c["wall_side"] == "right" else poses[cand, 3] + th_k
+            rng_ = np.full(len(cand), np.inf)
+            for a_ in np.unique(ang):
+                on = ang == a_
+                rng_[on] = laser_ranges(xy[cand[on]], float(a_), laser[2])
+            fits = np.abs(rng_ - laser[0][k]) <= c["laser_tol_m"]
+            if fits.any():
+                heading_ok = np.zeros(len(poses), bool)
+                heading_ok[cand[fits]] = True
+        dist = np.hypot(*(xy - pred).T)
+        rows = np.flatnonzero((dist <= r) & heading_ok)
+        if rows.size == 0:  # gate below the grid step: the nearest grid positions
+            rows = np.flatnonzero(heading_ok & (dist <= dist[heading_ok].min() + 1e-9))
+        i, s = _pick(scorer, lines[k], rows, xy, pred, c["tie_tol"])
+        if alt is not None and np.isfinite(alt[st]):
+            pred2 = pp[:2] + sgn * alt[st] * t
+            rows2 = np.flatnonzero((np.hypot(*(xy - pred2).T) <= gate) & heading_ok)
+            if rows2.size:
+                j, s2 = _pick(scorer, lines[k], rows2, xy, pred2, c["tie_tol"])
+                if s2 > s * c["recover_ratio"]:
+                    i, s, r, pred = j, s2, gate, pred2
+        if r < c["fallback_radius_m"]:
+            wide = np.flatnonzero((np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"]) & heading_ok)
+            if wide.size:
+                j, sw = _pick(scorer, lines[k], wide, xy, pred, c["tie_tol"])
+                if sw > s * c["recover_ratio"]:
+                    i, s, r = j, sw, c["fallback_radius_m"]
+        best[k], score[k], radius[k] = i, s, r
+    return best, score, radius
+
+
 def localize(ctx: Any) -> None:
     p = ctx.params
     idx = ctx.artifact("index")
@@ -324,24 +443,41 @@ def localize(ctx: Any) -> None:
         pts, desc = ex["kp_pts"][()], ex["kp_desc"][()]
         qw, qf = int(ex.attrs["query_width"]), float(ex.attrs["query_focal"])
         phi = c["phi_deg"] if c["phi_deg"] > 0 else ca_mod.effective_phi(float(idx.attrs["hfov_deg"]))
+        step = np.full(n, np.nan)
+        reliable = np.zeros(n, dtype=bool)
+        alt = np.full(n, np.nan)  # the vote's runner-up step: a second motion hypothesis
+        laser_d = np.array([sensor[nm][0] for nm in names])
+        laser_theta = np.array([sensor[nm][1] for nm in names])
+        faces = ctx.artifact("build-dictionary")["faces"][()]
+        theta = np.zeros(n)
         for k in range(1, n):  # ca_dist[k]: moved distance between frames k-1 and k
             a, b = slice(off[k - 1], off[k]), slice(off[k], off[k + 1])
+            d, theta[k] = sensor[names[k - 1]]
+            if c["tracker"] == "robust":
+                step[k], n_kept[k], second, alt[k] = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
+                                                           c["wall_side"] == "right", c["vote_tol_m"], c["vote_rel_tol"])
+                reliable[k] = ca_mod.is_reliable(int(n_kept[k]), second, c)
+                ca_dist[k] = abs(step[k])
+                continue
             shift = ca_mod.centroid_shift(pts[a], desc[a], pts[b], desc[b], c["bin_px"], c["min_matches"])
             if shift is None:
                 continue
-            d, theta = sensor[names[k - 1]]
             n_kept[k] = shift[3]
             if c["formula"] == "paper":
-                ca_dist[k] = ca_mod.moved_distance_paper(shift[0], d, theta, phi, qw)
+                ca_dist[k] = ca_mod.moved_distance_paper(shift[0], d, theta[k], phi, qw)
             else:
-                ca_dist[k] = ca_mod.moved_distance_exact(shift[1], shift[2], d, theta, qf, (qw - 1) / 2.0, c["wall_side"] == "right")
+                ca_dist[k] = ca_mod.moved_distance_exact(shift[1], shift[2], d, theta[k], qf, (qw - 1) / 2.0, c["wall_side"] == "right")
         # Anchor: the paper starts from the frame with the best UMap score ("best"); "chain"
         # starts a chain from every frame's UMap estimate and keeps the chain with the highest
         # summed score, so one confidently wrong frame cannot carry the whole sequence off.
         anchors = [anchor] if c["anchor"] == "best" else list(np.argsort(-umap_score, kind="stable"))
         best_total = -1.0
         for a in ctx.progress(anchors, total=len(anchors), desc="CA chains"):
-            b, s, r = _ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer, c)
+            if c["tracker"] == "robust":
+                b, s, r = ca_track(int(a), umap_best, umap_score, step, reliable, theta, poses, lines, scorer, c, alt,
+                                   (laser_d, laser_theta, faces) if c["use_laser"] else None)
+            else:
+                b, s, r = _ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer, c)
             if s.sum() > best_total:
                 best_total, anchor = float(s.sum()), int(a)
                 best, score, radius = b, s, r

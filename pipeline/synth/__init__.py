@@ -13,6 +13,7 @@ from typing import Any
 
 SYNTH_KINDS: dict[str, str] = {
     "route": "pipeline.synth.route",
+    "omni": "pipeline.synth.omni",
 }
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 EXPERIMENTS: dict[str, str] = {
     "seqslam": "pipeline.seqslam.experiment",
+    "pirf": "pipeline.pirf.experiment",
 }
 
 

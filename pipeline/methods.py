@@ -17,6 +17,7 @@ STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
 # name -> module that defines METHOD; imported lazily so one method's deps never load another's.
 METHOD_MODULES: dict[str, str] = {
     "seqslam": "pipeline.seqslam.stages",
+    "pirf": "pipeline.pirf.stages",
 }
 METHOD_NAMES = tuple(METHOD_MODULES)
 

@@ -169,7 +169,7 @@ class OmniWorld:
         rng = np.random.default_rng(1000 + run)
         pos = []
         loop = np.array(self.loop, float)
-        for k in range(self.n_movers):
+        for _ in range(self.n_movers):
             i = int(rng.integers(0, len(loop)))
             a, b = loop[i], loop[(i + 1) % len(loop)]
             phase = rng.uniform(0, 2 * np.pi)

@@ -247,12 +247,32 @@ def loop_path(loop: list[tuple[float, float]], frames: int, step: float, offset:
     return np.column_stack([xy, heading])
 
 
-def _write_run(world: OmniWorld, folder: Path, poses: np.ndarray, width: int, lighting: dict[str, float], run: int, seed: int) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed * 7 + run)
-    for t, (x, y, hd) in enumerate(poses):
+def _render_chunk(args: tuple) -> None:
+    """Worker: render frames [lo, hi) of one run (each frame's noise seeded by (seed, run, t))."""
+    layout, seed, movers, folder, poses, lo, hi, width, lighting, run = args
+    world = OmniWorld(layout, seed, movers=movers)
+    for t in range(lo, hi):
+        x, y, hd = poses[t]
+        rng = np.random.default_rng([seed, run, t])
         img = world.render(float(x), float(y), float(hd), width, lighting, world.movers_at(t, run), rng)
-        cv2.imwrite(str(folder / f"frame_{t:05d}.png"), img)
+        cv2.imwrite(str(Path(folder) / f"frame_{t:05d}.png"), img)
+
+
+def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndarray, width: int, lighting: dict[str, float],
+               run: int, workers: int) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    n = len(poses)
+    step = max(1, -(-n // (4 * workers)))
+    chunks = [(layout, seed, movers, str(folder), poses, lo, min(n, lo + step), width, lighting, run) for lo in range(0, n, step)]
+    if workers > 1 and len(chunks) > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            list(pool.map(_render_chunk, chunks))
+    else:
+        for c in chunks:
+            _render_chunk(c)
     with open(folder / "poses.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "x", "y", "heading"])
@@ -261,10 +281,12 @@ def _write_run(world: OmniWorld, folder: Path, poses: np.ndarray, width: int, li
 
 
 def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | None = None, width: int = 480,
-             layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, **extra: Any) -> dict[str, Any]:
+             layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, workers: int = 1,
+             **extra: Any) -> dict[str, Any]:
     """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length)."""
     if extra:
-        raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: frames, test_frames, width, layout, step, test_offset, movers")
+        known = "frames, test_frames, width, layout, step, test_offset, movers, workers"
+        raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: {known}")
     if width < 64 or width % 2:
         raise ValueError(f"width must be an even number >= 64 (height is width/2), got {width}")
     if frames < 2:
@@ -277,8 +299,8 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     test = loop_path(world.loop, test_frames, step, offset=test_offset, reverse=True, start=0.37, jitter=0.02, rng=rng)
     light_map = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
     light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}
-    _write_run(world, out_dir / "mapping", mapping, width, light_map, 0, seed)
-    _write_run(world, out_dir / "test", test, width, light_test, 1, seed)
+    _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers)
+    _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers)
     pts = np.array(world.loop, float)
     length = float(np.linalg.norm(np.roll(pts, -1, 0) - pts, axis=1).sum())
     return {"mapping": str(out_dir / "mapping"), "test": str(out_dir / "test"), "frames": frames, "test_frames": test_frames,

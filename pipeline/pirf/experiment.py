@@ -32,7 +32,7 @@ from pipeline.runner import read_metrics, run_all, run_stage
 from pipeline.synth.omni import generate
 
 DEFAULT_INDEX = "faiss-hnsw"
-FULL = {"frames": 8000, "test_frames": 800}
+FULL = {"frames": 3000, "test_frames": 600}
 QUICK = {"frames": 1200, "test_frames": 300}
 TIMING_BACKENDS = ("bruteforce", "flann-kmeans", "flann-kdtree", "faiss-hnsw", "faiss-ivf")
 

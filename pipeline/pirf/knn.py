@@ -42,17 +42,26 @@ def bf_knn2(a: np.ndarray, b: np.ndarray, block: int = 65536, b_norms: np.ndarra
             s = e
         start = c
     done_cuts = {0: (best_d.copy(), best_i.copy())}
+    rows = np.arange(n)
     for s, e in edges:
-        bb = np.asarray(b[s:e], np.float32)
-        d = an[:, None] + bn[s:e][None, :] - 2.0 * (a @ bb.T)
-        np.maximum(d, 0, out=d)
+        # ||a||^2 is constant per row, so rank by ||b||^2 - 2 a.b and add it back at the end;
+        # two argmin passes are much cheaper than argpartition on a (n, block) matrix.
+        g = np.asarray(b[s:e], np.float32)
+        d = a @ g.T
+        d *= -2.0
+        d += bn[s:e][None, :]
+        i1 = d.argmin(1)
+        pd1 = d[rows, i1]
         if e - s >= 2:
-            part = np.argpartition(d, 1, axis=1)[:, :2]
+            d[rows, i1] = np.inf
+            i2 = d.argmin(1)
+            pd2 = d[rows, i2]
         else:
-            part = np.zeros((n, 1), np.int64)
-        pd = np.take_along_axis(d, part, 1)
-        cand_d = np.concatenate([best_d, pd], 1)
-        cand_i = np.concatenate([best_i, part + s], 1)
+            i2, pd2 = np.full(n, -1), np.full(n, np.inf, np.float32)
+        pd = np.maximum(np.column_stack([pd1, pd2]) + an[:, None], 0)
+        part = np.column_stack([i1 + s, np.where(i2 >= 0, i2 + s, -1)])
+        cand_d = np.concatenate([best_d, pd.astype(np.float32)], 1)
+        cand_i = np.concatenate([best_i, part], 1)
         o = np.argsort(cand_d, axis=1, kind="stable")[:, :2]
         best_d = np.take_along_axis(cand_d, o, 1)
         best_i = np.take_along_axis(cand_i, o, 1)

@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from pipeline.pirf.ann import BACKENDS, AnnIndex, IndexError_
+from pipeline.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
 from pipeline.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
 from pipeline.pirf.knn import bf_knn2
 from pipeline.pirf.mapping import PirfMapper, gauss, improved_insert, similarity_s, z_norm
@@ -147,7 +147,7 @@ def test_index_backends_agree_with_brute_force(backend: str, tmp_path) -> None:
     with h5py.File(tmp_path / "ix.h5", "r") as f:
         again = AnnIndex.from_h5(f["index"], data)
         assert np.array_equal(again.knn2(q)[1], i)  # stored, not rebuilt: same answers
-        with pytest.raises(IndexError_, match="another dictionary"):
+        with pytest.raises(IndexMismatchError, match="another dictionary"):
             AnnIndex.from_h5(f["index"], data[::-1].copy())
 
 

@@ -37,7 +37,7 @@ INDEX_DEFAULTS: dict[str, Any] = {"checks": 512, "hnsw_m": 32, "hnsw_ef_construc
                                   "ivf_nlist": 1024, "ivf_nprobe": 16, "kmeans_branching": 32, "kdtree_trees": 4}
 
 
-class IndexError_(RuntimeError):
+class IndexMismatchError(RuntimeError):
     """The stored index does not fit the dictionary (or cannot be loaded); says what to re-run."""
 
 
@@ -164,7 +164,7 @@ class AnnIndex:
         params = {k[6:]: (v.item() if hasattr(v, "item") else v) for k, v in g.attrs.items() if k.startswith("param_")}
         self = cls(backend, data, params, int(g.attrs["seed"]))
         if data_hash(self.data) != str(g.attrs["data_sha256"]):
-            raise IndexError_(f"{where}: the stored {backend} index was built over another dictionary; "
+            raise IndexMismatchError(f"{where}: the stored {backend} index was built over another dictionary; "
                               "re-run `placeloc index` (or `run --force`)")
         if backend == "bruteforce":
             self.norms = sq_norms(self.data)
@@ -178,7 +178,7 @@ class AnnIndex:
                     fh.write(blob.tobytes())
                 self.impl = cv2.flann_Index()
                 if not self.impl.load(self.data, path):
-                    raise IndexError_(f"{where}: the stored FLANN index could not be loaded; re-run `placeloc index`")
+                    raise IndexMismatchError(f"{where}: the stored FLANN index could not be loaded; re-run `placeloc index`")
             finally:
                 os.unlink(path)
         else:

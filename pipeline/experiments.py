@@ -17,6 +17,7 @@ EXPERIMENTS: dict[str, str] = {
     "seqslam": "pipeline.seqslam.experiment",
     "umap": "pipeline.umap.experiment",
     "coembed": "pipeline.coembed.experiment",
+    "pirf": "pipeline.pirf.experiment",
 }
 
 

@@ -19,6 +19,7 @@ METHOD_MODULES: dict[str, str] = {
     "seqslam": "pipeline.seqslam.stages",
     "umap": "pipeline.umap.stages",
     "coembed": "pipeline.coembed.stages",
+    "pirf": "pipeline.pirf.stages",
 }
 METHOD_NAMES = tuple(METHOD_MODULES)
 

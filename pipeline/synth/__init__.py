@@ -15,6 +15,7 @@ SYNTH_KINDS: dict[str, str] = {
     "route": "pipeline.synth.route",
     "corridor": "pipeline.synth.corridor",
     "coembed": "pipeline.synth.coembed",
+    "omni": "pipeline.synth.omni",
 }
 
 

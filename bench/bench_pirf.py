@@ -1,0 +1,101 @@
+"""PIRF-nav2 index benchmark (``make bench-pirf``): m_t for 200-PIRF frames against a
+500,000-entry dictionary of SIFT descriptors, brute force (BLAS) vs every ANN backend.
+
+The dictionary is real SIFT from frames of the synthetic omnidirectional building
+(``pipeline.synth.omni``), rendered along the loop; the query frames are rendered at
+poses 0.15 m to the side under other lighting, 200 strongest SIFT each. Descriptors are
+cached as .npy under ``--cache``. Prints one table with ratios against brute force.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pipeline.pirf.ann import BACKENDS, AnnIndex
+from pipeline.pirf.mapping import node_vector
+from pipeline.pirf.stages import set_agreement
+from pipeline.synth.omni import OmniWorld, loop_path
+
+
+def sift_set(n_target: int, n_queries: int, cache: Path) -> tuple[np.ndarray, list[np.ndarray]]:
+    dpath, qpath = cache / f"dict_{n_target}.npy", cache / f"queries_{n_queries}.npy"
+    if dpath.is_file() and qpath.is_file():
+        q = np.load(qpath)
+        return np.load(dpath), list(q.reshape(n_queries, 200, 128))
+    cache.mkdir(parents=True, exist_ok=True)
+    world = OmniWorld("building", 0)
+    sift = cv2.SIFT_create(nfeatures=700)
+    light = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
+    rng = np.random.default_rng(0)
+    chunks, total, t = [], 0, 0
+    poses = loop_path(world.loop, 4000, 0.25)
+    while total < n_target:
+        img = world.render(*poses[t], 480, light, world.movers_at(t, 0), rng)
+        _, d = sift.detectAndCompute(img, None)
+        if d is not None:
+            chunks.append(d)
+            total += len(d)
+        t += 1
+    dic = np.concatenate(chunks)[:n_target].astype(np.float32)
+    qlight = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}
+    qposes = loop_path(world.loop, n_queries, 0.25 * t / n_queries, offset=0.15, start=0.01)
+    queries = []
+    for k in range(n_queries):
+        img = world.render(*qposes[k], 480, qlight, world.movers_at(k, 1), rng)
+        kps, d = sift.detectAndCompute(img, None)
+        order = np.argsort([-kp.response for kp in kps])[:200]
+        queries.append(d[order].astype(np.float32))
+    np.save(dpath, dic)
+    np.save(qpath, np.stack(queries))
+    return dic, queries
+
+
+def time_mt(ix: AnnIndex, queries: list[np.ndarray], reps: int) -> tuple[float, list[np.ndarray]]:
+    best = np.inf
+    out = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        out = [node_vector(*ix.knn2(q), 0.7) for q in queries]
+        best = min(best, (time.perf_counter() - t0) / len(queries))
+    return best, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", type=int, default=500_000)
+    ap.add_argument("--queries", type=int, default=10, help="200-PIRF query frames")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--backends", default="bruteforce,faiss-hnsw,faiss-ivf,flann-kdtree,flann-kmeans",
+                    help=f"comma list of {', '.join(BACKENDS)} (flann-autotune takes many minutes at 500k: add it explicitly)")
+    ap.add_argument("--cache", type=Path, default=Path("runs/bench-pirf"))
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    dic, queries = sift_set(args.size, args.queries, args.cache)
+    print(f"dictionary {dic.shape[0]} x {dic.shape[1]} SIFT, {len(queries)} query frames x 200 ({time.perf_counter() - t0:.1f} s to make)")
+    bf = AnnIndex("bruteforce", dic, {}).build()
+    bf_s, bf_m = time_mt(bf, queries, args.reps)
+    ptr_b = np.concatenate([[0], np.cumsum([len(m) for m in bf_m])])
+    rows = [{"backend": "bruteforce", "build_s": bf.build_seconds, "mt_s": bf_s, "speedup": 1.0, "jaccard": 1.0, "precision": 1.0, "recall": 1.0}]
+    for b in [x for x in args.backends.split(",") if x and x != "bruteforce"]:
+        ix = AnnIndex(b, dic, {}, seed=0).build()
+        s, ms = time_mt(ix, queries, args.reps)
+        ptr = np.concatenate([[0], np.cumsum([len(m) for m in ms])])
+        ag = set_agreement(ptr, np.concatenate(ms), ptr_b, np.concatenate(bf_m))
+        rows.append({"backend": b, "build_s": ix.build_seconds, "mt_s": s, "speedup": bf_s / s, **ag})
+    print(f"\nm_t for a 200-PIRF frame, dictionary {len(dic)}:  (ratios vs brute force)")
+    print(f"{'backend':<14}{'build s':>9}{'m_t ms':>10}{'speedup':>9}{'Jaccard':>9}{'precision':>10}{'recall':>8}")
+    for r in rows:
+        print(f"{r['backend']:<14}{r['build_s']:>9.1f}{1000 * r['mt_s']:>10.2f}{r['speedup']:>8.1f}x"
+              f"{r['jaccard']:>9.3f}{r['precision']:>10.3f}{r['recall']:>8.3f}")
+    (args.cache / "bench.json").write_text(json.dumps(rows, indent=2))
+    print(f"\nwritten {args.cache / 'bench.json'}; m_t words per frame (BF): {np.mean([len(m) for m in bf_m]):.1f}")
+
+
+if __name__ == "__main__":
+    main()

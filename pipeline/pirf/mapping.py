@@ -1,0 +1,224 @@
+"""Incremental PIRF-nav2 mapping: node vectors, similarity eqs. (5)-(9), dictionary updates.
+
+Every mapping frame is a location node L_t. Choices where the paper is silent (recorded
+here and in docs/pirf.md):
+
+- The query vector m_t is over Q_{t-eps} (eq. 3-4); a node's *stored* vector m_j holds
+  every dictionary word that represents P_j: the words its PIRFs matched plus the words
+  its own new PIRFs became (or, in the improved update, matched while being inserted).
+  Without the latter a revisit could never overlap the node that first saw the place.
+- Loop-closure candidates are the nodes j < t - eps: the recent nodes share m_t's words
+  trivially (same place, seconds ago), which eps exists to exclude.
+- I_j (eq. 6, 8) are the temporal neighbours j-1 and j+1 among the candidates.
+- The ratio test needs two candidates; with fewer nothing matches (so the first PIRFs
+  always enter the dictionary).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from pipeline.pirf.knn import bf_knn2, sq_norms
+
+
+def gauss(x: float, sigma: float) -> float:
+    """Eq. (7): the normal density N(x; 0, sigma)."""
+    return math.exp(-x * x / (2 * sigma * sigma)) / math.sqrt(2 * math.pi * sigma * sigma)
+
+
+def similarity_s(n_mt: int, overlap: np.ndarray, n_pmax: int) -> np.ndarray:
+    """Eq. (5): s_j = |m_t|_1 / n_pmax * |m_t AND m_j|_1 / n_pmax."""
+    return (n_mt / n_pmax) * (np.asarray(overlap, np.float64) / n_pmax)
+
+
+def z_norm(s: np.ndarray, sigma: float) -> np.ndarray:
+    """Eqs. (6) and (8) with I_j = {j-1, j+1} (those that exist)."""
+    s = np.asarray(s, np.float64)
+    k = len(s)
+    if k == 0:
+        return s
+    nb_s = np.zeros(k)
+    nb_s[1:] += s[:-1]
+    nb_s[:-1] += s[1:]
+    z = s * gauss(0.0, sigma) + nb_s * gauss(1.0, sigma)  # (6)
+    nb_z = np.zeros(k)
+    nb_z[1:] += z[:-1]
+    nb_z[:-1] += z[1:]
+    n_nb = np.full(k, 2.0)
+    n_nb[0] -= 1
+    n_nb[-1] -= 1
+    if k == 1:
+        n_nb[:] = 0
+    return (z + nb_z) / (1 + n_nb)  # (8)
+
+
+def ratio_ok(d2: np.ndarray, idx: np.ndarray, ratio: float) -> np.ndarray:
+    """Eq. (1) on squared distances; rows without two neighbours never match."""
+    return (idx[:, 1] >= 0) & (d2[:, 0] < (ratio * ratio) * d2[:, 1])
+
+
+def improved_insert(p_new: np.ndarray, d_q: np.ndarray, i_q: np.ndarray, n_dict: int, ratio: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sec. 4.1: insert P_new one by one, in descending d_k (eq. 13), each only if it has no
+    ratio-test match in Q^{(i-1)} = Q_{t-1} plus the ones inserted so far (eqs. 11-12, 14-15).
+
+    ``d_q``/``i_q``: squared distances / indices of each p's two nearest entries in Q_{t-1}.
+    Returns (order (sorted positions into p_new), added mask over p_new, word per p: the new
+    word id if added, else the matched word).
+    """
+    n = len(p_new)
+    order = np.argsort(-d_q[:, 0], kind="stable")  # d_k descending; inf (empty Q) first
+    pn = sq_norms(p_new)
+    pair = np.maximum(pn[:, None] + pn[None, :] - 2 * (p_new @ p_new.T), 0)
+    added = np.zeros(n, bool)
+    word = np.full(n, -1, np.int64)
+    a_pos: list[int] = []  # positions in p_new of the inserted ones, in insertion order
+    next_id = n_dict
+    for i in order:
+        cand_d = list(d_q[i])
+        cand_w = list(i_q[i])
+        if a_pos:
+            da = pair[i, a_pos]
+            two = np.argsort(da, kind="stable")[:2]
+            cand_d += list(da[two])
+            cand_w += [int(word[a_pos[j]]) for j in two]
+        o = np.argsort(np.asarray(cand_d), kind="stable")[:2]
+        d1, d2 = cand_d[o[0]], (cand_d[o[1]] if len(o) > 1 else np.inf)
+        w1 = cand_w[o[0]]
+        valid2 = len(o) > 1 and cand_w[o[1]] >= 0
+        if valid2 and w1 >= 0 and d1 < ratio * ratio * d2:
+            word[i] = w1  # (12): a match exists in Q^{(i-1)}: rejected, but the node sees that word
+        else:
+            word[i] = next_id  # (11): inserted
+            next_id += 1
+            added[i] = True
+            a_pos.append(int(i))
+    return order, added, word
+
+
+@dataclass
+class PirfMapper:
+    """Grows the dictionary frame by frame and detects loop closures (brute force, exact)."""
+
+    dim: int
+    ratio: float = 0.7
+    n_pmax: int = 200
+    eps: int = 30
+    sigma: float = 2.0
+    tau: float = 0.015
+    update: str = "improved"
+    words: np.ndarray = field(init=False)
+    norms: np.ndarray = field(init=False)
+    n: int = 0
+    dict_size_after: list[int] = field(default_factory=list)
+    node_words: list[np.ndarray] = field(default_factory=list)
+    pairs_after: list[int] = field(default_factory=list)
+    best: list[tuple[int, float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.update not in ("plain", "improved"):
+            raise ValueError(f"update must be plain or improved, got {self.update!r}")
+        self.words = np.zeros((4096, self.dim), np.float32)
+        self.norms = np.zeros(4096, np.float32)
+        self._pair_nodes = np.zeros(1 << 16, np.int32)
+        self._pair_words = np.zeros(1 << 16, np.int64)
+        self._npairs = 0
+
+    def _grow(self, extra: int) -> None:
+        need = self.n + extra
+        if need > len(self.words):
+            cap = max(need, 2 * len(self.words))
+            w = np.zeros((cap, self.dim), np.float32)
+            w[: self.n] = self.words[: self.n]
+            nr = np.zeros(cap, np.float32)
+            nr[: self.n] = self.norms[: self.n]
+            self.words, self.norms = w, nr
+
+    def _add_pairs(self, node: int, words: np.ndarray) -> None:
+        need = self._npairs + len(words)
+        if need > len(self._pair_nodes):
+            cap = max(need, 2 * len(self._pair_nodes))
+            self._pair_nodes = np.resize(self._pair_nodes, cap)
+            self._pair_words = np.resize(self._pair_words, cap)
+        self._pair_nodes[self._npairs:need] = node
+        self._pair_words[self._npairs:need] = words
+        self._npairs = need
+
+    @property
+    def dictionary(self) -> np.ndarray:
+        return self.words[: self.n]
+
+    def step(self, pirfs: np.ndarray) -> tuple[int, float, int]:
+        """Process frame t's PIRFs: returns (best candidate node or -1, its z_norm, |m_t|)."""
+        t = len(self.node_words)
+        p = np.ascontiguousarray(pirfs, np.float32).reshape(-1, self.dim)
+        n_eps = self.dict_size_after[t - self.eps] if t - self.eps >= 0 else 0
+        d_f, i_f, d_e, i_e = bf_knn2(p, self.words[: self.n], b_norms=self.norms[: self.n], splits=(n_eps,))
+        # m_t over Q_{t-eps} (eqs. 3-4)
+        m_t = np.unique(i_e[ratio_ok(d_e, i_e, self.ratio), 0]) if n_eps else np.zeros(0, np.int64)
+        k = max(0, t - self.eps)  # candidates j < t - eps
+        c, score = -1, 0.0
+        if k > 0 and len(m_t):
+            ind = np.zeros(self.n, bool)
+            ind[m_t] = True
+            npairs = self.pairs_after[k - 1]
+            hit = ind[self._pair_words[:npairs]]
+            overlap = np.bincount(self._pair_nodes[:npairs][hit], minlength=k)
+            z = z_norm(similarity_s(len(m_t), overlap, self.n_pmax), self.sigma)
+            c = int(np.argmax(z))
+            score = float(z[c])
+        self.best.append((c, score))
+        # dictionary update (sec. 3.4 / 4.1) against the whole Q_{t-1}
+        ok = ratio_ok(d_f, i_f, self.ratio)
+        matched = i_f[ok, 0]
+        new = np.flatnonzero(~ok)
+        if self.update == "plain":
+            ids = np.arange(self.n, self.n + len(new))
+            add_rows = new
+            node = np.concatenate([matched, ids])
+        else:
+            order, added, word = improved_insert(p[new], d_f[new], i_f[new], self.n, self.ratio)
+            # rows are appended in insertion order so word ids are consecutive
+            ins = order[added[order]]
+            add_rows = new[ins]
+            node = np.concatenate([matched, word])
+        self._grow(len(add_rows))
+        self.words[self.n:self.n + len(add_rows)] = p[add_rows]
+        self.norms[self.n:self.n + len(add_rows)] = sq_norms(p[add_rows]) if len(add_rows) else 0
+        self.n += len(add_rows)
+        node = np.unique(node)
+        self.node_words.append(node)
+        self._add_pairs(t, node)
+        self.pairs_after.append(self._npairs)
+        self.dict_size_after.append(self.n)
+        return c, score, len(m_t)
+
+    def node_matrix(self) -> sp.csr_matrix:
+        """Node vectors as a sparse (nodes x words) 0/1 matrix."""
+        return vectors_to_csr(self.node_words, self.n)
+
+
+def vectors_to_csr(vectors: list[np.ndarray], n_cols: int) -> sp.csr_matrix:
+    ptr = np.concatenate([[0], np.cumsum([len(v) for v in vectors])]).astype(np.int64)
+    cols = np.concatenate(vectors).astype(np.int64) if vectors else np.zeros(0, np.int64)
+    return sp.csr_matrix((np.ones(len(cols), np.float32), cols, ptr), shape=(len(vectors), n_cols))
+
+
+def node_vector(d2: np.ndarray, idx: np.ndarray, ratio: float) -> np.ndarray:
+    """m_t as sorted word ids: the dictionary entries some PIRF ratio-test-matches."""
+    return np.unique(idx[ratio_ok(d2, idx, ratio), 0])
+
+
+def localize_frame(m_t: np.ndarray, nodes: sp.csr_matrix, n_pmax: int, sigma: float) -> tuple[int, float]:
+    """Best node (eq. 9) over all nodes for a query vector; (-1, 0) when m_t is empty."""
+    if len(m_t) == 0 or nodes.shape[0] == 0:
+        return -1, 0.0
+    ind = np.zeros(nodes.shape[1], np.float32)
+    ind[m_t] = 1
+    overlap = nodes @ ind
+    z = z_norm(similarity_s(len(m_t), overlap, n_pmax), sigma)
+    c = int(np.argmax(z))
+    return c, float(z[c])

@@ -1,0 +1,307 @@
+"""Synthetic omnidirectional (equirectangular) video of a textured building, with poses.
+
+``generate(out_dir, seed, frames=..., ...)`` renders two runs over the same building:
+
+- ``mapping/``: the camera walks a closed loop through rooms and corridors at ``step``
+  metres per frame; more frames than one lap revisit places (loop closures).
+- ``test/``: an unseen run over the same loop, offset sideways by ``test_offset`` metres,
+  walked in the opposite direction, under different lighting and with other movers.
+
+Each run writes ``frame_00000.png`` ... (8-bit grey, ``width`` x ``width/2``) and
+``poses.csv`` (``frame,x,y,heading``; metres, radians).
+
+Rendering is vectorised ray casting: per image column a 2-D DDA walk through an
+occupancy grid (cell ``cell`` m) finds the wall; per pixel the elevation decides wall,
+floor or ceiling, and textures are looked up in a bank of procedural panels (posters,
+shapes, noise, and a few repeated brick/tile panels so that some places look alike).
+Moving people are vertical cylinders; lighting differs per run (gain, gamma, a smooth
+spatial illumination field) and every frame gets sensor noise.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+WALL_H = 3.0      # ceiling height, m
+CAM_H = 1.5       # camera height, m
+TEX_PX_PER_M = 40  # texture resolution
+PANEL_W = 1.5     # wall panel width, m: one texture per panel
+
+
+def _layout(kind: str) -> tuple[list[tuple[float, float, float, float]], list[tuple[float, float]]]:
+    """Free-space rectangles (x0, y0, x1, y1) and the closed loop's waypoints."""
+    if kind == "small":
+        # One 8 x 6 m room with a pillar block in the middle: a 16 m loop around it.
+        rects = [(0, 0, 8, 6)]
+        loop = [(1.5, 1.5), (6.5, 1.5), (6.5, 4.5), (1.5, 4.5)]
+        return rects, loop
+    if kind == "building":
+        # Four rooms on the corners of a square, joined by corridors into a ring, plus
+        # a long corridor wing: a loop of about 150 m.
+        rects = [(0, 0, 10, 8), (30, 0, 40, 8), (30, 26, 40, 34), (0, 26, 10, 34),
+                 (10, 3, 30, 5.5), (34, 8, 36.5, 26), (10, 28.5, 30, 31), (3.5, 8, 6, 26),
+                 (14, 5.5, 16.5, 16), (14, 16, 26, 22), (23.5, 22, 26, 28.5)]
+        loop = [(2, 2), (8, 4.2), (32, 4.2), (35.2, 6), (35.2, 28), (38, 32), (32, 30), (24.7, 29.7),
+                (24.7, 19), (15.2, 19), (15.2, 6), (12, 4.2), (8, 4.2), (4.7, 6), (4.7, 28), (2, 32),
+                (8, 29.7), (24.7, 29.7), (24.7, 19), (15.2, 19), (15.2, 6), (8, 4.2)]
+        return rects, loop
+    raise ValueError(f"layout {kind!r} is not known; choose small or building")
+
+
+def _grid(rects: list, cell: float, pillar: bool) -> tuple[np.ndarray, float]:
+    xs = [r[2] for r in rects] + [r[3] for r in rects]
+    size = int(math.ceil((max(xs) + 2) / cell))
+    occ = np.ones((size, size), bool)  # occ[ix, iy]; the world starts at -1 m
+    for x0, y0, x1, y1 in rects:
+        occ[int(round((x0 + 1) / cell)):int(round((x1 + 1) / cell)), int(round((y0 + 1) / cell)):int(round((y1 + 1) / cell))] = False
+    if pillar:  # the small room's central block, so the loop goes around something
+        occ[int(round(3.2 / cell)):int(round(6.8 / cell)), int(round(3.2 / cell)):int(round(4.8 / cell))] = True
+    return occ, -1.0
+
+
+def _texture_bank(rng: np.random.Generator, n: int, h: int, w: int) -> np.ndarray:
+    """Procedural grey panels; the first three are repetitive (bricks, tiles, stripes)."""
+    bank = np.empty((n, h, w), np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for k in range(n):
+        if k == 0:  # bricks
+            img = 150 + 20 * (((yy // 10) % 2 == 0) & ((xx + 12 * ((yy // 10) % 2)) % 24 < 22))
+            img = img - 60 * (yy % 10 == 0)
+        elif k == 1:  # tiles
+            img = 170 - 80 * ((yy % 20 < 2) | (xx % 20 < 2))
+        elif k == 2:  # stripes
+            img = 120 + 60 * np.sin(xx / 3.0)
+        else:
+            img = rng.uniform(60, 200) + cv2.resize(rng.normal(0, 25, (h // 8 + 1, w // 8 + 1)).astype(np.float32), (w, h))
+            img = np.asarray(img, np.float32)
+            for _ in range(rng.integers(4, 10)):  # posters, shapes, blobs
+                c = float(rng.uniform(0, 255))
+                x0, y0 = int(rng.integers(0, w - 4)), int(rng.integers(0, h - 4))
+                kind = rng.integers(0, 3)
+                if kind == 0:
+                    cv2.rectangle(img, (x0, y0), (x0 + int(rng.integers(4, w // 2)), y0 + int(rng.integers(4, h // 3))), c, -1)
+                elif kind == 1:
+                    cv2.circle(img, (x0, y0), int(rng.integers(3, w // 4)), c, -1)
+                else:
+                    pts = rng.integers(0, [w, h], (int(rng.integers(3, 6)), 2)).astype(np.int32)
+                    cv2.fillPoly(img, [pts], c)
+        bank[k] = cv2.GaussianBlur(np.asarray(img, np.float32), (0, 0), 0.8)
+    return bank
+
+
+class OmniWorld:
+    """A building (occupancy grid + textures + movers) that renders equirectangular frames."""
+
+    def __init__(self, layout: str = "building", seed: int = 0, cell: float = 0.25, n_textures: int = 48, movers: int = 6) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.rects, self.loop = _layout(layout)
+        self.cell = cell
+        self.occ, self.origin = _grid(self.rects, cell, pillar=(layout == "small"))
+        th, tw = int(WALL_H * TEX_PX_PER_M), int(PANEL_W * TEX_PX_PER_M)
+        self.bank = _texture_bank(self.rng, n_textures, th, tw)
+        # Panel -> texture: a hash of the panel's wall line and index; 25 % repetitive ones.
+        self.panel_salt = int(self.rng.integers(1, 1 << 30))
+        size = self.occ.shape[0] * cell
+        fpx = int(size * 20)
+        floor = cv2.resize(self.rng.normal(0, 18, (fpx // 6, fpx // 6)).astype(np.float32), (fpx, fpx)) + 110
+        yy, xx = np.mgrid[0:fpx, 0:fpx]
+        floor -= 50 * ((yy % 20 < 2) | (xx % 20 < 2))  # 1 m floor tiles
+        self.floor = cv2.GaussianBlur(floor.astype(np.float32), (0, 0), 0.8)
+        ceil = np.full((fpx, fpx), 200, np.float32) + 40 * (((yy // 40) % 3 == 0) & ((xx // 40) % 3 == 0))
+        self.ceil = cv2.GaussianBlur(ceil, (0, 0), 1.0)
+        self.n_movers = movers
+
+    # -- geometry ---------------------------------------------------------------------
+    def cast(self, px: float, py: float, ang: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """2-D DDA per ray: (distance, side 0/1 for x/y face, texture index)."""
+        c = self.cell
+        gx, gy = (px - self.origin) / c, (py - self.origin) / c
+        dx, dy = np.cos(ang), np.sin(ang)
+        ix = np.full(ang.shape, int(gx))
+        iy = np.full(ang.shape, int(gy))
+        with np.errstate(divide="ignore"):
+            ddx = np.where(dx != 0, np.abs(1 / dx), np.inf)
+            ddy = np.where(dy != 0, np.abs(1 / dy), np.inf)
+        sx = np.where(dx < 0, -1, 1)
+        sy = np.where(dy < 0, -1, 1)
+        tx = np.where(dx < 0, (gx - ix) * ddx, (ix + 1 - gx) * ddx)
+        ty = np.where(dy < 0, (gy - iy) * ddy, (iy + 1 - gy) * ddy)
+        dist = np.zeros(ang.shape)
+        side = np.zeros(ang.shape, np.int64)
+        active = np.ones(ang.shape, bool)
+        n = self.occ.shape[0]
+        for _ in range(4 * n):
+            if not active.any():
+                break
+            xstep = active & (tx < ty)
+            ystep = active & ~(tx < ty)
+            dist[xstep] = tx[xstep]
+            ix[xstep] += sx[xstep]
+            tx[xstep] += ddx[xstep]
+            side[xstep] = 0
+            dist[ystep] = ty[ystep]
+            iy[ystep] += sy[ystep]
+            ty[ystep] += ddy[ystep]
+            side[ystep] = 1
+            np.clip(ix, 0, n - 1, out=ix)
+            np.clip(iy, 0, n - 1, out=iy)
+            active &= ~self.occ[ix, iy]
+        dist = dist * c
+        hx, hy = px + dist * dx, py + dist * dy
+        u = np.where(side == 0, hy, hx)
+        line = np.where(side == 0, ix * 2 + (sx > 0), iy * 2 + (sy > 0))
+        panel = np.floor(u / PANEL_W).astype(np.int64)
+        h = (line * 73856093) ^ (panel * 19349663) ^ (side * 83492791) ^ self.panel_salt
+        h = np.abs(h) % 1000
+        nb = len(self.bank)
+        tex = np.where(h < 250, h % 3, 3 + h % (nb - 3))
+        uu = ((u - panel * PANEL_W) * TEX_PX_PER_M).astype(np.int64).clip(0, self.bank.shape[2] - 1)
+        return np.maximum(dist, 1e-3), tex, uu
+
+    def movers_at(self, t: float, run: int) -> np.ndarray:
+        """(n, 2) mover positions at time t: people pacing along the loop's segments."""
+        rng = np.random.default_rng(1000 + run)
+        pos = []
+        loop = np.array(self.loop, float)
+        for _ in range(self.n_movers):
+            i = int(rng.integers(0, len(loop)))
+            a, b = loop[i], loop[(i + 1) % len(loop)]
+            phase = rng.uniform(0, 2 * np.pi)
+            s = 0.5 + 0.5 * np.sin(0.05 * t + phase)  # walking back and forth
+            off = rng.normal(0, 0.6, 2)
+            pos.append(a + s * (b - a) + off)
+        return np.array(pos)
+
+    def render(self, x: float, y: float, heading: float, width: int, lighting: dict[str, float], movers: np.ndarray,
+               rng: np.random.Generator) -> np.ndarray:
+        h = width // 2
+        az = heading + np.pi - (np.arange(width) + 0.5) / width * 2 * np.pi  # left to right = decreasing azimuth
+        el = np.pi / 2 - (np.arange(h) + 0.5) / h * np.pi
+        dist, tex, uu = self.cast(x, y, az)
+        tan_el = np.tan(el)[:, None]
+        z = CAM_H + dist[None, :] * tan_el
+        img = np.empty((h, width), np.float32)
+        wall = (z >= 0) & (z <= WALL_H)
+        zi = ((WALL_H - z) * TEX_PX_PER_M).astype(np.int64).clip(0, self.bank.shape[1] - 1)
+        texb = np.broadcast_to(tex[None, :], z.shape)
+        ub = np.broadcast_to(uu[None, :], z.shape)
+        img[wall] = self.bank[texb[wall], zi[wall], ub[wall]]
+        # Floor and ceiling: intersect with the planes z = 0 and z = WALL_H.
+        dx, dy = np.cos(az)[None, :], np.sin(az)[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(tan_el < 0, CAM_H / -tan_el, (WALL_H - CAM_H) / tan_el)
+        r = np.broadcast_to(r, z.shape)
+        wx = ((x + r * dx - self.origin) * 20).astype(np.int64).clip(0, self.floor.shape[0] - 1)
+        wy = ((y + r * dy - self.origin) * 20).astype(np.int64).clip(0, self.floor.shape[1] - 1)
+        fl = ~wall & (z < 0)
+        ce = ~wall & (z > WALL_H)
+        img[fl] = self.floor[wx[fl], wy[fl]]
+        img[ce] = self.ceil[wx[ce], wy[ce]]
+        depth = np.where(wall, dist[None, :] / np.maximum(np.cos(el)[:, None], 1e-3), r)
+        # Movers: vertical cylinders r = 0.3 m, 1.7 m tall, striped clothes.
+        for k, (mx, my) in enumerate(movers):
+            ox, oy = mx - x, my - y
+            along = ox * np.cos(az) + oy * np.sin(az)
+            perp2 = ox * ox + oy * oy - along ** 2
+            hit = (perp2 < 0.09) & (along > 0.3)
+            if not hit.any():
+                continue
+            d = along - np.sqrt(np.maximum(0.09 - perp2, 0))
+            zc = CAM_H + d[None, :] * tan_el
+            m = hit[None, :] & (zc >= 0) & (zc <= 1.7) & (d[None, :] < dist[None, :])
+            shade = 60 + 120 * ((np.floor(zc * 6) + k) % 2)
+            img[m] = np.broadcast_to(shade, m.shape)[m]
+            depth[m] = np.broadcast_to(d[None, :], m.shape)[m]
+        # Lighting: a smooth spatial field (per run), gain/gamma, distance falloff, noise.
+        field = 1 + lighting["field"] * np.sin(0.37 * x + lighting["phase"]) * np.cos(0.29 * y - lighting["phase"])
+        img = img * lighting["gain"] * field / (1 + 0.02 * np.clip(depth, 0, 30))
+        img = 255 * (np.clip(img, 0, 255) / 255) ** lighting["gamma"]
+        img += rng.normal(0, lighting["noise"], img.shape)
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def loop_path(loop: list[tuple[float, float]], frames: int, step: float, offset: float = 0.0, reverse: bool = False,
+              start: float = 0.0, jitter: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
+    """(frames, 3) poses (x, y, heading) walking the closed polyline at ``step`` m per frame."""
+    pts = np.array(loop[::-1] if reverse else loop, float)
+    seg = np.roll(pts, -1, axis=0) - pts
+    seglen = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0], np.cumsum(seglen)])
+    total = cum[-1]
+    s = (start * total + step * np.arange(frames)) % total
+    i = np.searchsorted(cum, s, side="right") - 1
+    frac = (s - cum[i]) / seglen[i]
+    xy = pts[i] + frac[:, None] * seg[i]
+    d = seg[i] / seglen[i][:, None]
+    normal = np.stack([-d[:, 1], d[:, 0]], 1)
+    xy = xy + offset * normal
+    if jitter and rng is not None:
+        xy = xy + rng.normal(0, jitter, xy.shape)
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    return np.column_stack([xy, heading])
+
+
+def _render_chunk(args: tuple) -> None:
+    """Worker: render frames [lo, hi) of one run (each frame's noise seeded by (seed, run, t))."""
+    layout, seed, movers, folder, poses, lo, hi, width, lighting, run = args
+    world = OmniWorld(layout, seed, movers=movers)
+    for t in range(lo, hi):
+        x, y, hd = poses[t]
+        rng = np.random.default_rng([seed, run, t])
+        img = world.render(float(x), float(y), float(hd), width, lighting, world.movers_at(t, run), rng)
+        cv2.imwrite(str(Path(folder) / f"frame_{t:05d}.png"), img)
+
+
+def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndarray, width: int, lighting: dict[str, float],
+               run: int, workers: int) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    n = len(poses)
+    step = max(1, -(-n // (4 * workers)))
+    chunks = [(layout, seed, movers, str(folder), poses, lo, min(n, lo + step), width, lighting, run) for lo in range(0, n, step)]
+    if workers > 1 and len(chunks) > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            list(pool.map(_render_chunk, chunks))
+    else:
+        for c in chunks:
+            _render_chunk(c)
+    with open(folder / "poses.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "x", "y", "heading"])
+        for t, (x, y, hd) in enumerate(poses):
+            w.writerow([t, f"{x:.4f}", f"{y:.4f}", f"{hd:.5f}"])
+
+
+def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | None = None, width: int = 480,
+             layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, workers: int = 1,
+             **extra: Any) -> dict[str, Any]:
+    """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length)."""
+    if extra:
+        known = "frames, test_frames, width, layout, step, test_offset, movers, workers"
+        raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: {known}")
+    if width < 64 or width % 2:
+        raise ValueError(f"width must be an even number >= 64 (height is width/2), got {width}")
+    if frames < 2:
+        raise ValueError(f"frames must be >= 2, got {frames}")
+    out_dir = Path(out_dir)
+    test_frames = frames if test_frames is None else test_frames
+    world = OmniWorld(layout, seed, movers=movers)
+    rng = np.random.default_rng(seed)
+    mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng)
+    test = loop_path(world.loop, test_frames, step, offset=test_offset, reverse=True, start=0.37, jitter=0.02, rng=rng)
+    light_map = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
+    light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}
+    _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers)
+    _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers)
+    pts = np.array(world.loop, float)
+    length = float(np.linalg.norm(np.roll(pts, -1, 0) - pts, axis=1).sum())
+    return {"mapping": str(out_dir / "mapping"), "test": str(out_dir / "test"), "frames": frames, "test_frames": test_frames,
+            "size": f"{width}x{width // 2}", "loop_length_m": round(length, 1), "laps": round(frames * step / length, 2)}

@@ -1,0 +1,158 @@
+"""Known-answer tests for PIRF chaining, the adaptive window, eqs. (5)-(9), the updates and the indexes."""
+
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from pipeline.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
+from pipeline.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
+from pipeline.pirf.knn import bf_knn2
+from pipeline.pirf.mapping import PirfMapper, gauss, improved_insert, similarity_s, z_norm
+
+
+def test_bf_knn2_matches_naive_and_prefix_splits() -> None:
+    rng = np.random.default_rng(0)
+    a, b = rng.random((7, 5), np.float32), rng.random((50, 5), np.float32)
+    full = ((a[:, None, :] - b[None]) ** 2).sum(-1)
+    d, i, dp, ip = bf_knn2(a, b, block=8, splits=(20,))
+    assert np.array_equal(i, np.argsort(full, 1)[:, :2])
+    assert np.allclose(d, np.sort(full, 1)[:, :2], atol=1e-5)
+    assert np.array_equal(ip, np.argsort(full[:, :20], 1)[:, :2])
+    d1, i1 = bf_knn2(a, b[:1])
+    assert np.all(i1[:, 1] == -1) and np.all(np.isinf(d1[:, 1]))
+
+
+def test_ratio_match_uses_squared_threshold() -> None:
+    b = np.array([[0.0], [10.0], [-10.0], [100.0]], np.float32)
+    # distances from 0.69 -> (0.69, 9.31): ratio 0.074 -> match; 3.5 -> (3.5, 6.5) ratio 0.54 ok; 4.5 -> (4.5, 5.5) 0.82 rejected
+    a = np.array([[0.69], [3.5], [4.5]], np.float32)
+    assert ratio_match(a, b, 0.7).tolist() == [0, 0, -1]
+    assert ratio_match(a, b[:1], 0.7).tolist() == [-1, -1, -1]  # one candidate: undefined -> no match
+
+
+def _track_set() -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """5 frames of 4 features; matches[k] maps frame k into k-1 by hand.
+
+    feature 0 of frame 4 is tracked through all frames (chain 4), feature 1 through 2
+    steps, feature 2 through 1 step, feature 3 not at all.
+    """
+    m = [np.full(4, -1)] + [np.array([0, 1, 2, -1]) for _ in range(4)]
+    m[4] = np.array([0, 1, 2, -1])
+    m[3] = np.array([0, 1, -1, -1])
+    m[2] = np.array([0, -1, -1, -1])
+    m[1] = np.array([0, -1, -1, -1])
+    return m, [np.eye(4, dtype=np.float32) * (k + 1) for k in range(5)]
+
+
+def test_chain_lengths_on_track_set() -> None:
+    m, _ = _track_set()
+    length, trail = chain_lengths(m, 4)
+    assert length.tolist() == [4, 2, 1, 0]
+    assert trail[:, 0].tolist() == [0, 0, 0, 0, 0]
+    assert trail[:, 1].tolist() == [1, 1, 1, -1, -1]
+
+
+def test_extract_pirfs_descriptor_is_chain_mean_and_window_adapts() -> None:
+    m, descs = _track_set()
+    resp = [np.ones(4, np.float32)] * 5
+    # n_pmin 2: window 3 gives 1 PIRF (< 2) -> decremented to 2 -> 2 PIRFs
+    p, sel, w = extract_pirfs(descs, resp, m, w_default=3, n_pmin=2, n_pmax=3)
+    assert w == 2 and sel.tolist() == [0, 1]
+    # feature 0 over frames 4, 3, 2 = one-hot scaled 5, 4, 3 -> mean 4
+    assert np.allclose(p[0], [4, 0, 0, 0]) and np.allclose(p[1], [0, 4, 0, 0])
+    # n_pmax 1: window 3 gives 1 already
+    p, sel, w = extract_pirfs(descs, resp, m, w_default=1, n_pmin=1, n_pmax=1)
+    assert w == 3 and sel.tolist() == [0]
+
+
+def test_adaptive_window_bounds() -> None:
+    length = np.array([0, 1, 1, 2, 2, 3, 3, 3, 5, 6])
+    assert adaptive_window(length, 3, 1, 10, 10) == 3                 # 5 PIRFs in range: unchanged
+    assert adaptive_window(length, 3, 7, 10, 10) == 2                 # 5 < 7 -> 2 (7 PIRFs)
+    assert adaptive_window(length, 3, 1, 2, 10) == 4                  # too many -> grow to 4 (2 PIRFs)
+    assert adaptive_window(length, 3, 1, 1, 5) == 5                   # capped by history; caller truncates
+    assert adaptive_window(length, 3, 100, 200, 10) == 1              # cannot reach n_pmin: stops at 1
+    assert adaptive_window(length, 3, 1, 10, 2) == 2                  # history shorter than default
+
+
+def test_similarity_eqs_5_to_9_by_hand() -> None:
+    assert math.isclose(gauss(0, 2.0), 1 / math.sqrt(8 * math.pi))
+    assert math.isclose(gauss(1, 2.0), math.exp(-1 / 8) / math.sqrt(8 * math.pi))
+    s = similarity_s(4, np.array([1, 3, 0]), n_pmax=10)
+    assert np.allclose(s, [0.04, 0.12, 0.0])
+    g0, g1 = gauss(0, 2.0), gauss(1, 2.0)
+    z = [0.04 * g0 + 0.12 * g1, 0.12 * g0 + (0.04 + 0.0) * g1, 0.0 * g0 + 0.12 * g1]
+    zn = [(z[0] + z[1]) / 2, (z[1] + z[0] + z[2]) / 3, (z[2] + z[1]) / 2]
+    assert np.allclose(z_norm(s, 2.0), zn)
+    assert int(np.argmax(z_norm(s, 2.0))) == int(np.argmax(zn)) == 0  # eq. (9): the end node divides by 2, not 3
+    assert np.allclose(z_norm(np.array([0.5]), 2.0), [0.5 * g0])
+
+
+def test_improved_update_order_and_rejection() -> None:
+    # three new PIRFs: a at 0, b at 0.1 (a near-duplicate of a), c at 20
+    p = np.array([[0.0], [0.1], [20.0]], np.float32)
+    d_q = np.array([[100.0, 200.0], [90.0, 200.0], [400.0, 500.0]], np.float32)  # c farthest, then a, then b
+    i_q = np.array([[0, 1], [0, 1], [1, 0]])
+    order, added, word = improved_insert(p, d_q, i_q, n_dict=2, ratio=0.7)
+    assert order.tolist() == [2, 0, 1]  # descending d_k
+    # c inserted (id 2); a: top two are Q (100, 200), ratio fails -> inserted (id 3); b: a (0.01) vs Q (90) -> matches a
+    assert added.tolist() == [True, False, True]
+    assert word.tolist() == [3, 3, 2]
+
+
+def test_plain_update_keeps_duplicates_improved_rejects_them() -> None:
+    rng = np.random.default_rng(1)
+    base = rng.random((30, 16), np.float32) * 10
+    frame = np.concatenate([base, base + 0.01])  # every PIRF twice
+    sizes = {}
+    for upd in ("plain", "improved"):
+        mp = PirfMapper(16, update=upd, eps=1)
+        mp.step(frame)
+        sizes[upd] = mp.n
+    assert sizes == {"plain": 60, "improved": 30}
+
+
+def test_mapper_detects_revisit_loop_closure() -> None:
+    rng = np.random.default_rng(2)
+    places = [rng.random((60, 32), np.float32) * 10 for _ in range(12)]
+    mp = PirfMapper(32, n_pmax=60, eps=3, tau=0.05)
+    seq = list(range(12)) + [4, 5, 6]
+    out = [mp.step(places[k] + rng.normal(0, 0.01, places[k].shape).astype(np.float32)) for k in seq]
+    assert [o[0] for o in out[12:]] == [4, 5, 6]
+    assert all(o[1] >= 0.05 for o in out[12:]) and all(o[1] < 0.05 for o in out[:12])
+    assert mp.n == 12 * 60  # revisits add nothing
+
+
+def _clustered(n: int, dim: int = 32, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    centres = rng.random((n // 20 + 1, dim), np.float32) * 100
+    return (centres[rng.integers(0, len(centres), n)] + rng.normal(0, 3, (n, dim))).astype(np.float32)
+
+
+@pytest.mark.parametrize("backend", [b for b in BACKENDS if b != "flann-auto"])
+def test_index_backends_agree_with_brute_force(backend: str, tmp_path) -> None:
+    data = _clustered(3000)
+    q = data[:200] + np.random.default_rng(5).normal(0, 0.5, (200, data.shape[1])).astype(np.float32)
+    ref_d, ref_i = bf_knn2(q, data)
+    ix = AnnIndex(backend, data, {"ivf_nlist": 32, "ivf_nprobe": 8}, seed=0).build()
+    d, i = ix.knn2(q)
+    assert (i[:, 0] == ref_i[:, 0]).mean() >= 0.95
+    assert np.allclose(d[i[:, 0] == ref_i[:, 0], 0], ref_d[i[:, 0] == ref_i[:, 0], 0], rtol=1e-2, atol=0.1)  # BLAS identity: float32 cancellation
+    with h5py.File(tmp_path / "ix.h5", "w") as f:
+        ix.to_h5(f.create_group("index"))
+    with h5py.File(tmp_path / "ix.h5", "r") as f:
+        again = AnnIndex.from_h5(f["index"], data)
+        assert np.array_equal(again.knn2(q)[1], i)  # stored, not rebuilt: same answers
+        with pytest.raises(IndexMismatchError, match="another dictionary"):
+            AnnIndex.from_h5(f["index"], data[::-1].copy())
+
+
+def test_flann_autotuned_small() -> None:
+    data = _clustered(600, dim=8)
+    ix = AnnIndex("flann-auto", data, {}, seed=0).build()
+    d, i = ix.knn2(data[:50])
+    assert (i[:, 0] == np.arange(50)).mean() >= 0.9

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import logging
 import uuid
-from collections import deque
 from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
 
-from pipeline.executor import Describe, Executor, WorkItemError, describe_item
+from pipeline.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
 
 
 class DaskExecutor(Executor):
@@ -59,20 +58,14 @@ class DaskExecutor(Executor):
             # One copy per worker up front; tasks then reference it by key. Wrapped in a list so
             # a dict is scattered as one object, not one future per value.
             extra = (self.client.scatter([shared], broadcast=True, hash=False)[0],)
-        window: deque = deque()
-        limit = self._window()
+        def submit(numbered: tuple[int, Any]) -> Any:
+            i, item = numbered
+            return self.client.submit(fn, item, *extra, key=f"{tag}-{i}", retries=self.retries, pure=False)
+
         try:
-            for i, item in enumerate(items):
-                fut = self.client.submit(fn, item, *extra, key=f"{tag}-{i}", retries=self.retries, pure=False)
-                window.append((item, fut))
-                if len(window) >= limit:
-                    yield self._result(fn, *window.popleft(), describe)
-            while window:
-                yield self._result(fn, *window.popleft(), describe)
+            yield from ordered_window(enumerate(items), submit, self._window(),
+                                      lambda numbered, fut: self._result(fn, numbered[1], fut, describe))
         finally:
-            for _, fut in window:
-                fut.cancel()
-            window.clear()
             for fut in extra:
                 fut.release()
 

@@ -116,6 +116,25 @@ def _call_with_shared(fn: Callable[..., Any], item: Any, handle: Any, token: str
     return fn(item, _unpack_shared(handle, token))
 
 
+def ordered_window(items: Iterable[Any], submit: Callable[[Any], Any], limit: int,
+                   collect: Callable[[Any, Any], Any]) -> Iterator[Any]:
+    """Submit ``items`` with at most ``limit`` futures in flight and yield
+    ``collect(item, future)`` in submission order; futures still pending when the consumer
+    stops (or an item fails) are cancelled. The bound keeps memory flat however many items
+    there are."""
+    window: deque = deque()
+    try:
+        for item in items:
+            window.append((item, submit(item)))
+            if len(window) >= limit:
+                yield collect(*window.popleft())
+        while window:
+            yield collect(*window.popleft())
+    finally:
+        for _, fut in window:
+            fut.cancel()
+
+
 class LocalExecutor(Executor):
     """A process pool on this machine (spawned, so numba/BLAS threads are not forked)."""
 
@@ -139,18 +158,10 @@ class LocalExecutor(Executor):
         else:
             def submit(item: Any) -> Any:
                 return self._pool.submit(fn, item)
-        # Bounded look-ahead keeps memory flat however many items there are.
-        window: deque = deque()
         try:
-            for item in items:
-                window.append((item, submit(item)))
-                if len(window) >= 2 * self.workers:
-                    yield self._result(fn, *window.popleft(), describe)
-            while window:
-                yield self._result(fn, *window.popleft(), describe)
+            yield from ordered_window(items, submit, 2 * self.workers,
+                                      lambda item, fut: self._result(fn, item, fut, describe))
         finally:
-            for _, fut in window:
-                fut.cancel()
             if tmp is not None:
                 shutil.rmtree(tmp, ignore_errors=True)
 

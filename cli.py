@@ -119,7 +119,8 @@ def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by 
 
 
 @app.command()
-def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM route pair), ..."),
+def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM route pair), corridor (UMap building), "
+                                     "coembed (ABCD world), omni (PIRF video)."),
           out: Path = typer.Argument(..., help="Output folder."),
           seed: int = typer.Option(0, help="Random seed."),
           set: List[str] | None = typer.Option(None, "--set", "-s", help="Generator parameter, e.g. --set frames=200.")) -> None:
@@ -161,7 +162,7 @@ def compare(config: Path = ConfigArg,
 
 
 @app.command()
-def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, ..."),
+def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large."),
                out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:

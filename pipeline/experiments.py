@@ -18,6 +18,7 @@ EXPERIMENTS: dict[str, str] = {
     "umap": "pipeline.umap.experiment",
     "coembed": "pipeline.coembed.experiment",
     "pirf": "pipeline.pirf.experiment",
+    "pirf-large": "pipeline.pirf.experiment_large",
 }
 
 

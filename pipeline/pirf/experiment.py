@@ -115,10 +115,15 @@ def _backend_run(out: Path, data: Path, upd: str, b: str, rd: Path, m: dict[str,
                                                                     "mt_seconds_ann", "mt_seconds_bf")}})
 
 
-def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
+def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str, int] | None = None,
+         backends: tuple[str, ...] | None = None, timing_backends: tuple[str, ...] | None = None) -> Path:
+    """The paper's tables on generated data. ``spec``/``backends``/``timing_backends``
+    override the size and the index backends (see ``experiment_large``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    spec = QUICK if quick else FULL
+    spec = spec or (QUICK if quick else FULL)
+    backends = backends or BACKENDS
+    timing_backends = timing_backends or TIMING_BACKENDS
     data = _data(out, spec, quiet)
     runs: dict[str, dict[str, Any]] = {}
     t3: list[dict[str, Any]] = []
@@ -139,7 +144,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
         runs[f"omni-{upd}-{DEFAULT_INDEX}"] = m
         t3.append({"update": upd, "backend": DEFAULT_INDEX, **{k: m[k] for k in ("jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
                                                                                   "mt_seconds_ann", "mt_seconds_bf")}})
-        for b in BACKENDS:
+        for b in backends:
             if b in (DEFAULT_INDEX, "bruteforce", "flann-auto"):
                 continue
             _backend_run(out, data, upd, b, rd, m, runs, t3, quiet)
@@ -156,7 +161,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
             queries = [pirfs[off[t]:off[t + 1]] for t in frames]
         sizes = sorted({int(round(len(dic) * k / 5)) for k in range(1, 6)})
         _say(quiet, f"{upd}: timing m_t at sizes {sizes}")
-        for r in timing_sweep(dic, queries, sizes, TIMING_BACKENDS):
+        for r in timing_sweep(dic, queries, sizes, timing_backends):
             fig_rows.append({"update": upd, **r})
     _write_outputs(out, runs, t3, fig_rows)
     write_summary(out, runs)
@@ -214,7 +219,7 @@ def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str
     (out / "tables.md").write_text("\n".join(lines) + "\n")
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, upd in zip(axes, ("plain", "improved")):
-        for b in TIMING_BACKENDS:
+        for b in dict.fromkeys(r["backend"] for r in fig_rows):  # the backends that were timed, in order
             rr = [r for r in fig_rows if r["update"] == upd and r["backend"] == b]
             ax.plot([r["dictionary_size"] for r in rr], [r["mt_seconds"] for r in rr], "o-", label=b)
         ax.set_title(f"m_t time, {upd} dictionary")

@@ -232,19 +232,26 @@ def extract(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ localize
 
-def read_sensor_csv(path: str | Path, names: list[str]) -> dict[str, tuple[float, float]]:
-    """frame -> (d, theta_deg); every query frame must be present."""
+def read_frame_csv(path: str | Path, columns: tuple[str, str], what: str) -> dict[str, tuple[float, float]]:
+    """frame -> (two numeric columns) from a CSV with a ``frame`` column; errors name the
+    file, the line and the columns it needs."""
     out: dict[str, tuple[float, float]] = {}
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
-        need = {"frame", "d", "theta_deg"}
+        need = {"frame", *columns}
         if reader.fieldnames is None or not need <= set(reader.fieldnames):
-            raise ImageError(f"{path}: sensor CSV needs the columns frame, d, theta_deg (has {reader.fieldnames})")
+            raise ImageError(f"{path}: {what} CSV needs the columns frame, {', '.join(columns)} (has {reader.fieldnames})")
         for i, row in enumerate(reader, 2):
             try:
-                out[row["frame"]] = (float(row["d"]), float(row["theta_deg"]))
+                out[row["frame"]] = (float(row[columns[0]]), float(row[columns[1]]))
             except (TypeError, ValueError) as exc:
-                raise ImageError(f"{path}:{i}: d and theta_deg must be numbers ({exc})") from exc
+                raise ImageError(f"{path}:{i}: {' and '.join(columns)} must be numbers ({exc})") from exc
+    return out
+
+
+def read_sensor_csv(path: str | Path, names: list[str]) -> dict[str, tuple[float, float]]:
+    """frame -> (d, theta_deg); every query frame must be present."""
+    out = read_frame_csv(path, ("d", "theta_deg"), "sensor")
     missing = [n for n in names if n not in out]
     if missing:
         raise ImageError(f"{path}: no sensor row for {len(missing)} query frame(s), e.g. {missing[0]}; add them")
@@ -498,17 +505,7 @@ def localize(ctx: Any) -> None:
 
 def read_poses_csv(path: str | Path) -> dict[str, tuple[float, float]]:
     """Ground truth: CSV with columns frame, x, y (z, heading_deg optional)."""
-    out = {}
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames is None or not {"frame", "x", "y"} <= set(reader.fieldnames):
-            raise ImageError(f"{path}: ground-truth poses CSV needs the columns frame, x, y (has {reader.fieldnames})")
-        for i, row in enumerate(reader, 2):
-            try:
-                out[row["frame"]] = (float(row["x"]), float(row["y"]))
-            except (TypeError, ValueError) as exc:
-                raise ImageError(f"{path}:{i}: x and y must be numbers ({exc})") from exc
-    return out
+    return read_frame_csv(path, ("x", "y"), "ground-truth poses")
 
 
 def error_metrics(err: np.ndarray) -> dict[str, Any]:

@@ -58,6 +58,22 @@ def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator
         raise
 
 
+@contextlib.contextmanager
+def atomic_open(path: str | Path, newline: str | None = None) -> Iterator[Any]:
+    """Open a text file for writing under a temporary name in the same folder; rename it to
+    ``path`` only when the block finishes, so readers never see half a CSV or JSON file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    try:
+        with tmp.open("w", newline=newline) as fh:
+            yield fh
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
 def remove_stale_tmp(run_dir: Path) -> list[Path]:
     """Delete temporary files left by a killed process (never trusted, only clutter)."""
     removed = []

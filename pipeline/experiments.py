@@ -13,6 +13,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from pipeline.artifacts import atomic_open
+
 EXPERIMENTS: dict[str, str] = {
     "seqslam": "pipeline.seqslam.experiment",
     "umap": "pipeline.umap.experiment",
@@ -35,9 +37,8 @@ def run_experiment(name: str, out_dir: str | Path | None = None, quick: bool = F
 def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
     """Write ``summary.json`` atomically (run name -> metrics)."""
     path = out_dir / "summary.json"
-    tmp = path.with_name(f".summary.json.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(runs, indent=2, sort_keys=True, default=float))
-    os.replace(tmp, path)
+    with atomic_open(path) as fh:
+        fh.write(json.dumps(runs, indent=2, sort_keys=True, default=float))
     return path
 
 

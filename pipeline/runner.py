@@ -114,8 +114,7 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
                 inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
     gt_path = (config.get("ground_truth") or {}).get("path")
     if stage == "evaluate" and gt_path and Path(gt_path).is_file():
-        st = Path(gt_path).stat()
-        inputs["ground_truth_file"] = f"{st.st_size}:{st.st_mtime_ns}"
+        inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))
     if parent_stamp is not None:
         inputs["parent"] = parent_stamp
     return inputs

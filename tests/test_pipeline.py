@@ -181,3 +181,18 @@ def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
     obs.write_text("t,feature,value\n0,1,0.75\n")
     assert stage_inputs(cfg, method, "extract", {}, None)["file.observations"] != before["file.observations"]
     assert "file.observations" not in stage_inputs(cfg, method, "localize", {}, "parent")
+
+
+def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):
+    from pipeline.artifacts import atomic_open
+
+    target = tmp_path / "matches.csv"
+    target.write_text("old\n")
+    with pytest.raises(RuntimeError):
+        with atomic_open(target) as fh:
+            fh.write("half")
+            raise RuntimeError("boom")
+    assert target.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["matches.csv"]
+    with atomic_open(target) as fh:
+        fh.write("new\n")
+    assert target.read_text() == "new\n"

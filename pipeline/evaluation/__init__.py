@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from pipeline.artifacts import atomic_open
 
 
 def _clean(value: Any) -> Any:
@@ -30,10 +31,8 @@ def write_metrics(run_dir: str | Path, metrics: dict[str, Any], group: Any = Non
     """Write ``run_dir/metrics.json`` atomically (NaN/inf become null) and mirror the
     scalar figures as attributes of ``group`` (the evaluate artifact) when given."""
     clean = _clean(metrics)
-    path = Path(run_dir) / "metrics.json"
-    tmp = path.with_name(f".metrics.json.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(clean, indent=2, sort_keys=False))
-    os.replace(tmp, path)
+    with atomic_open(Path(run_dir) / "metrics.json") as fh:
+        fh.write(json.dumps(clean, indent=2, sort_keys=False))
     if group is not None:
         g = group.require_group("metrics")
         for k, v in clean.items():

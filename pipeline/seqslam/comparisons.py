@@ -147,6 +147,8 @@ def feature_dtype(comparison: str, params: dict[str, Any]) -> np.dtype:
 # ---------------------------------------------------------------------------------------
 # Difference blocks
 # ---------------------------------------------------------------------------------------
+# Two kernels on purpose: the uint8 one accumulates in integers, which the compiler turns
+# into SIMD sum-of-absolute-differences; a float accumulator would lose that.
 @numba.njit(parallel=True, cache=True, fastmath=True)
 def _l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     n, d = a.shape

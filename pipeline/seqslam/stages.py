@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import csv
 import logging
-import os
 from typing import Any
 
 import h5py
 import numpy as np
 
-from pipeline.artifacts import read_strings
+from pipeline.artifacts import atomic_open, read_strings
 from pipeline.evaluation import write_metrics
 from pipeline.evaluation.ground_truth import GroundTruth
 from pipeline.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
@@ -234,8 +233,7 @@ def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, lo
     ref_index = ex["reference/index"][()]
     qg = ex["reference" if loop_closure else "query"]
     q_names, q_index = read_strings(qg["names"]), qg["index"][()]
-    tmp = ctx.run_dir / f".matches.csv.tmp-{os.getpid()}"
-    with tmp.open("w", newline="") as fh:
+    with atomic_open(ctx.run_dir / "matches.csv", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["query", "reference", "confidence", "query_image", "reference_image"])
         for q, (r, c) in enumerate(zip(best, conf)):
@@ -243,7 +241,6 @@ def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, lo
                 w.writerow([int(q_index[q]), "", "", q_names[q], ""])
             else:
                 w.writerow([int(q_index[q]), int(ref_index[r]), f"{c:.6f}", q_names[q], ref_names[r]])
-    tmp.replace(ctx.run_dir / "matches.csv")
 
 
 # ---------------------------------------------------------------------------------------

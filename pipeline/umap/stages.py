@@ -32,7 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pipeline.artifacts import read_strings, write_tree
+from pipeline.artifacts import atomic_open, read_strings, write_tree
 from pipeline.config import ConfigError
 from pipeline.geometry import Camera, equirect_to_pinhole, pose_grid
 from pipeline.images import ImageError, read_gray
@@ -493,7 +493,7 @@ def localize(ctx: Any) -> None:
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
     ctx.out.attrs.update(mode=p["mode"], anchor=anchor)
-    with open(ctx.run_dir / "estimates.csv", "w", newline="") as f:
+    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
         for k in range(n):

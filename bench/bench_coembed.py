@@ -19,8 +19,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from pipeline.coembed.observations import from_triplets  # noqa: E402
-from pipeline.coembed.solver import coembed_map, coembed_map_dense  # noqa: E402
+from placeloc.coembed.observations import from_triplets  # noqa: E402
+from placeloc.coembed.solver import coembed_map, coembed_map_dense  # noqa: E402
 
 
 def make_problem(m: int, n: int, fill: float, seed: int = 0, n_landmarks: int = 20):

@@ -2,7 +2,7 @@
 500,000-entry dictionary of SIFT descriptors, brute force (BLAS) vs every ANN backend.
 
 The dictionary is real SIFT from frames of the synthetic omnidirectional building
-(``pipeline.synth.omni``), rendered along the loop; the query frames are rendered at
+(``placeloc.synth.omni``), rendered along the loop; the query frames are rendered at
 poses 0.15 m to the side under other lighting, 200 strongest SIFT each. Descriptors are
 cached as .npy under ``--cache``. Prints one table with ratios against brute force.
 """
@@ -16,11 +16,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from pipeline.pirf.ann import BACKENDS, AnnIndex
-from pipeline.pirf.mapping import node_vector
-from pipeline.pirf.stages import set_agreement
-from pipeline.synth.omni import OmniWorld, loop_path
+from placeloc.pirf.ann import BACKENDS, AnnIndex
+from placeloc.pirf.mapping import node_vector
+from placeloc.pirf.stages import set_agreement
+from placeloc.synth.omni import OmniWorld, loop_path
 
 
 def sift_set(n_target: int, n_queries: int, cache: Path) -> tuple[np.ndarray, list[np.ndarray]]:

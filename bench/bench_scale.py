@@ -36,7 +36,7 @@ CONFIGS = [  # label, executor section
 
 def make_traverse(out: Path, frames: int, width: int, height: int, seed: int = 0) -> Path:
     """Write ``frames`` PNGs: a 400-frame generated route, frames reused with Gaussian noise."""
-    from pipeline.synth.route import generate
+    from placeloc.synth.route import generate
 
     base = out / "base"
     generate(base, seed=seed, frames=400, width=width, height=height)
@@ -53,8 +53,8 @@ def make_traverse(out: Path, frames: int, width: int, height: int, seed: int = 0
 
 def child(folder: str, section: str, run_dir: str) -> None:
     """One configuration: run extract, print seconds and this (writing) process's peak RSS as JSON."""
-    from pipeline.config import load_config
-    from pipeline.runner import run_stage
+    from placeloc.config import load_config
+    from placeloc.runner import run_stage
 
     cfg = load_config(data={"method": "seqslam", "reference": {"images": folder}, "plots": False,
                             "seqslam": {"comparison": "sad", "thumbnail": [64, 32]},

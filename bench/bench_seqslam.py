@@ -27,10 +27,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pipeline.experiments import shared_data_dir  # noqa: E402
-from pipeline.images import list_images, read_gray  # noqa: E402
-from pipeline.seqslam.comparisons import difference_block, prepare  # noqa: E402
-from pipeline.seqslam.search import enhance_t, query_offsets, sequence_search, trajectory_offsets, velocities  # noqa: E402
+from placeloc.experiments import shared_data_dir  # noqa: E402
+from placeloc.images import list_images, read_gray  # noqa: E402
+from placeloc.seqslam.comparisons import difference_block, prepare  # noqa: E402
+from placeloc.seqslam.search import enhance_t, query_offsets, sequence_search, trajectory_offsets, velocities  # noqa: E402
 
 PARAMS = {"patch": 8, "normalisation": "minmax", "gaussian_sigma": 1.0, "ocm_epsilon": 5.0}
 
@@ -46,7 +46,7 @@ def make_traverses(out: Path, n: int, seed: int = 0) -> tuple[Path, Path]:
         src = [[read_gray(p) for p in list_images(data / "nordland-dev" / s).paths] for s in ("summer", "winter")]
         source = "nordland-dev tiled with noise"
     else:
-        from pipeline.synth.route import generate
+        from placeloc.synth.route import generate
 
         generate(out / "route", seed=seed, frames=1200, width=64, height=32)
         src = [[read_gray(p) for p in list_images(out / "route" / s).paths] for s in ("reference", "query")]
@@ -100,8 +100,8 @@ def timed(fn, *a, repeat: int = 1, **k):
 
 def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float, float]:
     """Run a placeloc stage in a child process; return (seconds, peak RSS of the child in GB)."""
-    code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from pipeline.config import load_config; "
-            f"from pipeline.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
+    code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from placeloc.config import load_config; "
+            f"from placeloc.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
             f"run_stage(c, {str(run_dir)!r}, {stage!r}, quiet=True); dt = time.perf_counter() - t; "
             "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
@@ -143,7 +143,7 @@ def main() -> None:
         enhance_t(dt[:4], 10)
         t_enh, et = timed(enhance_t, dt, 10, repeat=2)
         t_naive_enh, e_naive = timed(naive_enhance, d, 10)
-        from pipeline.seqslam.search import enhancement_shift
+        from placeloc.seqslam.search import enhancement_shift
 
         assert np.allclose(e_naive + enhancement_shift(10), et.T, atol=1e-3), "naive and fast enhancement disagree"
         rows.append(("contrast enhancement", t_enh, t_naive_enh, ""))

@@ -15,12 +15,11 @@ import time
 import cv2
 import numba
 import numpy as np
-
-from pipeline.geometry import Camera, pose_grid
-from pipeline.synth.corridor import building
-from pipeline.umap.bits import iou_naive, iou_scores, pack, popcount_rows, unpack
-from pipeline.umap.model import floor_plan_model
-from pipeline.umap.render import render_packed
+from placeloc.geometry import Camera, pose_grid
+from placeloc.synth.corridor import building
+from placeloc.umap.bits import iou_naive, iou_scores, pack, popcount_rows, unpack
+from placeloc.umap.model import floor_plan_model
+from placeloc.umap.render import render_packed
 
 
 def main() -> None:

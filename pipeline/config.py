@@ -1,9 +1,10 @@
 """YAML run configuration: load, override with ``--set``, validate, resolve paths, hash.
 
 A config is a plain nested dict. Its schema is the union of ``COMMON_DEFAULTS`` and the
-chosen method's ``defaults`` (see :mod:`pipeline.methods`): every key has exactly one
-default there, and the type of that default is the type a user value must have. Values
-whose default is ``None`` accept any scalar. Relative paths resolve against the folder of
+chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
+one default there, the type of that default is the type a user value must have, and a
+declared range or list of choices is checked. Values whose default is ``None`` accept any
+scalar. Relative paths resolve against the folder of
 the config file, so a config can be moved together with its data.
 """
 
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from placeloc.params import check_bounds
 
 
 class ConfigError(ValueError):
@@ -89,7 +91,7 @@ def apply_override(data: dict, item: str) -> None:
 
 def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     """Check ``data`` against the schema of its method and return the completed config."""
-    from pipeline.methods import METHOD_NAMES, get_method
+    from placeloc.methods import METHOD_NAMES, get_method
 
     method_name = data.get("method")
     if method_name is None:
@@ -100,12 +102,16 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     schema = copy.deepcopy(COMMON_DEFAULTS)
     schema[method.name] = copy.deepcopy(method.defaults)
     choices = {**COMMON_CHOICES, **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
+
     path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
     config = _merge(schema, data, prefix="", choices=choices)
     config["method"] = method_name
+    problems = check_bounds(method.params, config[method.name], f"{method.name}.")
+    if problems:
+        raise ConfigError(problems[0])
     for key in path_keys:
         _resolve_path(config, key, base_dir)
     if not query_given:

@@ -17,8 +17,7 @@ import uuid
 from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
-
-from pipeline.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
+from placeloc.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
 
 
 class DaskExecutor(Executor):

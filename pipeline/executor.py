@@ -181,7 +181,7 @@ def make_executor(section: dict[str, Any]) -> Executor:
     kind = section.get("kind", "local")
     if kind == "dask":
         try:
-            from pipeline.dask_executor import DaskExecutor  # optional extra
+            from placeloc.dask_executor import DaskExecutor  # optional extra
         except ImportError as exc:
             raise RuntimeError(f"executor.kind: dask is not available ({exc}); "
                                "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc

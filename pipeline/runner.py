@@ -16,20 +16,18 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 import h5py
+from placeloc import __version__
+from placeloc.artifacts import TMP_MARK, atomic_h5, provenance_attrs, read_stamp, remove_stale_tmp
+from placeloc.config import config_hash, to_yaml
+from placeloc.executor import Executor, make_executor
+from placeloc.images import ImageSet, list_images
+from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 from tqdm import tqdm
-
-from pipeline import __version__
-from pipeline.artifacts import atomic_h5, provenance_attrs, read_stamp, remove_stale_tmp
-from pipeline.config import config_hash, to_yaml
-from pipeline.executor import Executor, make_executor
-from pipeline.images import ImageSet, list_images
-from pipeline.methods import STAGES, Method, get_method
 
 log = logging.getLogger("placeloc")
 
-STAGE_ALIASES = {"build": "build-dictionary"}
-# Common config sections every stage depends on; evaluate also reads the ground truth.
-COMMON_STAGE_KEYS = ("method", "seed", "reference", "query")
+# Files in a run directory that belong to no stage (written by the runner itself).
+RUN_FILES = ("config.yaml", "log.txt")
 
 
 class StageError(RuntimeError):
@@ -50,10 +48,8 @@ class StageContext:
     images: dict[str, ImageSet] = field(default_factory=dict)
     _open: list[h5py.File] = field(default_factory=list)
 
-    @property
-    def params(self) -> dict[str, Any]:
-        """This method's config section."""
-        return self.config[self.method.name]
+    # The method's parameter object (see placeloc.params), built once per run.
+    params: Any = None
 
     def artifact(self, stage: str) -> h5py.File:
         """Open the artifact of an earlier stage read-only (closed by the runner)."""
@@ -75,7 +71,6 @@ class StageContext:
 
 
 def normalise_stage(name: str) -> str:
-    name = STAGE_ALIASES.get(name, name)
     if name not in STAGES:
         raise StageError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}")
     return name
@@ -92,14 +87,15 @@ def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
 
 def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
                  parent_stamp: str | None) -> dict[str, Any]:
-    """Everything a stage's result depends on, as JSON-able fingerprints."""
-    keys = method.stage_keys.get(stage)
+    """Everything a stage's result depends on, as JSON-able fingerprints: the parameters
+    and sections it declares, images and files named by path parameters (first stage), the
+    ground-truth file (if it reads that section) and the parent's stamp."""
+    declared = method.stages.get(stage)
+    keys = declared.keys if declared is not None else ()
+    sections = declared.sections if declared is not None else ()
     section = config.get(method.name, {})
-    method_part = {k: section[k] for k in keys} if keys is not None else section
-    common = {k: config.get(k) for k in COMMON_STAGE_KEYS}
-    if stage == "evaluate":
-        common["ground_truth"] = config.get("ground_truth")
-        common["plots"] = config.get("plots")
+    method_part = {k: _lookup(section, k) for k in keys}
+    common = {k: config.get(k) for k in BASE_SECTIONS + tuple(sections)}
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
     if stage == STAGES[0]:
         for role, s in images.items():
@@ -113,11 +109,18 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
             if node:
                 inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
     gt_path = (config.get("ground_truth") or {}).get("path")
-    if stage == "evaluate" and gt_path and Path(gt_path).is_file():
+    if "ground_truth" in sections and gt_path and Path(gt_path).is_file():
         inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))
     if parent_stamp is not None:
         inputs["parent"] = parent_stamp
     return inputs
+
+
+def _lookup(section: dict[str, Any], dotted: str) -> Any:
+    node: Any = section
+    for part in dotted.split("."):
+        node = node.get(part) if isinstance(node, dict) else None
+    return node
 
 
 def _path_fingerprint(path: Path) -> str:
@@ -152,7 +155,7 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
             inputs = stage_inputs(config, method, name, images, parent_stamp)
             stamp = config_hash({"version": __version__, "stage": name, "inputs": inputs})
             forced = force_all or (force and name == stage)
-            if read_stamp(path) == stamp and not forced:
+            if read_stamp(path) == stamp and side_outputs_intact(path) and not forced:
                 log.info("%s: up to date (%s), skipped", name, path)
                 parent_stamp = stamp
                 continue
@@ -169,7 +172,8 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
 def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, path: Path,
              inputs: dict[str, Any], stamp: str, images: dict[str, ImageSet], executor: Executor,
              quiet: bool) -> None:
-    fn = method.stages.get(name)
+    declared = method.stages.get(name)
+    fn = declared.run if declared is not None else None
     note = "" if fn is not None else f"{method.name} has no work in {name}: input passed through"
     attrs = provenance_attrs(name, method.name, __version__, to_yaml(config),
                              config_hash(config), inputs, stamp, passthrough=fn is None, note=note)
@@ -180,13 +184,41 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
             return
         log.info("%s: running %s", name, method.name)
         ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
-                           executor=executor, quiet=quiet, images=images)
+                           executor=executor, quiet=quiet, images=images, params=method.build_params(config))
+        before = _run_files(run_dir)
         try:
             fn(ctx)
         finally:
             ctx.close()
         f.attrs["seconds"] = time.perf_counter() - t0
+        # Side outputs (CSV, JSON, PNG) are whatever the stage created or changed in the run
+        # directory; their fingerprints make deleting or editing one re-run the stage.
+        after = _run_files(run_dir)
+        f.attrs["side_outputs"] = json.dumps({k: v for k, v in after.items() if before.get(k) != v}, sort_keys=True)
     log.info("%s: wrote %s in %.2f s", name, path, time.perf_counter() - t0)
+
+
+def _run_files(run_dir: Path) -> dict[str, str]:
+    """Fingerprints of the files in a run directory that are not artifacts, temporary
+    files or the runner's own files."""
+    out = {}
+    for p in run_dir.rglob("*"):
+        rel = p.relative_to(run_dir)
+        if not p.is_file() or TMP_MARK in p.name or (len(rel.parts) == 1 and (p.suffix == ".h5" or p.name in RUN_FILES)):
+            continue
+        out[str(rel)] = _path_fingerprint(p)
+    return out
+
+
+def side_outputs_intact(path: Path) -> bool:
+    """True when every side output recorded in the artifact at ``path`` is still there,
+    unchanged (same size and modification time)."""
+    try:
+        with h5py.File(path, "r") as f:
+            recorded = json.loads(f.attrs.get("side_outputs", "{}"))
+    except (OSError, ValueError):
+        return False
+    return all(_path_fingerprint(path.parent / name) == fp for name, fp in recorded.items())
 
 
 def run_all(config: dict[str, Any], run_dir: str | Path, force: bool = False, quiet: bool = False) -> Path:

@@ -18,6 +18,6 @@ def route(tmp_path: Path) -> Path:
 
 
 def shared_data() -> Path | None:
-    from pipeline.experiments import shared_data_dir
+    from placeloc.experiments import shared_data_dir
 
     return shared_data_dir()

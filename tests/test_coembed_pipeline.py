@@ -8,12 +8,11 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.coembed.observations import ObservationError
-from pipeline.config import ConfigError, load_config
-from pipeline.experiments import shared_data_dir
-from pipeline.runner import run_all, run_stage
-from pipeline.synth import generate
+from placeloc.coembed.observations import ObservationError
+from placeloc.config import ConfigError, load_config
+from placeloc.experiments import shared_data_dir
+from placeloc.runner import run_all, run_stage
+from placeloc.synth import generate
 
 
 def write_linear_world(tmp_path, n=50, m=40):
@@ -132,7 +131,7 @@ def test_aruco_extraction_gives_marker_ids_and_horizontal_centres(tmp_path):
 
 
 def test_sift_tracks_follow_a_shifting_texture(tmp_path):
-    from pipeline.coembed.extract import detect_sift, sift_tracks
+    from placeloc.coembed.extract import detect_sift, sift_tracks
 
     rng = np.random.default_rng(0)
     big = cv2.GaussianBlur((rng.random((300, 600)) * 255).astype(np.uint8), (0, 0), 2.0)

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from pipeline.coembed.align import AlignmentError, align_to_landmarks, apply_affine, fit_affine
-from pipeline.coembed.isomap import IsomapError, feature_distances, isomap_from_distances, isomap_points
-from pipeline.coembed.observations import ObservationError, from_triplets
-from pipeline.coembed.solver import CoembedError, coembed_map, coembed_map_dense, estimate_path
-from pipeline.coembed.wiberg import WibergError, wiberg
+from placeloc.coembed.align import AlignmentError, align_to_landmarks, apply_affine, fit_affine
+from placeloc.coembed.isomap import IsomapError, feature_distances, isomap_from_distances, isomap_points
+from placeloc.coembed.observations import ObservationError, from_triplets
+from placeloc.coembed.solver import CoembedError, coembed_map, coembed_map_dense, estimate_path
+from placeloc.coembed.wiberg import WibergError, wiberg
 
 
 def linear_world(seed: int = 0, n: int = 60, m: int = 40, fill: float = 0.4, k: int = 2):
@@ -198,7 +197,7 @@ def test_alignment_errors_are_clear():
 
 
 def test_poses_are_sorted_and_duplicates_rejected(tmp_path):
-    from pipeline.coembed.observations import read_poses_csv
+    from placeloc.coembed.observations import read_poses_csv
 
     (tmp_path / "p.csv").write_text("t,x,y,heading\n2,1,1,0\n0,0,0,0.5\n1,0.5,0.5,0.2\n")
     steps, xy, heading = read_poses_csv(tmp_path / "p.csv")

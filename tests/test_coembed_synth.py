@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from pipeline.coembed.observations import read_observations_csv, read_points_csv, read_poses_csv
-from pipeline.synth import generate
+from placeloc.coembed.observations import read_observations_csv, read_points_csv, read_poses_csv
+from placeloc.synth import generate
 
 
 @pytest.fixture(scope="module")

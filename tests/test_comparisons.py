@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from pipeline.seqslam.comparisons import (
+from placeloc.seqslam.comparisons import (
     COMPARISONS,
     difference_block,
     half_resolution,

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 import yaml
-
-from pipeline.config import ConfigError, load_config
+from placeloc.config import ConfigError, load_config
 
 
 def _write(tmp_path, data):
@@ -56,3 +55,28 @@ def test_bad_override_syntax(route):
 def test_missing_config_file(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         load_config(tmp_path / "none.yaml")
+
+
+def test_declared_ranges_are_checked_with_the_key_and_the_limit(tmp_path):
+    from placeloc.config import ConfigError, load_config
+
+    base = {"method": "seqslam", "reference": {"images": str(tmp_path)}}
+    with pytest.raises(ConfigError, match=r"seqslam.ds: 0 is out of range; it must be >= 1"):
+        load_config(data={**base, "seqslam": {"ds": 0}})
+    with pytest.raises(ConfigError, match=r"seqslam.v_step: 0.0 is out of range; it must be > 0"):
+        load_config(data={**base, "seqslam": {"v_step": 0.0}})
+    with pytest.raises(ConfigError, match=r"seqslam.thumbnail"):
+        load_config(data={**base, "seqslam": {"thumbnail": [64, 2]}})
+    cfg = load_config(data={**base, "seqslam": {"ds": 1}})
+    assert cfg["seqslam"]["ds"] == 1
+
+
+def test_parameter_objects_are_built_from_the_config_with_nested_sections(tmp_path):
+    from placeloc.methods import get_method
+    from placeloc.params import defaults
+    from placeloc.umap.params import UMapParams
+
+    d = defaults(UMapParams)
+    assert d["ca"]["tie_tol"] == 0.003 and d["grid"]["x"] == [0.0, 90.0, 0.1]
+    p = get_method("umap").build_params({"umap": {**d, "ca": {**d["ca"], "tie_tol": 0.01}}})
+    assert p.ca.tie_tol == 0.01 and p.grid.x == (0.0, 90.0, 0.1) and p.camera.width == 160

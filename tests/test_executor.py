@@ -8,10 +8,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.config import load_config
-from pipeline.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item, make_executor
-from pipeline.runner import run_stage
+from placeloc.config import load_config
+from placeloc.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item, make_executor
+from placeloc.runner import run_stage
 
 # Every dataset extract and localize write; compared bit for bit between executors.
 ARRAYS = {
@@ -94,7 +93,7 @@ def test_dask_missing_gives_a_clear_error(monkeypatch):
             raise ImportError(f"No module named '{name.split('.')[0]}'")
         return real_import(name, *args, **kwargs)
 
-    monkeypatch.delitem(__import__("sys").modules, "pipeline.dask_executor", raising=False)
+    monkeypatch.delitem(__import__("sys").modules, "placeloc.dask_executor", raising=False)
     monkeypatch.setattr(builtins, "__import__", no_dask)
     with pytest.raises(RuntimeError, match=r"pip install 'placeloc\[dask\]'"):
         make_executor({"kind": "dask", "workers": 2, "scheduler": "local-cluster", "retries": 2})

@@ -5,9 +5,8 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.evaluation.ground_truth import GroundTruth, GroundTruthError
-from pipeline.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
+from placeloc.evaluation.ground_truth import GroundTruth, GroundTruthError
+from placeloc.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
 
 
 def test_pr_curve_by_hand():

@@ -11,12 +11,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.artifacts import atomic_h5, describe, read_stamp
-from pipeline.config import load_config
-from pipeline.images import ImageError, list_images, natural_key
-from pipeline.runner import run_all, run_stage
-from pipeline.seqslam import stages as seqslam_stages
+from placeloc.artifacts import atomic_h5, describe, read_stamp
+from placeloc.config import load_config
+from placeloc.images import ImageError, list_images, natural_key
+from placeloc.methods import Stage
+from placeloc.runner import run_all, run_stage
+from placeloc.seqslam import stages as seqslam_stages
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -85,7 +85,8 @@ def test_interrupted_stage_leaves_no_trusted_artifact(route, tmp_path, monkeypat
         ctx.out.create_dataset("difference", data=np.zeros(3))
         raise KeyboardInterrupt
 
-    monkeypatch.setitem(seqslam_stages.METHOD.stages, "localize", interrupted)
+    declared = seqslam_stages.METHOD.stages["localize"]
+    monkeypatch.setitem(seqslam_stages.METHOD.stages, "localize", Stage(interrupted, declared.keys))
     with pytest.raises(KeyboardInterrupt):
         run_stage(cfg, run, "localize", quiet=True)
     assert not (run / "localize.h5").exists()
@@ -169,12 +170,19 @@ def test_cli_run_end_to_end_on_data_samples(tmp_path):
 
 def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
     """Files named by a method's path keys are fingerprinted like images."""
-    from pipeline.methods import Method
-    from pipeline.runner import stage_inputs
+    from dataclasses import dataclass
+
+    from placeloc.methods import Method
+    from placeloc.params import Params, param
+    from placeloc.runner import stage_inputs
+
+    @dataclass(frozen=True)
+    class ToyParams(Params):
+        observations: str | None = param(None, path=True)
 
     obs = tmp_path / "obs.csv"
     obs.write_text("t,feature,value\n0,1,0.5\n")
-    method = Method(name="toy", defaults={"observations": None}, stages={}, path_keys=("observations",), required_images=())
+    method = Method(name="toy", params=ToyParams, stages={}, required_images=())
     cfg = {"method": "toy", "seed": 0, "reference": None, "query": None, "toy": {"observations": str(obs)}}
     before = stage_inputs(cfg, method, "extract", {}, None)
     assert stage_inputs(cfg, method, "extract", {}, None) == before
@@ -184,7 +192,7 @@ def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
 
 
 def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):
-    from pipeline.artifacts import atomic_open
+    from placeloc.artifacts import atomic_open
 
     target = tmp_path / "matches.csv"
     target.write_text("old\n")
@@ -196,3 +204,23 @@ def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):
     with atomic_open(target) as fh:
         fh.write("new\n")
     assert target.read_text() == "new\n"
+
+
+def test_a_missing_or_edited_side_output_reruns_its_stage(route, tmp_path):
+    """metrics.json and the plots belong to evaluate: delete or edit one and evaluate is no
+    longer up to date, while the stages before it stay skipped."""
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run_all(cfg, run, quiet=True)
+    before = _mtimes(run)
+    run_all(cfg, run, quiet=True)
+    assert _mtimes(run) == before
+    (run / "metrics.json").unlink()
+    run_all(cfg, run, quiet=True)
+    now = _mtimes(run)
+    assert (run / "metrics.json").is_file()
+    assert now["evaluate.h5"] != before["evaluate.h5"] and now["localize.h5"] == before["localize.h5"]
+    (run / "matches.csv").write_text("edited by hand\n")
+    run_all(cfg, run, quiet=True)
+    assert (run / "matches.csv").read_text().startswith("query,reference")
+    assert _mtimes(run)["extract.h5"] == before["extract.h5"]

@@ -7,11 +7,10 @@ import math
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
-from pipeline.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
-from pipeline.pirf.knn import bf_knn2
-from pipeline.pirf.mapping import PirfMapper, gauss, improved_insert, similarity_s, z_norm
+from placeloc.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
+from placeloc.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
+from placeloc.pirf.knn import bf_knn2
+from placeloc.pirf.mapping import PirfMapper, gauss, improved_insert, similarity_s, z_norm
 
 
 def test_bf_knn2_matches_naive_and_prefix_splits() -> None:

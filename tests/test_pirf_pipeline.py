@@ -9,12 +9,11 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-
-from pipeline.config import load_config
-from pipeline.images import ImageError
-from pipeline.pirf.stages import check_feature_type, read_poses
-from pipeline.runner import run_all, run_stage
-from pipeline.synth.omni import generate
+from placeloc.config import load_config
+from placeloc.images import ImageError
+from placeloc.pirf.stages import check_feature_type, read_poses
+from placeloc.runner import run_all, run_stage
+from placeloc.synth.omni import generate
 
 
 @pytest.fixture(scope="module")

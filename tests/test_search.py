@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from pipeline.seqslam.search import (
+from placeloc.seqslam.search import (
     confidence,
     enhance,
     enhancement_shift,

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import pytest
-
-from pipeline.config import load_config
-from pipeline.experiments import shared_data_dir
-from pipeline.runner import read_metrics, run_all
+from placeloc.config import load_config
+from placeloc.experiments import shared_data_dir
+from placeloc.runner import read_metrics, run_all
 
 DATA = shared_data_dir()
 pytestmark = pytest.mark.shared_data

@@ -8,9 +8,8 @@ import math
 import cv2
 import numpy as np
 import pytest
-
-from pipeline.umap import ca
-from pipeline.umap.bits import and_count, iou_naive, iou_scores, pack, popcount_rows, unpack
+from placeloc.umap import ca
+from placeloc.umap.bits import and_count, iou_naive, iou_scores, pack, popcount_rows, unpack
 
 
 def test_pack_roundtrip_and_layout():
@@ -111,9 +110,9 @@ def test_akaze_and_centroid_shift_on_shifted_texture():
 def _tiny_corridor(tmp_path, size=(160, 120)):
     """A 12 m corridor with doors at different places, rendered as line drawings (query =
     the wireframe's own render, thickened and with clutter), plus poses and sensor CSVs."""
-    from pipeline.geometry import Camera
-    from pipeline.umap.model import floor_plan_model
-    from pipeline.umap.render import render_packed
+    from placeloc.geometry import Camera
+    from placeloc.umap.model import floor_plan_model
+    from placeloc.umap.render import render_packed
 
     plan = {"floor_z": 0.0, "ceiling_z": 2.6, "outline": [[0, 0], [12, 0], [12, 2.4], [0, 2.4]],
             "doors": [{"from": [2, 0], "to": [2.9, 0], "height": 2.0}, {"from": [7.5, 0], "to": [8.4, 0], "height": 2.0},
@@ -143,7 +142,7 @@ def _tiny_corridor(tmp_path, size=(160, 120)):
 
 
 def _config(tmp_path, **umap):
-    from pipeline.config import load_config
+    from placeloc.config import load_config
 
     data = {"method": "umap", "query": {"images": str(tmp_path / "q")},
             "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
@@ -155,7 +154,7 @@ def _config(tmp_path, **umap):
 
 
 def test_tiny_corridor_right_pose_wins(tmp_path):
-    from pipeline.runner import run_all
+    from placeloc.runner import run_all
 
     _tiny_corridor(tmp_path)
     cfg = _config(tmp_path)
@@ -172,9 +171,9 @@ def test_tiny_corridor_right_pose_wins(tmp_path):
 
 
 def test_bad_inputs(tmp_path):
-    from pipeline.config import ConfigError
-    from pipeline.images import ImageError
-    from pipeline.runner import run_stage
+    from placeloc.config import ConfigError
+    from placeloc.images import ImageError
+    from placeloc.runner import run_stage
 
     _tiny_corridor(tmp_path)
     with pytest.raises(ConfigError, match="pose grid is empty"):

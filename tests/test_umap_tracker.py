@@ -7,11 +7,14 @@ import math
 
 import numpy as np
 import pytest
+from placeloc.params import defaults
+from placeloc.synth.corridor import building
+from placeloc.umap import ca
+from placeloc.umap.bits import pack, popcount_rows
+from placeloc.umap.params import UMapParams
+from placeloc.umap.stages import Scorer, ca_track
 
-from pipeline.synth.corridor import building
-from pipeline.umap import ca
-from pipeline.umap.bits import pack, popcount_rows
-from pipeline.umap.stages import DEFAULTS, Scorer, ca_track
+DEFAULTS = defaults(UMapParams)
 
 
 def _project(cam_xy: np.ndarray, heading_deg: float, pts: np.ndarray, focal: float, cx: float) -> np.ndarray:
@@ -119,8 +122,8 @@ def test_synthetic_corridor_has_its_junction():
 def test_signed_step_on_rendered_corridor_views():
     # Two ray-cast views of the synthetic corridor 0.6 m apart along +x (heading 315, the
     # laser at 270 deg hits the y = 0 wall at d = 1.6 m, theta 45): CA must measure +0.6 m.
-    from pipeline.geometry import Camera
-    from pipeline.synth.corridor import _scene, render_view
+    from placeloc.geometry import Camera
+    from placeloc.synth.corridor import _scene, render_view
 
     scene = _scene(building(), np.random.default_rng(0))
     cam = Camera(320, 240, 60.0)

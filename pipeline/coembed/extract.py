@@ -14,8 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from pipeline.images import read_gray
+from placeloc.images import read_gray
 
 
 class ExtractError(ValueError):

@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from placeloc.coembed.observations import Observations
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree, shortest_path
-
-from pipeline.coembed.observations import Observations
 
 
 class IsomapError(ValueError):

@@ -33,9 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from placeloc.coembed.observations import Observations
 from scipy.sparse.csgraph import connected_components
-
-from pipeline.coembed.observations import Observations
 
 
 class CoembedError(ValueError):

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-
-from pipeline.coembed.observations import (
+from placeloc.coembed.observations import (
     ObservationError,
     from_triplets,
     read_observations,
@@ -24,45 +23,9 @@ from pipeline.coembed.observations import (
     read_poses_csv,
     write_observations,
 )
-from pipeline.config import ConfigError
-from pipeline.methods import Method
-
-DEFAULTS = {
-    "source": "csv",                 # csv | aruco | sift | aruco+sift
-    "observations": None,            # long-form CSV t,feature,value[,value2...] (source csv)
-    "images": None,                  # folder of frames in time order (image sources)
-    "image_values": "x",             # x: horizontal image coordinate (paper), xy: both
-    "aruco_dictionary": "DICT_4X4_50",
-    "sift_features": 1000,
-    "sift_ratio": 0.7,
-    "sift_min_track": 3,
-    "sift_id_offset": 100000,        # SIFT track ids start here when mixed with marker ids
-    "landmarks": None,               # CSV feature,x,y[,z]: known positions
-    "landmark_ids": [],              # use only these rows of the landmark file ([] = all)
-    "dim": 2,                        # map dimension d
-    "solver": "coembed",             # coembed | isomap | pcamd
-    "alpha": 1000.0,                 # landmark weight in (11)
-    "beta": 1.0,                     # path smoothness weight in (16)
-    "poses": None,                   # CSV t,x,y[,heading]: known poses (labels) and path truth
-    "pose_label_every": 0,           # steps t with t % k == 0 are labelled poses (0: no path)
-    "isomap_neighbors": 8,
-    "isomap_min_common": 1,          # steps two features must share to have a distance
-    "pcamd_rank": 3,
-    "pcamd_max_iter": 200,
-    "pcamd_tol": 1e-6,               # stop when the relative cost decrease falls below this
-    "truth": None,                   # CSV feature,x,y[,z][,...]: true positions for evaluate
-}
-CHOICES = {
-    "source": ("csv", "aruco", "sift", "aruco+sift"),
-    "image_values": ("x", "xy"),
-    "solver": ("coembed", "isomap", "pcamd"),
-    "dim": (2, 3),
-}
-PATH_KEYS = ("observations", "images", "landmarks", "poses", "truth")
-EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",
-                "sift_min_track", "sift_id_offset", "landmarks", "landmark_ids", "dim")
-LOCALIZE_KEYS = EXTRACT_KEYS + ("solver", "alpha", "beta", "poses", "pose_label_every", "isomap_neighbors",
-                                "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")
+from placeloc.coembed.params import CoembedParams
+from placeloc.config import ConfigError
+from placeloc.methods import Method, Stage
 
 
 def _check(config: dict) -> None:
@@ -71,7 +34,7 @@ def _check(config: dict) -> None:
         raise ConfigError("coembed.observations is missing: give the long-form CSV (t,feature,value) or set coembed.source to an image source")
     if p["source"] != "csv" and p["images"] is None:
         raise ConfigError(f"coembed.images is missing: source {p['source']!r} reads a folder of frames")
-    for key in PATH_KEYS:
+    for key in METHOD.path_keys:
         if p[key] is not None and not Path(p[key]).exists():
             raise ConfigError(f"coembed.{key}: {p[key]} does not exist (relative paths start at the config's folder)")
     if p["landmarks"] is None:
@@ -91,8 +54,8 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
     if p["source"] == "csv":
         obs = read_observations_csv(p["observations"])
     else:
-        from pipeline.coembed.extract import observations_from_images
-        from pipeline.images import list_images
+        from placeloc.coembed.extract import observations_from_images
+        from placeloc.images import list_images
 
         paths = list_images(p["images"]).paths
         s, f, v = observations_from_images(paths, p, lambda fn, items: ctx.progress(ctx.executor.map(fn, items), total=len(items)))
@@ -128,7 +91,7 @@ def _pose_labels(p: dict, obs) -> dict | None:  # noqa: ANN001
 
 
 def localize(ctx) -> None:  # noqa: ANN001
-    from pipeline.coembed.align import align_to_landmarks
+    from placeloc.coembed.align import align_to_landmarks
 
     p = ctx.params
     art = ctx.artifact("extract")
@@ -139,7 +102,7 @@ def localize(ctx) -> None:  # noqa: ANN001
     info: dict = {"solver": p["solver"]}
     out = ctx.out.require_group("map")
     if p["solver"] == "coembed":
-        from pipeline.coembed.solver import coembed_map, estimate_poses
+        from placeloc.coembed.solver import coembed_map, estimate_poses
 
         res = coembed_map(obs, lcols, lxyz, p["alpha"])
         coords = res.X
@@ -154,13 +117,13 @@ def localize(ctx) -> None:  # noqa: ANN001
             if heading is not None:
                 g.create_dataset("heading", data=heading)
     elif p["solver"] == "isomap":
-        from pipeline.coembed.isomap import isomap_features
+        from placeloc.coembed.isomap import isomap_features
 
         emb = isomap_features(obs, p["isomap_neighbors"], p["dim"], p["isomap_min_common"])
         out.create_dataset("embedding", data=emb)
         coords = align_to_landmarks(emb, lcols, lxyz)
     else:
-        from pipeline.coembed.wiberg import wiberg
+        from placeloc.coembed.wiberg import wiberg
 
         k = obs.value_dim
         # Features are rows; each (step, value component) is a column of the factorised matrix.
@@ -206,7 +169,7 @@ def _figure(path, est, truth, lm_xyz, path_est, path_truth, title) -> None:  # n
 
 
 def evaluate(ctx) -> None:  # noqa: ANN001
-    from pipeline.evaluation import write_metrics
+    from placeloc.evaluation import write_metrics
 
     p = ctx.params
     loc = ctx.artifact("localize")
@@ -263,14 +226,20 @@ def evaluate(ctx) -> None:  # noqa: ANN001
         _figure(ctx.run_dir / "map.png", est_eval, truth_eval, lxyz, path_est, path_truth, title)
 
 
+EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",
+                "sift_min_track", "sift_id_offset", "landmarks", "landmark_ids", "dim")
 METHOD = Method(
     name="coembed",
-    defaults=DEFAULTS,
-    stages={"extract": extract, "localize": localize, "evaluate": evaluate},
-    choices=CHOICES,
-    path_keys=PATH_KEYS,
-    stage_keys={"extract": EXTRACT_KEYS, "localize": LOCALIZE_KEYS},
+    params=CoembedParams,
+    stages={
+        "extract": Stage(extract, keys=EXTRACT_KEYS),
+        "localize": Stage(localize, keys=EXTRACT_KEYS + ("solver", "alpha", "beta", "poses", "pose_label_every",
+                                                         "isomap_neighbors", "isomap_min_common", "pcamd_rank",
+                                                         "pcamd_max_iter", "pcamd_tol")),
+        "evaluate": Stage(evaluate, keys=tuple(CoembedParams.__dataclass_fields__), sections=("ground_truth", "plots")),
+    },
     required_images=(),
     checker=_check,
-    description="Co-embedding mapping by semi-supervised dimensionality reduction (with Isomap and PCAMD baselines)",
+    citation="S. Nakamura and T. Yairi, \"Experimental Study on Mapping by Dimensionality Reduction\" (co-embedding; "
+             "baselines Isomap and the Okatani-Deguchi Wiberg algorithm)",
 )

@@ -8,8 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from pipeline.artifacts import atomic_open
+from placeloc.artifacts import atomic_open
 
 
 def _clean(value: Any) -> Any:

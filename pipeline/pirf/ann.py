@@ -3,7 +3,7 @@
 Backends (all return *squared* L2 distances of the 2 nearest entries, so the ratio test
 is d1^2 < 0.49 d2^2 for D = 0.7):
 
-- ``bruteforce``: exact, BLAS (:func:`pipeline.pirf.knn.bf_knn2`).
+- ``bruteforce``: exact, BLAS (:func:`placeloc.pirf.knn.bf_knn2`).
 - ``flann-auto``: OpenCV FLANN autotuned (``algorithm=255``) as in the paper. Python
   cannot pass ``target_precision`` (float/double mismatch), so FLANN's default 0.8
   applies; searched with ``checks=-2`` (the tuned value). Seeded via ``cv2.setRNGSeed``.
@@ -29,8 +29,7 @@ from typing import Any
 import cv2
 import h5py
 import numpy as np
-
-from pipeline.pirf.knn import bf_knn2, sq_norms
+from placeloc.pirf.knn import bf_knn2, sq_norms
 
 BACKENDS = ("bruteforce", "flann-auto", "flann-kmeans", "flann-kdtree", "faiss-hnsw", "faiss-ivf")
 INDEX_DEFAULTS: dict[str, Any] = {"checks": 512, "hnsw_m": 32, "hnsw_ef_construction": 40, "ef_search": 32,

@@ -17,8 +17,7 @@ t -> t-1 -> ... -> t-w is unbroken. The window adapts per frame, eq. (2): start 
 from __future__ import annotations
 
 import numpy as np
-
-from pipeline.pirf.knn import bf_knn2
+from placeloc.pirf.knn import bf_knn2
 
 
 def ratio_match(a: np.ndarray, b: np.ndarray, ratio: float = 0.7) -> np.ndarray:

@@ -11,8 +11,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from pipeline.images import ImageError, read_gray
+from placeloc.images import ImageError, read_gray
 
 FEATURE_TYPES = ("sift", "akaze", "orb", "surf")
 

@@ -21,8 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-
-from pipeline.pirf.knn import bf_knn2, sq_norms
+from placeloc.pirf.knn import bf_knn2, sq_norms
 
 
 def gauss(x: float, sigma: float) -> float:

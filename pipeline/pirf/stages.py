@@ -21,36 +21,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from placeloc.artifacts import write_tree
+from placeloc.config import ConfigError
+from placeloc.images import ImageError
+from placeloc.methods import Method, Stage
+from placeloc.pirf.ann import INDEX_DEFAULTS, AnnIndex
+from placeloc.pirf.chain import extract_pirfs, ratio_match
+from placeloc.pirf.features import check_sizes, extract_frame
+from placeloc.pirf.mapping import PirfMapper, localize_frame, node_vector, vectors_to_csr
+from placeloc.pirf.params import PirfParams
 
-from pipeline.artifacts import write_tree
-from pipeline.config import ConfigError
-from pipeline.images import ImageError
-from pipeline.methods import Method
-from pipeline.pirf.ann import BACKENDS, INDEX_DEFAULTS, AnnIndex
-from pipeline.pirf.chain import extract_pirfs, ratio_match
-from pipeline.pirf.features import FEATURE_TYPES, check_sizes, extract_frame
-from pipeline.pirf.mapping import PirfMapper, localize_frame, node_vector, vectors_to_csr
-
-DEFAULTS: dict[str, Any] = {
-    "features": "sift",
-    "n_features": 1000,
-    "blank_frames": "stop",
-    "ratio": 0.7,            # D_surf, table 1
-    "w_size_default": 3,     # table 1
-    "w_size_max": 30,
-    "n_pmin": 40,            # table 1
-    "n_pmax": 200,           # table 1
-    "eps": 30,               # table 1
-    "sigma": 2.0,            # table 1
-    "tau": 0.015,            # table 1
-    "update": "improved",
-    "index": "faiss-hnsw",
-    **INDEX_DEFAULTS,
-    "compare_bf": True,
-    "reference_poses": None,
-    "query_poses": None,
-}
-CHOICES = {"features": FEATURE_TYPES, "update": ("plain", "improved"), "index": BACKENDS, "blank_frames": ("stop", "empty")}
 EXTRACT_KEYS = ("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max", "n_pmin", "n_pmax")
 BUILD_KEYS = EXTRACT_KEYS + ("eps", "sigma", "tau", "update")
 INDEX_KEYS = BUILD_KEYS + ("index",) + tuple(INDEX_DEFAULTS)
@@ -274,7 +254,7 @@ def accuracy_at_gap(best: np.ndarray, q_poses: np.ndarray, r_poses: np.ndarray, 
 
 
 def stage_evaluate(ctx: Any) -> None:
-    from pipeline.evaluation import write_metrics
+    from placeloc.evaluation import write_metrics
 
     p = ctx.params
     gt = ctx.config["ground_truth"]
@@ -353,12 +333,15 @@ def _plots(run_dir: Path, r_poses: np.ndarray, lc_f: np.ndarray, lc_n: np.ndarra
 
 METHOD = Method(
     name="pirf",
-    defaults=DEFAULTS,
-    choices=CHOICES,
-    path_keys=("reference_poses", "query_poses"),
-    stage_keys={"extract": EXTRACT_KEYS, "build-dictionary": BUILD_KEYS, "index": INDEX_KEYS, "localize": LOCALIZE_KEYS},
-    stages={"extract": stage_extract, "build-dictionary": stage_build, "index": stage_index, "localize": stage_localize,
-            "evaluate": stage_evaluate},
+    params=PirfParams,
+    stages={
+        "extract": Stage(stage_extract, keys=EXTRACT_KEYS),
+        "build-dictionary": Stage(stage_build, keys=BUILD_KEYS),
+        "index": Stage(stage_index, keys=INDEX_KEYS),
+        "localize": Stage(stage_localize, keys=LOCALIZE_KEYS),
+        "evaluate": Stage(stage_evaluate, keys=tuple(PirfParams.__dataclass_fields__), sections=("ground_truth", "plots")),
+    },
     checker=_check,
-    description="PIRF-nav2: loop closure and localization on omnidirectional video with an indexed PIRF dictionary",
+    citation="H. Sasaki and T. Hamagami, \"Construction of feature space for speeding up self-localization using time "
+             "series omnidirectional images\" (PIRF-nav2: A. Kawewong, N. Tongprasit and O. Hasegawa)",
 )

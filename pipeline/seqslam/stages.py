@@ -20,46 +20,21 @@ from typing import Any
 
 import h5py
 import numpy as np
+from placeloc.artifacts import atomic_open, read_strings
+from placeloc.evaluation import write_metrics
+from placeloc.evaluation.ground_truth import GroundTruth
+from placeloc.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
+from placeloc.images import ImageError, read_gray
+from placeloc.methods import Method, Stage
+from placeloc.seqslam.comparisons import difference_block, feature_dtype, prepare, thumbnail
+from placeloc.seqslam.params import SeqSLAMParams
+from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, velocities
 
-from pipeline.artifacts import atomic_open, read_strings
-from pipeline.evaluation import write_metrics
-from pipeline.evaluation.ground_truth import GroundTruth
-from pipeline.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
-from pipeline.images import ImageError, read_gray
-from pipeline.methods import Method
-from pipeline.seqslam.comparisons import COMPARISONS, difference_block, feature_dtype, prepare, thumbnail
-from pipeline.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, velocities
-
-DEFAULTS: dict[str, Any] = {
-    "comparison": "sad",  # sad|histeq|zncc|abs_zncc|isc|isc_ext|ocm|ocm_ext
-    "thumbnail": [64, 32],  # width, height
-    "patch": 8,  # patch normalisation block size (sad)
-    "normalisation": "minmax",  # minmax (paper) or zscore (OpenSeqSLAM)
-    "gaussian_sigma": 1.0,  # Gaussian filter before isc*/ocm*
-    "ocm_epsilon": 5.0,  # OCM: |Sobel gradient| below this -> code 16 (ignored)
-    "enhance_window": 10,  # R_window: local contrast enhancement, and match separation
-    "ds": 10,  # sequence length (the window has ds + 1 query frames)
-    "v_min": 0.8,
-    "v_max": 1.2,
-    "v_step": 0.1,
-    "search": "causal",  # causal (paper) or centred (OpenSeqSLAM)
-    "exclude_recent": 50,  # loop closure only: ignore the last N frames of the same traverse
-    "top_k": 10,  # candidates kept per query (Recall@K)
-    "images_per_task": 256,  # images per extraction task (bigger amortises process/Dask overhead)
-    "block_size": 1024,  # query columns per difference-matrix block (bounds memory)
-    "store_difference": True,  # keep D in localize.h5 (needed for the dissimilarity ratio and plot)
-}
-CHOICES = {
-    "comparison": COMPARISONS,
-    "normalisation": ("minmax", "zscore"),
-    "search": ("causal", "centred"),
-}
 log = logging.getLogger("placeloc")
-EXTRACT_KEYS = ("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")
 
 
 def _check(config: dict) -> None:
-    from pipeline.config import ConfigError
+    from placeloc.config import ConfigError
 
     p = config["seqslam"]
     if min(p["thumbnail"]) < 4:
@@ -247,7 +222,7 @@ def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, lo
 # evaluate
 # ---------------------------------------------------------------------------------------
 def evaluate(ctx: Any) -> None:
-    from pipeline.seqslam.search import enhance
+    from placeloc.seqslam.search import enhance
 
     cfg = ctx.config
     p = ctx.params
@@ -261,7 +236,7 @@ def evaluate(ctx: Any) -> None:
     n_q_orig = int(q_group.attrs["n_listed"])
     gt_section = cfg["ground_truth"]
     if gt_section["kind"] == "none":
-        from pipeline.runner import StageError
+        from placeloc.runner import StageError
 
         raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv or hdf5)")
     gt = GroundTruth.from_config(gt_section, n_ref_orig, n_q_orig)
@@ -351,7 +326,7 @@ def evaluate(ctx: Any) -> None:
     write_metrics(ctx.run_dir, metrics, ctx.out)
 
     if cfg.get("plots", True):
-        from pipeline.evaluation.plots import plot_difference_matrix, plot_pr_curves
+        from placeloc.evaluation.plots import plot_difference_matrix, plot_pr_curves
 
         plot_pr_curves({f"SeqSLAM {p['comparison']} ds={p['ds']}": (pr.recall, pr.precision),
                         "single image": (pr_single.recall, pr_single.precision)},
@@ -367,10 +342,15 @@ def evaluate(ctx: Any) -> None:
 
 METHOD = Method(
     name="seqslam",
-    defaults=DEFAULTS,
-    choices=CHOICES,
-    stages={"extract": extract, "localize": localize, "evaluate": evaluate},
-    stage_keys={"extract": EXTRACT_KEYS},
+    params=SeqSLAMParams,
+    stages={
+        "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")),
+        "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "search",
+                                          "exclude_recent", "top_k", "store_difference")),
+        "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window"),
+                          sections=("ground_truth", "plots")),
+    },
     checker=_check,
-    description="SeqSLAM sequence matching with eight illumination-robust image comparisons (seed 004).",
+    citation="M. Milford and G. Wyeth, \"SeqSLAM: Visual route-based navigation for sunny summer days and stormy winter "
+             "nights\", ICRA 2012; with the illumination-robust comparisons (ZNCC, ISC, OCM) studied for it",
 )

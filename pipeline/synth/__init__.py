@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Any
 
 SYNTH_KINDS: dict[str, str] = {
-    "route": "pipeline.synth.route",
-    "corridor": "pipeline.synth.corridor",
-    "coembed": "pipeline.synth.coembed",
-    "omni": "pipeline.synth.omni",
+    "route": "placeloc.synth.route",
+    "corridor": "placeloc.synth.corridor",
+    "coembed": "placeloc.synth.coembed",
+    "omni": "placeloc.synth.omni",
 }
 
 

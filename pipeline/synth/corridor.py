@@ -24,9 +24,8 @@ import cv2
 import numpy as np
 import yaml
 from numba import njit, prange
-
-from pipeline.geometry import Camera
-from pipeline.umap.model import floor_plan_model
+from placeloc.geometry import Camera
+from placeloc.umap.model import floor_plan_model
 
 LENGTH = 90.0
 WIDTH = 2.4
@@ -34,7 +33,7 @@ CEILING = 2.6
 
 
 def building(length: float = LENGTH, width: float = WIDTH) -> dict[str, Any]:
-    """The floor plan (a dict in the floor-plan YAML format of :mod:`pipeline.umap.model`)."""
+    """The floor plan (a dict in the floor-plan YAML format of :mod:`placeloc.umap.model`)."""
     c = length / 2
     # Alcoves (side openings) on the y = 0 side; their 180 deg twins go on the y = width side.
     alcoves = [(9.0, 2.0, 1.4), (23.0, 1.6, 1.0), (36.0, 2.4, 1.4)]

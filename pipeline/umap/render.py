@@ -5,7 +5,7 @@ clipped at the near plane, projected, clipped to the image (Liang-Barsky), and w
 pixel at a time. With hidden-line removal each pixel's 3-D point (perspective-correct) is
 tested against the vertical wall faces: hidden when the plan ray camera -> point crosses a
 face strictly before the point at a height inside that face. Geometry conventions are
-those of :mod:`pipeline.geometry`.
+those of :mod:`placeloc.geometry`.
 """
 
 from __future__ import annotations
@@ -14,9 +14,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
-
-from pipeline.geometry import Camera
-from pipeline.umap.bits import n_words
+from placeloc.geometry import Camera
+from placeloc.umap.bits import n_words
 
 
 @njit(cache=True)
@@ -182,7 +181,7 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
 
 def render_packed(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, cam: Camera,
                   near: float = 0.05, hidden: bool = True) -> np.ndarray:
-    """Line images of ``segments`` seen from each pose: (V, n_words) uint64, see :mod:`pipeline.umap.bits`."""
+    """Line images of ``segments`` seen from each pose: (V, n_words) uint64, see :mod:`placeloc.umap.bits`."""
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
     out = np.zeros((len(poses), n_words(cam.height, cam.width)), dtype=np.uint64)
     if len(poses):

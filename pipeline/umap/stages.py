@@ -5,14 +5,14 @@ Spec: ../shared/METHODS.md section 3 and seed 001_5b098ba37914637b.txt. Choices 
 paper is silent or ambiguous:
 
 - Eq. (1) is read as intersection over union, M_i = A(LC) / (A(DB_i) + A(SEN) - A(LC))
-  (see :func:`pipeline.umap.bits.iou_scores`).
+  (see :func:`placeloc.umap.bits.iou_scores`).
 - The database is drawn one pixel wide and dilated by ``tolerance_px`` at index time, so a
   query line a pixel or two off still overlaps.
 - Query images may be larger than the database images (same aspect ratio): LSD runs at full
   resolution and the segments are scaled into the database's size.
 - CA: the anchor is the frame with the best UMap score (the paper starts from "the one
   that matched best"); CA then chains forward and backward from it. ``ca.formula: paper``
-  uses eqs. (2)-(3) as printed (with phi = :func:`pipeline.umap.ca.effective_phi` unless
+  uses eqs. (2)-(3) as printed (with phi = :func:`placeloc.umap.ca.effective_phi` unless
   ``ca.phi_deg`` is set); ``exact`` uses both centroid positions (the paper assumes the
   first centroid sits at the image centre). These belong to ``ca.tracker: paper``.
 - ``ca.tracker: robust`` (default, :func:`ca_track`): each match gives a signed step along
@@ -31,39 +31,16 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from pipeline.artifacts import atomic_open, read_strings, write_tree
-from pipeline.config import ConfigError
-from pipeline.geometry import Camera, equirect_to_pinhole, pose_grid
-from pipeline.images import ImageError, read_gray
-from pipeline.methods import Method
-from pipeline.umap import ca as ca_mod
-from pipeline.umap.bits import iou_scores, pack, popcount_rows, unpack
-from pipeline.umap.model import ModelError, load_model
-from pipeline.umap.render import render_block
-
-DEFAULTS: dict[str, Any] = {
-    "model": None,
-    "camera": {"width": 160, "height": 120, "hfov_deg": 60.0},
-    "grid": {"x": [0.0, 90.0, 0.1], "y": [-1.5, 4.0, 0.2], "z": 1.14, "headings": [45.0, 135.0, 225.0, 315.0],
-             "inside_only": True, "wall_margin_m": 0.1},
-    "near_m": 0.05,
-    "hidden_lines": True,
-    "block": 2048,
-    "tolerance_px": 2,
-    "query_kind": "pinhole",
-    "lsd_min_length_px": 6.0,
-    "query_thickness_px": 1,
-    "mode": "umap+ca",
-    "sensor_csv": None,
-    "ca": {"formula": "exact", "wall_side": "right", "phi_deg": 0.0, "error_mean_m": 0.15, "error_std_m": 0.3,
-           "bin_px": 8.0, "min_matches": 5, "fallback_radius_m": 2.5, "akaze_threshold": 0.00003, "anchor": "chain", "keep_heading": True,
-           "tracker": "robust", "vote_tol_m": 0.05, "vote_rel_tol": 0.03, "reliable_matches": 15, "reliable_ratio": 1.5,
-           "tie_tol": 0.003, "recover_ratio": 1.15, "fallback_step_m": None, "laser_tol_m": 0.15, "use_laser": True},
-}
-CHOICES = {"mode": ("umap", "umap+ca"), "query_kind": ("pinhole", "equirect"), "ca.formula": ("exact", "paper"),
-           "ca.wall_side": ("right", "left"), "ca.anchor": ("best", "chain"),
-           "ca.tracker": ("robust", "paper")}
+from placeloc.artifacts import atomic_open, read_strings, write_tree
+from placeloc.config import ConfigError
+from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
+from placeloc.images import ImageError, read_gray
+from placeloc.methods import Method, Stage
+from placeloc.umap import ca as ca_mod
+from placeloc.umap.bits import iou_scores, pack, popcount_rows, unpack
+from placeloc.umap.model import ModelError, load_model
+from placeloc.umap.params import UMapParams
+from placeloc.umap.render import render_block
 
 
 def _camera(p: dict[str, Any]) -> Camera:
@@ -140,7 +117,7 @@ def build_dictionary(ctx: Any) -> None:
 
 
 def ctx_error(exc: Exception) -> Exception:
-    from pipeline.runner import StageError
+    from placeloc.runner import StageError
 
     return StageError(str(exc))
 
@@ -515,7 +492,7 @@ def error_metrics(err: np.ndarray) -> dict[str, Any]:
 
 
 def evaluate(ctx: Any) -> None:
-    from pipeline.evaluation import write_metrics
+    from placeloc.evaluation import write_metrics
 
     gt_cfg = ctx.config["ground_truth"]
     if gt_cfg["kind"] != "poses":
@@ -581,16 +558,16 @@ def _plots(run_dir: Path, err: np.ndarray, truth: np.ndarray, est: np.ndarray, p
 
 METHOD = Method(
     name="umap",
-    defaults=DEFAULTS,
-    stages={"extract": extract, "build-dictionary": build_dictionary, "index": index, "localize": localize, "evaluate": evaluate},
-    choices=CHOICES,
-    path_keys=("model", "sensor_csv"),
-    stage_keys={"extract": ("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca", "grid"),
-                "build-dictionary": ("model", "camera", "grid", "near_m", "hidden_lines"),
-                "index": ("tolerance_px",),
-                "localize": ("mode", "sensor_csv", "ca"),
-                "evaluate": ()},
+    params=UMapParams,
+    stages={
+        "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca", "grid")),
+        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines")),
+        "index": Stage(index, keys=("tolerance_px",)),
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "ca")),
+        "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
+    },
     required_images=("query",),
     checker=_check,
-    description="UMap: line images of a 3-D wireframe pre-map vs LSD line images, with Consistency Adjustment",
+    citation="K. Takahashi, J. Takahashi, T. Kaneko and Y. Tobe, \"Improving pre-map indoor localization by comparing "
+             "consecutive images\" (Universal Map with Consistency Adjustment)",
 )

@@ -3,7 +3,7 @@
 Generates three differently seeded corridor sequences under ``OUT/data/`` (not committed):
 seed 2 only calibrates the CA error statistics of the robust tracker (median and MAD of the
 CA step error on the frames whose vote is reliable, and the median true step of those whose
-vote is not: :func:`pipeline.umap.ca.calibrate`); seeds 0 and 1 are the test sequences,
+vote is not: :func:`placeloc.umap.ca.calibrate`); seeds 0 and 1 are the test sequences,
 never looked at for any parameter. Each variant runs into ``OUT/<run>/`` and the results go
 to ``OUT/summary.json`` (run name -> metrics, plus the calibration) and ``OUT/table.md``.
 """
@@ -16,13 +16,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from pipeline.config import load_config
-from pipeline.experiments import write_summary
-from pipeline.runner import read_metrics, run_all
-from pipeline.synth import generate
-from pipeline.umap import ca as ca_mod
-from pipeline.umap.stages import DEFAULTS
+from placeloc.config import load_config
+from placeloc.experiments import write_summary
+from placeloc.params import defaults
+from placeloc.runner import read_metrics, run_all
+from placeloc.synth import generate
+from placeloc.umap import ca as ca_mod
+from placeloc.umap.params import UMapParams
 
 log = logging.getLogger("placeloc")
 
@@ -50,7 +50,7 @@ def _data(root: Path, seed: int) -> Path:
 
 
 def calibrate_on(data: Path, ca_params: dict[str, Any], hfov_deg: float) -> dict[str, Any]:
-    """CA error statistics of one generated sequence (see :func:`pipeline.umap.ca.calibrate`)."""
+    """CA error statistics of one generated sequence (see :func:`placeloc.umap.ca.calibrate`)."""
     with open(data / "poses.csv", newline="") as f:
         poses = list(csv.DictReader(f))
     with open(data / "sensor.csv", newline="") as f:
@@ -63,7 +63,7 @@ def calibrate_on(data: Path, ca_params: dict[str, Any], hfov_deg: float) -> dict
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     out_dir = Path(out_dir).resolve()
-    cal = calibrate_on(_data(out_dir, CALIBRATION_SEED), DEFAULTS["ca"], DEFAULTS["camera"]["hfov_deg"])
+    cal = calibrate_on(_data(out_dir, CALIBRATION_SEED), defaults(UMapParams)["ca"], defaults(UMapParams)["camera"]["hfov_deg"])
     log.info("CA calibration on seed %d: %s", CALIBRATION_SEED, cal)
     cal_ca = {k: cal[k] for k in ("error_mean_m", "error_std_m", "fallback_step_m")}
     variants = dict(list(VARIANTS.items())[:2]) if quick else VARIANTS

@@ -12,12 +12,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from pipeline.config import load_config
-from pipeline.experiments import shared_data_dir, write_summary
-from pipeline.runner import read_metrics, run_all
-from pipeline.seqslam.compare import compare_methods, markdown_table
-from pipeline.seqslam.comparisons import COMPARISONS
-from pipeline.synth.route import generate
+from placeloc.config import load_config
+from placeloc.experiments import shared_data_dir, write_summary
+from placeloc.experiments.compare import compare_methods, markdown_table
+from placeloc.runner import read_metrics, run_all
+from placeloc.seqslam.comparisons import COMPARISONS
+from placeloc.synth.route import generate
 
 # The configuration that reaches the accuracy target on nordland-dev: z-score
 # patch normalisation (OpenSeqSLAM), 31-frame centred sequences.

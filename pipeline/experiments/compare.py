@@ -8,9 +8,8 @@ from pathlib import Path
 from typing import Any
 
 import h5py
-
-from pipeline.runner import read_metrics, run_all
-from pipeline.seqslam.comparisons import COMPARISONS
+from placeloc.runner import read_metrics, run_all
+from placeloc.seqslam.comparisons import COMPARISONS
 
 TABLE_COLUMNS = (
     ("comparison", "comparison"),
@@ -65,7 +64,7 @@ def compare_methods(config: dict[str, Any], out_dir: str | Path, methods: list[s
         for r in rows:
             w.writerow([r.get(k) for k, _ in TABLE_COLUMNS])
     if config.get("plots", True):
-        from pipeline.evaluation.plots import plot_pr_curves
+        from placeloc.evaluation.plots import plot_pr_curves
 
         plot_pr_curves(curves, out_dir / "pr_curves.png", title=title or "SeqSLAM comparisons")
     return out_dir / "table.md"

@@ -13,14 +13,14 @@ import os
 from pathlib import Path
 from typing import Any
 
-from pipeline.artifacts import atomic_open
+from placeloc.artifacts import atomic_open
 
 EXPERIMENTS: dict[str, str] = {
-    "seqslam": "pipeline.seqslam.experiment",
-    "umap": "pipeline.umap.experiment",
-    "coembed": "pipeline.coembed.experiment",
-    "pirf": "pipeline.pirf.experiment",
-    "pirf-large": "pipeline.pirf.experiment_large",
+    "seqslam": "placeloc.experiments.seqslam",
+    "umap": "placeloc.experiments.umap",
+    "coembed": "placeloc.experiments.coembed",
+    "pirf": "placeloc.experiments.pirf",
+    "pirf-large": "placeloc.experiments.pirf_large",
 }
 
 

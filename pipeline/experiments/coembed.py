@@ -15,11 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from pipeline.config import load_config
-from pipeline.experiments import shared_data_dir, write_summary
-from pipeline.runner import run_all
-from pipeline.synth import generate
+from placeloc.config import load_config
+from placeloc.experiments import shared_data_dir, write_summary
+from placeloc.runner import run_all
+from placeloc.synth import generate
 
 log = logging.getLogger("placeloc")
 

@@ -21,15 +21,14 @@ from typing import Any
 
 import h5py
 import numpy as np
-
-from pipeline.config import load_config
-from pipeline.evaluation import write_metrics
-from pipeline.experiments import write_summary
-from pipeline.pirf.ann import BACKENDS, AnnIndex
-from pipeline.pirf.mapping import node_vector
-from pipeline.pirf.stages import set_agreement
-from pipeline.runner import read_metrics, run_all, run_stage
-from pipeline.synth.omni import generate
+from placeloc.config import load_config
+from placeloc.evaluation import write_metrics
+from placeloc.experiments import write_summary
+from placeloc.pirf.ann import BACKENDS, AnnIndex
+from placeloc.pirf.mapping import node_vector
+from placeloc.pirf.stages import set_agreement
+from placeloc.runner import read_metrics, run_all, run_stage
+from placeloc.synth.omni import generate
 
 DEFAULT_INDEX = "faiss-hnsw"
 FULL = {"frames": 2000, "test_frames": 400}

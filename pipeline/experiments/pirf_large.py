@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.pirf import experiment
+from placeloc.experiments import pirf as experiment
 
 LARGE = {"frames": 8000, "test_frames": 400}
 

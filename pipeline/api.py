@@ -1,0 +1,35 @@
+"""placeloc's Python API: what the command line does, callable from a notebook or script.
+
+>>> import placeloc
+>>> cfg = placeloc.load_config("configs/demo.yaml", overrides=["seqslam.ds=20"])
+>>> placeloc.run(cfg, "runs/demo-ds20")                       # every stage, resumable
+>>> placeloc.run(cfg, "runs/demo-ds20", stages="localize")    # up to and including localize
+>>> placeloc.read_metrics("runs/demo-ds20")["recall_at_1"]
+
+Each method's array-level functions are importable without the pipeline, e.g.
+:func:`placeloc.seqslam.search.sequence_search` on a difference matrix.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from placeloc.artifacts import describe
+from placeloc.config import load_config
+from placeloc.methods import STAGES
+from placeloc.runner import read_metrics, run_stage
+
+__all__ = ["STAGES", "describe", "load_config", "read_metrics", "run"]
+
+
+def run(config: dict[str, Any] | str | Path, run_dir: str | Path, stages: str | None = None, force: bool = False,
+        quiet: bool = True) -> Path:
+    """Bring a run directory up to date and return the last stage's artifact path.
+
+    ``config`` is a validated config (from :func:`load_config`) or the path of a YAML file;
+    ``stages`` names the last stage to run (default ``"evaluate"``: all of them). Stages
+    already up to date are skipped; ``force`` re-runs every stage up to ``stages``.
+    """
+    cfg = load_config(config) if isinstance(config, (str, Path)) else config
+    return run_stage(cfg, run_dir, stages or STAGES[-1], quiet=quiet, force_all=force)

@@ -1,0 +1,152 @@
+"""Parameter objects: the one home of every method parameter's default, type, range and help.
+
+Each method declares its parameters once, as a frozen dataclass in ``<method>/params.py``::
+
+    @dataclass(frozen=True)
+    class SeqSLAMParams:
+        ds: int = param(10, min=1, help="sequence length (the window has ds + 1 query frames)")
+        search: str = param("causal", choices=("causal", "centred"))
+
+From that class the config layer derives the YAML defaults, the allowed choices, the
+numeric ranges and the keys that name files (:func:`defaults`, :func:`choices`,
+:func:`bounds`, :func:`path_keys`); the runner builds one instance per run from the
+validated config section (:func:`from_section`) and hands it to the stages as
+``ctx.params``. Numerical code never sees the config: stages pass it explicit keyword
+arguments taken from this object. A nested section (e.g. ``umap.ca``) is a field whose
+type is another such dataclass, declared with :func:`section`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class Params:
+    """Base of every parameter dataclass.
+
+    ``p["key"]`` and ``p.get("key")`` read a parameter like the config section it was built
+    from; new code uses attribute access (``p.ds``).
+    """
+
+    def __getitem__(self, key: str) -> Any:
+        try:
+            return getattr(self, key)
+        except AttributeError:
+            raise KeyError(key) from None
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return getattr(self, key, default)
+
+
+def param(default: Any, *, help: str = "", min: float | None = None, max: float | None = None,
+          choices: tuple | None = None, path: bool = False, min_exclusive: bool = False) -> Any:
+    """A parameter with its default and the facts the config validator checks.
+
+    ``min``/``max`` bound a number (or every item of a list of numbers); ``min_exclusive``
+    makes ``min`` a strict bound; ``choices`` lists the allowed strings; ``path`` marks a
+    file or folder (resolved against the config's folder and fingerprinted by the runner).
+    """
+    meta = {"help": help, "min": min, "max": max, "choices": choices, "path": path, "min_exclusive": min_exclusive}
+    if isinstance(default, dict):
+        raise TypeError("a mapping of parameters is a section(): declare it as a dataclass of its own")
+    # Lists are stored as tuples so parameter objects stay immutable; YAML shows them as lists.
+    if isinstance(default, list):
+        default = tuple(default)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def section(cls: type) -> Any:
+    """A nested parameter section (a dataclass of its own, e.g. ``umap.ca``)."""
+    return dataclasses.field(default_factory=cls, metadata={"section": True})
+
+
+def _fields(cls: type) -> tuple[dataclasses.Field, ...]:
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"{cls!r} is not a parameter dataclass")
+    return dataclasses.fields(cls)
+
+
+def _is_section(f: dataclasses.Field) -> bool:
+    return bool(f.metadata.get("section"))
+
+
+def _section_type(cls: type, f: dataclasses.Field) -> type:
+    return type(f.default_factory())  # type: ignore[misc]
+
+
+def defaults(cls: type) -> dict[str, Any]:
+    """The YAML defaults of a parameter class, as a nested dict."""
+    out: dict[str, Any] = {}
+    for f in _fields(cls):
+        if _is_section(f):
+            out[f.name] = defaults(_section_type(cls, f))
+        else:
+            out[f.name] = list(f.default) if isinstance(f.default, tuple) else f.default
+    return out
+
+
+def _walk(cls: type, prefix: str = "") -> list[tuple[str, dataclasses.Field]]:
+    rows: list[tuple[str, dataclasses.Field]] = []
+    for f in _fields(cls):
+        if _is_section(f):
+            rows += _walk(_section_type(cls, f), f"{prefix}{f.name}.")
+        else:
+            rows.append((f"{prefix}{f.name}", f))
+    return rows
+
+
+def choices(cls: type) -> dict[str, tuple]:
+    """Dotted key -> allowed values, for the keys that declare ``choices``."""
+    return {k: f.metadata["choices"] for k, f in _walk(cls) if f.metadata.get("choices")}
+
+
+def bounds(cls: type) -> dict[str, tuple[float | None, float | None, bool]]:
+    """Dotted key -> (min, max, min_exclusive), for the keys that declare a range."""
+    return {k: (f.metadata.get("min"), f.metadata.get("max"), bool(f.metadata.get("min_exclusive")))
+            for k, f in _walk(cls) if f.metadata.get("min") is not None or f.metadata.get("max") is not None}
+
+
+def path_keys(cls: type) -> tuple[str, ...]:
+    """Dotted keys that name files or folders."""
+    return tuple(k for k, f in _walk(cls) if f.metadata.get("path"))
+
+
+def help_text(cls: type) -> dict[str, str]:
+    """Dotted key -> one-line help, for ``placeloc inspect`` and the docs."""
+    return {k: f.metadata.get("help", "") for k, f in _walk(cls)}
+
+
+def from_section(cls: type[T], section_values: dict[str, Any]) -> T:
+    """Build the parameter object from a validated config section (a nested dict)."""
+    kwargs: dict[str, Any] = {}
+    for f in _fields(cls):
+        if f.name not in section_values:
+            continue
+        value = section_values[f.name]
+        if _is_section(f):
+            value = from_section(_section_type(cls, f), value or {})
+        elif isinstance(value, list):
+            value = tuple(value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list[str]:
+    """Messages for every value outside its declared range (empty when all are inside)."""
+    problems = []
+    for key, (lo, hi, strict) in bounds(cls).items():
+        node: Any = section_values
+        for part in key.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        values = node if isinstance(node, (list, tuple)) else [node]
+        for v in values:
+            if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
+                rng = f"{'>' if strict else '>='} {lo}" if hi is None else (f"<= {hi}" if lo is None else f"in [{lo}, {hi}]")
+                problems.append(f"{prefix}{key}: {node!r} is out of range; it must be {rng}")
+                break
+    return problems

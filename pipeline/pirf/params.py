@@ -1,0 +1,42 @@
+"""PIRF-nav2 parameters: the one home of their defaults, ranges and meaning.
+
+Defaults marked "table 1" are the values of Table 1 in H. Sasaki and T. Hamagami,
+"Construction of feature space for speeding up self-localization using time series
+omnidirectional images" (PIRF-nav2 itself: Kawewong, Tongprasit and Hasegawa).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from placeloc.params import Params, param
+from placeloc.pirf.ann import BACKENDS
+from placeloc.pirf.features import FEATURE_TYPES
+
+
+@dataclass(frozen=True)
+class PirfParams(Params):
+    features: str = param("sift", choices=FEATURE_TYPES, help="local feature type")
+    n_features: int = param(1000, min=1, help="features per frame at most")
+    blank_frames: str = param("stop", choices=("stop", "empty"), help="a frame with no features: stop, or keep as empty")
+    ratio: float = param(0.7, min=0.0, max=1.0, min_exclusive=True, help="D_surf ratio test (table 1)")
+    w_size_default: int = param(3, min=2, help="sliding window size (table 1)")
+    w_size_max: int = param(30, min=2, help="largest adaptive window")
+    n_pmin: int = param(40, min=0, help="fewest PIRFs per window (table 1)")
+    n_pmax: int = param(200, min=1, help="most PIRFs per window (table 1)")
+    eps: float = param(30, min=0.0, help="epsilon (table 1)")
+    sigma: float = param(2.0, min=0.0, min_exclusive=True, help="Gaussian sigma of the score (table 1)")
+    tau: float = param(0.015, min=0.0, help="tau (table 1)")
+    update: str = param("improved", choices=("plain", "improved"), help="dictionary update")
+    index: str = param("faiss-hnsw", choices=BACKENDS, help="ANN backend for m_t")
+    checks: int = param(512, min=1, help="FLANN checks")
+    hnsw_m: int = param(32, min=2, help="HNSW M")
+    hnsw_ef_construction: int = param(40, min=1, help="HNSW efConstruction")
+    ef_search: int = param(32, min=1, help="HNSW efSearch")
+    ivf_nlist: int = param(1024, min=1, help="IVF lists")
+    ivf_nprobe: int = param(16, min=1, help="IVF lists probed")
+    kmeans_branching: int = param(32, min=2, help="FLANN k-means branching")
+    kdtree_trees: int = param(4, min=1, help="FLANN kd-trees")
+    compare_bf: bool = param(True, help="also time brute force at localize and report agreement")
+    reference_poses: str | None = param(None, path=True, help="CSV of reference poses")
+    query_poses: str | None = param(None, path=True, help="CSV of query poses")

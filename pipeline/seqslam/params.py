@@ -1,0 +1,29 @@
+"""SeqSLAM parameters: the one home of their defaults, ranges and meaning."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from placeloc.params import Params, param
+from placeloc.seqslam.comparisons import COMPARISONS
+
+
+@dataclass(frozen=True)
+class SeqSLAMParams(Params):
+    comparison: str = param("sad", choices=COMPARISONS, help="image comparison: sad|histeq|zncc|abs_zncc|isc|isc_ext|ocm|ocm_ext")
+    thumbnail: tuple[int, int] = param([64, 32], min=4, help="thumbnail width, height in pixels")
+    patch: int = param(8, min=1, help="patch normalisation block size (sad)")
+    normalisation: str = param("minmax", choices=("minmax", "zscore"), help="patch normalisation: minmax (paper) or zscore (OpenSeqSLAM)")
+    gaussian_sigma: float = param(1.0, min=0.0, help="Gaussian filter before isc*/ocm*")
+    ocm_epsilon: float = param(5.0, min=0.0, help="OCM: |Sobel gradient| below this -> code 16 (ignored)")
+    enhance_window: int = param(10, min=1, help="R_window: local contrast enhancement over +-R rows, and match separation")
+    ds: int = param(10, min=1, help="sequence length (the window has ds + 1 query frames)")
+    v_min: float = param(0.8, min=0.0, min_exclusive=True, help="slowest trajectory slope (reference frames per query frame)")
+    v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
+    v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
+    search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
+    exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
+    top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")
+    images_per_task: int = param(256, min=1, help="images per extraction task (bigger amortises process/Dask overhead)")
+    block_size: int = param(1024, min=1, help="query columns per difference-matrix block (bounds memory)")
+    store_difference: bool = param(True, help="keep D in localize.h5 (needed for the dissimilarity ratio and the plot)")

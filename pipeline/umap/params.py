@@ -1,0 +1,72 @@
+"""UMap parameters: the one home of their defaults, ranges and meaning.
+
+The method is the Universal Map (line images of a 3-D wireframe pre-map against LSD line
+images of the query) with Consistency Adjustment, from K. Takahashi, J. Takahashi,
+T. Kaneko and Y. Tobe, "Improving pre-map indoor localization by comparing consecutive
+images" (see docs/umap.md for what this project takes from it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from placeloc.params import Params, param, section
+
+
+@dataclass(frozen=True)
+class CameraParams(Params):
+    width: int = param(160, min=8, help="rendered and query image width in pixels")
+    height: int = param(120, min=8, help="rendered and query image height in pixels")
+    hfov_deg: float = param(60.0, min=1.0, max=179.0, help="horizontal field of view")
+
+
+@dataclass(frozen=True)
+class GridParams(Params):
+    x: tuple[float, float, float] = param([0.0, 90.0, 0.1], help="x start, stop, step in metres")
+    y: tuple[float, float, float] = param([-1.5, 4.0, 0.2], help="y start, stop, step in metres")
+    z: float = param(1.14, help="camera height in metres")
+    headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], help="headings in degrees")
+    inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
+    wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from walls")
+
+
+@dataclass(frozen=True)
+class CAParams(Params):
+    formula: str = param("exact", choices=("exact", "paper"), help="CA step formula")
+    wall_side: str = param("right", choices=("right", "left"), help="side of the wall the laser sees")
+    phi_deg: float = param(0.0, help="camera yaw relative to the robot")
+    error_mean_m: float = param(0.15, help="mean CA step error (metres)")
+    error_std_m: float = param(0.3, min=0.0, min_exclusive=True, help="CA step error spread (metres)")
+    bin_px: float = param(8.0, min=0.0, min_exclusive=True, help="vote histogram bin")
+    min_matches: int = param(5, min=1, help="fewest feature matches for a CA step")
+    fallback_radius_m: float = param(2.5, min=0.0, help="search radius when CA fails")
+    akaze_threshold: float = param(0.00003, min=0.0, min_exclusive=True, help="AKAZE detector threshold")
+    anchor: str = param("chain", choices=("best", "chain"), help="where CA steps start")
+    keep_heading: bool = param(True, help="keep the previous heading across a CA step")
+    tracker: str = param("robust", choices=("robust", "paper"), help="CA tracker")
+    vote_tol_m: float = param(0.05, min=0.0, help="vote agreement tolerance (metres)")
+    vote_rel_tol: float = param(0.03, min=0.0, help="vote agreement tolerance (relative)")
+    reliable_matches: int = param(15, min=1, help="matches for a reliable CA step")
+    reliable_ratio: float = param(1.5, min=1.0, help="winning/runner-up vote ratio for a reliable step")
+    tie_tol: float = param(0.003, min=0.0, help="score tie tolerance")
+    recover_ratio: float = param(1.15, min=1.0, help="score ratio to recover from a bad step")
+    fallback_step_m: float | None = param(None, help="step length when CA fails (None: from the sensor)")
+    laser_tol_m: float = param(0.15, min=0.0, help="laser-range consistency tolerance")
+    use_laser: bool = param(True, help="check candidate poses against laser ranges")
+
+
+@dataclass(frozen=True)
+class UMapParams(Params):
+    model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    camera: CameraParams = section(CameraParams)
+    grid: GridParams = section(GridParams)
+    near_m: float = param(0.05, min=0.0, min_exclusive=True, help="near clipping distance")
+    hidden_lines: bool = param(True, help="remove hidden lines when rendering")
+    block: int = param(2048, min=1, help="database views scored per block")
+    tolerance_px: int = param(2, min=0, help="line dilation for matching")
+    query_kind: str = param("pinhole", choices=("pinhole", "equirect"), help="query camera")
+    lsd_min_length_px: float = param(6.0, min=0.0, help="shortest LSD line kept")
+    query_thickness_px: int = param(1, min=1, help="query line thickness")
+    mode: str = param("umap+ca", choices=("umap", "umap+ca"), help="single images, or with Consistency Adjustment")
+    sensor_csv: str | None = param(None, path=True, help="odometry/laser CSV for CA")
+    ca: CAParams = section(CAParams)

@@ -1,4 +1,4 @@
-# Dask executor (issue 5): scaling benchmark. Needs the dask extra for its LocalCluster row.
+# Dask executor: scaling benchmark. Needs the dask extra for its LocalCluster row.
 .PHONY: bench-scale
 
 bench-scale: $(STAMP)

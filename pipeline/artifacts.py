@@ -16,9 +16,11 @@ carry the provenance:
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import time
+import uuid
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -28,8 +30,43 @@ import numpy as np
 TMP_MARK = ".tmp-"
 
 
+class DiskFullError(OSError):
+    """Writing failed because the file system is full; the message names it and the file."""
+
+
 def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """True for ENOSPC/EDQUOT, also when HDF5 reports it only in its message text."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(exc)
+    return "No space left on device" in text or "errno = 28" in text or "Disk quota exceeded" in text
+
+
+def mount_point(path: Path) -> str:
+    """The mount point (and file system type) holding ``path``, for messages."""
+    p = Path(os.path.abspath(path))
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    while not os.path.ismount(p) and p != p.parent:
+        p = p.parent
+    kind = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/mounts").read_text().splitlines():
+            parts = line.split()
+            if len(parts) > 2 and parts[1] == str(p):
+                kind = f" ({parts[2]})"
+    return f"{p}{kind}"
+
+
+def disk_full_error(path: Path, written: int, exc: BaseException | None = None) -> DiskFullError:
+    need = max(written, 1 << 20)
+    err = DiskFullError(errno.ENOSPC, f"no space left on {mount_point(path)} while writing {path} "
+                        f"(needs about {need / 2**20:.0f} MB); free space there or choose another --run-dir")
+    return err
 
 
 @contextlib.contextmanager
@@ -37,47 +74,69 @@ def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator
     """Open a temporary HDF5 file for writing; rename it to ``path`` only on success.
 
     ``attrs`` are written last, just before the rename, so a file that has a ``stamp``
-    attribute is always complete.
+    attribute is always complete. A unique ``write_id`` attribute is added, so a child
+    stage can tell that its parent was rewritten even when the parent's stamp is the same.
+    A full disk raises :class:`DiskFullError` and leaves no temporary file behind.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = tmp_path_for(path)
-    f = h5py.File(tmp, "w")
+    f = None
     try:
+        f = h5py.File(tmp, "w")
         yield f
         for key, value in (attrs or {}).items():
             f.attrs[key] = value
+        f.attrs["write_id"] = uuid.uuid4().hex
         f.flush()
         f.close()
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(Exception):
-            f.close()
+    except BaseException as exc:
+        written = tmp.stat().st_size if tmp.exists() else 0
+        if f is not None:
+            with contextlib.suppress(Exception):
+                f.close()
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, Exception) and is_disk_full(exc):
+            raise disk_full_error(path, written, exc) from exc
         raise
 
 
 @contextlib.contextmanager
-def atomic_open(path: str | Path, newline: str | None = None) -> Iterator[Any]:
+def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -> Iterator[Any]:
     """Open a text file for writing under a temporary name in the same folder; rename it to
     ``path`` only when the block finishes, so readers never see half a CSV or JSON file."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
     try:
-        with tmp.open("w", newline=newline) as fh:
+        with tmp.open(mode, newline=newline) as fh:
             yield fh
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
+        written = tmp.stat().st_size if tmp.exists() else 0
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, Exception) and is_disk_full(exc):
+            raise disk_full_error(path, written, exc) from exc
         raise
 
 
+def read_write_id(path: Path) -> str | None:
+    """The unique id of the write that produced the artifact at ``path`` (None if absent)."""
+    try:
+        with h5py.File(path, "r") as f:
+            value = f.attrs.get("write_id")
+    except OSError:
+        return None
+    return str(value) if value is not None else None
+
+
 def remove_stale_tmp(run_dir: Path) -> list[Path]:
-    """Delete temporary files left by a killed process (never trusted, only clutter)."""
+    """Delete temporary files (artifacts and text side outputs) left by a killed process
+    (never trusted, only clutter); those of a process still running are kept."""
     removed = []
-    for p in run_dir.glob(f".*.h5{TMP_MARK}*"):
+    for p in run_dir.rglob(f".*{TMP_MARK}*"):
         pid = p.name.rsplit(TMP_MARK, 1)[-1]
         if pid.isdigit() and _pid_alive(int(pid)) and int(pid) != os.getpid():
             continue
@@ -149,15 +208,19 @@ def read_strings(ds: h5py.Dataset) -> list[str]:
 def describe(path: str | Path) -> str:
     """Human-readable account of an artifact: provenance, then every group and dataset."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder, not an artifact: give one of its .h5 files, e.g. {path / 'extract.h5'}")
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist")
+    if not h5py.is_hdf5(path):
+        raise ValueError(f"{path} is not an HDF5 file (not a placeloc artifact); give a RUN_DIR/<stage>.h5 file")
     lines: list[str] = []
     with h5py.File(path, "r") as f:
         a = dict(f.attrs)
         lines.append(f"{path}")
         if "stamp" not in a:
             lines.append("  (no provenance: not written by placeloc, or incomplete)")
-        for key in ("stage", "method", "placeloc_version", "created", "stamp", "config_hash"):
+        for key in ("stage", "method", "placeloc_version", "created", "stamp", "config_hash", "write_id"):
             if key in a:
                 lines.append(f"  {key}: {a[key]}")
         if "note" in a:

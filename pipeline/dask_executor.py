@@ -17,7 +17,11 @@ import uuid
 from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
+from placeloc.config import ConfigError
 from placeloc.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
+
+# A scheduler that does not answer within this is taken to be unreachable (fail fast).
+CONNECT_TIMEOUT = "5s"
 
 
 class DaskExecutor(Executor):
@@ -38,9 +42,14 @@ class DaskExecutor(Executor):
                                          host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
             self.client = Client(self._cluster)
         elif self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
-            self.client = Client(self.scheduler, timeout="30s")
+            try:
+                self.client = Client(self.scheduler, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"executor.scheduler: cannot reach the Dask scheduler at {self.scheduler} within "
+                                  f"{CONNECT_TIMEOUT} ({type(exc).__name__}); start it (dask scheduler) or set "
+                                  "executor.scheduler: local-cluster") from exc
         else:
-            raise ValueError(f"executor.scheduler: {self.scheduler!r} is neither local-cluster nor an address "
+            raise ConfigError(f"executor.scheduler: {self.scheduler!r} is neither local-cluster nor an address "
                              "like tcp://host:8786")
 
     def _window(self) -> int:

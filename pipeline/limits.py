@@ -201,7 +201,10 @@ def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Pat
     disk = sum(n.disk for n in needs)
     free = disk_free(run_dir)
     if disk > free:
+        from placeloc.artifacts import mount_point
+
         biggest = max(needs, key=lambda n: n.disk)
-        raise ResourceError(f"no space left on device for {run_dir}: the artifacts need about {_mb(disk)} "
-                            f"({biggest.what}), {_mb(free)} is free; free space, choose another --run-dir or reduce {biggest.key}")
+        raise ResourceError(f"no space left on {mount_point(run_dir)} while writing {run_dir} (needs about "
+                            f"{disk / 2**20:.0f} MB for {biggest.what}; {free / 2**20:.0f} MB free); free space, "
+                            f"choose another --run-dir or reduce {biggest.key}")
     return needs

@@ -52,6 +52,15 @@ def _one_line(exc: BaseException) -> str:
     return text
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that cleanup (temporary files, shared arrays,
+    worker pools) runs as it does for Ctrl-C."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
 def classify(exc: BaseException) -> str:
     """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
     judged by the exception it wraps)."""
@@ -75,9 +84,9 @@ class ErrorBoundaryGroup(TyperGroup):
             return super().invoke(ctx)
         except (typer.Exit, typer.Abort, ClickException):
             raise
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             typer.echo("interrupted; rerun to resume", err=True)
-            raise typer.Exit(130) from None
+            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
             if classify(exc) == "user":
                 typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
@@ -271,6 +280,9 @@ def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, 
 
 
 def main() -> None:
+    import signal
+
+    signal.signal(signal.SIGTERM, _on_sigterm)
     app()
 
 

@@ -114,6 +114,26 @@ def _worker_init(parent_pid: int) -> None:
     threading.Thread(target=watchdog, name="placeloc-parent-watchdog", daemon=True).start()
 
 
+class _QuietSpawnProcess(mp.get_context("spawn").Process):  # type: ignore[name-defined,misc]
+    """A spawned worker that ignores Ctrl-C from its first instruction: SIG_IGN survives
+    exec, and Python keeps an ignored SIGINT ignored. Without this, a worker still
+    importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback."""
+
+    def start(self) -> None:
+        try:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread: cannot touch handlers, start as is
+            return super().start()
+        try:
+            super().start()
+        finally:
+            signal.signal(signal.SIGINT, old)
+
+
+class _QuietSpawnContext(type(mp.get_context("spawn"))):  # type: ignore[misc]
+    Process = _QuietSpawnProcess
+
+
 def _shared_dir_owner(path: Path) -> int | None:
     tail = path.name[len(SHARED_PREFIX):].split("-", 1)[0]
     return int(tail) if tail.isdigit() else None
@@ -211,7 +231,7 @@ class LocalExecutor(Executor):
     def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
             describe: Describe | None = None) -> Iterator[Any]:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=_QuietSpawnContext(),
                                              initializer=_worker_init, initargs=(os.getpid(),))
         tmp = None
         if shared is not None:

@@ -275,7 +275,7 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
             head = cfg.open("r", errors="replace").readline()
         except OSError:
             head = ""
-        if head != CONFIG_HEADER:
+        if head != CONFIG_HEADER and not _written_by_older_placeloc(cfg):
             raise RunDirError(f"{cfg} was not written by placeloc; refusing to overwrite it: "
                               "choose another --run-dir (a run directory holds only placeloc's outputs)")
     elif not any(rd.glob("*.h5")):
@@ -283,6 +283,23 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
             if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
                 raise RunDirError(f"--run-dir {run_dir} holds images ({p.name}) but no placeloc run: it looks like an "
                                   "image folder; choose another --run-dir, e.g. runs/NAME")
+
+
+def _written_by_older_placeloc(cfg: Path) -> bool:
+    """Run directories from before the header: config.yaml is ours when an artifact beside
+    it carries the same config text."""
+    try:
+        text = cfg.read_text(errors="replace")
+    except OSError:
+        return False
+    for artifact in cfg.parent.glob("*.h5"):
+        try:
+            with h5py.File(artifact, "r") as f:
+                if str(f.attrs.get("config_yaml", "")) == text:
+                    return True
+        except OSError:
+            continue
+    return False
 
 
 def write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
@@ -312,14 +329,10 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
         os.close(fd)  # closing drops the lock
 
 
-class _RunFileHandler(logging.FileHandler):
-    pass
-
-
 @contextlib.contextmanager
 def run_log(run_dir: Path) -> Iterator[None]:
     """Append this run's log lines (with times) to RUN_DIR/log.txt."""
-    handler = _RunFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler = logging.FileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     handler.setLevel(logging.INFO)
     old_level = log.level

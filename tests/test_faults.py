@@ -151,6 +151,33 @@ def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp
     assert list(tmpdir.glob("placeloc-shared-*")) == []
 
 
+@pytest.mark.parametrize("sig,rc", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
+    import psutil
+    from placeloc.synth.route import generate
+
+    generate(tmp_path / "data", seed=2, frames=240)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+                      "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
+    # A session of its own, so the signal goes to the whole group as a terminal's Ctrl-C does.
+    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in _children(proc.pid)) >= 2:
+            break
+        time.sleep(0.1)
+    time.sleep(1.0)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    os.killpg(proc.pid, sig) if sig == signal.SIGINT else proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == rc, err
+    assert err.strip() == "interrupted; rerun to resume", err
+    assert list(tmpdir.glob("placeloc-shared-*")) == [] and not list((tmp_path / "run").glob(".*tmp-*"))
+
+
 # ----------------------------------------------------------------- 3. stale or mixed results
 
 def test_rewritten_parent_reruns_children_even_with_the_same_stamp(route, tmp_path):
@@ -211,7 +238,7 @@ def test_failed_stage_leaves_no_old_side_output_and_keeps_config(route, tmp_path
     config_before = (run / "config.yaml").read_text()
     (route / "ground_truth.csv").write_text("this is not,a ground truth\nfile,at all\n")
     cfg_bad = load_config(route / "config.yaml", ["plots=false", "seqslam.ds=5"])
-    with pytest.raises(Exception):
+    with pytest.raises(ValueError, match="ground_truth.csv: header must be"):
         run_all(cfg_bad, run, quiet=True)
     assert not (run / "metrics.json").exists()  # the old figures would not match the new localize
     assert (run / "config.yaml").read_text() == config_before  # config.yaml names the last good run
@@ -252,6 +279,13 @@ def test_refuses_image_folder_and_foreign_config_yaml(route, tmp_path):
     shutil.copy(next((route / "query").glob("*.png")), pics / "a.png")
     with pytest.raises(RunDirError, match="looks like an image folder"):
         run_stage(cfg, pics, "extract", quiet=True)
+    # a run directory from before config.yaml carried its header is still ours
+    old = tmp_path / "old"
+    run_stage(cfg, old, "extract", quiet=True)
+    with h5py.File(old / "extract.h5", "r") as f:
+        (old / "config.yaml").write_text(str(f.attrs["config_yaml"]))
+    run_stage(cfg, old, "extract", quiet=True)
+    assert (old / "config.yaml").read_text().startswith("# placeloc run config")
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "config.yaml").write_text("my: own notes\n")

@@ -20,7 +20,7 @@ from typing import Any, Iterable, Iterator
 
 import h5py
 from placeloc import __version__
-from placeloc.artifacts import TMP_MARK, atomic_h5, atomic_open, provenance_attrs, read_stamp, read_write_id, remove_stale_tmp
+from placeloc.artifacts import TMP_MARK, atomic_h5, atomic_open, provenance_attrs, raise_if_disk_full, read_stamp, read_write_id, remove_stale_tmp
 from placeloc.config import config_hash, to_yaml
 from placeloc.executor import Executor, make_executor, remove_stale_shared
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
@@ -78,8 +78,12 @@ class StageContext:
         return f
 
     def progress(self, iterable: Iterable[Any], total: int | None = None, desc: str = "") -> Iterator[Any]:
-        return iter(tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
-                         file=sys.stderr, dynamic_ncols=True, leave=False))
+        bar = tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
+                   file=sys.stderr, dynamic_ncols=True, leave=False)
+        for item in bar:
+            # A full disk stops the stage at the next step instead of at its end.
+            raise_if_disk_full(self.out)
+            yield item
 
     def close(self) -> None:
         for f in self._open:
@@ -329,10 +333,18 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
         os.close(fd)  # closing drops the lock
 
 
+class _BestEffortFileHandler(logging.FileHandler):
+    """log.txt is a record, not a result: a full disk must not turn each log line into a
+    "Logging error" traceback (the write that matters reports the full disk itself)."""
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        pass
+
+
 @contextlib.contextmanager
 def run_log(run_dir: Path) -> Iterator[None]:
     """Append this run's log lines (with times) to RUN_DIR/log.txt."""
-    handler = logging.FileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     handler.setLevel(logging.INFO)
     old_level = log.level

@@ -89,6 +89,23 @@ def test_full_disk_text_write_leaves_nothing(tiny_fs):
     assert list(tiny_fs.iterdir()) == []
 
 
+def test_full_disk_during_a_real_run_is_one_line_rc2(route, tiny_fs):
+    """The size check is switched off here so the write itself meets the full disk
+    (extract.h5 is about 0.5 MB; the tmpfs holds 1 MiB minus what the copy of the config
+    takes): no segfault, no "Exception ignored" stream, one line, nothing left behind."""
+    filler = tiny_fs / "filler"
+    filler.write_bytes(b"\0" * 700_000)
+    run = tiny_fs / "run"
+    script = ("import sys, placeloc.runner as r; r.check_resources = lambda *a: []; from placeloc.cli import main; "
+              f"sys.argv = ['placeloc', 'run', {str(route / 'config.yaml')!r}, '--run-dir', {str(run)!r}, '-q']; main()")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith(f"error: [Errno 28] no space left on {tiny_fs} (tmpfs) while writing {run}/") and "needs about" in lines[0]
+    assert not list(run.glob("*.h5")) and not list(run.glob(".*tmp-*"))
+
+
 def test_run_checks_free_space_up_front(route, tmp_path):
     """The artifact sizes are known before the work: a run that cannot fit stops at once,
     rc 2, one line with the figure, and writes no artifact."""

@@ -199,6 +199,11 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
     method.check(config)
+    from placeloc.limits import config_problems
+
+    problems = config_problems(config)
+    if problems:
+        raise ConfigError(problems[0])
     return config
 
 

@@ -177,6 +177,29 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
     return needs + _decode_need(config, images, 16, "decoding")
 
 
+# ----------------------------------------------------------------- cross-key rules
+
+def seqslam_rules(config: dict[str, Any]) -> list[str]:
+    p = config["seqslam"]
+    w, h = p["thumbnail"]
+    problems = []
+    if p["patch"] > min(w, h):
+        problems.append(f"seqslam.patch ({p['patch']}) is larger than the thumbnail ({w}x{h}); "
+                        f"it must be <= {min(w, h)} (the smaller thumbnail side)")
+    return problems
+
+
+# Method name -> rules over the validated config that no single key's range can express.
+CONFIG_RULES: dict[str, Callable[[dict[str, Any]], list[str]]] = {
+    "seqslam": seqslam_rules,
+}
+
+
+def config_problems(config: dict[str, Any]) -> list[str]:
+    fn = CONFIG_RULES.get(config["method"])
+    return fn(config) if fn else []
+
+
 ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any]], list[Need]]] = {
     "seqslam": seqslam_needs,
     "pirf": pirf_needs,

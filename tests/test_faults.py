@@ -480,6 +480,22 @@ def test_common_ranges_types_and_cross_key_rules(route, override, expect):
         load_config(route / "config.yaml", [override])
 
 
+@pytest.mark.parametrize("method,override,key", [
+    ("pirf", "ef_search=0", "pirf.ef_search"), ("pirf", "n_features=0", "pirf.n_features"),
+    ("pirf", "tau=-0.1", "pirf.tau"), ("pirf", "kdtree_trees=0", "pirf.kdtree_trees"), ("pirf", "hnsw_m=0", "pirf.hnsw_m"),
+    ("umap", "query_thickness_px=0", "umap.query_thickness_px"),
+    ("seqslam", "images_per_task=0", "seqslam.images_per_task"), ("seqslam", "gaussian_sigma=-1", "seqslam.gaussian_sigma"),
+    ("seqslam", "ocm_epsilon=-1", "seqslam.ocm_epsilon"), ("seqslam", "exclude_recent=-1", "seqslam.exclude_recent"),
+    ("seqslam", "patch=40", "seqslam.patch (40) is larger than the thumbnail (64x32)"),
+])
+def test_parameters_that_cannot_work_are_refused(route, method, override, key):
+    data = {"method": method, "reference": {"images": str(route / "reference")}, "query": {"images": str(route / "query")}}
+    if method == "umap":
+        data["umap"] = {"model": str(ROOT / "configs" / "umap_corridor.yaml"), "mode": "umap"}
+    with pytest.raises(ConfigError, match=re_escape(key)):
+        load_config(data=data, overrides=[f"{method}.{override}"])
+
+
 def re_escape(text: str) -> str:
     import re
 

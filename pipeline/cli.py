@@ -21,7 +21,8 @@ try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones it
 except ImportError:  # older Typer uses Click itself
     from click import ClickException  # type: ignore[no-redef]
 
-BUG_REPORT = "https://github.com/placeloc/placeloc/issues (attach the traceback above and the config)"
+# Where a bug goes: the project has no public tracker address yet, so name what to send.
+BUG_REPORT = "the placeloc issue tracker, with the traceback above, the command and the config"
 
 
 def _user_error_types() -> tuple[type, ...]:
@@ -93,7 +94,7 @@ class ErrorBoundaryGroup(TyperGroup):
                 raise typer.Exit(2) from None
             traceback.print_exc()
             typer.secho(f"error: this is a bug in placeloc ({type(exc).__name__}), not a problem with your input; "
-                        f"please report it at {BUG_REPORT}", fg="red", err=True)
+                        f"please report it to {BUG_REPORT}", fg="red", err=True)
             raise typer.Exit(1) from None
 
 

@@ -69,10 +69,11 @@ def mount_point(path: Path) -> str:
 
 
 def disk_full_error(path: Path, written: int) -> DiskFullError:
-    need = max(written, 1 << 20)
-    err = DiskFullError(errno.ENOSPC, f"no space left on {mount_point(path)} while writing {path} "
-                        f"(needs about {need / 2**20:.0f} MB); free space there or choose another --run-dir")
-    return err
+    """The one-line error for a full disk; ``written`` is what the write had reached (the
+    need is at least that), 0 when unknown."""
+    need = f"needs about {max(written, 1 << 20) / 2**20:.0f} MB" if written > 0 else "needs more than is free"
+    return DiskFullError(errno.ENOSPC, f"no space left on {mount_point(path)} while writing {path} "
+                         f"({need}); free space there or choose another --run-dir")
 
 
 class _GuardedFile(io.RawIOBase):

@@ -174,7 +174,14 @@ def _pack_shared(shared: Any, folder: Path) -> Any:
     def one(name: str, value: Any) -> Any:
         if isinstance(value, np.ndarray) and value.dtype != object:
             path = folder / f"{name}.npy"
-            np.save(path, value, allow_pickle=False)
+            try:
+                np.save(path, value, allow_pickle=False)
+            except OSError as exc:
+                from placeloc.artifacts import disk_full_error, is_disk_full
+
+                if is_disk_full(exc):
+                    raise disk_full_error(path, value.nbytes) from None
+                raise
             return ("__npy__", str(path))
         return value
 

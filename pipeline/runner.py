@@ -20,7 +20,19 @@ from typing import Any, Iterable, Iterator
 
 import h5py
 from placeloc import __version__
-from placeloc.artifacts import TMP_MARK, atomic_h5, atomic_open, provenance_attrs, raise_if_disk_full, read_stamp, read_write_id, remove_stale_tmp
+from placeloc.artifacts import (
+    TMP_MARK,
+    DiskFullError,
+    atomic_h5,
+    atomic_open,
+    disk_full_error,
+    is_disk_full,
+    provenance_attrs,
+    raise_if_disk_full,
+    read_stamp,
+    read_write_id,
+    remove_stale_tmp,
+)
 from placeloc.config import config_hash, to_yaml
 from placeloc.executor import Executor, make_executor, remove_stale_shared
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
@@ -387,6 +399,13 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
         opened: list[str] = []
         try:
             fn(ctx)
+        except OSError as exc:
+            # A side output (CSV, JSON, PNG) written with plain Python I/O met a full disk:
+            # name the place, as atomic_h5 does for artifacts.
+            if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+                where = Path(exc.filename) if exc.filename else run_dir / f"(a side output of {name})"
+                raise disk_full_error(where, 0) from None
+            raise
         except KeyError as exc:
             # h5py's "Unable to synchronously open object": an artifact lacks a dataset.
             if "open object" not in str(exc) and "doesn't exist" not in str(exc):

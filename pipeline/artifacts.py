@@ -34,6 +34,9 @@ TMP_MARK = ".tmp-"
 class DiskFullError(OSError):
     """Writing failed because the file system is full; the message names it and the file."""
 
+    def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
+        return str(self.strerror)
+
 
 def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")

@@ -146,6 +146,12 @@ def seqslam_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
     needs = [Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {_workers(config)} worker(s)",
                   "seqslam.thumbnail (or seqslam.images_per_task)", memory=5 * w * h * per_task * _workers(config),
                   disk=5 * w * h * n)]
+    if p.get("store_difference") and "reference" in images:
+        n_ref = len(images["reference"])
+        n_query = len(images["query"]) if "query" in images else n_ref
+        # localize.h5 keeps the float32 difference matrix (written block by block).
+        needs.append(Need(f"the {n_ref} x {n_query} difference matrix", "seqslam.store_difference: false",
+                          disk=4 * n_ref * n_query))
     return needs + _decode_need(config, images, 8, "decoding")
 
 

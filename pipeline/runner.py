@@ -8,7 +8,6 @@ or ``force`` is set. Each stage's function gets a :class:`StageContext`.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import logging
 import os
@@ -39,6 +38,11 @@ from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.limits import check_resources
 from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 from tqdm import tqdm
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: runs are not locked (documented in docs/reliability.md)
+    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger("placeloc")
 
@@ -326,6 +330,9 @@ def write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
 @contextlib.contextmanager
 def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
     """Hold an exclusive lock on RUN_DIR/.lock (released by the OS if the process dies)."""
+    if fcntl is None:
+        yield
+        return
     lock_path = run_dir / ".lock"
     fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
     try:

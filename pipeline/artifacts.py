@@ -16,9 +16,12 @@ carry the provenance:
 from __future__ import annotations
 
 import contextlib
+import errno
+import io
 import json
 import os
 import time
+import uuid
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -28,8 +31,175 @@ import numpy as np
 TMP_MARK = ".tmp-"
 
 
+class DiskFullError(OSError):
+    """Writing failed because the file system is full; the message names it and the file."""
+
+    def __str__(self) -> str:  # the message alone, without OSError's "[Errno 28]" prefix
+        return str(self.strerror)
+
+
 def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+
+
+def is_disk_full(exc: BaseException | None, depth: int = 0) -> bool:
+    """True for ENOSPC/EDQUOT, also when HDF5 reports it only in its message text or the
+    error was wrapped by another exception."""
+    if exc is None or depth > 5:
+        return False
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(exc)
+    if "No space left on device" in text or "errno = 28" in text or "Disk quota exceeded" in text:
+        return True
+    return is_disk_full(exc.__cause__ or exc.__context__, depth + 1)
+
+
+def mount_point(path: Path) -> str:
+    """The mount point (and file system type) holding ``path``, for messages."""
+    p = Path(os.path.abspath(path))
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    while not os.path.ismount(p) and p != p.parent:
+        p = p.parent
+    kind = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/mounts").read_text().splitlines():
+            parts = line.split()
+            if len(parts) > 2 and parts[1] == str(p):
+                kind = f" ({parts[2]})"
+    return f"{p}{kind}"
+
+
+def disk_full_error(path: Path, written: int) -> DiskFullError:
+    """The one-line error for a full disk; ``written`` is what the write had reached (the
+    need is at least that), 0 when unknown."""
+    need = f"needs about {max(written, 1 << 20) / 2**20:.0f} MB" if written > 0 else "needs more than is free"
+    return DiskFullError(errno.ENOSPC, f"no space left on {mount_point(path)} while writing {path} "
+                         f"({need}); free space there or choose another --run-dir")
+
+
+class _GuardedFile(io.RawIOBase):
+    """The file HDF5 writes an artifact through (h5py's file-object driver).
+
+    HDF5 defers many writes (chunk caches, metadata) to the moment an object is released;
+    when such a write meets a full disk, the error cannot propagate, HDF5 is left
+    inconsistent and the interpreter may crash at exit (segfault). Here a write that meets
+    ENOSPC/EDQUOT never fails: from then on, written pages are kept in memory (reads see
+    them), ``full`` holds the error, and the writer stops at its next check
+    (:func:`raise_if_disk_full`, called by ``ctx.progress``) or when the block ends. HDF5 so
+    always sees a consistent file, and the temporary file is deleted.
+    """
+
+    PAGE = 1 << 16
+
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = path
+        self._fh = open(path, "w+b", buffering=0)  # noqa: SIM115 (closed in close())
+        self._pos = 0
+        self._pages: dict[int, bytearray] = {}
+        self.full: OSError | None = None
+
+    # -- io.RawIOBase protocol used by h5py
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        if whence == 0:
+            self._pos = offset
+        elif whence == 1:
+            self._pos += offset
+        else:
+            self._pos = self._size() + offset
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def _size(self) -> int:
+        disk = os.fstat(self._fh.fileno()).st_size
+        mem = (max(self._pages) + 1) * self.PAGE if self._pages else 0
+        return max(disk, mem, getattr(self, "_logical", 0))
+
+    def _disk_read(self, offset: int, n: int) -> bytes:
+        return os.pread(self._fh.fileno(), n, offset)
+
+    def readinto(self, buf: Any) -> int:
+        view = memoryview(buf).cast("B")
+        n = len(view)
+        if not self._pages:
+            data = self._disk_read(self._pos, n)
+        else:
+            out = bytearray(self._disk_read(self._pos, n).ljust(n, b"\0"))
+            for page, content in self._pages.items():
+                lo, hi = page * self.PAGE, (page + 1) * self.PAGE
+                a, b = max(lo, self._pos), min(hi, self._pos + n)
+                if a < b:
+                    out[a - self._pos:b - self._pos] = content[a - lo:b - lo]
+            data = bytes(out[: max(0, min(n, self._size() - self._pos))])
+        view[: len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+    def write(self, data: Any) -> int:
+        mv = memoryview(data).cast("B")
+        n, done = len(mv), 0
+        while done < n and self.full is None:
+            try:
+                done += os.pwrite(self._fh.fileno(), mv[done:], self._pos + done)
+            except OSError as exc:
+                if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                    raise
+                self.full = exc
+        if done < n:
+            self._to_memory(self._pos + done, mv[done:])
+        self._pos += n
+        self._logical = max(getattr(self, "_logical", 0), self._pos)
+        return n
+
+    def _to_memory(self, offset: int, mv: memoryview) -> None:
+        i = 0
+        while i < len(mv):
+            page, within = divmod(offset + i, self.PAGE)
+            if page not in self._pages:
+                self._pages[page] = bytearray(self._disk_read(page * self.PAGE, self.PAGE).ljust(self.PAGE, b"\0"))
+            take = min(self.PAGE - within, len(mv) - i)
+            self._pages[page][within:within + take] = mv[i:i + take]
+            i += take
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._pos if size is None else size
+        if self.full is None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fh.fileno(), size)
+        self._logical = size
+        return size
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        if not self.closed:
+            self._fh.close()
+            self._pages.clear()
+        super().close()
+
+
+_GUARDS: dict[int, _GuardedFile] = {}
+
+
+def raise_if_disk_full(f: h5py.File) -> None:
+    """Stop a writer whose artifact met a full disk (a cheap check; call it per chunk)."""
+    guard = _GUARDS.get(id(f))
+    if guard is not None and guard.full is not None:
+        raise guard.full
 
 
 @contextlib.contextmanager
@@ -37,47 +207,81 @@ def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator
     """Open a temporary HDF5 file for writing; rename it to ``path`` only on success.
 
     ``attrs`` are written last, just before the rename, so a file that has a ``stamp``
-    attribute is always complete.
+    attribute is always complete. A unique ``write_id`` attribute is added, so a child
+    stage can tell that its parent was rewritten even when the parent's stamp is the same.
+    A full disk raises :class:`DiskFullError` and leaves no temporary file behind.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = tmp_path_for(path)
-    f = h5py.File(tmp, "w")
+    guard: _GuardedFile | None = None
+    f = None
     try:
+        guard = _GuardedFile(tmp)
+        f = h5py.File(guard, "w")
+        _GUARDS[id(f)] = guard
         yield f
         for key, value in (attrs or {}).items():
             f.attrs[key] = value
+        f.attrs["write_id"] = uuid.uuid4().hex
         f.flush()
+        _GUARDS.pop(id(f), None)
         f.close()
+        if guard.full is not None:
+            raise guard.full
+        guard.close()
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(Exception):
-            f.close()
+    except BaseException as exc:
+        written = tmp.stat().st_size if tmp.exists() else 0
+        if f is not None:
+            _GUARDS.pop(id(f), None)
+            with contextlib.suppress(Exception):
+                f.close()
+        if guard is not None:
+            guard.close()
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        full = (guard is not None and guard.full is not None) or (isinstance(exc, Exception) and is_disk_full(exc))
+        if full:
+            pending = sum(len(p) for p in guard._pages.values()) if guard is not None else 0
+            raise disk_full_error(path, written + pending) from None
         raise
 
 
 @contextlib.contextmanager
-def atomic_open(path: str | Path, newline: str | None = None) -> Iterator[Any]:
+def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -> Iterator[Any]:
     """Open a text file for writing under a temporary name in the same folder; rename it to
     ``path`` only when the block finishes, so readers never see half a CSV or JSON file."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
     try:
-        with tmp.open("w", newline=newline) as fh:
+        with tmp.open(mode, newline=newline) as fh:
             yield fh
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
+        written = tmp.stat().st_size if tmp.exists() else 0
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, Exception) and is_disk_full(exc):
+            raise disk_full_error(path, written) from None
         raise
 
 
+def read_write_id(path: Path) -> str | None:
+    """The unique id of the write that produced the artifact at ``path`` (None if absent)."""
+    try:
+        with h5py.File(path, "r") as f:
+            value = f.attrs.get("write_id")
+    except OSError:
+        return None
+    return str(value) if value is not None else None
+
+
 def remove_stale_tmp(run_dir: Path) -> list[Path]:
-    """Delete temporary files left by a killed process (never trusted, only clutter)."""
+    """Delete temporary files (artifacts and text side outputs) left by a killed process
+    (never trusted, only clutter); those of a process still running are kept."""
     removed = []
-    for p in run_dir.glob(f".*.h5{TMP_MARK}*"):
+    for p in run_dir.rglob(f".*{TMP_MARK}*"):
         pid = p.name.rsplit(TMP_MARK, 1)[-1]
         if pid.isdigit() and _pid_alive(int(pid)) and int(pid) != os.getpid():
             continue
@@ -149,15 +353,19 @@ def read_strings(ds: h5py.Dataset) -> list[str]:
 def describe(path: str | Path) -> str:
     """Human-readable account of an artifact: provenance, then every group and dataset."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a folder, not an artifact: give one of its .h5 files, e.g. {path / 'extract.h5'}")
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist")
+    if not h5py.is_hdf5(path):
+        raise ValueError(f"{path} is not an HDF5 file (not a placeloc artifact); give a RUN_DIR/<stage>.h5 file")
     lines: list[str] = []
     with h5py.File(path, "r") as f:
         a = dict(f.attrs)
         lines.append(f"{path}")
         if "stamp" not in a:
             lines.append("  (no provenance: not written by placeloc, or incomplete)")
-        for key in ("stage", "method", "placeloc_version", "created", "stamp", "config_hash"):
+        for key in ("stage", "method", "placeloc_version", "created", "stamp", "config_hash", "write_id"):
             if key in a:
                 lines.append(f"  {key}: {a[key]}")
         if "note" in a:

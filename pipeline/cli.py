@@ -9,12 +9,97 @@ from __future__ import annotations
 
 import logging
 import sys
+import traceback
 from pathlib import Path
-from typing import List
+from typing import Any, List
 
 import typer
+from typer.core import TyperGroup
+
+try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
+    from typer._click import ClickException
+except ImportError:  # older Typer uses Click itself
+    from click import ClickException  # type: ignore[no-redef]
+
+# Where a bug goes: the project has no public tracker address yet, so name what to send.
+BUG_REPORT = "the placeloc issue tracker, with the traceback above, the command and the config"
+
+
+def _user_error_types() -> tuple[type, ...]:
+    """Exceptions caused by input (files, config, data, the machine's limits), never by a bug.
+
+    ValueError covers every placeloc error about bad data (ConfigError, GroundTruthError,
+    PoseError, the co-embedding errors, ResourceError) and UnicodeDecodeError; OSError
+    covers missing files, permissions, folders given for files and a full disk."""
+    import yaml
+    from placeloc.images import ImageError
+    from placeloc.runner import StageError
+
+    types: list[type] = [ValueError, OSError, yaml.YAMLError, MemoryError, ImageError, StageError]
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None:
+        types.append(cv2.error)
+    return tuple(types)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, MemoryError):
+        text = f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, or executor.workers"
+    elif isinstance(exc, OSError) and exc.filename and str(exc.filename) not in text:
+        text = f"{exc.filename}: {text}"
+    elif not text:
+        text = type(exc).__name__
+    return text
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that cleanup (temporary files, shared arrays,
+    worker pools) runs as it does for Ctrl-C."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+def classify(exc: BaseException) -> str:
+    """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
+    judged by the exception it wraps)."""
+    from placeloc.executor import WorkItemError
+
+    if isinstance(exc, WorkItemError):
+        return classify(exc.original)
+    return "user" if isinstance(exc, _user_error_types()) else "bug"
+
+
+class ErrorBoundaryGroup(TyperGroup):
+    """The one error boundary: every command, including ones added later, runs inside it.
+
+    - a user-caused error: one line ``error: ...`` naming the file or key and the fix, rc 2;
+    - Ctrl-C: one line ``interrupted; rerun to resume``, rc 130;
+    - anything else is a bug: the traceback, then one line saying so and where to report it, rc 1.
+    """
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, typer.Abort, ClickException):
+            raise
+        except KeyboardInterrupt as exc:
+            typer.echo("interrupted; rerun to resume", err=True)
+            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
+        except Exception as exc:
+            if classify(exc) == "user":
+                typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
+                raise typer.Exit(2) from None
+            traceback.print_exc()
+            typer.secho(f"error: this is a bug in placeloc ({type(exc).__name__}), not a problem with your input; "
+                        f"please report it to {BUG_REPORT}", fg="red", err=True)
+            raise typer.Exit(1) from None
+
 
 app = typer.Typer(
+    cls=ErrorBoundaryGroup,
     help="placeloc: where am I, from images alone. Staged, resumable localization pipelines "
     "(SeqSLAM, PIRF-nav2, UMap, co-embedding) over image folders, with HDF5 artifacts.",
     no_args_is_help=True,
@@ -43,6 +128,7 @@ RunDirOpt = typer.Option(None, "--run-dir", "-o", help="Run directory for artifa
 SetOpt = typer.Option(None, "--set", "-s", help="Override a config value by dotted path, e.g. --set seqslam.ds=20. Repeatable.")
 ForceOpt = typer.Option(False, "--force", "-f", help="Re-run even if the artifact is up to date.")
 QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars, warnings only.")
+WaitOpt = typer.Option(False, "--wait", help="If another run holds the run directory, wait for it instead of stopping.")
 
 
 def _setup_logging(quiet: bool) -> None:
@@ -51,24 +137,21 @@ def _setup_logging(quiet: bool) -> None:
 
 
 def _fail(exc: Exception) -> None:
-    typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+    typer.secho(f"error: {_one_line(exc)}", fg=typer.colors.RED, err=True)
     raise typer.Exit(2)
 
 
 def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | None, force: bool,
-           quiet: bool, all_stages: bool = False) -> None:
-    from placeloc.config import ConfigError, load_config
-    from placeloc.executor import WorkItemError
-    from placeloc.images import ImageError
-    from placeloc.runner import StageError, run_stage
+           quiet: bool, all_stages: bool = False, wait: bool = False) -> None:
+    from placeloc.config import load_config
+    from placeloc.runner import run_stage
 
     _setup_logging(quiet)
-    try:
-        cfg = load_config(config, sets)
-        out = run_dir or Path("runs") / config.stem
-        path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages)
-    except (ConfigError, ImageError, StageError, WorkItemError, FileNotFoundError, KeyError, RuntimeError) as exc:
-        _fail(exc)
+    # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
+    cfg = load_config(config, sets)
+    out = run_dir or Path("runs") / config.stem
+    path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages,
+                     wait=wait)
     typer.echo(f"{stage}: {path}")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
         typer.echo(f"metrics: {path.parent / 'metrics.json'}")
@@ -76,51 +159,52 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
 
 @app.command()
 def extract(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-            force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+            force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Stage 1: read the image folders and compute per-image features -> extract.h5."""
-    _stage("extract", config, run_dir, set, force, quiet)
+    _stage("extract", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command("build-dictionary")
 def build_dictionary(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-                     force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+                     force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Stage 2: build the method's map/dictionary/database -> build-dictionary.h5."""
-    _stage("build-dictionary", config, run_dir, set, force, quiet)
+    _stage("build-dictionary", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command("build")
 def build(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-          force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+          force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Alias of build-dictionary."""
-    _stage("build-dictionary", config, run_dir, set, force, quiet)
+    _stage("build-dictionary", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command()
 def index(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-          force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+          force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Stage 3: index the dictionary/database for fast search -> index.h5."""
-    _stage("index", config, run_dir, set, force, quiet)
+    _stage("index", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command()
 def localize(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-             force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Stage 4: match every query against the reference -> localize.h5 (+ matches.csv)."""
-    _stage("localize", config, run_dir, set, force, quiet)
+    _stage("localize", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command()
 def evaluate(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-             force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
     """Stage 5: score against ground truth -> evaluate.h5, metrics.json and plots."""
-    _stage("evaluate", config, run_dir, set, force, quiet)
+    _stage("evaluate", config, run_dir, set, force, quiet, wait=wait)
 
 
 @app.command()
 def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-        force: bool = typer.Option(False, "--force", "-f", help="Re-run every stage."), quiet: bool = QuietOpt) -> None:
+        force: bool = typer.Option(False, "--force", "-f", help="Re-run every stage."), quiet: bool = QuietOpt,
+        wait: bool = WaitOpt) -> None:
     """All stages in order; up-to-date stages are skipped, so an interrupted run resumes."""
-    _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True)
+    _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True, wait=wait)
 
 
 @app.command()
@@ -130,8 +214,11 @@ def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by 
 
     try:
         typer.echo(describe(file))
-    except (FileNotFoundError, OSError) as exc:
-        _fail(exc)
+    except (IsADirectoryError, FileNotFoundError):
+        raise
+    except OSError as exc:
+        # h5py's text alone does not name the file.
+        raise ValueError(f"{file}: cannot be read as a placeloc artifact ({_one_line(exc)})") from exc
 
 
 @app.command()
@@ -152,8 +239,8 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
         params[k.strip()] = yaml.safe_load(v)
     try:
         summary = generate(kind, out, seed=seed, **params)
-    except (KeyError, TypeError, ValueError) as exc:
-        _fail(exc)
+    except (KeyError, TypeError) as exc:  # an unknown kind or generator parameter
+        _fail(ValueError(str(exc).strip("'\"")))
     for k, v in summary.items():
         typer.echo(f"{k}: {v}")
 
@@ -167,12 +254,12 @@ def compare(config: Path = ConfigArg,
     from placeloc.experiments.compare import compare_methods
 
     _setup_logging(quiet)
-    try:
-        cfg = load_config(config, set)
-        out = run_dir or Path("runs") / f"{config.stem}-compare"
-        table = compare_methods(cfg, out, [m.strip() for m in methods.split(",") if m.strip()], quiet=quiet)
-    except (ConfigError, ValueError) as exc:
-        _fail(exc)
+    cfg = load_config(config, set)
+    if cfg["method"] != "seqslam":
+        raise ConfigError(f"{config}: compare runs SeqSLAM image comparisons, but this config's method is "
+                          f"{cfg['method']!r}; give a SeqSLAM config (method: seqslam), e.g. configs/demo.yaml")
+    out = run_dir or Path("runs") / f"{config.stem}-compare"
+    table = compare_methods(cfg, out, [m.strip() for m in methods.split(",") if m.strip()], quiet=quiet)
     typer.echo(table.read_text())
 
 
@@ -182,14 +269,21 @@ def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, 
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:
     """Reproduce a paper's experiment; writes its runs, tables and summary.json."""
-    from placeloc.experiments import run_experiment
+    from placeloc.config import ConfigError
+    from placeloc.experiments import EXPERIMENTS, run_experiment
 
     _setup_logging(quiet)
+    if name not in EXPERIMENTS:
+        raise ConfigError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}, "
+                          "e.g. placeloc experiment seqslam --quick")
     path = run_experiment(name, out, quick=quick, quiet=quiet)
     typer.echo(f"results: {path}")
 
 
 def main() -> None:
+    import signal
+
+    signal.signal(signal.SIGTERM, _on_sigterm)
     app()
 
 

@@ -3,9 +3,14 @@
 A config is a plain nested dict. Its schema is the union of ``COMMON_DEFAULTS`` and the
 chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
 one default there, the type of that default is the type a user value must have, and a
-declared range or list of choices is checked. Values whose default is ``None`` accept any
-scalar. Relative paths resolve against the folder of
-the config file, so a config can be moved together with its data.
+declared range or list of choices is checked. Values whose default is ``None`` must have
+the type their dataclass field declares (``float | None`` takes a number or null). Relative
+paths resolve against the folder of the config file, so a config can be moved together
+with its data.
+
+YAML is read with a safe loader that also refuses aliases (``*name``): an alias can expand
+a few hundred bytes into gigabytes (the "billion laughs" attack), and a config never needs
+one.
 """
 
 from __future__ import annotations
@@ -18,7 +23,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from placeloc.params import check_bounds
+from placeloc.params import check_bounds, declared_types
+
+# A config larger than this is not a hand-written preset; refuse it before parsing.
+MAX_CONFIG_BYTES = 1 << 20
 
 
 class ConfigError(ValueError):
@@ -29,8 +37,8 @@ class ConfigError(ValueError):
 COMMON_DEFAULTS: dict[str, Any] = {
     "method": None,
     "seed": 0,
-    "reference": {"images": None, "on_error": "stop"},
-    "query": {"images": None, "on_error": "stop"},
+    "reference": {"images": None, "on_error": "stop", "fingerprint": "stat"},
+    "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
     "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 1.0},
     "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
     "plots": True,
@@ -38,10 +46,66 @@ COMMON_DEFAULTS: dict[str, Any] = {
 COMMON_CHOICES: dict[str, tuple] = {
     "reference.on_error": ("stop", "skip"),
     "query.on_error": ("stop", "skip"),
+    # stat: name, size, mtime of each image (default, cheap); content: a hash of its bytes.
+    "reference.fingerprint": ("stat", "content"),
+    "query.fingerprint": ("stat", "content"),
     "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses"),
     "executor.kind": ("local", "dask"),
 }
 COMMON_PATH_KEYS = ("reference.images", "query.images", "ground_truth.path")
+# Types of the common keys whose default is None (the others take their default's type).
+COMMON_TYPES: dict[str, tuple[type, ...]] = {
+    "method": (str,), "reference.images": (str,), "query.images": (str,), "ground_truth.path": (str,),
+}
+# Ranges of common keys: (min, max, min_exclusive), as params.param declares them.
+COMMON_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
+    "executor.workers": (1, None, False),
+    "executor.retries": (0, None, False),
+    "ground_truth.tolerance": (0, None, False),
+    "ground_truth.radius": (0, None, True),
+}
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """SafeLoader that refuses YAML aliases, so a tiny file cannot expand without bound."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(
+                None, None, f"found alias *{event.anchor}: aliases are not allowed in placeloc configs "
+                "(write the value out instead)", event.start_mark)
+        return super().compose_node(parent, index)
+
+
+def safe_yaml(text: str) -> Any:
+    """Parse YAML text with the safe, alias-free loader."""
+    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+
+
+def read_yaml_file(path: Path, what: str = "config file") -> Any:
+    """Read and parse a YAML file; every failure becomes a ConfigError naming the file and the fix."""
+    if path.is_dir():
+        raise ConfigError(f"{what} {path} is a folder, not a YAML file: give the path of a .yaml file, e.g. configs/demo.yaml")
+    if not path.exists():
+        raise ConfigError(f"{what} {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{what} {path} is {size / 1e6:.1f} MB; the limit is {MAX_CONFIG_BYTES / 1e6:.0f} MB "
+                              "(a config holds settings, not data: put data in files and name them)")
+        raw = path.read_bytes()
+    except PermissionError as exc:
+        raise ConfigError(f"{what} {path}: permission denied; make it readable (chmod u+r) or copy it") from exc
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what} {path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+                          "save it as UTF-8") from exc
+    try:
+        return safe_yaml(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from exc
 # Sections a user may leave out entirely (their absence means something).
 OPTIONAL_SECTIONS = ("query",)
 
@@ -59,12 +123,7 @@ def load_config(
     """
     if path is not None:
         path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        data = read_yaml_file(path) or {}
         base_dir = path.resolve().parent
     if not isinstance(data, dict):
         raise ConfigError(f"{path or 'config'}: the top level must be a mapping of keys to values")
@@ -79,9 +138,16 @@ def apply_override(data: dict, item: str) -> None:
     if "=" not in item:
         raise ConfigError(f"--set {item!r}: expected key.path=value, e.g. --set seqslam.ds=20")
     key, raw = item.split("=", 1)
-    value = yaml.safe_load(raw) if raw.strip() else None
+    try:
+        value = safe_yaml(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"--set {item!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
+                          f"e.g. --set {key.strip()}=[1, 2] or --set {key.strip()}='text'") from exc
     node = data
     parts = key.strip().split(".")
+    if not all(parts):
+        raise ConfigError(f"--set {item!r}: empty key part; expected key.path=value, e.g. --set seqslam.ds=20")
     for part in parts[:-1]:
         if not isinstance(node.get(part), dict):
             node[part] = {}
@@ -102,14 +168,17 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     schema = copy.deepcopy(COMMON_DEFAULTS)
     schema[method.name] = copy.deepcopy(method.defaults)
     choices = {**COMMON_CHOICES, **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
+    types = {**COMMON_TYPES, **{f"{method.name}.{k}": v for k, v in declared_types(method.params).items()}}
 
     path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
-    config = _merge(schema, data, prefix="", choices=choices)
+    config = _merge(schema, data, prefix="", choices=choices, types=types)
     config["method"] = method_name
     problems = check_bounds(method.params, config[method.name], f"{method.name}.")
+    problems += _check_common_bounds(config)
+    problems += _check_min_max_pairs(config[method.name], f"{method.name}.")
     if problems:
         raise ConfigError(problems[0])
     for key in path_keys:
@@ -129,13 +198,47 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
-    if config["executor"]["workers"] < 1:
-        raise ConfigError("executor.workers must be >= 1")
     method.check(config)
+    from placeloc.limits import config_problems
+
+    problems = config_problems(config)
+    if problems:
+        raise ConfigError(problems[0])
     return config
 
 
-def _merge(schema: dict, data: dict, prefix: str, choices: dict) -> dict:
+def _check_common_bounds(config: dict) -> list[str]:
+    problems = []
+    for key, (lo, hi, strict) in COMMON_BOUNDS.items():
+        node, leaf = _get(config, key)
+        v = node.get(leaf) if node else None
+        if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
+            rng = f"{'>' if strict else '>='} {lo}" if hi is None else f"in [{lo}, {hi}]"
+            problems.append(f"{key}: {v!r} is out of range; it must be {rng}")
+    return problems
+
+
+def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
+    """Generic cross-key rule: keys that differ only by ``min`` <-> ``max`` in their name
+    (``v_min``/``v_max``, ``n_pmin``/``n_pmax``) must satisfy min <= max."""
+    problems = []
+    for key, lo in section.items():
+        if isinstance(lo, dict):
+            problems += _check_min_max_pairs(lo, f"{prefix}{key}.")
+            continue
+        if "min" not in key or isinstance(lo, bool) or not isinstance(lo, (int, float)):
+            continue
+        other = key.replace("min", "max")
+        hi = section.get(other)
+        if isinstance(hi, (int, float)) and not isinstance(hi, bool) and lo > hi:
+            problems.append(f"{prefix}{key} ({lo!r}) is larger than {prefix}{other} ({hi!r}); "
+                            f"it must be <= {prefix}{other}")
+    return problems
+
+
+def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None) -> dict:
     out = {}
     for key in data:
         if key not in schema:
@@ -154,12 +257,36 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict) -> dict:
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
-            out[key] = _merge(default, value, f"{dotted}.", choices)
+            out[key] = _merge(default, value, f"{dotted}.", choices, types)
             continue
-        out[key] = _check_type(dotted, value, default)
+        if default is None and types and dotted in types:
+            out[key] = _check_declared(dotted, value, types[dotted])
+        else:
+            out[key] = _check_type(dotted, value, default)
         if dotted in choices and out[key] not in choices[dotted]:
             raise ConfigError(f"{dotted}: {out[key]!r} is not allowed; choose one of {', '.join(map(str, choices[dotted]))}")
     return out
+
+
+_TYPE_WORDS = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
+               tuple: "a list", dict: "a mapping"}
+
+
+def _check_declared(key: str, value: Any, allowed: tuple[type, ...]) -> Any:
+    """Check a value whose default is None against the field's declared types."""
+    if value is None:
+        return None
+    for t in allowed:
+        if t is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if t is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if t in (list, tuple) and isinstance(value, list):
+            return value
+        if t not in (int, float) and isinstance(value, t):
+            return value
+    kinds = " or ".join(_TYPE_WORDS.get(t, t.__name__) for t in allowed)
+    raise ConfigError(f"{key} must be {kinds} or null, got {value!r} ({type(value).__name__})")
 
 
 def _check_type(key: str, value: Any, default: Any) -> Any:

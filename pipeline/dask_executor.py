@@ -13,11 +13,31 @@ naming the item. Importing this module needs the optional extra ``placeloc[dask]
 from __future__ import annotations
 
 import logging
+import socket
 import uuid
 from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
+from placeloc.config import ConfigError
 from placeloc.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
+
+# A scheduler that does not answer within this is taken to be unreachable (fail fast).
+CONNECT_TIMEOUT = "5s"
+
+
+def _check_reachable(address: str, seconds: float = 3.0) -> None:
+    """Fail at once when nothing listens at a tcp:// or tls:// address (a refused or timed
+    out connection), instead of waiting out Dask's retries."""
+    if not address.startswith(("tcp://", "tls://")):
+        return
+    host, _, port = address.split("://", 1)[1].rpartition(":")
+    if not port.isdigit():
+        raise ConfigError(f"executor.scheduler: {address!r} has no port; e.g. tcp://host:8786")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=seconds).close()
+    except OSError as exc:
+        raise ConfigError(f"executor.scheduler: cannot reach a Dask scheduler at {address} ({exc.strerror or exc}); "
+                          "start it (dask scheduler), fix the address, or set executor.scheduler: local-cluster") from exc
 
 
 class DaskExecutor(Executor):
@@ -38,9 +58,18 @@ class DaskExecutor(Executor):
                                          host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
             self.client = Client(self._cluster)
         elif self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
-            self.client = Client(self.scheduler, timeout="30s")
+            _check_reachable(self.scheduler)
+            try:
+                self.client = Client(self.scheduler, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError, MemoryError, ValueError) as exc:
+                # MemoryError/ValueError: something that is not a Dask scheduler answered
+                # (its bytes were read as a message length).
+                what = "reach" if isinstance(exc, (OSError, TimeoutError)) else "talk to"
+                raise ConfigError(f"executor.scheduler: cannot {what} a Dask scheduler at {self.scheduler} within "
+                                  f"{CONNECT_TIMEOUT} ({type(exc).__name__}); start it (dask scheduler), fix the "
+                                  "address, or set executor.scheduler: local-cluster") from exc
         else:
-            raise ValueError(f"executor.scheduler: {self.scheduler!r} is neither local-cluster nor an address "
+            raise ConfigError(f"executor.scheduler: {self.scheduler!r} is neither local-cluster nor an address "
                              "like tcp://host:8786")
 
     def _window(self) -> int:

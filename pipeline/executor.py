@@ -15,9 +15,16 @@ fails for good.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import multiprocessing as mp
+import os
 import shutil
+import signal
+import sys
 import tempfile
+import threading
+import time
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -81,6 +88,83 @@ class InlineExecutor(Executor):
                 raise
 
 
+# --- worker lifetime: a worker must never outlive the process that started it ---
+SHARED_PREFIX = "placeloc-shared-"
+_PR_SET_PDEATHSIG = 1
+
+
+def _worker_init(parent_pid: int) -> None:
+    """Runs first in every pool worker. Ctrl-C is the parent's to handle (no worker
+    tracebacks); when the parent dies, even by kill -9, the worker dies too: the kernel's
+    parent-death signal on Linux, and a watchdog thread everywhere."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(1)
+
+    def watchdog() -> None:
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watchdog, name="placeloc-parent-watchdog", daemon=True).start()
+
+
+class _QuietSpawnProcess(mp.get_context("spawn").Process):  # type: ignore[name-defined,misc]
+    """A spawned worker that ignores Ctrl-C from its first instruction: SIG_IGN survives
+    exec, and Python keeps an ignored SIGINT ignored. Without this, a worker still
+    importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback."""
+
+    def start(self) -> None:
+        try:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread: cannot touch handlers, start as is
+            return super().start()
+        try:
+            super().start()
+        finally:
+            signal.signal(signal.SIGINT, old)
+
+
+class _QuietSpawnContext(type(mp.get_context("spawn"))):  # type: ignore[misc]
+    Process = _QuietSpawnProcess
+
+
+def _shared_dir_owner(path: Path) -> int | None:
+    tail = path.name[len(SHARED_PREFIX):].split("-", 1)[0]
+    return int(tail) if tail.isdigit() else None
+
+
+def remove_stale_shared(tmp_root: str | Path | None = None) -> list[Path]:
+    """Delete shared-array folders (``/tmp/placeloc-shared-<pid>-*``) whose process is gone:
+    what a killed run left behind."""
+    removed = []
+    root = Path(tmp_root or tempfile.gettempdir())
+    for p in root.glob(f"{SHARED_PREFIX}*"):
+        pid = _shared_dir_owner(p)
+        if pid is not None and pid != os.getpid() and _alive(pid):
+            continue
+        if pid is None and time.time() - p.stat().st_mtime < 24 * 3600:
+            continue  # an old-style name: only remove when a day old
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 # --- shared arrays for the process pool: memory-mapped .npy files, loaded once per worker ---
 _WORKER_SHARED: dict[str, Any] = {}
 
@@ -90,7 +174,14 @@ def _pack_shared(shared: Any, folder: Path) -> Any:
     def one(name: str, value: Any) -> Any:
         if isinstance(value, np.ndarray) and value.dtype != object:
             path = folder / f"{name}.npy"
-            np.save(path, value, allow_pickle=False)
+            try:
+                np.save(path, value, allow_pickle=False)
+            except OSError as exc:
+                from placeloc.artifacts import disk_full_error, is_disk_full
+
+                if is_disk_full(exc):
+                    raise disk_full_error(path, value.nbytes) from None
+                raise
             return ("__npy__", str(path))
         return value
 
@@ -147,10 +238,12 @@ class LocalExecutor(Executor):
     def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
             describe: Describe | None = None) -> Iterator[Any]:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=_QuietSpawnContext(),
+                                             initializer=_worker_init, initargs=(os.getpid(),))
         tmp = None
         if shared is not None:
-            tmp = Path(tempfile.mkdtemp(prefix="placeloc-shared-"))
+            # The folder name carries our pid, so the next run can remove it if we are killed.
+            tmp = Path(tempfile.mkdtemp(prefix=f"{SHARED_PREFIX}{os.getpid()}-"))
             handle, token = _pack_shared(shared, tmp), tmp.name
 
             def submit(item: Any) -> Any:
@@ -180,11 +273,13 @@ class LocalExecutor(Executor):
 def make_executor(section: dict[str, Any]) -> Executor:
     kind = section.get("kind", "local")
     if kind == "dask":
+        from placeloc.config import ConfigError
+
         try:
             from placeloc.dask_executor import DaskExecutor  # optional extra
         except ImportError as exc:
-            raise RuntimeError(f"executor.kind: dask is not available ({exc}); "
-                               "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
+            raise ConfigError(f"executor.kind: dask is not available ({exc}); "
+                              "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
 
         return DaskExecutor(section)
     workers = int(section.get("workers", 1))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +32,9 @@ class ImageSet:
     paths: list[Path]
     on_error: str = "stop"
     skipped: list[str] = field(default_factory=list)
+    # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
+    # "content": a BLAKE2b hash of every file's bytes (reads every image once per run).
+    fingerprint_mode: str = "stat"
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -40,15 +44,31 @@ class ImageSet:
         return [p.name for p in self.paths]
 
     def fingerprint(self) -> str:
-        """SHA-256 over names, sizes and modification times: cheap, and changes when a file does."""
+        """SHA-256 over names, sizes and modification times (``stat``), or over names and a
+        BLAKE2b hash of each file's bytes (``content``)."""
         h = hashlib.sha256()
         for p in self.paths:
-            st = p.stat()
-            h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            if self.fingerprint_mode == "content":
+                h.update(f"{p.name}\0{content_hash(p)}\n".encode())
+            else:
+                st = p.stat()
+                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
         return h.hexdigest()
 
 
-def list_images(spec: str | Path, on_error: str = "stop") -> ImageSet:
+def content_hash(path: Path, block: int = 1 << 20) -> str:
+    """BLAKE2b (16-byte digest) of a file's bytes."""
+    h = hashlib.blake2b(digest_size=16)
+    try:
+        with open(path, "rb") as fh:
+            while chunk := fh.read(block):
+                h.update(chunk)
+    except PermissionError as exc:
+        raise ImageError(f"{path}: permission denied; make it readable (chmod a+r) or remove it") from exc
+    return h.hexdigest()
+
+
+def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "stat") -> ImageSet:
     """List the images of a folder (or glob) in natural sort order."""
     spec = str(spec)
     p = Path(spec)
@@ -62,15 +82,31 @@ def list_images(spec: str | Path, on_error: str = "stop") -> ImageSet:
             "point reference.images / query.images at a folder of images"
         )
     files.sort(key=lambda q: natural_key(q.name))
-    return ImageSet(source=spec, paths=files, on_error=on_error)
+    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint)
+
+
+def _unreadable(path: str | Path) -> ImageError:
+    """The reason cv2.imread returned nothing: missing, a folder, no permission, or bad bytes."""
+    p = Path(path)
+    if not p.exists():
+        return ImageError(f"{path}: does not exist (deleted while the run was going?); restore it or re-run")
+    if p.is_dir():
+        return ImageError(f"{path}: is a folder, not an image; move it out of the image folder")
+    if not os.access(p, os.R_OK):
+        return ImageError(f"{path}: permission denied; make it readable (chmod a+r), or set on_error: skip beside images:")
+    return ImageError(f"{path}: cannot be read as an image (corrupt or not an image); "
+                      "remove or replace it, or set on_error: skip beside images:")
 
 
 def read_gray(path: str | Path) -> np.ndarray:
     """Read an image as 8-bit greyscale; colour is converted, 16-bit is scaled down."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise ImageError(f"{path}: OpenCV cannot decode it ({' '.join(str(exc).split())[:200]}); "
+                         "remove or replace it, or set on_error: skip beside images:") from exc
     if img is None or img.size == 0:
-        raise ImageError(f"{path}: cannot be read as an image (corrupt or not an image); "
-                         "remove or replace it, or set on_error: skip beside images:")
+        raise _unreadable(path)
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     elif img.dtype != np.uint8:
@@ -85,6 +121,5 @@ def read_color(path: str | Path) -> np.ndarray:
     """Read an image as 8-bit BGR."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
-        raise ImageError(f"{path}: cannot be read as an image (corrupt or not an image); "
-                         "remove or replace it, or set on_error: skip beside images:")
+        raise _unreadable(path)
     return img

@@ -19,6 +19,8 @@ type is another such dataclass, declared with :func:`section`.
 from __future__ import annotations
 
 import dataclasses
+import types
+import typing
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -107,6 +109,26 @@ def bounds(cls: type) -> dict[str, tuple[float | None, float | None, bool]]:
     """Dotted key -> (min, max, min_exclusive), for the keys that declare a range."""
     return {k: (f.metadata.get("min"), f.metadata.get("max"), bool(f.metadata.get("min_exclusive")))
             for k, f in _walk(cls) if f.metadata.get("min") is not None or f.metadata.get("max") is not None}
+
+
+def declared_types(cls: type, prefix: str = "") -> dict[str, tuple[type, ...]]:
+    """Dotted key -> the types a value may have, from the field annotations (``str | None``
+    -> ``(str,)``; ``None`` is always allowed for such keys). Only keys whose default is
+    ``None`` are listed: the others are checked against their default's type."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, tuple[type, ...]] = {}
+    for f in _fields(cls):
+        if _is_section(f):
+            out.update(declared_types(_section_type(cls, f), f"{prefix}{f.name}."))
+            continue
+        if f.default is not None:
+            continue
+        hint = hints.get(f.name, Any)
+        args = typing.get_args(hint) if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union else (hint,)
+        allowed = tuple(typing.get_origin(a) or a for a in args if a is not type(None) and a is not Any)
+        if allowed and all(isinstance(a, type) for a in allowed):
+            out[f"{prefix}{f.name}"] = allowed
+    return out
 
 
 def path_keys(cls: type) -> tuple[str, ...]:

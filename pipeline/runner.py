@@ -7,8 +7,10 @@ or ``force`` is set. Each stage's function gets a :class:`StageContext`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -17,21 +19,48 @@ from typing import Any, Iterable, Iterator
 
 import h5py
 from placeloc import __version__
-from placeloc.artifacts import TMP_MARK, atomic_h5, provenance_attrs, read_stamp, remove_stale_tmp
+from placeloc.artifacts import (
+    TMP_MARK,
+    DiskFullError,
+    atomic_h5,
+    atomic_open,
+    disk_full_error,
+    is_disk_full,
+    provenance_attrs,
+    raise_if_disk_full,
+    read_stamp,
+    read_write_id,
+    remove_stale_tmp,
+)
 from placeloc.config import config_hash, to_yaml
-from placeloc.executor import Executor, make_executor
-from placeloc.images import ImageSet, list_images
+from placeloc.executor import Executor, make_executor, remove_stale_shared
+from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
+from placeloc.limits import check_resources
 from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 from tqdm import tqdm
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: runs are not locked (documented in docs/reliability.md)
+    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger("placeloc")
 
 # Files in a run directory that belong to no stage (written by the runner itself).
-RUN_FILES = ("config.yaml", "log.txt")
+RUN_FILES = ("config.yaml", "log.txt", ".lock")
+# First line of every config.yaml the runner writes: a config.yaml without it is the
+# user's own file, which a run never overwrites.
+CONFIG_HEADER = "# placeloc run config: written by placeloc after the last run that finished without error\n"
+# Non-image files in an image folder that a stage may read implicitly (poses, timestamps).
+SIDECAR_SUFFIXES = (".csv", ".txt", ".json", ".yaml", ".yml")
 
 
 class StageError(RuntimeError):
     """A stage cannot run (missing parent, bad input); the message says what to do."""
+
+
+class RunDirError(StageError):
+    """The run directory cannot be used (locked by another run, an image folder, a foreign config.yaml)."""
 
 
 @dataclass
@@ -56,13 +85,21 @@ class StageContext:
         path = self.run_dir / f"{stage}.h5"
         if not path.is_file():
             raise StageError(f"{path} is missing: run `placeloc {stage}` first")
-        f = h5py.File(path, "r")
+        try:
+            f = h5py.File(path, "r")
+        except OSError as exc:
+            raise StageError(f"{path} cannot be read as HDF5 ({' '.join(str(exc).split())}); "
+                             f"re-run that stage: placeloc {stage} --force") from exc
         self._open.append(f)
         return f
 
     def progress(self, iterable: Iterable[Any], total: int | None = None, desc: str = "") -> Iterator[Any]:
-        return iter(tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
-                         file=sys.stderr, dynamic_ncols=True, leave=False))
+        bar = tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
+                   file=sys.stderr, dynamic_ncols=True, leave=False)
+        for item in bar:
+            # A full disk stops the stage at the next step instead of at its end.
+            raise_if_disk_full(self.out)
+            yield item
 
     def close(self) -> None:
         for f in self._open:
@@ -81,8 +118,23 @@ def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
     for role in ("reference", "query"):
         section = config.get(role)
         if section and section.get("images"):
-            sets[role] = list_images(section["images"], section.get("on_error", "stop"))
+            sets[role] = list_images(section["images"], section.get("on_error", "stop"),
+                                     fingerprint=section.get("fingerprint", "stat"))
     return sets
+
+
+def _sidecar_fingerprint(images: dict[str, ImageSet]) -> str:
+    """Fingerprint of the non-image files (CSV, TXT, JSON, YAML) in the image folders: a
+    stage that reads ground truth may read them implicitly (e.g. poses.csv beside frames)."""
+    rows = []
+    for role, s in sorted(images.items()):
+        folder = Path(s.source) if Path(s.source).is_dir() else (s.paths[0].parent if s.paths else None)
+        if folder is None:
+            continue
+        for p in sorted(folder.iterdir()):
+            if p.is_file() and p.suffix.lower() in SIDECAR_SUFFIXES:
+                rows.append(f"{role}/{p.name}:{_path_fingerprint(p)}")
+    return config_hash(rows)
 
 
 def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
@@ -111,6 +163,8 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     gt_path = (config.get("ground_truth") or {}).get("path")
     if "ground_truth" in sections and gt_path and Path(gt_path).is_file():
         inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))
+    if "ground_truth" in sections and images:
+        inputs["sidecar_files"] = _sidecar_fingerprint(images)
     if parent_stamp is not None:
         inputs["parent"] = parent_stamp
     return inputs
@@ -135,17 +189,33 @@ def _path_fingerprint(path: Path) -> str:
 
 
 def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bool = False,
-              quiet: bool = False, force_all: bool = False) -> Path:
+              quiet: bool = False, force_all: bool = False, wait: bool = False) -> Path:
     """Bring ``stage`` (and every stage before it) up to date; return its artifact path.
 
     ``force`` re-runs ``stage`` even when up to date; ``force_all`` every stage up to it.
+    The run directory is locked for the whole call: a second run on it stops at once
+    (``wait=False``, naming the holder) or waits for the first to finish.
     """
     stage = normalise_stage(stage)
     run_dir = Path(run_dir)
+    check_run_dir(config, run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
+    with lock_run_dir(run_dir, wait=wait), run_log(run_dir):
+        log.info("run: %s up to %s in %s (placeloc %s, pid %d)", config["method"], stage, run_dir, __version__, os.getpid())
+        try:
+            path = _run_locked(config, run_dir, stage, force, quiet, force_all)
+        except BaseException as exc:
+            log.debug("failed: %s: %s", type(exc).__name__, exc)
+            _log_to_file_only(run_dir, f"failed: {type(exc).__name__}: {' '.join(str(exc).split())}")
+            raise
+        write_run_config(run_dir, config)
+        return path
+
+
+def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, quiet: bool, force_all: bool) -> Path:
     remove_stale_tmp(run_dir)
+    remove_stale_shared()
     method = get_method(config["method"])
-    (run_dir / "config.yaml").write_text(to_yaml(config))
     images = image_sets(config) if method.uses_images else {}
     parent_stamp: str | None = None
     executor: Executor | None = None
@@ -157,16 +227,163 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
             forced = force_all or (force and name == stage)
             if read_stamp(path) == stamp and side_outputs_intact(path) and not forced:
                 log.info("%s: up to date (%s), skipped", name, path)
-                parent_stamp = stamp
+                parent_stamp = _parent_token(stamp, path)
                 continue
             if executor is None:
+                # Before the first stage that does work: will it fit in memory and on disk?
+                check_resources(config, images, run_dir)
                 executor = make_executor(config["executor"])
+            _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
-            parent_stamp = stamp
+            parent_stamp = _parent_token(stamp, path)
     finally:
         if executor is not None:
             executor.close()
     return run_dir / f"{stage}.h5"
+
+
+def _parent_token(stamp: str, path: Path) -> str:
+    """What a child records of its parent: the stamp and the id of the write that produced
+    the file, so rewriting the parent (even with the same stamp) re-runs the child."""
+    write_id = read_write_id(path)
+    return stamp if write_id is None else f"{stamp}:{write_id}"
+
+
+def _remove_previous_outputs(path: Path, stamp: str) -> None:
+    """Before a stage re-runs, delete the side outputs its previous run recorded (so a
+    failure cannot leave e.g. an old metrics.json beside a new config) and the previous
+    artifact when it belongs to other inputs."""
+    if not path.is_file():
+        return
+    try:
+        with h5py.File(path, "r") as f:
+            recorded = json.loads(f.attrs.get("side_outputs", "{}"))
+            old_stamp = f.attrs.get("stamp")
+    except (OSError, ValueError):
+        recorded, old_stamp = {}, None
+    for name in recorded:
+        target = (path.parent / name).resolve()
+        if target.parent == path.parent.resolve() or path.parent.resolve() in target.parents:
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+                target.unlink()
+    if old_stamp is None or str(old_stamp) != stamp:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+# ----------------------------------------------------------------- the run directory
+
+def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
+    """Refuse a run directory that is (or lies inside) an input image folder, that holds
+    images but no placeloc run, or whose config.yaml placeloc did not write."""
+    rd = run_dir.resolve()
+    for role in ("reference", "query"):
+        section = config.get(role) or {}
+        spec = section.get("images")
+        if not spec:
+            continue
+        folder = Path(spec) if Path(spec).is_dir() else Path(spec).parent
+        folder = folder.resolve()
+        if rd == folder or folder in rd.parents:
+            raise RunDirError(f"--run-dir {run_dir} is the {role} image folder ({role}.images) or inside it: "
+                              "its PNG plots would be read as images next time; choose another --run-dir, e.g. runs/NAME")
+    if not rd.is_dir():
+        return
+    cfg = rd / "config.yaml"
+    if cfg.is_file():
+        try:
+            head = cfg.open("r", errors="replace").readline()
+        except OSError:
+            head = ""
+        if head != CONFIG_HEADER and not _written_by_older_placeloc(cfg):
+            raise RunDirError(f"{cfg} was not written by placeloc; refusing to overwrite it: "
+                              "choose another --run-dir (a run directory holds only placeloc's outputs)")
+    elif not any(rd.glob("*.h5")):
+        for p in rd.iterdir():
+            if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
+                raise RunDirError(f"--run-dir {run_dir} holds images ({p.name}) but no placeloc run: it looks like an "
+                                  "image folder; choose another --run-dir, e.g. runs/NAME")
+
+
+def _written_by_older_placeloc(cfg: Path) -> bool:
+    """Run directories from before the header: config.yaml is ours when an artifact beside
+    it carries the same config text."""
+    try:
+        text = cfg.read_text(errors="replace")
+    except OSError:
+        return False
+    for artifact in cfg.parent.glob("*.h5"):
+        try:
+            with h5py.File(artifact, "r") as f:
+                if str(f.attrs.get("config_yaml", "")) == text:
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
+    with atomic_open(run_dir / "config.yaml") as fh:
+        fh.write(CONFIG_HEADER + to_yaml(config))
+
+
+@contextlib.contextmanager
+def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
+    """Hold an exclusive lock on RUN_DIR/.lock (released by the OS if the process dies)."""
+    if fcntl is None:
+        yield
+        return
+    lock_path = run_dir / ".lock"
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            if not wait:
+                raise RunDirError(f"{run_dir} is in use by another placeloc run (pid {holder}); wait for it to finish, "
+                                  "or pass --wait to queue behind it, or choose another --run-dir") from None
+            log.info("waiting for placeloc pid %s to finish with %s", holder, run_dir)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing drops the lock
+
+
+class _BestEffortFileHandler(logging.FileHandler):
+    """log.txt is a record, not a result: a full disk must not turn each log line into a
+    "Logging error" traceback (the write that matters reports the full disk itself)."""
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def run_log(run_dir: Path) -> Iterator[None]:
+    """Append this run's log lines (with times) to RUN_DIR/log.txt."""
+    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
+    handler.setLevel(logging.INFO)
+    old_level = log.level
+    if log.getEffectiveLevel() > logging.INFO:
+        log.setLevel(logging.INFO)  # the file gets INFO lines even when the terminal is quiet
+        for h in logging.getLogger().handlers:
+            if h.level == logging.NOTSET:
+                h.setLevel(logging.getLogger().level)
+    log.addHandler(handler)
+    try:
+        yield
+    finally:
+        log.removeHandler(handler)
+        handler.close()
+        log.setLevel(old_level)
+
+
+def _log_to_file_only(run_dir: Path, line: str) -> None:
+    with contextlib.suppress(OSError), (run_dir / "log.txt").open("a", encoding="utf-8") as fh:
+        fh.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {line}\n")
 
 
 def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, path: Path,
@@ -186,8 +403,24 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
         ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
                            executor=executor, quiet=quiet, images=images, params=method.build_params(config))
         before = _run_files(run_dir)
+        opened: list[str] = []
         try:
             fn(ctx)
+        except OSError as exc:
+            # A side output (CSV, JSON, PNG) written with plain Python I/O met a full disk:
+            # name the place, as atomic_h5 does for artifacts.
+            if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+                where = Path(exc.filename) if exc.filename else run_dir / f"(a side output of {name})"
+                raise disk_full_error(where, 0) from None
+            raise
+        except KeyError as exc:
+            # h5py's "Unable to synchronously open object": an artifact lacks a dataset.
+            if "open object" not in str(exc) and "doesn't exist" not in str(exc):
+                raise
+            opened = [f.filename for f in ctx._open]
+            which = ", ".join(opened) or "an earlier artifact"
+            raise StageError(f"{which}: a dataset the {name} stage needs is missing ({' '.join(str(exc).split())}); "
+                             "the artifact is damaged or from another version: re-run the stage that wrote it with --force") from exc
         finally:
             ctx.close()
         f.attrs["seconds"] = time.perf_counter() - t0

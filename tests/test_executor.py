@@ -95,7 +95,7 @@ def test_dask_missing_gives_a_clear_error(monkeypatch):
 
     monkeypatch.delitem(__import__("sys").modules, "placeloc.dask_executor", raising=False)
     monkeypatch.setattr(builtins, "__import__", no_dask)
-    with pytest.raises(RuntimeError, match=r"pip install 'placeloc\[dask\]'"):
+    with pytest.raises(ValueError, match=r"pip install 'placeloc\[dask\]'"):
         make_executor({"kind": "dask", "workers": 2, "scheduler": "local-cluster", "retries": 2})
     # the local executor still works without it
     assert isinstance(make_executor({"kind": "local", "workers": 1}), InlineExecutor)

@@ -1,0 +1,239 @@
+"""Size, memory and disk estimates before the work: refuse a run that cannot fit, with the figure.
+
+Each method registers an estimator in :data:`ESTIMATORS` that reads the validated config
+(and the listed image sets) and returns :class:`Need` rows: what is large, the config key
+that sets it, and the bytes of memory (per process, times the workers that run at once)
+and of disk (written to the run directory). :func:`check_resources` compares them with
+the memory available now (``/proc/meminfo`` MemAvailable, or ``PLACELOC_MEMORY_LIMIT_MB``)
+and the free space of the run directory (``PLACELOC_DISK_LIMIT_MB`` caps it for tests),
+and raises :class:`ResourceError` naming the figure, the limit and the key to change.
+
+Image sizes come from the PNG/JPEG/BMP headers (a few bytes per file), never from decoding:
+one 8000x8000 frame would cost seconds and gigabytes before any check could run.
+
+The estimates are deliberately rough (within a factor of about two): they exist to stop a
+run that would need ten or a thousand times the machine, not to pack memory tightly.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+
+class ResourceError(ValueError):
+    """The work would need more memory or disk than there is; the message gives both figures."""
+
+
+@dataclass
+class Need:
+    what: str
+    key: str
+    memory: int = 0  # bytes held at once by the processes doing the work
+    disk: int = 0  # bytes written to the run directory
+
+
+def _mb(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
+
+
+def memory_limit() -> int:
+    """Bytes of memory a run may use: PLACELOC_MEMORY_LIMIT_MB if set, else MemAvailable."""
+    env = os.environ.get("PLACELOC_MEMORY_LIMIT_MB")
+    if env:
+        return int(float(env) * 2**20)
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 1 << 62  # unknown: do not refuse
+
+
+def disk_free(folder: Path) -> int:
+    """Free bytes where ``folder`` lives (PLACELOC_DISK_LIMIT_MB caps it, for tests)."""
+    folder = Path(folder)
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    env = os.environ.get("PLACELOC_DISK_LIMIT_MB")
+    return min(free, int(float(env) * 2**20)) if env else free
+
+
+# ----------------------------------------------------------------- image headers
+
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG, JPEG, BMP or PNM header; None when the format is not one
+    of those or the header is damaged (the decoder then reports the file)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(32)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                return struct.unpack(">II", head[16:24])
+            if head[:2] == b"BM" and len(head) >= 26:
+                w, h = struct.unpack("<ii", head[18:26])
+                return abs(w), abs(h)
+            if head[:2] in (b"P5", b"P6", b"P2", b"P3"):
+                fields = head[2:].split()
+                return (int(fields[0]), int(fields[1])) if len(fields) >= 2 else None
+            if head[:2] == b"\xff\xd8":
+                return _jpeg_size(fh)
+    except (OSError, ValueError, struct.error):
+        return None
+    return None
+
+
+def _jpeg_size(fh: Any) -> tuple[int, int] | None:
+    fh.seek(2)
+    for _ in range(10000):
+        marker = fh.read(2)
+        if len(marker) < 2 or marker[0] != 0xFF:
+            return None
+        kind = marker[1]
+        if kind in (0xD8, 0x01) or 0xD0 <= kind <= 0xD7:
+            continue
+        length = struct.unpack(">H", fh.read(2))[0]
+        # SOF0..SOF15 carry the frame size, except DHT (C4), JPG (C8) and DAC (CC).
+        if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
+            _, h, w = struct.unpack(">BHH", fh.read(5))
+            return w, h
+        fh.seek(length - 2, 1)
+    return None
+
+
+def largest_image(images: dict[str, Any]) -> tuple[int, Path | None]:
+    """(pixels, path) of the largest image named by the image sets (headers only)."""
+    best, where = 0, None
+    for s in images.values():
+        for p in s.paths:
+            size = image_size(p)
+            if size and size[0] * size[1] > best:
+                best, where = size[0] * size[1], p
+    return best, where
+
+
+# ----------------------------------------------------------------- estimators
+
+def _workers(config: dict[str, Any]) -> int:
+    return max(1, int(config["executor"].get("workers", 1)))
+
+
+def _count(images: dict[str, Any]) -> int:
+    return sum(len(s) for s in images.values())
+
+
+def _decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel: int, why: str) -> list[Need]:
+    pixels, path = largest_image(images)
+    if not pixels:
+        return []
+    return [Need(f"{why} of the largest image {path} ({pixels / 1e6:.1f} megapixels) x {_workers(config)} worker(s)",
+                 "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * _workers(config))]
+
+
+def seqslam_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+    p = config["seqslam"]
+    w, h = p["thumbnail"]
+    n = _count(images)
+    per_task = min(int(p["images_per_task"]), max(1, n))
+    # A worker holds its chunk's uint8 thumbnails and float32 features (5 bytes a pixel);
+    # the artifact stores both (features uncompressed).
+    needs = [Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {_workers(config)} worker(s)",
+                  "seqslam.thumbnail (or seqslam.images_per_task)", memory=5 * w * h * per_task * _workers(config),
+                  disk=5 * w * h * n)]
+    if p.get("store_difference") and "reference" in images:
+        n_ref = len(images["reference"])
+        n_query = len(images["query"]) if "query" in images else n_ref
+        # localize.h5 keeps the float32 difference matrix (written block by block).
+        needs.append(Need(f"the {n_ref} x {n_query} difference matrix", "seqslam.store_difference: false",
+                          disk=4 * n_ref * n_query))
+    return needs + _decode_need(config, images, 8, "decoding")
+
+
+def pirf_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+    # SIFT/SURF on one frame: about 240 bytes of scale space per pixel (measured: one
+    # 8000x8000 frame took 14.9 GB).
+    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)")
+
+
+def coembed_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)")
+
+
+def umap_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+    p = config["umap"]
+    g = p["grid"]
+    axes = []
+    for name in ("x", "y"):
+        start, stop, step = (float(v) for v in g[name])
+        if step <= 0 or stop < start:
+            return []  # pose_grid reports these with its own message
+        axes.append(math.floor((stop - start) / step + 1e-9) + 1)
+    poses = axes[0] * axes[1] * max(1, len(g["headings"]))
+    words = (int(p["camera"]["width"]) * int(p["camera"]["height"]) + 63) // 64 if "camera" in p else 300
+    # The grid is built with meshgrid and stacked: about 8 float64 values a pose at once;
+    # the database holds one bit per pixel per pose.
+    needs = [Need(f"UMap pose grid of {poses:,} poses (x {g['x']}, y {g['y']}, {len(g['headings'])} headings)",
+                  "umap.grid (a larger step or a smaller range)", memory=poses * 64, disk=poses * words * 8)]
+    return needs + _decode_need(config, images, 16, "decoding")
+
+
+# ----------------------------------------------------------------- cross-key rules
+
+def seqslam_rules(config: dict[str, Any]) -> list[str]:
+    p = config["seqslam"]
+    w, h = p["thumbnail"]
+    problems = []
+    if p["patch"] > min(w, h):
+        problems.append(f"seqslam.patch ({p['patch']}) is larger than the thumbnail ({w}x{h}); "
+                        f"it must be <= {min(w, h)} (the smaller thumbnail side)")
+    return problems
+
+
+# Method name -> rules over the validated config that no single key's range can express.
+CONFIG_RULES: dict[str, Callable[[dict[str, Any]], list[str]]] = {
+    "seqslam": seqslam_rules,
+}
+
+
+def config_problems(config: dict[str, Any]) -> list[str]:
+    fn = CONFIG_RULES.get(config["method"])
+    return fn(config) if fn else []
+
+
+ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any]], list[Need]]] = {
+    "seqslam": seqslam_needs,
+    "pirf": pirf_needs,
+    "coembed": coembed_needs,
+    "umap": umap_needs,
+}
+
+
+def estimate(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+    fn = ESTIMATORS.get(config["method"])
+    return fn(config, images) if fn else []
+
+
+def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Path) -> list[Need]:
+    """Raise :class:`ResourceError` when an estimate exceeds the memory or disk there is."""
+    needs = estimate(config, images)
+    mem = memory_limit()
+    for need in needs:
+        if need.memory > mem:
+            raise ResourceError(f"{need.what} needs about {_mb(need.memory)} of memory; {_mb(mem)} is available "
+                                f"(limit: MemAvailable or PLACELOC_MEMORY_LIMIT_MB); reduce {need.key}")
+    disk = sum(n.disk for n in needs)
+    free = disk_free(run_dir)
+    if disk > free:
+        from placeloc.artifacts import mount_point
+
+        biggest = max(needs, key=lambda n: n.disk)
+        raise ResourceError(f"no space left on {mount_point(run_dir)} while writing {run_dir} (needs about "
+                            f"{disk / 2**20:.0f} MB for {biggest.what}; {free / 2**20:.0f} MB free); free space, "
+                            f"choose another --run-dir or reduce {biggest.key}")
+    return needs

@@ -132,6 +132,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     if config["executor"]["workers"] < 1:
         raise ConfigError("executor.workers must be >= 1")
     method.check(config)
+    __import__("placeloc.evaluation.ground_truth", fromlist=["_"]).check_config(config)  # fail before any stage runs
     return config
 
 

@@ -158,9 +158,12 @@ class GroundTruth:
                 raise GroundTruthError(f"{path}:{line_no}: expected {need + 1} columns, got {row!r}")
             q = q_lookup(row[cols["query"]], line_no)
             if ranges:
-                a, b = r_lookup(row[cols["ref_first"]], line_no), r_lookup(row[cols["ref_last"]], line_no)
+                a, b = r_lookup.bound(row[cols["ref_first"]], line_no), r_lookup.bound(row[cols["ref_last"]], line_no)
                 if a > b:
                     raise GroundTruthError(f"{path}:{line_no}: ref_first {a} > ref_last {b}; swap them")
+                if b < 0 or a > n_ref - 1:
+                    raise GroundTruthError(f"{path}:{line_no}: range {a}..{b} lies outside the reference traverse "
+                                           f"(0..{n_ref - 1}); indices count the folder's images in natural order from 0")
             else:
                 r = r_lookup(row[cols["reference"]], line_no)
                 a, b = r - tolerance, r + tolerance
@@ -318,6 +321,10 @@ class _Lookup:
         self.n, self.role, self.path = n, role, path
         self.names = names
         self.index: dict[str, int] | None = None
+
+    def bound(self, cell: str, line: int) -> int:
+        """A range end: an index may reach past the traverse (the range is clipped)."""
+        return int(cell.strip()) if _is_int(cell) else self(cell, line)
 
     def __call__(self, cell: str, line: int) -> int:
         text = cell.strip()

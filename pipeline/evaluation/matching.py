@@ -98,8 +98,8 @@ def score_matches(gt: GroundTruth, query_index: np.ndarray, ref_index: np.ndarra
         known = plain_known or n == 1
         m[f"standard_recall_at_{n}"] = std_all[n] if known else None
         m[f"standard_recall_at_{n}_with_positive"] = std_pos[n] if known else None
-    for n in ns:
-        m[f"separated_recall_at_{n}"] = sep_r[n]
+    for n in ns:  # unknown (None) beyond the candidates the method kept (SeqSLAM: top_k)
+        m[f"separated_recall_at_{n}"] = sep_r[n] if n <= sep.shape[1] else None
     legacy = recall_at_n(sep_ok, (1, 5, 10))
     m.update({"recall_at_1": legacy[1], "recall_at_5": legacy[5], "recall_at_10": legacy[10],
               "auc_pr": pr.auc, "recall_at_100_precision": pr.recall_at_100_precision, "max_f1": pr.max_f1,

@@ -69,10 +69,11 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
             continue
         x, y = zip(*pts)
         all_n.update(x)
-        ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)], ms=6, lw=2, label=label)
-        for xi, yi in pts:
-            ax.annotate(f"{yi:.2f}", (xi, yi), textcoords="offset points", xytext=(0, 6 + 9 * (i % 2)), ha="center",
-                        fontsize=7)
+        (line,) = ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)], ms=6, lw=2,
+                          label=label)
+        for xi, yi in pts:  # values in the line's colour, first curve above its points, second below
+            ax.annotate(f"{yi:.2f}", (xi, yi), textcoords="offset points", xytext=(0, 8 if i % 2 == 0 else -14),
+                        ha="center", fontsize=7.5, color=line.get_color(), fontweight="bold")
     ax.set_xscale("log")
     ticks = sorted(all_n) or [1]
     ax.set_xticks(ticks, [str(t) for t in ticks])
@@ -181,23 +182,27 @@ def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[s
                path: Path, title: str = "Sweep") -> Path:
     """PR curves (AUC in the legend) and standard Recall@N of every run of a sweep, side by side."""
     fig, (ax_pr, ax_rn) = plt.subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
+    labels = list(dict.fromkeys([*curves, *recalls]))
+    style = {k: (f"C{i % 10}", LINE_STYLES[i % 4], MARKERS[i % 8]) for i, k in enumerate(labels)}  # same look in both panels
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))
     for i, label in enumerate(order):
         rec, prec = curves[label]
         if len(rec):
             x, y = np.r_[0.0, rec], np.r_[prec[0], prec]
-            ax_pr.plot(x, y, LINE_STYLES[i % 4], marker=MARKERS[i % 8], markevery=max(1, len(x) // 6), ms=4, lw=1.8,
+            c, ls, mk = style[label]
+            ax_pr.plot(x, y, ls, color=c, marker=mk, markevery=max(1, len(x) // 6), ms=4, lw=1.8,
                        label=f"{label} (AUC {_auc(rec, prec):.3f})", zorder=20 - i)
     ax_pr.set(xlim=(-0.01, 1.01), ylim=(0, 1.03), xlabel="recall (share of all queries)", ylabel="precision",
               title="precision-recall")
     ax_pr.grid(alpha=0.3)
     all_n: set[int] = set()
-    for i, (label, (ns, vals)) in enumerate(recalls.items()):
+    for label, (ns, vals) in recalls.items():
         pts = [(n, v) for n, v in zip(ns, vals) if v is not None]
         if pts:
             x, y = zip(*pts)
             all_n.update(x)
-            ax_rn.plot(x, y, LINE_STYLES[i % 4], marker=MARKERS[i % 8], ms=5, lw=1.8, label=label)
+            c, ls, mk = style[label]
+            ax_rn.plot(x, y, ls, color=c, marker=mk, ms=5, lw=1.8, label=label)
     ax_rn.set_xscale("log")
     ticks = sorted(all_n) or [1]
     ax_rn.set_xticks(ticks, [str(t) for t in ticks])

@@ -19,8 +19,8 @@ ORDER = ("strips_sample.png", "strips_failures.png", "recall_at_n.png", "pr_curv
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
-img{max-width:100%;border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
-.cfg{display:flex;gap:32px;flex-wrap:wrap}.muted{color:#777;font-size:12px}"""
+img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
+.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}"""
 
 
 def _fmt(v: Any) -> str:
@@ -66,7 +66,10 @@ def write_report(run_dir: str | Path, title: str | None = None) -> Path:
         if cfg.get(role):
             summary.append((f"{role} images", cfg[role].get("images")))
     gt = cfg.get("ground_truth") or {}
-    summary.append(("ground truth", ", ".join(f"{k}={v}" for k, v in gt.items() if v is not None)))
+    # only the ground-truth settings its kind reads
+    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius")}
+    summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
+        f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
     if isinstance(cfg.get(method), dict):
         parts.append(_table(_flatten(cfg[method]), (f"{method} parameter", "value")))

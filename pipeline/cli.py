@@ -204,10 +204,12 @@ if __name__ == "__main__":
 def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
          sample: int = typer.Option(8, help="Queries spread over the traverse to draw."),
          failures: int = typer.Option(8, help="Most confident wrong matches to draw (needs ground truth)."),
+         recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
+                                                         "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
     """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
     from placeloc.evaluation.report import write_report
-    from placeloc.evaluation.show import ShowError, draw_strips
+    from placeloc.evaluation.show import ShowError, draw_strips, recall_from_per_query
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
@@ -215,7 +217,12 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
     try:
         for path in draw_strips(run_dir, sample=sample, failures=failures):
             typer.echo(f"strips: {path}")
-    except ShowError as exc:
+        if recall_at:
+            ns = [int(n) for n in recall_at.split(",") if n.strip()]
+            for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
+                fmt = lambda v: "n/a" if v is None else f"{v:.4f}"  # noqa: E731
+                typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
+    except (ShowError, ValueError) as exc:
         _fail(exc)
     typer.echo(f"report: {write_report(run_dir)}")
 

@@ -92,6 +92,10 @@ def test_seqslam_evaluate_with_positions_names_and_ranges_agree(route, tmp_path)
     for n in (1, 5, 20):
         assert np.mean((first >= 1) & (first <= n)) == pytest.approx(ranges[f"standard_recall_at_{n}"])
     assert rows[30]["query_image"] == "frame30.png" and rows[30]["image_1"].startswith("frame")
+    from placeloc.evaluation.show import recall_from_per_query
+
+    again = recall_from_per_query(run, [5, 20, 21])
+    assert again[5][0] == pytest.approx(ranges["standard_recall_at_5"]) and again[21] == (None, None)
 
 
 def test_show_without_ground_truth_and_report(route, tmp_path):

@@ -174,3 +174,26 @@ def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> l
     elif stale.exists():
         stale.unlink()
     return out
+
+
+def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple[float | None, float | None]]:
+    """Standard Recall@N for any N from ``per_query.csv`` (its ``first_correct_rank``):
+    (over all queries, over queries with a positive); None beyond the K candidates the
+    file lists."""
+    path = Path(run_dir) / "per_query.csv"
+    if not path.is_file():
+        raise ShowError(f"{path} is missing: Recall@N needs ground truth; run `placeloc evaluate` first")
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
+        rows = list(reader)
+    first = np.array([int(r["first_correct_rank"]) for r in rows])
+    has = np.array([r["has_positive"] == "1" for r in rows])
+    out: dict[int, tuple[float | None, float | None]] = {}
+    for n in ns:
+        if n > k or not len(rows):
+            out[n] = (None, None)
+            continue
+        hit = (first >= 1) & (first <= n)
+        out[n] = (float(hit.mean()), float(hit[has].mean()) if has.any() else None)
+    return out

@@ -55,7 +55,8 @@ def test_standard_and_separated_rankings_differ_as_defined():
     s = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1),
                       ranked=np.array([[5, 6, 1]]), ns=(1, 2, 3))
     assert [s.metrics[f"standard_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 0.0, 1.0]
-    assert [s.metrics[f"separated_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 1.0, 1.0]
+    # only 2 separated candidates were kept: recall at 3 is unknown, not silently the value at 2
+    assert [s.metrics[f"separated_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 1.0, None]
     none = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1))
     assert none.metrics["standard_recall_at_1"] == 0.0 and none.metrics["standard_recall_at_5"] is None
 

@@ -236,3 +236,12 @@ def test_soft_ground_truth_from_csv_and_npz(tmp_path):
     np.savez(tmp_path / "gt.npz", GThard=hard, GTsoft=soft)
     g2 = GroundTruth.from_hdf5(tmp_path / "gt.npz", 10, 3)
     assert g2.soft_only(q, r).tolist() == gt.soft_only(q, r).tolist()
+
+
+def test_loop_closure_pairs_by_name(tmp_path):
+    """No query folder: query names are the reference names."""
+    p = tmp_path / "lc.csv"
+    p.write_text("query,reference\nf5.png,f1.png\nf6.png,f2.png\n")
+    names = [f"f{i}.png" for i in range(8)]
+    gt = GroundTruth.from_config({"kind": "csv", "path": str(p), "tolerance": 0}, 8, 8, ref_names=names)
+    assert gt.correct(np.array([5, 6, 6]), np.array([1, 2, 1])).tolist() == [True, True, False]

@@ -113,7 +113,9 @@ class GroundTruth:
         if kind == "synchronous":
             return cls(n_ref, n_query, tolerance=tol, synchronous=True)
         if kind == "csv":
-            return cls.from_csv(section["path"], n_ref, n_query, tol, ref_names=ref_names, query_names=query_names)
+            # loop closure (no query folder): the queries are the reference images
+            q_names = query_names if query_names is not None or n_query != n_ref else ref_names
+            return cls.from_csv(section["path"], n_ref, n_query, tol, ref_names=ref_names, query_names=q_names)
         if kind == "hdf5":
             return cls.from_hdf5(section["path"], n_ref, n_query)
         if kind == "poses":

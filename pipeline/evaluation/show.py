@@ -126,7 +126,7 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
         shape = q_img.shape[:2]
         panels = [(q_img, f"query {r.query_image}", "black"),
                   (_read(ref.get(r.best_image) if r.best_image else None, shape),
-                   f"best {r.best_image or '(none)'}  conf {r.confidence:.2f}",
+                   f"best {r.best_image}  conf {r.confidence:.2f}" if r.best_image else "best: none (no full sequence)",
                    "grey" if r.correct is None else ("limegreen" if r.correct else "red"))]
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),

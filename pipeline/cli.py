@@ -208,14 +208,14 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
     """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
-    from placeloc.evaluation.report import write_report
-    from placeloc.evaluation.show import ShowError, draw_strips, recall_from_per_query
+    from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
         _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
     try:
-        for path in draw_strips(run_dir, sample=sample, failures=failures):
+        strips, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in strips:
             typer.echo(f"strips: {path}")
         if recall_at:
             ns = [int(n) for n in recall_at.split(",") if n.strip()]
@@ -224,7 +224,7 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
                 typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
     except (ShowError, ValueError) as exc:
         _fail(exc)
-    typer.echo(f"report: {write_report(run_dir)}")
+    typer.echo(f"report: {report}")
 
 
 @app.command()

@@ -113,6 +113,19 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
     html = write_report(run).read_text()
     assert html.count("data:image/png;base64,") == 1 and "No metrics.json" in html and "seqslam" in html
 
+    # evaluate (with plots) draws strips and the report itself; showing again must not
+    # make evaluate look out of date (its side outputs come out byte-identical)
+    from placeloc.evaluation.show import show_run
+    from placeloc.runner import side_outputs_intact
+
+    run_stage(load_config(route / "config.yaml", ["seqslam.comparison=sad"]), run, "evaluate", quiet=True)
+    html = (run / "report.html").read_text()
+    assert "standard_recall_at_20" in html
+    for name in ("strips_sample.png", "pr_curve.png", "recall_at_n.png", "difference_matrix.png"):
+        assert f"<h3>{name}</h3><img" in html
+    show_run(run)
+    assert side_outputs_intact(run / "evaluate.h5")
+
 
 def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
     import yaml

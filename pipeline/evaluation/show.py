@@ -197,3 +197,23 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
         hit = (first >= 1) & (first <= n)
         out[n] = (float(hit.mean()), float(hit[has].mean()) if has.any() else None)
     return out
+
+
+def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tuple[list[Path], Path]:
+    """Strips and report.html for a run directory, as ``placeloc show`` does. A file that
+    comes out byte-identical keeps its old modification time, so that re-showing a run
+    does not make the evaluate stage that wrote the same file look out of date."""
+    import os
+
+    from placeloc.evaluation.report import REPORT, write_report
+
+    run_dir = Path(run_dir)
+    names = [SAMPLE_PNG, FAILURES_PNG, REPORT]
+    before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
+    strips = draw_strips(run_dir, sample=sample, failures=failures)
+    report = write_report(run_dir)
+    for name, (data, st) in before.items():
+        p = run_dir / name
+        if p.is_file() and p.read_bytes() == data:
+            os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
+    return strips, report

@@ -126,6 +126,16 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
     show_run(run)
     assert side_outputs_intact(run / "evaluate.h5")
 
+    from placeloc.cli import app
+    from typer.testing import CliRunner
+
+    res = CliRunner().invoke(app, ["show", str(run), "--recall-at", "1,20,99", "-q"])
+    m = json.loads((run / "metrics.json").read_text())
+    assert res.exit_code == 0 and f"recall@1: {m['standard_recall_at_1']:.4f} (all queries)" in res.output
+    assert "recall@99: n/a" in res.output and side_outputs_intact(run / "evaluate.h5")
+    res = CliRunner().invoke(app, ["show", str(tmp_path / "nowhere")])
+    assert res.exit_code == 2
+
 
 def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
     import yaml

@@ -225,7 +225,7 @@ def evaluate(ctx: Any) -> None:
     """Score the matches: standard, separated and PR metrics (conventions in
     :mod:`placeloc.evaluation.matching`), the per-query CSV, plots and report.html."""
     from placeloc.evaluation import matching, plots, report, show
-    from placeloc.seqslam.search import enhance
+    from placeloc.seqslam.search import enhance, enhance_t, query_offsets, sequence_search
 
     p = ctx.params
     ex, lo_art = ctx.artifact("extract"), ctx.artifact("localize")

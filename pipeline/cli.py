@@ -289,3 +289,59 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+# ---------------------------------------------------------------------------------------
+# Looking at results and sweeping parameters (evaluation layer)
+# ---------------------------------------------------------------------------------------
+@app.command()
+def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
+         sample: int = typer.Option(8, help="Queries spread over the traverse to draw."),
+         failures: int = typer.Option(8, help="Most confident wrong matches to draw (needs ground truth)."),
+         recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
+                                                         "(from per_query.csv; N up to its 20 candidates)."),
+         quiet: bool = QuietOpt) -> None:
+    """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
+    from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
+
+    _setup_logging(quiet)
+    if not run_dir.is_dir():
+        _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
+    try:
+        strips, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in strips:
+            typer.echo(f"strips: {path}")
+        if recall_at:
+            ns = [int(n) for n in recall_at.split(",") if n.strip()]
+            for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
+                fmt = lambda v: "n/a" if v is None else f"{v:.4f}"  # noqa: E731
+                typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
+    except (ShowError, ValueError) as exc:
+        _fail(exc)
+    typer.echo(f"report: {report}")
+
+
+@app.command()
+def sweep(config: Path = ConfigArg,
+          grid: List[str] = typer.Option(..., "--grid", "-g", help="key=v1,v2,... (repeatable), e.g. --grid seqslam.ds=10,20"),
+          out: Path | None = typer.Option(None, "--out", "-o", help="Sweep folder (default runs/<config name>-sweep)."),
+          set: List[str] | None = SetOpt, force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+    """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
+    import yaml
+    from placeloc.config import ConfigError, apply_override
+    from placeloc.experiments.sweep import parse_grid, run_sweep
+    from placeloc.images import ImageError
+    from placeloc.runner import StageError
+
+    _setup_logging(quiet)
+    try:
+        if not config.is_file():
+            raise ConfigError(f"config file {config} does not exist")
+        raw = yaml.safe_load(config.read_text()) or {}
+        for item in set or []:
+            apply_override(raw, item)
+        table = run_sweep(raw, config.resolve().parent, parse_grid(grid), out or Path("runs") / f"{config.stem}-sweep",
+                          quiet=quiet, force=force)
+    except (ConfigError, ImageError, StageError, FileNotFoundError, yaml.YAMLError) as exc:
+        _fail(exc)
+    typer.echo(table.read_text())

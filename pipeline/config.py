@@ -204,6 +204,9 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     problems = config_problems(config)
     if problems:
         raise ConfigError(problems[0])
+    from placeloc.evaluation.ground_truth import check_config
+
+    check_config(config)  # a bad ground-truth file fails here, before any stage runs
     return config
 
 

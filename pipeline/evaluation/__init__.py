@@ -1,4 +1,13 @@
-"""Shared evaluation: ground truth, metrics, plots, and writing metrics.json."""
+"""Shared evaluation: ground truth, metrics, plots, and writing metrics.json.
+
+Modules: :mod:`~placeloc.evaluation.ground_truth` (every form of ground truth, checked when
+the config is loaded), :mod:`~placeloc.evaluation.poses` (the one pose reader: x/y, UTM,
+lat/lon, ``@utm@`` file names), :mod:`~placeloc.evaluation.metrics` (PR, Recall@N),
+:mod:`~placeloc.evaluation.matching` (scoring ranked matches, the metric keys and their
+denominators, ``per_query.csv``), :mod:`~placeloc.evaluation.plots`,
+:mod:`~placeloc.evaluation.show` (match strips) and :mod:`~placeloc.evaluation.report`
+(``report.html``).
+"""
 
 from __future__ import annotations
 

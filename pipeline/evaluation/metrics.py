@@ -98,3 +98,50 @@ def summarise_ratios(ratio: np.ndarray) -> tuple[float, int]:
     if not ok.any():
         return float("nan"), 0
     return float(ratio[ok].mean()), int((ratio[ok] >= 1.0).sum())
+
+
+# ---------------------------------------------------------------------------------------
+# Ranked candidates against ground truth: standard Recall@N, soft ground truth, denominators
+# ---------------------------------------------------------------------------------------
+DEFAULT_RECALL_N = (1, 5, 10, 20)
+
+
+def drop_soft(candidates: np.ndarray, soft_only: np.ndarray, *extra: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Remove the candidates that fall in the soft set only (neither right nor wrong) from
+    each ranked row, shifting the rest up and padding with -1 (and NaN in ``extra``
+    per-candidate arrays, e.g. scores). This is what setting their similarity to the
+    minimum does in the tutorial of Schubert et al.: they can no longer take a rank."""
+    candidates = np.asarray(candidates)
+    keep = ~np.asarray(soft_only, bool) & (candidates >= 0)
+    order = np.argsort(~keep, axis=1, kind="stable")  # kept first, rank order preserved
+    cand = np.take_along_axis(candidates, order, axis=1)
+    kept = np.take_along_axis(keep, order, axis=1)
+    out = [np.where(kept, cand, -1)]
+    for arr in extra:
+        a = np.take_along_axis(np.asarray(arr, np.float64), order, axis=1)
+        out.append(np.where(kept, a, np.nan))
+    return tuple(out)
+
+
+def recall_at_n(ranked_correct: np.ndarray, ns: tuple[int, ...] = DEFAULT_RECALL_N,
+                has_positive: np.ndarray | None = None) -> dict[int, float]:
+    """Standard Recall@N: the share of queries with at least one positive among their N
+    best candidates (any of them, neighbouring frames allowed).
+
+    ``ranked_correct``: (n_queries, K) bool, best first. Denominator: all rows, or only the
+    rows where ``has_positive`` is True when it is given (queries without any positive
+    cannot be right, so over all queries the best possible recall is below 1 when such
+    queries exist). N beyond K uses all K candidates.
+    """
+    c = np.asarray(ranked_correct, bool)
+    if has_positive is not None:
+        c = c[np.asarray(has_positive, bool)]
+    n = c.shape[0]
+    first = np.where(c.any(axis=1), np.argmax(c, axis=1), np.iinfo(np.int64).max)
+    return {int(k): (float((first < k).sum() / n) if n else 0.0) for k in ns}
+
+
+def first_correct_rank(ranked_correct: np.ndarray) -> np.ndarray:
+    """1-based rank of the first positive candidate per query (0 = none in the list)."""
+    c = np.asarray(ranked_correct, bool)
+    return np.where(c.any(axis=1), np.argmax(c, axis=1) + 1, 0)

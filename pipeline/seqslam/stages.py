@@ -23,7 +23,7 @@ import numpy as np
 from placeloc.artifacts import atomic_open, read_strings
 from placeloc.evaluation import write_metrics
 from placeloc.evaluation.ground_truth import GroundTruth
-from placeloc.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
+from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.seqslam.comparisons import difference_block, feature_dtype, prepare, thumbnail
@@ -222,122 +222,114 @@ def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, lo
 # evaluate
 # ---------------------------------------------------------------------------------------
 def evaluate(ctx: Any) -> None:
-    from placeloc.seqslam.search import enhance
+    """Score the matches: standard, separated and PR metrics (conventions in
+    :mod:`placeloc.evaluation.matching`), the per-query CSV, plots and report.html."""
+    from placeloc.evaluation import matching, plots, report, show
+    from placeloc.seqslam.search import enhance, enhance_t, query_offsets, sequence_search
 
-    cfg = ctx.config
     p = ctx.params
-    ex = ctx.artifact("extract")
-    lo_art = ctx.artifact("localize")
+    ex, lo_art = ctx.artifact("extract"), ctx.artifact("localize")
     loop_closure = bool(lo_art.attrs["loop_closure"])
     ref_index = ex["reference/index"][()]
     q_group = ex["reference" if loop_closure else "query"]
     q_index = q_group["index"][()]
-    n_ref_orig = int(ex["reference"].attrs["n_listed"])
-    n_q_orig = int(q_group.attrs["n_listed"])
-    gt_section = cfg["ground_truth"]
-    if gt_section["kind"] == "none":
+    if ctx.config["ground_truth"]["kind"] == "none":
         from placeloc.runner import StageError
 
-        raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv or hdf5)")
-    gt = GroundTruth.from_config(gt_section, n_ref_orig, n_q_orig)
+        raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv, hdf5 or poses); "
+                         "`placeloc show RUN_DIR` draws the matches without it")
+    ref_names = ctx.images["reference"].names
+    q_names = ref_names if loop_closure else ctx.images["query"].names
+    gt = GroundTruth.from_config(ctx.config["ground_truth"], len(ref_names), len(q_names), ref_names=ref_names,
+                                 query_names=None if loop_closure else q_names)
+    candidates, conf = lo_art["candidates"][()], lo_art["confidence"][()]
+    n_q, n_ref = len(candidates), len(ref_index)
+    ns = matching.DEFAULT_RECALL_N
+    window, ds, block = int(p.enhance_window), int(p.ds), max(1, int(p.block_size))
 
-    candidates = lo_art["candidates"][()]
-    conf = lo_art["confidence"][()]
-    n_q = len(candidates)
-    cand_orig = np.where(candidates >= 0, ref_index[np.clip(candidates, 0, None)], -1)
-    cand_correct = gt.correct(q_index[:, None], cand_orig)
-    rk = recall_at_k(cand_correct)
-    has = candidates[:, 0] >= 0
-    pr = pr_curve(conf, cand_correct[:, 0], n_queries=n_q, has_match=has)
-
-    single = lo_art["single_best"][()]
-    single_orig = np.where(single >= 0, ref_index[np.clip(single, 0, None)], -1)
-    single_correct = gt.correct(q_index, single_orig)
-    pr_single = pr_curve(lo_art["single_confidence"][()], single_correct, n_queries=n_q, has_match=single >= 0)
-
-    metrics: dict[str, Any] = {
-        "recall_at_1": rk[1],
-        "recall_at_5": rk[5],
-        "recall_at_10": rk[10],
-        "auc_pr": pr.auc,
-        "recall_at_100_precision": pr.recall_at_100_precision,
-        "max_f1": pr.max_f1,
-        "n_queries": int(n_q),
-        "dissimilarity_mean": None,
-        "dissimilarity_count_ge1": None,
-        "dissimilarity_mean_enhanced": None,
-        "dissimilarity_count_ge1_enhanced": None,
-        "n_reference": int(len(ref_index)),
-        "n_matched": int(has.sum()),
-        "single_image_recall_at_1": float(single_correct.mean()) if n_q else 0.0,
-        "single_image_auc_pr": pr_single.auc,
-        "comparison": p["comparison"],
-        "ds": int(p["ds"]),
-        "search": p["search"],
-        "queries_with_ground_truth": int(gt.has_match()[q_index].sum()),
-        "localize_seconds": float(lo_art.attrs.get("seconds", float("nan"))),
-    }
-
-    # One streaming pass over D: the paper's dissimilarity ratio before/after enhancement,
-    # and a subsampled copy of D for the plot.
-    band = None
-    plot_d = None
+    # One streaming pass over D (when stored): the plain (unseparated) sequence ranking for
+    # the standard Recall@N, the paper's dissimilarity ratio before/after enhancement, the
+    # ground-truth band and subsampled copies of D and D^ for the plot.
+    ranked = ranked_scores = None
+    mins = {"raw": [np.full(n_ref, np.inf) for _ in range(2)], "enh": [np.full(n_ref, np.inf) for _ in range(2)]}
+    band = (np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64))
+    sr, sq = max(1, n_ref // 800), max(1, n_q // 800)
+    plot_raw: list[np.ndarray] = []
+    plot_enh: list[np.ndarray] = []
     if "difference" in lo_art:
         d_ds = lo_art["difference"]
-        n_ref = d_ds.shape[0]
-        inf = np.full(n_ref, np.inf)
-        mins = {"raw": [inf.copy(), inf.copy()], "enh": [inf.copy(), inf.copy()]}
-        stride_r = max(1, n_ref // 800)
-        stride_q = max(1, n_q // 800)
-        plot_cols = []
-        band = (np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64))
-        step = max(1, int(p["block_size"]))
-        for c0 in ctx.progress(range(0, n_q, step), total=(n_q + step - 1) // step, desc="evaluate blocks"):
-            c1 = min(n_q, c0 + step)
-            d = d_ds[:, c0:c1]
+        t_off = query_offsets(ds, p.search)
+        before, after = int(-t_off.min()), int(t_off.max())
+        ranked = np.full((n_q, max(ns)), -1, np.int64)
+        ranked_scores = np.full((n_q, max(ns)), np.inf, np.float32)
+        for c0 in ctx.progress(range(0, n_q, block), total=(n_q + block - 1) // block, desc="evaluate blocks"):
+            c1 = min(n_q, c0 + block)
+            lo, hi = max(0, c0 - before), min(n_q, c1 + after)
+            d = d_ds[:, lo:hi]
+            et = enhance_t(np.ascontiguousarray(d.T), window)
+            ranked[c0:c1], ranked_scores[c0:c1] = sequence_search(
+                et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, k=max(ns),
+                exclude_recent=int(p.exclude_recent) if loop_closure else None, query_index0=lo)
+            d = d[:, c0 - lo:c1 - lo]
+            e = enhance(d, window)
             g = gt.block_idx(ref_index, q_index[c0:c1])
-            rows_any = g.any(axis=0)
-            first = np.argmax(g, axis=0)
-            last = n_ref - 1 - np.argmax(g[::-1], axis=0)
-            band[0][c0:c1] = np.where(rows_any, first, 1)
-            band[1][c0:c1] = np.where(rows_any, last, 0)
-            e = enhance(d, int(p["enhance_window"]))
+            band[0][c0:c1], band[1][c0:c1] = gt.band(ref_index, q_index[c0:c1])
             for key, mat in (("raw", d), ("enh", e)):
                 mc, mw = mins[key]
                 np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
                 np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
             sel = np.arange(c0, c1)
-            sel = sel[sel % stride_q == 0] - c0
-            plot_cols.append(d[::stride_r][:, sel])
-        plot_d = np.concatenate(plot_cols, axis=1) if plot_cols else None
-        if not loop_closure:
-            for key, suffix in (("raw", ""), ("enh", "_enhanced")):
-                ratio = dissimilarity_ratios(*mins[key])
-                mean, count = summarise_ratios(ratio)
-                metrics[f"dissimilarity_mean{suffix}"] = mean
-                metrics[f"dissimilarity_count_ge1{suffix}"] = count
-                ctx.out.create_dataset(f"dissimilarity{suffix or '_raw'}", data=ratio)
+            sel = sel[sel % sq == 0] - c0
+            plot_raw.append(d[::sr][:, sel])
+            plot_enh.append(e[::sr][:, sel])
+
+    s = matching.score_matches(gt, q_index, ref_index, separated=candidates, confidence=conf, ranked=ranked,
+                               ranked_scores=None if ranked_scores is None else np.where(np.isfinite(ranked_scores),
+                                                                                          ranked_scores, np.nan),
+                               ns=ns)
+    single = lo_art["single_best"][()]
+    single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
+                                      confidence=lo_art["single_confidence"][()], ns=(1,))
+    metrics: dict[str, Any] = dict(s.metrics)
+    metrics.update({
+        "dissimilarity_mean": None, "dissimilarity_count_ge1": None,
+        "dissimilarity_mean_enhanced": None, "dissimilarity_count_ge1_enhanced": None,
+        "n_reference": int(n_ref),
+        "single_image_recall_at_1": single_s.metrics["recall_at_1"],
+        "single_image_auc_pr": single_s.metrics["auc_pr"],
+        "comparison": p.comparison, "ds": ds, "search": p.search,
+        "localize_seconds": float(lo_art.attrs.get("seconds", float("nan"))),
+    })
+    if plot_raw and not loop_closure:
+        for key, suffix in (("raw", ""), ("enh", "_enhanced")):
+            ratio = dissimilarity_ratios(*mins[key])
+            metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
+            ctx.out.create_dataset(f"dissimilarity{suffix or '_raw'}", data=ratio)
 
     pr_group = ctx.out.create_group("pr")
-    pr_group.create_dataset("threshold", data=pr.thresholds)
-    pr_group.create_dataset("precision", data=pr.precision)
-    pr_group.create_dataset("recall", data=pr.recall)
-    ctx.out.create_dataset("correct", data=cand_correct[:, 0])
+    for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
+        pr_group.create_dataset(name, data=arr)
+    ctx.out.create_dataset("correct", data=s.best_correct)
     write_metrics(ctx.run_dir, metrics, ctx.out)
+    matching.write_per_query_csv(ctx.run_dir / "per_query.csv", s, q_names, ref_names)
 
-    if cfg.get("plots", True):
-        from placeloc.evaluation.plots import plot_difference_matrix, plot_pr_curves
-
-        plot_pr_curves({f"SeqSLAM {p['comparison']} ds={p['ds']}": (pr.recall, pr.precision),
-                        "single image": (pr_single.recall, pr_single.precision)},
-                       ctx.run_dir / "pr_curve.png", title=f"PR, {p['comparison']}")
-        if plot_d is not None:
-            sr = max(1, len(ref_index) // 800)
-            sq = max(1, n_q // 800)
-            plot_difference_matrix(plot_d, ctx.run_dir / "difference_matrix.png",
-                                   matches=candidates[:, 0], correct=cand_correct[:, 0],
-                                   gt_lo=band[0] if band else None, gt_hi=band[1] if band else None, stride=(sr, sq),
-                                   title=f"{p['comparison']}: D (rows = reference, cols = query); green correct, red wrong")
+    if ctx.config.get("plots", True):
+        label = f"SeqSLAM {p.comparison} ds={ds}"
+        plots.plot_pr_curves({label: (s.pr.recall, s.pr.precision),
+                              "single image": (single_s.pr.recall, single_s.pr.precision)},
+                             ctx.run_dir / "pr_curve.png", title=f"Precision-recall, {p.comparison}, {n_q} queries")
+        plots.plot_recall_at_n({f"{label}, standard": (ns, [metrics[f"standard_recall_at_{n}"] for n in ns]),
+                                f"{label}, separated by > {window} frames": (ns, [metrics[f"separated_recall_at_{n}"]
+                                                                                  for n in ns])},
+                               ctx.run_dir / "recall_at_n.png", title=f"Recall@N over all {n_q} queries")
+        if plot_raw:
+            plots.plot_difference_matrices(
+                {"D (raw)": np.concatenate(plot_raw, axis=1), f"D^ (enhanced, R_window={window})": np.concatenate(plot_enh, axis=1)},
+                ctx.run_dir / "difference_matrix.png", matches=s.best, correct=s.best_correct, gt_lo=band[0], gt_hi=band[1],
+                stride=(sr, sq), title=f"SeqSLAM {p.comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
+                                       f"search={p.search}, R_window={window}; recall@1 {metrics['recall_at_1']:.3f}")
+        show.draw_strips(ctx.run_dir)
+        report.write_report(ctx.run_dir)
 
 
 METHOD = Method(

@@ -1,0 +1,158 @@
+"""Metrics as the field means them (by hand), SeqSLAM's evaluate with every ground-truth
+form on the bundled route, the per-query CSV, match strips, report.html and sweeps."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from placeloc.config import load_config
+from placeloc.evaluation.ground_truth import GroundTruth
+from placeloc.evaluation.matching import score_matches
+from placeloc.evaluation.metrics import drop_soft, first_correct_rank, recall_at_n
+from placeloc.runner import run_stage
+
+
+def test_standard_recall_at_n_and_denominators_by_hand():
+    c = np.array([[False, True, False], [True, False, False], [False, False, False], [False, False, True]])
+    assert recall_at_n(c, (1, 2, 3, 20)) == {1: 0.25, 2: 0.5, 3: 0.75, 20: 0.75}
+    has = np.array([True, True, False, True])  # query 2 has no positive at all
+    assert recall_at_n(c, (1, 3), has_positive=has) == {1: pytest.approx(1 / 3), 3: 1.0}
+    assert first_correct_rank(c).tolist() == [2, 1, 0, 3]
+
+
+def test_drop_soft_by_hand():
+    cand = np.array([[3, 2, 7], [4, 8, 5]])
+    soft = np.array([[True, False, False], [True, False, False]])
+    kept, scores = drop_soft(cand, soft, np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]))
+    assert kept.tolist() == [[2, 7, -1], [8, 5, -1]]
+    assert scores[0, :2].tolist() == [2.0, 3.0] and np.isnan(scores[0, 2])
+
+
+def test_soft_matches_neither_count_wrong_nor_are_required(tmp_path):
+    p = tmp_path / "gt.csv"
+    p.write_text("query,reference,soft\n0,2,0\n0,3,1\n1,5,0\n1,4,1\n")
+    gt = GroundTruth.from_csv(p, 10, 3)
+    separated = np.array([[3, 2, 7], [4, 8, 5], [1, -1, -1]])
+    s = score_matches(gt, np.arange(3), np.arange(10), separated=separated, confidence=np.array([0.9, 0.8, 0.1]),
+                      ranked=separated, ranked_scores=np.ones((3, 3)), ns=(1, 2))
+    m = s.metrics
+    assert m["standard_recall_at_1"] == pytest.approx(1 / 3) and m["standard_recall_at_2"] == pytest.approx(2 / 3)
+    assert m["standard_recall_at_1_with_positive"] == 0.5 and m["standard_recall_at_2_with_positive"] == 1.0
+    assert m["queries_with_ground_truth"] == 2 and s.best.tolist() == [2, 8, 1]
+    # without the soft rows, the soft candidate 3 of query 0 is simply wrong
+    p.write_text("query,reference\n0,2\n1,5\n")
+    hard = score_matches(GroundTruth.from_csv(p, 10, 3), np.arange(3), np.arange(10), separated=separated,
+                         confidence=np.ones(3), ranked=separated, ns=(1, 2))
+    assert hard.metrics["standard_recall_at_1"] == 0.0 and hard.metrics["standard_recall_at_2"] == pytest.approx(1 / 3)
+
+
+def test_standard_and_separated_rankings_differ_as_defined():
+    """Plain ranking [5, 6, 1]: neighbours allowed; separated [5, 1]: distinct places."""
+    gt = GroundTruth(10, 1, intervals=(np.array([0]), np.array([1]), np.array([1])))
+    s = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1),
+                      ranked=np.array([[5, 6, 1]]), ns=(1, 2, 3))
+    assert [s.metrics[f"standard_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 0.0, 1.0]
+    # only 2 separated candidates were kept: recall at 3 is unknown, not silently the value at 2
+    assert [s.metrics[f"separated_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 1.0, None]
+    none = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1))
+    assert none.metrics["standard_recall_at_1"] == 0.0 and none.metrics["standard_recall_at_5"] is None
+
+
+def _positions_csv(route, path):
+    rows = [["traverse", "image", "x", "y"]]
+    for role in ("reference", "query"):
+        with (route / f"poses_{role}.csv").open() as fh:
+            rows += [[role, f"frame{r['frame']}.png", r["position_px"], 0] for r in csv.DictReader(fh)]
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+
+
+def test_seqslam_evaluate_with_positions_names_and_ranges_agree(route, tmp_path):
+    """The same truth as ranges (index), pairs by file name and positions (kind poses,
+    which used to crash SeqSLAM) gives the same metrics; per_query.csv agrees with them."""
+    run = tmp_path / "run"
+    base = ["plots=false", "seqslam.comparison=abs_zncc"]
+    run_stage(load_config(route / "config.yaml", base), run, "evaluate", quiet=True)
+    ranges = json.loads((run / "metrics.json").read_text())
+    _positions_csv(route, route / "positions.csv")
+    cfg = load_config(route / "config.yaml", base + ["ground_truth.kind=poses", "ground_truth.path=positions.csv",
+                                                      "ground_truth.radius=12"])
+    run_stage(cfg, run, "evaluate", quiet=True)
+    poses = json.loads((run / "metrics.json").read_text())
+    keys = [k for k in ranges if "recall" in k or k in ("auc_pr", "max_f1", "queries_with_ground_truth")]
+    assert {k: poses[k] for k in keys} == {k: ranges[k] for k in keys}
+    assert ranges["recall_at_1"] > 0.8 and ranges["standard_recall_at_20"] >= ranges["standard_recall_at_1"]
+    with (run / "per_query.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == ranges["n_queries"]
+    assert np.mean([r["correct"] == "1" for r in rows]) == pytest.approx(ranges["recall_at_1"])
+    first = np.array([int(r["first_correct_rank"]) for r in rows])
+    for n in (1, 5, 20):
+        assert np.mean((first >= 1) & (first <= n)) == pytest.approx(ranges[f"standard_recall_at_{n}"])
+    assert rows[30]["query_image"] == "frame30.png" and rows[30]["image_1"].startswith("frame")
+    from placeloc.evaluation.show import recall_from_per_query
+
+    again = recall_from_per_query(run, [5, 20, 21])
+    assert again[5][0] == pytest.approx(ranges["standard_recall_at_5"]) and again[21] == (None, None)
+
+
+def test_show_without_ground_truth_and_report(route, tmp_path):
+    from placeloc.evaluation.report import write_report
+    from placeloc.evaluation.show import FAILURES_PNG, SAMPLE_PNG, draw_strips, read_rows
+
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["ground_truth.kind=none", "plots=false"])
+    run_stage(cfg, run, "localize", quiet=True)
+    rows = read_rows(run)
+    assert len(rows) == 81 and all(r.correct is None for r in rows)
+    paths = draw_strips(run, sample=4)
+    assert [p.name for p in paths] == [SAMPLE_PNG] and not (run / FAILURES_PNG).exists()
+    html = write_report(run).read_text()
+    assert html.count("data:image/png;base64,") == 1 and "No metrics.json" in html and "seqslam" in html
+
+    # evaluate (with plots) draws strips and the report itself; showing again must not
+    # make evaluate look out of date (its side outputs come out byte-identical)
+    from placeloc.evaluation.show import show_run
+    from placeloc.runner import side_outputs_intact
+
+    run_stage(load_config(route / "config.yaml", ["seqslam.comparison=sad"]), run, "evaluate", quiet=True)
+    html = (run / "report.html").read_text()
+    assert "standard_recall_at_20" in html
+    for name in ("strips_sample.png", "pr_curve.png", "recall_at_n.png", "difference_matrix.png"):
+        assert f"<h3>{name}</h3><img" in html
+    show_run(run)
+    assert side_outputs_intact(run / "evaluate.h5")
+
+    from placeloc.cli import app
+    from typer.testing import CliRunner
+
+    res = CliRunner().invoke(app, ["show", str(run), "--recall-at", "1,20,99", "-q"])
+    m = json.loads((run / "metrics.json").read_text())
+    assert res.exit_code == 0 and f"recall@1: {m['standard_recall_at_1']:.4f} (all queries)" in res.output
+    assert "recall@99: n/a" in res.output and side_outputs_intact(run / "evaluate.h5")
+    res = CliRunner().invoke(app, ["show", str(tmp_path / "nowhere")])
+    assert res.exit_code == 2
+
+
+def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
+    import yaml
+    from placeloc.experiments.sweep import parse_grid, run_sweep
+
+    raw = yaml.safe_load((route / "config.yaml").read_text())
+    raw["plots"] = False
+    grid = parse_grid(["seqslam.ds=5,10", "seqslam.comparison=sad"])
+    table = run_sweep(raw, route, grid, tmp_path / "sw")
+    with (tmp_path / "sw" / "sweep.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(r["seqslam.ds"], r["seqslam.comparison"]) for r in rows] == [("5", "sad"), ("10", "sad")]
+    single = json.loads((tmp_path / "sw" / rows[1]["run"] / "metrics.json").read_text())
+    assert float(rows[1]["recall_at_1"]) == pytest.approx(single["recall_at_1"]) and single["ds"] == 10
+    assert "| 10 | sad |" in table.read_text() and (tmp_path / "sw" / "sweep.png").is_file()
+    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "sw").rglob("*.h5")}
+    run_sweep(raw, route, grid, tmp_path / "sw")
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "sw").rglob("*.h5")} == stamps  # resumed: nothing re-ran
+    with pytest.raises(Exception, match="expected key.path=v1,v2"):
+        parse_grid(["seqslam.ds"])

@@ -39,7 +39,8 @@ COMMON_DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "reference": {"images": None, "on_error": "stop", "fingerprint": "stat"},
     "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
-    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 1.0},
+    # radius: metres for position ground truth (25 m is the VPR-Bench / VPR-methods-evaluation convention).
+    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0},
     "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
     "plots": True,
 }

@@ -45,9 +45,9 @@ from typing import Any, Sequence
 
 import h5py
 import numpy as np
-from placeloc.config import ConfigError
+from placeloc.config import COMMON_DEFAULTS, ConfigError
 
-DEFAULT_RADIUS_M = 25.0
+DEFAULT_RADIUS_M: float = COMMON_DEFAULTS["ground_truth"]["radius"]
 TRUE_WORDS = {"1", "true", "yes", "y", "soft"}
 FALSE_WORDS = {"", "0", "false", "no", "n", "hard"}
 

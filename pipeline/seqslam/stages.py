@@ -329,7 +329,7 @@ def evaluate(ctx: Any) -> None:
                 stride=(sr, sq), title=f"SeqSLAM {p.comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
                                        f"search={p.search}, R_window={window}; recall@1 {metrics['recall_at_1']:.3f}")
         show.draw_strips(ctx.run_dir)
-        report.write_report(ctx.run_dir)
+        report.write_report(ctx.run_dir, config=ctx.config)
 
 
 METHOD = Method(

@@ -193,3 +193,27 @@ def confidence(scores: np.ndarray) -> np.ndarray:
         c = 1.0 - s1 / s2
     c[~np.isfinite(s1) | ~np.isfinite(s2) | (s2 <= 0)] = 0.0
     return np.clip(c, 0.0, 1.0)
+
+
+def single_image_best(dt: np.ndarray, window: int, exclude_recent: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Single-image baseline: best reference per query on raw differences ``dt[q, r]``
+    (query-major), confidence as for sequences: ``1 - best / best outside +-window``
+    (differences are >= 0 for every comparison). ``q0`` is the global index of row 0, for
+    ``exclude_recent`` (loop closure)."""
+    n, nr = dt.shape
+    rows = np.arange(n)[:, None]
+    x = dt
+    if exclude_recent is not None:
+        x = dt.copy()
+        limit = np.clip(q0 + np.arange(n) - exclude_recent + 1, 0, nr)
+        x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
+    best = np.argmin(x, axis=1)
+    s1 = x[np.arange(n), best].astype(np.float64)
+    x = x.copy() if x is dt else x
+    x[rows, np.clip(best[:, None] + np.arange(-window, window + 1)[None, :], 0, nr - 1)] = np.inf
+    s2 = x.min(axis=1).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conf = 1.0 - np.maximum(s1, 0) / s2
+    conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0
+    best[~np.isfinite(s1)] = -1
+    return best, np.clip(conf, 0, 1)

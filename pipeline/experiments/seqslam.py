@@ -1,4 +1,4 @@
-"""``make experiment-seqslam``: seed 004's comparison on real and synthetic data.
+"""``make experiment-seqslam``: the eight image comparisons for SeqSLAM on real and synthetic data.
 
 Data sets: a generated route pair with strong illumination change (always), and
 ``../shared/data/corridor`` and ``../shared/data/nordland-dev`` when present. Every
@@ -45,7 +45,7 @@ def datasets(out: Path, quick: bool) -> dict[str, dict]:
 
 def main(out: Path, quick: bool = False, quiet: bool = False) -> Path:
     summary: dict[str, dict] = {}
-    report = ["# SeqSLAM: the eight image comparisons (seed 004)\n"]
+    report = ["# SeqSLAM: the eight image comparisons (SeqSLAM, Milford and Wyeth, ICRA 2012, with illumination-robust comparisons)\n"]
     for name, base in datasets(out, quick).items():
         for ds in ((10,) if quick else (10, 30)):
             cfg = load_config(data={"method": "seqslam", **base, "seqslam": {"ds": ds}})

@@ -39,6 +39,12 @@ def difference_job(job: tuple[tuple[int, int, int, int], np.ndarray, str], ref: 
     return difference_block(ref, query_block, comparison)
 
 
+def auto_velocity_scale(n_reference: int, n_query: int) -> float:
+    """Reference frames per query frame if both traverses cover the same route: a query
+    recorded at half the frame rate (half as many frames) moves 2 references per frame."""
+    return n_reference / max(1, n_query)
+
+
 def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
     for job in jobs:
         yield fn(job, shared)
@@ -54,7 +60,9 @@ def sequence_match(
     v_min: float,
     v_max: float,
     v_step: float,
+    v_auto: bool,
     search: str,
+    sequence_shape: str,
     top_k: int,
     exclude_recent: int | None,
     block_size: int,
@@ -64,7 +72,7 @@ def sequence_match(
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
-    ``exclude_recent`` is for loop closure (``query is ref``): references within that
+    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
     many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
     raw difference columns ``c0:c1`` as they are computed.
@@ -72,6 +80,8 @@ def sequence_match(
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
     vels = velocities(v_min, v_max, v_step)
+    if v_auto:
+        vels = np.round(vels * auto_velocity_scale(len(ref), n_q), 9)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
     candidates = np.full((n_q, k), -1, np.int64)
@@ -98,7 +108,7 @@ def sequence_match(
         single_best[c0:c1], single_conf[c0:c1] = sb, ss
         et = enhance_t(dt, window)
         del dt, d
-        b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k=k,
-                               exclude_recent=exclude_recent, query_index0=lo)
+        b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
+                               shape=sequence_shape)
         candidates[c0:c1], scores[c0:c1] = b, s
     return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

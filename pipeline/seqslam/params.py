@@ -7,6 +7,9 @@ from dataclasses import dataclass
 from placeloc.params import Params, param
 from placeloc.seqslam.comparisons import COMPARISONS
 
+# Kept here (not imported from search.py) so reading the parameters never imports numba.
+SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid")
+
 
 @dataclass(frozen=True)
 class SeqSLAMParams(Params):
@@ -21,6 +24,11 @@ class SeqSLAMParams(Params):
     v_min: float = param(0.8, min=0.0, min_exclusive=True, help="slowest trajectory slope (reference frames per query frame)")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
+    v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
+                                      "recorded at different frame rates or speeds")
+    sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,
+                                help="trajectory (straight lines, SeqSLAM), cone (best reference per frame inside the "
+                                     "velocity cone) or hybrid (cone proposes, trajectories rank); as in OpenSeqSLAM2")
     search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
     exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
     top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")

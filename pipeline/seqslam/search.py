@@ -19,6 +19,7 @@ import math
 
 import numba
 import numpy as np
+from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 
 INVALID = np.float32(np.inf)
 
@@ -90,11 +91,97 @@ def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
+
+
+@numba.njit(cache=True, fastmath=True)
+def _trajectory_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
+    """``s[r] = min_V sum_t et[T + t, r + round(V t)]`` over trajectories inside the matrix."""
+    nr = et.shape[1]
+    nv, nt = traj.shape
+    acc = np.empty(nr, dtype=np.float32)
+    for v in range(nv):
+        omin = traj[v, 0]
+        omax = traj[v, 0]
+        for j in range(nt):
+            omin = min(omin, traj[v, j])
+            omax = max(omax, traj[v, j])
+        r_lo = max(0, -omin)
+        r_hi = min(nr, nr - omax, limit)
+        if r_hi <= r_lo:
+            continue
+        for r in range(r_lo, r_hi):
+            acc[r] = 0.0
+        for j in range(nt):
+            col = et[T + t_off[j]]
+            o = traj[v, j]
+            for r in range(r_lo, r_hi):
+                acc[r] += col[r + o]
+        for r in range(r_lo, r_hi):
+            if acc[r] < s[r]:
+                s[r] = acc[r]
+
+
+@numba.njit(cache=True, fastmath=True)
+def _cone_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
+    """``s[r] = sum_t min_{o in cone(t)} et[T + t, r + o]``: at every query frame the best
+    reference inside the cone the velocities span, chosen frame by frame."""
+    nr = et.shape[1]
+    nv, nt = traj.shape
+    lo = np.empty(nt, np.int64)
+    hi = np.empty(nt, np.int64)
+    for j in range(nt):
+        lo[j] = traj[0, j]
+        hi[j] = traj[0, j]
+        for v in range(nv):
+            lo[j] = min(lo[j], traj[v, j])
+            hi[j] = max(hi[j], traj[v, j])
+    r_lo = 0
+    r_hi = min(nr, limit)
+    for j in range(nt):
+        r_lo = max(r_lo, -lo[j])
+        r_hi = min(r_hi, nr - hi[j])
+    if r_hi <= r_lo:
+        return
+    acc = np.zeros(nr, dtype=np.float32)
+    for j in range(nt):
+        col = et[T + t_off[j]]
+        for r in range(r_lo, r_hi):
+            m = col[r + lo[j]]
+            for o in range(lo[j] + 1, hi[j] + 1):
+                m = min(m, col[r + o])
+            acc[r] += m
+    for r in range(r_lo, r_hi):
+        s[r] = acc[r]
+
+
+@numba.njit(cache=True)
+def _top_k(s: np.ndarray, window: int, k: int, best: np.ndarray, scores: np.ndarray) -> None:
+    """Greedy non-maximum suppression: the k best references at least window+1 apart.
+    Destroys ``s``."""
+    nr = s.shape[0]
+    for kk in range(k):
+        bi = -1
+        bv = np.inf
+        for r in range(nr):
+            if s[r] < bv:
+                bv = s[r]
+                bi = r
+        best[kk] = bi
+        scores[kk] = bv
+        if bi < 0:
+            for rest in range(kk + 1, k):
+                best[rest] = -1
+                scores[rest] = np.inf
+            break
+        for r in range(max(0, bi - window), min(nr, bi + window + 1)):
+            s[r] = np.inf
+
+
 @numba.njit(parallel=True, cache=True, fastmath=True)
 def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray,
-            window: int, k: int, exclude_after: np.ndarray, best: np.ndarray, scores: np.ndarray) -> None:
+            window: int, k: int, exclude_after: np.ndarray, shape: int, best: np.ndarray, scores: np.ndarray) -> None:
     ncols, nr = et.shape
-    nv, nt = traj.shape
+    nt = traj.shape[1]
     for qi in numba.prange(q_hi - q_lo):
         T = q_lo + qi  # column of the current query inside et
         s = np.full(nr, np.inf, dtype=np.float32)
@@ -105,44 +192,25 @@ def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.nd
                 ok = False
         if ok:
             limit = exclude_after[qi]  # references >= limit are excluded (loop closure)
-            acc = np.empty(nr, dtype=np.float32)
-            for v in range(nv):
-                omin = traj[v, 0]
-                omax = traj[v, 0]
-                for j in range(nt):
-                    omin = min(omin, traj[v, j])
-                    omax = max(omax, traj[v, j])
-                r_lo = max(0, -omin)
-                r_hi = min(nr, nr - omax, limit)
-                if r_hi <= r_lo:
-                    continue
-                for r in range(r_lo, r_hi):
-                    acc[r] = 0.0
-                for j in range(nt):
-                    col = et[T + t_off[j]]
-                    o = traj[v, j]
-                    for r in range(r_lo, r_hi):
-                        acc[r] += col[r + o]
-                for r in range(r_lo, r_hi):
-                    if acc[r] < s[r]:
-                        s[r] = acc[r]
-        # Greedy non-maximum suppression: the k best references at least window+1 apart.
-        for kk in range(k):
-            bi = -1
-            bv = np.inf
-            for r in range(nr):
-                if s[r] < bv:
-                    bv = s[r]
-                    bi = r
-            best[qi, kk] = bi
-            scores[qi, kk] = bv
-            if bi < 0:
-                for rest in range(kk + 1, k):
-                    best[qi, rest] = -1
-                    scores[qi, rest] = np.inf
-                break
-            for r in range(max(0, bi - window), min(nr, bi + window + 1)):
-                s[r] = np.inf
+            if shape == 0:
+                _trajectory_scores(et, T, t_off, traj, limit, s)
+            elif shape == 1:
+                _cone_scores(et, T, t_off, traj, limit, s)
+            else:
+                # hybrid: the cone proposes k regions, the trajectory score ranks inside them
+                _cone_scores(et, T, t_off, traj, limit, s)
+                cb = np.full(k, -1, np.int64)
+                cs = np.full(k, np.inf, np.float32)
+                _top_k(s, window, k, cb, cs)
+                st = np.full(nr, np.inf, dtype=np.float32)
+                _trajectory_scores(et, T, t_off, traj, limit, st)
+                for r in range(nr):
+                    s[r] = np.inf
+                for kk in range(k):
+                    if cb[kk] >= 0:
+                        for r in range(max(0, cb[kk] - window), min(nr, cb[kk] + window + 1)):
+                            s[r] = st[r]
+        _top_k(s, window, k, best[qi], scores[qi])
 
 
 def sequence_search(
@@ -153,17 +221,27 @@ def sequence_search(
     vels: np.ndarray,
     search: str,
     window: int,
-    k: int = 10,
-    exclude_recent: int | None = None,
-    query_index0: int = 0,
+    k: int,
+    exclude_recent: int | None,
+    query_index0: int,
+    *,
+    shape: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
+
+    ``shape`` is how a sequence may run through the matrix (as in OpenSeqSLAM2):
+    ``trajectory`` (straight lines of the given slopes, the original SeqSLAM), ``cone``
+    (at each query frame the best reference anywhere between the slowest and the fastest
+    line: tolerates speed changes inside the window) or ``hybrid`` (the cone proposes the
+    ``k`` best regions, straight lines rank the references inside them).
 
     Returns ``best`` (n, k) reference indices (-1 = none) and their ``scores`` (n, k),
     ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
     closure, reference == query) drops references ``r > T_global - exclude_recent`` where
     ``T_global = query_index0 + column``.
     """
+    if shape not in SHAPES:
+        raise ValueError(f"unknown sequence shape {shape!r}; choose one of {', '.join(SHAPES)}")
     t_off = query_offsets(ds, search)
     traj = trajectory_offsets(vels, t_off)
     n = q_hi - q_lo
@@ -177,7 +255,7 @@ def sequence_search(
     scores = np.full((n, k), np.inf, np.float32)
     if n > 0:
         _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, int(window), int(k),
-                exclude_after, best, scores)
+                exclude_after, SHAPES.index(shape), best, scores)
     return best, scores
 
 

@@ -115,7 +115,8 @@ def localize(ctx: Any) -> None:
         d_ds[:, c0:c1] = d
 
     m = sequence_match(ref, query, comparison=p.comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
-                       v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, search=p.search, top_k=int(p.top_k),
+                       v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
+                       sequence_shape=p.sequence_shape, top_k=int(p.top_k),
                        exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
                        map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
                        progress=ctx.progress)
@@ -261,8 +262,8 @@ METHOD = Method(
     stages={
         # images_per_task and block_size change how the work is cut, never the result.
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")),
-        "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "search",
-                                          "exclude_recent", "top_k", "store_difference")),
+        "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
+                                          "search", "sequence_shape", "exclude_recent", "top_k", "store_difference")),
         "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window"),
                           sections=("ground_truth", "plots")),
     },

@@ -211,6 +211,10 @@ def difference_block(ref: np.ndarray, query: np.ndarray, comparison: str) -> np.
     """Difference block (rows = reference, columns = query, lower = more alike), float32."""
     if comparison in ("sad", "histeq"):
         return mean_abs_difference(ref, query)
+    if comparison in ("cosine", "l2"):  # descriptors brought from elsewhere (see descriptors.py)
+        from placeloc.seqslam.descriptors import descriptor_difference
+
+        return descriptor_difference(ref, query, comparison)
     if comparison == "zncc":
         return (1.0 - ref @ query.T).astype(np.float32)
     if comparison == "abs_zncc":

@@ -14,6 +14,12 @@ SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid")
 @dataclass(frozen=True)
 class SeqSLAMParams(Params):
     comparison: str = param("sad", choices=COMPARISONS, help="image comparison: sad|histeq|zncc|abs_zncc|isc|isc_ext|ocm|ocm_ext")
+    descriptors_reference: str | None = param(None, path=True,
+                                              help="descriptors computed elsewhere for the reference images (.npy "
+                                                   "matrix, .h5/.hdf5, or a folder of one .npy per image; one row per "
+                                                   "image in folder order): used instead of thumbnails")
+    descriptors_query: str | None = param(None, path=True, help="the same for the query images")
+    descriptor_distance: str = param("cosine", choices=("cosine", "l2"), help="distance between brought descriptors")
     thumbnail: tuple[int, int] = param([64, 32], min=4, help="thumbnail width, height in pixels")
     patch: int = param(8, min=1, help="patch normalisation block size (sad)")
     normalisation: str = param("minmax", choices=("minmax", "zscore"), help="patch normalisation: minmax (paper) or zscore (OpenSeqSLAM)")

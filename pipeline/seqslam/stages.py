@@ -42,6 +42,12 @@ def _check(config: dict) -> None:
     p = config["seqslam"]
     if p["v_max"] < p["v_min"]:
         raise ConfigError("seqslam velocities: need v_min <= v_max, e.g. v_min 0.8, v_max 1.2")
+    has_query = config.get("query") is not None
+    if p["descriptors_query"] is not None and p["descriptors_reference"] is None:
+        raise ConfigError("seqslam.descriptors_query is set but seqslam.descriptors_reference is not; give both")
+    if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
+        raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
+                          "images need descriptors too")
 
 
 # ---------------------------------------------------------------------------------------
@@ -51,6 +57,10 @@ def extract(ctx: Any) -> None:
     """Features of every image, appended chunk by chunk to resizable datasets, so the
     writing process holds one chunk at a time however long the traverse is."""
     p: SeqSLAMParams = ctx.params
+    if p.descriptors_reference is not None:
+        _extract_descriptors(ctx)
+        return
+    ctx.out.attrs["comparison"] = p.comparison
     chunk = int(p.images_per_task)
     w, h = p.thumbnail
     settings = {"thumbnail_size": (int(w), int(h)), "comparison": p.comparison, "patch": int(p.patch),
@@ -90,6 +100,24 @@ def extract(ctx: Any) -> None:
             log.warning("skipped: %s", msg)
 
 
+def _extract_descriptors(ctx: Any) -> None:
+    """Bring-your-own descriptors: rows loaded from files, one per listed image (images are not read)."""
+    from placeloc.seqslam.descriptors import load_descriptors, prepare_descriptors
+
+    p: SeqSLAMParams = ctx.params
+    ctx.out.attrs["comparison"] = p.descriptor_distance
+    for role, images in ctx.images.items():
+        path = p.descriptors_reference if role == "reference" else p.descriptors_query
+        mat = prepare_descriptors(load_descriptors(path, len(images.paths), role), p.descriptor_distance)
+        g = ctx.out.create_group(role)
+        g.create_dataset("features", data=mat)
+        g.create_dataset("names", data=np.array([x.name for x in images.paths], dtype=object), dtype=h5py.string_dtype())
+        g.create_dataset("index", data=np.arange(len(mat), dtype=np.int64))
+        g.attrs["source"] = f"{images.source} (descriptors {path})"
+        g.attrs["n_listed"] = len(images.paths)
+        g.create_dataset("skipped", data=np.array([], dtype=object), dtype=h5py.string_dtype())
+
+
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
@@ -103,18 +131,20 @@ def localize(ctx: Any) -> None:
     loop_closure = "query" not in ex
     query = ref if loop_closure else ex["query/features"][()]
     n_ref, n_q = len(ref), len(query)
+    # what extract prepared the rows for: an image comparison, or a distance between brought descriptors
+    comparison = str(ex.attrs.get("comparison", p.comparison))
 
     d_ds = None
     if p.store_difference:
         d_ds = ctx.out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32,
                                       chunks=(min(n_ref, 512), min(n_q, 256)))
         d_ds.attrs["convention"] = "rows = reference, columns = query, lower = more alike"
-        d_ds.attrs["comparison"] = p.comparison
+        d_ds.attrs["comparison"] = comparison
 
     def store(c0: int, c1: int, d: np.ndarray) -> None:
         d_ds[:, c0:c1] = d
 
-    m = sequence_match(ref, query, comparison=p.comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
+    m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, top_k=int(p.top_k),
                        exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
@@ -261,7 +291,8 @@ METHOD = Method(
     params=SeqSLAMParams,
     stages={
         # images_per_task and block_size change how the work is cut, never the result.
-        "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")),
+        "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
+                                        "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
                                           "search", "sequence_shape", "exclude_recent", "top_k", "store_difference")),
         "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window"),

@@ -211,9 +211,9 @@ def main() -> None:
         assert np.allclose(e_naive + enhancement_shift(w_), et.T, atol=1e-3), "naive and fast enhancement disagree"
         rows.append(("contrast enhancement", t_enh, t_naive_enh, ""))
 
-        sequence_search(et[:50], 20, 30, P.ds, vels, P.search, w_, P.top_k, None, 0, shape=P.sequence_shape)
+        sequence_search(et[:50], 20, 30, P.ds, vels, P.search, w_, P.top_k, None, 0, shape=P.sequence_shape, edges=P.edges)
         t_search, (best, _) = timed(sequence_search, et, 0, n, P.ds, vels, P.search, w_, P.top_k, None, 0,
-                                       shape=P.sequence_shape, repeat=2)
+                                       shape=P.sequence_shape, edges=P.edges, repeat=2)
         qs = np.arange(10, 10 + 200)
         t_ns_part, best_naive = timed(naive_search, et.T, qs, P.ds, vels, P.search)
         agree = float((best_naive == best[qs, 0]).mean())

@@ -44,7 +44,7 @@ def test_shapes_match_a_loop_by_loop_reference(shape):
     d = rng.random((60, 20)).astype(np.float32)
     ds, window, k = 6, 3, 4
     vels = velocities(0.5, 1.5, 0.25)
-    best, scores = sequence_search(np.ascontiguousarray(d.T), 0, 20, ds, vels, "centred", window, k, None, 0, shape=shape)
+    best, scores = sequence_search(np.ascontiguousarray(d.T), 0, 20, ds, vels, "centred", window, k, None, 0, shape=shape, edges="skip")
     for T in range(ds // 2, 20 - (ds - ds // 2)):
         if shape == "hybrid":
             cone = _brute_scores(d, T, ds, vels, "cone")
@@ -71,8 +71,8 @@ def test_cone_follows_a_speed_change_that_no_straight_line_fits():
     ds, window = 10, 5
     vels = velocities(1.0, 2.0, 0.5)
     et = np.ascontiguousarray(d.T)
-    cone, cone_scores = sequence_search(et, 0, n_q, ds, vels, "centred", window, 2, None, 0, shape="cone")
-    _, traj_scores = sequence_search(et, 0, n_q, ds, vels, "centred", window, 2, None, 0, shape="trajectory")
+    cone, cone_scores = sequence_search(et, 0, n_q, ds, vels, "centred", window, 2, None, 0, shape="cone", edges="skip")
+    _, traj_scores = sequence_search(et, 0, n_q, ds, vels, "centred", window, 2, None, 0, shape="trajectory", edges="skip")
     valid = np.arange(ds // 2, n_q - ds // 2)
     # the cone lands exactly on the planted reference for every query, around the bend too
     np.testing.assert_array_equal(cone[valid, 0], path[valid])
@@ -92,7 +92,7 @@ def test_auto_velocity_recovers_a_query_recorded_at_half_the_frame_rate():
     query = np.clip(ref[q_places].astype(int) + rng.integers(-60, 61, (len(q_places), 64)), 0, 255).astype(np.uint8)
     assert auto_velocity_scale(n_ref, len(q_places)) == 2.0
     common = dict(comparison="sad", enhance_window=5, ds=10, v_min=0.8, v_max=1.2, v_step=0.1, search="centred",
-                  sequence_shape="trajectory", top_k=3, exclude_recent=None, block_size=64)
+                  sequence_shape="trajectory", edges="skip", top_k=3, exclude_recent=None, block_size=64)
     auto = sequence_match(ref, query, v_auto=True, **common)
     np.testing.assert_allclose(auto.velocities, [1.6, 1.8, 2.0, 2.2, 2.4])
     valid = np.arange(5, len(q_places) - 5)
@@ -100,3 +100,19 @@ def test_auto_velocity_recovers_a_query_recorded_at_half_the_frame_rate():
     fixed = sequence_match(ref, query, v_auto=False, **common)
     np.testing.assert_allclose(fixed.velocities, [0.8, 0.9, 1.0, 1.1, 1.2])
     assert (fixed.candidates[valid, 0] == q_places[valid]).mean() < 0.9
+
+
+def test_shifted_edges_match_the_first_and_last_queries_on_a_one_sided_window():
+    rng = np.random.default_rng(2)
+    n = 50
+    d = rng.uniform(0.6, 1.0, (n + 20, n)).astype(np.float32)
+    path = 10 + np.arange(n)
+    d[path, np.arange(n)] = 0.0
+    et = np.ascontiguousarray(d.T)
+    args = (et, 0, n, 8, velocities(1.0, 1.0, 0.1), "centred", 3, 2, None, 0)
+    skip, _ = sequence_search(*args, shape="trajectory", edges="skip")
+    shift, shift_scores = sequence_search(*args, shape="trajectory", edges="shift")
+    assert (skip[:4, 0] == -1).all() and (skip[-4:, 0] == -1).all()
+    np.testing.assert_array_equal(skip[4:-4], shift[4:-4])  # inside, nothing changes
+    np.testing.assert_array_equal(shift[:, 0], path)  # every query, the ends included
+    assert (shift_scores[:, 0] == 0).all()

@@ -63,6 +63,7 @@ def sequence_match(
     v_auto: bool,
     search: str,
     sequence_shape: str,
+    edges: str,
     top_k: int,
     exclude_recent: int | None,
     block_size: int,
@@ -109,6 +110,6 @@ def sequence_match(
         et = enhance_t(dt, window)
         del dt, d
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
-                               shape=sequence_shape)
+                               shape=sequence_shape, edges=edges)
         candidates[c0:c1], scores[c0:c1] = b, s
     return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

@@ -35,6 +35,9 @@ class SeqSLAMParams(Params):
     sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,
                                 help="trajectory (straight lines, SeqSLAM), cone (best reference per frame inside the "
                                      "velocity cone) or hybrid (cone proposes, trajectories rank); as in OpenSeqSLAM2")
+    edges: str = param("skip", choices=("skip", "shift"),
+                       help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
+                            "ds + 1 frames nearest them)")
     search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
     exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
     top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")

@@ -177,33 +177,51 @@ def _top_k(s: np.ndarray, window: int, k: int, best: np.ndarray, scores: np.ndar
             s[r] = np.inf
 
 
+@numba.njit(cache=True)
+def _shifted(t_off: np.ndarray, vels: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """Query offsets moved by ``shift`` frames and their trajectory offsets (same rounding
+    as :func:`trajectory_offsets`)."""
+    nv, nt = vels.shape[0], t_off.shape[0]
+    t2 = t_off + shift
+    traj = np.empty((nv, nt), np.int64)
+    for v in range(nv):
+        for j in range(nt):
+            x = vels[v] * np.float64(t2[j])
+            traj[v, j] = np.int64(np.sign(x) * np.floor(np.abs(x) + 0.5))
+    return t2, traj
+
+
 @numba.njit(parallel=True, cache=True, fastmath=True)
-def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray,
-            window: int, k: int, exclude_after: np.ndarray, shape: int, best: np.ndarray, scores: np.ndarray) -> None:
+def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray, vels: np.ndarray,
+            shift_edges: bool, window: int, k: int, exclude_after: np.ndarray, shape: int, best: np.ndarray,
+            scores: np.ndarray) -> None:
     ncols, nr = et.shape
     nt = traj.shape[1]
     for qi in numba.prange(q_hi - q_lo):
         T = q_lo + qi  # column of the current query inside et
         s = np.full(nr, np.inf, dtype=np.float32)
-        ok = True
-        for j in range(nt):
-            c = T + t_off[j]
-            if c < 0 or c >= ncols:
-                ok = False
+        to = t_off
+        tr = traj
+        ok = T + t_off[0] >= 0 and T + t_off[nt - 1] < ncols
+        if not ok and shift_edges and nt <= ncols:
+            # near the ends of the traverse: the window of ds + 1 frames nearest the query
+            sh = -(T + t_off[0]) if T + t_off[0] < 0 else ncols - 1 - (T + t_off[nt - 1])
+            to, tr = _shifted(t_off, vels, sh)
+            ok = True
         if ok:
             limit = exclude_after[qi]  # references >= limit are excluded (loop closure)
             if shape == 0:
-                _trajectory_scores(et, T, t_off, traj, limit, s)
+                _trajectory_scores(et, T, to, tr, limit, s)
             elif shape == 1:
-                _cone_scores(et, T, t_off, traj, limit, s)
+                _cone_scores(et, T, to, tr, limit, s)
             else:
                 # hybrid: the cone proposes k regions, the trajectory score ranks inside them
-                _cone_scores(et, T, t_off, traj, limit, s)
+                _cone_scores(et, T, to, tr, limit, s)
                 cb = np.full(k, -1, np.int64)
                 cs = np.full(k, np.inf, np.float32)
                 _top_k(s, window, k, cb, cs)
                 st = np.full(nr, np.inf, dtype=np.float32)
-                _trajectory_scores(et, T, t_off, traj, limit, st)
+                _trajectory_scores(et, T, to, tr, limit, st)
                 for r in range(nr):
                     s[r] = np.inf
                 for kk in range(k):
@@ -226,6 +244,7 @@ def sequence_search(
     query_index0: int,
     *,
     shape: str,
+    edges: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
 
@@ -235,11 +254,17 @@ def sequence_search(
     line: tolerates speed changes inside the window) or ``hybrid`` (the cone proposes the
     ``k`` best regions, straight lines rank the references inside them).
 
+    ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
+    (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
+    first and last ds/2 queries get a (one-sided) sequence too.
+
     Returns ``best`` (n, k) reference indices (-1 = none) and their ``scores`` (n, k),
     ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
     closure, reference == query) drops references ``r > T_global - exclude_recent`` where
     ``T_global = query_index0 + column``.
     """
+    if edges not in ("skip", "shift"):
+        raise ValueError(f"unknown edge handling {edges!r}; choose skip or shift")
     if shape not in SHAPES:
         raise ValueError(f"unknown sequence shape {shape!r}; choose one of {', '.join(SHAPES)}")
     t_off = query_offsets(ds, search)
@@ -254,8 +279,8 @@ def sequence_search(
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), np.inf, np.float32)
     if n > 0:
-        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, int(window), int(k),
-                exclude_after, SHAPES.index(shape), best, scores)
+        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, np.asarray(vels, np.float64),
+                edges == "shift", int(window), int(k), exclude_after, SHAPES.index(shape), best, scores)
     return best, scores
 
 

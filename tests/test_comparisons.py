@@ -112,3 +112,20 @@ def test_every_comparison_prefers_the_same_place_under_light_change(comparison):
     d = difference_block(ref, qry, comparison)
     assert d.shape == (4, 4)
     np.testing.assert_array_equal(np.argmin(d, axis=0), np.arange(4))
+
+
+def test_sad_kernels_agree_exactly_on_odd_sizes():
+    from placeloc.seqslam import l1
+
+    if not l1.HAS_AVX2:
+        pytest.skip("the vpsadbw kernel needs AVX2")
+    rng = np.random.default_rng(5)
+    for n, m, d in ((7, 5, 50), (100, 97, 2048), (33, 70, 2053), (1, 1, 31)):
+        a = rng.integers(0, 256, (n, d), dtype=np.uint8)
+        b = rng.integers(0, 256, (m, d), dtype=np.uint8)
+        fast, plain = np.empty((n, m), np.float32), np.empty((n, m), np.float32)
+        l1._l1_uint8_avx2(a, b, fast)
+        l1._l1_uint8_plain(a, b, plain)
+        expect = (np.abs(a.astype(np.int64)[:, None] - b.astype(np.int64)[None]).sum(-1) / d).astype(np.float32)
+        np.testing.assert_array_equal(fast, expect)
+        np.testing.assert_array_equal(plain, expect)

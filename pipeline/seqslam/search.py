@@ -109,16 +109,19 @@ def _trajectory_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarr
         r_hi = min(nr, nr - omax, limit)
         if r_hi <= r_lo:
             continue
-        for r in range(r_lo, r_hi):
-            acc[r] = 0.0
+        # Slices with non-negative loop indices: numba drops its negative-index handling
+        # and the adds vectorise (same adds, same order, as a loop over r).
+        a = acc[r_lo:r_hi]
+        a[:] = 0.0
         for j in range(nt):
-            col = et[T + t_off[j]]
             o = traj[v, j]
-            for r in range(r_lo, r_hi):
-                acc[r] += col[r + o]
-        for r in range(r_lo, r_hi):
-            if acc[r] < s[r]:
-                s[r] = acc[r]
+            src = et[T + t_off[j], r_lo + o:r_hi + o]
+            for i in range(r_hi - r_lo):
+                a[i] += src[i]
+        dst = s[r_lo:r_hi]
+        for i in range(r_hi - r_lo):
+            if a[i] < dst[i]:
+                dst[i] = a[i]
 
 
 @numba.njit(cache=True, fastmath=True)

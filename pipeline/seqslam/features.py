@@ -7,6 +7,8 @@ or raise, as the traverse's ``on_error`` says.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -20,15 +22,23 @@ def image_features(paths: list[str], *, on_error: str, thumbnail_size: tuple[int
     """Features (n_ok, d), thumbnails (n_ok, h, w), the positions in ``paths`` that were
     read and the messages of those that could not be (``on_error == "skip"``; otherwise
     the first unreadable image raises :class:`ImageError`)."""
-    thumbs, ok, errors = [], [], []
-    for i, path in enumerate(paths):
+    def read(path: str) -> np.ndarray | ImageError:
         try:
-            thumbs.append(thumbnail(read_gray(path), thumbnail_size))
+            return thumbnail(read_gray(path), thumbnail_size)
         except ImageError as exc:
+            return exc
+
+    # Decoding releases the GIL: threads read the chunk on every core of this worker.
+    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
+        results = list(pool.map(read, paths))
+    thumbs, ok, errors = [], [], []
+    for i, res in enumerate(results):
+        if isinstance(res, ImageError):
             if on_error != "skip":
-                raise
-            errors.append(str(exc))
+                raise res
+            errors.append(str(res))
             continue
+        thumbs.append(res)
         ok.append(i)
     w, h = thumbnail_size
     dtype = feature_dtype(comparison, normalisation)

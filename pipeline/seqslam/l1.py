@@ -22,7 +22,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-HAS_AVX2 = "+avx2" in _llvm.get_host_cpu_features().flatten()
+# Only when numba compiles for this very CPU (NUMBA_CPU_NAME=generic, for portable caches,
+# would lack the instruction).
+HAS_AVX2 = "+avx2" in _llvm.get_host_cpu_features().flatten() and numba.config.CPU_NAME in (None, "host")
 # Query rows per tile: 48 x 2 KB rows (64x32 thumbnails) stay in a core's L2 cache.
 _TILE = 48
 

@@ -6,7 +6,7 @@ BIN     = $(VENV)/bin
 PL      = $(BIN)/placeloc
 STAMP   = $(VENV)/.installed
 
-.PHONY: help venv demo test lint experiment-seqslam bench-seqslam bench-seqslam-large clean
+.PHONY: help venv demo test lint clean
 
 help:
 	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print where results are"
@@ -43,15 +43,6 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
-
-experiment-seqslam: $(STAMP)
-	$(PL) experiment seqslam
-
-bench-seqslam: $(STAMP)
-	$(BIN)/python bench/bench_seqslam.py
-
-bench-seqslam-large: $(STAMP)
-	$(BIN)/python bench/bench_seqslam.py --large
 
 clean:
 	rm -rf runs .pytest_cache

@@ -1,11 +1,15 @@
-"""SeqSLAM speed and memory: placeloc's kernels and stage against straightforward NumPy.
+"""SeqSLAM speed and memory: placeloc's kernels and whole run against straightforward NumPy.
 
     python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails
     python bench/bench_seqslam.py --large    # also a 36,000 x 36,000 run through the pipeline
 
-The problem is built from nordland-dev (../shared/data, tiled with noise to 3576 frames per
-traverse) when present, else from a generated route. Naive baselines whose full run would
-take minutes are timed on a slice and scaled linearly (printed as such).
+The problem is built from nordland-dev (the shared data folder, tiled with noise to 3576
+frames per traverse) when present, else from a generated route. Settings are
+``SeqSLAMParams``' defaults with centred search (SAD, patch 8, ds 10, v 0.8-1.2). The whole
+run is ``placeloc extract`` then ``placeloc localize``, each its own process, as a user
+runs them; wall and CPU (user + sys) time are printed with the load average, since the
+machine may be shared. Naive baselines whose full run would take minutes are timed on a
+slice and scaled linearly (printed as such).
 """
 
 from __future__ import annotations
@@ -27,12 +31,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+import dataclasses  # noqa: E402
+
 from placeloc.experiments import shared_data_dir  # noqa: E402
 from placeloc.images import list_images, read_gray  # noqa: E402
-from placeloc.seqslam.comparisons import difference_block, prepare  # noqa: E402
+from placeloc.seqslam.comparisons import difference_block, prepare_many  # noqa: E402
+from placeloc.seqslam.params import SeqSLAMParams  # noqa: E402
 from placeloc.seqslam.search import enhance_t, query_offsets, sequence_search, trajectory_offsets, velocities  # noqa: E402
 
-PARAMS = {"patch": 8, "normalisation": "minmax", "gaussian_sigma": 1.0, "ocm_epsilon": 5.0}
+# The benchmark's settings: the defaults, with the centred search of the public implementations.
+P = dataclasses.replace(SeqSLAMParams(), search="centred")
+FEATURE_KW = {"patch": P.patch, "normalisation": P.normalisation, "gaussian_sigma": P.gaussian_sigma,
+              "ocm_epsilon": P.ocm_epsilon}
 
 
 def make_traverses(out: Path, n: int, seed: int = 0) -> tuple[Path, Path]:
@@ -60,6 +70,18 @@ def make_traverses(out: Path, n: int, seed: int = 0) -> tuple[Path, Path]:
     return ref_dir, q_dir
 
 
+def naive_patch_normalise(img: np.ndarray, patch: int) -> np.ndarray:
+    """Min-max per block, one block at a time (how SeqSLAM is usually written)."""
+    x = img.astype(np.float32)
+    out = np.zeros_like(x)
+    for y0 in range(0, x.shape[0], patch):
+        for x0 in range(0, x.shape[1], patch):
+            blk = x[y0:y0 + patch, x0:x0 + patch]
+            lo, hi = blk.min(), blk.max()
+            out[y0:y0 + patch, x0:x0 + patch] = 0 if hi <= lo else (blk - lo) * (255.0 / (hi - lo))
+    return np.rint(out).astype(np.uint8)
+
+
 def naive_sad(ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     a, b = ref.astype(np.int16), q.astype(np.int16)
     return np.stack([np.abs(b - a[i]).mean(axis=1) for i in range(len(a))]).astype(np.float32)
@@ -74,8 +96,8 @@ def naive_enhance(d: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def naive_search(e: np.ndarray, queries: np.ndarray, ds: int, vels: np.ndarray) -> np.ndarray:
-    t = query_offsets(ds, "causal")
+def naive_search(e: np.ndarray, queries: np.ndarray, ds: int, vels: np.ndarray, search: str) -> np.ndarray:
+    t = query_offsets(ds, search)
     traj = trajectory_offsets(vels, t)
     n_ref = e.shape[0]
     best = np.full(len(queries), -1)
@@ -98,11 +120,21 @@ def timed(fn, *a, repeat: int = 1, **k):
     return best, out
 
 
+def run_cli(args: list[str]) -> tuple[float, float]:
+    """Run ``placeloc ARGS`` as its own process; return (wall seconds, CPU seconds user + sys)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run([str(Path(sys.executable).parent / "placeloc"), *args], check=True, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
 def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float, float]:
     """Run a placeloc stage in a child process; return (seconds, peak RSS of the child in GB)."""
     code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from placeloc.config import load_config; "
             f"from placeloc.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
-            f"run_stage(c, {str(run_dir)!r}, {stage!r}, quiet=True); dt = time.perf_counter() - t; "
+            f"run_stage(c, {str(run_dir)!r}, {stage!r}, quiet=True, force=True); dt = time.perf_counter() - t; "
             "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
     return float(out[0]), float(out[1])
@@ -110,8 +142,21 @@ def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float
 
 def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store: bool = True) -> Path:
     path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
-                                "plots": False, "seqslam": {"comparison": comparison, "store_difference": store}}))
+                                "plots": False, "seqslam": {"comparison": comparison, "store_difference": store,
+                                                            "search": P.search}}))
     return path
+
+
+def whole_run(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, float]]:
+    """``placeloc extract`` and ``placeloc localize``, each its own process; best of ``repeat``
+    after one run that fills numba's cache (a user pays that once per install)."""
+    best: dict[str, tuple[float, float]] = {}
+    for i in range(repeat + 1):
+        for stage in ("extract", "localize"):
+            wall, cpu = run_cli([stage, str(cfg), "-o", str(run_dir), "-q", "-f"])
+            if i > 0 and (stage not in best or wall < best[stage][0]):
+                best[stage] = (wall, cpu)
+    return best
 
 
 def main() -> None:
@@ -125,8 +170,26 @@ def main() -> None:
     try:
         n = args.n
         ref_dir, q_dir = make_traverses(work / "data", n)
-        thumbs = [np.stack([read_gray(p) for p in list_images(d).paths]) for d in (ref_dir, q_dir)]
-        feats = {c: [np.stack([prepare(t, c, PARAMS) for t in ts]) for ts in thumbs] for c in ("sad", "zncc")}
+        w_ = P.enhance_window
+        vels = velocities(P.v_min, P.v_max, P.v_step)
+        print(f"settings: SAD, patch {P.patch}, ds {P.ds}, v {P.v_min}-{P.v_max} step {P.v_step}, {P.search} search, "
+              f"enhance_window {w_}")
+        load0 = os.getloadavg()
+
+        # -- the whole run as a user runs it: two processes
+        cfg = write_config(work / "bench.yaml", ref_dir, q_dir)
+        stages = whole_run(cfg, work / "run", repeat=2)
+        t_whole = sum(w for w, _ in stages.values())
+        cpu_whole = sum(c for _, c in stages.values())
+
+        # -- the straightforward NumPy baseline of the same run (read, normalise, SAD, enhance, search)
+        paths = [list_images(d).paths for d in (ref_dir, q_dir)]
+        t0 = time.perf_counter()
+        thumbs = [np.stack([read_gray(p) for p in ps]) for ps in paths]
+        naive_feats = [np.stack([naive_patch_normalise(t, P.patch).ravel() for t in ts]) for ts in thumbs]
+        t_naive_extract = time.perf_counter() - t0
+        feats = {c: [prepare_many(ts, comparison=c, **FEATURE_KW) for ts in thumbs] for c in ("sad", "zncc")}
+        assert all(np.array_equal(a, b) for a, b in zip(naive_feats, feats["sad"])), "naive and fast features disagree"
         difference_block(feats["sad"][0][:8], feats["sad"][1][:8], "sad")  # JIT warm-up (cached after first run)
 
         rows = []
@@ -140,29 +203,30 @@ def main() -> None:
         rows.append(("difference matrix, zncc", t_zncc, None, "BLAS"))
 
         dt = np.ascontiguousarray(d.T)
-        enhance_t(dt[:4], 10)
-        t_enh, et = timed(enhance_t, dt, 10, repeat=2)
-        t_naive_enh, e_naive = timed(naive_enhance, d, 10)
+        enhance_t(dt[:4], w_)
+        t_enh, et = timed(enhance_t, dt, w_, repeat=2)
+        t_naive_enh, e_naive = timed(naive_enhance, d, w_)
         from placeloc.seqslam.search import enhancement_shift
 
-        assert np.allclose(e_naive + enhancement_shift(10), et.T, atol=1e-3), "naive and fast enhancement disagree"
+        assert np.allclose(e_naive + enhancement_shift(w_), et.T, atol=1e-3), "naive and fast enhancement disagree"
         rows.append(("contrast enhancement", t_enh, t_naive_enh, ""))
 
-        vels = velocities(0.8, 1.2, 0.1)
-        sequence_search(et[:50], 20, 30, 10, vels, "causal", 10)
-        t_search, (best, _) = timed(sequence_search, et, 0, n, 10, vels, "causal", 10, repeat=2)
+        sequence_search(et[:50], 20, 30, P.ds, vels, P.search, w_, P.top_k, None, 0, shape=P.sequence_shape, edges=P.edges)
+        t_search, (best, _) = timed(sequence_search, et, 0, n, P.ds, vels, P.search, w_, P.top_k, None, 0,
+                                       shape=P.sequence_shape, edges=P.edges, repeat=2)
         qs = np.arange(10, 10 + 200)
-        t_ns_part, best_naive = timed(naive_search, et.T, qs, 10, vels)
+        t_ns_part, best_naive = timed(naive_search, et.T, qs, P.ds, vels, P.search)
         agree = float((best_naive == best[qs, 0]).mean())
-        rows.append(("sequence search (ds=10, 5 velocities)", t_search, t_ns_part * n / len(qs),
+        t_naive_search = t_ns_part * n / len(qs)
+        rows.append((f"sequence search (ds={P.ds}, {len(vels)} velocities)", t_search, t_naive_search,
                      f"naive timed on {len(qs)} queries, scaled; argmin agreement {agree:.3f}"))
-
-        cfg = write_config(work / "bench.yaml", ref_dir, q_dir)
-        t_extract, _ = run_stage_subprocess(cfg, work / "run", "extract")
-        t_localize, rss = run_stage_subprocess(cfg, work / "run", "localize")
-        total_naive = t_naive_sad + t_naive_enh + rows[-1][2]
-        rows.append(("whole localize stage (sad, store D in HDF5)", t_localize, total_naive, f"child peak RSS {rss:.2f} GB"))
-        rows.append(("extract stage (read + thumbnails + features)", t_extract, None, ""))
+        t_naive_whole = t_naive_extract + t_naive_sad + t_naive_enh + t_naive_search
+        rows.append(("placeloc extract (own process)", stages["extract"][0], t_naive_extract,
+                     f"CPU {stages['extract'][1]:.2f} s; naive: read + per-block loop"))
+        rows.append(("placeloc localize (own process, D stored)", stages["localize"][0],
+                     t_naive_sad + t_naive_enh + t_naive_search, f"CPU {stages['localize'][1]:.2f} s"))
+        rows.append(("WHOLE RUN extract + localize", t_whole, t_naive_whole, f"CPU {cpu_whole:.2f} s"))
+        load1 = os.getloadavg()
 
         print(f"\nSeqSLAM {n} x {n}, 64x32 thumbnails")
         print(f"{'what':48s} {'placeloc s':>11s} {'naive s':>10s} {'speed-up':>9s}  note")
@@ -170,7 +234,10 @@ def main() -> None:
             ratio = f"{tn / t:8.1f}x" if tn else "        -"
             tn_s = f"{tn:10.2f}" if tn else "         -"
             print(f"{name:48s} {t:11.3f} {tn_s} {ratio}  {note}")
-        print(f"target: whole localize stage < 3 s -> {'met' if t_localize < 3 else 'NOT met'} ({t_localize:.2f} s)")
+        print(f"load average (1 min) before/after: {load0[0]:.1f} / {load1[0]:.1f} on {os.cpu_count()} cores "
+              "(a load above the core count means the figures include waiting for other processes)")
+        print(f"target: whole run <= 3.3 s -> {'met' if t_whole <= 3.3 else 'NOT met'} ({t_whole:.2f} s wall, "
+              f"{cpu_whole:.2f} s CPU)")
 
         if args.large:
             big = 36000

@@ -253,9 +253,10 @@ def test_failed_stage_leaves_no_old_side_output_and_keeps_config(route, tmp_path
     run_all(cfg, run, quiet=True)
     assert (run / "metrics.json").is_file()
     config_before = (run / "config.yaml").read_text()
-    (route / "ground_truth.csv").write_text("this is not,a ground truth\nfile,at all\n")
+    # the file breaks after the config was checked, so the failure comes at evaluate
     cfg_bad = load_config(route / "config.yaml", ["plots=false", "seqslam.ds=5"])
-    with pytest.raises(ValueError, match="ground_truth.csv: header must be"):
+    (route / "ground_truth.csv").write_text("this is not,a ground truth\nfile,at all\n")
+    with pytest.raises(ValueError, match="ground_truth.csv:1: header must be"):
         run_all(cfg_bad, run, quiet=True)
     assert not (run / "metrics.json").exists()  # the old figures would not match the new localize
     assert (run / "config.yaml").read_text() == config_before  # config.yaml names the last good run

@@ -87,9 +87,9 @@ def test_matrix_must_be_boolean_or_0_1(tmp_path):
 
 
 def test_negative_tolerance_and_radius_fail_at_config_time(route):
-    with pytest.raises(GroundTruthError, match="tolerance is -3; it must be >= 0"):
+    with pytest.raises(ConfigError, match="ground_truth.tolerance: -3 is out of range; it must be >= 0"):
         load_config(route / "config.yaml", ["ground_truth.tolerance=-3"])
-    with pytest.raises(ConfigError, match="radius is -1"):
+    with pytest.raises(ConfigError, match="ground_truth.radius: -1.0 is out of range"):
         load_config(route / "config.yaml", ["ground_truth.kind=poses", "ground_truth.radius=-1"])
 
 

@@ -47,7 +47,7 @@ def test_search_finds_planted_diagonal_at_known_velocity(search, v_true):
     # distractor: single-frame lows that no trajectory connects
     d[rng.integers(0, n_ref, 200), rng.integers(0, n_q, 200)] = 0.0
     et = np.ascontiguousarray(enhance(d, 10).T)
-    best, scores = sequence_search(et, 0, n_q, ds, velocities(0.8, 1.2, 0.1), search, window=10, k=3)
+    best, scores = sequence_search(et, 0, n_q, ds, velocities(0.8, 1.2, 0.1), search, 10, 3, None, 0, shape="trajectory", edges="skip")
     t = query_offsets(ds, search)
     valid = np.arange(n_q)[(np.arange(n_q) + t.min() >= 0) & (np.arange(n_q) + t.max() < n_q)]
     assert (best[: valid[0], 0] == -1).all()  # no full window: no match
@@ -65,7 +65,7 @@ def test_loop_closure_excludes_recent_frames():
     np.fill_diagonal(d, 0.0)  # a traverse is identical to itself
     d[np.arange(20, 40), np.arange(100, 120)] = 0.05  # revisit: frames 100..119 see 20..39 again
     et = np.ascontiguousarray(enhance(d, 5).T)
-    best, _ = sequence_search(et, 0, n, 5, velocities(1.0, 1.0, 0.1), "causal", window=5, k=2, exclude_recent=30)
+    best, _ = sequence_search(et, 0, n, 5, velocities(1.0, 1.0, 0.1), "causal", 5, 2, 30, 0, shape="trajectory", edges="skip")
     for q in range(n):
         if best[q, 0] >= 0:
             assert best[q, 0] <= q - 30

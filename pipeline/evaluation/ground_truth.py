@@ -430,17 +430,13 @@ def check_config(config: dict[str, Any]) -> None:
     built in full against the listed images, so every problem (format, columns, indices
     or names outside the traverses, matrix type and shape, missing positions) is one
     :class:`GroundTruthError` naming the file, row and fix. For other methods only what
-    is method-independent is checked (tolerance, radius, that a pose file parses).
+    is method-independent is checked (that a pose file parses).
     """
     section = config.get("ground_truth") or {}
     kind = section.get("kind", "none")
     if kind == "none":
         return
-    tol = section.get("tolerance")
-    if tol is not None and tol < 0:
-        raise GroundTruthError(f"ground_truth.tolerance is {tol}; it must be >= 0, e.g. ground_truth.tolerance: 2")
-    if kind == "poses" and section.get("radius") is not None and section["radius"] <= 0:
-        raise GroundTruthError(f"ground_truth.radius is {section['radius']}; give the match radius in metres (> 0)")
+    # tolerance >= 0 and radius > 0 are declared ranges, checked by placeloc.config before this.
     if config.get("method") not in IMAGE_MATCHING:
         if kind == "poses" and section.get("path") and Path(section["path"]).is_file():
             from placeloc.evaluation.poses import PoseError, read_poses

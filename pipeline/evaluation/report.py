@@ -47,7 +47,7 @@ def _table(rows: list[tuple[str, Any]], head: tuple[str, str]) -> str:
     return f"<table><tr><th>{head[0]}</th><th>{head[1]}</th></tr>{body}</table>"
 
 
-def _run_config(run_dir: Path) -> dict[str, Any]:
+def run_config(run_dir: Path) -> dict[str, Any]:
     """The config of the newest stage artifact in ``run_dir`` (config.yaml is written only
     after a run succeeds, so during a stage it may still describe the previous run)."""
     import h5py
@@ -70,7 +70,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     """Write ``run_dir/report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact)."""
     run_dir = Path(run_dir)
-    cfg = config if config is not None else _run_config(run_dir)
+    cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
     if (run_dir / "metrics.json").is_file():
         metrics = json.loads((run_dir / "metrics.json").read_text())

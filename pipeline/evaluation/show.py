@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 SAMPLE_PNG = "strips_sample.png"
 FAILURES_PNG = "strips_failures.png"
@@ -63,12 +62,12 @@ def _num(text: str) -> float:
 
 
 def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
+    from placeloc.evaluation.report import run_config
     from placeloc.images import ImageError, list_images
 
-    cfg_path = run_dir / "config.yaml"
-    if not cfg_path.is_file():
-        raise ShowError(f"{run_dir}: config.yaml is missing (the runner writes it); is this a placeloc run directory?")
-    cfg = yaml.safe_load(cfg_path.read_text()) or {}
+    cfg = run_config(run_dir)
+    if not cfg:
+        raise ShowError(f"{run_dir}: holds no placeloc artifact; run `placeloc localize CONFIG -o {run_dir}` first")
 
     def names(role: str) -> dict[str, Path]:
         section = cfg.get(role) or {}

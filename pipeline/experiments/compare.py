@@ -1,4 +1,4 @@
-"""Run several image comparisons on one data set and tabulate them like seed 004's table 1."""
+"""Run several image comparisons on one data set and tabulate them like the comparison study's table 1."""
 
 from __future__ import annotations
 

@@ -1,11 +1,19 @@
-"""The eight image comparisons of seed 004 (SeqSLAM with illumination-robust matching).
+"""The eight image comparisons studied for SeqSLAM under changing illumination.
+
+SeqSLAM itself is M. Milford and G. Wyeth, "SeqSLAM: Visual route-based navigation for
+sunny summer days and stormy winter nights", ICRA 2012 (sum of absolute differences of
+patch-normalised thumbnails). The other seven comparisons (histogram equalisation, ZNCC
+and its absolute value, increment sign correlation ISC, orientation code matching OCM and
+their four-pixel-average extensions) are those of the study of illumination-robust image
+comparisons for SeqSLAM this project reproduces; the equation numbers below are that
+study's.
 
 Every comparison has two halves:
 
-- ``prepare(thumbnail, comparison, params)`` turns one greyscale thumbnail into the
-  feature vector that comparison works on (done once per image, in ``extract``);
-- ``difference_block(ref_features, query_features, comparison, params)`` returns the
-  difference block ``D[i, j]`` between reference ``i`` and query ``j``.
+- ``prepare(thumbnail, comparison=..., patch=..., ...)`` turns one greyscale thumbnail
+  into the feature vector that comparison works on (done once per image, in ``extract``);
+- ``difference_block(ref_features, query_features, comparison)`` returns the difference
+  block ``D[i, j]`` between reference ``i`` and query ``j``.
 
 Matrix convention, everywhere in placeloc's SeqSLAM: rows = reference, columns = query,
 and *lower = more alike*. Similarities ``R`` are turned into differences ``1 - R``.
@@ -33,10 +41,7 @@ encoded vectors, which is why their features are stored encoded.
 
 from __future__ import annotations
 
-from typing import Any
-
 import cv2
-import numba
 import numpy as np
 
 COMPARISONS = ("sad", "histeq", "zncc", "abs_zncc", "isc", "isc_ext", "ocm", "ocm_ext")
@@ -60,28 +65,53 @@ def thumbnail(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA)
 
 
-def patch_normalise(img: np.ndarray, patch: int, mode: str = "minmax") -> np.ndarray:
+def patch_normalise(img: np.ndarray, patch: int, mode: str) -> np.ndarray:
     """Normalise each ``patch x patch`` block on its own.
 
     ``minmax`` (the paper's "existing method") stretches each block to 0..255 and returns
     uint8; a flat block becomes 0. ``zscore`` (OpenSeqSLAM) returns float32 with zero mean
     and unit standard deviation per block. Edge blocks may be smaller than ``patch``.
+    ``img`` is one image (h, w) or a stack (n, h, w), normalised image by image.
+    Vectorised: each image is viewed as (rows of blocks, patch, columns of blocks, patch)
+    and reduced over the two in-block axes.
     """
-    h, w = img.shape
+    *lead, h, w = img.shape
     x = img.astype(np.float32)
-    out = np.zeros_like(x)
-    for y0 in range(0, h, patch):
-        for x0 in range(0, w, patch):
-            blk = x[y0:y0 + patch, x0:x0 + patch]
-            if mode == "minmax":
-                lo, hi = blk.min(), blk.max()
-                out[y0:y0 + patch, x0:x0 + patch] = 0.0 if hi <= lo else (blk - lo) * (255.0 / (hi - lo))
-            else:
-                sd = blk.std()
-                out[y0:y0 + patch, x0:x0 + patch] = 0.0 if sd <= 1e-6 else (blk - blk.mean()) / sd
+    ph, pw = -(-h // patch) * patch, -(-w // patch) * patch
+    pad = [(0, 0)] * len(lead) + [(0, ph - h), (0, pw - w)]
+    shape = (*lead, ph // patch, patch, pw // patch, patch)
+    axes = (len(lead) + 1, len(lead) + 3)
+    if mode == "minmax" and (ph, pw) == (h, w) and img.dtype == np.uint8:
+        # The common case: blocks gathered contiguously, min/max taken exactly in uint8.
+        n = int(np.prod(lead)) if lead else 1
+        b = img.reshape(n, h // patch, patch, w // patch, patch).transpose(0, 1, 3, 2, 4)
+        b = b.reshape(n, h // patch, w // patch, patch * patch)
+        lo = b.min(axis=3, keepdims=True)
+        rng = (b.max(axis=3, keepdims=True) - lo).astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.where(rng > 0, (b.astype(np.float32) - lo.astype(np.float32)) * (np.float32(255.0) / rng),
+                           np.float32(0.0))
+        out = np.rint(out).astype(np.uint8).reshape(n, h // patch, w // patch, patch, patch).transpose(0, 1, 3, 2, 4)
+        return np.ascontiguousarray(out).reshape(*lead, h, w)
     if mode == "minmax":
-        return np.rint(out).astype(np.uint8)
-    return out
+        # Edge padding repeats pixels of the same (smaller) edge block: its min/max stay.
+        xp = x if (ph, pw) == (h, w) else np.pad(x, pad, mode="edge")
+        blocks = xp.reshape(shape)
+        lo = blocks.min(axis=axes, keepdims=True)
+        rng = blocks.max(axis=axes, keepdims=True) - lo
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.where(rng > 0, (blocks - lo) * (np.float32(255.0) / rng), np.float32(0.0))
+        return np.rint(out.reshape(*lead, ph, pw)[..., :h, :w]).astype(np.uint8)
+    if mode != "zscore":
+        raise ValueError(f"unknown patch normalisation {mode!r}; choose minmax or zscore")
+    # NaN padding so partial edge blocks average over their own pixels only.
+    xp = x if (ph, pw) == (h, w) else np.pad(x, pad, constant_values=np.nan)
+    blocks = xp.reshape(shape)
+    mean = np.nanmean(blocks, axis=axes, keepdims=True)
+    sd = np.sqrt(np.nanmean((blocks - mean) ** 2, axis=axes, keepdims=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(sd > 1e-6, (blocks - mean) / sd, np.float32(0.0)).astype(np.float32)
+    return np.ascontiguousarray(out.reshape(*lead, ph, pw)[..., :h, :w])
 
 
 def half_resolution(img: np.ndarray) -> np.ndarray:
@@ -108,36 +138,54 @@ def orientation_codes(img: np.ndarray, epsilon: float) -> np.ndarray:
     return codes.astype(np.uint8).ravel()
 
 
+def _unit_centred(thumb: np.ndarray) -> np.ndarray:
+    """ZNCC's vector: mean removed, unit length (row by row: the float sums stay as they were)."""
+    v = thumb.astype(np.float32).ravel()
+    v = v - v.mean()
+    n = float(np.linalg.norm(v))
+    return (v / n if n > 0 else v).astype(np.float32)
+
+
 def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 0:
         return img.astype(np.float32)
     return cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
 
 
-def prepare(thumb: np.ndarray, comparison: str, params: dict[str, Any]) -> np.ndarray:
-    """Feature vector of one thumbnail for ``comparison`` (see the module docstring)."""
+def prepare(thumb: np.ndarray, *, comparison: str, patch: int, normalisation: str, gaussian_sigma: float,
+            ocm_epsilon: float) -> np.ndarray:
+    """Feature vector of one thumbnail for ``comparison`` (see the module docstring).
+
+    ``patch`` and ``normalisation`` matter for ``sad`` only; ``gaussian_sigma`` for
+    ``isc*``/``ocm*``; ``ocm_epsilon`` for ``ocm*``.
+    """
+    return prepare_many(thumb[None], comparison=comparison, patch=patch, normalisation=normalisation,
+                        gaussian_sigma=gaussian_sigma, ocm_epsilon=ocm_epsilon)[0]
+
+
+def prepare_many(thumbs: np.ndarray, *, comparison: str, patch: int, normalisation: str, gaussian_sigma: float,
+                 ocm_epsilon: float) -> np.ndarray:
+    """Feature rows (n, d) of a stack of thumbnails (n, h, w); ``sad`` is done in one vectorised pass."""
     if comparison == "sad":
-        return patch_normalise(thumb, int(params["patch"]), params["normalisation"]).ravel()
+        return patch_normalise(thumbs, int(patch), normalisation).reshape(len(thumbs), -1)
     if comparison == "histeq":
-        return cv2.equalizeHist(thumb).ravel()
+        return np.stack([cv2.equalizeHist(t).ravel() for t in thumbs]).reshape(len(thumbs), -1)
     if comparison in ("zncc", "abs_zncc"):
-        v = thumb.astype(np.float32).ravel()
-        v = v - v.mean()
-        n = float(np.linalg.norm(v))
-        return (v / n if n > 0 else v).astype(np.float32)
-    sigma = float(params.get("gaussian_sigma", 1.0))
-    img = _gaussian(thumb, sigma)
-    if comparison.endswith("_ext"):
-        img = half_resolution(img)
-    if comparison.startswith("isc"):
-        return increment_signs(img)
-    if comparison.startswith("ocm"):
-        return orientation_codes(img, float(params.get("ocm_epsilon", 5.0)))
-    raise ValueError(f"unknown comparison {comparison!r}; choose one of {', '.join(COMPARISONS)}")
+        return np.stack([_unit_centred(t) for t in thumbs]).reshape(len(thumbs), -1)
+    if comparison not in COMPARISONS:
+        raise ValueError(f"unknown comparison {comparison!r}; choose one of {', '.join(COMPARISONS)}")
+    rows = []
+    for t in thumbs:
+        img = _gaussian(t, float(gaussian_sigma))
+        if comparison.endswith("_ext"):
+            img = half_resolution(img)
+        rows.append(increment_signs(img) if comparison.startswith("isc") else orientation_codes(img, float(ocm_epsilon)))
+    return np.stack(rows) if rows else np.zeros((0, 0), np.uint8)
 
 
-def feature_dtype(comparison: str, params: dict[str, Any]) -> np.dtype:
-    if comparison == "sad" and params["normalisation"] == "zscore":
+def feature_dtype(comparison: str, normalisation: str) -> np.dtype:
+    """The dtype ``prepare`` returns for this comparison (uint8 wherever it can)."""
+    if comparison == "sad" and normalisation == "zscore":
         return np.dtype(np.float32)
     if comparison in ("zncc", "abs_zncc"):
         return np.dtype(np.float32)
@@ -147,44 +195,16 @@ def feature_dtype(comparison: str, params: dict[str, Any]) -> np.dtype:
 # ---------------------------------------------------------------------------------------
 # Difference blocks
 # ---------------------------------------------------------------------------------------
-# Two kernels on purpose: the uint8 one accumulates in integers, which the compiler turns
-# into SIMD sum-of-absolute-differences; a float accumulator would lose that.
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    n, d = a.shape
-    m = b.shape[0]
-    for i in numba.prange(n):
-        ai = a[i]
-        for j in range(m):
-            bj = b[j]
-            s = 0
-            for k in range(d):
-                x = np.int32(ai[k]) - np.int32(bj[k])
-                s += x if x >= 0 else -x
-            out[i, j] = s / d
-
-
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _l1_float(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    n, d = a.shape
-    m = b.shape[0]
-    for i in numba.prange(n):
-        ai = a[i]
-        for j in range(m):
-            bj = b[j]
-            s = np.float32(0.0)
-            for k in range(d):
-                s += abs(ai[k] - bj[k])
-            out[i, j] = s / d
-
-
 def mean_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``out[i, j] = mean_k |a[i, k] - b[j, k]|`` as float32 (numba, all cores)."""
+    # The numba kernels live in their own module, imported here: extract never pays for numba.
+    from placeloc.seqslam.l1 import l1_float, l1_uint8
+
     out = np.empty((a.shape[0], b.shape[0]), np.float32)
     if a.dtype == np.uint8 and b.dtype == np.uint8:
-        _l1_uint8(np.ascontiguousarray(a), np.ascontiguousarray(b), out)
+        l1_uint8(np.ascontiguousarray(a), np.ascontiguousarray(b), out)
     else:
-        _l1_float(np.ascontiguousarray(a, dtype=np.float32), np.ascontiguousarray(b, dtype=np.float32), out)
+        l1_float(np.ascontiguousarray(a, dtype=np.float32), np.ascontiguousarray(b, dtype=np.float32), out)
     return out
 
 
@@ -203,6 +223,10 @@ def difference_block(ref: np.ndarray, query: np.ndarray, comparison: str) -> np.
     """Difference block (rows = reference, columns = query, lower = more alike), float32."""
     if comparison in ("sad", "histeq"):
         return mean_abs_difference(ref, query)
+    if comparison in ("cosine", "l2"):  # descriptors brought from elsewhere (see descriptors.py)
+        from placeloc.seqslam.descriptors import descriptor_difference
+
+        return descriptor_difference(ref, query, comparison)
     if comparison == "zncc":
         return (1.0 - ref @ query.T).astype(np.float32)
     if comparison == "abs_zncc":

@@ -7,10 +7,19 @@ from dataclasses import dataclass
 from placeloc.params import Params, param
 from placeloc.seqslam.comparisons import COMPARISONS
 
+# Kept here (not imported from search.py) so reading the parameters never imports numba.
+SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid")
+
 
 @dataclass(frozen=True)
 class SeqSLAMParams(Params):
     comparison: str = param("sad", choices=COMPARISONS, help="image comparison: sad|histeq|zncc|abs_zncc|isc|isc_ext|ocm|ocm_ext")
+    descriptors_reference: str | None = param(None, path=True,
+                                              help="descriptors computed elsewhere for the reference images (.npy "
+                                                   "matrix, .h5/.hdf5, or a folder of one .npy per image; one row per "
+                                                   "image in folder order): used instead of thumbnails")
+    descriptors_query: str | None = param(None, path=True, help="the same for the query images")
+    descriptor_distance: str = param("cosine", choices=("cosine", "l2"), help="distance between brought descriptors")
     thumbnail: tuple[int, int] = param([64, 32], min=4, help="thumbnail width, height in pixels")
     patch: int = param(8, min=1, help="patch normalisation block size (sad)")
     normalisation: str = param("minmax", choices=("minmax", "zscore"), help="patch normalisation: minmax (paper) or zscore (OpenSeqSLAM)")
@@ -21,6 +30,14 @@ class SeqSLAMParams(Params):
     v_min: float = param(0.8, min=0.0, min_exclusive=True, help="slowest trajectory slope (reference frames per query frame)")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
+    v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
+                                      "recorded at different frame rates or speeds")
+    sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,
+                                help="trajectory (straight lines, SeqSLAM), cone (best reference per frame inside the "
+                                     "velocity cone) or hybrid (cone proposes, trajectories rank); as in OpenSeqSLAM2")
+    edges: str = param("skip", choices=("skip", "shift"),
+                       help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
+                            "ds + 1 frames nearest them)")
     search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
     exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
     top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")

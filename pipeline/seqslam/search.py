@@ -19,6 +19,7 @@ import math
 
 import numba
 import numpy as np
+from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 
 INVALID = np.float32(np.inf)
 
@@ -90,59 +91,147 @@ def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray,
-            window: int, k: int, exclude_after: np.ndarray, best: np.ndarray, scores: np.ndarray) -> None:
-    ncols, nr = et.shape
+
+
+@numba.njit(cache=True, fastmath=True)
+def _trajectory_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
+    """``s[r] = min_V sum_t et[T + t, r + round(V t)]`` over trajectories inside the matrix."""
+    nr = et.shape[1]
     nv, nt = traj.shape
+    acc = np.empty(nr, dtype=np.float32)
+    for v in range(nv):
+        omin = traj[v, 0]
+        omax = traj[v, 0]
+        for j in range(nt):
+            omin = min(omin, traj[v, j])
+            omax = max(omax, traj[v, j])
+        r_lo = max(0, -omin)
+        r_hi = min(nr, nr - omax, limit)
+        if r_hi <= r_lo:
+            continue
+        # Slices with non-negative loop indices: numba drops its negative-index handling
+        # and the adds vectorise (same adds, same order, as a loop over r).
+        a = acc[r_lo:r_hi]
+        a[:] = 0.0
+        for j in range(nt):
+            o = traj[v, j]
+            src = et[T + t_off[j], r_lo + o:r_hi + o]
+            for i in range(r_hi - r_lo):
+                a[i] += src[i]
+        dst = s[r_lo:r_hi]
+        for i in range(r_hi - r_lo):
+            if a[i] < dst[i]:
+                dst[i] = a[i]
+
+
+@numba.njit(cache=True, fastmath=True)
+def _cone_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
+    """``s[r] = sum_t min_{o in cone(t)} et[T + t, r + o]``: at every query frame the best
+    reference inside the cone the velocities span, chosen frame by frame."""
+    nr = et.shape[1]
+    nv, nt = traj.shape
+    lo = np.empty(nt, np.int64)
+    hi = np.empty(nt, np.int64)
+    for j in range(nt):
+        lo[j] = traj[0, j]
+        hi[j] = traj[0, j]
+        for v in range(nv):
+            lo[j] = min(lo[j], traj[v, j])
+            hi[j] = max(hi[j], traj[v, j])
+    r_lo = 0
+    r_hi = min(nr, limit)
+    for j in range(nt):
+        r_lo = max(r_lo, -lo[j])
+        r_hi = min(r_hi, nr - hi[j])
+    if r_hi <= r_lo:
+        return
+    acc = np.zeros(nr, dtype=np.float32)
+    for j in range(nt):
+        col = et[T + t_off[j]]
+        for r in range(r_lo, r_hi):
+            m = col[r + lo[j]]
+            for o in range(lo[j] + 1, hi[j] + 1):
+                m = min(m, col[r + o])
+            acc[r] += m
+    for r in range(r_lo, r_hi):
+        s[r] = acc[r]
+
+
+@numba.njit(cache=True)
+def _top_k(s: np.ndarray, window: int, k: int, best: np.ndarray, scores: np.ndarray) -> None:
+    """Greedy non-maximum suppression: the k best references at least window+1 apart.
+    Destroys ``s``."""
+    nr = s.shape[0]
+    for kk in range(k):
+        bi = -1
+        bv = np.inf
+        for r in range(nr):
+            if s[r] < bv:
+                bv = s[r]
+                bi = r
+        best[kk] = bi
+        scores[kk] = bv
+        if bi < 0:
+            for rest in range(kk + 1, k):
+                best[rest] = -1
+                scores[rest] = np.inf
+            break
+        for r in range(max(0, bi - window), min(nr, bi + window + 1)):
+            s[r] = np.inf
+
+
+@numba.njit(cache=True)
+def _shifted(t_off: np.ndarray, vels: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """Query offsets moved by ``shift`` frames and their trajectory offsets (same rounding
+    as :func:`trajectory_offsets`)."""
+    nv, nt = vels.shape[0], t_off.shape[0]
+    t2 = t_off + shift
+    traj = np.empty((nv, nt), np.int64)
+    for v in range(nv):
+        for j in range(nt):
+            x = vels[v] * np.float64(t2[j])
+            traj[v, j] = np.int64(np.sign(x) * np.floor(np.abs(x) + 0.5))
+    return t2, traj
+
+
+@numba.njit(parallel=True, cache=True, fastmath=True)
+def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray, vels: np.ndarray,
+            shift_edges: bool, window: int, k: int, exclude_after: np.ndarray, shape: int, best: np.ndarray,
+            scores: np.ndarray) -> None:
+    ncols, nr = et.shape
+    nt = traj.shape[1]
     for qi in numba.prange(q_hi - q_lo):
         T = q_lo + qi  # column of the current query inside et
         s = np.full(nr, np.inf, dtype=np.float32)
-        ok = True
-        for j in range(nt):
-            c = T + t_off[j]
-            if c < 0 or c >= ncols:
-                ok = False
+        to = t_off
+        tr = traj
+        ok = T + t_off[0] >= 0 and T + t_off[nt - 1] < ncols
+        if not ok and shift_edges and nt <= ncols:
+            # near the ends of the traverse: the window of ds + 1 frames nearest the query
+            sh = -(T + t_off[0]) if T + t_off[0] < 0 else ncols - 1 - (T + t_off[nt - 1])
+            to, tr = _shifted(t_off, vels, sh)
+            ok = True
         if ok:
             limit = exclude_after[qi]  # references >= limit are excluded (loop closure)
-            acc = np.empty(nr, dtype=np.float32)
-            for v in range(nv):
-                omin = traj[v, 0]
-                omax = traj[v, 0]
-                for j in range(nt):
-                    omin = min(omin, traj[v, j])
-                    omax = max(omax, traj[v, j])
-                r_lo = max(0, -omin)
-                r_hi = min(nr, nr - omax, limit)
-                if r_hi <= r_lo:
-                    continue
-                for r in range(r_lo, r_hi):
-                    acc[r] = 0.0
-                for j in range(nt):
-                    col = et[T + t_off[j]]
-                    o = traj[v, j]
-                    for r in range(r_lo, r_hi):
-                        acc[r] += col[r + o]
-                for r in range(r_lo, r_hi):
-                    if acc[r] < s[r]:
-                        s[r] = acc[r]
-        # Greedy non-maximum suppression: the k best references at least window+1 apart.
-        for kk in range(k):
-            bi = -1
-            bv = np.inf
-            for r in range(nr):
-                if s[r] < bv:
-                    bv = s[r]
-                    bi = r
-            best[qi, kk] = bi
-            scores[qi, kk] = bv
-            if bi < 0:
-                for rest in range(kk + 1, k):
-                    best[qi, rest] = -1
-                    scores[qi, rest] = np.inf
-                break
-            for r in range(max(0, bi - window), min(nr, bi + window + 1)):
-                s[r] = np.inf
+            if shape == 0:
+                _trajectory_scores(et, T, to, tr, limit, s)
+            elif shape == 1:
+                _cone_scores(et, T, to, tr, limit, s)
+            else:
+                # hybrid: the cone proposes k regions, the trajectory score ranks inside them
+                _cone_scores(et, T, to, tr, limit, s)
+                cb = np.full(k, -1, np.int64)
+                cs = np.full(k, np.inf, np.float32)
+                _top_k(s, window, k, cb, cs)
+                st = np.full(nr, np.inf, dtype=np.float32)
+                _trajectory_scores(et, T, to, tr, limit, st)
+                for r in range(nr):
+                    s[r] = np.inf
+                for kk in range(k):
+                    if cb[kk] >= 0:
+                        for r in range(max(0, cb[kk] - window), min(nr, cb[kk] + window + 1)):
+                            s[r] = st[r]
+        _top_k(s, window, k, best[qi], scores[qi])
 
 
 def sequence_search(
@@ -153,17 +242,34 @@ def sequence_search(
     vels: np.ndarray,
     search: str,
     window: int,
-    k: int = 10,
-    exclude_recent: int | None = None,
-    query_index0: int = 0,
+    k: int,
+    exclude_recent: int | None,
+    query_index0: int,
+    *,
+    shape: str,
+    edges: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
+
+    ``shape`` is how a sequence may run through the matrix (as in OpenSeqSLAM2):
+    ``trajectory`` (straight lines of the given slopes, the original SeqSLAM), ``cone``
+    (at each query frame the best reference anywhere between the slowest and the fastest
+    line: tolerates speed changes inside the window) or ``hybrid`` (the cone proposes the
+    ``k`` best regions, straight lines rank the references inside them).
+
+    ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
+    (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
+    first and last ds/2 queries get a (one-sided) sequence too.
 
     Returns ``best`` (n, k) reference indices (-1 = none) and their ``scores`` (n, k),
     ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
     closure, reference == query) drops references ``r > T_global - exclude_recent`` where
     ``T_global = query_index0 + column``.
     """
+    if edges not in ("skip", "shift"):
+        raise ValueError(f"unknown edge handling {edges!r}; choose skip or shift")
+    if shape not in SHAPES:
+        raise ValueError(f"unknown sequence shape {shape!r}; choose one of {', '.join(SHAPES)}")
     t_off = query_offsets(ds, search)
     traj = trajectory_offsets(vels, t_off)
     n = q_hi - q_lo
@@ -176,8 +282,8 @@ def sequence_search(
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), np.inf, np.float32)
     if n > 0:
-        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, int(window), int(k),
-                exclude_after, best, scores)
+        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, np.asarray(vels, np.float64),
+                edges == "shift", int(window), int(k), exclude_after, SHAPES.index(shape), best, scores)
     return best, scores
 
 
@@ -193,3 +299,27 @@ def confidence(scores: np.ndarray) -> np.ndarray:
         c = 1.0 - s1 / s2
     c[~np.isfinite(s1) | ~np.isfinite(s2) | (s2 <= 0)] = 0.0
     return np.clip(c, 0.0, 1.0)
+
+
+def single_image_best(dt: np.ndarray, window: int, exclude_recent: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Single-image baseline: best reference per query on raw differences ``dt[q, r]``
+    (query-major), confidence as for sequences: ``1 - best / best outside +-window``
+    (differences are >= 0 for every comparison). ``q0`` is the global index of row 0, for
+    ``exclude_recent`` (loop closure)."""
+    n, nr = dt.shape
+    rows = np.arange(n)[:, None]
+    x = dt
+    if exclude_recent is not None:
+        x = dt.copy()
+        limit = np.clip(q0 + np.arange(n) - exclude_recent + 1, 0, nr)
+        x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
+    best = np.argmin(x, axis=1)
+    s1 = x[np.arange(n), best].astype(np.float64)
+    x = x.copy() if x is dt else x
+    x[rows, np.clip(best[:, None] + np.arange(-window, window + 1)[None, :], 0, nr - 1)] = np.inf
+    s2 = x.min(axis=1).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conf = 1.0 - np.maximum(s1, 0) / s2
+    conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0
+    best[~np.isfinite(s1)] = -1
+    return best, np.clip(conf, 0, 1)

@@ -1,5 +1,9 @@
 """SeqSLAM on the staged pipeline: extract -> (no dictionary, no index) -> localize -> evaluate.
 
+Thin: each stage reads its inputs through ``ctx``, calls the numerical modules
+(:mod:`.features`, :mod:`.matching`, :mod:`.search`) with explicit keyword arguments taken
+from ``ctx.params`` and writes what they return.
+
 Artifacts:
 
 - ``extract.h5``: per traverse (``reference/``, ``query/``) the ``features`` the chosen
@@ -9,26 +13,25 @@ Artifacts:
   alike; chunked, written block by block), ``candidates``/``scores`` (n_query, K) ranked
   sequence matches, ``confidence`` of the best, and the single-image baseline
   ``single_best``/``single_confidence``. Indices are positions in the extracted lists.
+  Side output ``matches.csv``.
 - ``evaluate.h5`` + ``metrics.json``, ``pr_curve.png``, ``difference_matrix.png``.
 """
 
 from __future__ import annotations
 
-import csv
 import logging
 from typing import Any
 
 import h5py
 import numpy as np
-from placeloc.artifacts import atomic_open, read_strings
+from placeloc.artifacts import read_strings
 from placeloc.evaluation import write_metrics
 from placeloc.evaluation.ground_truth import GroundTruth
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
-from placeloc.images import ImageError, read_gray
+from placeloc.images import ImageError
 from placeloc.methods import Method, Stage
-from placeloc.seqslam.comparisons import difference_block, feature_dtype, prepare, thumbnail
+from placeloc.seqslam.features import extract_chunk
 from placeloc.seqslam.params import SeqSLAMParams
-from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, velocities
 
 log = logging.getLogger("placeloc")
 
@@ -37,52 +40,35 @@ def _check(config: dict) -> None:
     from placeloc.config import ConfigError
 
     p = config["seqslam"]
-    if min(p["thumbnail"]) < 4:
-        raise ConfigError("seqslam.thumbnail: width and height must be >= 4 pixels, e.g. [64, 32]")
-    if p["patch"] < 1:
-        raise ConfigError("seqslam.patch must be >= 1")
-    if p["v_min"] <= 0 or p["v_max"] < p["v_min"] or p["v_step"] <= 0:
-        raise ConfigError("seqslam velocities: need 0 < v_min <= v_max and v_step > 0, e.g. 0.8, 1.2, 0.1")
-    if p["ds"] < 1 or p["enhance_window"] < 1 or p["top_k"] < 2 or p["block_size"] < 1:
-        raise ConfigError("seqslam: ds, enhance_window and block_size must be >= 1, top_k >= 2")
+    if p["v_max"] < p["v_min"]:
+        raise ConfigError("seqslam velocities: need v_min <= v_max, e.g. v_min 0.8, v_max 1.2")
+    has_query = config.get("query") is not None
+    if p["descriptors_query"] is not None and p["descriptors_reference"] is None:
+        raise ConfigError("seqslam.descriptors_query is set but seqslam.descriptors_reference is not; give both")
+    if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
+        raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
+                          "images need descriptors too")
 
 
 # ---------------------------------------------------------------------------------------
 # extract
 # ---------------------------------------------------------------------------------------
-def extract_chunk(job: tuple[list[str], dict[str, Any], str]) -> tuple[np.ndarray, np.ndarray, list[int], list[str]]:
-    """Read and prepare a chunk of images (runs in a worker). Returns features, thumbnails,
-    the positions that succeeded and the errors of those that did not (on_error: skip)."""
-    paths, params, on_error = job
-    size = params["thumbnail"]
-    dtype = feature_dtype(params["comparison"], params)
-    feats, thumbs, ok, errors = [], [], [], []
-    for i, path in enumerate(paths):
-        try:
-            thumb = thumbnail(read_gray(path), size)
-        except ImageError as exc:
-            if on_error != "skip":
-                raise
-            errors.append(str(exc))
-            continue
-        thumbs.append(thumb)
-        feats.append(prepare(thumb, params["comparison"], params).astype(dtype, copy=False))
-        ok.append(i)
-    w, h = size
-    f = np.stack(feats) if feats else np.zeros((0, 0), dtype)
-    t = np.stack(thumbs) if thumbs else np.zeros((0, h, w), np.uint8)
-    return f, t, ok, errors
-
-
 def extract(ctx: Any) -> None:
     """Features of every image, appended chunk by chunk to resizable datasets, so the
     writing process holds one chunk at a time however long the traverse is."""
-    params = ctx.params
-    chunk = int(params["images_per_task"])
-    w, h = params["thumbnail"]
+    p: SeqSLAMParams = ctx.params
+    if p.descriptors_reference is not None:
+        _extract_descriptors(ctx)
+        return
+    ctx.out.attrs["comparison"] = p.comparison
+    chunk = int(p.images_per_task)
+    w, h = p.thumbnail
+    settings = {"thumbnail_size": (int(w), int(h)), "comparison": p.comparison, "patch": int(p.patch),
+                "normalisation": p.normalisation, "gaussian_sigma": float(p.gaussian_sigma),
+                "ocm_epsilon": float(p.ocm_epsilon)}
     for role, images in ctx.images.items():
-        paths = [str(p) for p in images.paths]
-        jobs = [(paths[i:i + chunk], params, images.on_error) for i in range(0, len(paths), chunk)]
+        paths = [str(x) for x in images.paths]
+        jobs = [(paths[i:i + chunk], settings, images.on_error) for i in range(0, len(paths), chunk)]
         g = ctx.out.create_group(role)
         thumbs = g.create_dataset("thumbnails", shape=(0, h, w), maxshape=(None, h, w), dtype=np.uint8,
                                   chunks=(min(1024, max(1, len(paths))), h, w), compression="gzip", compression_opts=1)
@@ -99,9 +85,9 @@ def extract(ctx: Any) -> None:
                                             chunks=(min(1024, max(1, len(paths))), f.shape[1]))
             n0 = len(index)
             index.extend(c * chunk + i for i in ok)
-            for ds, arr in ((features, f), (thumbs, t)):
-                ds.resize(len(index), axis=0)
-                ds[n0:] = arr
+            for dset, arr in ((features, f), (thumbs, t)):
+                dset.resize(len(index), axis=0)
+                dset[n0:] = arr
         if not index:
             raise ImageError(f"{images.source}: no image could be read; check the folder")
         g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
@@ -114,108 +100,68 @@ def extract(ctx: Any) -> None:
             log.warning("skipped: %s", msg)
 
 
+def _extract_descriptors(ctx: Any) -> None:
+    """Bring-your-own descriptors: rows loaded from files, one per listed image (images are not read)."""
+    from placeloc.seqslam.descriptors import load_descriptors, prepare_descriptors
+
+    p: SeqSLAMParams = ctx.params
+    ctx.out.attrs["comparison"] = p.descriptor_distance
+    for role, images in ctx.images.items():
+        path = p.descriptors_reference if role == "reference" else p.descriptors_query
+        mat = prepare_descriptors(load_descriptors(path, len(images.paths), role), p.descriptor_distance)
+        g = ctx.out.create_group(role)
+        g.create_dataset("features", data=mat)
+        g.create_dataset("names", data=np.array([x.name for x in images.paths], dtype=object), dtype=h5py.string_dtype())
+        g.create_dataset("index", data=np.arange(len(mat), dtype=np.int64))
+        g.attrs["source"] = f"{images.source} (descriptors {path})"
+        g.attrs["n_listed"] = len(images.paths)
+        g.create_dataset("skipped", data=np.array([], dtype=object), dtype=h5py.string_dtype())
+
+
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
 def localize(ctx: Any) -> None:
-    p = ctx.params
+    from placeloc.seqslam.matches_csv import write_matches_csv
+    from placeloc.seqslam.matching import sequence_match
+
+    p: SeqSLAMParams = ctx.params
     ex = ctx.artifact("extract")
     ref = ex["reference/features"][()]
     loop_closure = "query" not in ex
     query = ref if loop_closure else ex["query/features"][()]
     n_ref, n_q = len(ref), len(query)
-    window, ds, k = int(p["enhance_window"]), int(p["ds"]), int(p["top_k"])
-    vels = velocities(p["v_min"], p["v_max"], p["v_step"])
-    t_off = query_offsets(ds, p["search"])
-    before, after = int(-t_off.min()), int(t_off.max())
-    exclude = int(p["exclude_recent"]) if loop_closure else None
-    block = int(p["block_size"])
+    # what extract prepared the rows for: an image comparison, or a distance between brought descriptors
+    comparison = str(ex.attrs.get("comparison", p.comparison))
 
-    out = ctx.out
     d_ds = None
-    if p["store_difference"]:
-        d_ds = out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32,
-                                  chunks=(min(n_ref, 512), min(n_q, 256)))
+    if p.store_difference:
+        d_ds = ctx.out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32,
+                                      chunks=(min(n_ref, 512), min(n_q, 256)))
         d_ds.attrs["convention"] = "rows = reference, columns = query, lower = more alike"
-        d_ds.attrs["comparison"] = p["comparison"]
-    candidates = np.full((n_q, k), -1, np.int64)
-    scores = np.full((n_q, k), np.inf, np.float32)
-    single_best = np.full(n_q, -1, np.int64)
-    single_conf = np.zeros(n_q, np.float64)
+        d_ds.attrs["comparison"] = comparison
 
-    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
-    # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
-    # enhancement, search and writing stay here, in order.
-    jobs = ((span, query[span[2]:span[3]], p["comparison"]) for span in spans)
-    blocks = ctx.executor.map(difference_job, jobs, shared=ref,
-                              describe=lambda job: f"difference block, query columns {job[0][2]}:{job[0][3]}")
-    # blocks first in zip: its exhaustion runs the executor's clean-up (release the shared input).
-    for d, (c0, c1, lo, _hi) in ctx.progress(zip(blocks, spans), total=len(spans), desc="localize blocks"):
-        if d_ds is not None:
-            d_ds[:, c0:c1] = d[:, c0 - lo:c1 - lo]
-        dt = np.ascontiguousarray(d.T)
-        # single-image baseline on the raw differences
-        sb, ss = _single_image(dt[c0 - lo:c1 - lo], window, exclude, c0)
-        single_best[c0:c1], single_conf[c0:c1] = sb, ss
-        et = enhance_t(dt, window)
-        del dt, d
-        b, s = sequence_search(et, c0 - lo, c1 - lo, ds, vels, p["search"], window, k=k,
-                               exclude_recent=exclude, query_index0=lo)
-        candidates[c0:c1], scores[c0:c1] = b, s
+    def store(c0: int, c1: int, d: np.ndarray) -> None:
+        d_ds[:, c0:c1] = d
 
-    conf = confidence(scores)
-    out.create_dataset("candidates", data=candidates)
-    out.create_dataset("scores", data=scores)
-    out.create_dataset("confidence", data=conf)
-    out.create_dataset("single_best", data=single_best)
-    out.create_dataset("single_confidence", data=single_conf)
+    m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
+                       v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
+                       sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
+                       exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
+                       map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
+                       progress=ctx.progress)
+    out = ctx.out
+    out.create_dataset("candidates", data=m.candidates)
+    out.create_dataset("scores", data=m.scores)
+    out.create_dataset("confidence", data=m.confidence)
+    out.create_dataset("single_best", data=m.single_best)
+    out.create_dataset("single_confidence", data=m.single_confidence)
     out.attrs["loop_closure"] = loop_closure
-    out.attrs["velocities"] = vels
-    _write_matches_csv(ctx, ex, candidates[:, 0], conf, loop_closure)
-
-
-def difference_job(job: tuple[tuple[int, int, int, int], np.ndarray, str], ref: np.ndarray) -> np.ndarray:
-    """One difference-matrix block (runs in a worker), (n_ref, hi - lo); ``ref`` is shared."""
-    _, query_block, comparison = job
-    return difference_block(ref, query_block, comparison)
-
-
-def _single_image(dt: np.ndarray, window: int, exclude: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
-    """Best reference per query on raw differences (``dt[q, r]``), confidence as for
-    sequences: ``1 - best / best outside +-window`` (differences are >= 0 for every
-    comparison)."""
-    n, nr = dt.shape
-    rows = np.arange(n)[:, None]
-    x = dt
-    if exclude is not None:
-        x = dt.copy()
-        limit = np.clip(q0 + np.arange(n) - exclude + 1, 0, nr)
-        x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
-    best = np.argmin(x, axis=1)
-    s1 = x[np.arange(n), best].astype(np.float64)
-    x = x.copy() if x is dt else x
-    x[rows, np.clip(best[:, None] + np.arange(-window, window + 1)[None, :], 0, nr - 1)] = np.inf
-    s2 = x.min(axis=1).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        conf = 1.0 - np.maximum(s1, 0) / s2
-    conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0
-    best[~np.isfinite(s1)] = -1
-    return best, np.clip(conf, 0, 1)
-
-
-def _write_matches_csv(ctx: Any, ex: Any, best: np.ndarray, conf: np.ndarray, loop_closure: bool) -> None:
-    ref_names = read_strings(ex["reference/names"])
-    ref_index = ex["reference/index"][()]
-    qg = ex["reference" if loop_closure else "query"]
-    q_names, q_index = read_strings(qg["names"]), qg["index"][()]
-    with atomic_open(ctx.run_dir / "matches.csv", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["query", "reference", "confidence", "query_image", "reference_image"])
-        for q, (r, c) in enumerate(zip(best, conf)):
-            if r < 0:
-                w.writerow([int(q_index[q]), "", "", q_names[q], ""])
-            else:
-                w.writerow([int(q_index[q]), int(ref_index[r]), f"{c:.6f}", q_names[q], ref_names[r]])
+    out.attrs["velocities"] = m.velocities
+    q_group = ex["reference" if loop_closure else "query"]
+    write_matches_csv(ctx.run_dir / "matches.csv", best=m.candidates[:, 0], confidence=m.confidence,
+                      query_index=q_group["index"][()], query_names=read_strings(q_group["names"]),
+                      reference_index=ex["reference/index"][()], reference_names=read_strings(ex["reference/names"]))
 
 
 # ---------------------------------------------------------------------------------------
@@ -268,8 +214,8 @@ def evaluate(ctx: Any) -> None:
             d = d_ds[:, lo:hi]
             et = enhance_t(np.ascontiguousarray(d.T), window)
             ranked[c0:c1], ranked_scores[c0:c1] = sequence_search(
-                et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, k=max(ns),
-                exclude_recent=int(p.exclude_recent) if loop_closure else None, query_index0=lo)
+                et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, max(ns),
+                int(p.exclude_recent) if loop_closure else None, lo, shape=p.sequence_shape, edges=p.edges)
             d = d[:, c0 - lo:c1 - lo]
             e = enhance(d, window)
             g = gt.block_idx(ref_index, q_index[c0:c1])
@@ -336,10 +282,13 @@ METHOD = Method(
     name="seqslam",
     params=SeqSLAMParams,
     stages={
-        "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon")),
-        "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "search",
-                                          "exclude_recent", "top_k", "store_difference")),
-        "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window"),
+        # images_per_task and block_size change how the work is cut, never the result.
+        "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
+                                        "descriptors_reference", "descriptors_query", "descriptor_distance")),
+        "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
+                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
+        "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window", "sequence_shape", "edges",
+                                          "exclude_recent"),
                           sections=("ground_truth", "plots")),
     },
     checker=_check,

@@ -1,0 +1,25 @@
+# SeqSLAM: the comparison experiment, the speed benchmark and the presets on real data.
+.PHONY: experiment-seqslam bench-seqslam bench-seqslam-large seqslam-nordland seqslam-corridor seqslam-route seqslam-presets
+
+experiment-seqslam: $(STAMP)
+	$(PL) experiment seqslam
+
+bench-seqslam: $(STAMP)
+	$(BIN)/python bench/bench_seqslam.py
+
+bench-seqslam-large: $(STAMP)
+	$(BIN)/python bench/bench_seqslam.py --large
+
+# Presets on real data (needs ../shared/data): the whole data set, one command each ...
+seqslam-nordland: $(STAMP)
+	$(PL) run configs/nordland.yaml --run-dir runs/nordland
+
+seqslam-corridor: $(STAMP)
+	$(PL) run configs/corridor.yaml --run-dir runs/corridor
+
+seqslam-route: $(STAMP)
+	$(PL) run configs/route.yaml --run-dir runs/route
+
+# ... and the figures of docs/seqslam.md: chosen on one part, reported on the other.
+seqslam-presets: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam --out runs/seqslam-presets

@@ -33,10 +33,10 @@ def write_linear_world(tmp_path, n=50, m=40):
     return x
 
 
-def cfg(tmp_path, **section):
+def cfg(tmp_path, plots=True, **section):
     base = {"observations": str(tmp_path / "obs.csv"), "landmarks": str(tmp_path / "landmarks.csv"), "truth": str(tmp_path / "truth.csv")}
     base.update(section)
-    return load_config(data={"method": "coembed", "coembed": base}, base_dir=tmp_path)
+    return load_config(data={"method": "coembed", "plots": plots, "coembed": base}, base_dir=tmp_path)
 
 
 def test_noise_free_linear_csv_gives_zero_map_error_through_the_pipeline(tmp_path):
@@ -68,6 +68,29 @@ def test_baselines_run_and_stages_are_skipped_when_up_to_date(tmp_path):
     assert h5py.File(run / "extract.h5").attrs["stamp"] == stamp   # the solver does not touch extract
     m = json.loads((run / "metrics.json").read_text())
     assert m["solver"] == "isomap" and m["map_rmse"] is not None
+
+
+def _mtimes(run):
+    return {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}
+
+
+def test_a_localize_only_key_does_not_rerun_extract_and_map_csv_holds_the_map(tmp_path):
+    x = write_linear_world(tmp_path)
+    run = tmp_path / "run"
+    run_all(cfg(tmp_path, alpha=1000.0, plots=False), run, quiet=True)
+    first = _mtimes(run)
+    run_all(cfg(tmp_path, alpha=1000.0, plots=False), run, quiet=True)
+    assert _mtimes(run) == first                                    # up to date
+    run_all(cfg(tmp_path, alpha=50.0, plots=False), run, quiet=True)
+    after = _mtimes(run)
+    assert after["extract.h5"] == first["extract.h5"]
+    assert after["localize.h5"] != first["localize.h5"] and after["evaluate.h5"] != first["evaluate.h5"]
+    table = np.loadtxt(run / "map.csv", delimiter=",", skiprows=1)
+    assert table.shape == (50, 4) and table[:5, 1].tolist() == [1, 1, 1, 1, 1]
+    assert np.abs(table[np.argsort(table[:, 0]), 2:] - x).max() < 1e-6      # noise-free: the map is exact
+    (run / "map.csv").unlink()                                      # a side output is part of up to date
+    run_all(cfg(tmp_path, alpha=50.0, plots=False), run, quiet=True)
+    assert (run / "map.csv").is_file() and _mtimes(run)["extract.h5"] == first["extract.h5"]
 
 
 def test_abcd_world_coembed_with_path(tmp_path):
@@ -142,7 +165,7 @@ def test_sift_tracks_follow_a_shifting_texture(tmp_path):
         cv2.imwrite(str(p), big[:, 8 * t: 8 * t + 400])   # the camera pans: content moves 8 px left per frame
         paths.append(str(p))
     per_frame = [detect_sift((p, 500)) for p in paths]
-    frames, tracks, xy = sift_tracks(per_frame, ratio=0.7, min_track=5)
+    frames, tracks, xy = sift_tracks(per_frame, ratio=0.7, min_track=5, id_offset=0)
     assert len(np.unique(tracks)) >= 20
     for k in np.unique(tracks):
         sel = tracks == k

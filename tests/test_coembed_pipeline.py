@@ -180,19 +180,25 @@ def test_tears_of_steel_real_tracks(tmp_path):
     if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
         pytest.skip("../shared/data/tears-of-steel is absent")
     d = root / "tears-of-steel"
-    # Landmarks spread in depth (5 m to 50 m): the camera looks forward, so depth comes only from them.
-    lm = [1, 5, 7, 10, 14, 17, 21, 22, 23, 25]
-    config = load_config(data={"method": "coembed", "coembed": {
-        "observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_ids": lm,
-        "truth": str(d / "points.csv"), "dim": 3}})
-    run_all(config, tmp_path / "run", quiet=True)
-    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    base = {"observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_count": 10,
+            "truth": str(d / "points.csv"), "dim": 3, "camera_model": "linear"}
+    runs = {}
+    for name, extra in {"pixels": {}, "normalised": {"intrinsics": str(d / "intrinsics.csv")}}.items():
+        run_all(load_config(data={"method": "coembed", "plots": False, "coembed": {**base, **extra}}), tmp_path / name, quiet=True)
+        runs[name] = np.loadtxt(tmp_path / name / "map.csv", delimiter=",", skiprows=1)
+    # The fixed rule: farthest-point sampling on the known 3-D points, from the most-seen track.
+    lm = runs["pixels"][runs["pixels"][:, 1] == 1, 0].astype(int).tolist()
+    assert lm == [0, 2, 4, 5, 14, 15, 21, 22, 23, 25]
+    # Problem 01 has no lens distortion, so normalised coordinates are an affine function of the pixels per step:
+    # the paper's model absorbs that exactly and the maps agree.
+    assert np.abs(runs["pixels"][:, 2:] - runs["normalised"][:, 2:]).max() < 1e-6
+    m = json.loads((tmp_path / "pixels" / "metrics.json").read_text())
     pts = np.loadtxt(d / "points.csv", delimiter=",", skiprows=1)
     rest = pts[~np.isin(pts[:, 0], lm), 1:]
-    # Better than placing every unknown point at the landmarks' centroid (the no-information answer).
     centroid = pts[np.isin(pts[:, 0], lm), 1:].mean(axis=0)
     blind = np.sqrt(np.mean(np.sum((rest - centroid) ** 2, axis=1)))
-    assert m["n_evaluated"] == 16 and m["map_rmse"] < 0.5 * blind
+    # Better than every unknown point at the landmarks' centroid, and no more: see docs/coembed.md.
+    assert m["n_evaluated"] == 16 and m["map_rmse"] < blind and m["landmark_warnings"]
 
 
 def test_markers_plus_sift_tracks_through_the_extract_stage(tmp_path):

@@ -11,6 +11,8 @@ and ``plots``; this file only reads inputs, calls them and writes outputs.
 
 from __future__ import annotations
 
+import json
+import logging
 import time
 from pathlib import Path
 
@@ -29,6 +31,8 @@ from placeloc.coembed.params import CoembedParams
 from placeloc.config import ConfigError
 from placeloc.methods import Method, Stage
 
+log = logging.getLogger("placeloc")
+
 
 def _check(config: dict) -> None:
     p = config["coembed"]
@@ -43,10 +47,15 @@ def _check(config: dict) -> None:
         raise ConfigError("coembed.landmarks is missing: co-embedding and the baselines' alignment need known feature positions")
     if p["pose_label_every"] > 0 and p["poses"] is None:
         raise ConfigError("coembed.pose_label_every > 0 needs coembed.poses (CSV t,x,y[,heading])")
+    if p["camera_model"] == "perspective" and p["intrinsics"] is None:
+        raise ConfigError("coembed.camera_model perspective needs coembed.intrinsics (CSV f,cx,cy[,k1,k2,k3,p1,p2]) "
+                          "to turn pixels into directions; or set camera_model: linear")
+    if p["landmark_count"] and p["landmark_count"] < p["dim"] + 1:
+        raise ConfigError(f"coembed.landmark_count must be 0 or at least dim + 1 = {p['dim'] + 1}")
 
 
 def extract(ctx) -> None:  # noqa: ANN001 - StageContext
-    from placeloc.coembed.landmarks import take_landmarks
+    from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings, take_landmarks
 
     p: CoembedParams = ctx.params
     if p.source == "csv":
@@ -63,19 +72,33 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
             mapper=lambda fn, items: ctx.progress(ctx.executor.map(fn, items), total=len(items)))
         obs = from_triplets(s, f, v)
         ctx.out.create_dataset("frames", data=np.array([q.name for q in paths], dtype=object), dtype=h5py.string_dtype())
+    if p.intrinsics is not None:
+        from placeloc.coembed.camera import normalised_coordinates, read_intrinsics
+
+        obs.values = normalised_coordinates(obs.values, read_intrinsics(p.intrinsics))
     ids, coords = read_points_csv(p.landmarks, "landmarks")
     if p.landmark_ids:
         ids, coords = take_landmarks(ids, coords, p.landmark_ids, p.landmarks)
     d = p.dim
     if coords.shape[1] < d:
         raise ObservationError(f"landmarks file {p.landmarks} has {coords.shape[1]} coordinates per row; coembed.dim is {d}")
+    if p.landmark_count:
+        seen = np.isin(ids, obs.feature_ids)
+        counts = np.bincount(obs.indices, minlength=obs.n_features)[obs.columns_of(ids[seen], "landmark")]
+        chosen = farthest_point_landmarks(ids[seen], coords[seen, :d], counts, p.landmark_count)
+        ids, coords = take_landmarks(ids, coords, chosen, p.landmarks)
     obs.columns_of(ids, "landmark")  # clear error for a landmark id that is unknown or never observed
     if len(ids) < d + 1:
         raise ObservationError(f"a {d}-D map needs at least {d + 1} landmarks; got {len(ids)}")
+    warnings = landmark_warnings(coords[:, :d], d)
+    for w in warnings:
+        log.warning("coembed landmarks: %s", w)
     write_observations(ctx.out.require_group("observations"), obs)
+    ctx.out["observations"].attrs["units"] = "normalised image coordinates" if p.intrinsics else "as given"
     g = ctx.out.require_group("landmarks")
     g.create_dataset("ids", data=ids)
     g.create_dataset("coords", data=coords[:, :d])
+    g.attrs["warnings"] = json.dumps(warnings)
 
 
 def localize(ctx) -> None:  # noqa: ANN001
@@ -92,8 +115,27 @@ def localize(ctx) -> None:  # noqa: ANN001
     out = ctx.out.require_group("map")
     if p.solver == "coembed":
         from placeloc.coembed.solver import coembed_map, estimate_poses
+        from placeloc.coembed.tuning import loo_alpha
 
-        res = coembed_map(obs, lcols, lxyz, alpha=p.alpha)
+        def alpha_for(o):  # noqa: ANN001, ANN202
+            if p.alpha_select == "fixed":
+                return p.alpha
+            choice = loo_alpha(o, lcols, lxyz, candidates=p.alpha_grid)
+            info["alpha_loo_rmse"] = json.dumps(choice.scores)
+            return choice.value
+
+        if p.camera_model == "perspective":
+            from placeloc.coembed.perspective import perspective_coembed
+
+            directions = np.hstack([obs.values, np.ones((obs.nnz, 1))])
+            res, depth, alphas = perspective_coembed(obs, directions, lcols, lxyz, alpha_for=alpha_for,
+                                                     iterations=p.perspective_iterations)
+            ctx.out.create_dataset("depth", data=depth)
+            info["alpha"] = alphas[-1]
+            info["alpha_per_round"] = alphas
+        else:
+            info["alpha"] = alpha_for(obs)
+            res = coembed_map(obs, lcols, lxyz, alpha=info["alpha"])
         coords = res.X
         ctx.out.create_dataset("transforms", data=res.T)
         if p.pose_label_every:
@@ -111,7 +153,16 @@ def localize(ctx) -> None:  # noqa: ANN001
     elif p.solver == "isomap":
         from placeloc.coembed.isomap import isomap_features
 
-        emb = isomap_features(obs, n_neighbors=p.isomap_neighbors, dim=p.dim, min_common=p.isomap_min_common)
+        k = p.isomap_neighbors
+        if p.isomap_neighbors_select == "loo":
+            from placeloc.coembed.tuning import loo_isomap_neighbors
+
+            choice = loo_isomap_neighbors(obs, lcols, lxyz, dim=p.dim, min_common=p.isomap_min_common,
+                                          candidates=p.isomap_neighbors_grid)
+            k = int(choice.value)
+            info["isomap_neighbors_loo_rmse"] = json.dumps(choice.scores)
+        info["isomap_neighbors"] = k
+        emb = isomap_features(obs, n_neighbors=k, dim=p.dim, min_common=p.isomap_min_common)
         out.create_dataset("embedding", data=emb)
         coords = align_to_landmarks(emb, lcols, lxyz)
     else:
@@ -144,9 +195,11 @@ def evaluate(ctx) -> None:  # noqa: ANN001
                      "n_steps": int(art["observations/step_ids"].shape[0]), "fill": float(art["observations"].attrs["fill"]),
                      "map_rmse": None, "map_max_error": None, "path_rmse": None,
                      "solve_seconds": float(loc["map"].attrs["solve_seconds"])}
-    for k in ("pcamd_iterations", "pcamd_converged"):
+    for k in ("pcamd_iterations", "pcamd_converged", "alpha", "isomap_neighbors"):
         if k in loc["map"].attrs:
-            metrics[k] = loc["map"].attrs[k]
+            v = loc["map"].attrs[k]
+            metrics[k] = v.item() if hasattr(v, "item") else v
+    metrics["landmark_warnings"] = json.loads(art["landmarks"].attrs.get("warnings", "[]"))
     est_eval = truth_eval = None
     if p.truth is not None:
         tid, txyz = read_points_csv(p.truth, "truth")
@@ -170,15 +223,16 @@ def evaluate(ctx) -> None:  # noqa: ANN001
 
 
 EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",
-                "sift_min_track", "sift_id_offset", "landmarks", "landmark_ids", "dim")
+                "sift_min_track", "sift_id_offset", "landmarks", "landmark_ids", "landmark_count", "intrinsics", "dim")
 METHOD = Method(
     name="coembed",
     params=CoembedParams,
     stages={
         "extract": Stage(extract, keys=EXTRACT_KEYS),
         # The parent stamp carries extract's keys; localize adds only what its solvers read.
-        "localize": Stage(localize, keys=("solver", "alpha", "beta", "poses", "pose_label_every", "isomap_neighbors",
-                                          "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")),
+        "localize": Stage(localize, keys=("solver", "alpha", "alpha_select", "alpha_grid", "camera_model", "perspective_iterations",
+                                          "beta", "poses", "pose_label_every", "isomap_neighbors", "isomap_neighbors_select",
+                                          "isomap_neighbors_grid", "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")),
         "evaluate": Stage(evaluate, keys=("solver", "truth", "poses"), sections=("plots",)),
     },
     required_images=(),

@@ -8,7 +8,7 @@ from placeloc.coembed.camera import Intrinsics, normalised_coordinates, read_int
 from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings
 from placeloc.coembed.observations import ObservationError, Observations, from_triplets
 from placeloc.coembed.perspective import perspective_coembed
-from placeloc.coembed.solver import coembed_map, estimate_path
+from placeloc.coembed.solver import coembed_map, coembed_operator, estimate_path, solve_landmarks
 from placeloc.coembed.tuning import loo_alpha, loo_isomap_neighbors
 
 
@@ -69,6 +69,15 @@ def test_leave_one_out_picks_a_large_alpha_for_exact_data_and_never_reads_the_un
     scrambled = Observations(obs.indptr, obs.indices, obs.values.copy(), obs.step_ids, obs.feature_ids)
     # The truth of the unknown points is not an input: the choice depends only on observations and landmarks.
     assert loo_alpha(scrambled, lm, x[lm], candidates=(0.01, 1.0, 100.0)).scores == choice.scores
+    # The rank-one shortcut gives the same errors as solving each hold-out problem from scratch.
+    g = coembed_operator(obs).g
+    for alpha in (0.01, 100.0):
+        err = []
+        for j in range(len(lm)):
+            keep = np.arange(len(lm)) != j
+            _, xm = solve_landmarks(g, lm[keep], x[lm][keep], alpha=alpha)
+            err.append(np.sum((xm[lm[j]] - x[lm[j]]) ** 2))
+        assert choice.scores[alpha] == pytest.approx(np.sqrt(np.mean(err)), rel=1e-6)
     k = loo_isomap_neighbors(obs, lm, x[lm], dim=3, min_common=1, candidates=(4, 8, 100))
     assert 100 not in k.scores and k.value in (4, 8)
 

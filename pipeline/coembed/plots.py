@@ -22,7 +22,7 @@ def _save(fig: plt.Figure, path: Path) -> Path:
 
 
 def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
-             path_truth: np.ndarray | None, title: str, units: str = "m") -> Path:
+             path_truth: np.ndarray | None, title: str, units: str) -> Path:
     """Top view of the map: a 3-D map is drawn from above (first and last axis: x and depth)."""
     ax0, ax1 = 0, truth.shape[1] - 1
     names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
@@ -36,10 +36,15 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     ax.scatter(truth[:, ax0], truth[:, ax1], s=14, facecolors="none", edgecolors="0.4", lw=0.7, label="true position")
     ax.scatter(est[:, ax0], est[:, ax1], s=10, color="tab:blue", label="estimated position")
     ax.scatter(landmarks[:, ax0], landmarks[:, ax1], s=40, marker="s", color="tab:red", label="landmark (known)")
-    ax.set_aspect("equal")
+    pts = np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]]])
+    span = np.ptp(pts, axis=0) + 1e-12
+    # Equal scales unless that would squash the figure into a strip (a forward-looking camera: depth >> width).
+    to_scale = max(span) / min(span) < 3.0
+    if to_scale:
+        ax.set_aspect("equal")
     ax.set_xlabel(f"{names[0]} ({units})")
-    ax.set_ylabel(f"{names[1]} ({units})")
+    ax.set_ylabel(f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"))
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
     return _save(fig, path)

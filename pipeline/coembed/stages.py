@@ -218,8 +218,11 @@ def evaluate(ctx) -> None:  # noqa: ANN001
             path_est = None
     write_metrics(ctx.run_dir, metrics, ctx.out)
     if ctx.config.get("plots", True) and est_eval is not None:
-        title = f"{p.solver}: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} ({metrics['n_evaluated']} features)"
-        plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title)
+        name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
+        title = (f"{name}, top view: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} map units\n"
+                 f"({metrics['n_evaluated']} unknown features, {metrics['n_landmarks']} landmarks)")
+        plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
+                 units="map units")
 
 
 EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",

@@ -77,11 +77,11 @@ def _mtimes(run):
 def test_a_localize_only_key_does_not_rerun_extract_and_map_csv_holds_the_map(tmp_path):
     x = write_linear_world(tmp_path)
     run = tmp_path / "run"
-    run_all(cfg(tmp_path, alpha=1000.0, plots=False), run, quiet=True)
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=1000.0, plots=False), run, quiet=True)
     first = _mtimes(run)
-    run_all(cfg(tmp_path, alpha=1000.0, plots=False), run, quiet=True)
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=1000.0, plots=False), run, quiet=True)
     assert _mtimes(run) == first                                    # up to date
-    run_all(cfg(tmp_path, alpha=50.0, plots=False), run, quiet=True)
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=50.0, plots=False), run, quiet=True)
     after = _mtimes(run)
     assert after["extract.h5"] == first["extract.h5"]
     assert after["localize.h5"] != first["localize.h5"] and after["evaluate.h5"] != first["evaluate.h5"]
@@ -89,7 +89,7 @@ def test_a_localize_only_key_does_not_rerun_extract_and_map_csv_holds_the_map(tm
     assert table.shape == (50, 4) and table[:5, 1].tolist() == [1, 1, 1, 1, 1]
     assert np.abs(table[np.argsort(table[:, 0]), 2:] - x).max() < 1e-6      # noise-free: the map is exact
     (run / "map.csv").unlink()                                      # a side output is part of up to date
-    run_all(cfg(tmp_path, alpha=50.0, plots=False), run, quiet=True)
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=50.0, plots=False), run, quiet=True)
     assert (run / "map.csv").is_file() and _mtimes(run)["extract.h5"] == first["extract.h5"]
 
 

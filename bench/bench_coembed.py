@@ -1,4 +1,4 @@
-"""Co-embedding solver benchmark (issue 4): 10,000 steps x 2,000 features at 5 % fill.
+"""Co-embedding solver benchmark: 10,000 steps x 2,000 features at 5 % fill.
 
 Prints the solve time and the peak memory (resident set) of the sparse closed form, then,
 in the same run, the literal dense solve of eq. (11) against the sparse one at a size where

@@ -1,4 +1,4 @@
-# Co-embedding mapper (issue 4): the paper's simulation and tears-of-steel, and the solver benchmark.
+# Co-embedding mapper: the paper's simulation and tears-of-steel, and the solver benchmark.
 .PHONY: experiment-coembed bench-coembed
 
 experiment-coembed: $(STAMP)

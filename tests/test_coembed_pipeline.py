@@ -33,10 +33,10 @@ def write_linear_world(tmp_path, n=50, m=40):
     return x
 
 
-def cfg(tmp_path, **section):
+def cfg(tmp_path, plots=True, **section):
     base = {"observations": str(tmp_path / "obs.csv"), "landmarks": str(tmp_path / "landmarks.csv"), "truth": str(tmp_path / "truth.csv")}
     base.update(section)
-    return load_config(data={"method": "coembed", "coembed": base}, base_dir=tmp_path)
+    return load_config(data={"method": "coembed", "plots": plots, "coembed": base}, base_dir=tmp_path)
 
 
 def test_noise_free_linear_csv_gives_zero_map_error_through_the_pipeline(tmp_path):
@@ -68,6 +68,29 @@ def test_baselines_run_and_stages_are_skipped_when_up_to_date(tmp_path):
     assert h5py.File(run / "extract.h5").attrs["stamp"] == stamp   # the solver does not touch extract
     m = json.loads((run / "metrics.json").read_text())
     assert m["solver"] == "isomap" and m["map_rmse"] is not None
+
+
+def _mtimes(run):
+    return {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}
+
+
+def test_a_localize_only_key_does_not_rerun_extract_and_map_csv_holds_the_map(tmp_path):
+    x = write_linear_world(tmp_path)
+    run = tmp_path / "run"
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=1000.0, plots=False), run, quiet=True)
+    first = _mtimes(run)
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=1000.0, plots=False), run, quiet=True)
+    assert _mtimes(run) == first                                    # up to date
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=50.0, plots=False), run, quiet=True)
+    after = _mtimes(run)
+    assert after["extract.h5"] == first["extract.h5"]
+    assert after["localize.h5"] != first["localize.h5"] and after["evaluate.h5"] != first["evaluate.h5"]
+    table = np.loadtxt(run / "map.csv", delimiter=",", skiprows=1)
+    assert table.shape == (50, 4) and table[:5, 1].tolist() == [1, 1, 1, 1, 1]
+    assert np.abs(table[np.argsort(table[:, 0]), 2:] - x).max() < 1e-6      # noise-free: the map is exact
+    (run / "map.csv").unlink()                                      # a side output is part of up to date
+    run_all(cfg(tmp_path, alpha_select="fixed", alpha=50.0, plots=False), run, quiet=True)
+    assert (run / "map.csv").is_file() and _mtimes(run)["extract.h5"] == first["extract.h5"]
 
 
 def test_abcd_world_coembed_with_path(tmp_path):
@@ -142,7 +165,7 @@ def test_sift_tracks_follow_a_shifting_texture(tmp_path):
         cv2.imwrite(str(p), big[:, 8 * t: 8 * t + 400])   # the camera pans: content moves 8 px left per frame
         paths.append(str(p))
     per_frame = [detect_sift((p, 500)) for p in paths]
-    frames, tracks, xy = sift_tracks(per_frame, ratio=0.7, min_track=5)
+    frames, tracks, xy = sift_tracks(per_frame, ratio=0.7, min_track=5, id_offset=0)
     assert len(np.unique(tracks)) >= 20
     for k in np.unique(tracks):
         sel = tracks == k
@@ -157,19 +180,25 @@ def test_tears_of_steel_real_tracks(tmp_path):
     if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
         pytest.skip("../shared/data/tears-of-steel is absent")
     d = root / "tears-of-steel"
-    # Landmarks spread in depth (5 m to 50 m): the camera looks forward, so depth comes only from them.
-    lm = [1, 5, 7, 10, 14, 17, 21, 22, 23, 25]
-    config = load_config(data={"method": "coembed", "coembed": {
-        "observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_ids": lm,
-        "truth": str(d / "points.csv"), "dim": 3}})
-    run_all(config, tmp_path / "run", quiet=True)
-    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    base = {"observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_count": 10,
+            "truth": str(d / "points.csv"), "dim": 3, "camera_model": "linear"}
+    runs = {}
+    for name, extra in {"pixels": {}, "normalised": {"intrinsics": str(d / "intrinsics.csv")}}.items():
+        run_all(load_config(data={"method": "coembed", "plots": False, "coembed": {**base, **extra}}), tmp_path / name, quiet=True)
+        runs[name] = np.loadtxt(tmp_path / name / "map.csv", delimiter=",", skiprows=1)
+    # The fixed rule: farthest-point sampling on the known 3-D points, from the most-seen track.
+    lm = runs["pixels"][runs["pixels"][:, 1] == 1, 0].astype(int).tolist()
+    assert lm == [0, 2, 4, 5, 14, 15, 21, 22, 23, 25]
+    # Problem 01 has no lens distortion, so normalised coordinates are an affine function of the pixels per step:
+    # the paper's model absorbs that exactly and the maps agree.
+    assert np.abs(runs["pixels"][:, 2:] - runs["normalised"][:, 2:]).max() < 1e-6
+    m = json.loads((tmp_path / "pixels" / "metrics.json").read_text())
     pts = np.loadtxt(d / "points.csv", delimiter=",", skiprows=1)
     rest = pts[~np.isin(pts[:, 0], lm), 1:]
-    # Better than placing every unknown point at the landmarks' centroid (the no-information answer).
     centroid = pts[np.isin(pts[:, 0], lm), 1:].mean(axis=0)
     blind = np.sqrt(np.mean(np.sum((rest - centroid) ** 2, axis=1)))
-    assert m["n_evaluated"] == 16 and m["map_rmse"] < 0.5 * blind
+    # Better than every unknown point at the landmarks' centroid, and no more: see docs/coembed.md.
+    assert m["n_evaluated"] == 16 and m["map_rmse"] < blind and m["landmark_warnings"]
 
 
 def test_markers_plus_sift_tracks_through_the_extract_stage(tmp_path):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from placeloc.coembed.observations import read_observations_csv, read_points_csv, read_poses_csv
+from placeloc.coembed.observations import poses_by_step, read_observations_csv, read_points_csv
 from placeloc.synth import generate
 
 
@@ -33,7 +33,7 @@ def test_layout_matches_the_paper(world):
 def test_sensors_see_exactly_the_features_in_range_and_field_of_view(world):
     out, _ = world
     _, feat = read_points_csv(out / "features.csv", "truth")
-    steps, pxy, heading = read_poses_csv(out / "poses.csv")
+    steps, pxy, heading = poses_by_step(out / "poses.csv")
     xy = feat[:, :2]
     dx = xy[None, :, 0] - pxy[:, None, 0]
     dy = xy[None, :, 1] - pxy[:, None, 1]

@@ -73,8 +73,8 @@ def _mutual_ratio_matches(d0: np.ndarray, d1: np.ndarray, ratio: float) -> tuple
     return i0[ok], i1[ok]
 
 
-def sift_tracks(per_frame: list[tuple[np.ndarray, np.ndarray]], ratio: float = 0.7, min_track: int = 3,
-                id_offset: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sift_tracks(per_frame: list[tuple[np.ndarray, np.ndarray]], *, ratio: float, min_track: int,
+                id_offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Chain frame-to-frame matches into tracks; returns (frame, track id, x y) of tracks seen >= min_track times."""
     frames, tracks, pts = [], [], []
     next_id = 0
@@ -101,20 +101,21 @@ def sift_tracks(per_frame: list[tuple[np.ndarray, np.ndarray]], ratio: float = 0
     return f[keep], k[keep] + id_offset, p[keep]
 
 
-def observations_from_images(paths: list[Path], params: dict, mapper) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
-    """(step, feature, values) triplets from a frame sequence, per ``params['source']``."""
-    source = params["source"]
-    use = [0] if params["image_values"] == "x" else [0, 1]
+def observations_from_images(paths: list[Path], *, source: str, image_values: str, aruco_dictionary: str, sift_features: int,
+                             sift_ratio: float, sift_min_track: int, sift_id_offset: int,
+                             mapper) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001 - executor map
+    """(step, feature, values) triplets from a frame sequence, by ``source`` (aruco, sift or aruco+sift)."""
+    use = [0] if image_values == "x" else [0, 1]
     steps, feats, vals = [], [], []
     if source in ("aruco", "aruco+sift"):
-        for t, (ids, centres) in enumerate(mapper(detect_markers, [(str(p), params["aruco_dictionary"]) for p in paths])):
+        for t, (ids, centres) in enumerate(mapper(detect_markers, [(str(p), aruco_dictionary) for p in paths])):
             steps.append(np.full(len(ids), t))
             feats.append(ids)
             vals.append(centres[:, use])
     if source in ("sift", "aruco+sift"):
-        per_frame = list(mapper(detect_sift, [(str(p), params["sift_features"]) for p in paths]))
-        offset = params["sift_id_offset"] if source == "aruco+sift" else 0
-        f, k, p = sift_tracks(per_frame, params["sift_ratio"], params["sift_min_track"], offset)
+        per_frame = list(mapper(detect_sift, [(str(p), sift_features) for p in paths]))
+        offset = sift_id_offset if source == "aruco+sift" else 0
+        f, k, p = sift_tracks(per_frame, ratio=sift_ratio, min_track=sift_min_track, id_offset=offset)
         steps.append(f)
         feats.append(k)
         vals.append(p[:, use])

@@ -21,7 +21,7 @@ class IsomapError(ValueError):
     """The neighbourhood graph is disconnected or the input too small."""
 
 
-def feature_distances(obs: Observations, min_common: int = 2) -> np.ndarray:
+def feature_distances(obs: Observations, *, min_common: int) -> np.ndarray:
     """N x N RMS observation distance over shared steps (inf where fewer than ``min_common`` are shared)."""
     q = obs.mask().astype(np.float64)
     common = (q.T @ q).toarray()
@@ -89,6 +89,6 @@ def isomap_points(points: np.ndarray, n_neighbors: int, dim: int) -> np.ndarray:
     return isomap_from_distances(dist, n_neighbors, dim)
 
 
-def isomap_features(obs: Observations, n_neighbors: int, dim: int, min_common: int = 2) -> np.ndarray:
+def isomap_features(obs: Observations, *, n_neighbors: int, dim: int, min_common: int) -> np.ndarray:
     """Unsupervised Isomap embedding of every feature (N x dim)."""
-    return isomap_from_distances(feature_distances(obs, min_common), n_neighbors, dim)
+    return isomap_from_distances(feature_distances(obs, min_common=min_common), n_neighbors, dim)

@@ -143,18 +143,19 @@ def read_points_csv(path: str | Path, what: str = "landmarks") -> tuple[np.ndarr
     return ids, data[:, 1:]
 
 
-def read_poses_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """``t,x,y[,heading]`` (heading in radians): step ids (sorted, unique), positions (n, 2), headings or None."""
-    header, data = _read_numeric_csv(path, 3, "poses")
-    if data.shape[1] > 4:
-        raise ObservationError(f"poses: {path}: expected columns t,x,y[,heading], got {header}")
-    steps = _ids(data[:, 0], path, "poses")
-    order = np.argsort(steps, kind="stable")
-    steps, data = steps[order], data[order]
-    if np.any(np.diff(steps) == 0):
-        raise ObservationError(f"poses: {path} lists step {steps[np.flatnonzero(np.diff(steps) == 0)[0]]} twice")
-    heading = data[:, 3] if data.shape[1] == 4 else None
-    return steps, data[:, 1:3], heading
+def poses_by_step(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Poses keyed by integer step (via the one pose reader, :func:`placeloc.evaluation.poses.read_poses`).
+
+    Returns step ids (sorted), positions (n, 2) and headings in radians (or None).
+    """
+    from placeloc.evaluation.poses import PoseError, read_poses
+
+    poses = read_poses(path)
+    if poses.frames is None:
+        raise PoseError(f"poses: {path}: the step column must hold integer time steps (the observation file's t)")
+    order = np.argsort(poses.frames, kind="stable")
+    heading = None if poses.heading is None else poses.heading[order]
+    return poses.frames[order], poses.xy[order], heading
 
 
 def write_observations(group: h5py.Group, obs: Observations) -> None:

@@ -20,15 +20,33 @@ class CoembedParams(Params):
     sift_id_offset: int = param(100000, min=0, help="SIFT track ids start here when mixed with marker ids")
     landmarks: str | None = param(None, path=True, help="CSV feature,x,y[,z]: known positions")
     landmark_ids: tuple[int, ...] = param([], help="use only these rows of the landmark file ([] = all)")
+    landmark_count: int = param(0, min=0, help="0: every landmark row (or landmark_ids); n: choose n of them by farthest-point "
+                                               "sampling on the known positions, starting from the most-seen")
+    intrinsics: str | None = param(None, path=True, help="CSV f,cx,cy[,k1,k2,k3,p1,p2]: undistort and use normalised image "
+                                                         "coordinates (needs image_values xy or two-value CSV sightings)")
+    camera_model: str = param("linear", choices=("linear", "perspective"),
+                              help="linear: the paper's model on the sightings as given; perspective: on depth-scaled "
+                                   "directions (needs intrinsics), depths re-estimated in turn")
+    perspective_iterations: int = param(5, min=0, help="depth re-estimation rounds for camera_model perspective")
     dim: int = param(2, choices=(2, 3), help="map dimension d")
     solver: str = param("coembed", choices=("coembed", "isomap", "pcamd"), help="mapper")
-    alpha: float = param(1000.0, min=0.0, min_exclusive=True, help="landmark weight in the co-embedding cost")
+    alpha: float = param(1000.0, min=0.0, min_exclusive=True, help="landmark weight in the co-embedding cost (alpha_select fixed)")
+    alpha_select: str = param("loo", choices=("fixed", "loo"),
+                              help="fixed: use alpha; loo: the alpha_grid value with the smallest leave-one-landmark-out error")
+    alpha_grid: tuple[float, ...] = param([0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0, 10000.0],
+                                          min=0.0, help="alpha candidates for alpha_select loo")
     beta: float = param(1.0, min=0.0, help="path smoothness weight")
     poses: str | None = param(None, path=True, help="CSV t,x,y[,heading]: known poses (labels) and path truth")
     pose_label_every: int = param(0, min=0, help="steps t with t % k == 0 are labelled poses (0: no path)")
-    isomap_neighbors: int = param(8, min=1, help="Isomap neighbours")
+    isomap_neighbors: int = param(8, min=1, help="Isomap neighbours (isomap_neighbors_select fixed)")
+    isomap_neighbors_select: str = param("loo", choices=("fixed", "loo"),
+                                         help="fixed: use isomap_neighbors; loo: the grid value with the smallest "
+                                              "leave-one-landmark-out alignment error")
+    isomap_neighbors_grid: tuple[int, ...] = param([3, 4, 5, 6, 8, 10, 12, 15, 20], min=1,
+                                                   help="neighbour counts tried by isomap_neighbors_select loo")
     isomap_min_common: int = param(1, min=1, help="steps two features must share to have a distance")
-    pcamd_rank: int = param(3, min=1, help="PCAMD factor rank")
+    pcamd_rank: int = param(3, min=1, help="PCAMD factor rank: fixed by the sensor model (scalar sightings of a 2-D map: 3; "
+                                          "image points of a 3-D map under an affine camera: 4)")
     pcamd_max_iter: int = param(200, min=1, help="PCAMD iterations at most")
     pcamd_tol: float = param(1e-6, min=0.0, help="PCAMD stops when the relative cost decrease falls below this")
     truth: str | None = param(None, path=True, help="CSV feature,x,y[,z][,...]: true positions for evaluate")

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import scipy.sparse as sp
+from placeloc.coembed.observations import Observations
 
 
 @numba.njit(cache=True)
@@ -75,8 +76,8 @@ def _solve_v(q: sp.csr_matrix, qy: sp.csr_matrix, u: np.ndarray) -> tuple[np.nda
     return v, ginv
 
 
-def wiberg(rows: np.ndarray, cols: np.ndarray, y: np.ndarray, shape: tuple[int, int], rank: int,
-           max_iter: int = 200, tol: float = 1e-12, seed: int = 0, init: np.ndarray | None = None) -> WibergResult:
+def wiberg(rows: np.ndarray, cols: np.ndarray, y: np.ndarray, shape: tuple[int, int], rank: int, *,
+           max_iter: int, tol: float, seed: int, init: np.ndarray | None = None) -> WibergResult:
     """Factorise the partially observed m x n matrix with entries ``y`` at (rows, cols) as U V^T."""
     rows = np.asarray(rows, dtype=np.int64)
     cols = np.asarray(cols, dtype=np.int64)
@@ -150,3 +151,11 @@ def wiberg(rows: np.ndarray, cols: np.ndarray, y: np.ndarray, shape: tuple[int, 
             converged = True
             break
     return WibergResult(U=u, V=v, cost=cost, iterations=it, converged=converged)
+
+
+def factorise_observations(obs: Observations, *, rank: int, max_iter: int, tol: float, seed: int) -> WibergResult:
+    """PCAMD of an observation matrix: features are rows, each (step, value component) a column."""
+    k = obs.value_dim
+    cols = (obs.rows[:, None] * k + np.arange(k)).ravel()
+    return wiberg(np.repeat(obs.indices, k), cols, obs.values.ravel(), (obs.n_features, obs.n_steps * k), rank,
+                  max_iter=max_iter, tol=tol, seed=seed)

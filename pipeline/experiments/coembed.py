@@ -2,8 +2,11 @@
 
 Runs, for each seed, the ABCD world with both sensors (bearing only, range only) and the
 three methods (co-embedding, Isomap, PCAMD); then the real 2-D tracks of tears-of-steel
-(3-D points, checked against the solved points) when ../shared/data is present. Leaves
-``summary.json`` (run name -> metrics), ``aggregate.json`` and ``table.md``.
+(3-D points, checked against the solved points) when the shared data folder has them:
+the fixed landmark rule and 20 random landmark sets of 10 (seeds 0-19, listed in the
+table), each method with its settings chosen by leave-one-landmark-out cross-validation,
+against two blind references. Leaves ``summary.json`` (run name -> metrics),
+``aggregate.json`` and ``table.md``.
 """
 
 from __future__ import annotations
@@ -24,8 +27,14 @@ log = logging.getLogger("placeloc")
 
 SOLVERS = ("coembed", "isomap", "pcamd")
 SENSORS = ("bearing", "range")
-# Tears-of-steel landmark sets: "spread" spans the depth range (5 m to 50 m), "near" only the near points (5-8 m).
-TEARS_LANDMARKS = {"spread": [1, 5, 7, 10, 14, 17, 21, 22, 23, 25], "near": [0, 4, 8, 12, 16, 20, 24, 7]}
+# Real tracks: every method with its free settings chosen by leave-one-landmark-out cross-validation.
+TEARS_METHODS = {
+    "coembed-perspective": {"solver": "coembed", "camera_model": "perspective", "alpha_select": "loo"},
+    "coembed-paper": {"solver": "coembed", "camera_model": "linear", "alpha_select": "loo", "intrinsics": None},
+    "isomap": {"solver": "isomap", "isomap_neighbors_select": "loo"},
+    "pcamd": {"solver": "pcamd", "pcamd_rank": 4},
+}
+TEARS_LANDMARK_COUNT = 10
 PAPER = "co-embedding has the smallest map error for both sensors (fig. 4; no numbers given)"
 
 
@@ -91,24 +100,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     root = shared_data_dir()
     tears = root / "tears-of-steel" if root is not None else None
     if tears is not None and (tears / "markers.csv").is_file():
-        lines += ["", "## tears-of-steel (333 frames x 26 tracks, 2-D sightings -> 3-D points)", "",
-                  "| landmarks | method | map RMSE (m) | median error (m) | max error (m) | blind RMSE (m) |", "|---|---|---|---|---|---|"]
-        pts = np.loadtxt(tears / "points.csv", delimiter=",", skiprows=1)
-        for variant, lm in TEARS_LANDMARKS.items():
-            rest = pts[~np.isin(pts[:, 0], lm), 1:]
-            blind = float(np.sqrt(np.mean(np.sum((rest - pts[np.isin(pts[:, 0], lm), 1:].mean(axis=0)) ** 2, axis=1))))
-            for solver in SOLVERS:
-                name = f"tears-of-steel-{variant}-{solver}"
-                config = load_config(data={"method": "coembed", "coembed": {
-                    "observations": str(tears / "markers.csv"), "landmarks": str(tears / "points.csv"), "landmark_ids": lm,
-                    "truth": str(tears / "points.csv"), "dim": 3, "solver": solver, "pcamd_rank": 4, "isomap_neighbors": 6}})
-                m = _run(config, out_dir / name, quiet)
-                m["blind_rmse"] = blind
-                runs[name] = m
-                write_summary(out_dir, runs)
-                cells = ["failed" if m.get(k) is None else f"{m[k]:.2f}" for k in ("map_rmse", "map_median_error", "map_max_error")]
-                lines.append(f"| {variant} ({len(lm)}) | {solver} | {' | '.join(cells)} | {blind:.2f} |")
-        lines += ["", "Blind RMSE: every unknown point placed at the landmarks' centroid (the no-information answer)."]
+        lines += tears_table(tears, out_dir, runs, agg, n_random=5 if quick else 20, quiet=quiet)
     else:
         lines += ["", "tears-of-steel: ../shared/data/tears-of-steel absent, skipped."]
     write_summary(out_dir, runs)
@@ -117,3 +109,87 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     if not quiet:
         print("\n".join(lines))
     return out_dir
+
+
+def random_landmark_sets(track_ids: np.ndarray, n_sets: int, size: int) -> list[list[int]]:
+    """Landmark set i is ``size`` tracks drawn without replacement by ``numpy.random.default_rng(i)``."""
+    return [sorted(int(t) for t in np.random.default_rng(i).choice(track_ids, size, replace=False)) for i in range(n_sets)]
+
+
+def _blind(points: np.ndarray, lm: list[int]) -> tuple[float, float]:
+    """RMSE of the two references that use no observations: every unknown point at the landmarks'
+    centroid, and at the evaluated points' own centroid (an oracle: it needs their truth)."""
+    is_lm = np.isin(points[:, 0], lm)
+    rest, known = points[~is_lm, 1:], points[is_lm, 1:]
+
+    def rmse(c: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1))))
+
+    return rmse(known.mean(axis=0)), rmse(rest.mean(axis=0))
+
+
+def tears_table(tears: Path, out_dir: Path, runs: dict, agg: dict, n_random: int, quiet: bool) -> list[str]:
+    """Map RMSE on tears-of-steel problem 01 over the fixed landmark rule and ``n_random`` random sets."""
+    points = np.loadtxt(tears / "points.csv", delimiter=",", skiprows=1)
+    sets: dict[str, dict] = {"fixed-rule": {"landmark_count": TEARS_LANDMARK_COUNT}}
+    for i, lm in enumerate(random_landmark_sets(points[:, 0].astype(int), n_random, TEARS_LANDMARK_COUNT)):
+        sets[f"random{i:02d}"] = {"landmark_ids": lm}
+    cols = list(TEARS_METHODS) + ["blind-landmarks", "blind-evaluated"]
+    per: dict[str, dict[str, float | None]] = {}
+    for set_name, lm_cfg in sets.items():
+        per[set_name] = {}
+        for label, settings in TEARS_METHODS.items():
+            section = {"observations": str(tears / "markers.csv"), "landmarks": str(tears / "points.csv"),
+                       "truth": str(tears / "points.csv"), "intrinsics": str(tears / "intrinsics.csv"), "dim": 3,
+                       **lm_cfg, **settings}
+            name = f"tears-{set_name}-{label}"
+            plots = set_name == "fixed-rule"
+            m = _run(load_config(data={"method": "coembed", "plots": plots, "coembed": section}), out_dir / name, quiet)
+            runs[name] = m
+            per[set_name][label] = m.get("map_rmse")
+            if label == "coembed-perspective":
+                lm_used = _landmarks_of(out_dir / name, lm_cfg)
+                per[set_name]["landmarks"] = lm_used  # type: ignore[assignment]
+            write_summary(out_dir, runs)
+        lm_used = per[set_name]["landmarks"] or []
+        per[set_name]["blind-landmarks"], per[set_name]["blind-evaluated"] = _blind(points, lm_used) if lm_used else (None, None)
+        log.info("tears %s: %s", set_name, {k: v for k, v in per[set_name].items() if k != "landmarks"})
+    rand = [k for k in sets if k != "fixed-rule"]
+    lines = ["", f"## tears-of-steel problem 01 (333 frames x 26 tracks, 2-D sightings -> 3-D points; {TEARS_LANDMARK_COUNT} landmarks)",
+             "", f"Map RMSE (m) over the 16 non-landmark points. Random sets: median [min, max] over {len(rand)} sets; "
+             "'best' counts the sets on which that method had the lowest RMSE of the four methods.", "",
+             "| method | fixed rule | random sets: median [range] | best on |", "|---|---|---|---|"]
+    wins = {c: 0 for c in TEARS_METHODS}
+    for k in rand:
+        vals = {c: per[k][c] for c in TEARS_METHODS if per[k][c] is not None}
+        if vals:
+            wins[min(vals, key=vals.get)] += 1
+    for c in cols:
+        v = np.array([per[k][c] for k in rand if per[k][c] is not None], dtype=float)
+        fixed = per["fixed-rule"][c]
+        cell = f"{np.median(v):.2f} [{v.min():.2f}, {v.max():.2f}]" if len(v) else "failed"
+        best = f"{wins[c]}/{len(rand)}" if c in wins else "-"
+        lines.append(f"| {c} | {'failed' if fixed is None else f'{fixed:.2f}'} | {cell} | {best} |")
+        agg[f"tears-{c}"] = {"fixed_rule": fixed, "median": float(np.median(v)) if len(v) else None,
+                             "min": float(v.min()) if len(v) else None, "max": float(v.max()) if len(v) else None,
+                             "n": int(len(v)), "best_on_sets": wins.get(c)}
+    lines += ["", "Per landmark set (map RMSE, m):", "", "| set | landmarks | " + " | ".join(cols) + " |",
+              "|---|---|" + "---|" * len(cols)]
+    for k in sets:
+        cells = " | ".join("-" if per[k][c] is None else f"{per[k][c]:.2f}" for c in cols)
+        lines.append(f"| {k} | {' '.join(map(str, per[k]['landmarks'] or []))} | {cells} |")
+    lines += ["", "Random set i: numpy.random.default_rng(i).choice(tracks, 10, replace=False). Fixed rule: farthest-point "
+              "sampling on the known 3-D points from the most-seen track. blind-landmarks: every unknown point at the "
+              "landmarks' centroid; blind-evaluated: at the unknown points' own centroid (an oracle that knows their truth)."]
+    return lines
+
+
+def _landmarks_of(run_dir: Path, lm_cfg: dict) -> list[int] | None:
+    """The landmark ids a run used (the fixed rule picks them inside extract; read back from map.csv)."""
+    if "landmark_ids" in lm_cfg:
+        return list(lm_cfg["landmark_ids"])
+    table = run_dir / "map.csv"
+    if not table.is_file():
+        return None
+    data = np.loadtxt(table, delimiter=",", skiprows=1, ndmin=2)
+    return sorted(int(f) for f in data[data[:, 1] == 1, 0])

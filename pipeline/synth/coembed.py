@@ -1,4 +1,4 @@
-"""The co-embedding paper's simulated world (seed 002, sec. 3, fig. 3): "ABCD".
+"""The simulated world of Nakamura and Yairi, "Experimental Study on Mapping by Dimensionality Reduction" (sec. 3, fig. 3): "ABCD".
 
 A 20 m x 20 m square with N = 200 point features: 100 spell "ABCD" (25 per letter, evenly
 spaced along the strokes), 100 are uniform at random; 11 of the random ones, spread by

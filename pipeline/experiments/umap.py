@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 from placeloc.config import load_config
+from placeloc.evaluation.poses import read_poses
 from placeloc.experiments import write_summary
-from placeloc.params import defaults
 from placeloc.runner import read_metrics, run_all
 from placeloc.synth import generate
 from placeloc.umap import ca as ca_mod
@@ -49,21 +49,24 @@ def _data(root: Path, seed: int) -> Path:
     return d
 
 
-def calibrate_on(data: Path, ca_params: dict[str, Any], hfov_deg: float) -> dict[str, Any]:
-    """CA error statistics of one generated sequence (see :func:`placeloc.umap.ca.calibrate`)."""
-    with open(data / "poses.csv", newline="") as f:
-        poses = list(csv.DictReader(f))
+def calibrate_on(data: Path, ca: Any, hfov_deg: float) -> dict[str, Any]:
+    """CA error statistics of one generated sequence (see :func:`placeloc.umap.ca.calibrate`);
+    ``ca`` the ``umap.ca`` parameters (a :class:`placeloc.umap.params.CAParams`)."""
+    gt = read_poses(data / "poses.csv")
     with open(data / "sensor.csv", newline="") as f:
         sensor = {r["frame"]: r for r in csv.DictReader(f)}
-    return ca_mod.calibrate([data / "images" / r["frame"] for r in poses],
-                            np.array([[float(r["x"]), float(r["y"])] for r in poses]), float(poses[0]["heading_deg"]),
-                            np.array([float(sensor[r["frame"]]["d"]) for r in poses]),
-                            np.array([float(sensor[r["frame"]]["theta_deg"]) for r in poses]), hfov_deg, ca_params)
+    return ca_mod.calibrate([data / "images" / k for k in gt.keys], gt.xy, round(float(np.degrees(gt.heading[0])), 9),
+                            np.array([float(sensor[k]["d"]) for k in gt.keys]),
+                            np.array([float(sensor[k]["theta_deg"]) for k in gt.keys]), hfov_deg,
+                            akaze_threshold=ca.akaze_threshold, wall_right=ca.wall_side == "right",
+                            vote_tol_m=ca.vote_tol_m, vote_rel_tol=ca.vote_rel_tol,
+                            reliable_matches=ca.reliable_matches, reliable_ratio=ca.reliable_ratio)
 
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     out_dir = Path(out_dir).resolve()
-    cal = calibrate_on(_data(out_dir, CALIBRATION_SEED), defaults(UMapParams)["ca"], defaults(UMapParams)["camera"]["hfov_deg"])
+    p = UMapParams()
+    cal = calibrate_on(_data(out_dir, CALIBRATION_SEED), p.ca, p.camera.hfov_deg)
     log.info("CA calibration on seed %d: %s", CALIBRATION_SEED, cal)
     cal_ca = {k: cal[k] for k in ("error_mean_m", "error_std_m", "fallback_step_m")}
     variants = dict(list(VARIANTS.items())[:2]) if quick else VARIANTS

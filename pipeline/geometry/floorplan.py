@@ -1,5 +1,6 @@
-"""The pre-map: a 3-D wireframe (line segments) and optional wall faces, read from a
-wireframe file (YAML/JSON/OBJ) or built from a floor plan (YAML).
+"""Building models: a 3-D wireframe (line segments) and optional wall faces, read from a
+wireframe file (YAML/JSON/OBJ) or built from a floor plan (YAML); plan-space helpers
+(inside test, distance to the nearest wall).
 
 Wireframe YAML/JSON: either a list of segments ``[x0, y0, z0, x1, y1, z1]`` or a mapping
 ``{segments: [...], faces: [[x0, y0, x1, y1, z0, z1], ...]}``. OBJ: ``v x y z`` vertices
@@ -69,7 +70,7 @@ def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
 def load_model(path: str | Path) -> Model:
     path = Path(path)
     if not path.is_file():
-        raise ModelError(f"{path}: model file not found; set umap.model to a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+        raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
     text = path.read_text()
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
@@ -168,3 +169,19 @@ def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
         segs.append([q[0], q[1], zf, q[0], q[1], zf + h])
         segs.append([p[0], p[1], zf + h, q[0], q[1], zf + h])
     return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source)
+
+
+def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Plan distance from each point to the nearest wall face (``faces`` rows x0 y0 x1 y1 ...)."""
+    if len(faces) == 0:
+        return np.full(len(xy), np.inf)
+    a, b = faces[:, 0:2], faces[:, 2:4]
+    e = b - a
+    ee = np.maximum((e * e).sum(1), 1e-12)
+    out = np.full(len(xy), np.inf)
+    for s in range(0, len(xy), 8192):  # chunks keep the (points x walls) temporaries small
+        p = xy[s:s + 8192, None, :]
+        t = np.clip(((p - a) * e).sum(2) / ee, 0, 1)
+        d = np.hypot(*(p - (a + t[..., None] * e)).transpose(2, 0, 1))
+        out[s:s + 8192] = d.min(1)
+    return out

@@ -29,6 +29,14 @@ from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.lines import check_query_size, line_image
 from placeloc.umap.metrics import error_metrics
+from placeloc.umap.panorama import (
+    best_pose,
+    chamfer_yaw_scores,
+    closeness,
+    iou_yaw_scores,
+    panorama_line_image,
+    render_panorama_block,
+)
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan
 from placeloc.umap.render import render_block
@@ -52,6 +60,9 @@ def _check(config: dict[str, Any]) -> None:
         if p["sensor_csv"] is None or not Path(p["sensor_csv"]).is_file():
             raise ConfigError("umap.sensor_csv is missing or does not exist: mode umap+ca needs the per-frame CSV "
                               "(frame, d, theta_deg); or set umap.mode: umap")
+    if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
+        raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
+                          "one by one: set umap.mode: umap for umap.query_kind: panorama")
     try:
         c = p["camera"]
         Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
@@ -84,19 +95,31 @@ def build_dictionary(ctx: Any) -> None:
     if len(poses) == 0:
         raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
                           f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")
-    cam = _camera(p)
     block = int(p.block)
-    items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m, p.hidden_lines)
-             for s in range(0, len(poses), block)]
+    if p.query_kind == "panorama":
+        # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
+        poses = poses[np.unique(poses[:, :2], axis=0, return_index=True)[1]]
+        poses = poses[np.lexsort((poses[:, 1], poses[:, 0]))]
+        poses[:, 3] = 0.0
+        pw, ph = int(p.panorama.width), int(p.panorama.height)
+        items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
+                 for s in range(0, len(poses), block)]
+        render, cam = render_panorama_block, Camera(pw, ph, 90.0)
+    else:
+        cam = _camera(p)
+        items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m,
+                  p.hidden_lines) for s in range(0, len(poses), block)]
+        render = render_block
     nw = (cam.width * cam.height + 63) // 64
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
     s = 0
-    for bits in ctx.progress(ctx.executor.map(render_block, items), total=len(items), desc="render database"):
+    for bits in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
         db[s:s + len(bits)] = bits
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
-    ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source)
+    ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
+                         kind="panorama" if p.query_kind == "panorama" else "pinhole")
 
 
 # ------------------------------------------------------------------ index
@@ -120,6 +143,7 @@ def index(ctx: Any) -> None:
         counts[s:s + len(words)] = popcount_rows(np.ascontiguousarray(words))
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                         kind=str(src.attrs.get("kind", "pinhole")),
                          bytes=int(db.shape[0] * db.shape[1] * 8))
 
 
@@ -134,6 +158,9 @@ def extract(ctx: Any) -> None:
     lines, pts_all, desc_all, offsets = [], [], [], [0]
     first = None
     qcam = None
+    if kind == "panorama":
+        _extract_panoramas(ctx)
+        return
     for path in ctx.progress(images.paths, total=len(images), desc="LSD + AKAZE"):
         gray = read_gray(path)
         check_query_size(path, gray.shape, first, cam, kind)
@@ -158,7 +185,48 @@ def extract(ctx: Any) -> None:
                          query_focal=qcam.focal, query_kind=kind)
 
 
+def _extract_panoramas(ctx: Any) -> None:
+    """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
+    pp = ctx.params.panorama
+    images = ctx.images["query"]
+    lines, first = [], None
+    for path in ctx.progress(images.paths, total=len(images), desc="LSD on cube faces"):
+        gray = read_gray(path)
+        check_query_size(path, gray.shape, first, Camera(2, 2, 90.0), "equirect")
+        first = gray.shape[:2]
+        img = panorama_line_image(gray, width=pp.width, height=pp.height, face_px=pp.face_px, min_length=pp.lsd_min_length_px)
+        lines.append(pack(img[None]))
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": images.names,
+                         "kp_pts": np.zeros((0, 2), np.float32), "kp_desc": np.zeros((0, 61), np.uint8),
+                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64)})
+    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[1]), query_height=int(first[0]),
+                         query_focal=0.0, query_kind="panorama")
+
+
 # ------------------------------------------------------------------ localize
+
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Best (grid row, heading, score) of each panorama, every position and yaw scored."""
+    pp = ctx.params.panorama
+    h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
+    lines = unpack(ex["lines"][()][:, 0], h, w)
+    n = len(lines)
+    best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    if pp.score == "chamfer":
+        raw = ctx.artifact("build-dictionary")["db"][()]
+        close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
+    else:
+        bits, counts = idx["bits"][()], idx["counts"][()]
+    for k in ctx.progress(range(n), total=n, desc="panorama search"):
+        if pp.score == "chamfer":
+            table = chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
+        else:
+            table = iou_yaw_scores(bits, counts, lines[k])
+        best[k], shift, score[k] = best_pose(table)
+        heading[k] = shift * 360.0 / w
+    return best, heading, score
+
+
 
 def localize(ctx: Any) -> None:
     p = ctx.params
@@ -168,6 +236,11 @@ def localize(ctx: Any) -> None:
     if (int(ex.attrs["width"]), int(ex.attrs["height"])) != (int(idx.attrs["width"]), int(idx.attrs["height"])):
         raise _stage_error(ValueError("extract and index line images differ in size: re-run extract (--force)"))
     poses = idx["poses"][()]
+    if str(ex.attrs["query_kind"]) == "panorama" or str(idx.attrs.get("kind", "pinhole")) == "panorama":
+        if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
+            raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
+        return
     scorer = Scorer(idx["bits"][()], idx["counts"][()], poses, ex["view_heading"][()])
     lines = ex["lines"][()]
     names = read_strings(ex["names"])
@@ -227,6 +300,22 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, heading: np.ndarray,
+                              score: np.ndarray) -> None:
+    n = len(names)
+    est = poses[best]
+    nan = np.full(n, np.nan)
+    write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
+                         "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
+                         "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
+    ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
+    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "heading_deg", "score"])
+        for k in range(n):
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
+
+
 # ------------------------------------------------------------------ evaluate
 
 def evaluate(ctx: Any) -> None:
@@ -264,10 +353,13 @@ METHOD = Method(
     params=UMapParams,
     stages={
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
-                                        "grid.headings")),
-        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines")),
+                                        "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
+                                        "panorama.lsd_min_length_px")),
+        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+                                                          "panorama.width", "panorama.height")),
         "index": Stage(index, keys=("tolerance_px",)),
-        "localize": Stage(localize, keys=("mode", "sensor_csv") + LOCALIZE_CA_KEYS),
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px")
+                          + LOCALIZE_CA_KEYS),
         "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },
     required_images=("query",),

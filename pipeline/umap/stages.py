@@ -12,6 +12,7 @@ project reads the paper one way or another.
 from __future__ import annotations
 
 import csv
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
 from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
-from placeloc.geometry.floorplan import ModelError, load_model, wall_distance
+from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model
 from placeloc.images import read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
@@ -43,6 +44,8 @@ from placeloc.umap.render import render_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
 from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
+
+log = logging.getLogger("placeloc")
 
 
 def _camera(p: Any) -> Camera:
@@ -89,9 +92,10 @@ def build_dictionary(ctx: Any) -> None:
         poses = pose_grid(g.x, g.y, g.z, g.headings)
     except ValueError as exc:
         raise ConfigError(f"umap.grid: {exc}") from exc
-    if g.inside_only and model.polygons:
-        keep = model.inside(poses[:, :2]) & (wall_distance(poses[:, :2], model.faces) >= g.wall_margin_m)
-        poses = poses[keep]
+    keep, notes = free_space_mask(poses[:, :2], model, inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
+    for note in notes:
+        log.warning("umap.%s", note)
+    poses = poses[keep]
     if len(poses) == 0:
         raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
                           f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")

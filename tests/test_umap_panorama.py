@@ -10,14 +10,13 @@ import cv2
 import numpy as np
 import pytest
 from placeloc.geometry.floorplan import floor_plan_model
+from placeloc.geometry.panorama import panorama_line_image, render_panoramas
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
     best_pose,
     chamfer_yaw_scores,
     closeness,
     iou_yaw_scores,
-    panorama_line_image,
-    render_panoramas,
 )
 
 # An L-shaped room: no two positions see the same panorama.

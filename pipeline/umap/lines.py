@@ -7,13 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 from placeloc.geometry import Camera
+from placeloc.geometry.panorama import detect_segments
 from placeloc.images import ImageError
-
-
-def detect_segments(gray: np.ndarray) -> np.ndarray:
-    """LSD segments of a grey image: (N, 4) float64 rows x0 y0 x1 y1 in its pixels."""
-    found = cv2.createLineSegmentDetector().detect(gray)[0]
-    return np.zeros((0, 4)) if found is None else found.reshape(-1, 4).astype(np.float64)  # (N,1,4) in 4.x
 
 
 def line_image(gray: np.ndarray, cam: Camera, *, min_length: float, thickness: int) -> np.ndarray:

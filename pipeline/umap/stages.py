@@ -29,7 +29,7 @@ from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.lines import check_query_size, line_image
-from placeloc.umap.metrics import error_metrics
+from placeloc.umap.metrics import error_metrics, recall_metrics, yaw_errors
 from placeloc.umap.panorama import (
     best_pose,
     chamfer_yaw_scores,
@@ -335,9 +335,12 @@ def evaluate(ctx: Any) -> None:
     truth = gt.xy[gt.rows_for_names(names, what="query frames")]
     est = np.stack([loc["x"][()], loc["y"][()]], axis=1)
     err = np.hypot(*(est - truth).T)
+    rows = gt.rows_for_names(names, what="query frames")
+    yaw_err = yaw_errors(loc["heading_deg"][()], np.degrees(gt.heading[rows])) if gt.heading is not None else None
     metrics = error_metrics(err)
+    metrics.update(recall_metrics(err, yaw_err))
     metrics["mode"] = str(loc.attrs["mode"])
-    write_tree(ctx.out, {"error_m": err, "truth_xy": truth})
+    write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
     write_metrics(ctx.run_dir, metrics, ctx.out)
     if ctx.config.get("plots", True):
         plan = ctx.artifact("build-dictionary")

@@ -56,7 +56,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     rooms.append({"name": "hall", "polygon": [[0, y0], [length, y0], [length, y1], [0, y1]]})
     x = 0.0
     door_w = 0.85
-    clutter: dict[str, list] = {"boxes": [], "leaves": [], "blinds": [], "sun": []}
+    clutter: dict[str, list] = {"boxes": [], "leaves": [], "blinds": [], "lamps": []}
     for i, w in enumerate(bed_w):
         rooms.append({"name": f"bedroom{i + 1}", "polygon": [[x, y1], [x + w, y1], [x + w, y1 + bed_d], [x, y1 + bed_d]]})
         dx = x + 0.3 + rng.uniform(0.0, 0.4)
@@ -83,6 +83,18 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     k0 = liv_w + 0.1
     clutter["boxes"].append([k0, -south, 0.0, length - 0.1, -south + 0.6, 0.9, 0.45, 0.6])
     clutter["boxes"].append([k0, -south, 1.45, length - 0.1, -south + 0.35, 2.15, 0.5, 0.6])
+    # a radiator under each window (its fins are vertical lines), a ceiling lamp panel per room
+    for w in windows:
+        (ax, ay), (bx, by) = w["from"], w["to"]
+        if abs(ay - by) < 1e-9:  # on an east-west wall: the radiator stands 0.1 m into the room
+            inward = -1.0 if ay > 0 else 1.0
+            y_a, y_b = sorted((ay, ay + 0.1 * inward))
+            clutter["boxes"].append([min(ax, bx) + 0.1, y_a, 0.12, max(ax, bx) - 0.1, y_b, min(0.7, w["sill"] - 0.1), 0.88, 0.06])
+    for r in rooms:
+        (x0, y0), (x1, y1_) = np.min(r["polygon"], axis=0), np.max(r["polygon"], axis=0)
+        cx, cy = (x0 + x1) / 2 + rng.uniform(-0.3, 0.3), (y0 + y1_) / 2 + rng.uniform(-0.3, 0.3)
+        half = 0.3 if r["name"] != "kitchen" else 0.6
+        clutter["lamps"].append([cx - half, cy - 0.3, cx + half, cy + 0.3])
     # blinds on most windows, sunlight through all of them
     for w in windows:
         if rng.random() < 0.75:
@@ -124,7 +136,7 @@ def _noise(s: float, t: float, cell: float, seed: int) -> float:
 @njit(parallel=True, cache=True)
 def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes: np.ndarray, leaves: np.ndarray,
              blinds: np.ndarray, windows: np.ndarray, sun: np.ndarray, rooms_floor: np.ndarray, rooms_xy: np.ndarray,
-             ceiling: float, out: np.ndarray) -> None:
+             lamps: np.ndarray, ceiling: float, out: np.ndarray) -> None:
     px, py, pz = pose[0], pose[1], pose[2]
     head = math.radians(pose[3])
     for v in prange(height):
@@ -224,6 +236,11 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                             col = min(1.0, col * 1.7)
             elif kind == CEIL:
                 col = 0.84 + 0.01 * _noise(qx, qy, 0.3, 25)
+                for k in range(lamps.shape[0]):
+                    if lamps[k, 0] <= qx <= lamps[k, 2] and lamps[k, 1] <= qy <= lamps[k, 3]:
+                        col = 0.98
+                        if min(qx - lamps[k, 0], lamps[k, 2] - qx, qy - lamps[k, 1], lamps[k, 3] - qy) < 0.03:
+                            col = 0.7  # the lamp's rim
             elif kind == WALL:
                 # one paint everywhere; faces along x a little brighter than along y (light from the south)
                 ex = faces[idx, 2] - faces[idx, 0]
@@ -278,7 +295,7 @@ def render_panorama(pose: np.ndarray, scene: dict[str, np.ndarray], width: int, 
     """Grey equirectangular panorama (float, 0..1) of the home from ``pose`` (x, y, z, heading_deg)."""
     out = np.zeros((height, width))
     _raycast(np.asarray(pose, float), width, height, scene["faces"], scene["boxes"], scene["leaves"], scene["blinds"],
-             scene["windows"], scene["sun"], scene["rooms_floor"], scene["rooms_xy"], CEILING, out)
+             scene["windows"], scene["sun"], scene["rooms_floor"], scene["rooms_xy"], scene["lamps"], CEILING, out)
     return out
 
 
@@ -287,14 +304,15 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
     rooms_xy = np.array([[*np.min(r["polygon"], axis=0), *np.max(r["polygon"], axis=0)] for r in fp["rooms"]], float)
     styles = {"hall": 1, "living": 1, "kitchen": 2}
     rooms_floor = np.array([styles.get(r["name"], 0) for r in fp["rooms"]], float)
-    sun_az = rng.uniform(0, 2 * math.pi)
+    sun_az = math.radians(rng.uniform(210.0, 330.0))   # from the south: it shines through the south windows
     sun_el = math.radians(rng.uniform(25, 50))
     sun = np.array([math.cos(sun_az), math.sin(sun_az), math.tan(sun_el)])  # plan direction, rise per metre
     return {"faces": model.faces, "boxes": np.asarray(clutter["boxes"], float).reshape(-1, 8),
             "leaves": np.asarray(clutter["leaves"], float).reshape(-1, 5),
             "blinds": np.asarray(clutter["blinds"], float).reshape(-1, 6),
             "windows": np.array([[*w["from"], *w["to"], w["sill"], w["top"]] for w in fp["windows"]], float).reshape(-1, 6),
-            "sun": sun, "rooms_floor": rooms_floor, "rooms_xy": rooms_xy}
+            "sun": sun, "rooms_floor": rooms_floor, "rooms_xy": rooms_xy,
+            "lamps": np.asarray(clutter["lamps"], float).reshape(-1, 4)}
 
 
 def line_agreement(query_lines: np.ndarray, map_lines: np.ndarray) -> tuple[float, float]:

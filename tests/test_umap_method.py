@@ -202,3 +202,25 @@ def test_localize_only_key_does_not_rerun_extract_or_render(tmp_path):
     # an extract key (the AKAZE threshold) re-runs extract
     run_all(_config(tmp_path, mode="umap+ca", ca={"tie_tol": 0.01, "akaze_threshold": 0.0001}), run, quiet=True)
     assert {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}["extract.h5"] != after["extract.h5"]
+
+
+def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
+    import json
+
+    from placeloc.artifacts import read_strings
+    from placeloc.images import ImageError
+    from placeloc.runner import run_all, run_stage
+
+    _tiny_corridor(tmp_path)
+    (tmp_path / "q" / "f3b.png").write_bytes(b"not an image")
+    with pytest.raises(ImageError, match="f3b.png: cannot be read"):
+        run_stage(_config(tmp_path), tmp_path / "r1", "extract", quiet=True)
+    cfg = _config(tmp_path)
+    cfg["query"]["on_error"] = "skip"
+    run_all(cfg, tmp_path / "r2", quiet=True)
+    m = json.loads((tmp_path / "r2" / "metrics.json").read_text())
+    assert m["n_frames"] == 8 and m["within_0_5m"] == 1.0
+    import h5py
+
+    with h5py.File(tmp_path / "r2" / "extract.h5") as f:
+        assert "f3b.png" not in read_strings(f["names"]) and len(read_strings(f["skipped"])) == 1

@@ -24,7 +24,7 @@ from placeloc.config import ConfigError
 from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
 from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model
-from placeloc.images import read_gray
+from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack, popcount_rows, unpack
@@ -153,22 +153,45 @@ def index(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ extract
 
+def _query_images(ctx: Any, desc: str, check: Any) -> Any:
+    """(path, grey image) of each readable query image. With ``query.on_error: skip`` an
+    image that cannot be read or has the wrong size is left out with a warning (and listed
+    in the artifact's ``skipped``); otherwise its error stops the run."""
+    images = ctx.images["query"]
+    skipped = ctx.skipped = []
+    for path in ctx.progress(images.paths, total=len(images), desc=desc):
+        try:
+            gray = read_gray(path)
+            check(path, gray)
+        except ImageError as exc:
+            if images.on_error != "skip":
+                raise
+            log.warning("skipped: %s", exc)
+            skipped.append(str(exc))
+            continue
+        yield path, gray
+
+
+
 def extract(ctx: Any) -> None:
     p = ctx.params
     cam = _camera(p)
-    images = ctx.images["query"]
     kind = p.query_kind
     headings = [float(hd) for hd in p.grid.headings] if kind == "equirect" else [math.nan]
-    lines, pts_all, desc_all, offsets = [], [], [], [0]
-    first = None
+    lines, pts_all, desc_all, offsets, names = [], [], [], [0], []
+    first: list[tuple[int, ...]] = []
     qcam = None
     if kind == "panorama":
         _extract_panoramas(ctx)
         return
-    for path in ctx.progress(images.paths, total=len(images), desc="LSD + AKAZE"):
-        gray = read_gray(path)
-        check_query_size(path, gray.shape, first, cam, kind)
-        first = gray.shape[:2]
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, cam, kind)
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD + AKAZE", check):
+        names.append(path.name)
         if kind == "equirect":
             # Cut views at twice the database resolution, so LSD sees enough detail.
             qcam = Camera(cam.width * 2, cam.height * 2, cam.hfov_deg)
@@ -182,28 +205,40 @@ def extract(ctx: Any) -> None:
         pts_all.append(pts)
         desc_all.append(desc)
         offsets.append(offsets[-1] + len(pts))
-    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": images.names,
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": names,
                          "kp_pts": np.concatenate(pts_all), "kp_desc": np.concatenate(desc_all),
-                         "kp_offsets": np.asarray(offsets, dtype=np.int64)})
+                         "kp_offsets": np.asarray(offsets, dtype=np.int64), "skipped": ctx.skipped})
     ctx.out.attrs.update(width=cam.width, height=cam.height, query_width=qcam.width, query_height=qcam.height,
                          query_focal=qcam.focal, query_kind=kind)
+
+
+def _no_queries_left(ctx: Any, names: list[str]) -> None:
+    if not names:
+        raise ImageError(f"{ctx.images['query'].source}: none of the {len(ctx.images['query'])} query images could be used "
+                         f"(first problem: {ctx.skipped[0] if ctx.skipped else 'none'}); fix or replace them")
 
 
 def _extract_panoramas(ctx: Any) -> None:
     """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
     pp = ctx.params.panorama
-    images = ctx.images["query"]
-    lines, first = [], None
-    for path in ctx.progress(images.paths, total=len(images), desc="LSD on cube faces"):
-        gray = read_gray(path)
-        check_query_size(path, gray.shape, first, Camera(2, 2, 90.0), "equirect")
-        first = gray.shape[:2]
+    lines, names = [], []
+    first: list[tuple[int, ...]] = []
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, Camera(2, 2, 90.0), "equirect")
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD on cube faces", check):
+        names.append(path.name)
         img = panorama_line_image(gray, width=pp.width, height=pp.height, face_px=pp.face_px, min_length=pp.lsd_min_length_px)
         lines.append(pack(img[None]))
-    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": images.names,
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": names,
                          "kp_pts": np.zeros((0, 2), np.float32), "kp_desc": np.zeros((0, 61), np.uint8),
-                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64)})
-    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[1]), query_height=int(first[0]),
+                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64), "skipped": ctx.skipped})
+    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[0][1]), query_height=int(first[0][0]),
                          query_focal=0.0, query_kind="panorama")
 
 
@@ -346,7 +381,8 @@ def evaluate(ctx: Any) -> None:
         plan = ctx.artifact("build-dictionary")
         polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
         plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
-        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"])
+        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
+                               np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
 
 
 # Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).

@@ -86,3 +86,26 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray, est: np.ndarray, polys
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray, at_truth: np.ndarray | None,
+                          title: str) -> None:
+    """One panorama's detected lines (grey) with the map's lines rendered at the estimated
+    pose (red) and at the true pose (green): where they differ shows why a query failed."""
+    plt = _plt()
+    h, w = query.shape
+    img = np.ones((h, w, 3))
+    img[query > 0] = (0.55, 0.55, 0.55)
+    if at_truth is not None:
+        img[at_truth > 0] = (0.1, 0.65, 0.1)
+    img[at_estimate > 0] = (0.85, 0.1, 0.1)
+    if at_truth is not None:
+        img[(at_truth > 0) & (at_estimate > 0)] = (0.55, 0.35, 0.0)
+    fig, ax = plt.subplots(figsize=(10, 5.6))
+    ax.imshow(img, interpolation="nearest", extent=(180, -180, -90, 90), aspect="auto")
+    ax.set_xlabel("azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)")
+    ax.set_ylabel("elevation [deg]")
+    ax.set_title(title + "\ngrey: detected lines; red: map at the estimate; green: map at the truth; brown: both", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -37,9 +37,10 @@ from placeloc.umap.panorama import (
     iou_yaw_scores,
     panorama_line_image,
     render_panorama_block,
+    render_panoramas,
 )
 from placeloc.umap.params import UMapParams
-from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan
+from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
 from placeloc.umap.render import render_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
@@ -383,6 +384,33 @@ def evaluate(ctx: Any) -> None:
         plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
         plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
                                np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
+        ex = ctx.artifact("extract")
+        if str(ex.attrs["query_kind"]) == "panorama":
+            _panorama_pictures(ctx, ex, plan, loc, gt, rows, err)
+
+
+# pictures of the first panoramas only: one PNG each
+PANORAMA_PICTURES = 12
+
+
+def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
+    h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+    segs, faces = plan["segments"][()], plan["faces"][()]
+    z = float(ctx.artifact("index")["poses"][0, 2])
+    names = read_strings(loc["names"])
+    est_h = loc["heading_deg"][()]
+    for k in range(min(len(names), PANORAMA_PICTURES)):
+        query = unpack(ex["lines"][k, 0], h, w)
+        est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
+        at_est = unpack(render_panoramas(segs, faces, est_pose, width=w, height=h, hidden=True), h, w)[0]
+        at_truth = None
+        if gt.heading is not None:
+            tz = float(gt.z[rows[k]]) if gt.z is not None else z
+            true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
+            at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
+        # each render is in the frame of a camera at its own heading, as the query is in its own
+        plot_panorama_overlay(ctx.run_dir / f"panorama_{Path(names[k]).stem}.png", query, at_est, at_truth,
+                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
 
 
 # Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).

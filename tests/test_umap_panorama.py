@@ -115,3 +115,21 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
     rows = list(csv.DictReader(open(tmp_path / "run" / "estimates.csv")))
     for r, t in zip(rows, truth):
         assert abs((float(r["heading_deg"]) - t[3] + 180) % 360 - 180) <= 2.5
+
+
+def test_direction_split_partitions_the_lines():
+    # map: vertical segments (corners, jambs) and the rest together make the full image
+    from placeloc.geometry.panorama import vertical_segments
+
+    m = floor_plan_model(PLAN)
+    v = vertical_segments(m.segments)
+    assert v.sum() == int((np.abs(m.segments[:, 2] - m.segments[:, 5]) > 0).sum())
+    pose = np.array([[2.0, 2.0, 1.4, 30.0]])
+    parts = [unpack(render_panoramas(m.segments, m.faces, pose, width=W, height=H, hidden=True, which=w), H, W)[0]
+             for w in ("all", "vertical", "other")]
+    assert ((parts[1] | parts[2]) == parts[0]).all() and parts[1].sum() > 0 and parts[2].sum() > parts[1].sum()
+    # query: the two channels of the split line image are the unsplit image
+    img = _grey_panorama([2.1, 5.3, 1.4, 62.5], np.random.default_rng(1))
+    both = panorama_line_image(img, width=W, height=H, face_px=256, min_length=8.0, split=True)
+    one = panorama_line_image(img, width=W, height=H, face_px=256, min_length=8.0)
+    assert ((both[0] | both[1]) == one).all() and both[0].sum() > 0

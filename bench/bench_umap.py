@@ -16,9 +16,9 @@ import cv2
 import numba
 import numpy as np
 from placeloc.geometry import Camera, pose_grid
+from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.synth.corridor import building
 from placeloc.umap.bits import iou_naive, iou_scores, pack, popcount_rows, unpack
-from placeloc.umap.model import floor_plan_model
 from placeloc.umap.render import render_packed
 
 

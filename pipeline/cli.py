@@ -222,7 +222,7 @@ def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by 
 
 
 @app.command()
-def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM route pair), corridor (UMap building), "
+def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM route pair), corridor (UMap building), home (UMap panoramas), "
                                      "coembed (ABCD world), omni (PIRF video)."),
           out: Path = typer.Argument(..., help="Output folder."),
           seed: int = typer.Option(0, help="Random seed."),

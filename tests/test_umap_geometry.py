@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid, project_segments
+from placeloc.geometry.floorplan import ModelError, floor_plan_model, load_model
 from placeloc.umap.bits import unpack
-from placeloc.umap.model import ModelError, floor_plan_model, load_model
 from placeloc.umap.render import render_packed
 
 CAM = Camera(160, 120, 90.0)  # f = 80 px, principal point (79.5, 59.5)

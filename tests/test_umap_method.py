@@ -90,7 +90,7 @@ def test_majority_vote_keeps_planted_group():
     keep = ca.majority_vote(np.vstack([inliers, outliers]), bin_px=8.0)
     assert keep[:30].all()
     assert keep[30:].sum() <= 1  # a random outlier may land inside the group by chance
-    assert ca.majority_vote(np.zeros((0, 2))).size == 0
+    assert ca.majority_vote(np.zeros((0, 2)), 8.0).size == 0
 
 
 def test_akaze_and_centroid_shift_on_shifted_texture():
@@ -111,7 +111,7 @@ def _tiny_corridor(tmp_path, size=(160, 120)):
     """A 12 m corridor with doors at different places, rendered as line drawings (query =
     the wireframe's own render, thickened and with clutter), plus poses and sensor CSVs."""
     from placeloc.geometry import Camera
-    from placeloc.umap.model import floor_plan_model
+    from placeloc.geometry.floorplan import floor_plan_model
     from placeloc.umap.render import render_packed
 
     plan = {"floor_z": 0.0, "ceiling_z": 2.6, "outline": [[0, 0], [12, 0], [12, 2.4], [0, 2.4]],
@@ -184,3 +184,43 @@ def test_bad_inputs(tmp_path):
     cv2.imwrite(str(tmp_path / "q" / "f9.png"), np.zeros((100, 100), np.uint8))
     with pytest.raises(ImageError, match=r"f9.png: query image is 100x100"):
         run_stage(_config(tmp_path), tmp_path / "r2", "extract", quiet=True)
+
+
+def test_localize_only_key_does_not_rerun_extract_or_render(tmp_path):
+    # ca.tie_tol is read by localize only: extract, the database and the index stay as they are.
+    from placeloc.runner import run_all
+
+    _tiny_corridor(tmp_path)
+    run = tmp_path / "run"
+    run_all(_config(tmp_path, mode="umap+ca"), run, quiet=True)
+    first = {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}
+    run_all(_config(tmp_path, mode="umap+ca", ca={"tie_tol": 0.01}), run, quiet=True)
+    after = {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}
+    for stage in ("extract.h5", "build-dictionary.h5", "index.h5"):
+        assert after[stage] == first[stage], stage
+    assert after["localize.h5"] != first["localize.h5"]
+    # an extract key (the AKAZE threshold) re-runs extract
+    run_all(_config(tmp_path, mode="umap+ca", ca={"tie_tol": 0.01, "akaze_threshold": 0.0001}), run, quiet=True)
+    assert {p.name: p.stat().st_mtime_ns for p in run.glob("*.h5")}["extract.h5"] != after["extract.h5"]
+
+
+def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
+    import json
+
+    from placeloc.artifacts import read_strings
+    from placeloc.images import ImageError
+    from placeloc.runner import run_all, run_stage
+
+    _tiny_corridor(tmp_path)
+    (tmp_path / "q" / "f3b.png").write_bytes(b"not an image")
+    with pytest.raises(ImageError, match="f3b.png: cannot be read"):
+        run_stage(_config(tmp_path), tmp_path / "r1", "extract", quiet=True)
+    cfg = _config(tmp_path)
+    cfg["query"]["on_error"] = "skip"
+    run_all(cfg, tmp_path / "r2", quiet=True)
+    m = json.loads((tmp_path / "r2" / "metrics.json").read_text())
+    assert m["n_frames"] == 8 and m["within_0_5m"] == 1.0
+    import h5py
+
+    with h5py.File(tmp_path / "r2" / "extract.h5") as f:
+        assert "f3b.png" not in read_strings(f["names"]) and len(read_strings(f["skipped"])) == 1

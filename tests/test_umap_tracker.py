@@ -12,9 +12,18 @@ from placeloc.synth.corridor import building
 from placeloc.umap import ca
 from placeloc.umap.bits import pack, popcount_rows
 from placeloc.umap.params import UMapParams
-from placeloc.umap.stages import Scorer, ca_track
+from placeloc.umap.scoring import Scorer
+from placeloc.umap.tracker import ca_track
 
 DEFAULTS = defaults(UMapParams)
+
+
+def _track(*args, c: dict, **kw):
+    """ca_track with its tuning taken from a ``umap.ca`` dict (the defaults plus overrides)."""
+    return ca_track(*args, error_mean_m=c["error_mean_m"], error_std_m=c["error_std_m"],
+                    fallback_radius_m=c["fallback_radius_m"], fallback_step_m=c["fallback_step_m"],
+                    wall_right=c["wall_side"] == "right", keep_heading=c["keep_heading"], tie_tol=c["tie_tol"],
+                    recover_ratio=c["recover_ratio"], laser_tol_m=c["laser_tol_m"], **kw)
 
 
 def _project(cam_xy: np.ndarray, heading_deg: float, pts: np.ndarray, focal: float, cx: float) -> np.ndarray:
@@ -57,7 +66,7 @@ def test_metric_vote_keeps_the_planted_group_and_scales_its_window():
     bad = np.r_[rng.uniform(-3, 0.8, 8), 0.02, 0.03, 0.05]
     keep = ca.metric_vote(np.r_[good, bad], 0.05, 0.03)
     assert keep[:12].all() and not keep[12:].any()
-    assert ca.metric_vote(np.zeros(0)).shape == (0,)
+    assert ca.metric_vote(np.zeros(0), 0.05, 0.03).shape == (0,)
 
 
 def _corridor_scorer() -> tuple[Scorer, np.ndarray, np.ndarray]:
@@ -84,12 +93,12 @@ def test_planted_bad_ca_step_is_detected_and_recovered():
     c = dict(DEFAULTS["ca"], error_mean_m=0.0, error_std_m=0.05)
     ub = np.array([scorer.best(lines[k])[0] for k in range(len(truth))])
     us = np.array([scorer.best(lines[k])[1] for k in range(len(truth))])
-    best, score, radius = ca_track(0, ub, us, step, reliable, theta, poses, lines, scorer, c)
+    best, score, radius = _track(0, ub, us, step, reliable, theta, poses, lines, scorer, c=c)
     assert best.tolist() == truth.tolist()
     assert radius[3] == c["fallback_radius_m"]            # the gate was widened: recovered
     assert radius[2] == pytest.approx(0.2)                 # 0 + 2 x 0.05 + 0.1 grid quantisation
     # Without re-localization the planted step would pin frame 3 to a wrong pose.
-    best2, _, _ = ca_track(0, ub, us, step, reliable, theta, poses, lines, scorer, dict(c, recover_ratio=math.inf))
+    best2, _, _ = _track(0, ub, us, step, reliable, theta, poses, lines, scorer, c=dict(c, recover_ratio=math.inf))
     assert best2[3] != truth[3]
 
 
@@ -107,7 +116,7 @@ def test_flat_scores_follow_the_ca_prediction_and_unreliable_steps_use_the_fallb
     theta = np.full(5, 90.0)
     c = dict(DEFAULTS["ca"], error_mean_m=0.0, error_std_m=0.05, fallback_step_m=1.2)
     us = np.full(5, 1.0)
-    best, _, radius = ca_track(0, np.zeros(5, int), us, step, reliable, theta, poses, lines, scorer, c)
+    best, _, radius = _track(0, np.zeros(5, int), us, step, reliable, theta, poses, lines, scorer, c=c)
     assert poses[best, 0] == pytest.approx([0.0, 0.5, 1.5, 2.7, 3.4])
     assert radius[3] == c["fallback_radius_m"]
 
@@ -131,6 +140,6 @@ def test_signed_step_on_rendered_corridor_views():
     for x in (14.0, 14.6):
         img = render_view(np.array([x, 1.6, 1.14, 315.0]), cam, scene)
         views.append(ca.akaze((np.clip(img, 0, 1) * 255).astype(np.uint8), 0.00003))
-    st, kept, second, _ = ca.signed_step(*views[0], *views[1], 1.6, 45.0, cam.focal, (cam.width - 1) / 2.0, True)
+    st, kept, second, _ = ca.signed_step(*views[0], *views[1], 1.6, 45.0, cam.focal, (cam.width - 1) / 2.0, True, 0.05, 0.03)
     assert st == pytest.approx(0.6, abs=0.05)
-    assert ca.is_reliable(kept, second, {"reliable_matches": 15, "reliable_ratio": 1.5})
+    assert ca.is_reliable(kept, second, reliable_matches=15, reliable_ratio=1.5)

@@ -14,6 +14,7 @@ from typing import Any
 SYNTH_KINDS: dict[str, str] = {
     "route": "placeloc.synth.route",
     "corridor": "placeloc.synth.corridor",
+    "home": "placeloc.synth.home",
     "coembed": "placeloc.synth.coembed",
     "omni": "placeloc.synth.omni",
 }

@@ -25,7 +25,8 @@ import numpy as np
 import yaml
 from numba import njit, prange
 from placeloc.geometry import Camera
-from placeloc.umap.model import floor_plan_model
+from placeloc.geometry.floorplan import floor_plan_model
+from placeloc.geometry.rays import ray_range, ray_segment
 
 LENGTH = 90.0
 WIDTH = 2.4
@@ -33,7 +34,7 @@ CEILING = 2.6
 
 
 def building(length: float = LENGTH, width: float = WIDTH) -> dict[str, Any]:
-    """The floor plan (a dict in the floor-plan YAML format of :mod:`placeloc.umap.model`)."""
+    """The floor plan (a dict in the floor-plan YAML format of :mod:`placeloc.geometry.floorplan`)."""
     c = length / 2
     # Alcoves (side openings) on the y = 0 side; their 180 deg twins go on the y = width side.
     alcoves = [(9.0, 2.0, 1.4), (23.0, 1.6, 1.0), (36.0, 2.4, 1.4)]
@@ -126,17 +127,8 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
                 best = (ceiling - pz) / dz
                 kind = 2
             for w in range(walls.shape[0]):
-                ax, ay = walls[w, 0], walls[w, 1]
-                ex, ey = walls[w, 2] - ax, walls[w, 3] - ay
-                den = dx * ey - dy * ex
-                if abs(den) < 1e-12:
-                    continue
-                wx, wy = ax - px, ay - py
-                t = (wx * ey - wy * ex) / den
-                if t <= 1e-6 or t >= best:
-                    continue
-                s = (wx * dy - wy * dx) / den
-                if s < 0.0 or s > 1.0:
+                t, s = ray_segment(px, py, dx, dy, walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3])
+                if t <= 1e-6 or t >= best or s < 0.0 or s > 1.0:
                     continue
                 best = t
                 kind = 3
@@ -262,20 +254,7 @@ def _scene(plan: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarr
 
 def laser_distance(px: float, py: float, heading_deg: float, walls: np.ndarray) -> float:
     """Distance from (px, py) along ``heading_deg`` to the first wall (plan ray cast)."""
-    h = math.radians(heading_deg)
-    dx, dy = math.cos(h), math.sin(h)
-    best = math.inf
-    for ax, ay, bx, by in walls:
-        ex, ey = bx - ax, by - ay
-        den = dx * ey - dy * ex
-        if abs(den) < 1e-12:
-            continue
-        wx, wy = ax - px, ay - py
-        t = (wx * ey - wy * ex) / den
-        s = (wx * dy - wy * dx) / den
-        if t > 1e-9 and 0 <= s <= 1:
-            best = min(best, t)
-    return best
+    return ray_range(px, py, heading_deg, walls)
 
 
 def generate(out_dir: Path, seed: int = 0, frames: int = 50, start_x: float = 8.0, y: float = 1.6, z: float = 1.14,

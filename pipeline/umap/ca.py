@@ -9,14 +9,14 @@ import cv2
 import numpy as np
 
 
-def akaze_create(threshold: float = 0.001) -> cv2.Feature2D:
+def akaze_create(threshold: float) -> cv2.Feature2D:
     """AKAZE lives in ``cv2.xfeatures2d`` in OpenCV 5 and in ``cv2`` in 4.x."""
     if hasattr(cv2, "AKAZE_create"):
         return cv2.AKAZE_create(threshold=threshold)
     return cv2.xfeatures2d.AKAZE_create(threshold=threshold)
 
 
-def akaze(gray: np.ndarray, threshold: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
+def akaze(gray: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """Keypoint positions (N, 2) float32 and binary descriptors (N, 61) uint8."""
     kps, desc = akaze_create(threshold).detectAndCompute(gray, None)
     pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
@@ -33,7 +33,7 @@ def match(desc_a: np.ndarray, desc_b: np.ndarray) -> np.ndarray:
     return np.array([[m.queryIdx, m.trainIdx] for m in ms], dtype=np.int64).reshape(-1, 2)
 
 
-def majority_vote(disp: np.ndarray, bin_px: float = 8.0) -> np.ndarray:
+def majority_vote(disp: np.ndarray, bin_px: float) -> np.ndarray:
     """Keep the largest group of matches that move the same way.
 
     ``disp`` (M, 2) displacement vectors. They are binned on a ``bin_px`` grid; the most
@@ -72,7 +72,7 @@ def moved_distance_paper(n: float, d: float, theta_deg: float, phi_deg: float, w
     return d * math.tan(math.radians(theta_deg + 90.0 - omega)) - d * math.tan(math.radians(theta_deg))
 
 
-def moved_distance_exact(u_a: float, u_b: float, d: float, theta_deg: float, focal: float, cx: float, wall_right: bool = True) -> float:
+def moved_distance_exact(u_a: float, u_b: float, d: float, theta_deg: float, focal: float, cx: float, wall_right: bool) -> float:
     """The same wall geometry without assuming the centroid starts at the image centre:
     a wall point seen at horizontal angle beta from the optical axis lies at
     d tan(theta -/+ beta) along the wall, so the camera moved by the difference of the two.
@@ -88,7 +88,7 @@ def moved_distance_exact(u_a: float, u_b: float, d: float, theta_deg: float, foc
 
 
 def centroid_shift(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray,
-                   bin_px: float = 8.0, min_matches: int = 8) -> tuple[float, float, float, int] | None:
+                   bin_px: float, min_matches: int) -> tuple[float, float, float, int] | None:
     """Match, vote, and return (n_N, centroid u in a, centroid u in b, kept matches), or None
     when fewer than ``min_matches`` survive the vote."""
     m = match(desc_a, desc_b)
@@ -103,7 +103,7 @@ def centroid_shift(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, des
     return ub - ua, ua, ub, int(keep.sum())
 
 
-def wall_tangent(heading_deg: float, theta_deg: float, wall_right: bool = True) -> np.ndarray:
+def wall_tangent(heading_deg: float, theta_deg: float, wall_right: bool) -> np.ndarray:
     """Unit plan vector along the wall that :func:`wall_steps` measures displacement on.
 
     The laser (wall normal) points at heading - theta (wall on the right) or heading + theta
@@ -113,7 +113,7 @@ def wall_tangent(heading_deg: float, theta_deg: float, wall_right: bool = True) 
 
 
 def wall_steps(pa: np.ndarray, pb: np.ndarray, d: float, theta_deg: float, focal: float, cx: float,
-               wall_right: bool = True) -> np.ndarray:
+               wall_right: bool) -> np.ndarray:
     """Signed camera displacement along :func:`wall_tangent` implied by each match (pa -> pb,
     (M, 2) pixels): a wall point at angle alpha from the wall normal lies at d tan(alpha) along
     the wall, so the camera moved by d (tan alpha_a - tan alpha_b). Matches on the wall agree;
@@ -127,7 +127,7 @@ def wall_steps(pa: np.ndarray, pb: np.ndarray, d: float, theta_deg: float, focal
     return (d * (np.tan(aa) - np.tan(ab))) * (1.0 if wall_right else -1.0)
 
 
-def metric_vote(steps: np.ndarray, tol_m: float = 0.05, rel_tol: float = 0.03) -> np.ndarray:
+def metric_vote(steps: np.ndarray, tol_m: float, rel_tol: float) -> np.ndarray:
     """Majority vote in metres rather than pixels: the largest group of per-match steps lying
     within +-(tol_m + rel_tol |step|) of each other. Pixel displacements of an oblique wall
     differ across the image (depth varies), metric steps of wall points do not."""
@@ -142,8 +142,7 @@ def metric_vote(steps: np.ndarray, tol_m: float = 0.05, rel_tol: float = 0.03) -
 
 
 def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b: np.ndarray, d: float, theta_deg: float,
-                focal: float, cx: float, wall_right: bool = True, tol_m: float = 0.05,
-                rel_tol: float = 0.03) -> tuple[float, int, int, float]:
+                focal: float, cx: float, wall_right: bool, tol_m: float, rel_tol: float) -> tuple[float, int, int, float]:
     """CA step between two frames: (median signed step along the wall of the winning group,
     its size, the size of the runner-up group among the other matches, the runner-up's median
     step). (nan, 0, 0, nan) when nothing matched. A winner barely larger than the runner-up is a coin toss (often floor
@@ -159,35 +158,35 @@ def signed_step(pts_a: np.ndarray, desc_a: np.ndarray, pts_b: np.ndarray, desc_b
     return float(np.median(steps[keep])), int(keep.sum()), int(keep2.sum()), alt
 
 
-def is_reliable(kept: int, second: int, params: dict) -> bool:
+def is_reliable(kept: int, second: int, *, reliable_matches: int, reliable_ratio: float) -> bool:
     """Enough matches in the vote's winning group, and clearly more than in the runner-up."""
-    return kept >= params["reliable_matches"] and kept >= params["reliable_ratio"] * second
+    return kept >= reliable_matches and kept >= reliable_ratio * second
 
 
 def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np.ndarray, theta_deg: np.ndarray,
-              hfov_deg: float, params: dict) -> dict[str, float]:
+              hfov_deg: float, *, akaze_threshold: float, wall_right: bool, vote_tol_m: float, vote_rel_tol: float,
+              reliable_matches: int, reliable_ratio: float) -> dict[str, float]:
     """CA error statistics from a calibration sequence with ground truth (never the test one).
 
     ``images`` the frames in order, ``truth_xy`` (N, 2) their true positions, ``d`` and
-    ``theta_deg`` the sensor rows, ``params`` the ``umap.ca`` section. Returns error_mean_m and
-    error_std_m of the reliable CA steps (measured - true, along the wall; median and 1.4826 x
-    median absolute deviation, so the few confidently wrong votes, which re-localization has to
-    catch anyway, do not inflate every gate) and fallback_step_m,
-    the median true step length of the frames whose CA vote was unreliable."""
+    ``theta_deg`` the sensor rows; the keyword arguments are the ``umap.ca`` parameters of the
+    same names. Returns error_mean_m and error_std_m of the reliable CA steps (measured - true,
+    along the wall; median and 1.4826 x median absolute deviation, so the few confidently wrong
+    votes, which re-localization has to catch anyway, do not inflate every gate) and
+    fallback_step_m, the median true step length of the frames whose CA vote was unreliable."""
     feats = []
     width = focal = 0.0
     for path in images:
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         width = gray.shape[1]
         focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
-        feats.append(akaze(gray, params["akaze_threshold"]))
-    right = params["wall_side"] == "right"
+        feats.append(akaze(gray, akaze_threshold))
     errs, failed = [], []
     for k in range(1, len(images)):
-        true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], right))
-        st, kept, second, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0, right,
-                                  params["vote_tol_m"], params["vote_rel_tol"])
-        if is_reliable(kept, second, params):
+        true = float((truth_xy[k] - truth_xy[k - 1]) @ wall_tangent(heading_deg, theta_deg[k - 1], wall_right))
+        st, kept, second, _ = signed_step(*feats[k - 1], *feats[k], d[k - 1], theta_deg[k - 1], focal, (width - 1) / 2.0,
+                                          wall_right, vote_tol_m, vote_rel_tol)
+        if is_reliable(kept, second, reliable_matches=reliable_matches, reliable_ratio=reliable_ratio):
             errs.append(st - true)
         else:
             failed.append(abs(true))

@@ -56,6 +56,18 @@ class CAParams(Params):
 
 
 @dataclass(frozen=True)
+class PanoramaParams(Params):
+    width: int = param(144, min=8, help="equirectangular line image width in pixels (yaw step = 360 / width degrees)")
+    height: int = param(72, min=4, help="equirectangular line image height in pixels")
+    face_px: int = param(256, min=32, help="size of the six cube faces LSD runs on")
+    lsd_min_length_px: float = param(8.0, min=0.0, help="shortest LSD line kept, in face pixels")
+    score: str = param("iou", choices=("iou", "chamfer"),
+                       help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
+                            "map lines cost little)")
+    chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
+
+
+@dataclass(frozen=True)
 class UMapParams(Params):
     model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
     camera: CameraParams = section(CameraParams)
@@ -64,9 +76,13 @@ class UMapParams(Params):
     hidden_lines: bool = param(True, help="remove hidden lines when rendering")
     block: int = param(2048, min=1, help="database views scored per block")
     tolerance_px: int = param(2, min=0, help="line dilation for matching")
-    query_kind: str = param("pinhole", choices=("pinhole", "equirect"), help="query camera")
+    query_kind: str = param("pinhole", choices=("pinhole", "equirect", "panorama"),
+                            help="pinhole images; equirect: panoramas cut into views at the grid headings, best single "
+                                 "view kept; panorama: whole 360 degree panoramas, yaw searched")
+    panorama: PanoramaParams = section(PanoramaParams)
     lsd_min_length_px: float = param(6.0, min=0.0, help="shortest LSD line kept")
     query_thickness_px: int = param(1, min=1, help="query line thickness")
-    mode: str = param("umap+ca", choices=("umap", "umap+ca"), help="single images, or with Consistency Adjustment")
+    mode: str = param("umap", choices=("umap", "umap+ca"),
+                      help="umap: every image on its own; umap+ca: a sequence with Consistency Adjustment (needs sensor_csv)")
     sensor_csv: str | None = param(None, path=True, help="odometry/laser CSV for CA")
     ca: CAParams = section(CAParams)

@@ -15,6 +15,7 @@ import math
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera
+from placeloc.geometry.rays import ray_segment
 from placeloc.umap.bits import n_words
 
 
@@ -29,20 +30,8 @@ def _occluded(px: float, py: float, pz: float, qx: float, qy: float, qz: float, 
     tmax = 1.0 - 0.005 / length
     for k in range(nf):
         f = fidx[k]
-        ax = faces[f, 0]
-        ay = faces[f, 1]
-        ex = faces[f, 2] - ax
-        ey = faces[f, 3] - ay
-        den = dx * ey - dy * ex
-        if abs(den) < 1e-12:
-            continue
-        wx = ax - px
-        wy = ay - py
-        t = (wx * ey - wy * ex) / den
-        if t <= 1e-9 or t >= tmax:
-            continue
-        u = (wx * dy - wy * dx) / den
-        if u < 0.0 or u > 1.0:
+        t, u = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
+        if t <= 1e-9 or t >= tmax or u < 0.0 or u > 1.0:
             continue
         z = pz + t * (qz - pz)
         if faces[f, 4] <= z <= faces[f, 5]:

@@ -1,30 +1,18 @@
 """UMap stages: render the line-image database from a wireframe, pack it, extract query
 line images (LSD) and AKAZE features, localize (UMap / UMap+CA) and evaluate.
 
-Spec: ../shared/METHODS.md section 3 and seed 001_5b098ba37914637b.txt. Choices where the
-paper is silent or ambiguous:
-
-- Eq. (1) is read as intersection over union, M_i = A(LC) / (A(DB_i) + A(SEN) - A(LC))
-  (see :func:`placeloc.umap.bits.iou_scores`).
-- The database is drawn one pixel wide and dilated by ``tolerance_px`` at index time, so a
-  query line a pixel or two off still overlaps.
-- Query images may be larger than the database images (same aspect ratio): LSD runs at full
-  resolution and the segments are scaled into the database's size.
-- CA: the anchor is the frame with the best UMap score (the paper starts from "the one
-  that matched best"); CA then chains forward and backward from it. ``ca.formula: paper``
-  uses eqs. (2)-(3) as printed (with phi = :func:`placeloc.umap.ca.effective_phi` unless
-  ``ca.phi_deg`` is set); ``exact`` uses both centroid positions (the paper assumes the
-  first centroid sits at the image centre). These belong to ``ca.tracker: paper``.
-- ``ca.tracker: robust`` (default, :func:`ca_track`): each match gives a signed step along
-  the wall, the majority vote runs on those steps in metres, a vote whose winner is small or
-  barely ahead of the runner-up is unreliable, the search is centred on the CA prediction,
-  ties on a featureless wall follow the prediction, a much better score nearby re-localizes,
-  and candidate poses must agree with the laser distance.
+The numerics live in modules named for what they do: :mod:`placeloc.umap.render` (database
+line images), :mod:`placeloc.umap.bits` (packing and the eq. (1) score),
+:mod:`placeloc.umap.lines` (query line images), :mod:`placeloc.umap.scoring`,
+:mod:`placeloc.umap.ca` (CA geometry) and :mod:`placeloc.umap.tracker` (the CA trackers);
+floor plans and plan ray casting in :mod:`placeloc.geometry`. docs/umap.md says where this
+project reads the paper one way or another.
 """
 
 from __future__ import annotations
 
 import csv
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -33,19 +21,37 @@ import cv2
 import numpy as np
 from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
+from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
+from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
-from placeloc.umap.bits import iou_scores, pack, popcount_rows, unpack
-from placeloc.umap.model import ModelError, load_model
+from placeloc.umap.bits import pack, popcount_rows, unpack
+from placeloc.umap.lines import check_query_size, line_image
+from placeloc.umap.metrics import error_metrics, recall_metrics, yaw_errors
+from placeloc.umap.panorama import (
+    best_pose,
+    chamfer_yaw_scores,
+    closeness,
+    iou_yaw_scores,
+    panorama_line_image,
+    render_panorama_block,
+    render_panoramas,
+)
 from placeloc.umap.params import UMapParams
+from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
 from placeloc.umap.render import render_block
+from placeloc.umap.scoring import Scorer
+from placeloc.umap.sensor import read_sensor_csv
+from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
+
+log = logging.getLogger("placeloc")
 
 
-def _camera(p: dict[str, Any]) -> Camera:
-    c = p["camera"]
-    return Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
+def _camera(p: Any) -> Camera:
+    c = p.camera
+    return Camera(int(c.width), int(c.height), float(c.hfov_deg))
 
 
 def _check(config: dict[str, Any]) -> None:
@@ -58,68 +64,67 @@ def _check(config: dict[str, Any]) -> None:
         if p["sensor_csv"] is None or not Path(p["sensor_csv"]).is_file():
             raise ConfigError("umap.sensor_csv is missing or does not exist: mode umap+ca needs the per-frame CSV "
                               "(frame, d, theta_deg); or set umap.mode: umap")
+    if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
+        raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
+                          "one by one: set umap.mode: umap for umap.query_kind: panorama")
     try:
-        _camera(p)
+        c = p["camera"]
+        Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
     except ValueError as exc:
         raise ConfigError(f"umap.camera: {exc}") from exc
-    if p["tolerance_px"] < 0 or p["block"] < 1:
-        raise ConfigError("umap.tolerance_px must be >= 0 and umap.block >= 1")
+
+
+def _stage_error(exc: Exception) -> Exception:
+    from placeloc.runner import StageError
+
+    return StageError(str(exc))
 
 
 # ------------------------------------------------------------------ build-dictionary
 
-def _wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Plan distance from each point to the nearest wall face."""
-    if len(faces) == 0:
-        return np.full(len(xy), np.inf)
-    a, b = faces[:, 0:2], faces[:, 2:4]
-    e = b - a
-    ee = np.maximum((e * e).sum(1), 1e-12)
-    out = np.full(len(xy), np.inf)
-    for s in range(0, len(xy), 8192):  # chunks keep the (points x walls) temporaries small
-        p = xy[s:s + 8192, None, :]
-        t = np.clip(((p - a) * e).sum(2) / ee, 0, 1)
-        d = np.hypot(*(p - (a + t[..., None] * e)).transpose(2, 0, 1))
-        out[s:s + 8192] = d.min(1)
-    return out
-
-
 def build_dictionary(ctx: Any) -> None:
     p = ctx.params
     try:
-        model = load_model(p["model"])
+        model = load_model(p.model)
     except ModelError as exc:
-        raise ctx_error(exc) from exc
-    g = p["grid"]
+        raise _stage_error(exc) from exc
+    g = p.grid
     try:
-        poses = pose_grid(g["x"], g["y"], g["z"], g["headings"])
+        poses = pose_grid(g.x, g.y, g.z, g.headings)
     except ValueError as exc:
         raise ConfigError(f"umap.grid: {exc}") from exc
-    if g["inside_only"] and model.polygons:
-        keep = model.inside(poses[:, :2]) & (_wall_distance(poses[:, :2], model.faces) >= g["wall_margin_m"])
-        poses = poses[keep]
+    keep, notes = free_space_mask(poses[:, :2], model, inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
+    for note in notes:
+        log.warning("umap.%s", note)
+    poses = poses[keep]
     if len(poses) == 0:
-        raise ConfigError(f"umap.grid: the pose grid is empty (x {g['x']}, y {g['y']}, headings {g['headings']}"
-                          f"{', inside the floor plan' if g['inside_only'] else ''}); widen the ranges or check the model's coordinates")
-    cam = _camera(p)
-    block = int(p["block"])
-    items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p["near_m"], p["hidden_lines"])
-             for s in range(0, len(poses), block)]
+        raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
+                          f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")
+    block = int(p.block)
+    if p.query_kind == "panorama":
+        # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
+        poses = poses[np.unique(poses[:, :2], axis=0, return_index=True)[1]]
+        poses = poses[np.lexsort((poses[:, 1], poses[:, 0]))]
+        poses[:, 3] = 0.0
+        pw, ph = int(p.panorama.width), int(p.panorama.height)
+        items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
+                 for s in range(0, len(poses), block)]
+        render, cam = render_panorama_block, Camera(pw, ph, 90.0)
+    else:
+        cam = _camera(p)
+        items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m,
+                  p.hidden_lines) for s in range(0, len(poses), block)]
+        render = render_block
     nw = (cam.width * cam.height + 63) // 64
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
     s = 0
-    for bits in ctx.progress(ctx.executor.map(render_block, items), total=len(items), desc="render database"):
+    for bits in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
         db[s:s + len(bits)] = bits
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
-    ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source)
-
-
-def ctx_error(exc: Exception) -> Exception:
-    from placeloc.runner import StageError
-
-    return StageError(str(exc))
+    ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
+                         kind="panorama" if p.query_kind == "panorama" else "pinhole")
 
 
 # ------------------------------------------------------------------ index
@@ -128,9 +133,9 @@ def index(ctx: Any) -> None:
     src = ctx.artifact("build-dictionary")
     h, w = int(src.attrs["height"]), int(src.attrs["width"])
     db = src["db"]
-    tol = int(ctx.params["tolerance_px"])
+    tol = int(ctx.params.tolerance_px)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
-    block = int(ctx.params["block"])
+    block = int(ctx.params.block)
     bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     counts = np.zeros(db.shape[0], dtype=np.int64)
     for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="pack database"):
@@ -143,51 +148,51 @@ def index(ctx: Any) -> None:
         counts[s:s + len(words)] = popcount_rows(np.ascontiguousarray(words))
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                         kind=str(src.attrs.get("kind", "pinhole")),
                          bytes=int(db.shape[0] * db.shape[1] * 8))
 
 
 # ------------------------------------------------------------------ extract
 
-def line_image(gray: np.ndarray, cam: Camera, min_length: float, thickness: int) -> np.ndarray:
-    """LSD segments of ``gray`` drawn into a binary image of the database camera's size.
+def _query_images(ctx: Any, desc: str, check: Any) -> Any:
+    """(path, grey image) of each readable query image. With ``query.on_error: skip`` an
+    image that cannot be read or has the wrong size is left out with a warning (and listed
+    in the artifact's ``skipped``); otherwise its error stops the run."""
+    images = ctx.images["query"]
+    skipped = ctx.skipped = []
+    for path in ctx.progress(images.paths, total=len(images), desc=desc):
+        try:
+            gray = read_gray(path)
+            check(path, gray)
+        except ImageError as exc:
+            if images.on_error != "skip":
+                raise
+            log.warning("skipped: %s", exc)
+            skipped.append(str(exc))
+            continue
+        yield path, gray
 
-    ``gray`` must have the camera's aspect ratio; segments are scaled by cam.width / width."""
-    lsd = cv2.createLineSegmentDetector()
-    found = lsd.detect(gray)[0]
-    segs = np.zeros((0, 4)) if found is None else found.reshape(-1, 4).astype(np.float64)  # (N,1,4) in 4.x
-    segs = segs * (cam.width / gray.shape[1])
-    keep = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) >= min_length
-    img = np.zeros((cam.height, cam.width), np.uint8)
-    for x0, y0, x1, y1 in segs[keep]:
-        cv2.line(img, (int(round(x0)), int(round(y0))), (int(round(x1)), int(round(y1))), 1, int(thickness))
-    return img
-
-
-def _check_size(path: Path, shape: tuple[int, ...], first: tuple[int, ...] | None, cam: Camera, kind: str) -> None:
-    h, w = shape[:2]
-    if first is not None and (h, w) != first:
-        raise ImageError(f"{path}: query image is {w}x{h} but the first query image is {first[1]}x{first[0]}; "
-                         "all query images of one run must have the same size")
-    want = 2.0 if kind == "equirect" else cam.width / cam.height
-    if abs(w / h - want) > 0.01 * want:
-        what = "an equirectangular panorama needs width = 2 x height" if kind == "equirect" else (
-            f"the database camera is {cam.width}x{cam.height}: set umap.camera.width/height to the images' aspect ratio or resize them")
-        raise ImageError(f"{path}: query image is {w}x{h} (aspect {w / h:.3f}); {what}")
 
 
 def extract(ctx: Any) -> None:
     p = ctx.params
     cam = _camera(p)
-    images = ctx.images["query"]
-    kind = p["query_kind"]
-    headings = [float(hd) for hd in p["grid"]["headings"]] if kind == "equirect" else [math.nan]
-    lines, pts_all, desc_all, offsets = [], [], [], [0]
-    first = None
+    kind = p.query_kind
+    headings = [float(hd) for hd in p.grid.headings] if kind == "equirect" else [math.nan]
+    lines, pts_all, desc_all, offsets, names = [], [], [], [0], []
+    first: list[tuple[int, ...]] = []
     qcam = None
-    for path in ctx.progress(images.paths, total=len(images), desc="LSD + AKAZE"):
-        gray = read_gray(path)
-        _check_size(path, gray.shape, first, cam, kind)
-        first = gray.shape[:2]
+    if kind == "panorama":
+        _extract_panoramas(ctx)
+        return
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, cam, kind)
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD + AKAZE", check):
+        names.append(path.name)
         if kind == "equirect":
             # Cut views at twice the database resolution, so LSD sees enough detail.
             qcam = Camera(cam.width * 2, cam.height * 2, cam.hfov_deg)
@@ -195,219 +200,88 @@ def extract(ctx: Any) -> None:
         else:
             qcam = Camera(gray.shape[1], gray.shape[0], cam.hfov_deg)
             views = [gray]
-        lines.append(pack(np.stack([line_image(v, cam, p["lsd_min_length_px"], p["query_thickness_px"]) for v in views])))
-        pts, desc = ca_mod.akaze(views[0], p["ca"]["akaze_threshold"])
+        lines.append(pack(np.stack([line_image(v, cam, min_length=p.lsd_min_length_px, thickness=p.query_thickness_px)
+                                    for v in views])))
+        pts, desc = ca_mod.akaze(views[0], p.ca.akaze_threshold)
         pts_all.append(pts)
         desc_all.append(desc)
         offsets.append(offsets[-1] + len(pts))
-    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": images.names,
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": names,
                          "kp_pts": np.concatenate(pts_all), "kp_desc": np.concatenate(desc_all),
-                         "kp_offsets": np.asarray(offsets, dtype=np.int64)})
+                         "kp_offsets": np.asarray(offsets, dtype=np.int64), "skipped": ctx.skipped})
     ctx.out.attrs.update(width=cam.width, height=cam.height, query_width=qcam.width, query_height=qcam.height,
                          query_focal=qcam.focal, query_kind=kind)
 
 
+def _no_queries_left(ctx: Any, names: list[str]) -> None:
+    if not names:
+        raise ImageError(f"{ctx.images['query'].source}: none of the {len(ctx.images['query'])} query images could be used "
+                         f"(first problem: {ctx.skipped[0] if ctx.skipped else 'none'}); fix or replace them")
+
+
+def _extract_panoramas(ctx: Any) -> None:
+    """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
+    pp = ctx.params.panorama
+    lines, names = [], []
+    first: list[tuple[int, ...]] = []
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, Camera(2, 2, 90.0), "equirect")
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD on cube faces", check):
+        names.append(path.name)
+        img = panorama_line_image(gray, width=pp.width, height=pp.height, face_px=pp.face_px, min_length=pp.lsd_min_length_px)
+        lines.append(pack(img[None]))
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": names,
+                         "kp_pts": np.zeros((0, 2), np.float32), "kp_desc": np.zeros((0, 61), np.uint8),
+                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64), "skipped": ctx.skipped})
+    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[0][1]), query_height=int(first[0][0]),
+                         query_focal=0.0, query_kind="panorama")
+
+
 # ------------------------------------------------------------------ localize
 
-def read_frame_csv(path: str | Path, columns: tuple[str, str], what: str) -> dict[str, tuple[float, float]]:
-    """frame -> (two numeric columns) from a CSV with a ``frame`` column; errors name the
-    file, the line and the columns it needs."""
-    out: dict[str, tuple[float, float]] = {}
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        need = {"frame", *columns}
-        if reader.fieldnames is None or not need <= set(reader.fieldnames):
-            raise ImageError(f"{path}: {what} CSV needs the columns frame, {', '.join(columns)} (has {reader.fieldnames})")
-        for i, row in enumerate(reader, 2):
-            try:
-                out[row["frame"]] = (float(row[columns[0]]), float(row[columns[1]]))
-            except (TypeError, ValueError) as exc:
-                raise ImageError(f"{path}:{i}: {' and '.join(columns)} must be numbers ({exc})") from exc
-    return out
-
-
-def read_sensor_csv(path: str | Path, names: list[str]) -> dict[str, tuple[float, float]]:
-    """frame -> (d, theta_deg); every query frame must be present."""
-    out = read_frame_csv(path, ("d", "theta_deg"), "sensor")
-    missing = [n for n in names if n not in out]
-    if missing:
-        raise ImageError(f"{path}: no sensor row for {len(missing)} query frame(s), e.g. {missing[0]}; add them")
-    return out
-
-
-class Scorer:
-    """Eq. (1) for one query frame against all (or some) database views."""
-
-    def __init__(self, bits: np.ndarray, counts: np.ndarray, poses: np.ndarray, view_heading: np.ndarray) -> None:
-        self.bits, self.counts, self.poses = bits, counts, poses
-        self.view_heading = view_heading
-        # rows of each cut-view heading (panoramas), or all rows (pinhole: heading unknown)
-        self.groups = [np.flatnonzero(np.isclose(poses[:, 3] % 360, hd % 360)) if not math.isnan(hd) else np.arange(len(poses))
-                       for hd in view_heading]
-
-    def best(self, lines: np.ndarray, rows: np.ndarray | None = None) -> tuple[int, float]:
-        best_i, best_s = -1, -1.0
-        for v, group in enumerate(self.groups):
-            if rows is None:
-                cand = group
-            elif len(group) == len(self.poses):
-                cand = rows
-            else:
-                cand = np.intersect1d(group, rows, assume_unique=True)
-            if cand.size == 0:
-                continue
-            sc = iou_scores(self.bits, self.counts, lines[v], cand)
-            k = int(np.argmax(sc))
-            if sc[k] > best_s:
-                best_i, best_s = int(cand[k]), float(sc[k])
-        return best_i, best_s
-
-
-def _ca_chain(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, ca_dist: np.ndarray, poses: np.ndarray,
-              lines: np.ndarray, scorer: Scorer, c: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """UMap+CA from one anchor frame: chain forward and backward, each search limited to
-    (CA moved distance + mean + std of the CA error) around the previous estimate."""
-    n = len(umap_best)
-    best, score = umap_best.copy(), umap_score.copy()
-    radius = np.full(n, np.nan)
-    order = [(k, k - 1, k) for k in range(anchor + 1, n)] + [(k, k + 1, k + 1) for k in range(anchor - 1, -1, -1)]
-    for k, prev, step in order:
-        m = ca_dist[step]
-        r = (m + c["error_mean_m"] + c["error_std_m"]) if np.isfinite(m) else c["fallback_radius_m"]
-        dist = np.hypot(poses[:, 0] - poses[best[prev], 0], poses[:, 1] - poses[best[prev], 1])
-        near = dist <= r
-        if c["keep_heading"]:
-            # CA matched features between the frames, so the views overlap: on a database
-            # whose headings are 90 deg apart only the previous heading is consistent.
-            near &= np.isclose(poses[:, 3], poses[best[prev], 3])
-        rows = np.flatnonzero(near)
-        if rows.size == 0:  # radius below the grid step: take the nearest grid positions
-            rows = np.flatnonzero(dist <= dist.min() + 1e-9)
-        radius[k] = r
-        best[k], score[k] = scorer.best(lines[k], rows)
-    return best, score, radius
-
-
-def laser_ranges(xy: np.ndarray, angle_deg: float, faces: np.ndarray) -> np.ndarray:
-    """Plan ray cast: distance from each point along ``angle_deg`` to the first wall face
-    (``faces`` (F, >=4) x0 y0 x1 y1 ...); inf where no face is hit."""
-    h = math.radians(angle_deg)
-    dx, dy = math.cos(h), math.sin(h)
-    out = np.full(len(xy), np.inf)
-    for ax, ay, bx, by in faces[:, :4]:
-        ex, ey = bx - ax, by - ay
-        den = dx * ey - dy * ex
-        if abs(den) < 1e-12:
-            continue
-        wx, wy = ax - xy[:, 0], ay - xy[:, 1]
-        t = (wx * ey - wy * ex) / den
-        u = (wx * dy - wy * dx) / den
-        hit = (t > 1e-9) & (u >= 0) & (u <= 1)
-        out[hit] = np.minimum(out[hit], t[hit])
-    return out
-
-
-def _pick(scorer: Scorer, lines: np.ndarray, rows: np.ndarray, xy: np.ndarray, pred: np.ndarray,
-          tie_tol: float) -> tuple[int, float]:
-    """Best-scoring row; rows scoring within ``tie_tol`` of the best are ties (a wall without
-    doors looks the same from everywhere along it) and go to the one nearest ``pred``."""
-    if len(scorer.view_heading) == 1 and math.isnan(scorer.view_heading[0]):
-        sc = iou_scores(scorer.bits, scorer.counts, lines[0], rows)
-    else:  # panorama cut views: each row is compared with the view cut at its own heading
-        sc = np.full(len(rows), -1.0)
-        for v, hd in enumerate(scorer.view_heading):
-            on = np.isclose(scorer.poses[rows, 3] % 360, hd % 360)
-            if on.any():
-                sc[on] = iou_scores(scorer.bits, scorer.counts, lines[v], rows[on])
-    top = float(sc.max())
-    tied = np.flatnonzero(sc >= top - tie_tol)
-    j = tied[np.argmin(np.hypot(*(xy[rows[tied]] - pred).T))]
-    return int(rows[j]), float(sc[j])
-
-
-def ca_track(anchor: int, umap_best: np.ndarray, umap_score: np.ndarray, step: np.ndarray, reliable: np.ndarray,
-             theta: np.ndarray, poses: np.ndarray, lines: np.ndarray, scorer: Scorer,
-             c: dict[str, Any], alt: np.ndarray | None = None,
-             laser: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Robust UMap+CA from one anchor frame, forward then backward.
-
-    ``step[k]``: signed CA step along the wall from frame k-1 to k (nan if none), ``reliable[k]``
-    whether its vote group had enough matches, ``theta[k]`` the camera angle to the wall at
-    frame k-1. Each frame's search is centred on the position CA predicts (previous estimate +
-    step along the wall), within ``|error_mean| + 2 error_std`` (+0.1 m grid quantisation).
-    An unreliable or missing CA step falls back to the sequence's median reliable step with
-    ``fallback_radius_m`` (or ``fallback_step_m`` in its direction when calibrated: CA fails
-    mostly on large steps, so the median reliable step underestimates them). If the best score inside the gate is ``recover_ratio`` times below
-    the best within ``fallback_radius_m`` of the previous estimate, the CA step is taken to be
-    wrong and the wider search wins (re-localization). ``alt[k]`` (optional) is the vote's
-    runner-up step, a second motion hypothesis tried before the wide search under the same
-    ratio: a wrong winning group often has the true motion as runner-up. ``laser`` (optional)
-    = (d per frame, theta per frame, wall faces): candidate poses whose plan ray cast towards the wall differs
-    from the measured laser distance by more than ``laser_tol_m`` are dropped (the laser CA
-    already relies on fixes the distance across the wall, which the line images of a corridor
-    barely constrain). Returns (best rows, scores, radii)."""
-    n = len(umap_best)
-    best, score = umap_best.copy(), umap_score.copy()
-    radius = np.full(n, np.nan)
-    xy = poses[:, :2]
-    gate = abs(c["error_mean_m"]) + 2.0 * c["error_std_m"] + 0.1
-    ok = reliable & np.isfinite(step)
-    typical = float(np.median(step[ok])) if ok.any() else 0.0
-    if c["fallback_step_m"] is not None:  # calibrated size of the steps CA fails on (large ones), same direction
-        typical = math.copysign(float(c["fallback_step_m"]), typical)
-    order = [(k, k - 1, k, 1.0) for k in range(anchor + 1, n)] + [(k, k + 1, k + 1, -1.0) for k in range(anchor - 1, -1, -1)]
-    for k, prev, st, sgn in order:
-        pp = poses[best[prev]]
-        t = ca_mod.wall_tangent(float(pp[3]), float(theta[st]), c["wall_side"] == "right")
-        if ok[st]:
-            pred, r = pp[:2] + sgn * step[st] * t, gate
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Best (grid row, heading, score) of each panorama, every position and yaw scored."""
+    pp = ctx.params.panorama
+    h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
+    lines = unpack(ex["lines"][()][:, 0], h, w)
+    n = len(lines)
+    best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    if pp.score == "chamfer":
+        raw = ctx.artifact("build-dictionary")["db"][()]
+        close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
+    else:
+        bits, counts = idx["bits"][()], idx["counts"][()]
+    for k in ctx.progress(range(n), total=n, desc="panorama search"):
+        if pp.score == "chamfer":
+            table = chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
         else:
-            pred, r = pp[:2] + sgn * typical * t, c["fallback_radius_m"]
-        heading_ok = np.isclose(poses[:, 3], pp[3]) if c["keep_heading"] else np.ones(len(poses), bool)
-        if laser is not None:
-            th_k = laser[1][k]  # frame k's laser points at heading -/+ theta
-            near_prev = heading_ok & (np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"] + 2 * abs(typical) + gate)
-            cand = np.flatnonzero(near_prev)
-            ang = poses[cand, 3] - th_k if c["wall_side"] == "right" else poses[cand, 3] + th_k
-            rng_ = np.full(len(cand), np.inf)
-            for a_ in np.unique(ang):
-                on = ang == a_
-                rng_[on] = laser_ranges(xy[cand[on]], float(a_), laser[2])
-            fits = np.abs(rng_ - laser[0][k]) <= c["laser_tol_m"]
-            if fits.any():
-                heading_ok = np.zeros(len(poses), bool)
-                heading_ok[cand[fits]] = True
-        dist = np.hypot(*(xy - pred).T)
-        rows = np.flatnonzero((dist <= r) & heading_ok)
-        if rows.size == 0:  # gate below the grid step: the nearest grid positions
-            rows = np.flatnonzero(heading_ok & (dist <= dist[heading_ok].min() + 1e-9))
-        i, s = _pick(scorer, lines[k], rows, xy, pred, c["tie_tol"])
-        if alt is not None and np.isfinite(alt[st]):
-            pred2 = pp[:2] + sgn * alt[st] * t
-            rows2 = np.flatnonzero((np.hypot(*(xy - pred2).T) <= gate) & heading_ok)
-            if rows2.size:
-                j, s2 = _pick(scorer, lines[k], rows2, xy, pred2, c["tie_tol"])
-                if s2 > s * c["recover_ratio"]:
-                    i, s, r, pred = j, s2, gate, pred2
-        if r < c["fallback_radius_m"]:
-            wide = np.flatnonzero((np.hypot(*(xy - pp[:2]).T) <= c["fallback_radius_m"]) & heading_ok)
-            if wide.size:
-                j, sw = _pick(scorer, lines[k], wide, xy, pred, c["tie_tol"])
-                if sw > s * c["recover_ratio"]:
-                    i, s, r = j, sw, c["fallback_radius_m"]
-        best[k], score[k], radius[k] = i, s, r
-    return best, score, radius
+            table = iou_yaw_scores(bits, counts, lines[k])
+        best[k], shift, score[k] = best_pose(table)
+        heading[k] = shift * 360.0 / w
+    return best, heading, score
+
 
 
 def localize(ctx: Any) -> None:
     p = ctx.params
+    c = p.ca
     idx = ctx.artifact("index")
     ex = ctx.artifact("extract")
     if (int(ex.attrs["width"]), int(ex.attrs["height"])) != (int(idx.attrs["width"]), int(idx.attrs["height"])):
-        raise ctx_error(ValueError("extract and index line images differ in size: re-run extract (--force)"))
-    bits = idx["bits"][()]
+        raise _stage_error(ValueError("extract and index line images differ in size: re-run extract (--force)"))
     poses = idx["poses"][()]
-    scorer = Scorer(bits, idx["counts"][()], poses, ex["view_heading"][()])
+    if str(ex.attrs["query_kind"]) == "panorama" or str(idx.attrs.get("kind", "pinhole")) == "panorama":
+        if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
+            raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
+        return
+    scorer = Scorer(idx["bits"][()], idx["counts"][()], poses, ex["view_heading"][()])
     lines = ex["lines"][()]
     names = read_strings(ex["names"])
     n = len(names)
@@ -420,48 +294,36 @@ def localize(ctx: Any) -> None:
     radius = np.full(n, np.nan)
     n_kept = np.zeros(n, dtype=np.int64)
     anchor = int(np.argmax(umap_score))
-    if p["mode"] == "umap+ca":
-        c = p["ca"]
-        sensor = read_sensor_csv(p["sensor_csv"], names)
-        off = ex["kp_offsets"][()]
-        pts, desc = ex["kp_pts"][()], ex["kp_desc"][()]
-        qw, qf = int(ex.attrs["query_width"]), float(ex.attrs["query_focal"])
-        phi = c["phi_deg"] if c["phi_deg"] > 0 else ca_mod.effective_phi(float(idx.attrs["hfov_deg"]))
-        step = np.full(n, np.nan)
-        reliable = np.zeros(n, dtype=bool)
-        alt = np.full(n, np.nan)  # the vote's runner-up step: a second motion hypothesis
+    if p.mode == "umap+ca":
+        sensor = read_sensor_csv(p.sensor_csv, names)
         laser_d = np.array([sensor[nm][0] for nm in names])
         laser_theta = np.array([sensor[nm][1] for nm in names])
+        wall_right = c.wall_side == "right"
+        steps = ca_steps(ex["kp_pts"][()], ex["kp_desc"][()], ex["kp_offsets"][()], laser_d, laser_theta,
+                         focal=float(ex.attrs["query_focal"]), width=int(ex.attrs["query_width"]),
+                         hfov_deg=float(idx.attrs["hfov_deg"]), tracker=c.tracker, formula=c.formula, phi_deg=c.phi_deg,
+                         wall_right=wall_right, vote_tol_m=c.vote_tol_m, vote_rel_tol=c.vote_rel_tol,
+                         reliable_matches=c.reliable_matches, reliable_ratio=c.reliable_ratio, bin_px=c.bin_px,
+                         min_matches=c.min_matches)
+        ca_dist, n_kept = steps.distance, steps.matches
         faces = ctx.artifact("build-dictionary")["faces"][()]
-        theta = np.zeros(n)
-        for k in range(1, n):  # ca_dist[k]: moved distance between frames k-1 and k
-            a, b = slice(off[k - 1], off[k]), slice(off[k], off[k + 1])
-            d, theta[k] = sensor[names[k - 1]]
-            if c["tracker"] == "robust":
-                step[k], n_kept[k], second, alt[k] = ca_mod.signed_step(pts[a], desc[a], pts[b], desc[b], d, theta[k], qf, (qw - 1) / 2.0,
-                                                           c["wall_side"] == "right", c["vote_tol_m"], c["vote_rel_tol"])
-                reliable[k] = ca_mod.is_reliable(int(n_kept[k]), second, c)
-                ca_dist[k] = abs(step[k])
-                continue
-            shift = ca_mod.centroid_shift(pts[a], desc[a], pts[b], desc[b], c["bin_px"], c["min_matches"])
-            if shift is None:
-                continue
-            n_kept[k] = shift[3]
-            if c["formula"] == "paper":
-                ca_dist[k] = ca_mod.moved_distance_paper(shift[0], d, theta[k], phi, qw)
-            else:
-                ca_dist[k] = ca_mod.moved_distance_exact(shift[1], shift[2], d, theta[k], qf, (qw - 1) / 2.0, c["wall_side"] == "right")
         # Anchor: the paper starts from the frame with the best UMap score ("best"); "chain"
         # starts a chain from every frame's UMap estimate and keeps the chain with the highest
         # summed score, so one confidently wrong frame cannot carry the whole sequence off.
-        anchors = [anchor] if c["anchor"] == "best" else list(np.argsort(-umap_score, kind="stable"))
+        anchors = [anchor] if c.anchor == "best" else list(np.argsort(-umap_score, kind="stable"))
         best_total = -1.0
         for a in ctx.progress(anchors, total=len(anchors), desc="CA chains"):
-            if c["tracker"] == "robust":
-                b, s, r = ca_track(int(a), umap_best, umap_score, step, reliable, theta, poses, lines, scorer, c, alt,
-                                   (laser_d, laser_theta, faces) if c["use_laser"] else None)
+            if c.tracker == "robust":
+                b, s, r = ca_track(int(a), umap_best, umap_score, steps.step, steps.reliable, steps.theta, poses, lines, scorer,
+                                   error_mean_m=c.error_mean_m, error_std_m=c.error_std_m,
+                                   fallback_radius_m=c.fallback_radius_m, fallback_step_m=c.fallback_step_m,
+                                   wall_right=wall_right, keep_heading=c.keep_heading, tie_tol=c.tie_tol,
+                                   recover_ratio=c.recover_ratio, laser_tol_m=c.laser_tol_m, alt=steps.alt,
+                                   laser=(laser_d, laser_theta, faces) if c.use_laser else None)
             else:
-                b, s, r = _ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer, c)
+                b, s, r = ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer,
+                                   error_mean_m=c.error_mean_m, error_std_m=c.error_std_m,
+                                   fallback_radius_m=c.fallback_radius_m, keep_heading=c.keep_heading)
             if s.sum() > best_total:
                 best_total, anchor = float(s.sum()), int(a)
                 best, score, radius = b, s, r
@@ -469,7 +331,7 @@ def localize(ctx: Any) -> None:
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": est[:, 3],
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
-    ctx.out.attrs.update(mode=p["mode"], anchor=anchor)
+    ctx.out.attrs.update(mode=p.mode, anchor=anchor)
     with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
@@ -478,18 +340,23 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, heading: np.ndarray,
+                              score: np.ndarray) -> None:
+    n = len(names)
+    est = poses[best]
+    nan = np.full(n, np.nan)
+    write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
+                         "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
+                         "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
+    ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
+    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "heading_deg", "score"])
+        for k in range(n):
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
+
+
 # ------------------------------------------------------------------ evaluate
-
-def read_poses_csv(path: str | Path) -> dict[str, tuple[float, float]]:
-    """Ground truth: CSV with columns frame, x, y (z, heading_deg optional)."""
-    return read_frame_csv(path, ("x", "y"), "ground-truth poses")
-
-
-def error_metrics(err: np.ndarray) -> dict[str, Any]:
-    err = np.asarray(err, float)
-    return {"max_error_m": float(err.max()), "mean_error_m": float(err.mean()), "median_error_m": float(np.median(err)),
-            "within_0_5m": float(np.mean(err <= 0.5)), "within_1m": float(np.mean(err <= 1.0)), "n_frames": int(len(err))}
-
 
 def evaluate(ctx: Any) -> None:
     from placeloc.evaluation import write_metrics
@@ -500,70 +367,70 @@ def evaluate(ctx: Any) -> None:
                           "and ground_truth.path to a CSV with frame, x, y")
     loc = ctx.artifact("localize")
     names = read_strings(loc["names"])
-    gt = read_poses_csv(gt_cfg["path"])
-    missing = [nm for nm in names if nm not in gt]
-    if missing:
-        raise ImageError(f"{gt_cfg['path']}: no ground truth for {len(missing)} frame(s), e.g. {missing[0]}")
-    truth = np.array([gt[nm] for nm in names])
+    gt = read_poses(gt_cfg["path"], what="ground-truth poses")
+    truth = gt.xy[gt.rows_for_names(names, what="query frames")]
     est = np.stack([loc["x"][()], loc["y"][()]], axis=1)
     err = np.hypot(*(est - truth).T)
+    rows = gt.rows_for_names(names, what="query frames")
+    yaw_err = yaw_errors(loc["heading_deg"][()], np.degrees(gt.heading[rows])) if gt.heading is not None else None
     metrics = error_metrics(err)
+    metrics.update(recall_metrics(err, yaw_err))
     metrics["mode"] = str(loc.attrs["mode"])
-    write_tree(ctx.out, {"error_m": err, "truth_xy": truth})
+    write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
     write_metrics(ctx.run_dir, metrics, ctx.out)
     if ctx.config.get("plots", True):
         plan = ctx.artifact("build-dictionary")
         polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
-        _plots(ctx.run_dir, err, truth, est, polys, plan["segments"][()], metrics["mode"])
+        plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
+        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
+                               np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
+        ex = ctx.artifact("extract")
+        if str(ex.attrs["query_kind"]) == "panorama":
+            _panorama_pictures(ctx, ex, plan, loc, gt, rows, err)
 
 
-def _plots(run_dir: Path, err: np.ndarray, truth: np.ndarray, est: np.ndarray, polys: list[np.ndarray],
-           segments: np.ndarray, mode: str) -> None:
-    import matplotlib
+# pictures of the first panoramas only: one PNG each
+PANORAMA_PICTURES = 12
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    e = np.sort(err)
-    ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post")
-    ax.set_xscale("symlog", linthresh=1.0)
-    ax.set_xlabel("error [m]")
-    ax.set_ylabel("share of frames")
-    ax.set_title(f"cumulative error ({mode})")
-    ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(run_dir / "error_cdf.png", dpi=120)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(12, 3))
-    if polys:
-        for poly in polys:
-            q = np.vstack([poly, poly[:1]])
-            ax.plot(q[:, 0], q[:, 1], "k-", lw=0.8)
-    else:
-        for s in segments:
-            ax.plot([s[0], s[3]], [s[1], s[4]], "k-", lw=0.4)
-    ax.plot(truth[:, 0], truth[:, 1], "b.", ms=5, label="ground truth")
-    ax.plot(est[:, 0], est[:, 1], "r.", ms=5, label=f"{mode} estimate")
-    for t, s in zip(truth, est):
-        ax.plot([t[0], s[0]], [t[1], s[1]], "r-", lw=0.3, alpha=0.5)
-    ax.set_aspect("equal")
-    ax.legend(loc="upper right", fontsize=7)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    fig.tight_layout()
-    fig.savefig(run_dir / "estimates_on_plan.png", dpi=120)
-    plt.close(fig)
+def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
+    h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+    segs, faces = plan["segments"][()], plan["faces"][()]
+    z = float(ctx.artifact("index")["poses"][0, 2])
+    names = read_strings(loc["names"])
+    est_h = loc["heading_deg"][()]
+    for k in range(min(len(names), PANORAMA_PICTURES)):
+        query = unpack(ex["lines"][k, 0], h, w)
+        est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
+        at_est = unpack(render_panoramas(segs, faces, est_pose, width=w, height=h, hidden=True), h, w)[0]
+        at_truth = None
+        if gt.heading is not None:
+            tz = float(gt.z[rows[k]]) if gt.z is not None else z
+            true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
+            at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
+        # each render is in the frame of a camera at its own heading, as the query is in its own
+        plot_panorama_overlay(ctx.run_dir / f"panorama_{Path(names[k]).stem}.png", query, at_est, at_truth,
+                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
 
+
+# Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).
+LOCALIZE_CA_KEYS = tuple(f"ca.{k}" for k in (
+    "formula", "wall_side", "phi_deg", "error_mean_m", "error_std_m", "bin_px", "min_matches", "fallback_radius_m", "anchor",
+    "keep_heading", "tracker", "vote_tol_m", "vote_rel_tol", "reliable_matches", "reliable_ratio", "tie_tol", "recover_ratio",
+    "fallback_step_m", "laser_tol_m", "use_laser"))
 
 METHOD = Method(
     name="umap",
     params=UMapParams,
     stages={
-        "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca", "grid")),
-        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines")),
+        "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
+                                        "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
+                                        "panorama.lsd_min_length_px")),
+        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+                                                          "panorama.width", "panorama.height")),
         "index": Stage(index, keys=("tolerance_px",)),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "ca")),
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px")
+                          + LOCALIZE_CA_KEYS),
         "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },
     required_images=("query",),

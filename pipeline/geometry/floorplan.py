@@ -1,0 +1,332 @@
+"""Building models: a 3-D wireframe (line segments) and optional wall faces, read from a
+wireframe file (YAML/JSON/OBJ) or built from a floor plan (YAML); plan-space helpers
+(inside test, distance to the nearest wall).
+
+Wireframe YAML/JSON: either a list of segments ``[x0, y0, z0, x1, y1, z1]`` or a mapping
+``{segments: [...], faces: [[x0, y0, x1, y1, z0, z1], ...]}``. OBJ: ``v x y z`` vertices
+and ``l i j [k ...]`` polylines (1-based, negative indices relative); other records ignored.
+
+Floor plan YAML (``outline`` key present)::
+
+    floor_z: 0.0
+    ceiling_z: 2.6
+    outline: [[x, y], ...]           # free-space boundary, walls along its edges
+    obstacles: [[[x, y], ...], ...]  # pillars / blocks inside (walls along their edges)
+    doors: [{from: [x, y], to: [x, y], height: 2.0}, ...]   # door frames on a wall
+
+From it we build floor and ceiling edges, wall corners (verticals at every vertex) and
+door frames (two jambs and a lintel), and one vertical wall face per polygon edge.
+
+Multi-room floor plan YAML (``rooms`` key present)::
+
+    floor_z: 0.0                     # default for rooms that do not give their own
+    ceiling_z: 2.6
+    rooms:
+      - {name: kitchen, polygon: [[x, y], ...], ceiling_z: 2.4}   # floor_z/ceiling_z optional
+    openings:                        # doors and openings: real gaps in the wall
+      - {from: [x, y], to: [x, y], height: 2.0}
+    windows:                         # frames on the wall (the wall face stays opaque)
+      - {from: [x, y], to: [x, y], sill: 0.9, top: 2.1}
+
+Each room's polygon edges are walls with its own floor and ceiling height. An opening on
+an edge (both ends within 1 cm of it) cuts the floor line and the wall face there, leaves
+the wall face above it (if lower than the ceiling) and adds its two jambs and lintel. A
+wall shared by two rooms is drawn by both (the same pixels). Grid positions are free space
+when inside any room.
+
+Faces are vertical rectangles ``[x0, y0, x1, y1, z0, z1]`` (a wall from (x0, y0) to
+(x1, y1), from height z0 to z1). That is what a floor plan gives, and it lets hidden-line
+removal run as a cheap 2-D ray/segment test plus a height check. Floor and ceiling never
+hide anything from a camera inside the storey, so they need no faces.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+
+class ModelError(ValueError):
+    """The model file cannot be used; the message names the file and the fix."""
+
+
+@dataclass
+class Model:
+    segments: np.ndarray            # (N, 6) float64 x0 y0 z0 x1 y1 z1
+    faces: np.ndarray               # (F, 6) float64 x0 y0 x1 y1 z0 z1
+    polygons: list[np.ndarray] = field(default_factory=list)  # plan outlines, for plots and grid filtering
+    source: str = ""
+    rooms: bool = False             # polygons are rooms (inside = in any) rather than outline + obstacles
+
+    def inside(self, xy: np.ndarray) -> np.ndarray:
+        """True for plan points inside the outline and outside every obstacle, or inside any
+        room of a multi-room plan (no polygons: all True)."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        if not self.polygons:
+            return np.ones(len(xy), dtype=bool)
+        if self.rooms:
+            ok = np.zeros(len(xy), dtype=bool)
+            for poly in self.polygons:
+                ok |= point_in_polygon(xy, poly)
+            return ok
+        ok = point_in_polygon(xy, self.polygons[0])
+        for poly in self.polygons[1:]:
+            ok &= ~point_in_polygon(xy, poly)
+        return ok
+
+
+def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule, vectorized over points."""
+    x, y = xy[:, 0][:, None], xy[:, 1][:, None]
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    cond = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
+
+
+def load_model(path: str | Path) -> Model:
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    text = path.read_text()
+    if path.suffix.lower() == ".obj":
+        return _load_obj(path, text)
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
+    if isinstance(data, dict) and ("outline" in data or "rooms" in data):
+        return floor_plan_model(data, str(path))
+    if isinstance(data, list):
+        data = {"segments": data}
+    if not isinstance(data, dict) or "segments" not in data:
+        raise ModelError(f"{path}: expected a list of segments [x0, y0, z0, x1, y1, z1], a mapping with 'segments', "
+                         "or a floor plan with 'outline'")
+    segs = _rows(data["segments"], 6, path, "segments", "[x0, y0, z0, x1, y1, z1]")
+    faces = _rows(data.get("faces") or [], 6, path, "faces", "[x0, y0, x1, y1, z0, z1]")
+    return Model(segs, faces, source=str(path))
+
+
+def _rows(items: Any, n: int, path: Path, key: str, form: str) -> np.ndarray:
+    if not isinstance(items, list):
+        raise ModelError(f"{path}: '{key}' must be a list of {form}")
+    out = np.zeros((len(items), n))
+    for i, row in enumerate(items):
+        ok = isinstance(row, (list, tuple)) and len(row) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        if not ok:
+            raise ModelError(f"{path}: {key}[{i}] = {row!r} is malformed; each entry must be {form} (numbers, metres)")
+        out[i] = row
+    if not np.isfinite(out).all():
+        raise ModelError(f"{path}: {key} contains NaN or infinite coordinates; fix the file")
+    if key == "segments" and len(out) == 0:
+        raise ModelError(f"{path}: the model has no segments; a wireframe needs at least one line")
+    return out
+
+
+def _load_obj(path: Path, text: str) -> Model:
+    verts: list[list[float]] = []
+    segs: list[list[float]] = []
+    for ln, line in enumerate(text.splitlines(), 1):
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        try:
+            if parts[0] == "v":
+                verts.append([float(v) for v in parts[1:4]])
+                if len(verts[-1]) != 3:
+                    raise ValueError("needs x y z")
+            elif parts[0] == "l":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                if len(idx) < 2:
+                    raise ValueError("a line needs at least two vertices")
+                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                for a, b in zip(idx[:-1], idx[1:]):
+                    if not (0 <= a < len(verts) and 0 <= b < len(verts)):
+                        raise ValueError(f"vertex index out of range (have {len(verts)} vertices)")
+                    segs.append(verts[a] + verts[b])
+        except ValueError as exc:
+            raise ModelError(f"{path}:{ln}: malformed OBJ record {line.strip()!r} ({exc}); fix or remove that line") from exc
+    if not segs:
+        raise ModelError(f"{path}: no 'l' (line) elements found; the OBJ wireframe needs line segments")
+    return Model(np.asarray(segs, float), np.zeros((0, 6)), source=str(path))
+
+
+def _poly(pts: Any, path: str, key: str) -> np.ndarray:
+    arr = np.asarray(pts, dtype=float) if isinstance(pts, list) else None
+    if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3:
+        raise ModelError(f"{path}: {key} must be a list of at least three [x, y] points")
+    return arr
+
+
+def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
+    """Build the wireframe and wall faces of a floor plan (see the module docstring)."""
+    if "rooms" in plan:
+        return rooms_model(plan, source)
+    try:
+        zf = float(plan.get("floor_z", 0.0))
+        zc = float(plan["ceiling_z"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{source}: floor plan needs numeric floor_z and ceiling_z ({exc})") from exc
+    if zc <= zf:
+        raise ModelError(f"{source}: ceiling_z {zc} must be above floor_z {zf}")
+    polys = [_poly(plan["outline"], source, "outline")]
+    polys += [_poly(p, source, f"obstacles[{i}]") for i, p in enumerate(plan.get("obstacles") or [])]
+    segs, faces = [], []
+    for poly in polys:
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            segs.append([a[0], a[1], zf, b[0], b[1], zf])
+            segs.append([a[0], a[1], zc, b[0], b[1], zc])
+            segs.append([a[0], a[1], zf, a[0], a[1], zc])
+            faces.append([a[0], a[1], b[0], b[1], zf, zc])
+    for i, door in enumerate(plan.get("doors") or []):
+        try:
+            p, q = np.asarray(door["from"], float), np.asarray(door["to"], float)
+            h = float(door.get("height", 2.0))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"{source}: doors[{i}] needs from: [x, y], to: [x, y] and a numeric height ({exc})") from exc
+        segs.append([p[0], p[1], zf, p[0], p[1], zf + h])
+        segs.append([q[0], q[1], zf, q[0], q[1], zf + h])
+        segs.append([p[0], p[1], zf + h, q[0], q[1], zf + h])
+    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source)
+
+
+def _num(d: dict[str, Any], key: str, default: float | None, source: str, what: str) -> float:
+    try:
+        v = d.get(key, default) if isinstance(d, dict) else None
+        if v is None:
+            raise KeyError(key)
+        return float(v)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{source}: {what} needs a numeric {key} ({exc})") from exc
+
+
+def _on_edge(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float = 0.01) -> tuple[float, float] | None:
+    """Parameters along a -> b (metres) of the two ends of p-q when both lie on that edge."""
+    e = b - a
+    length = float(np.hypot(*e))
+    if length < 1e-9:
+        return None
+    out = []
+    for r in (p, q):
+        s = float((r - a) @ e) / length
+        off = abs(float(e[0] * (r - a)[1] - e[1] * (r - a)[0])) / length
+        if off > tol or s < -tol or s > length + tol:
+            return None
+        out.append(min(max(s, 0.0), length))
+    return min(out), max(out)
+
+
+def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
+    """Wireframe and wall faces of a multi-room floor plan (see the module docstring)."""
+    rooms = plan.get("rooms")
+    if not isinstance(rooms, list) or not rooms:
+        raise ModelError(f"{source}: rooms must be a non-empty list of {{polygon: [[x, y], ...], ceiling_z: ...}}")
+    zf0 = float(plan.get("floor_z", 0.0))
+    zc0 = plan.get("ceiling_z")
+    openings = []
+    for i, o in enumerate(plan.get("openings") or plan.get("doors") or []):
+        try:
+            openings.append((np.asarray(o["from"], float), np.asarray(o["to"], float), _num(o, "height", 2.0, source, f"openings[{i}]")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"{source}: openings[{i}] needs from: [x, y], to: [x, y] and a numeric height ({exc})") from exc
+    windows = []
+    for i, w in enumerate(plan.get("windows") or []):
+        try:
+            windows.append((np.asarray(w["from"], float), np.asarray(w["to"], float),
+                            _num(w, "sill", None, source, f"windows[{i}]"), _num(w, "top", None, source, f"windows[{i}]")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"{source}: windows[{i}] needs from: [x, y], to: [x, y], sill and top ({exc})") from exc
+    segs: list[list[float]] = []
+    faces: list[list[float]] = []
+    polys = []
+    for r, room in enumerate(rooms):
+        what = f"rooms[{r}]" + (f" ({room.get('name')})" if isinstance(room, dict) and room.get("name") else "")
+        if not isinstance(room, dict) or "polygon" not in room:
+            raise ModelError(f"{source}: {what} needs a polygon: [[x, y], ...]")
+        poly = _poly(room["polygon"], source, f"{what}.polygon")
+        zf = _num(room, "floor_z", zf0, source, what)
+        zc = _num(room, "ceiling_z", zc0, source, what)
+        if zc <= zf:
+            raise ModelError(f"{source}: {what}: ceiling_z {zc} must be above floor_z {zf}")
+        polys.append(poly)
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            e = (b - a) / max(float(np.hypot(*(b - a))), 1e-12)
+            length = float(np.hypot(*(b - a)))
+            segs.append([a[0], a[1], zf, a[0], a[1], zc])             # corner
+            segs.append([a[0], a[1], zc, b[0], b[1], zc])             # ceiling edge
+            cuts = sorted((st, h) for p, q, h in openings if (st := _on_edge(p, q, a, b)) is not None)
+            s0 = 0.0
+            for (u0, u1), h in cuts:
+                top = min(zf + h, zc)
+                if u0 > s0:
+                    p0, p1 = a + s0 * e, a + u0 * e
+                    segs.append([p0[0], p0[1], zf, p1[0], p1[1], zf])
+                    faces.append([p0[0], p0[1], p1[0], p1[1], zf, zc])
+                p0, p1 = a + u0 * e, a + u1 * e
+                segs.append([p0[0], p0[1], zf, p0[0], p0[1], top])     # jambs
+                segs.append([p1[0], p1[1], zf, p1[0], p1[1], top])
+                if top < zc - 1e-6:
+                    segs.append([p0[0], p0[1], top, p1[0], p1[1], top])  # lintel
+                    faces.append([p0[0], p0[1], p1[0], p1[1], top, zc])
+                s0 = max(s0, u1)
+            if s0 < length:
+                p0 = a + s0 * e
+                segs.append([p0[0], p0[1], zf, b[0], b[1], zf])
+                faces.append([p0[0], p0[1], b[0], b[1], zf, zc])
+            for p, q, sill, top in windows:
+                st = _on_edge(p, q, a, b)
+                if st is None:
+                    continue
+                p0, p1 = a + st[0] * e, a + st[1] * e
+                lo, hi = max(sill + zf, zf), min(top + zf, zc)
+                segs += [[p0[0], p0[1], lo, p1[0], p1[1], lo], [p0[0], p0[1], hi, p1[0], p1[1], hi],
+                         [p0[0], p0[1], lo, p0[0], p0[1], hi], [p1[0], p1[1], lo, p1[0], p1[1], hi]]
+    return Model(np.asarray(segs, float), np.asarray(faces, float).reshape(-1, 6), polygons=polys, source=source, rooms=True)
+
+
+def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Plan distance from each point to the nearest wall face (``faces`` rows x0 y0 x1 y1 ...)."""
+    if len(faces) == 0:
+        return np.full(len(xy), np.inf)
+    a, b = faces[:, 0:2], faces[:, 2:4]
+    e = b - a
+    ee = np.maximum((e * e).sum(1), 1e-12)
+    out = np.full(len(xy), np.inf)
+    for s in range(0, len(xy), 8192):  # chunks keep the (points x walls) temporaries small
+        p = xy[s:s + 8192, None, :]
+        t = np.clip(((p - a) * e).sum(2) / ee, 0, 1)
+        d = np.hypot(*(p - (a + t[..., None] * e)).transpose(2, 0, 1))
+        out[s:s + 8192] = d.min(1)
+    return out
+
+
+def free_space_mask(xy: np.ndarray, model: Model, *, inside_only: bool, wall_margin_m: float) -> tuple[np.ndarray, list[str]]:
+    """Which plan points are free space for camera poses, and the settings that did nothing.
+
+    ``inside_only`` keeps points inside the plan (outline minus obstacles, or any room);
+    ``wall_margin_m`` keeps points at least that far from every wall face. A wireframe has
+    no polygons, so ``inside_only`` cannot apply, and without faces neither can the margin:
+    each such case is returned as a sentence for the caller to warn with."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    keep = np.ones(len(xy), dtype=bool)
+    notes: list[str] = []
+    if inside_only:
+        if model.polygons:
+            keep &= model.inside(xy)
+        else:
+            notes.append(f"grid.inside_only does nothing for {model.source or 'this model'}: a wireframe has no room "
+                         "polygons (give a floor plan, or set grid.inside_only: false)")
+    if wall_margin_m > 0:
+        if len(model.faces):
+            keep &= wall_distance(xy, model.faces) >= wall_margin_m
+        else:
+            notes.append(f"grid.wall_margin_m does nothing for {model.source or 'this model'}: it has no wall faces "
+                         "(add faces: [[x0, y0, x1, y1, z0, z1], ...] or use a floor plan)")
+    return keep, notes

@@ -1,0 +1,64 @@
+"""Plan (2-D) ray casting: the one ray/segment intersection kernel and what is built on it.
+
+:func:`ray_segment` is a numba function callable from Python and from other numba kernels
+(the database renderer's hidden-line test, the synthetic-building ray caster). Callers
+apply their own acceptance window on the two parameters it returns, because they need
+different ones (a laser accepts any hit in front, a hidden-line test only hits strictly
+between the camera and the point).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(inline="always", cache=True)
+def ray_segment(px: float, py: float, dx: float, dy: float, ax: float, ay: float, bx: float,
+                by: float) -> tuple[float, float]:
+    """Intersection of the ray p + t d with the segment a + u (b - a).
+
+    Returns ``(t, u)``: the ray parameter (distance in units of |d|) and the segment
+    parameter (in [0, 1] when the hit lies on the segment). A ray parallel to the segment
+    returns ``(inf, -1)``, which no caller accepts."""
+    ex = bx - ax
+    ey = by - ay
+    den = dx * ey - dy * ex
+    if abs(den) < 1e-12:
+        return math.inf, -1.0
+    wx = ax - px
+    wy = ay - py
+    t = (wx * ey - wy * ex) / den
+    u = (wx * dy - wy * dx) / den
+    return t, u
+
+
+@njit(cache=True)
+def _first_hits(xy: np.ndarray, dx: float, dy: float, walls: np.ndarray, out: np.ndarray) -> None:
+    for i in range(xy.shape[0]):
+        best = math.inf
+        for w in range(walls.shape[0]):
+            t, u = ray_segment(xy[i, 0], xy[i, 1], dx, dy, walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3])
+            if t > 1e-9 and 0.0 <= u <= 1.0 and t < best:
+                best = t
+        out[i] = best
+
+
+def ray_ranges(xy: np.ndarray, angle_deg: float, walls: np.ndarray) -> np.ndarray:
+    """Distance from each plan point along ``angle_deg`` (counter-clockwise from +x) to the
+    first wall (``walls`` (F, >=4) rows x0 y0 x1 y1 ...); inf where no wall is hit. This is
+    what a laser range finder in the plane measures."""
+    h = math.radians(angle_deg)
+    pts = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    w = np.ascontiguousarray(np.asarray(walls, dtype=np.float64).reshape(len(walls), -1)[:, :4])
+    out = np.full(len(pts), np.inf)
+    if len(pts) and len(w):
+        _first_hits(pts, math.cos(h), math.sin(h), w, out)
+    return out
+
+
+def ray_range(x: float, y: float, angle_deg: float, walls: np.ndarray) -> float:
+    """:func:`ray_ranges` for one point."""
+    return float(ray_ranges(np.array([[x, y]]), angle_deg, walls)[0])

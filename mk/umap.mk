@@ -1,4 +1,4 @@
-# UMap (issue 3): synthetic corridor experiment and the 36k-view database benchmark.
+# UMap: synthetic corridor experiment and the 36k-view database benchmark.
 .PHONY: experiment-umap bench-umap
 
 experiment-umap: $(STAMP)

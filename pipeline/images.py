@@ -116,10 +116,3 @@ def read_gray(path: str | Path) -> np.ndarray:
         img = cv2.cvtColor(img, code)
     return img
 
-
-def read_color(path: str | Path) -> np.ndarray:
-    """Read an image as 8-bit BGR."""
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise _unreadable(path)
-    return img

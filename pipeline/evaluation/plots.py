@@ -165,17 +165,6 @@ def plot_difference_matrix(matrix: np.ndarray, path: Path, matches: np.ndarray |
     return _save(fig, path)
 
 
-def plot_bars(labels: Sequence[str], values: dict[str, Sequence[float]], path: Path, title: str) -> Path:
-    fig, ax = plt.subplots(figsize=(7, 3.8))
-    width = 0.8 / max(1, len(values))
-    x = np.arange(len(labels))
-    for i, (name, vals) in enumerate(values.items()):
-        ax.bar(x + i * width, vals, width, label=name)
-    ax.set_xticks(x + width * (len(values) - 1) / 2, labels, rotation=30, ha="right")
-    ax.set_title(title)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    return _save(fig, path)
 
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],

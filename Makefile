@@ -15,7 +15,8 @@ help:
 	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
 	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark (3576 x 3576)"
 	@echo "make bench-seqslam-large  ... plus a 36,000 x 36,000 run (several minutes, ~10 GB disk)"
-	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building"
+	@echo "make seqslam-presets    SeqSLAM presets: chosen on one part of nordland-dev/corridor, reported on the other"
+	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building, panoramas in 5 generated homes"
 	@echo "make bench-umap         UMap database rendering and scoring speed"
 	@echo "make experiment-coembed co-embedding vs Isomap vs PCAMD (simulation, tears-of-steel)"
 	@echo "make bench-coembed      co-embedding sparse solve at 10,000 x 2,000"
@@ -35,7 +36,7 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(PL) run configs/demo.yaml --run-dir runs/demo
 	@echo
-	@echo "Results in runs/demo: metrics.json, matches.csv, difference_matrix.png, pr_curve.png"
+	@echo "Results in runs/demo: report.html (open it in a browser), metrics.json, per_query.csv, matches.csv, *.png"
 	@$(BIN)/python -c "import json; m=json.load(open('runs/demo/metrics.json')); print({k: m[k] for k in ('recall_at_1','auc_pr','recall_at_100_precision','n_queries')})"
 
 test: $(STAMP)

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
-from placeloc.pirf.stages import set_agreement
+from placeloc.pirf.metrics import set_agreement
+from placeloc.pirf.params import PirfParams, index_settings
 from placeloc.synth.omni import OmniWorld, loop_path
 
 
@@ -82,7 +83,7 @@ def main() -> None:
     ptr_b = np.concatenate([[0], np.cumsum([len(m) for m in bf_m])])
     rows = [{"backend": "bruteforce", "build_s": bf.build_seconds, "mt_s": bf_s, "speedup": 1.0, "jaccard": 1.0, "precision": 1.0, "recall": 1.0}]
     for b in [x for x in args.backends.split(",") if x and x != "bruteforce"]:
-        ix = AnnIndex(b, dic, {}, seed=0).build()
+        ix = AnnIndex(b, dic, index_settings(PirfParams()), seed=0).build()
         s, ms = time_mt(ix, queries, args.reps)
         ptr = np.concatenate([[0], np.cumsum([len(m) for m in ms])])
         ag = set_agreement(ptr, np.concatenate(ms), ptr_b, np.concatenate(bf_m))

@@ -19,15 +19,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
-from placeloc.config import load_config
+from placeloc.api import load_config, read_metrics, run
 from placeloc.evaluation import write_metrics
 from placeloc.experiments import write_summary
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
-from placeloc.pirf.stages import set_agreement
-from placeloc.runner import read_metrics, run_all, run_stage
+from placeloc.pirf.metrics import set_agreement
+from placeloc.pirf.params import PirfParams, index_settings
+from placeloc.pirf.results import read_dictionary, read_index_info, read_node_vectors, read_pirfs, stage_seconds
 from placeloc.synth.omni import generate
 
 DEFAULT_INDEX = "faiss-hnsw"
@@ -60,7 +60,7 @@ def _config(data: Path, **pirf: Any) -> dict[str, Any]:
         "method": "pirf", "seed": 0,
         "reference": {"images": str(data / "mapping")}, "query": {"images": str(data / "test")},
         "ground_truth": {"kind": "poses", "path": str(data / "mapping" / "poses.csv"), "radius": 1.0},
-        "executor": {"workers": min(2, os.cpu_count() or 1)}, "pirf": pirf})
+        "executor": {"workers": min(2, os.cpu_count() or 1)}, "pirf": {"query_poses": str(data / "test" / "poses.csv"), **pirf}})
 
 
 def _link(src: Path, dst: Path) -> None:
@@ -77,9 +77,10 @@ def timing_sweep(dictionary: np.ndarray, queries: list[np.ndarray], sizes: list[
                  seed: int = 0) -> list[dict[str, Any]]:
     """Fig. 4-5: mean seconds to compute m_t per query frame, per backend and dictionary prefix."""
     rows = []
+    settings = index_settings(PirfParams())
     for n in sizes:
         for b in backends:
-            ix = AnnIndex(b, dictionary[:n], {}, seed).build()
+            ix = AnnIndex(b, dictionary[:n], settings, seed).build()
             t0 = time.perf_counter()
             for q in queries:
                 d2, i = ix.knn2(q)
@@ -92,18 +93,15 @@ def timing_sweep(dictionary: np.ndarray, queries: list[np.ndarray], sizes: list[
 def _backend_run(out: Path, data: Path, upd: str, b: str, rd: Path, m: dict[str, Any], runs: dict[str, dict[str, Any]],
                  t3: list[dict[str, Any]], quiet: bool) -> None:
     """Index + localize with backend ``b`` over ``rd``'s dictionary; compare with its brute-force m_t."""
-    with h5py.File(rd / "localize.h5") as f:
-        bf = (f["bruteforce/m_ptr"][()], f["bruteforce/m_words"][()])
+    bf = read_node_vectors(rd, "bruteforce")
     rb = out / f"omni-{upd}-{b}"
     for stage in ("extract", "build-dictionary"):
         _link(rd / f"{stage}.h5", rb / f"{stage}.h5")
     _say(quiet, f"{upd}: index {b}")
-    run_stage(_config(data, update=upd, index=b, compare_bf=False), rb, "evaluate", quiet=quiet)
+    run(_config(data, update=upd, index=b, compare_bf=False), rb, quiet=quiet)
     mb = read_metrics(rb)
-    with h5py.File(rb / "localize.h5") as f:
-        ag = set_agreement(f[f"{b}/m_ptr"][()], f[f"{b}/m_words"][()], *bf)
-    with h5py.File(rb / "index.h5") as f:
-        mb["index_build_seconds"] = float(f["index"].attrs["build_seconds"])
+    ag = set_agreement(*read_node_vectors(rb, b), *bf)
+    mb["index_build_seconds"] = float(read_index_info(rb)["build_seconds"])
     mb.update({"jaccard_ann_bf": ag["jaccard"], "precision_ann_bf": ag["precision"], "recall_ann_bf": ag["recall"],
                "mt_seconds_bf": m["mt_seconds_bf"]})
     for g in range(3):
@@ -132,14 +130,12 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
         _link(first / "extract.h5", rd / "extract.h5")  # both updates share the PIRFs
         t0 = time.perf_counter()
         _say(quiet, f"{upd}: mapping, {DEFAULT_INDEX} index, localization, evaluation")
-        run_all(_config(data, update=upd, index=DEFAULT_INDEX), rd, quiet=quiet)
+        run(_config(data, update=upd, index=DEFAULT_INDEX), rd, quiet=quiet)
         m = read_metrics(rd)
         m["wall_seconds"] = time.perf_counter() - t0
-        with h5py.File(rd / "build-dictionary.h5") as f:
-            m["build_seconds"] = float(f.attrs["seconds"])
-        with h5py.File(rd / "extract.h5") as f:
-            m["extract_seconds"] = float(f.attrs["seconds"])
-            m["pirfs_per_frame"] = float(np.diff(f["reference/offsets"][()]).mean())
+        m["build_seconds"] = stage_seconds(rd, "build-dictionary")
+        m["extract_seconds"] = stage_seconds(rd, "extract")
+        m["pirfs_per_frame"] = float(np.diff(read_pirfs(rd, "reference")[1]).mean())
         runs[f"omni-{upd}-{DEFAULT_INDEX}"] = m
         t3.append({"update": upd, "backend": DEFAULT_INDEX, **{k: m[k] for k in ("jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
                                                                                   "mt_seconds_ann", "mt_seconds_bf")}})
@@ -152,12 +148,10 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
     fig_rows = []
     for upd in ("plain", "improved"):
         rd = out / f"omni-{upd}"
-        with h5py.File(rd / "build-dictionary.h5") as f:
-            dic = f["dictionary"][()]
-        with h5py.File(rd / "extract.h5") as f:
-            off, pirfs = f["query/offsets"][()], f["query/pirfs"]
-            frames = [t for t in range(len(off) - 1) if off[t + 1] > off[t]][:: max(1, (len(off) - 1) // 40)][:40]
-            queries = [pirfs[off[t]:off[t + 1]] for t in frames]
+        dic = read_dictionary(rd)
+        pirfs, off = read_pirfs(rd, "query")
+        frames = [t for t in range(len(off) - 1) if off[t + 1] > off[t]][:: max(1, (len(off) - 1) // 40)][:40]
+        queries = [pirfs[off[t]:off[t + 1]] for t in frames]
         sizes = sorted({int(round(len(dic) * k / 5)) for k in range(1, 6)})
         _say(quiet, f"{upd}: timing m_t at sizes {sizes}")
         for r in timing_sweep(dic, queries, sizes, timing_backends):

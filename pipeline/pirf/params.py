@@ -42,7 +42,7 @@ class PirfParams(Params):
     ivf_nprobe: int = param(16, min=1, help="IVF lists probed")
     kmeans_branching: int = param(32, min=2, help="FLANN k-means branching")
     kdtree_trees: int = param(4, min=1, help="FLANN kd-trees")
-    index_recall: float | None = param(None, min=0.0, max=1.0, help="tune the index's search setting to meet this recall "
+    index_recall: float | None = param(0.97, min=0.0, max=1.0, help="tune the index's search setting to meet this recall "
                                        "against exact search (null: use ef_search / ivf_nprobe / checks as given)")
     index_tune_sample: int = param(2000, min=10, help="dictionary entries searched to tune the index")
     compare_bf: bool = param(True, help="also time brute force at localize and report agreement")

@@ -192,3 +192,16 @@ def test_mapping_with_incremental_hnsw_matches_brute_force() -> None:
         out[search] = ([mp.step(f)[0] for f in frames], mp.n, mp.dict_size_after)
     assert out["faiss-hnsw"][0][30:] == list(range(5, 15)) == out["bruteforce"][0][30:]
     assert out["faiss-hnsw"][1:] == out["bruteforce"][1:]  # the same dictionary growth, frame by frame
+
+
+def test_direction_correction_shifts_only_opposite_direction_revisits() -> None:
+    from placeloc.pirf.mapping import correct_for_travel_direction
+
+    window = np.full(200, 3)
+    window[150] = 5
+    # frames 100-102 revisit nodes 10-12 the same way; frames 148-150 walk back over 60, 59, 58
+    frames = np.array([100, 101, 102, 148, 149, 150])
+    nodes = np.array([10, 11, 12, 60, 59, 58])
+    out = correct_for_travel_direction(frames, nodes, window, span=30)
+    # same way: unchanged; the other way: back by (w_t + w_c) / 2 frames, the first of the revisit as matched
+    assert out.tolist() == [10, 11, 12, 60, 59 - 3, 58 - 4]

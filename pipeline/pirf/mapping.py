@@ -278,6 +278,26 @@ def loop_closures(best_node: np.ndarray, best_score: np.ndarray, tau: float) -> 
     return np.flatnonzero((best_node >= 0) & (best_score >= tau))
 
 
+def correct_for_travel_direction(frames: np.ndarray, nodes: np.ndarray, window: np.ndarray, span: int) -> np.ndarray:
+    """Loop-closure nodes corrected for the lag of PIRF tracks on opposite-direction revisits.
+
+    A PIRF is a feature tracked through the last w frames and belongs to the last one, so
+    node j's words describe frames j-w..j. Revisiting a place walking the other way, the
+    query's last w_t frames lie *ahead* (in old-frame order) of where it stands, and the
+    best-overlapping node c is about (w_t + w_c) / 2 frames past the true one; walking the
+    same way the two lags cancel. The direction is read from the loop closures themselves:
+    over the closures of the last ``span`` frames, matched nodes that decrease while t
+    increases mean the other way. The first closure of a revisit is left as matched.
+    """
+    out = nodes.copy()
+    for k, (t, c) in enumerate(zip(frames, nodes)):
+        recent = nodes[(frames >= t - span) & (frames <= t)]
+        if len(recent) < 2 or np.median(np.diff(recent)) >= 0:
+            continue
+        out[k] = max(0, c - int(round((window[t] + window[c]) / 2)))
+    return out
+
+
 def node_vector(d2: np.ndarray, idx: np.ndarray, ratio: float) -> np.ndarray:
     """m_t as sorted word ids: the dictionary entries some PIRF ratio-test-matches."""
     return np.unique(idx[ratio_ok(d2, idx, ratio), 0])

@@ -27,6 +27,8 @@ class PirfParams(Params):
     eps: float = param(30, min=0.0, help="epsilon (table 1)")
     sigma: float = param(2.0, min=0.0, min_exclusive=True, help="Gaussian sigma of the score (table 1)")
     tau: float = param(0.015, min=0.0, help="tau (table 1)")
+    direction_correction: bool = param(False, help="correct loop-closure nodes for the PIRF track lag on "
+                                       "opposite-direction revisits (not in the paper; see docs/pirf.md)")
     update: str = param("improved", choices=("plain", "improved"), help="dictionary update")
     map_search: str = param("bruteforce", choices=("bruteforce", "faiss-hnsw"),
                             help="nearest neighbours while mapping: exact, or an HNSW graph grown with the dictionary")

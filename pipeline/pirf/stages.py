@@ -32,7 +32,7 @@ from placeloc.methods import Method, Stage
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
 from placeloc.pirf.features import check_sizes, extract_frame_or_error
-from placeloc.pirf.mapping import csr_rows, localize_video, loop_closures, map_video
+from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
 from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
 from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
@@ -138,6 +138,9 @@ def stage_build(ctx: Any) -> None:
                     hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
     best, score = res["best_node"], res["best_score"]
     lc = loop_closures(best, score, p.tau)
+    lc_node = best[lc]
+    if p.direction_correction:
+        lc_node = correct_for_travel_direction(lc, lc_node, ex["reference/window"][()], span=p.eps)
     n_nodes = len(best)
     temporal = np.column_stack([np.arange(n_nodes - 1), np.arange(1, n_nodes)]) if n_nodes > 1 else np.zeros((0, 2), np.int64)
     d = res.pop("dictionary")
@@ -146,8 +149,8 @@ def stage_build(ctx: Any) -> None:
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
     ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
-    write_tree(ctx.out, {**res, "loop_closures": {"frame": lc, "node": best[lc], "score": score[lc]},
-                         "graph": {"temporal": temporal, "loop": np.column_stack([lc, best[lc]]).astype(np.int64)}})
+    write_tree(ctx.out, {**res, "loop_closures": {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]},
+                         "graph": {"temporal": temporal, "loop": np.column_stack([lc, lc_node]).astype(np.int64)}})
 
 
 # -- index ----------------------------------------------------------------------------
@@ -301,7 +304,7 @@ METHOD = Method(
         "extract": Stage(stage_extract, keys=("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max",
                                               "n_pmin", "n_pmax")),
         # ratio and n_pmax reach build/localize through the extract stamp
-        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "map_search", "map_ef_search",
+        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "direction_correction", "map_search", "map_ef_search",
                                                     "map_hnsw_m", "map_ef_construction")),
         "index": Stage(stage_index, keys=INDEX_KEYS),
         "localize": Stage(stage_localize, keys=("compare_bf",)),

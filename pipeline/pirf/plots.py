@@ -52,9 +52,9 @@ def plot_accuracy_gap(path: Path, ann: list[float], bf: list[float] | None, back
     ax.set_xticks(gaps)
     ax.set_xlabel("gap tolerance (nodes)")
     ax.set_ylabel("localization accuracy")
-    ax.set_title(f"unseen run: matched node within {radius:g} m (+ gap)", fontsize=10)
+    ax.set_title(f"localization of the unseen run\n(correct: matched node within gap nodes of one within {radius:g} m)", fontsize=9)
     ax.set_ylim(0, 1)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
 

@@ -225,11 +225,13 @@ def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str
         for b in dict.fromkeys(r["backend"] for r in fig_rows):  # the backends that were timed, in order
             rr = [r for r in fig_rows if r["update"] == upd and r["backend"] == b]
             ax.plot([r["dictionary_size"] for r in rr], [r["mt_seconds"] for r in rr], "o-", label=b)
-        ax.set_title(f"m_t time, {upd} dictionary")
-        ax.set_xlabel("dictionary size")
-        ax.set_ylabel("seconds per frame")
+        ax.set_title(f"time to compute m_t, {upd} dictionary", fontsize=10)
+        ax.set_xlabel("dictionary size (words)")
+        ax.set_ylabel("seconds per query frame (log scale)")
         ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
+    fig.subplots_adjust(wspace=0.35)
     fig.savefig(out / "fig45_mt_seconds.png", dpi=100, bbox_inches="tight")
     plt.close(fig)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)

@@ -205,3 +205,14 @@ def test_direction_correction_shifts_only_opposite_direction_revisits() -> None:
     out = correct_for_travel_direction(frames, nodes, window, span=30)
     # same way: unchanged; the other way: back by (w_t + w_c) / 2 frames, the first of the revisit as matched
     assert out.tolist() == [10, 11, 12, 60, 59 - 3, 58 - 4]
+
+
+def test_loop_path_dwell_stands_still_then_walks_on() -> None:
+    from placeloc.synth.omni import loop_path
+
+    square = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]
+    walk = loop_path(square, 80, 0.2)
+    stop = loop_path(square, 80, 0.2, dwell=10, dwell_every=50)
+    assert np.allclose(stop[:50], walk[:50])  # 50 frames of walking as before
+    assert np.allclose(stop[49:60, :2], stop[49, :2])  # then 10 more frames in one place
+    assert np.allclose(stop[60:70], walk[50:60])  # and the walk resumes where it stopped

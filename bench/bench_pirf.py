@@ -17,8 +17,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 from placeloc.pirf.ann import BACKENDS, AnnIndex
-from placeloc.pirf.mapping import node_vector
-from placeloc.pirf.stages import set_agreement
+from placeloc.pirf.knn import sq_norms
+from placeloc.pirf.mapping import PirfMapper, node_vector
+from placeloc.pirf.metrics import set_agreement
+from placeloc.pirf.params import PirfParams, index_settings
+from placeloc.pirf.tuning import build_tuned
 from placeloc.synth.omni import OmniWorld, loop_path
 
 
@@ -65,14 +68,59 @@ def time_mt(ix: AnnIndex, queries: list[np.ndarray], reps: int) -> tuple[float, 
     return best, out
 
 
+def preload(mapper: PirfMapper, dic: np.ndarray, per_node: int) -> float:
+    """Give ``mapper`` a map of ``dic`` (nodes of ``per_node`` consecutive words, as if mapped
+    frame by frame); returns the seconds spent growing its HNSW graph (0 for brute force)."""
+    n = len(dic)
+    mapper._grow(n)
+    mapper.words[:n] = dic
+    mapper.norms[:n] = sq_norms(dic)
+    t0 = time.perf_counter()
+    if mapper.search != "bruteforce":
+        for s in range(0, n, 10_000):  # as mapping would: the graph grows with the dictionary
+            mapper._hnsw_add(dic[s:s + 10_000])
+    secs = time.perf_counter() - t0
+    mapper.n = n
+    for j, s in enumerate(range(0, n, per_node)):
+        words = np.arange(s, min(s + per_node, n))
+        mapper.node_words.append(words)
+        mapper._add_pairs(j, words)
+        mapper.pairs_after.append(mapper._npairs)
+        mapper.dict_size_after.append(min(s + per_node, n))
+        mapper.best.append((-1, 0.0))
+    return secs
+
+
+def bench_mapping(dic: np.ndarray, queries: list[np.ndarray], ef: int) -> None:
+    """Seconds per mapping step (m_t over Q_{t-eps}, scoring, improved update) at a map of
+    len(dic) words, brute force against the incremental HNSW graph."""
+    p = PirfParams()
+    rows = []
+    for search in ("bruteforce", "faiss-hnsw"):
+        mp = PirfMapper(dic.shape[1], ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=search,
+                        hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=ef)
+        build = preload(mp, dic, 125)
+        c0, t0 = time.process_time(), time.perf_counter()
+        for q in queries:
+            mp.step(q)
+        rows.append((search, build, (time.perf_counter() - t0) / len(queries), (time.process_time() - c0) / len(queries)))
+    print(f"\nmapping step at {len(dic)} words ({len(queries)} frames of 200 PIRF-sized SIFT; improved update):")
+    print(f"{'search':<12}{'graph s':>9}{'ms/frame':>10}{'CPU ms':>9}{'frames/s':>10}{'speedup':>9}")
+    for r in rows:
+        print(f"{r[0]:<12}{r[1]:>9.1f}{1000 * r[2]:>10.1f}{1000 * r[3]:>9.1f}{1 / r[2]:>10.1f}{rows[0][2] / r[2]:>8.1f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=500_000)
     ap.add_argument("--queries", type=int, default=10, help="200-PIRF query frames")
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--backends", default="bruteforce,faiss-hnsw,faiss-ivf,flann-kdtree,flann-kmeans",
-                    help=f"comma list of {', '.join(BACKENDS)} (flann-autotune takes many minutes at 500k: add it explicitly)")
+    ap.add_argument("--backends", default="bruteforce,faiss-hnsw-tuned,faiss-hnsw,faiss-ivf-tuned,faiss-ivf,flann-kdtree,flann-kmeans",
+                    help=f"comma list of {', '.join(BACKENDS)}, faiss-hnsw-tuned, faiss-ivf-tuned "
+                         "(flann-autotune takes many minutes at 500k: add it explicitly)")
     ap.add_argument("--cache", type=Path, default=Path("runs/bench-pirf"))
+    ap.add_argument("--mapping", action="store_true", help="also time a mapping step at this dictionary size (BF vs HNSW)")
+    ap.add_argument("--map-ef", type=int, default=PirfParams().map_ef_search, help="HNSW efSearch while mapping")
     args = ap.parse_args()
     t0 = time.perf_counter()
     dic, queries = sift_set(args.size, args.queries, args.cache)
@@ -82,7 +130,14 @@ def main() -> None:
     ptr_b = np.concatenate([[0], np.cumsum([len(m) for m in bf_m])])
     rows = [{"backend": "bruteforce", "build_s": bf.build_seconds, "mt_s": bf_s, "speedup": 1.0, "jaccard": 1.0, "precision": 1.0, "recall": 1.0}]
     for b in [x for x in args.backends.split(",") if x and x != "bruteforce"]:
-        ix = AnnIndex(b, dic, {}, seed=0).build()
+        if b.endswith("-tuned"):  # the default: the search setting tuned to pirf.index_recall
+            p = PirfParams()
+            ix = AnnIndex(b[: -len("-tuned")], dic, index_settings(p), seed=0)
+            tuned = build_tuned(ix, target=p.index_recall, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
+            print(f"{b}: {tuned['key']} {tuned['value']} (sample recall {tuned['nn_recall']:.3f}, m_t recall {tuned['mt_recall']:.3f}, "
+                  f"{tuned['mt_matched']} matches)")
+        else:
+            ix = AnnIndex(b, dic, index_settings(PirfParams()), seed=0).build()
         s, ms = time_mt(ix, queries, args.reps)
         ptr = np.concatenate([[0], np.cumsum([len(m) for m in ms])])
         ag = set_agreement(ptr, np.concatenate(ms), ptr_b, np.concatenate(bf_m))
@@ -93,6 +148,8 @@ def main() -> None:
         print(f"{r['backend']:<14}{r['build_s']:>9.1f}{1000 * r['mt_s']:>10.2f}{r['speedup']:>8.1f}x"
               f"{r['jaccard']:>9.3f}{r['precision']:>10.3f}{r['recall']:>8.3f}")
     (args.cache / "bench.json").write_text(json.dumps(rows, indent=2))
+    if args.mapping:
+        bench_mapping(dic, queries, args.map_ef)
     print(f"\nwritten {args.cache / 'bench.json'}; m_t words per frame (BF): {np.mean([len(m) for m in bf_m]):.1f}")
 
 

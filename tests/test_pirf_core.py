@@ -10,7 +10,8 @@ import pytest
 from placeloc.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
 from placeloc.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
 from placeloc.pirf.knn import bf_knn2
-from placeloc.pirf.mapping import PirfMapper, gauss, improved_insert, similarity_s, z_norm
+from placeloc.pirf.mapping import PirfMapper, gauss, improved_insert, loop_closures, similarity_s, z_norm
+from placeloc.pirf.params import PirfParams, index_settings
 
 
 def test_bf_knn2_matches_naive_and_prefix_splits() -> None:
@@ -59,12 +60,12 @@ def test_extract_pirfs_descriptor_is_chain_mean_and_window_adapts() -> None:
     m, descs = _track_set()
     resp = [np.ones(4, np.float32)] * 5
     # n_pmin 2: window 3 gives 1 PIRF (< 2) -> decremented to 2 -> 2 PIRFs
-    p, sel, w = extract_pirfs(descs, resp, m, w_default=3, n_pmin=2, n_pmax=3)
+    p, sel, w = extract_pirfs(descs, resp, m, w_default=3, n_pmin=2, n_pmax=3, w_limit=30)
     assert w == 2 and sel.tolist() == [0, 1]
     # feature 0 over frames 4, 3, 2 = one-hot scaled 5, 4, 3 -> mean 4
     assert np.allclose(p[0], [4, 0, 0, 0]) and np.allclose(p[1], [0, 4, 0, 0])
     # n_pmax 1: window 3 gives 1 already
-    p, sel, w = extract_pirfs(descs, resp, m, w_default=1, n_pmin=1, n_pmax=1)
+    p, sel, w = extract_pirfs(descs, resp, m, w_default=1, n_pmin=1, n_pmax=1, w_limit=30)
     assert w == 3 and sel.tolist() == [0]
 
 
@@ -103,13 +104,16 @@ def test_improved_update_order_and_rejection() -> None:
     assert word.tolist() == [3, 3, 2]
 
 
+BF = {"search": "bruteforce", "hnsw_m": 32, "hnsw_ef_construction": 40, "ef_search": 64}
+
+
 def test_plain_update_keeps_duplicates_improved_rejects_them() -> None:
     rng = np.random.default_rng(1)
     base = rng.random((30, 16), np.float32) * 10
     frame = np.concatenate([base, base + 0.01])  # every PIRF twice
     sizes = {}
     for upd in ("plain", "improved"):
-        mp = PirfMapper(16, update=upd, eps=1)
+        mp = PirfMapper(16, ratio=0.7, n_pmax=200, eps=1, sigma=2.0, update=upd, **BF)
         mp.step(frame)
         sizes[upd] = mp.n
     assert sizes == {"plain": 60, "improved": 30}
@@ -118,11 +122,13 @@ def test_plain_update_keeps_duplicates_improved_rejects_them() -> None:
 def test_mapper_detects_revisit_loop_closure() -> None:
     rng = np.random.default_rng(2)
     places = [rng.random((60, 32), np.float32) * 10 for _ in range(12)]
-    mp = PirfMapper(32, n_pmax=60, eps=3, tau=0.05)
+    mp = PirfMapper(32, ratio=0.7, n_pmax=60, eps=3, sigma=2.0, update="improved", **BF)
     seq = list(range(12)) + [4, 5, 6]
     out = [mp.step(places[k] + rng.normal(0, 0.01, places[k].shape).astype(np.float32)) for k in seq]
     assert [o[0] for o in out[12:]] == [4, 5, 6]
-    assert all(o[1] >= 0.05 for o in out[12:]) and all(o[1] < 0.05 for o in out[:12])
+    best = np.array([o[0] for o in out])
+    score = np.array([o[1] for o in out])
+    assert loop_closures(best, score, tau=0.05).tolist() == [12, 13, 14]  # eq. (9): only the revisits pass tau
     assert mp.n == 12 * 60  # revisits add nothing
 
 
@@ -137,7 +143,7 @@ def test_index_backends_agree_with_brute_force(backend: str, tmp_path) -> None:
     data = _clustered(3000)
     q = data[:200] + np.random.default_rng(5).normal(0, 0.5, (200, data.shape[1])).astype(np.float32)
     ref_d, ref_i = bf_knn2(q, data)
-    ix = AnnIndex(backend, data, {"ivf_nlist": 32, "ivf_nprobe": 8}, seed=0).build()
+    ix = AnnIndex(backend, data, {**index_settings(PirfParams()), "ivf_nlist": 32, "ivf_nprobe": 8}, seed=0).build()
     d, i = ix.knn2(q)
     assert (i[:, 0] == ref_i[:, 0]).mean() >= 0.95
     assert np.allclose(d[i[:, 0] == ref_i[:, 0], 0], ref_d[i[:, 0] == ref_i[:, 0], 0], rtol=1e-2, atol=0.1)  # BLAS identity: float32 cancellation
@@ -155,3 +161,58 @@ def test_flann_autotuned_small() -> None:
     ix = AnnIndex("flann-auto", data, {}, seed=0).build()
     d, i = ix.knn2(data[:50])
     assert (i[:, 0] == np.arange(50)).mean() >= 0.9
+
+
+def test_index_tunes_itself_to_a_recall_target_that_holds_on_held_out_queries() -> None:
+    from placeloc.pirf.knn import exact_knn
+    from placeloc.pirf.tuning import SEARCH_GRID, agreement, build_tuned, meets
+
+    points = _clustered(11000, dim=32, seed=3)
+    data, queries = points[:10000], points[10000:]  # held out: points of the same distribution, never in the index
+    settings = {**index_settings(PirfParams()), "hnsw_m": 8, "hnsw_ef_construction": 16}  # a weak graph: low ef is not enough
+    ix = AnnIndex("faiss-hnsw", data, settings, seed=0)
+    res = build_tuned(ix, target=0.97, sample=500, ratio=0.7, seed=0)
+    assert res["target_met"] and res["nn_recall"] >= 0.97 and res["key"] == "ef_search" and res["sample"] == 500
+    grid = SEARCH_GRID["faiss-hnsw"][1]
+    assert res["value"] > grid[0] and ix.params["ef_search"] == res["value"]  # the cheapest setting was not enough
+    assert not meets(res["tried"][-2], 0.97)  # ... and the one before failed
+    exact, approx = exact_knn(queries, data, 2), ix.knn2(queries)
+    held_out = agreement(exact, approx, 0.7)
+    assert held_out["nn_recall"] >= 0.97  # the target holds on queries the tuning never saw
+
+
+def test_mapping_with_incremental_hnsw_matches_brute_force() -> None:
+    rng = np.random.default_rng(5)
+    places = [rng.random((60, 32), np.float32) * 10 for _ in range(30)]
+    seq = list(range(30)) + list(range(5, 15))
+    frames = [places[k] + rng.normal(0, 0.05, places[k].shape).astype(np.float32) for k in seq]
+    out = {}
+    for search in ("bruteforce", "faiss-hnsw"):
+        mp = PirfMapper(32, ratio=0.7, n_pmax=60, eps=3, sigma=2.0, update="improved", **{**BF, "search": search})
+        out[search] = ([mp.step(f)[0] for f in frames], mp.n, mp.dict_size_after)
+    assert out["faiss-hnsw"][0][30:] == list(range(5, 15)) == out["bruteforce"][0][30:]
+    assert out["faiss-hnsw"][1:] == out["bruteforce"][1:]  # the same dictionary growth, frame by frame
+
+
+def test_direction_correction_shifts_only_opposite_direction_revisits() -> None:
+    from placeloc.pirf.mapping import correct_for_travel_direction
+
+    window = np.full(200, 3)
+    window[150] = 5
+    # frames 100-102 revisit nodes 10-12 the same way; frames 148-150 walk back over 60, 59, 58
+    frames = np.array([100, 101, 102, 148, 149, 150])
+    nodes = np.array([10, 11, 12, 60, 59, 58])
+    out = correct_for_travel_direction(frames, nodes, window, span=30)
+    # same way: unchanged; the other way: back by (w_t + w_c) / 2 frames, the first of the revisit as matched
+    assert out.tolist() == [10, 11, 12, 60, 59 - 3, 58 - 4]
+
+
+def test_loop_path_dwell_stands_still_then_walks_on() -> None:
+    from placeloc.synth.omni import loop_path
+
+    square = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]
+    walk = loop_path(square, 80, 0.2)
+    stop = loop_path(square, 80, 0.2, dwell=10, dwell_every=50)
+    assert np.allclose(stop[:50], walk[:50])  # 50 frames of walking as before
+    assert np.allclose(stop[49:60, :2], stop[49, :2])  # then 10 more frames in one place
+    assert np.allclose(stop[60:70], walk[50:60])  # and the walk resumes where it stopped

@@ -19,15 +19,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
-from placeloc.config import load_config
+from placeloc.api import load_config, read_metrics, run
 from placeloc.evaluation import write_metrics
 from placeloc.experiments import write_summary
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
-from placeloc.pirf.stages import set_agreement
-from placeloc.runner import read_metrics, run_all, run_stage
+from placeloc.pirf.metrics import set_agreement
+from placeloc.pirf.params import PirfParams, index_settings
+from placeloc.pirf.results import read_dictionary, read_index_info, read_node_vectors, read_pirfs, stage_seconds
 from placeloc.synth.omni import generate
 
 DEFAULT_INDEX = "faiss-hnsw"
@@ -60,7 +60,7 @@ def _config(data: Path, **pirf: Any) -> dict[str, Any]:
         "method": "pirf", "seed": 0,
         "reference": {"images": str(data / "mapping")}, "query": {"images": str(data / "test")},
         "ground_truth": {"kind": "poses", "path": str(data / "mapping" / "poses.csv"), "radius": 1.0},
-        "executor": {"workers": min(2, os.cpu_count() or 1)}, "pirf": pirf})
+        "executor": {"workers": min(2, os.cpu_count() or 1)}, "pirf": {"query_poses": str(data / "test" / "poses.csv"), **pirf}})
 
 
 def _link(src: Path, dst: Path) -> None:
@@ -77,9 +77,10 @@ def timing_sweep(dictionary: np.ndarray, queries: list[np.ndarray], sizes: list[
                  seed: int = 0) -> list[dict[str, Any]]:
     """Fig. 4-5: mean seconds to compute m_t per query frame, per backend and dictionary prefix."""
     rows = []
+    settings = index_settings(PirfParams())
     for n in sizes:
         for b in backends:
-            ix = AnnIndex(b, dictionary[:n], {}, seed).build()
+            ix = AnnIndex(b, dictionary[:n], settings, seed).build()
             t0 = time.perf_counter()
             for q in queries:
                 d2, i = ix.knn2(q)
@@ -92,18 +93,15 @@ def timing_sweep(dictionary: np.ndarray, queries: list[np.ndarray], sizes: list[
 def _backend_run(out: Path, data: Path, upd: str, b: str, rd: Path, m: dict[str, Any], runs: dict[str, dict[str, Any]],
                  t3: list[dict[str, Any]], quiet: bool) -> None:
     """Index + localize with backend ``b`` over ``rd``'s dictionary; compare with its brute-force m_t."""
-    with h5py.File(rd / "localize.h5") as f:
-        bf = (f["bruteforce/m_ptr"][()], f["bruteforce/m_words"][()])
+    bf = read_node_vectors(rd, "bruteforce")
     rb = out / f"omni-{upd}-{b}"
     for stage in ("extract", "build-dictionary"):
         _link(rd / f"{stage}.h5", rb / f"{stage}.h5")
     _say(quiet, f"{upd}: index {b}")
-    run_stage(_config(data, update=upd, index=b, compare_bf=False), rb, "evaluate", quiet=quiet)
+    run(_config(data, update=upd, index=b, compare_bf=False), rb, quiet=quiet)
     mb = read_metrics(rb)
-    with h5py.File(rb / "localize.h5") as f:
-        ag = set_agreement(f[f"{b}/m_ptr"][()], f[f"{b}/m_words"][()], *bf)
-    with h5py.File(rb / "index.h5") as f:
-        mb["index_build_seconds"] = float(f["index"].attrs["build_seconds"])
+    ag = set_agreement(*read_node_vectors(rb, b), *bf)
+    mb["index_build_seconds"] = float(read_index_info(rb)["build_seconds"])
     mb.update({"jaccard_ann_bf": ag["jaccard"], "precision_ann_bf": ag["precision"], "recall_ann_bf": ag["recall"],
                "mt_seconds_bf": m["mt_seconds_bf"]})
     for g in range(3):
@@ -115,9 +113,11 @@ def _backend_run(out: Path, data: Path, upd: str, b: str, rd: Path, m: dict[str,
 
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str, int] | None = None,
-         backends: tuple[str, ...] | None = None, timing_backends: tuple[str, ...] | None = None) -> Path:
+         backends: tuple[str, ...] | None = None, timing_backends: tuple[str, ...] | None = None,
+         hnsw_mapping: bool = False) -> Path:
     """The paper's tables on generated data. ``spec``/``backends``/``timing_backends``
-    override the size and the index backends (see ``experiment_large``)."""
+    override the size and the index backends (see ``experiment_large``); ``hnsw_mapping``
+    also maps each update with the incremental HNSW graph (``pirf.map_search``) for Table 2."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     spec = spec or (QUICK if quick else FULL)
@@ -132,14 +132,12 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
         _link(first / "extract.h5", rd / "extract.h5")  # both updates share the PIRFs
         t0 = time.perf_counter()
         _say(quiet, f"{upd}: mapping, {DEFAULT_INDEX} index, localization, evaluation")
-        run_all(_config(data, update=upd, index=DEFAULT_INDEX), rd, quiet=quiet)
+        run(_config(data, update=upd, index=DEFAULT_INDEX), rd, quiet=quiet)
         m = read_metrics(rd)
         m["wall_seconds"] = time.perf_counter() - t0
-        with h5py.File(rd / "build-dictionary.h5") as f:
-            m["build_seconds"] = float(f.attrs["seconds"])
-        with h5py.File(rd / "extract.h5") as f:
-            m["extract_seconds"] = float(f.attrs["seconds"])
-            m["pirfs_per_frame"] = float(np.diff(f["reference/offsets"][()]).mean())
+        m["build_seconds"] = stage_seconds(rd, "build-dictionary")
+        m["extract_seconds"] = stage_seconds(rd, "extract")
+        m["pirfs_per_frame"] = float(np.diff(read_pirfs(rd, "reference")[1]).mean())
         runs[f"omni-{upd}-{DEFAULT_INDEX}"] = m
         t3.append({"update": upd, "backend": DEFAULT_INDEX, **{k: m[k] for k in ("jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
                                                                                   "mt_seconds_ann", "mt_seconds_bf")}})
@@ -147,17 +145,21 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
             if b in (DEFAULT_INDEX, "bruteforce", "flann-auto"):
                 continue
             _backend_run(out, data, upd, b, rd, m, runs, t3, quiet)
+        if hnsw_mapping:
+            rh = out / f"omni-{upd}-hnsw-mapping"
+            _link(rd / "extract.h5", rh / "extract.h5")
+            _say(quiet, f"{upd}: mapping with the incremental HNSW graph")
+            run(_config(data, update=upd, index=DEFAULT_INDEX, map_search="faiss-hnsw"), rh, quiet=quiet)
+            runs[f"omni-{upd}-hnsw-mapping"] = read_metrics(rh)
         write_summary(out, runs)
     # Fig. 4-5: m_t time against dictionary size, on each update's dictionary
     fig_rows = []
     for upd in ("plain", "improved"):
         rd = out / f"omni-{upd}"
-        with h5py.File(rd / "build-dictionary.h5") as f:
-            dic = f["dictionary"][()]
-        with h5py.File(rd / "extract.h5") as f:
-            off, pirfs = f["query/offsets"][()], f["query/pirfs"]
-            frames = [t for t in range(len(off) - 1) if off[t + 1] > off[t]][:: max(1, (len(off) - 1) // 40)][:40]
-            queries = [pirfs[off[t]:off[t + 1]] for t in frames]
+        dic = read_dictionary(rd)
+        pirfs, off = read_pirfs(rd, "query")
+        frames = [t for t in range(len(off) - 1) if off[t + 1] > off[t]][:: max(1, (len(off) - 1) // 40)][:40]
+        queries = [pirfs[off[t]:off[t + 1]] for t in frames]
         sizes = sorted({int(round(len(dic) * k / 5)) for k in range(1, 6)})
         _say(quiet, f"{upd}: timing m_t at sizes {sizes}")
         for r in timing_sweep(dic, queries, sizes, timing_backends):
@@ -192,7 +194,9 @@ def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str
     p, i = runs[f"omni-plain-{DEFAULT_INDEX}"], runs[f"omni-improved-{DEFAULT_INDEX}"]
     t2 = [{"update": u, "dictionary_size": m["dictionary_size"], "loop_closures": m["loop_closures"],
            "loop_closures_correct": m["loop_closures_correct"], "loop_closure_precision": m["loop_closure_precision"],
-           "map_seconds_per_frame": m["map_seconds_per_frame"]} for u, m in (("plain", p), ("improved", i))]
+           "map_seconds_per_frame": m["map_seconds_per_frame"]}
+          for u, m in (("plain", p), ("improved", i), *((f"{u} (HNSW mapping)", runs.get(f"omni-{u}-hnsw-mapping")) for u in ("plain", "improved")))
+          if m is not None]
     t4 = [{"update": u, "bf": m["accuracy_gap0_bf"], "ann": m["accuracy_gap0"], "bf_gap2": m["accuracy_gap2_bf"], "ann_gap2": m["accuracy_gap2"]}
           for u, m in (("plain", p), ("improved", i))]
     _csv(out / "table2.csv", t2)
@@ -221,22 +225,25 @@ def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str
         for b in dict.fromkeys(r["backend"] for r in fig_rows):  # the backends that were timed, in order
             rr = [r for r in fig_rows if r["update"] == upd and r["backend"] == b]
             ax.plot([r["dictionary_size"] for r in rr], [r["mt_seconds"] for r in rr], "o-", label=b)
-        ax.set_title(f"m_t time, {upd} dictionary")
-        ax.set_xlabel("dictionary size")
-        ax.set_ylabel("seconds per frame")
+        ax.set_title(f"time to compute m_t, {upd} dictionary", fontsize=10)
+        ax.set_xlabel("dictionary size (words)")
+        ax.set_ylabel("seconds per query frame (log scale)")
         ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
+    fig.subplots_adjust(wspace=0.35)
     fig.savefig(out / "fig45_mt_seconds.png", dpi=100, bbox_inches="tight")
     plt.close(fig)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, (upd, m) in zip(axes, (("plain", p), ("improved", i))):
         g = np.arange(3)
         ax.bar(g - 0.2, [m[f"accuracy_gap{k}_bf"] or 0 for k in g], 0.4, label="brute force")
         ax.bar(g + 0.2, [m[f"accuracy_gap{k}"] or 0 for k in g], 0.4, label=DEFAULT_INDEX)
         ax.set_xticks(g)
         ax.set_xlabel("gap tolerance (nodes)")
-        ax.set_title(f"localization accuracy, {upd}")
+        ax.set_title(f"localization accuracy of the unseen run, {upd} update", fontsize=10)
         ax.set_ylim(0, 1)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2, frameon=False)
+    axes[0].set_ylabel("fraction of query frames correct")
     fig.savefig(out / "fig67_accuracy.png", dpi=100, bbox_inches="tight")
     plt.close(fig)

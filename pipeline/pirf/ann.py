@@ -29,11 +29,13 @@ from typing import Any
 import cv2
 import h5py
 import numpy as np
-from placeloc.pirf.knn import bf_knn2, sq_norms
+from placeloc.pirf.knn import bf_knn2, exact_knn, sq_norms
 
 BACKENDS = ("bruteforce", "flann-auto", "flann-kmeans", "flann-kdtree", "faiss-hnsw", "faiss-ivf")
-INDEX_DEFAULTS: dict[str, Any] = {"checks": 512, "hnsw_m": 32, "hnsw_ef_construction": 40, "ef_search": 32,
-                                  "ivf_nlist": 1024, "ivf_nprobe": 16, "kmeans_branching": 32, "kdtree_trees": 4}
+# The settings each backend reads (their defaults live in placeloc.pirf.params only).
+BACKEND_KEYS: dict[str, tuple[str, ...]] = {
+    "bruteforce": (), "flann-auto": (), "flann-kmeans": ("checks", "kmeans_branching"), "flann-kdtree": ("checks", "kdtree_trees"),
+    "faiss-hnsw": ("hnsw_m", "hnsw_ef_construction", "ef_search"), "faiss-ivf": ("ivf_nlist", "ivf_nprobe")}
 
 
 class IndexMismatchError(RuntimeError):
@@ -52,16 +54,32 @@ class AnnIndex:
             raise ValueError(f"unknown index backend {backend!r}; choose one of {', '.join(BACKENDS)}")
         self.backend = backend
         self.data = np.ascontiguousarray(data, np.float32)
-        self.params = {**INDEX_DEFAULTS, **params}
+        missing = [k for k in BACKEND_KEYS[backend] if k not in params]
+        if missing:
+            raise ValueError(f"index backend {backend} needs the settings {', '.join(missing)} (see placeloc.pirf.params)")
+        self.params = dict(params)
         self.seed = seed
         self.impl: Any = None
         self.norms: np.ndarray | None = None
         self.build_seconds = 0.0
+        self.id_map: np.ndarray | None = None  # row of the dictionary for each id in the index (None: identity)
+        self.n_held = 0
 
     # -- building -------------------------------------------------------------------
-    def build(self) -> AnnIndex:
+    def build(self, hold_out: np.ndarray | None = None) -> AnnIndex:
+        """Build the index. ``hold_out`` (faiss backends): entries left out for now, so they can
+        serve as unseen queries (:mod:`placeloc.pirf.tuning`); :meth:`add_held_out` adds them,
+        and ids stay the dictionary's row numbers through ``id_map``."""
         t0 = time.perf_counter()
         p, d, n = self.params, self.data, len(self.data)
+        if hold_out is not None and len(hold_out):
+            if not self.backend.startswith("faiss"):
+                raise ValueError(f"holding entries out needs a faiss backend, not {self.backend}")
+            held = np.zeros(n, bool)
+            held[hold_out] = True
+            self.id_map = np.concatenate([np.flatnonzero(~held), np.flatnonzero(held)]).astype(np.int64)
+            self.n_held = int(held.sum())
+            d = np.ascontiguousarray(d[self.id_map[: n - self.n_held]])
         if n < 2:
             raise ValueError(f"cannot index a dictionary of {n} entries (need >= 2); map a longer video")
         if self.backend == "bruteforce":
@@ -90,10 +108,20 @@ class AnnIndex:
                 idx.cp.seed = self.seed
                 idx.train(d)
                 idx.add(d)
+
             self.impl = idx
             self._set_faiss_search()
         self.build_seconds = time.perf_counter() - t0
         return self
+
+    def add_held_out(self) -> None:
+        """Add the entries :meth:`build` held out; afterwards the index covers the whole dictionary."""
+        if not self.n_held:
+            return
+        t0 = time.perf_counter()
+        self.impl.add(np.ascontiguousarray(self.data[self.id_map[len(self.data) - self.n_held:]]))
+        self.n_held = 0
+        self.build_seconds += time.perf_counter() - t0
 
     def _set_faiss_search(self) -> None:
         if self.backend == "faiss-hnsw":
@@ -104,18 +132,22 @@ class AnnIndex:
     # -- querying -------------------------------------------------------------------
     def knn2(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(squared distances (n, 2), indices (n, 2)); missing neighbours are inf / -1."""
+        return self.knn(q, 2)
+
+    def knn(self, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(squared distances (n, k), indices (n, k)) of the k nearest entries; missing ones are inf / -1."""
         q = np.ascontiguousarray(q, np.float32)
         if len(q) == 0:
-            return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.int64)
+            return np.zeros((0, k), np.float32), np.zeros((0, k), np.int64)
         if q.shape[1] != self.data.shape[1]:
             raise ValueError(f"query descriptors have {q.shape[1]} dimensions, the dictionary {self.data.shape[1]}")
         if self.backend == "bruteforce":
-            return bf_knn2(q, self.data, b_norms=self.norms)
+            return bf_knn2(q, self.data, b_norms=self.norms) if k == 2 else exact_knn(q, self.data, k)
         if self.backend.startswith("flann"):
             checks = -2 if self.backend == "flann-auto" else int(self.params["checks"])
-            idx, dist = self.impl.knnSearch(q, 2, params={"checks": checks})
-            idx = np.asarray(idx, np.int64).reshape(-1, 2)
-            dist = np.asarray(dist, np.float32).reshape(-1, 2)
+            idx, dist = self.impl.knnSearch(q, k, params={"checks": checks})
+            idx = np.asarray(idx, np.int64).reshape(-1, k)
+            dist = np.asarray(dist, np.float32).reshape(-1, k)
         else:
             import faiss
 
@@ -125,12 +157,20 @@ class AnnIndex:
             if len(q) <= 4096:
                 faiss.omp_set_num_threads(1)
             try:
-                dist, idx = self.impl.search(q, 2)
+                dist, idx = self.impl.search(q, k)
             finally:
                 faiss.omp_set_num_threads(threads)
             idx = idx.astype(np.int64)
+            if self.id_map is not None:
+                idx = np.where(idx >= 0, self.id_map[np.maximum(idx, 0)], -1)
         dist = np.where(idx < 0, np.inf, dist).astype(np.float32)
         return dist, idx
+
+    def set_search(self, key: str, value: int) -> None:
+        """Change a search-time setting (``ef_search``, ``ivf_nprobe``, ``checks``) without rebuilding."""
+        self.params[key] = int(value)
+        if self.backend.startswith("faiss"):
+            self._set_faiss_search()
 
     # -- storage --------------------------------------------------------------------
     def to_h5(self, g: h5py.Group) -> None:
@@ -142,6 +182,10 @@ class AnnIndex:
             g.attrs[f"param_{k}"] = v
         if self.backend == "bruteforce":
             return
+        if self.n_held:
+            raise RuntimeError("add the held-out entries (add_held_out) before storing the index")
+        if self.id_map is not None:
+            g.create_dataset("id_map", data=self.id_map, chunks=True, compression="gzip", compression_opts=1)
         if self.backend.startswith("flann"):
             fd, path = tempfile.mkstemp(suffix=".flann")
             os.close(fd)
@@ -184,5 +228,7 @@ class AnnIndex:
             import faiss
 
             self.impl = faiss.deserialize_index(blob)
+            if "id_map" in g:
+                self.id_map = np.asarray(g["id_map"][()], np.int64)
             self._set_faiss_search()
         return self

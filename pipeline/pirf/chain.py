@@ -20,7 +20,7 @@ import numpy as np
 from placeloc.pirf.knn import bf_knn2
 
 
-def ratio_match(a: np.ndarray, b: np.ndarray, ratio: float = 0.7) -> np.ndarray:
+def ratio_match(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
     """Lowe's ratio test, eq. (1): index into b of each row of a's match, -1 if none.
 
     Distances are squared, so the test is d1^2 < ratio^2 d2^2. With fewer than two
@@ -74,8 +74,8 @@ def adaptive_window(length: np.ndarray, w_default: int, n_pmin: int, n_pmax: int
     return w
 
 
-def extract_pirfs(descs: list[np.ndarray], responses: list[np.ndarray], matches: list[np.ndarray], w_default: int = 3,
-                  n_pmin: int = 40, n_pmax: int = 200, w_limit: int = 30) -> tuple[np.ndarray, np.ndarray, int]:
+def extract_pirfs(descs: list[np.ndarray], responses: list[np.ndarray], matches: list[np.ndarray], w_default: int,
+                  n_pmin: int, n_pmax: int, w_limit: int) -> tuple[np.ndarray, np.ndarray, int]:
     """PIRFs of the newest frame. ``descs``/``responses``: frames t-len+1..t; ``matches[k]``
     maps frame k's features into frame k-1 (``matches[0]`` is unused).
 
@@ -96,3 +96,27 @@ def extract_pirfs(descs: list[np.ndarray], responses: list[np.ndarray], matches:
     for k in range(w + 1):
         acc += descs[-1 - k][trail[k, sel]]
     return (acc / (w + 1)).astype(np.float32), sel, w
+
+
+class PirfTracker:
+    """PIRFs of a video, one frame at a time: keeps the last ``w_size_max + 1`` frames'
+    descriptors, responses and frame-to-frame matches, and runs :func:`extract_pirfs`."""
+
+    def __init__(self, *, ratio: float, w_size_default: int, w_size_max: int, n_pmin: int, n_pmax: int) -> None:
+        self.ratio, self.w_default, self.w_max = ratio, w_size_default, w_size_max
+        self.n_pmin, self.n_pmax = n_pmin, n_pmax
+        self.descs: list[np.ndarray] = []
+        self.resps: list[np.ndarray] = []
+        self.matches: list[np.ndarray] = []
+
+    def push(self, desc: np.ndarray, resp: np.ndarray) -> tuple[np.ndarray, int]:
+        """Add the next frame's features; returns its PIRFs (n, d) and the window used."""
+        self.matches.append(ratio_match(desc, self.descs[-1], self.ratio) if self.descs else np.full(len(desc), -1, np.int64))
+        self.descs.append(desc)
+        self.resps.append(resp)
+        if len(self.descs) > self.w_max + 1:  # only the window's history is needed
+            self.descs.pop(0)
+            self.resps.pop(0)
+            self.matches.pop(0)
+        pirf, _sel, w = extract_pirfs(self.descs, self.resps, self.matches, self.w_default, self.n_pmin, self.n_pmax, self.w_max)
+        return pirf, w

@@ -16,7 +16,7 @@ from placeloc.images import ImageError, read_gray
 FEATURE_TYPES = ("sift", "akaze", "orb", "surf")
 
 
-def make_detector(kind: str, n_features: int = 0) -> cv2.Feature2D:
+def make_detector(kind: str, n_features: int) -> cv2.Feature2D:
     """OpenCV detector for ``kind``; AKAZE lives in cv2.xfeatures2d from OpenCV 5 on."""
     if kind == "sift":
         return cv2.SIFT_create(nfeatures=n_features)
@@ -55,6 +55,24 @@ def extract_frame(item: tuple[str, str, int]) -> tuple[np.ndarray, np.ndarray, n
     """Work item for ``ctx.executor.map``: (path, kind, n_features) -> (xy, response, desc, shape)."""
     path, kind, n_features = item
     img = read_gray(path)
+    return detect(img, kind, n_features)
+
+
+def extract_frame_or_error(item: tuple[str, str, int, bool]) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]] | str:
+    """Like :func:`extract_frame`; with ``skip`` (the item's last field, from ``on_error: skip``)
+    an unreadable image gives its error message instead of raising."""
+    path, kind, n_features, skip = item
+    try:
+        img = read_gray(path)
+    except ImageError as exc:
+        if not skip:
+            raise
+        return str(exc)
+    return detect(img, kind, n_features)
+
+
+def detect(img: np.ndarray, kind: str, n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """Keypoints (xy), responses, float32 descriptors and the image shape of one greyscale frame."""
     kps, desc = make_detector(kind, n_features).detectAndCompute(img, None)
     xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
     resp = np.array([k.response for k in kps], np.float32)

@@ -72,3 +72,24 @@ def bf_knn2(a: np.ndarray, b: np.ndarray, block: int = 65536, b_norms: np.ndarra
         key = max(k for k in done_cuts if k <= c)
         prefix.append(done_cuts[key])
     return (best_d, best_i, *[x for p in prefix for x in p])
+
+
+def exact_knn(a: np.ndarray, b: np.ndarray, k: int, block: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+    """The k nearest rows of ``b`` per row of ``a`` (squared distances, indices), ascending;
+    missing neighbours (len(b) < k) are +inf / -1. For small query sets (tuning samples)."""
+    a = np.ascontiguousarray(a, np.float32)
+    n = len(a)
+    best_d = np.full((n, k), np.inf, np.float32)
+    best_i = np.full((n, k), -1, np.int64)
+    an = sq_norms(a)
+    for s in range(0, len(b), block):
+        g = np.asarray(b[s:s + block], np.float32)
+        d = sq_norms(g)[None, :] - 2.0 * (a @ g.T) + an[:, None]
+        kk = min(k, d.shape[1])
+        part = np.argpartition(d, kk - 1, axis=1)[:, :kk]
+        cand_d = np.concatenate([best_d, np.maximum(np.take_along_axis(d, part, 1), 0)], 1)
+        cand_i = np.concatenate([best_i, part + s], 1)
+        o = np.argsort(cand_d, axis=1, kind="stable")[:, :k]
+        best_d = np.take_along_axis(cand_d, o, 1)
+        best_i = np.take_along_axis(cand_i, o, 1)
+    return best_d, best_i

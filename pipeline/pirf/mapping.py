@@ -17,7 +17,9 @@ here and in docs/pirf.md):
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
 
 import numpy as np
 import scipy.sparse as sp
@@ -100,15 +102,22 @@ def improved_insert(p_new: np.ndarray, d_q: np.ndarray, i_q: np.ndarray, n_dict:
 
 @dataclass
 class PirfMapper:
-    """Grows the dictionary frame by frame and detects loop closures (brute force, exact)."""
+    """Grows the dictionary frame by frame and finds each frame's best earlier node (brute
+    force, exact). The loop-closure decision (score >= tau, eq. 9) does not feed back into
+    mapping in the paper, so it is applied afterwards by :func:`loop_closures`."""
 
     dim: int
-    ratio: float = 0.7
-    n_pmax: int = 200
-    eps: int = 30
-    sigma: float = 2.0
-    tau: float = 0.015
-    update: str = "improved"
+    ratio: float
+    n_pmax: int
+    eps: int
+    sigma: float
+    update: str
+    # Nearest neighbours while mapping: exact ("bruteforce") or an HNSW graph grown with the
+    # dictionary ("faiss-hnsw", searched with ``ef_search``; M and efConstruction as given).
+    search: str
+    hnsw_m: int
+    hnsw_ef_construction: int
+    ef_search: int
     words: np.ndarray = field(init=False)
     norms: np.ndarray = field(init=False)
     n: int = 0
@@ -122,6 +131,14 @@ class PirfMapper:
             raise ValueError(f"update must be plain or improved, got {self.update!r}")
         self.words = np.zeros((4096, self.dim), np.float32)
         self.norms = np.zeros(4096, np.float32)
+        if self.search not in ("bruteforce", "faiss-hnsw"):
+            raise ValueError(f"search must be bruteforce or faiss-hnsw, got {self.search!r}")
+        self._hnsw = None
+        if self.search == "faiss-hnsw":
+            import faiss
+
+            self._hnsw = faiss.IndexHNSWFlat(self.dim, int(self.hnsw_m))
+            self._hnsw.hnsw.efConstruction = int(self.hnsw_ef_construction)
         self._pair_nodes = np.zeros(1 << 16, np.int32)
         self._pair_words = np.zeros(1 << 16, np.int64)
         self._npairs = 0
@@ -146,6 +163,36 @@ class PirfMapper:
         self._pair_words[self._npairs:need] = words
         self._npairs = need
 
+    def _hnsw_knn2(self, q: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+        """2-NN among the first ``limit`` words (Q_{t-1} or Q_{t-eps}) from the HNSW graph."""
+        import faiss
+
+        if limit == 0 or len(q) == 0:
+            return np.full((len(q), 2), np.inf, np.float32), np.full((len(q), 2), -1, np.int64)
+        params = faiss.SearchParametersHNSW()
+        params.efSearch = int(self.ef_search)
+        sel = faiss.IDSelectorRange(0, int(limit))  # kept referenced while the search runs
+        if limit < self.n:
+            params.sel = sel
+        threads = faiss.omp_get_max_threads()
+        faiss.omp_set_num_threads(1)  # ~200 queries per frame: thread start-up costs more than it saves
+        try:
+            d, i = self._hnsw.search(q, 2, params=params)
+        finally:
+            faiss.omp_set_num_threads(threads)
+        i = i.astype(np.int64)
+        return np.where(i < 0, np.inf, d).astype(np.float32), i
+
+    def _hnsw_add(self, x: np.ndarray) -> None:
+        import faiss
+
+        threads = faiss.omp_get_max_threads()
+        faiss.omp_set_num_threads(1)
+        try:
+            self._hnsw.add(np.ascontiguousarray(x, np.float32))
+        finally:
+            faiss.omp_set_num_threads(threads)
+
     @property
     def dictionary(self) -> np.ndarray:
         return self.words[: self.n]
@@ -155,7 +202,11 @@ class PirfMapper:
         t = len(self.node_words)
         p = np.ascontiguousarray(pirfs, np.float32).reshape(-1, self.dim)
         n_eps = self.dict_size_after[t - self.eps] if t - self.eps >= 0 else 0
-        d_f, i_f, d_e, i_e = bf_knn2(p, self.words[: self.n], b_norms=self.norms[: self.n], splits=(n_eps,))
+        if self._hnsw is None:
+            d_f, i_f, d_e, i_e = bf_knn2(p, self.words[: self.n], b_norms=self.norms[: self.n], splits=(n_eps,))
+        else:
+            d_f, i_f = self._hnsw_knn2(p, self.n)
+            d_e, i_e = self._hnsw_knn2(p, n_eps) if n_eps < self.n else (d_f, i_f)
         # m_t over Q_{t-eps} (eqs. 3-4)
         m_t = np.unique(i_e[ratio_ok(d_e, i_e, self.ratio), 0]) if n_eps else np.zeros(0, np.int64)
         k = max(0, t - self.eps)  # candidates j < t - eps
@@ -187,6 +238,8 @@ class PirfMapper:
         self._grow(len(add_rows))
         self.words[self.n:self.n + len(add_rows)] = p[add_rows]
         self.norms[self.n:self.n + len(add_rows)] = sq_norms(p[add_rows]) if len(add_rows) else 0
+        if self._hnsw is not None and len(add_rows):
+            self._hnsw_add(p[add_rows])
         self.n += len(add_rows)
         node = np.unique(node)
         self.node_words.append(node)
@@ -195,15 +248,54 @@ class PirfMapper:
         self.dict_size_after.append(self.n)
         return c, score, len(m_t)
 
-    def node_matrix(self) -> sp.csr_matrix:
-        """Node vectors as a sparse (nodes x words) 0/1 matrix."""
-        return vectors_to_csr(self.node_words, self.n)
+
+def map_video(pirfs: np.ndarray, offsets: np.ndarray, *, ratio: float, n_pmax: int, eps: int, sigma: float, update: str,
+              search: str, hnsw_m: int, hnsw_ef_construction: int, ef_search: int,
+              progress: Callable[[Iterable[int]], Iterable[int]] = iter) -> dict[str, Any]:
+    """Map a whole video: frame t's PIRFs are ``pirfs[offsets[t]:offsets[t + 1]]``.
+
+    Returns the dictionary, node vectors (CSR ``node_ptr``/``node_words``), every frame's best
+    candidate and score, the dictionary size after each frame and seconds per frame.
+    """
+    mapper = PirfMapper(pirfs.shape[1], ratio=ratio, n_pmax=n_pmax, eps=eps, sigma=sigma, update=update, search=search,
+                        hnsw_m=hnsw_m, hnsw_ef_construction=hnsw_ef_construction, ef_search=ef_search)
+    n = len(offsets) - 1
+    secs = np.zeros(n)
+    for t in progress(range(n)):
+        t0 = time.perf_counter()
+        mapper.step(pirfs[offsets[t]:offsets[t + 1]])
+        secs[t] = time.perf_counter() - t0
+    ptr = np.concatenate([[0], np.cumsum([len(v) for v in mapper.node_words])]).astype(np.int64)
+    return {"dictionary": mapper.dictionary, "node_ptr": ptr,
+            "node_words": np.concatenate(mapper.node_words).astype(np.int64) if n else np.zeros(0, np.int64),
+            "best_node": np.array([b[0] for b in mapper.best], np.int64),
+            "best_score": np.array([b[1] for b in mapper.best], np.float64),
+            "dict_size_after": np.array(mapper.dict_size_after, np.int64), "map_seconds": secs}
 
 
-def vectors_to_csr(vectors: list[np.ndarray], n_cols: int) -> sp.csr_matrix:
-    ptr = np.concatenate([[0], np.cumsum([len(v) for v in vectors])]).astype(np.int64)
-    cols = np.concatenate(vectors).astype(np.int64) if vectors else np.zeros(0, np.int64)
-    return sp.csr_matrix((np.ones(len(cols), np.float32), cols, ptr), shape=(len(vectors), n_cols))
+def loop_closures(best_node: np.ndarray, best_score: np.ndarray, tau: float) -> np.ndarray:
+    """Frames whose best earlier node scores at least ``tau`` (eq. 9): a loop closure."""
+    return np.flatnonzero((best_node >= 0) & (best_score >= tau))
+
+
+def correct_for_travel_direction(frames: np.ndarray, nodes: np.ndarray, window: np.ndarray, span: int) -> np.ndarray:
+    """Loop-closure nodes corrected for the lag of PIRF tracks on opposite-direction revisits.
+
+    A PIRF is a feature tracked through the last w frames and belongs to the last one, so
+    node j's words describe frames j-w..j. Revisiting a place walking the other way, the
+    query's last w_t frames lie *ahead* (in old-frame order) of where it stands, and the
+    best-overlapping node c is about (w_t + w_c) / 2 frames past the true one; walking the
+    same way the two lags cancel. The direction is read from the loop closures themselves:
+    over the closures of the last ``span`` frames, matched nodes that decrease while t
+    increases mean the other way. The first closure of a revisit is left as matched.
+    """
+    out = nodes.copy()
+    for k, (t, c) in enumerate(zip(frames, nodes)):
+        recent = nodes[(frames >= t - span) & (frames <= t)]
+        if len(recent) < 2 or np.median(np.diff(recent)) >= 0:
+            continue
+        out[k] = max(0, c - int(round((window[t] + window[c]) / 2)))
+    return out
 
 
 def node_vector(d2: np.ndarray, idx: np.ndarray, ratio: float) -> np.ndarray:
@@ -221,3 +313,30 @@ def localize_frame(m_t: np.ndarray, nodes: sp.csr_matrix, n_pmax: int, sigma: fl
     z = z_norm(similarity_s(len(m_t), overlap, n_pmax), sigma)
     c = int(np.argmax(z))
     return c, float(z[c])
+
+
+def localize_video(pirfs: np.ndarray, offsets: np.ndarray, knn2: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                   nodes: sp.csr_matrix, *, ratio: float, n_pmax: int, sigma: float) -> dict[str, Any]:
+    """Best node per query frame, with ``knn2`` (an index's 2-NN search) computing m_t;
+    m_t as CSR (``m_ptr``/``m_words``) and seconds per frame spent on m_t."""
+    n = len(offsets) - 1
+    best = np.full(n, -1, np.int64)
+    score = np.zeros(n)
+    secs = np.zeros(n)
+    vecs = []
+    for t in range(n):
+        t0 = time.perf_counter()
+        d2, ix = knn2(pirfs[offsets[t]:offsets[t + 1]])
+        m = node_vector(d2, ix, ratio)
+        secs[t] = time.perf_counter() - t0
+        vecs.append(m)
+        best[t], score[t] = localize_frame(m, nodes, n_pmax, sigma)
+    ptr = np.concatenate([[0], np.cumsum([len(v) for v in vecs])]).astype(np.int64)
+    return {"best_node": best, "score": score, "mt_seconds": secs, "m_ptr": ptr,
+            "m_words": np.concatenate(vecs).astype(np.int64) if vecs else np.zeros(0, np.int64)}
+
+
+def csr_rows(ptr: np.ndarray, words: np.ndarray, n_cols: int) -> sp.csr_matrix:
+    """Node vectors stored as CSR arrays -> a sparse (nodes x words) 0/1 matrix."""
+    return sp.csr_matrix((np.ones(len(words), np.float32), words.astype(np.int64), ptr.astype(np.int64)),
+                         shape=(len(ptr) - 1, n_cols))

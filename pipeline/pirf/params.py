@@ -19,7 +19,7 @@ class PirfParams(Params):
     features: str = param("sift", choices=FEATURE_TYPES, help="local feature type")
     n_features: int = param(1000, min=1, help="features per frame at most")
     blank_frames: str = param("stop", choices=("stop", "empty"), help="a frame with no features: stop, or keep as empty")
-    ratio: float = param(0.7, min=0.0, max=1.0, min_exclusive=True, help="D_surf ratio test (table 1)")
+    ratio: float = param(0.7, min=0.0, max=1.0, min_exclusive=True, help="D_surf ratio test (table 1), below 1")
     w_size_default: int = param(3, min=2, help="sliding window size (table 1)")
     w_size_max: int = param(30, min=2, help="largest adaptive window")
     n_pmin: int = param(40, min=0, help="fewest PIRFs per window (table 1)")
@@ -27,7 +27,14 @@ class PirfParams(Params):
     eps: float = param(30, min=0.0, help="epsilon (table 1)")
     sigma: float = param(2.0, min=0.0, min_exclusive=True, help="Gaussian sigma of the score (table 1)")
     tau: float = param(0.015, min=0.0, help="tau (table 1)")
+    direction_correction: bool = param(False, help="correct loop-closure nodes for the PIRF track lag on "
+                                       "opposite-direction revisits (not in the paper; see docs/pirf.md)")
     update: str = param("improved", choices=("plain", "improved"), help="dictionary update")
+    map_search: str = param("bruteforce", choices=("bruteforce", "faiss-hnsw"),
+                            help="nearest neighbours while mapping: exact, or an HNSW graph grown with the dictionary")
+    map_ef_search: int = param(64, min=1, help="HNSW efSearch while mapping (map_search: faiss-hnsw)")
+    map_hnsw_m: int = param(32, min=2, help="HNSW M while mapping (map_search: faiss-hnsw)")
+    map_ef_construction: int = param(40, min=1, help="HNSW efConstruction while mapping (map_search: faiss-hnsw)")
     index: str = param("faiss-hnsw", choices=BACKENDS, help="ANN backend for m_t")
     checks: int = param(512, min=1, help="FLANN checks")
     hnsw_m: int = param(32, min=2, help="HNSW M")
@@ -37,6 +44,19 @@ class PirfParams(Params):
     ivf_nprobe: int = param(16, min=1, help="IVF lists probed")
     kmeans_branching: int = param(32, min=2, help="FLANN k-means branching")
     kdtree_trees: int = param(4, min=1, help="FLANN kd-trees")
+    index_recall: float | None = param(0.97, min=0.0, max=1.0, help="tune the index's search setting to meet this recall "
+                                       "against exact search (null: use ef_search / ivf_nprobe / checks as given)")
+    index_tune_sample: int = param(2000, min=10, help="dictionary entries searched to tune the index")
     compare_bf: bool = param(True, help="also time brute force at localize and report agreement")
-    reference_poses: str | None = param(None, path=True, help="CSV of reference poses")
-    query_poses: str | None = param(None, path=True, help="CSV of query poses")
+    query_poses: str | None = param(None, path=True, help="CSV of the query frames' poses (the reference's: ground_truth.path)")
+
+
+# Every backend's settings, and the parameters of the index stage.
+BACKEND_SETTINGS = ("checks", "hnsw_m", "hnsw_ef_construction", "ef_search", "ivf_nlist", "ivf_nprobe", "kmeans_branching",
+                    "kdtree_trees")
+INDEX_KEYS = ("index", "index_recall", "index_tune_sample", *BACKEND_SETTINGS)
+
+
+def index_settings(p: PirfParams) -> dict[str, int]:
+    """The backend settings of ``p`` as the keyword dict :class:`placeloc.pirf.ann.AnnIndex` takes."""
+    return {k: getattr(p, k) for k in BACKEND_SETTINGS}

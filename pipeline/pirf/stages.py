@@ -3,38 +3,44 @@
 Artifacts (one HDF5 file per stage, written into ``ctx.out``):
 
 - extract.h5: per traverse (``reference``, ``query``) the PIRFs of every frame as one
-  chunked (n, dim) float32 array with per-frame offsets, the window used and feature counts.
+  chunked (n, dim) float32 array with per-frame offsets, the window used, feature counts,
+  the kept images' names and folder positions (``index``) and the ``skipped`` ones.
 - build-dictionary.h5: the dictionary, node vectors (CSR: ``node_ptr``, ``node_words``),
   the topological graph (temporal and loop-closure edges), every frame's best candidate
   and score, and the loop closures (score >= tau).
 - index.h5: the ANN index (bytes) with its parameters and the dictionary hash.
-- localize.h5: for each query frame the best node, score and pose, for the configured
-  backend and (``compare_bf``) brute force, with m_t of both (CSR) and per-frame times.
-- evaluate.h5 + metrics.json + plots.
+- localize.h5: for each query frame the best node and score, for the configured backend
+  and (``compare_bf``) brute force, with m_t of both (CSR) and per-frame times.
+- evaluate.h5 + metrics.json, loop_closures.csv, localization.csv and plots.
+
+The numerics live in chain.py (PIRFs), mapping.py (dictionary, similarity, localization),
+ann.py (indexes), metrics.py, truth.py (poses per frame), tables.py (CSV) and plots.py.
 """
 
 from __future__ import annotations
 
-import csv
-import time
-from pathlib import Path
+import logging
 from typing import Any
 
+import h5py
 import numpy as np
 from placeloc.artifacts import write_tree
 from placeloc.config import ConfigError
-from placeloc.images import ImageError
+from placeloc.evaluation.poses import PoseError
+from placeloc.images import ImageError, list_images, read_gray
 from placeloc.methods import Method, Stage
-from placeloc.pirf.ann import INDEX_DEFAULTS, AnnIndex
-from placeloc.pirf.chain import extract_pirfs, ratio_match
-from placeloc.pirf.features import check_sizes, extract_frame
-from placeloc.pirf.mapping import PirfMapper, localize_frame, node_vector, vectors_to_csr
-from placeloc.pirf.params import PirfParams
+from placeloc.pirf.ann import AnnIndex
+from placeloc.pirf.chain import PirfTracker
+from placeloc.pirf.features import check_sizes, extract_frame_or_error
+from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
+from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement
+from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
+from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
+from placeloc.pirf.tables import write_localization, write_loop_closures
+from placeloc.pirf.truth import read_frame_xy
+from placeloc.pirf.tuning import SEARCH_GRID, build_tuned
 
-EXTRACT_KEYS = ("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max", "n_pmin", "n_pmax")
-BUILD_KEYS = EXTRACT_KEYS + ("eps", "sigma", "tau", "update")
-INDEX_KEYS = BUILD_KEYS + ("index",) + tuple(INDEX_DEFAULTS)
-LOCALIZE_KEYS = INDEX_KEYS + ("compare_bf", "reference_poses")
+log = logging.getLogger("placeloc.pirf")
 
 
 def _check(config: dict) -> None:
@@ -45,155 +51,138 @@ def _check(config: dict) -> None:
         raise ConfigError(f"pirf: need 1 <= n_pmin <= n_pmax, got {p['n_pmin']} and {p['n_pmax']}")
     if p["w_size_default"] < 1 or p["w_size_max"] < p["w_size_default"]:
         raise ConfigError("pirf: need 1 <= w_size_default <= w_size_max")
-    if p["eps"] < 1 or p["sigma"] <= 0:
-        raise ConfigError("pirf: eps must be >= 1 and sigma > 0")
+    if p["eps"] < 1:
+        raise ConfigError("pirf: eps must be >= 1")
+    gt = config["ground_truth"]
+    if gt["kind"] not in ("none", "poses"):
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2 is evaluated against poses, not {gt['kind']!r}; set ground_truth.kind: "
+                          "poses with ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's)")
+    if p["query_poses"] is not None and gt["kind"] != "poses":
+        raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
+    # Every image needs a pose: check the counts now, not after mapping.
+    for role, path in (("reference", gt["path"] if gt["kind"] == "poses" else None), ("query", p["query_poses"])):
+        section = config.get(role) or {}
+        if path is None or not section.get("images"):
+            continue
+        images = list_images(section["images"])
+        what = "ground_truth.path" if role == "reference" else "pirf.query_poses"
+        try:
+            read_frame_xy(path, images.names, range(len(images)), len(images), what)
+        except PoseError as exc:
+            raise ConfigError(f"{exc} ({role}.images: {section['images']})") from None
 
 
 # -- extract --------------------------------------------------------------------------
-def _pirf_video(ctx: Any, role: str, paths: list[Path]) -> dict[str, Any]:
-    p = ctx.params
-    items = [(str(q), p["features"], p["n_features"]) for q in paths]
-    descs: list[np.ndarray] = []
-    resps: list[np.ndarray] = []
-    matches: list[np.ndarray] = []
-    shapes: list[tuple[int, int]] = []
-    out_desc: list[np.ndarray] = []
-    windows, n_feat = [], []
-    keep = p["w_size_max"] + 1
-    for t, (_xy, resp, d, shape) in enumerate(ctx.progress(ctx.executor.map(extract_frame, items), total=len(items), desc=f"extract {role}")):
-        shapes.append(shape)
-        if shape != shapes[0]:
-            check_sizes(shapes, paths[: t + 1])
-        if len(d) == 0 and p["blank_frames"] == "stop":
-            raise ImageError(f"{paths[t]}: no {p['features']} features found (blank or featureless frame); "
-                             "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
-        matches.append(ratio_match(d, descs[-1], p["ratio"]) if descs else np.full(len(d), -1, np.int64))
-        descs.append(d)
-        resps.append(resp)
-        if len(descs) > keep:  # only the window's history is needed
-            descs.pop(0)
-            resps.pop(0)
-            matches.pop(0)
-        pirf, _sel, w = extract_pirfs(descs, resps, matches, p["w_size_default"], p["n_pmin"], p["n_pmax"], p["w_size_max"])
-        out_desc.append(pirf)
-        windows.append(w)
-        n_feat.append(len(d))
-    dim = descs[-1].shape[1]
-    counts = np.array([len(x) for x in out_desc], np.int64)
-    return {"pirfs": np.concatenate(out_desc) if counts.sum() else np.zeros((0, dim), np.float32),
-            "offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-            "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
-            "names": [q.name for q in paths], "height": shapes[0][0], "width": shapes[0][1]}
-
-
 def stage_extract(ctx: Any) -> None:
-    ctx.out.attrs["features"] = ctx.params["features"]
-    for role in ("reference", "query"):
-        images = ctx.images.get(role)
-        if images is None:
-            continue
-        res = _pirf_video(ctx, role, images.paths)
+    p = ctx.params
+    ctx.out.attrs["features"] = p.features
+    for role, images in ctx.images.items():
+        tracker = PirfTracker(ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max,
+                              n_pmin=p.n_pmin, n_pmax=p.n_pmax)
+        items = [(str(q), p.features, p.n_features, images.on_error == "skip") for q in images.paths]
+        pirfs: list[np.ndarray] = []
+        windows, n_feat, index, shapes, skipped = [], [], [], [], []
+        frames = ctx.progress(ctx.executor.map(extract_frame_or_error, items), total=len(items), desc=f"extract {role}")
+        for i, res in enumerate(frames):
+            if isinstance(res, str):
+                skipped.append(res)
+                log.warning("skipped: %s", res)
+                continue
+            _xy, resp, d, shape = res
+            shapes.append(shape)
+            if shape != shapes[0]:
+                check_sizes(shapes, [images.paths[k] for k in index + [i]])
+            if len(d) == 0 and p.blank_frames == "stop":
+                raise ImageError(f"{images.paths[i]}: no {p.features} features found (blank or featureless frame); "
+                                 "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
+            pirf, w = tracker.push(d, resp)
+            pirfs.append(pirf)
+            windows.append(w)
+            n_feat.append(len(d))
+            index.append(i)
+        if not index:
+            raise ImageError(f"{images.source}: no image could be read; check the folder")
+        dim = pirfs[-1].shape[1]
+        counts = np.array([len(x) for x in pirfs], np.int64)
+        allp = np.concatenate(pirfs) if counts.sum() else np.zeros((0, dim), np.float32)
         g = ctx.out.create_group(role)
-        g.attrs["height"], g.attrs["width"] = res.pop("height"), res.pop("width")
-        g.attrs["dim"] = res["pirfs"].shape[1]
+        g.attrs["height"], g.attrs["width"] = shapes[0]
+        g.attrs["dim"] = dim
         g.attrs["source"] = images.source
-        pirfs = res.pop("pirfs")
-        g.create_dataset("pirfs", data=pirfs, chunks=(min(max(len(pirfs), 1), 16384), pirfs.shape[1]), maxshape=(None, pirfs.shape[1]))
-        write_tree(g, res)
+        g.attrs["n_listed"] = len(items)
+        g.create_dataset("pirfs", data=allp, chunks=(min(max(len(allp), 1), 16384), dim), maxshape=(None, dim))
+        write_tree(g, {"offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                       "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
+                       "index": np.array(index, np.int64)})
+        g.create_dataset("names", data=np.array([images.paths[k].name for k in index], dtype=object), dtype=h5py.string_dtype())
+        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
 
 
-def read_pirfs(f: Any, role: str) -> tuple[np.ndarray, np.ndarray]:
+def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
+    return f[f"{role}/pirfs"][()], f[f"{role}/offsets"][()]
+
+
+def _frames(f: h5py.File, role: str) -> tuple[list[str], np.ndarray, int]:
     g = f[role]
-    return g["pirfs"][()], g["offsets"][()]
+    names = [n.decode() if isinstance(n, bytes) else str(n) for n in g["names"][()]]
+    return names, g["index"][()], int(g.attrs["n_listed"])
 
 
 # -- build-dictionary -----------------------------------------------------------------
 def stage_build(ctx: Any) -> None:
     p = ctx.params
     ex = ctx.artifact("extract")
-    pirfs, off = read_pirfs(ex, "reference")
-    mapper = PirfMapper(pirfs.shape[1], p["ratio"], p["n_pmax"], p["eps"], p["sigma"], p["tau"], p["update"])
-    secs = np.zeros(len(off) - 1)
-    for t in ctx.progress(range(len(off) - 1), total=len(off) - 1, desc=f"map ({p['update']})"):
-        t0 = time.perf_counter()
-        mapper.step(pirfs[off[t]:off[t + 1]])
-        secs[t] = time.perf_counter() - t0
-    best = np.array([b[0] for b in mapper.best], np.int64)
-    score = np.array([b[1] for b in mapper.best], np.float64)
-    lc = np.flatnonzero((best >= 0) & (score >= p["tau"]))
+    pirfs, off = _pirfs(ex, "reference")
+    bar = lambda it: ctx.progress(it, total=len(off) - 1, desc=f"map ({p.update})")  # noqa: E731
+    res = map_video(pirfs, off, ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=p.map_search,
+                    hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
+    best, score = res["best_node"], res["best_score"]
+    lc = loop_closures(best, score, p.tau)
+    lc_node = best[lc]
+    if p.direction_correction:
+        lc_node = correct_for_travel_direction(lc, lc_node, ex["reference/window"][()], span=p.eps)
     n_nodes = len(best)
     temporal = np.column_stack([np.arange(n_nodes - 1), np.arange(1, n_nodes)]) if n_nodes > 1 else np.zeros((0, 2), np.int64)
-    d = mapper.dictionary
-    ctx.out.attrs["update"] = p["update"]
+    d = res.pop("dictionary")
+    ctx.out.attrs["update"] = p.update
+    ctx.out.attrs["map_search"] = p.map_search
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
     ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
-    ptr = np.concatenate([[0], np.cumsum([len(v) for v in mapper.node_words])]).astype(np.int64)
-    write_tree(ctx.out, {
-        "dict_size_after": np.array(mapper.dict_size_after, np.int64),
-        "node_ptr": ptr, "node_words": np.concatenate(mapper.node_words).astype(np.int64) if n_nodes else np.zeros(0, np.int64),
-        "best_node": best, "best_score": score, "map_seconds": secs,
-        "loop_closures": {"frame": lc, "node": best[lc], "score": score[lc]},
-        "graph": {"temporal": temporal, "loop": np.column_stack([lc, best[lc]]).astype(np.int64)},
-    })
+    write_tree(ctx.out, {**res, "loop_closures": {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]},
+                         "graph": {"temporal": temporal, "loop": np.column_stack([lc, lc_node]).astype(np.int64)}})
 
 
 # -- index ----------------------------------------------------------------------------
 def stage_index(ctx: Any) -> None:
     p = ctx.params
     d = ctx.artifact("build-dictionary")["dictionary"][()]
-    idx = AnnIndex(p["index"], d, {k: p[k] for k in INDEX_DEFAULTS}, int(ctx.config["seed"])).build()
-    idx.to_h5(ctx.out.create_group("index"))
-    ctx.out.attrs["backend"] = p["index"]
+    seed = int(ctx.config["seed"])
+    idx = AnnIndex(p.index, d, index_settings(p), seed)
+    tuned = None
+    if p.index_recall is not None and p.index in SEARCH_GRID:
+        tuned = build_tuned(idx, target=p.index_recall, sample=p.index_tune_sample, ratio=p.ratio, seed=seed)
+        if not tuned["target_met"]:
+            log.warning("index: no %s setting up to %s reaches recall %s on the dictionary sample (best %.3f); using it anyway",
+                        p.index, tuned["value"], p.index_recall, tuned["nn_recall"])
+    else:
+        idx.build()
+    g = ctx.out.create_group("index")
+    idx.to_h5(g)
+    if tuned is not None:
+        tried = tuned.pop("tried")
+        for k, v in tuned.items():
+            g.attrs[f"tuned_{k}"] = v
+        write_tree(g, {"tuning": {k: np.array([r[k] for r in tried]) for k in tried[0]}})
+    ctx.out.attrs["backend"] = p.index
 
 
 # -- localize -------------------------------------------------------------------------
-def read_poses(path: str | Path) -> np.ndarray:
-    """poses.csv (frame, x, y, heading) -> (n, 3) array ordered by frame."""
-    path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        arr = np.array([[float(r["frame"]), float(r["x"]), float(r["y"]), float(r.get("heading") or 0)] for r in rows])
-    except (OSError, KeyError, ValueError) as exc:
-        raise ImageError(f"{path}: not a poses file with columns frame,x,y,heading ({exc}); give the generator's poses.csv") from exc
-    arr = arr[np.argsort(arr[:, 0])]
-    return arr[:, 1:]
-
-
-def _poses_for(ctx: Any, role: str, key: str) -> np.ndarray | None:
-    path = ctx.params.get(key)
-    if path is None:
-        section = ctx.config.get(role) or {}
-        cand = Path(section.get("images") or "") / "poses.csv"
-        path = cand if cand.is_file() else None
-    return read_poses(path) if path is not None else None
-
-
-def check_feature_type(ex: Any, build: Any, where: Path) -> None:
+def check_feature_type(ex: Any, build: Any, where: Any) -> None:
     fe, fb = str(ex.attrs["features"]), str(build.attrs["features"])
     if fe != fb:
         raise ImageError(f"{where}: the query was extracted with {fe} features but the dictionary was built from {fb}; "
                          f"set pirf.features: {fb} (or rebuild the map with {fe})")
-
-
-def localize_all(pirfs: np.ndarray, off: np.ndarray, index: AnnIndex, nodes: Any, p: dict[str, Any]) -> dict[str, Any]:
-    """Best node per query frame via ``index``; m_t as CSR and seconds per frame for m_t."""
-    n = len(off) - 1
-    best = np.full(n, -1, np.int64)
-    score = np.zeros(n)
-    secs = np.zeros(n)
-    vecs = []
-    for t in range(n):
-        t0 = time.perf_counter()
-        d2, ix = index.knn2(pirfs[off[t]:off[t + 1]])
-        m = node_vector(d2, ix, p["ratio"])
-        secs[t] = time.perf_counter() - t0
-        vecs.append(m)
-        best[t], score[t] = localize_frame(m, nodes, p["n_pmax"], p["sigma"])
-    ptr = np.concatenate([[0], np.cumsum([len(v) for v in vecs])]).astype(np.int64)
-    return {"best_node": best, "score": score, "mt_seconds": secs, "m_ptr": ptr,
-            "m_words": np.concatenate(vecs).astype(np.int64) if vecs else np.zeros(0, np.int64)}
 
 
 def stage_localize(ctx: Any) -> None:
@@ -205,52 +194,29 @@ def stage_localize(ctx: Any) -> None:
     build = ctx.artifact("build-dictionary")
     check_feature_type(ex, build, ctx.run_dir / "extract.h5")
     d = build["dictionary"][()]
-    ptr, words = build["node_ptr"][()], build["node_words"][()]
-    nodes = vectors_to_csr([words[ptr[i]:ptr[i + 1]] for i in range(len(ptr) - 1)], len(d))
+    nodes = csr_rows(build["node_ptr"][()], build["node_words"][()], len(d))
     index = AnnIndex.from_h5(ctx.artifact("index")["index"], d, where=str(ctx.run_dir / "index.h5"))
-    pirfs, off = read_pirfs(ex, "query")
+    pirfs, off = _pirfs(ex, "query")
     if pirfs.shape[1] != d.shape[1]:
         raise ImageError(f"{ctx.run_dir / 'extract.h5'}: query descriptors have {pirfs.shape[1]} dimensions, the dictionary {d.shape[1]}; "
                          "extract the query with the map's feature type")
-    ref_poses = _poses_for(ctx, "reference", "reference_poses")
     runs = {index.backend: index}
-    if p["compare_bf"] and index.backend != "bruteforce":
+    if p.compare_bf and index.backend != "bruteforce":
         runs["bruteforce"] = AnnIndex("bruteforce", d, {}).build()
     ctx.out.attrs["backend"] = index.backend
     for name, ix in runs.items():
-        res = localize_all(pirfs, off, ix, nodes, p)
-        if ref_poses is not None:
-            res["pose"] = np.where(res["best_node"][:, None] >= 0, ref_poses[np.maximum(res["best_node"], 0)], np.nan)
+        res = localize_video(pirfs, off, ix.knn2, nodes, ratio=p.ratio, n_pmax=p.n_pmax, sigma=p.sigma)
         write_tree(ctx.out.create_group(name), res)
 
 
 # -- evaluate -------------------------------------------------------------------------
-def set_agreement(ptr_a: np.ndarray, wa: np.ndarray, ptr_b: np.ndarray, wb: np.ndarray) -> dict[str, float]:
-    """Jaccard, precision, recall of vectors a (approximate) against b (exact), pooled over frames."""
-    inter = union = na = nb = 0
-    for t in range(len(ptr_a) - 1):
-        a = wa[ptr_a[t]:ptr_a[t + 1]]
-        b = wb[ptr_b[t]:ptr_b[t + 1]]
-        k = len(np.intersect1d(a, b, assume_unique=True))
-        inter += k
-        union += len(a) + len(b) - k
-        na += len(a)
-        nb += len(b)
-    return {"jaccard": inter / union if union else float("nan"), "precision": inter / na if na else float("nan"),
-            "recall": inter / nb if nb else float("nan")}
-
-
-def accuracy_at_gap(best: np.ndarray, q_poses: np.ndarray, r_poses: np.ndarray, radius: float, gap: int) -> float:
-    """Fraction of query frames whose matched node lies within ``gap`` nodes of a reference
-    node that is within ``radius`` metres of the query's true position. Frames with no match count as wrong."""
-    ok = 0
-    for t, c in enumerate(best):
-        if c < 0:
-            continue
-        near = np.linalg.norm(r_poses[:, :2] - q_poses[t, :2], axis=1) <= radius
-        lo, hi = max(0, c - gap), min(len(r_poses), c + gap + 1)
-        ok += bool(near[lo:hi].any())
-    return ok / len(best) if len(best) else float("nan")
+def _xy(f: h5py.File, role: str, path: str | None, what: str) -> np.ndarray | None:
+    if path is None or role not in f:
+        return None
+    try:
+        return read_frame_xy(path, *_frames(f, role), what=what)
+    except PoseError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def stage_evaluate(ctx: Any) -> None:
@@ -258,26 +224,32 @@ def stage_evaluate(ctx: Any) -> None:
 
     p = ctx.params
     gt = ctx.config["ground_truth"]
-    build = ctx.artifact("build-dictionary")
-    loc = ctx.artifact("localize")
+    ex, build, loc = ctx.artifact("extract"), ctx.artifact("build-dictionary"), ctx.artifact("localize")
     radius = float(gt["radius"])
-    r_poses = read_poses(gt["path"]) if gt["kind"] == "poses" else _poses_for(ctx, "reference", "reference_poses")
-    q_poses = _poses_for(ctx, "query", "query_poses")
-    lc_f, lc_n = build["loop_closures/frame"][()], build["loop_closures/node"][()]
+    r_xy = _xy(ex, "reference", gt["path"] if gt["kind"] == "poses" else None, "ground_truth.path")
+    q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
+    lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
                          "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
     m["map_seconds_per_frame"] = float(np.mean(build["map_seconds"][()])) if len(build["map_seconds"]) else float("nan")
-    if r_poses is not None:
-        correct = np.linalg.norm(r_poses[lc_f, :2] - r_poses[lc_n, :2], axis=1) <= radius if len(lc_f) else np.zeros(0, bool)
+    correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
+    if correct is not None:
         m["loop_closures_correct"] = int(correct.sum())
         m["loop_closure_precision"] = float(correct.mean()) if len(correct) else float("nan")
     else:
         m["loop_closures_correct"] = m["loop_closure_precision"] = None
-    backend = str(loc.attrs.get("backend", p["index"]))
+    backend = str(loc.attrs.get("backend", "none"))
     m["index"] = backend
     for k in ("accuracy_gap0", "accuracy_gap1", "accuracy_gap2", "jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
               "mt_seconds_bf", "mt_seconds_ann"):
         m[k] = None
+    tuned = ctx.artifact("index")["index"].attrs
+    for k in ("key", "value", "target", "target_met", "sample", "nn_recall", "mt_recall", "mt_jaccard"):
+        if f"tuned_{k}" in tuned:
+            v = tuned[f"tuned_{k}"]
+            m[f"index_tuned_{k}"] = v.item() if hasattr(v, "item") else v
+    r_names = _frames(ex, "reference")[0]
+    write_loop_closures(ctx.run_dir / "loop_closures.csv", lc_f, lc_n, lc_s, r_names, r_xy, radius)
     if backend in loc:
         a = loc[backend]
         m["mt_seconds_ann"] = float(np.mean(a["mt_seconds"][()]))
@@ -287,59 +259,56 @@ def stage_evaluate(ctx: Any) -> None:
             m["mt_seconds_bf"] = float(np.mean(b["mt_seconds"][()]))
             ag = set_agreement(a["m_ptr"][()], a["m_words"][()], b["m_ptr"][()], b["m_words"][()])
             m["jaccard_ann_bf"], m["precision_ann_bf"], m["recall_ann_bf"] = ag["jaccard"], ag["precision"], ag["recall"]
-        if q_poses is not None and r_poses is not None:
+        results = {name: (loc[name]["best_node"][()], loc[name]["score"][()]) for name in dict.fromkeys((backend, "bruteforce"))
+                   if name in loc}
+        if q_xy is not None:
             for name, suffix in ((backend, ""), ("bruteforce", "_bf")):
-                if name not in loc:
-                    continue
-                best = loc[name]["best_node"][()]
-                for gap in (0, 1, 2):
-                    m[f"accuracy_gap{gap}{suffix}"] = accuracy_at_gap(best, q_poses, r_poses, radius, gap)
+                if name in results:
+                    for gap in (0, 1, 2):
+                        m[f"accuracy_gap{gap}{suffix}"] = accuracy_at_gap(results[name][0], q_xy, r_xy, radius, gap)
+        write_localization(ctx.run_dir / "localization.csv", results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
     metrics = write_metrics(ctx.run_dir, m, ctx.out)
-    if ctx.config.get("plots", True) and r_poses is not None:
-        _plots(ctx.run_dir, r_poses, lc_f, lc_n, metrics, radius)
+    if ctx.config.get("plots", True) and r_xy is not None:
+        plot_loop_closures(ctx.run_dir / "loop_closures.png", r_xy, lc_f, lc_n, correct, radius)
+        _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius)
+        if metrics.get("accuracy_gap0") is not None:
+            bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
+            plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
 
 
-def _plots(run_dir: Path, r_poses: np.ndarray, lc_f: np.ndarray, lc_n: np.ndarray, m: dict[str, Any], radius: float) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(r_poses[:, 0], r_poses[:, 1], "-", color="0.7", lw=1, label="mapping path")
-    if len(lc_f):
-        good = np.linalg.norm(r_poses[lc_f, :2] - r_poses[lc_n, :2], axis=1) <= radius
-        ax.plot(r_poses[lc_f[good], 0], r_poses[lc_f[good], 1], ".", color="tab:green", ms=4, label="correct loop closure")
-        ax.plot(r_poses[lc_f[~good], 0], r_poses[lc_f[~good], 1], "x", color="tab:red", ms=5, label="wrong loop closure")
-    ax.set_aspect("equal")
-    ax.set_title(f"loop closures: {m['loop_closures']} (precision {m.get('loop_closure_precision')})")
-    ax.legend(loc="best", fontsize=8)
-    fig.savefig(run_dir / "loop_closures.png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    if m.get("accuracy_gap0") is not None:
-        fig, ax = plt.subplots(figsize=(5, 3.5))
-        gaps = np.arange(3)
-        ax.bar(gaps - 0.2, [m[f"accuracy_gap{g}"] for g in gaps], 0.4, label=f"ANN ({m['index']})")
-        if m.get("accuracy_gap0_bf") is not None:
-            ax.bar(gaps + 0.2, [m[f"accuracy_gap{g}_bf"] for g in gaps], 0.4, label="brute force")
-        ax.set_xticks(gaps)
-        ax.set_xlabel("gap tolerance (nodes)")
-        ax.set_ylabel("localization accuracy")
-        ax.set_ylim(0, 1)
-        ax.legend(fontsize=8)
-        fig.savefig(run_dir / "accuracy_gap.png", dpi=100, bbox_inches="tight")
-        plt.close(fig)
+def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
+    """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
+    the earlier frame that truly stands nearest."""
+    path = ctx.run_dir / "wrong_loop_closures.png"
+    images = ctx.images.get("reference")
+    if not len(frames) or images is None:
+        path.unlink(missing_ok=True)
+        return
+    pick = np.linspace(0, len(frames) - 1, min(most, len(frames))).round().astype(int)
+    near = nearest_earlier(r_xy, frames[pick], ctx.params.eps)
+    ex = ctx.artifact("extract")
+    by_name = {q.name: q for q in images.paths}
+    names = _frames(ex, "reference")[0]
+    imgs, titles = [], []
+    for t, c, k in zip(frames[pick], nodes[pick], near):
+        d_c, d_k = (float(np.linalg.norm(r_xy[t] - r_xy[j])) for j in (c, k))
+        imgs.append(tuple(read_gray(by_name[names[j]]) for j in (t, c, k)))
+        titles.append((f"frame {t} (closed the loop)", f"matched node {c}: {d_c:.2f} m away", f"nearest earlier frame {k}: {d_k:.2f} m"))
+    plot_closure_strips(path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = within {radius:g} m)")
 
 
 METHOD = Method(
     name="pirf",
     params=PirfParams,
     stages={
-        "extract": Stage(stage_extract, keys=EXTRACT_KEYS),
-        "build-dictionary": Stage(stage_build, keys=BUILD_KEYS),
+        "extract": Stage(stage_extract, keys=("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max",
+                                              "n_pmin", "n_pmax")),
+        # ratio and n_pmax reach build/localize through the extract stamp
+        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "direction_correction", "map_search", "map_ef_search",
+                                                    "map_hnsw_m", "map_ef_construction")),
         "index": Stage(stage_index, keys=INDEX_KEYS),
-        "localize": Stage(stage_localize, keys=LOCALIZE_KEYS),
-        "evaluate": Stage(stage_evaluate, keys=tuple(PirfParams.__dataclass_fields__), sections=("ground_truth", "plots")),
+        "localize": Stage(stage_localize, keys=("compare_bf",)),
+        "evaluate": Stage(stage_evaluate, keys=("query_poses",), sections=("ground_truth", "plots")),
     },
     checker=_check,
     citation="H. Sasaki and T. Hamagami, \"Construction of feature space for speeding up self-localization using time "

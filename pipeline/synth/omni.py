@@ -227,14 +227,22 @@ class OmniWorld:
 
 
 def loop_path(loop: list[tuple[float, float]], frames: int, step: float, offset: float = 0.0, reverse: bool = False,
-              start: float = 0.0, jitter: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
-    """(frames, 3) poses (x, y, heading) walking the closed polyline at ``step`` m per frame."""
+              start: float = 0.0, jitter: float = 0.0, rng: np.random.Generator | None = None, dwell: int = 0,
+              dwell_every: int = 50) -> np.ndarray:
+    """(frames, 3) poses (x, y, heading) walking the closed polyline at ``step`` m per frame.
+
+    ``dwell``: after every ``dwell_every`` frames of walking the camera stands still for
+    ``dwell`` frames (a person stopping, as a hand-held or robot video does), so those
+    frames see one place again and again."""
     pts = np.array(loop[::-1] if reverse else loop, float)
     seg = np.roll(pts, -1, axis=0) - pts
     seglen = np.linalg.norm(seg, axis=1)
     cum = np.concatenate([[0], np.cumsum(seglen)])
     total = cum[-1]
-    s = (start * total + step * np.arange(frames)) % total
+    moving = np.ones(frames)
+    if dwell > 0:
+        moving = ((np.arange(frames) % (dwell_every + dwell)) < dwell_every).astype(float)
+    s = (start * total + step * np.concatenate([[0.0], np.cumsum(moving[1:])])) % total
     i = np.searchsorted(cum, s, side="right") - 1
     frac = (s - cum[i]) / seglen[i]
     xy = pts[i] + frac[:, None] * seg[i]
@@ -282,10 +290,13 @@ def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndar
 
 def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | None = None, width: int = 480,
              layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, workers: int = 1,
-             **extra: Any) -> dict[str, Any]:
-    """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length)."""
+             dwell: int = 0, **extra: Any) -> dict[str, Any]:
+    """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length).
+
+    ``dwell`` > 0 makes the mapping camera stand still for that many frames after every 50
+    frames of walking (see :func:`loop_path`)."""
     if extra:
-        known = "frames, test_frames, width, layout, step, test_offset, movers, workers"
+        known = "frames, test_frames, width, layout, step, test_offset, movers, workers, dwell"
         raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: {known}")
     if width < 64 or width % 2:
         raise ValueError(f"width must be an even number >= 64 (height is width/2), got {width}")
@@ -295,7 +306,7 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     test_frames = frames if test_frames is None else test_frames
     world = OmniWorld(layout, seed, movers=movers)
     rng = np.random.default_rng(seed)
-    mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng)
+    mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng, dwell=dwell)
     test = loop_path(world.loop, test_frames, step, offset=test_offset, reverse=True, start=0.37, jitter=0.02, rng=rng)
     light_map = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
     light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}

@@ -27,20 +27,8 @@ T = TypeVar("T")
 
 
 class Params:
-    """Base of every parameter dataclass.
-
-    ``p["key"]`` and ``p.get("key")`` read a parameter like the config section it was built
-    from; new code uses attribute access (``p.ds``).
-    """
-
-    def __getitem__(self, key: str) -> Any:
-        try:
-            return getattr(self, key)
-        except AttributeError:
-            raise KeyError(key) from None
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return getattr(self, key, default)
+    """Base of every parameter dataclass: frozen, built once per run, read by attribute
+    (``p.ds``). Stages pass the values on as explicit keyword arguments."""
 
 
 def param(default: Any, *, help: str = "", min: float | None = None, max: float | None = None,

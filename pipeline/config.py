@@ -40,7 +40,8 @@ COMMON_DEFAULTS: dict[str, Any] = {
     "reference": {"images": None, "on_error": "stop", "fingerprint": "stat"},
     "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
     # radius: metres for position ground truth (25 m is the VPR-Bench / VPR-methods-evaluation convention).
-    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0},
+    # recall_at: the N of Recall@N in metrics.json and the Recall@N curve.
+    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20]},
     "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
     "plots": True,
 }
@@ -64,6 +65,7 @@ COMMON_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
     "executor.retries": (0, None, False),
     "ground_truth.tolerance": (0, None, False),
     "ground_truth.radius": (0, None, True),
+    "ground_truth.recall_at": (1, None, False),
 }
 
 
@@ -215,12 +217,14 @@ def _check_common_bounds(config: dict) -> list[str]:
     problems = []
     for key, (lo, hi, strict) in COMMON_BOUNDS.items():
         node, leaf = _get(config, key)
-        v = node.get(leaf) if node else None
-        if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
-            continue
-        if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
-            rng = f"{'>' if strict else '>='} {lo}" if hi is None else f"in [{lo}, {hi}]"
-            problems.append(f"{key}: {v!r} is out of range; it must be {rng}")
+        value = node.get(leaf) if node else None
+        for v in value if isinstance(value, list) else [value]:
+            if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
+                rng = f"{'>' if strict else '>='} {lo}" if hi is None else f"in [{lo}, {hi}]"
+                problems.append(f"{key}: {value!r} is out of range; it must be {rng}")
+                break
     return problems
 
 

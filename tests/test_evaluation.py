@@ -156,3 +156,21 @@ def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "sw").rglob("*.h5")} == stamps  # resumed: nothing re-ran
     with pytest.raises(Exception, match="expected key.path=v1,v2"):
         parse_grid(["seqslam.ds"])
+
+
+def test_recall_at_n_list_comes_from_the_config(route, tmp_path):
+    """ground_truth.recall_at sets the N of Recall@N; the per-query ranks agree with it."""
+    from placeloc.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"ground_truth.recall_at: \[0, 3\] is out of range; it must be >= 1"):
+        load_config(route / "config.yaml", ["ground_truth.recall_at=[0, 3]"])
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false", "ground_truth.recall_at=[3, 1]"])
+    run_stage(cfg, run, "evaluate", quiet=True)
+    m = json.loads((run / "metrics.json").read_text())
+    assert "standard_recall_at_3" in m and "standard_recall_at_20" not in m
+    with open(run / "per_query.csv", newline="") as fh:
+        ranks = [int(r["first_correct_rank"] or 0) for r in csv.DictReader(fh)]  # 0: no positive among them
+    n = len(ranks)
+    assert m["standard_recall_at_3"] == pytest.approx(sum(1 for r in ranks if 1 <= r <= 3) / n)
+    assert m["standard_recall_at_1"] == pytest.approx(sum(1 for r in ranks if r == 1) / n)

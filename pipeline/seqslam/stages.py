@@ -190,7 +190,7 @@ def evaluate(ctx: Any) -> None:
                                  query_names=None if loop_closure else q_names)
     candidates, conf = lo_art["candidates"][()], lo_art["confidence"][()]
     n_q, n_ref = len(candidates), len(ref_index)
-    ns = matching.DEFAULT_RECALL_N
+    ns = tuple(sorted(set(int(n) for n in ctx.config["ground_truth"]["recall_at"])))
     window, ds, block = int(p.enhance_window), int(p.ds), max(1, int(p.block_size))
 
     # One streaming pass over D (when stored): the plain (unseparated) sequence ranking for

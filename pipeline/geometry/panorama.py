@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera, equirect_to_pinhole
-from placeloc.geometry.rays import ray_segment
+from placeloc.geometry.rays import occluded
 
 
 def n_words(height: int, width: int) -> int:
@@ -36,26 +36,6 @@ def detect_segments(gray: np.ndarray) -> np.ndarray:
 def _angle_to_col(az: float, width: int) -> float:
     return ((math.pi - az) / (2.0 * math.pi) % 1.0) * width - 0.5
 
-
-@njit(cache=True)
-def _hidden(px: float, py: float, pz: float, qx: float, qy: float, qz: float, faces: np.ndarray, cand: np.ndarray,
-            ncand: int) -> bool:
-    """The hidden-line test of :mod:`placeloc.umap.render` against candidate faces only."""
-    dx = qx - px
-    dy = qy - py
-    length = math.sqrt(dx * dx + dy * dy)
-    if length < 1e-9:
-        return False
-    tmax = 1.0 - 0.005 / length  # the point's own wall (and walls meeting at it): 5 mm clear
-    for k in range(ncand):
-        f = cand[k]
-        t, u = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
-        if t <= 1e-9 or t >= tmax or u < 0.0 or u > 1.0:
-            continue
-        z = pz + t * (qz - pz)
-        if faces[f, 4] <= z <= faces[f, 5]:
-            return True
-    return False
 
 
 @njit(parallel=True, cache=True)
@@ -125,7 +105,7 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
                 if img[pix]:
                     continue
                 if hidden and counts[iu] > 0:
-                    if _hidden(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
+                    if occluded(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
                         continue
                 img[pix] = 1
         for w in range(out.shape[1]):

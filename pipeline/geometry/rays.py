@@ -36,6 +36,33 @@ def ray_segment(px: float, py: float, dx: float, dy: float, ax: float, ay: float
 
 
 @njit(cache=True)
+def occluded(px: float, py: float, pz: float, qx: float, qy: float, qz: float, faces: np.ndarray, candidates: np.ndarray,
+             n_candidates: int) -> bool:
+    """Hidden-line test: True when a vertical wall face hides 3-D point q from p.
+
+    ``faces`` rows are (ax, ay, bx, by, z_low, z_high); only the first ``n_candidates``
+    indices in ``candidates`` are tested. q is hidden when the plan ray p -> q crosses a face
+    strictly before q at a height inside that face.
+    """
+    dx = qx - px
+    dy = qy - py
+    length = math.sqrt(dx * dx + dy * dy)
+    if length < 1e-9:
+        return False
+    # The point's own wall (and walls meeting at it) cross at t ~ 1: keep 5 mm clear.
+    tmax = 1.0 - 0.005 / length
+    for k in range(n_candidates):
+        f = candidates[k]
+        t, u = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
+        if t <= 1e-9 or t >= tmax or u < 0.0 or u > 1.0:
+            continue
+        z = pz + t * (qz - pz)
+        if faces[f, 4] <= z <= faces[f, 5]:
+            return True
+    return False
+
+
+@njit(cache=True)
 def _first_hits(xy: np.ndarray, dx: float, dy: float, walls: np.ndarray, out: np.ndarray) -> None:
     for i in range(xy.shape[0]):
         best = math.inf

@@ -27,6 +27,7 @@ from numba import njit, prange
 from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.geometry.rays import ray_range, ray_segment
+from placeloc.synth.texture import value_noise
 
 LENGTH = 90.0
 WIDTH = 2.4
@@ -78,27 +79,6 @@ def _dedupe(pts: list[list[float]]) -> list[list[float]]:
 
 # ---------------------------------------------------------------- ray-cast renderer
 
-@njit(inline="always")
-def _hash(ix: int, iy: int, seed: int) -> float:
-    h = (ix * 374761393 + iy * 668265263 + seed * 144665) & 0xFFFFFFFF
-    h = ((h ^ (h >> 13)) * 1274126177) & 0xFFFFFFFF
-    return ((h ^ (h >> 16)) & 0xFFFF) / 65535.0
-
-
-@njit(inline="always")
-def _noise(s: float, t: float, cell: float, seed: int) -> float:
-    """Value noise in [0, 1], bilinear between hashed cell corners (world-anchored texture)."""
-    a = s / cell
-    b = t / cell
-    i = int(math.floor(a))
-    j = int(math.floor(b))
-    fa = a - i
-    fb = b - j
-    v00 = _hash(i, j, seed)
-    v10 = _hash(i + 1, j, seed)
-    v01 = _hash(i, j + 1, seed)
-    v11 = _hash(i + 1, j + 1, seed)
-    return (v00 * (1 - fa) + v10 * fa) * (1 - fb) + (v01 * (1 - fa) + v11 * fa) * fb
 
 
 @njit(parallel=True, cache=True)
@@ -164,13 +144,13 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
                 # 0.5 m floor tiles with dark grout and mottling
                 gu = qx / 0.5 - math.floor(qx / 0.5)
                 gv = qy / 0.5 - math.floor(qy / 0.5)
-                col = 0.45 + 0.12 * _noise(qx, qy, 0.05, 3) + 0.08 * _noise(qx, qy, 0.7, 4)
+                col = 0.45 + 0.12 * value_noise(qx, qy, 0.05, 3) + 0.08 * value_noise(qx, qy, 0.7, 4)
                 if gu < 0.02 or gv < 0.02:
                     col = 0.25
             elif kind == 2:
                 gu = qx / 0.6 - math.floor(qx / 0.6)
                 gv = qy / 0.6 - math.floor(qy / 0.6)
-                col = 0.78 + 0.05 * _noise(qx, qy, 0.05, 5)
+                col = 0.78 + 0.05 * value_noise(qx, qy, 0.05, 5)
                 if gu < 0.015 or gv < 0.015:
                     col = 0.6
                 # ceiling light panels every 3 m on the corridor axis
@@ -180,25 +160,25 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
             elif kind == 3:
                 ax, ay = walls[idx, 0], walls[idx, 1]
                 s = wall_s0[idx] + math.hypot(qx - ax, qy - ay)
-                col = 0.66 + 0.16 * (_noise(s, qz, 0.012, 7) - 0.5) + 0.10 * (_noise(s, qz, 0.2, 8) - 0.5)
+                col = 0.66 + 0.16 * (value_noise(s, qz, 0.012, 7) - 0.5) + 0.10 * (value_noise(s, qz, 0.2, 8) - 0.5)
                 # walls along x are lit more than walls along y, so corners show as edges
                 wl = math.hypot(walls[idx, 2] - ax, walls[idx, 3] - ay)
                 col *= 0.72 + 0.28 * abs(walls[idx, 2] - ax) / max(wl, 1e-9)
                 if qz < 0.1:
-                    col = 0.3 + 0.05 * _noise(s, qz, 0.02, 9)
+                    col = 0.3 + 0.05 * value_noise(s, qz, 0.02, 9)
                 for k in range(doors.shape[0]):
                     if doors[k, 0] == idx and doors[k, 1] <= s <= doors[k, 2] and qz <= doors[k, 3]:
-                        col = 0.32 + 0.15 * _noise(s * 4.0, qz * 0.3, 0.05, 11)
+                        col = 0.32 + 0.15 * value_noise(s * 4.0, qz * 0.3, 0.05, 11)
                         if abs(s - doors[k, 2] + 0.12) < 0.03 and abs(qz - 1.0) < 0.05:
                             col = 0.9  # door handle
                 for k in range(posters.shape[0]):
                     if posters[k, 0] == idx and posters[k, 1] <= s <= posters[k, 2] and posters[k, 3] <= qz <= posters[k, 4]:
                         sd = int(posters[k, 5])
-                        col = 0.15 + 0.8 * _noise(s, qz, 0.06, sd)
-                        if _noise(s, qz, 0.15, sd + 1) > 0.6:
-                            col = 0.95 - 0.5 * _noise(s, qz, 0.02, sd + 2)
+                        col = 0.15 + 0.8 * value_noise(s, qz, 0.06, sd)
+                        if value_noise(s, qz, 0.15, sd + 1) > 0.6:
+                            col = 0.95 - 0.5 * value_noise(s, qz, 0.02, sd + 2)
             elif kind == 4:
-                col = 0.35 + 0.25 * boxes[idx, 6] + 0.1 * _noise(qx + qy, qz, 0.04, 13)
+                col = 0.35 + 0.25 * boxes[idx, 6] + 0.1 * value_noise(qx + qy, qz, 0.04, 13)
                 if abs(qz - boxes[idx, 5]) < 1e-3:
                     col = 0.55 + 0.25 * boxes[idx, 6]
             # distance fall-off of the light

@@ -37,6 +37,7 @@ from numba import njit, prange
 from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
 from placeloc.geometry.panorama import panorama_line_image, render_panoramas
 from placeloc.geometry.rays import ray_segment
+from placeloc.synth.texture import cell_hash, value_noise
 
 CEILING = 2.5
 HALL_W = 1.4
@@ -114,23 +115,6 @@ def _door_leaf(clutter: dict[str, list], rng: np.random.Generator, a: tuple[floa
                                  a[1] + (0.82 if side > 0 else 0.0), 2.0, 0.7, 0.0])
 
 
-@njit(inline="always")
-def _hash(ix: int, iy: int, seed: int) -> float:
-    h = (ix * 374761393 + iy * 668265263 + seed * 144665) & 0xFFFFFFFF
-    h = ((h ^ (h >> 13)) * 1274126177) & 0xFFFFFFFF
-    return ((h ^ (h >> 16)) & 0xFFFF) / 65535.0
-
-
-@njit(inline="always")
-def _noise(s: float, t: float, cell: float, seed: int) -> float:
-    a = s / cell
-    b = t / cell
-    i = int(math.floor(a))
-    j = int(math.floor(b))
-    fa = a - i
-    fb = b - j
-    return ((_hash(i, j, seed) * (1 - fa) + _hash(i + 1, j, seed) * fa) * (1 - fb)
-            + (_hash(i, j + 1, seed) * (1 - fa) + _hash(i + 1, j + 1, seed) * fa) * fb)
 
 
 @njit(parallel=True, cache=True)
@@ -210,16 +194,16 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                         style = int(rooms_floor[r])
                 if style == 1:    # wood planks along x, 0.14 m wide, staggered joints
                     row = math.floor(qy / 0.14)
-                    col = 0.5 + 0.08 * _hash(int(row), int(math.floor(qx / 1.2 + 0.37 * row)), 21)
-                    col += 0.04 * (_noise(qx * 0.2, qy * 8.0, 0.05, 22) - 0.5)
+                    col = 0.5 + 0.08 * cell_hash(int(row), int(math.floor(qx / 1.2 + 0.37 * row)), 21)
+                    col += 0.04 * (value_noise(qx * 0.2, qy * 8.0, 0.05, 22) - 0.5)
                     if qy / 0.14 - row < 0.04:
                         col -= 0.08
                 elif style == 2:  # tiles with grout
-                    col = 0.62 + 0.04 * _noise(qx, qy, 0.05, 23)
+                    col = 0.62 + 0.04 * value_noise(qx, qy, 0.05, 23)
                     if qx / 0.45 - math.floor(qx / 0.45) < 0.025 or qy / 0.45 - math.floor(qy / 0.45) < 0.025:
                         col = 0.45
                 else:             # carpet
-                    col = 0.55 + 0.06 * _noise(qx, qy, 0.02, 24)
+                    col = 0.55 + 0.06 * value_noise(qx, qy, 0.02, 24)
                 # sunlight: the floor point sees the sky through a window along the sun direction
                 # (the first wall the sun ray meets must be the window's)
                 first = 1e9
@@ -235,7 +219,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                         if windows[w, 4] <= zz <= windows[w, 5]:
                             col = min(1.0, col * 1.7)
             elif kind == CEIL:
-                col = 0.84 + 0.01 * _noise(qx, qy, 0.3, 25)
+                col = 0.84 + 0.01 * value_noise(qx, qy, 0.3, 25)
                 for k in range(lamps.shape[0]):
                     if lamps[k, 0] <= qx <= lamps[k, 2] and lamps[k, 1] <= qy <= lamps[k, 3]:
                         col = 0.98
@@ -246,7 +230,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                 ex = faces[idx, 2] - faces[idx, 0]
                 ey = faces[idx, 3] - faces[idx, 1]
                 along_x = abs(ex) / max(math.hypot(ex, ey), 1e-9)
-                col = 0.80 + 0.025 * along_x + 0.012 * (_noise(qx + qy, qz, 0.4, 26) - 0.5)
+                col = 0.80 + 0.025 * along_x + 0.012 * (value_noise(qx + qy, qz, 0.4, 26) - 0.5)
                 if qz < 0.09:                      # skirting board
                     col = 0.93
                     if qz > 0.08:
@@ -261,7 +245,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                         if s < m or s > 1 - m or qz < windows[w, 4] + 0.05 or qz > windows[w, 5] - 0.05:
                             col = 0.95             # the frame
                         else:
-                            col = 0.97 - 0.1 * _noise(s * lw, qz, 0.3, 27)   # bright sky / outside
+                            col = 0.97 - 0.1 * value_noise(s * lw, qz, 0.3, 27)   # bright sky / outside
                             for b in range(blinds.shape[0]):
                                 if abs(blinds[b, 0] - ax) < 1e-6 and abs(blinds[b, 1] - ay) < 1e-6 and qz >= blinds[b, 5]:
                                     slat = (qz * 20.0) - math.floor(qz * 20.0)
@@ -280,7 +264,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                     col = 0.3  # handle
             elif kind == BOX:
                 base = boxes[idx, 6]
-                col = base + 0.03 * _noise(qx + qy, qz, 0.1, 28)
+                col = base + 0.03 * value_noise(qx + qy, qz, 0.1, 28)
                 if abs(qz - boxes[idx, 5]) < 1e-3:
                     col = base + 0.12
                 if boxes[idx, 7] > 0.0:   # cabinet/wardrobe doors every 0.6 m: dark gaps

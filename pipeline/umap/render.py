@@ -15,28 +15,8 @@ import math
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera
-from placeloc.geometry.rays import ray_segment
+from placeloc.geometry.rays import occluded
 from placeloc.umap.bits import n_words
-
-
-@njit(cache=True)
-def _occluded(px: float, py: float, pz: float, qx: float, qy: float, qz: float, faces: np.ndarray, fidx: np.ndarray, nf: int) -> bool:
-    dx = qx - px
-    dy = qy - py
-    length = math.sqrt(dx * dx + dy * dy)
-    if length < 1e-9:
-        return False
-    # The point's own wall (and walls meeting at it) cross at t ~ 1: keep 5 mm clear.
-    tmax = 1.0 - 0.005 / length
-    for k in range(nf):
-        f = fidx[k]
-        t, u = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
-        if t <= 1e-9 or t >= tmax or u < 0.0 or u > 1.0:
-            continue
-        z = pz + t * (qz - pz)
-        if faces[f, 4] <= z <= faces[f, 5]:
-            return True
-    return False
 
 
 @njit(parallel=True, cache=True)
@@ -155,7 +135,7 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
                     qx = px + ax + t * (bx - ax)
                     qy = py + ay + t * (by - ay)
                     qz = pz + az + t * (bz - az)
-                    if _occluded(px, py, pz, qx, qy, qz, faces, fidx, nf):
+                    if occluded(px, py, pz, qx, qy, qz, faces, fidx, nf):
                         continue
                 img[pix] = 1
         for w in range(out.shape[1]):

@@ -116,3 +116,14 @@ def read_gray(path: str | Path) -> np.ndarray:
         img = cv2.cvtColor(img, code)
     return img
 
+
+def akaze_detector(threshold: float | None) -> cv2.Feature2D:
+    """OpenCV's AKAZE detector (``threshold`` None: OpenCV's own default, 0.001). AKAZE lives
+    in ``cv2`` in OpenCV 4.x and in ``cv2.xfeatures2d`` from OpenCV 5 on."""
+    kwargs = {} if threshold is None else {"threshold": float(threshold)}
+    if hasattr(cv2, "AKAZE_create"):
+        return cv2.AKAZE_create(**kwargs)
+    xf = getattr(cv2, "xfeatures2d", None)
+    if xf is not None and hasattr(xf, "AKAZE_create"):
+        return xf.AKAZE_create(**kwargs)
+    raise ImageError("AKAZE is not available in this OpenCV build: install opencv-contrib-python-headless")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from placeloc.images import ImageError, read_gray
+from placeloc.images import ImageError, akaze_detector, read_gray
 
 FEATURE_TYPES = ("sift", "akaze", "orb", "surf")
 
@@ -23,12 +23,7 @@ def make_detector(kind: str, n_features: int) -> cv2.Feature2D:
     if kind == "orb":
         return cv2.ORB_create(nfeatures=n_features or 1000)
     if kind == "akaze":
-        if hasattr(cv2, "AKAZE_create"):
-            return cv2.AKAZE_create()
-        xf = getattr(cv2, "xfeatures2d", None)
-        if xf is not None and hasattr(xf, "AKAZE_create"):
-            return xf.AKAZE_create()
-        raise ImageError("AKAZE is not available in this OpenCV build; use pirf.features: sift")
+        return akaze_detector(None)
     if kind == "surf":
         xf = getattr(cv2, "xfeatures2d", None)
         try:

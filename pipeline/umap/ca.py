@@ -7,18 +7,12 @@ import math
 
 import cv2
 import numpy as np
-
-
-def akaze_create(threshold: float) -> cv2.Feature2D:
-    """AKAZE lives in ``cv2.xfeatures2d`` in OpenCV 5 and in ``cv2`` in 4.x."""
-    if hasattr(cv2, "AKAZE_create"):
-        return cv2.AKAZE_create(threshold=threshold)
-    return cv2.xfeatures2d.AKAZE_create(threshold=threshold)
+from placeloc.images import akaze_detector
 
 
 def akaze(gray: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """Keypoint positions (N, 2) float32 and binary descriptors (N, 61) uint8."""
-    kps, desc = akaze_create(threshold).detectAndCompute(gray, None)
+    kps, desc = akaze_detector(threshold).detectAndCompute(gray, None)
     pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
     if desc is None:
         desc = np.zeros((0, 61), dtype=np.uint8)

@@ -15,11 +15,14 @@ from __future__ import annotations
 import logging
 import socket
 import uuid
+from concurrent.futures import CancelledError
 from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
 from placeloc.config import ConfigError
 from placeloc.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
+
+log = logging.getLogger("placeloc")
 
 # A scheduler that does not answer within this is taken to be unreachable (fail fast).
 CONNECT_TIMEOUT = "5s"
@@ -81,20 +84,38 @@ class DaskExecutor(Executor):
             describe: Describe | None = None) -> Iterator[Any]:
         describe = describe or describe_item
         tag = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex[:8]}"
-        extra: tuple = ()
-        if shared is not None:
-            # One copy per worker up front; tasks then reference it by key. Wrapped in a list so
-            # a dict is scattered as one object, not one future per value.
-            extra = (self.client.scatter([shared], broadcast=True, hash=False)[0],)
-        def submit(numbered: tuple[int, Any]) -> Any:
+        scattered: list[Any] = []
+
+        def extra() -> tuple:
+            if shared is None:
+                return ()
+            if not scattered:
+                # One copy per worker up front; tasks then reference it by key. Wrapped in a list
+                # so a dict is scattered as one object, not one future per value.
+                scattered.append(self.client.scatter([shared], broadcast=True, hash=False)[0])
+            return (scattered[-1],)
+
+        def submit(numbered: tuple[int, Any], attempt: int = 0) -> Any:
             i, item = numbered
-            return self.client.submit(fn, item, *extra, key=f"{tag}-{i}", retries=self.retries, pure=False)
+            return self.client.submit(fn, item, *extra(), key=f"{tag}-{i}-{attempt}", retries=self.retries, pure=False)
+
+        def result(numbered: tuple[int, Any], fut: Any) -> Any:
+            try:
+                return self._result(fn, numbered[1], fut, describe)
+            except WorkItemError as err:
+                # A worker killed mid-stage can take scattered inputs (and tasks waiting on
+                # them) with it: the scheduler then cancels those tasks. Scatter the shared
+                # input again and run the item once more before giving up on it.
+                if not isinstance(err.__cause__, CancelledError):
+                    raise
+                log.warning("dask: %s was cancelled (a worker died); submitting it again", describe(numbered[1]))
+                scattered.clear()
+                return self._result(fn, numbered[1], submit(numbered, attempt=1), describe)
 
         try:
-            yield from ordered_window(enumerate(items), submit, self._window(),
-                                      lambda numbered, fut: self._result(fn, numbered[1], fut, describe))
+            yield from ordered_window(enumerate(items), submit, self._window(), result)
         finally:
-            for fut in extra:
+            for fut in scattered:
                 fut.release()
 
     def _result(self, fn: Callable, item: Any, fut: Any, describe: Describe) -> Any:

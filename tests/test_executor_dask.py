@@ -128,3 +128,30 @@ def test_shared_is_broadcast_once_and_released(cluster):
 
 def _sum_with(item: int, shared: np.ndarray) -> float:
     return float(shared.sum() + item)
+
+
+def add_shared(item: int, shared: np.ndarray) -> int:
+    return int(item + shared.sum())
+
+
+class CancellingDaskExecutor(DaskExecutor):
+    """Cancels the first task's future before its result is read, as the scheduler does
+    when a dying worker takes a task's scattered input with it."""
+
+    cancelled = 0
+
+    def _result(self, fn, item, fut, describe):
+        if type(self).cancelled == 0:
+            type(self).cancelled += 1
+            self.client.cancel(fut)
+        return super()._result(fn, item, fut, describe)
+
+
+def test_a_cancelled_task_is_submitted_again_with_its_shared_input(cluster):
+    CancellingDaskExecutor.cancelled = 0
+    ex = CancellingDaskExecutor({"kind": "dask", "workers": 2, "scheduler": cluster.scheduler_address, "retries": 0})
+    try:
+        out = list(ex.map(add_shared, range(6), shared=np.arange(4)))
+    finally:
+        ex.close()
+    assert CancellingDaskExecutor.cancelled == 1 and out == [i + 6 for i in range(6)]

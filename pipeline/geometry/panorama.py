@@ -17,11 +17,8 @@ import cv2
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry.bitimage import n_words, pack_into
 from placeloc.geometry.rays import occluded
-
-
-def n_words(height: int, width: int) -> int:
-    return (height * width + 63) // 64
 
 
 def detect_segments(gray: np.ndarray) -> np.ndarray:
@@ -108,14 +105,7 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
                     if occluded(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
                         continue
                 img[pix] = 1
-        for w in range(out.shape[1]):
-            word = np.uint64(0)
-            base = w * 64
-            for b in range(64):
-                p = base + b
-                if p < height * width and img[p]:
-                    word |= np.uint64(1) << np.uint64(b)
-            out[v, w] = word
+        pack_into(img, height * width, out[v])
 
 
 def vertical_segments(segments: np.ndarray) -> np.ndarray:
@@ -128,7 +118,7 @@ def vertical_segments(segments: np.ndarray) -> np.ndarray:
 def render_panoramas(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, *, width: int, height: int,
                      hidden: bool, which: str = "all") -> np.ndarray:
     """Equirectangular line images of ``segments`` from each pose (x, y, z, heading): packed
-    (V, n_words) uint64 (layout of :mod:`placeloc.umap.bits`). ``which``: ``all``, or only
+    (V, n_words) uint64 (layout of :mod:`placeloc.geometry.bitimage`). ``which``: ``all``, or only
     the ``vertical`` or ``other`` segments (for the direction-split score)."""
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
     segs = np.ascontiguousarray(segments, np.float64).reshape(-1, 6)

@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
-
-
-def n_words(height: int, width: int) -> int:
-    return (height * width + 63) // 64
+from placeloc.geometry.bitimage import n_words
 
 
 def pack(images: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ import math
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera
+from placeloc.geometry.bitimage import n_words, pack_into
 from placeloc.geometry.rays import occluded
-from placeloc.umap.bits import n_words
 
 
 @njit(parallel=True, cache=True)
@@ -138,19 +138,12 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
                     if occluded(px, py, pz, qx, qy, qz, faces, fidx, nf):
                         continue
                 img[pix] = 1
-        for w in range(out.shape[1]):
-            word = np.uint64(0)
-            base = w * 64
-            for b in range(64):
-                p = base + b
-                if p < height * width and img[p]:
-                    word |= np.uint64(1) << np.uint64(b)
-            out[v, w] = word
+        pack_into(img, height * width, out[v])
 
 
 def render_packed(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, cam: Camera,
                   near: float = 0.05, hidden: bool = True) -> np.ndarray:
-    """Line images of ``segments`` seen from each pose: (V, n_words) uint64, see :mod:`placeloc.umap.bits`."""
+    """Line images of ``segments`` seen from each pose: (V, n_words) uint64, see :mod:`placeloc.geometry.bitimage`."""
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
     out = np.zeros((len(poses), n_words(cam.height, cam.width)), dtype=np.uint64)
     if len(poses):

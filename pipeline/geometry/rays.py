@@ -35,6 +35,32 @@ def ray_segment(px: float, py: float, dx: float, dy: float, ax: float, ay: float
     return t, u
 
 
+@njit(inline="always", cache=True)
+def ray_box(px: float, py: float, pz: float, dx: float, dy: float, dz: float, box: np.ndarray, t_max: float) -> float:
+    """Slab test of the ray p + t d against an axis-aligned box (x0, y0, z0, x1, y1, z1):
+    the entry parameter t in [0, t_max], or -1.0 when the ray misses it within that span."""
+    t0 = 0.0
+    t1 = t_max
+    for a in range(3):
+        o = px if a == 0 else (py if a == 1 else pz)
+        d = dx if a == 0 else (dy if a == 1 else dz)
+        lo = box[a]
+        hi = box[a + 3]
+        if abs(d) < 1e-12:
+            if o < lo or o > hi:
+                return -1.0
+        else:
+            ta = (lo - o) / d
+            tb = (hi - o) / d
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+            if t0 > t1:
+                return -1.0
+    return t0
+
+
 @njit(cache=True)
 def occluded(px: float, py: float, pz: float, qx: float, qy: float, qz: float, faces: np.ndarray, candidates: np.ndarray,
              n_candidates: int) -> bool:

@@ -26,7 +26,7 @@ import yaml
 from numba import njit, prange
 from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import floor_plan_model
-from placeloc.geometry.rays import ray_range, ray_segment
+from placeloc.geometry.rays import ray_box, ray_range, ray_segment
 from placeloc.synth.texture import value_noise
 
 LENGTH = 90.0
@@ -114,27 +114,9 @@ def _raycast(pose: np.ndarray, width: int, height: int, focal: float, walls: np.
                 kind = 3
                 idx = w
             for k in range(boxes.shape[0]):
-                # slab test against an axis-aligned box (furniture)
-                t0, t1 = 0.0, best
-                okb = True
-                for ax_ in range(3):
-                    o = px if ax_ == 0 else (py if ax_ == 1 else pz)
-                    d = dx if ax_ == 0 else (dy if ax_ == 1 else dz)
-                    lo, hi = boxes[k, ax_], boxes[k, ax_ + 3]
-                    if abs(d) < 1e-12:
-                        if o < lo or o > hi:
-                            okb = False
-                            break
-                    else:
-                        ta, tb = (lo - o) / d, (hi - o) / d
-                        if ta > tb:
-                            ta, tb = tb, ta
-                        t0 = max(t0, ta)
-                        t1 = min(t1, tb)
-                        if t0 > t1:
-                            okb = False
-                            break
-                if okb and t0 > 1e-6 and t0 < best:
+                # furniture: axis-aligned boxes
+                t0 = ray_box(px, py, pz, dx, dy, dz, boxes[k], best)
+                if t0 > 1e-6 and t0 < best:
                     best = t0
                     kind = 4
                     idx = k

@@ -36,7 +36,7 @@ import yaml
 from numba import njit, prange
 from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
 from placeloc.geometry.panorama import panorama_line_image, render_panoramas
-from placeloc.geometry.rays import ray_segment
+from placeloc.geometry.rays import ray_box, ray_segment
 from placeloc.synth.texture import cell_hash, value_noise
 
 CEILING = 2.5
@@ -157,29 +157,8 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                     kind = LEAF
                     idx = f
             for k in range(boxes.shape[0]):
-                t0 = 0.0
-                t1 = best
-                okb = True
-                for a in range(3):
-                    o = px if a == 0 else (py if a == 1 else pz)
-                    d = dx if a == 0 else (dy if a == 1 else dz)
-                    lo = boxes[k, a]
-                    hi = boxes[k, a + 3]
-                    if abs(d) < 1e-12:
-                        if o < lo or o > hi:
-                            okb = False
-                            break
-                    else:
-                        ta = (lo - o) / d
-                        tb = (hi - o) / d
-                        if ta > tb:
-                            ta, tb = tb, ta
-                        t0 = max(t0, ta)
-                        t1 = min(t1, tb)
-                        if t0 > t1:
-                            okb = False
-                            break
-                if okb and 1e-6 < t0 < best:
+                t0 = ray_box(px, py, pz, dx, dy, dz, boxes[k], best)
+                if 1e-6 < t0 < best:
                     best = t0
                     kind = BOX
                     idx = k

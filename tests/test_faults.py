@@ -173,7 +173,9 @@ def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
     import psutil
     from placeloc.synth.route import generate
 
-    generate(tmp_path / "data", seed=2, frames=240)
+    # Long enough that the pool is still extracting when the signal comes (the whole run
+    # takes several seconds; the signal follows the workers' start by 0.3 s).
+    generate(tmp_path / "data", seed=2, frames=600)
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
     cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
@@ -186,7 +188,7 @@ def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
         if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in _children(proc.pid)) >= 2:
             break
         time.sleep(0.1)
-    time.sleep(1.0)
+    time.sleep(0.3)
     assert proc.poll() is None, "the run finished before it could be interrupted"
     os.killpg(proc.pid, sig) if sig == signal.SIGINT else proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)

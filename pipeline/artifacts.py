@@ -283,7 +283,7 @@ def remove_stale_tmp(run_dir: Path) -> list[Path]:
     removed = []
     for p in run_dir.rglob(f".*{TMP_MARK}*"):
         pid = p.name.rsplit(TMP_MARK, 1)[-1]
-        if pid.isdigit() and _pid_alive(int(pid)) and int(pid) != os.getpid():
+        if pid.isdigit() and pid_alive(int(pid)) and int(pid) != os.getpid():
             continue
         with contextlib.suppress(FileNotFoundError):
             p.unlink()
@@ -291,11 +291,14 @@ def remove_stale_tmp(run_dir: Path) -> list[Path]:
     return removed
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """True when process ``pid`` exists (one owned by another user counts as alive)."""
     try:
         os.kill(pid, 0)
-    except OSError:
+    except ProcessLookupError:
         return False
+    except PermissionError:
+        return True
     return True
 
 

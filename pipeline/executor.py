@@ -142,11 +142,13 @@ def _shared_dir_owner(path: Path) -> int | None:
 def remove_stale_shared(tmp_root: str | Path | None = None) -> list[Path]:
     """Delete shared-array folders (``/tmp/placeloc-shared-<pid>-*``) whose process is gone:
     what a killed run left behind."""
+    from placeloc.artifacts import pid_alive  # h5py is not needed in pool workers
+
     removed = []
     root = Path(tmp_root or tempfile.gettempdir())
     for p in root.glob(f"{SHARED_PREFIX}*"):
         pid = _shared_dir_owner(p)
-        if pid is not None and pid != os.getpid() and _alive(pid):
+        if pid is not None and pid != os.getpid() and pid_alive(pid):
             continue
         if pid is None and time.time() - p.stat().st_mtime < 24 * 3600:
             continue  # an old-style name: only remove when a day old
@@ -154,15 +156,6 @@ def remove_stale_shared(tmp_root: str | Path | None = None) -> list[Path]:
         removed.append(p)
     return removed
 
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 # --- shared arrays for the process pool: memory-mapped .npy files, loaded once per worker ---

@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any, List
 
 import typer
+from placeloc.interrupts import Terminated, raise_if_interrupted
+from placeloc.interrupts import install as install_signal_handlers
 from typer.core import TyperGroup
 
 try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
@@ -53,15 +55,6 @@ def _one_line(exc: BaseException) -> str:
     return text
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, turned into an exception so that cleanup (temporary files, shared arrays,
-    worker pools) runs as it does for Ctrl-C."""
-
-
-def _on_sigterm(signum: int, frame: Any) -> None:
-    raise Terminated()
-
-
 def classify(exc: BaseException) -> str:
     """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
     judged by the exception it wraps)."""
@@ -82,7 +75,9 @@ class ErrorBoundaryGroup(TyperGroup):
 
     def invoke(self, ctx: Any) -> Any:
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
+            raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
+            return result
         except (typer.Exit, typer.Abort, ClickException):
             raise
         except KeyboardInterrupt as exc:
@@ -281,9 +276,7 @@ def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, 
 
 
 def main() -> None:
-    import signal
-
-    signal.signal(signal.SIGTERM, _on_sigterm)
+    install_signal_handlers()
     app()
 
 

@@ -35,6 +35,7 @@ from placeloc.artifacts import (
 from placeloc.config import config_hash, to_yaml
 from placeloc.executor import Executor, make_executor, remove_stale_shared
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
+from placeloc.interrupts import raise_if_interrupted
 from placeloc.limits import check_resources
 from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 from tqdm import tqdm
@@ -97,8 +98,10 @@ class StageContext:
         bar = tqdm(iterable, total=total, desc=desc or self.stage, disable=self.quiet,
                    file=sys.stderr, dynamic_ncols=True, leave=False)
         for item in bar:
-            # A full disk stops the stage at the next step instead of at its end.
+            # A full disk, or a Ctrl-C whose exception was swallowed, stops the stage at the
+            # next step instead of at its end.
             raise_if_disk_full(self.out)
+            raise_if_interrupted()
             yield item
 
     def close(self) -> None:
@@ -221,6 +224,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     executor: Executor | None = None
     try:
         for name in STAGES[: STAGES.index(stage) + 1]:
+            raise_if_interrupted()
             path = run_dir / f"{name}.h5"
             inputs = stage_inputs(config, method, name, images, parent_stamp)
             stamp = config_hash({"version": __version__, "stage": name, "inputs": inputs})

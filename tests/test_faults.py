@@ -557,3 +557,24 @@ def test_metrics_json_is_valid_after_run(route, tmp_path):
     cfg = load_config(route / "config.yaml", ["plots=false"])
     run_all(cfg, run, quiet=True)
     assert json.loads((run / "metrics.json").read_text())["n_queries"] == 81
+
+
+def test_an_interrupt_swallowed_by_a_finaliser_is_raised_again_silently():
+    """Python swallows an exception raised inside a finaliser (printing "Exception ignored");
+    a Ctrl-C that lands there must still stop the run, without that text."""
+    code = (
+        "from placeloc import interrupts\n"
+        "interrupts.install()\n"
+        "class Finalised:\n"
+        "    def __del__(self):\n"
+        "        interrupts._handler(2, None)  # as if Ctrl-C arrived while the finaliser ran\n"
+        "Finalised()\n"
+        "print('swallowed, run goes on')\n"
+        "try:\n"
+        "    interrupts.raise_if_interrupted()\n"
+        "except KeyboardInterrupt:\n"
+        "    print('raised again')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.stdout.split("\n")[:2] == ["swallowed, run goes on", "raised again"]
+    assert proc.stderr == ""

@@ -259,15 +259,12 @@ def _remove_previous_outputs(path: Path, stamp: str) -> None:
     artifact when it belongs to other inputs."""
     if not path.is_file():
         return
-    try:
-        with h5py.File(path, "r") as f:
-            recorded = json.loads(f.attrs.get("side_outputs", "{}"))
-            old_stamp = f.attrs.get("stamp")
-    except (OSError, ValueError):
-        recorded, old_stamp = {}, None
+    recorded = _recorded_side_outputs(path) or {}
+    old_stamp = read_stamp(path)
+    run_dir = path.parent.resolve()
     for name in recorded:
         target = (path.parent / name).resolve()
-        if target.parent == path.parent.resolve() or path.parent.resolve() in target.parents:
+        if run_dir in target.parents:  # never outside the run directory
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 target.unlink()
     if old_stamp is None or str(old_stamp) != stamp:
@@ -447,15 +444,20 @@ def _run_files(run_dir: Path) -> dict[str, str]:
     return out
 
 
+def _recorded_side_outputs(path: Path) -> dict[str, str] | None:
+    """The side outputs (file -> fingerprint) recorded in an artifact; None if unreadable."""
+    try:
+        with h5py.File(path, "r") as f:
+            return json.loads(f.attrs.get("side_outputs", "{}"))
+    except (OSError, ValueError):
+        return None
+
+
 def side_outputs_intact(path: Path) -> bool:
     """True when every side output recorded in the artifact at ``path`` is still there,
     unchanged (same size and modification time)."""
-    try:
-        with h5py.File(path, "r") as f:
-            recorded = json.loads(f.attrs.get("side_outputs", "{}"))
-    except (OSError, ValueError):
-        return False
-    return all(_path_fingerprint(path.parent / name) == fp for name, fp in recorded.items())
+    recorded = _recorded_side_outputs(path)
+    return recorded is not None and all(_path_fingerprint(path.parent / name) == fp for name, fp in recorded.items())
 
 
 def run_all(config: dict[str, Any], run_dir: str | Path, force: bool = False, quiet: bool = False) -> Path:

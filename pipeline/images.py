@@ -8,6 +8,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import cv2
 import numpy as np
@@ -19,9 +20,12 @@ class ImageError(RuntimeError):
     """An image (or image folder) cannot be used; the message names the file and the fix."""
 
 
+_DIGIT_RUNS = re.compile(r"(\d+)")
+
+
 def natural_key(name: str) -> list:
     """Sort key under which img2 comes before img10."""
-    return [int(tok) if tok.isdigit() else tok.lower() for tok in re.split(r"(\d+)", name)]
+    return [int(tok) if tok.isdigit() else tok.lower() for tok in _DIGIT_RUNS.split(name)]
 
 
 @dataclass
@@ -35,6 +39,8 @@ class ImageSet:
     # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
     # "content": a BLAKE2b hash of every file's bytes (reads every image once per run).
     fingerprint_mode: str = "stat"
+    # One stat per file per process: every stage's stamp in a run sees the same listing.
+    _stat_digest: str | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -47,13 +53,16 @@ class ImageSet:
         """SHA-256 over names, sizes and modification times (``stat``), or over names and a
         BLAKE2b hash of each file's bytes (``content``)."""
         h = hashlib.sha256()
-        for p in self.paths:
-            if self.fingerprint_mode == "content":
+        if self.fingerprint_mode == "content":
+            for p in self.paths:
                 h.update(f"{p.name}\0{content_hash(p)}\n".encode())
-            else:
-                st = p.stat()
+            return h.hexdigest()
+        if self._stat_digest is None:
+            for p in self.paths:
+                st = os.stat(p)
                 h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
-        return h.hexdigest()
+            self._stat_digest = h.hexdigest()
+        return self._stat_digest
 
 
 def content_hash(path: Path, block: int = 1 << 20) -> str:
@@ -73,16 +82,21 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     spec = str(spec)
     p = Path(spec)
     if p.is_dir():
-        files = [q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTENSIONS]
+        # scandir's entry types come with the listing: no stat per file (is_file stats only links).
+        with os.scandir(p) as entries:
+            names = [e.name for e in entries if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and e.is_file()]
+        files = [p / n for n in sorted(names, key=natural_key)]
     else:
-        files = [Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS]
+        files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS),
+                       key=lambda q: natural_key(q.name))
     if not files:
-        raise ImageError(
-            f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
-            "point reference.images / query.images at a folder of images"
-        )
-    files.sort(key=lambda q: natural_key(q.name))
+        _no_images(spec)
     return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint)
+
+
+def _no_images(spec: str) -> NoReturn:
+    raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
+                     "point reference.images / query.images at a folder of images")
 
 
 def _unreadable(path: str | Path) -> ImageError:

@@ -23,7 +23,7 @@ import shutil
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 
 class ResourceError(ValueError):
@@ -128,7 +128,11 @@ def _count(images: dict[str, Any]) -> int:
     return sum(len(s) for s in images.values())
 
 
-def _decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel: int, why: str) -> list[Need]:
+def _decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel: int, why: str,
+                 stages: Sequence[str]) -> list[Need]:
+    # Only ``extract`` decodes images: a later stage alone must not open every image's header.
+    if "extract" not in stages:
+        return []
     pixels, path = largest_image(images)
     if not pixels:
         return []
@@ -136,36 +140,38 @@ def _decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel
                  "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * _workers(config))]
 
 
-def seqslam_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+def seqslam_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
     p = config["seqslam"]
     w, h = p["thumbnail"]
     n = _count(images)
     per_task = min(int(p["images_per_task"]), max(1, n))
     # A worker holds its chunk's uint8 thumbnails and float32 features (5 bytes a pixel);
     # the artifact stores both (features uncompressed).
-    needs = [Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {_workers(config)} worker(s)",
-                  "seqslam.thumbnail (or seqslam.images_per_task)", memory=5 * w * h * per_task * _workers(config),
-                  disk=5 * w * h * n)]
-    if p.get("store_difference") and "reference" in images:
+    needs = []
+    if "extract" in stages:
+        needs.append(Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {_workers(config)} worker(s)",
+                          "seqslam.thumbnail (or seqslam.images_per_task)",
+                          memory=5 * w * h * per_task * _workers(config), disk=5 * w * h * n))
+    if p.get("store_difference") and "reference" in images and "localize" in stages:
         n_ref = len(images["reference"])
         n_query = len(images["query"]) if "query" in images else n_ref
         # localize.h5 keeps the float32 difference matrix (written block by block).
         needs.append(Need(f"the {n_ref} x {n_query} difference matrix", "seqslam.store_difference: false",
                           disk=4 * n_ref * n_query))
-    return needs + _decode_need(config, images, 8, "decoding")
+    return needs + _decode_need(config, images, 8, "decoding", stages)
 
 
-def pirf_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+def pirf_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
     # SIFT/SURF on one frame: about 240 bytes of scale space per pixel (measured: one
     # 8000x8000 frame took 14.9 GB).
-    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)")
+    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
 
 
-def coembed_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
-    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)")
+def coembed_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
+    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
 
 
-def umap_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
     p = config["umap"]
     g = p["grid"]
     axes = []
@@ -180,7 +186,7 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
     # the database holds one bit per pixel per pose.
     needs = [Need(f"UMap pose grid of {poses:,} poses (x {g['x']}, y {g['y']}, {len(g['headings'])} headings)",
                   "umap.grid (a larger step or a smaller range)", memory=poses * 64, disk=poses * words * 8)]
-    return needs + _decode_need(config, images, 16, "decoding")
+    return needs + _decode_need(config, images, 16, "decoding", stages)
 
 
 # ----------------------------------------------------------------- cross-key rules
@@ -206,7 +212,7 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     return fn(config) if fn else []
 
 
-ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any]], list[Need]]] = {
+ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any], Sequence[str]], list[Need]]] = {
     "seqslam": seqslam_needs,
     "pirf": pirf_needs,
     "coembed": coembed_needs,
@@ -214,14 +220,15 @@ ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any]], list[Need]]] = 
 }
 
 
-def estimate(config: dict[str, Any], images: dict[str, Any]) -> list[Need]:
+def estimate(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
+    """What running ``stages`` (stage names) will need."""
     fn = ESTIMATORS.get(config["method"])
-    return fn(config, images) if fn else []
+    return fn(config, images, stages) if fn else []
 
 
-def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Path) -> list[Need]:
-    """Raise :class:`ResourceError` when an estimate exceeds the memory or disk there is."""
-    needs = estimate(config, images)
+def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Path, stages: Sequence[str]) -> list[Need]:
+    """Raise :class:`ResourceError` when what ``stages`` need exceeds the memory or disk there is."""
+    needs = estimate(config, images, stages)
     mem = memory_limit()
     for need in needs:
         if need.memory > mem:

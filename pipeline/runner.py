@@ -235,7 +235,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 continue
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
-                check_resources(config, images, run_dir)
+                check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
                 executor = make_executor(config["executor"])
             _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)

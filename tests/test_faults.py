@@ -25,6 +25,7 @@ from placeloc.artifacts import DiskFullError, atomic_h5, atomic_open
 from placeloc.config import ConfigError, load_config
 from placeloc.images import ImageError, ImageSet, read_gray
 from placeloc.limits import ResourceError, check_resources, image_size
+from placeloc.methods import STAGES
 from placeloc.runner import RunDirError, image_sets, lock_run_dir, run_all, run_stage
 from typer.testing import CliRunner
 
@@ -362,8 +363,10 @@ def test_huge_frame_is_refused_from_its_header(tmp_path, monkeypatch):
     images = {"reference": ImageSet(str(frames), sorted(frames.iterdir()))}
     t0 = time.perf_counter()
     with pytest.raises(ResourceError, match=r"f3.png \(64.0 megapixels\).*needs about 14.3 GiB of memory; 4.0 GiB"):
-        check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path)
+        check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES)
     assert time.perf_counter() - t0 < 1.0
+    # stages after extract decode no image: their estimate does not read image headers
+    assert check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES[1:]) == []
 
 
 def test_jpeg_header_size():
@@ -381,12 +384,12 @@ def test_umap_grid_step_and_seqslam_thumbnail_are_refused_before_work(route, tmp
     monkeypatch.setenv("PLACELOC_MEMORY_LIMIT_MB", "8192")
     cfg = load_config(route / "config.yaml", ["seqslam.thumbnail=[20000, 20000]"])
     with pytest.raises(ResourceError, match=r"SeqSLAM thumbnails 20000x20000 .* needs about \d+\.\d GiB .*seqslam.thumbnail"):
-        check_resources(cfg, image_sets(cfg), tmp_path)
+        check_resources(cfg, image_sets(cfg), tmp_path, STAGES)
     umap = {"method": "umap", "executor": {"workers": 1},
             "umap": {"camera": {"width": 160, "height": 120},
                      "grid": {"x": [0.0, 90.0, 1e-5], "y": [-1.5, 4.0, 0.2], "headings": [45, 135, 225, 315]}}}
     with pytest.raises(ResourceError, match=r"UMap pose grid of 1,008,000,112 poses .* needs about 60.1 GiB .*umap.grid"):
-        check_resources(umap, {}, tmp_path)
+        check_resources(umap, {}, tmp_path, STAGES)
     # the run itself stops before extract, with rc 2 and one line
     res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "--set", "seqslam.thumbnail=[20000,20000]"],
                PLACELOC_MEMORY_LIMIT_MB="8192")

@@ -57,7 +57,7 @@ def _check(config: dict) -> None:
 
 
 def extract(ctx) -> None:  # noqa: ANN001 - StageContext
-    from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings, take_landmarks
+    from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings_by_cause, take_landmarks
 
     p: CoembedParams = ctx.params
     if p.source == "csv":
@@ -92,9 +92,11 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
     obs.columns_of(ids, "landmark")  # clear error for a landmark id that is unknown or never observed
     if len(ids) < d + 1:
         raise ObservationError(f"a {d}-D map needs at least {d + 1} landmarks; got {len(ids)}")
-    warnings = landmark_warnings(coords[:, :d], d)
-    for w in warnings:
-        log.warning("coembed landmarks: %s", w)
+    by_cause = landmark_warnings_by_cause(coords[:, :d], d)
+    for cause, w in by_cause.items():
+        # The cause lets an experiment that runs many landmark sets show each kind of warning once.
+        log.warning("coembed landmarks: %s", w, extra={"coembed_warning_cause": cause})
+    warnings = list(by_cause.values())
     write_observations(ctx.out.require_group("observations"), obs)
     ctx.out["observations"].attrs["units"] = "normalised image coordinates" if p.intrinsics else "as given"
     g = ctx.out.require_group("landmarks")

@@ -237,6 +237,8 @@ def evaluate(ctx) -> None:  # noqa: ANN001
     write_metrics(ctx.run_dir, metrics, ctx.out)
     if ctx.config.get("plots", True) and est_eval is not None:
         name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
+        if p.solver == "coembed" and p.camera_model != "linear":
+            name += f" ({p.camera_model} camera)"
         title = (f"{name}, top view: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} map units\n"
                  f"({metrics['n_evaluated']} unknown features, {metrics['n_landmarks']} landmarks)")
         plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
@@ -255,7 +257,7 @@ METHOD = Method(
                                           "pinhole_prior", "pinhole_max_iter", "pinhole_tol",
                                           "beta", "poses", "pose_label_every", "isomap_neighbors", "isomap_neighbors_select",
                                           "isomap_neighbors_grid", "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")),
-        "evaluate": Stage(evaluate, keys=("solver", "truth", "poses"), sections=("plots",)),
+        "evaluate": Stage(evaluate, keys=("solver", "camera_model", "truth", "poses"), sections=("plots",)),
     },
     required_images=(),
     checker=_check,

@@ -1,11 +1,13 @@
 """``placeloc experiment coembed``: the paper's simulation (fig. 4) over many seeds, and tears-of-steel.
 
 Runs, for each seed, the ABCD world with both sensors (bearing only, range only) and the
-three methods (co-embedding, Isomap, PCAMD); then the real 2-D tracks of tears-of-steel
-(3-D points, checked against the solved points) when the shared data folder has them:
-the fixed landmark rule and 20 random landmark sets of 10 (seeds 0-19, listed in the
-table), each method with its settings chosen by leave-one-landmark-out cross-validation,
-against two blind references. Leaves ``summary.json`` (run name -> metrics),
+three methods (co-embedding, Isomap, PCAMD); then camera tracks, 2-D image points of 3-D
+points: three synthetic ones with lens distortion (``synth coembed world=camera``, the fixed
+landmark rule and 5 random sets each) and the real tracks of tears-of-steel when the shared
+data folder has them (the fixed rule and 20 random landmark sets of 10, seeds 0-19, listed
+in the table). Five methods on each (co-embedding pinhole / perspective / paper's form,
+Isomap, PCAMD), each with its settings chosen by leave-one-landmark-out cross-validation,
+against two blind references. Landmark warnings are logged once per cause and counted. Leaves ``summary.json`` (run name -> metrics),
 ``aggregate.json`` and ``table.md``.
 """
 

@@ -105,3 +105,15 @@ def test_pinhole_on_tears_of_steel_fixed_rule(tmp_path):
     # The reference points are libmv's own solve of these tracks with this camera model: agreement to millimetres,
     # against 1.13 for the evaluated points' own centroid and 6.55 for PCAMD (docs/coembed.md).
     assert m["n_evaluated"] == 16 and m["map_rmse"] < 0.01
+
+
+def test_calibrated_map_does_not_depend_on_the_map_units(tmp_path):
+    obs, truth = _track(tmp_path)
+    counts = np.bincount(obs.indices, minlength=obs.n_features)
+    cols = obs.columns_of(farthest_point_landmarks(obs.feature_ids, truth, counts, 8), "landmark")
+    linear = coembed_map(obs, cols, truth[cols], alpha=1000.0).X
+    ref = calibrated_map(obs, obs.values, cols, truth[cols], linear, prior=1e-6, max_iter=100, tol=1e-12).X
+    for scale, shift in ((1e-4, 0.0), (1e3, 5e3)):
+        got = calibrated_map(obs, obs.values, cols, truth[cols] * scale + shift, linear * scale + shift, prior=1e-6,
+                             max_iter=100, tol=1e-12).X
+        assert np.abs((got - shift) / scale - ref).max() < 1e-6 * np.ptp(truth)

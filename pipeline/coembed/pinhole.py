@@ -148,7 +148,12 @@ def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.
     rays = unit_rays(normalised)
     is_lm = np.zeros(n, bool)
     is_lm[landmark_cols] = True
-    x = np.array(x_fallback, dtype=np.float64)
+    # Work in coordinates centred on the landmarks and scaled to their RMS spread (OpenCV's PnP has absolute
+    # thresholds), and map back at the end: the result does not depend on the map's origin or units.
+    origin = xstar.mean(axis=0)
+    unit = float(np.sqrt(np.mean(np.sum((xstar - origin) ** 2, axis=1)))) or 1.0
+    xstar = (xstar - origin) / unit
+    x = (np.array(x_fallback, dtype=np.float64) - origin) / unit
     x[landmark_cols] = xstar
     q = np.tile(np.eye(3), (m, 1, 1))
     c = np.zeros((m, 3))
@@ -168,7 +173,9 @@ def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.
     x[~is_lm] = xi[~is_lm]
     x, q, c, costs = reprojection_refine(obs, normalised, landmark_cols, x, q, c, prior=prior, max_iter=max_iter, tol=tol)
     mu = _depths(obs.rows, obs.indices, rays, q, c, x, 0.0)
-    return PinholeResult(X=x, Q=q, C=c, depth=mu, costs=costs, iterations=len(costs) - 1)
+    x = x * unit + origin
+    x[landmark_cols] = np.asarray(landmark_xyz, dtype=np.float64)     # exactly, not up to rounding
+    return PinholeResult(X=x, Q=q, C=c * unit + origin, depth=mu * unit, costs=costs, iterations=len(costs) - 1)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -189,13 +196,18 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
 
 def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols: np.ndarray, x0: np.ndarray, q0: np.ndarray,
                         c0: np.ndarray, *, prior: float, max_iter: int, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
-    """Levenberg-Marquardt on sum q~ |pi(R_t (x_i - C_t)) - u_{t,i}|^2 + prior terms, landmarks held fixed.
+    """Levenberg-Marquardt on sum q~ |v(R_t (x_i - C_t)) - d^_{t,i}|^2 + prior terms, landmarks held fixed.
 
-    pi is the pinhole projection onto normalised coordinates u; R_t = Q_t^T. Each iteration
-    linearises at the current estimate (rotation updates exp([w]) R_t, so the Jacobian is exact
-    at w = 0) and solves the damped normal equations (sparse). The prior
-    ``prior * lambda_max(H_i) |x_i - x0_i|^2`` (H_i the feature's own block of J^T J at the start)
-    only holds points whose rays are nearly parallel.
+    v(p) = p / |p| is the direction in which the camera sees the point and d^ the observed unit
+    direction, so each residual is the chord between the two on the unit sphere: the angle
+    between them (to 1e-7 relative below a milliradian), which the 1/mu^2 weighting
+    approximates and which near the image centre is the reprojection error in normalised
+    coordinates. Unlike the projection u = p[:2] / p[2] it is smooth and bounded
+    for a point behind a camera, so a start with such a point is pulled back instead of stuck.
+    R_t = Q_t^T. Each iteration linearises at the current estimate (rotation updates
+    exp([w]) R_t, so the Jacobian is exact at w = 0) and solves the damped normal equations
+    (sparse). The prior ``prior * lambda_max(H_i) |x_i - x0_i|^2`` (H_i the diagonal of the
+    feature's own block of J^T J at the start) only holds points whose rays are nearly parallel.
     """
     import scipy.sparse as sp
     from scipy.sparse.linalg import spsolve
@@ -203,7 +215,7 @@ def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols
     m, n = obs.n_steps, obs.n_features
     rows, cols = obs.rows, obs.indices
     nnz = obs.nnz
-    u = np.asarray(normalised, dtype=np.float64)
+    d_obs = unit_rays(np.asarray(normalised, dtype=np.float64))
     sw = np.sqrt(1.0 / np.bincount(cols, minlength=n)[cols])
     free = np.ones(n, bool)
     free[np.asarray(landmark_cols, dtype=np.int64)] = False
@@ -214,29 +226,28 @@ def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols
     c = np.asarray(c0, dtype=np.float64).copy()
     x = np.asarray(x0, dtype=np.float64).copy()
     xprior = x.copy()
+    tiny = 1e-12 * max(float(np.ptp(x, axis=0).max()), 1e-300)   # a point on a camera centre: relative to the map's size
 
     def residual(rot: np.ndarray, c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         xc = np.einsum("nab,nb->na", rot[rows], x[cols] - c[rows])
-        z = np.where(xc[:, 2] > 1e-9, xc[:, 2], 1e-9)     # a point behind the camera: a large residual, not a sign flip
-        return sw[:, None] * (xc[:, :2] / z[:, None] - u), xc
+        norm = np.maximum(np.linalg.norm(xc, axis=1), tiny)
+        return sw[:, None] * (xc / norm[:, None] - d_obs), xc
 
     def jacobian(rot: np.ndarray, xc: np.ndarray) -> sp.csr_matrix:
-        z = np.where(xc[:, 2] > 1e-9, xc[:, 2], 1e-9)
-        dp = np.zeros((nnz, 2, 3))
-        dp[:, 0, 0] = dp[:, 1, 1] = 1.0 / z
-        dp[:, 0, 2], dp[:, 1, 2] = -xc[:, 0] / z ** 2, -xc[:, 1] / z ** 2
-        dp *= sw[:, None, None]
+        norm = np.maximum(np.linalg.norm(xc, axis=1), tiny)
+        v = xc / norm[:, None]
+        dp = (np.eye(3)[None] - v[:, :, None] * v[:, None, :]) * (sw / norm)[:, None, None]   # d v / d xc
         j_w = np.einsum("nab,nbc->nac", dp, -_skew(xc))       # d xc / d w = -[xc]_x
         j_x = np.einsum("nab,nbc->nac", dp, rot[rows])        # d xc / d x = R; d xc / d C = -R
-        r_idx = np.repeat(2 * np.arange(nnz)[:, None] + np.arange(2), 3, axis=1).reshape(nnz, 2, 3)
-        parts_r, parts_c, parts_v = [r_idx, r_idx, r_idx[slot[cols] >= 0]], [], [j_w, -j_x, j_x[slot[cols] >= 0]]
-        parts_c.append(np.broadcast_to((3 * rows)[:, None, None] + np.arange(3), (nnz, 2, 3)))
-        parts_c.append(np.broadcast_to((3 * m + 3 * rows)[:, None, None] + np.arange(3), (nnz, 2, 3)))
+        r_idx = np.repeat(3 * np.arange(nnz)[:, None] + np.arange(3), 3, axis=1).reshape(nnz, 3, 3)
         has = slot[cols] >= 0
-        parts_c.append(np.broadcast_to((6 * m + 3 * slot[cols[has]])[:, None, None] + np.arange(3), (int(has.sum()), 2, 3)))
+        parts_r, parts_v = [r_idx, r_idx, r_idx[has]], [j_w, -j_x, j_x[has]]
+        parts_c = [np.broadcast_to((3 * rows)[:, None, None] + np.arange(3), (nnz, 3, 3)),
+                   np.broadcast_to((3 * m + 3 * rows)[:, None, None] + np.arange(3), (nnz, 3, 3)),
+                   np.broadcast_to((6 * m + 3 * slot[cols[has]])[:, None, None] + np.arange(3), (int(has.sum()), 3, 3))]
         return sp.csr_matrix((np.concatenate([p.ravel() for p in parts_v]),
                               (np.concatenate([p.ravel() for p in parts_r]), np.concatenate([p.ravel() for p in parts_c]))),
-                             shape=(2 * nnz, 6 * m + 3 * nf))
+                             shape=(3 * nnz, 6 * m + 3 * nf))
 
     res, xc = residual(rot, c, x)
     jac = jacobian(rot, xc)

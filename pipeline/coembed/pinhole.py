@@ -127,6 +127,14 @@ def _intersect(obs: Observations, rays: np.ndarray, q: np.ndarray, c: np.ndarray
     return np.linalg.solve(a, b[:, :, None])[:, :, 0], seen
 
 
+def _steps_subset(obs: Observations, keep: np.ndarray) -> Observations:
+    """The observation matrix restricted to the steps (rows) in ``keep``; all feature columns kept."""
+    counts = np.diff(obs.indptr)[keep]
+    sel = keep[obs.rows]
+    return Observations(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), obs.indices[sel], obs.values[sel],
+                        obs.step_ids[keep], obs.feature_ids)
+
+
 def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.ndarray, landmark_xyz: np.ndarray,
                    x_fallback: np.ndarray, *, prior: float, max_iter: int, tol: float) -> PinholeResult:
     """The calibrated camera's map: resection from the landmarks, intersection, then :func:`reprojection_refine`.
@@ -162,8 +170,18 @@ def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.
     if not ok.any():
         raise CoembedError("camera_model pinhole: no step sees 4 landmarks, so no camera can be placed from them; "
                            "give more landmarks (or camera_model linear)")
-    xi, seen = _intersect(obs, rays, q, c, ok[obs.rows], x, prior)
-    x[~is_lm & seen] = xi[~is_lm & seen]
+    # Grow from the landmarks: intersect the points the placed frames see, then place the frames that see four or
+    # more landmarks or placed points, and repeat. Only then may a frame use the fallback map.
+    trusted = is_lm.copy()
+    for _ in range(m):
+        xi, seen = _intersect(obs, rays, q, c, ok[obs.rows], x, prior)
+        fresh = ~is_lm & seen
+        x[fresh] = xi[fresh]
+        trusted |= fresh
+        before = int(ok.sum())
+        _resect(obs, normalised, x, trusted, np.flatnonzero(~ok), q, c, ok)
+        if ok.sum() == before:
+            break
     _resect(obs, normalised, x, np.ones(n, bool), np.flatnonzero(~ok), q, c, ok)
     if not ok.all():
         good = np.flatnonzero(ok)
@@ -171,7 +189,24 @@ def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.
         q, c = q[near], c[near]
     xi, _ = _intersect(obs, rays, q, c, np.ones(obs.nnz, bool), x, prior)
     x[~is_lm] = xi[~is_lm]
-    x, q, c, costs = reprojection_refine(obs, normalised, landmark_cols, x, q, c, prior=prior, max_iter=max_iter, tol=tol)
+    behind = _depths(obs.rows, obs.indices, rays, q, c, x, -np.inf) <= 0
+    bad = np.bincount(obs.rows[behind], minlength=m) > 0
+    if bad.any() and not bad.all():
+        # A frame that has points it saw behind it has a wrong pose (a PnP on estimated points gone astray): it takes
+        # the nearest good frame's pose, and the points are intersected again.
+        good = np.flatnonzero(~bad)
+        near = good[np.argmin(np.abs(np.arange(m)[:, None] - good[None, :]), axis=1)]
+        q, c = q[near], c[near]
+        xi, _ = _intersect(obs, rays, q, c, np.ones(obs.nnz, bool), x, prior)
+        x[~is_lm] = xi[~is_lm]
+    costs: list[float] = []
+    if np.any(_depths(obs.rows, obs.indices, rays, q, c, x, -np.inf) <= 0):
+        # A point behind a camera it was seen by: the reprojection error cannot move it (see reprojection_refine),
+        # so the chord residual first brings the start in front of the cameras.
+        x, q, c, costs = reprojection_refine(obs, normalised, landmark_cols, x, q, c, prior=0.0, max_iter=max_iter, tol=tol,
+                                             residual_kind="chord")
+    x, q, c, more = reprojection_refine(obs, normalised, landmark_cols, x, q, c, prior=0.0, max_iter=max_iter, tol=tol)
+    costs += more
     mu = _depths(obs.rows, obs.indices, rays, q, c, x, 0.0)
     x = x * unit + origin
     x[landmark_cols] = np.asarray(landmark_xyz, dtype=np.float64)     # exactly, not up to rounding
@@ -195,16 +230,18 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
 
 
 def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols: np.ndarray, x0: np.ndarray, q0: np.ndarray,
-                        c0: np.ndarray, *, prior: float, max_iter: int, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
-    """Levenberg-Marquardt on sum q~ |v(R_t (x_i - C_t)) - d^_{t,i}|^2 + prior terms, landmarks held fixed.
+                        c0: np.ndarray, *, prior: float, max_iter: int, tol: float,
+                        residual_kind: str = "projection") -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
+    """Levenberg-Marquardt on the calibrated camera's residuals plus prior terms, landmarks held fixed.
 
-    v(p) = p / |p| is the direction in which the camera sees the point and d^ the observed unit
-    direction, so each residual is the chord between the two on the unit sphere: the angle
-    between them (to 1e-7 relative below a milliradian), which the 1/mu^2 weighting
-    approximates and which near the image centre is the reprojection error in normalised
-    coordinates. Unlike the projection u = p[:2] / p[2] it is smooth and bounded
-    for a point behind a camera, so a start with such a point is pulled back instead of stuck.
-    R_t = Q_t^T. Each iteration linearises at the current estimate (rotation updates
+    ``residual_kind`` projection: sum q~ |pi(R_t (x_i - C_t)) - u_{t,i}|^2, pi(p) = p[:2] / p[2], the
+    reprojection error in normalised coordinates (the maximum-likelihood cost); a point behind
+    a camera is clamped to a tiny depth (a huge residual with no useful gradient, so a start
+    with one stays stuck). chord: sum q~ |v(R_t (x_i - C_t)) - d^_{t,i}|^2 with v(p) = p / |p|, the
+    chord between seen and observed direction on the unit sphere (the angle, to 1e-7 relative
+    below a milliradian): smooth and bounded behind a camera, so it pulls such a point back,
+    but bounded also means a point may settle behind a camera or too near, which is why
+    :func:`calibrated_map` uses it only to repair a start. R_t = Q_t^T. Each iteration linearises at the current estimate (rotation updates
     exp([w]) R_t, so the Jacobian is exact at w = 0) and solves the damped normal equations
     (sparse). The prior ``prior * lambda_max(H_i) |x_i - x0_i|^2`` (H_i the diagonal of the
     feature's own block of J^T J at the start) only holds points whose rays are nearly parallel.
@@ -215,7 +252,8 @@ def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols
     m, n = obs.n_steps, obs.n_features
     rows, cols = obs.rows, obs.indices
     nnz = obs.nnz
-    d_obs = unit_rays(np.asarray(normalised, dtype=np.float64))
+    u = np.asarray(normalised, dtype=np.float64)
+    d_obs = unit_rays(u)
     sw = np.sqrt(1.0 / np.bincount(cols, minlength=n)[cols])
     free = np.ones(n, bool)
     free[np.asarray(landmark_cols, dtype=np.int64)] = False
@@ -226,14 +264,16 @@ def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols
     c = np.asarray(c0, dtype=np.float64).copy()
     x = np.asarray(x0, dtype=np.float64).copy()
     xprior = x.copy()
-    tiny = 1e-12 * max(float(np.ptp(x, axis=0).max()), 1e-300)   # a point on a camera centre: relative to the map's size
+    # A point on a camera centre (chord), or behind one (projection: clamped to this depth): relative to the map's size.
+    tiny = 1e-12 * max(float(np.ptp(x, axis=0).max()), 1e-300)
+    z_floor = 1e3 * tiny
 
-    def residual(rot: np.ndarray, c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def chord_residual(rot: np.ndarray, c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         xc = np.einsum("nab,nb->na", rot[rows], x[cols] - c[rows])
         norm = np.maximum(np.linalg.norm(xc, axis=1), tiny)
         return sw[:, None] * (xc / norm[:, None] - d_obs), xc
 
-    def jacobian(rot: np.ndarray, xc: np.ndarray) -> sp.csr_matrix:
+    def chord_jacobian(rot: np.ndarray, xc: np.ndarray) -> sp.csr_matrix:
         norm = np.maximum(np.linalg.norm(xc, axis=1), tiny)
         v = xc / norm[:, None]
         dp = (np.eye(3)[None] - v[:, :, None] * v[:, None, :]) * (sw / norm)[:, None, None]   # d v / d xc
@@ -248,6 +288,34 @@ def reprojection_refine(obs: Observations, normalised: np.ndarray, landmark_cols
         return sp.csr_matrix((np.concatenate([p.ravel() for p in parts_v]),
                               (np.concatenate([p.ravel() for p in parts_r]), np.concatenate([p.ravel() for p in parts_c]))),
                              shape=(3 * nnz, 6 * m + 3 * nf))
+
+    def projection_residual(rot: np.ndarray, c: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        xc = np.einsum("nab,nb->na", rot[rows], x[cols] - c[rows])
+        z = np.where(xc[:, 2] > z_floor, xc[:, 2], z_floor)     # a point behind the camera: a large residual, not a sign flip
+        return sw[:, None] * (xc[:, :2] / z[:, None] - u), xc
+
+    def projection_jacobian(rot: np.ndarray, xc: np.ndarray) -> sp.csr_matrix:
+        z = np.where(xc[:, 2] > z_floor, xc[:, 2], z_floor)
+        dp = np.zeros((nnz, 2, 3))
+        dp[:, 0, 0] = dp[:, 1, 1] = 1.0 / z
+        dp[:, 0, 2], dp[:, 1, 2] = -xc[:, 0] / z ** 2, -xc[:, 1] / z ** 2
+        dp *= sw[:, None, None]
+        j_w = np.einsum("nab,nbc->nac", dp, -_skew(xc))       # d xc / d w = -[xc]_x
+        j_x = np.einsum("nab,nbc->nac", dp, rot[rows])        # d xc / d x = R; d xc / d C = -R
+        r_idx = np.repeat(2 * np.arange(nnz)[:, None] + np.arange(2), 3, axis=1).reshape(nnz, 2, 3)
+        parts_r, parts_c, parts_v = [r_idx, r_idx, r_idx[slot[cols] >= 0]], [], [j_w, -j_x, j_x[slot[cols] >= 0]]
+        parts_c.append(np.broadcast_to((3 * rows)[:, None, None] + np.arange(3), (nnz, 2, 3)))
+        parts_c.append(np.broadcast_to((3 * m + 3 * rows)[:, None, None] + np.arange(3), (nnz, 2, 3)))
+        has = slot[cols] >= 0
+        parts_c.append(np.broadcast_to((6 * m + 3 * slot[cols[has]])[:, None, None] + np.arange(3), (int(has.sum()), 2, 3)))
+        return sp.csr_matrix((np.concatenate([p.ravel() for p in parts_v]),
+                              (np.concatenate([p.ravel() for p in parts_r]), np.concatenate([p.ravel() for p in parts_c]))),
+                             shape=(2 * nnz, 6 * m + 3 * nf))
+
+    if residual_kind not in ("projection", "chord"):
+        raise CoembedError(f"residual_kind must be projection or chord, got {residual_kind!r}")
+    residual, jacobian = ((projection_residual, projection_jacobian) if residual_kind == "projection"
+                          else (chord_residual, chord_jacobian))
 
     res, xc = residual(rot, c, x)
     jac = jacobian(rot, xc)

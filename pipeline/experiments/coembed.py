@@ -2,7 +2,7 @@
 
 Runs, for each seed, the ABCD world with both sensors (bearing only, range only) and the
 three methods (co-embedding, Isomap, PCAMD); then camera tracks, 2-D image points of 3-D
-points: three synthetic ones with lens distortion (``synth coembed world=camera``, the fixed
+points: six synthetic ones with lens distortion (``synth coembed world=camera``, the fixed
 landmark rule and 5 random sets each) and the real tracks of tears-of-steel when the shared
 data folder has them (the fixed rule and 20 random landmark sets of 10, seeds 0-19, listed
 in the table). Five methods on each (co-embedding pinhole / perspective / paper's form,
@@ -38,7 +38,7 @@ TEARS_METHODS = {
     "pcamd": {"solver": "pcamd", "pcamd_rank": 4},
 }
 TEARS_LANDMARK_COUNT = 10
-CAMERA_SEEDS = (0, 1, 2)   # the synthetic perspective camera tracks (synth coembed world=camera), a check with a known answer
+CAMERA_SEEDS = (0, 1, 2, 3, 4, 5)   # synthetic perspective camera tracks (synth coembed world=camera), a known answer
 
 
 class _OncePerCause(logging.Filter):

@@ -25,19 +25,24 @@ the calibrated camera's maximum-likelihood fit under Gaussian image noise with t
 landmarks as control points (bundle adjustment with control points). The cost is not convex
 (rotations; depth times rotation), so the start matters, and resection-intersection
 alternation on Phi converged too slowly to use (after 300 rounds from the true map the cost
-was still 16x the truth's). What is done (:func:`calibrated_map`):
+was still 16x the truth's). What is done (:func:`calibrated_map`), in coordinates centred on
+the landmarks and scaled to their spread (OpenCV's PnP has absolute thresholds):
 
 1. every step that sees at least four landmarks gets its pose from them alone (SQPnP,
    Terzakis and Lourakis, ECCV 2020, then Levenberg-Marquardt on the reprojection error):
    their positions are exact, so these poses do not depend on any estimate;
-2. every other feature: least-squares intersection of its rays from those steps, with a
+2. grow: intersect every feature the placed steps see (least squares over its rays, with a
    prior ``prior * lambda_max |x - x0|^2`` toward x0, the landmark-constrained linear
-   co-embedding map, which matters only where the rays are nearly parallel (directions with
-   under ``prior`` of the best-determined direction's information) or absent;
-3. the other steps: PnP on every feature they see; one that sees fewer than four takes the
-   nearest step's pose;
-4. intersection from all steps, then Levenberg-Marquardt on Phi_ang plus the same prior
-   (:func:`reprojection_refine`; sparse exact Jacobian, rotations updated multiplicatively).
+   co-embedding map, which matters only where the rays are nearly parallel or absent), place
+   every step that sees four or more landmarks or placed features, repeat; steps still
+   unplaced use every feature they see (fewer than four: the nearest step's pose);
+   intersect again from all steps;
+3. a step with features it saw behind it has a wrong pose and takes the nearest good step's
+   pose; a feature still behind a camera is brought in front by Levenberg-Marquardt on the
+   unit-sphere chord residual (bounded and smooth behind a camera);
+4. Levenberg-Marquardt on Phi_ang (:func:`reprojection_refine`; sparse exact Jacobian,
+   rotations updated multiplicatively), with no prior: there it held far points near their
+   start.
 
 So this is no longer dimensionality reduction: the paper's closed form only supplies the
 fallback x0 and the landmark constraint; what places the points is the camera model.
@@ -137,14 +142,7 @@ def _steps_subset(obs: Observations, keep: np.ndarray) -> Observations:
 
 def calibrated_map(obs: Observations, normalised: np.ndarray, landmark_cols: np.ndarray, landmark_xyz: np.ndarray,
                    x_fallback: np.ndarray, *, prior: float, max_iter: int, tol: float) -> PinholeResult:
-    """The calibrated camera's map: resection from the landmarks, intersection, then :func:`reprojection_refine`.
-
-    1. every step that sees at least 4 landmarks: its pose by PnP on them alone (their positions are known exactly);
-    2. every other feature: intersection of its rays from those steps (prior toward ``x_fallback``, the
-       landmark-constrained linear co-embedding map, where the rays are nearly parallel or absent);
-    3. the remaining steps: PnP on every feature they see; a step with fewer than 4 takes the nearest step's pose;
-    4. intersection again from all steps, then Levenberg-Marquardt on the reprojection error.
-    """
+    """The calibrated camera's map from the landmarks and the linear map ``x_fallback`` (steps 1-4 of the module docstring)."""
     normalised = np.asarray(normalised, dtype=np.float64)
     if normalised.ndim != 2 or normalised.shape[1] != 2:
         raise CoembedError("camera_model pinhole needs 2-D image points per sighting (normalised by the intrinsics)")

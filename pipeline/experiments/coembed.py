@@ -131,7 +131,7 @@ def _main(out_dir: Path, quick: bool, quiet: bool, once: _OncePerCause) -> Path:
         world = out_dir / "data" / f"camera-seed{seed}"
         generate("coembed", world, seed=seed, world="camera")
         lines += tears_table(world, out_dir, runs, agg, n_random=3 if quick else 5, quiet=quiet, name=f"camera{seed}",
-                             title=f"synthetic camera track, seed {seed} (synth coembed world=camera: radial distortion, 0.7 px noise)")
+                             title=f"synthetic camera track, seed {seed}, synth coembed world=camera: radial distortion, 0.7 px noise")
     root = shared_data_dir()
     tears = root / "tears-of-steel" if root is not None else None
     if tears is not None and (tears / "markers.csv").is_file():

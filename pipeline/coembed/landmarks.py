@@ -41,7 +41,12 @@ def farthest_point_landmarks(ids: np.ndarray, coords: np.ndarray, sightings: np.
 
 
 def landmark_warnings(coords: np.ndarray, dim: int) -> list[str]:
-    """Plain-language warnings for landmark sets that leave the map poorly fixed.
+    """Plain-language warnings for landmark sets that leave the map poorly fixed (see :func:`landmark_warnings_by_cause`)."""
+    return list(landmark_warnings_by_cause(coords, dim).values())
+
+
+def landmark_warnings_by_cause(coords: np.ndarray, dim: int) -> dict[str, str]:
+    """The warnings keyed by their cause (``too-few``, ``clustered``), so that a caller running many sets can report each once.
 
     - fewer than 2 (dim + 1): one bad landmark already decides the frame, and leave-one-out
       cross-validation has little to go on;
@@ -49,15 +54,15 @@ def landmark_warnings(coords: np.ndarray, dim: int) -> list[str]:
       widest (nearly on a line or plane), so the map is extrapolated across that direction.
     """
     coords = np.asarray(coords, dtype=np.float64)[:, :dim]
-    out = []
+    out: dict[str, str] = {}
     n = len(coords)
     if n < 2 * (dim + 1):
-        out.append(f"only {n} landmarks for a {dim}-D map: {dim + 1} fix the frame exactly and nothing is left to check it; "
-                   f"give at least {2 * (dim + 1)}")
+        out["too-few"] = (f"only {n} landmarks for a {dim}-D map: {dim + 1} fix the frame exactly and nothing is left to check it; "
+                          f"give at least {2 * (dim + 1)}")
     if n >= 2:
         sv = np.linalg.svd(coords - coords.mean(axis=0), compute_uv=False)
         if sv[0] > 0 and (len(sv) < dim or sv[dim - 1] < 0.05 * sv[0]):
             ratio = 0.0 if len(sv) < dim else sv[dim - 1] / sv[0]
-            out.append(f"the landmarks are clustered: their thinnest spread is {ratio:.1%} of their widest, so points away "
-                       "from that line/plane are extrapolated; add landmarks spread in every direction")
+            out["clustered"] = (f"the landmarks are clustered: their thinnest spread is {ratio:.1%} of their widest, so points away "
+                                "from that line/plane are extrapolated; add landmarks spread in every direction")
     return out

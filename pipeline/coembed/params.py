@@ -24,10 +24,15 @@ class CoembedParams(Params):
                                                "sampling on the known positions, starting from the most-seen")
     intrinsics: str | None = param(None, path=True, help="CSV f,cx,cy[,k1,k2,k3,p1,p2]: undistort and use normalised image "
                                                          "coordinates (needs image_values xy or two-value CSV sightings)")
-    camera_model: str = param("linear", choices=("linear", "perspective"),
+    camera_model: str = param("linear", choices=("linear", "perspective", "pinhole"),
                               help="linear: the paper's model on the sightings as given; perspective: on depth-scaled "
-                                   "directions (needs intrinsics), depths re-estimated in turn")
+                                   "directions (needs intrinsics), depths re-estimated in turn; pinhole: each step's map "
+                                   "held to a calibrated camera pose (needs intrinsics, dim 3), fitted by reprojection error")
     perspective_iterations: int = param(5, min=0, help="depth re-estimation rounds for camera_model perspective")
+    pinhole_prior: float = param(1e-6, min=0.0, help="camera_model pinhole: weight (relative to the point's best-determined "
+                                                     "direction) pulling points with nearly parallel rays toward the linear map")
+    pinhole_max_iter: int = param(100, min=0, help="camera_model pinhole: Levenberg-Marquardt iterations at most")
+    pinhole_tol: float = param(1e-10, min=0.0, help="camera_model pinhole: stop when the relative cost decrease falls below this")
     dim: int = param(2, choices=(2, 3), help="map dimension d")
     solver: str = param("coembed", choices=("coembed", "isomap", "pcamd"), help="mapper")
     alpha: float = param(1000.0, min=0.0, min_exclusive=True, help="landmark weight in the co-embedding cost (alpha_select fixed)")

@@ -47,15 +47,17 @@ def _check(config: dict) -> None:
         raise ConfigError("coembed.landmarks is missing: co-embedding and the baselines' alignment need known feature positions")
     if p["pose_label_every"] > 0 and p["poses"] is None:
         raise ConfigError("coembed.pose_label_every > 0 needs coembed.poses (CSV t,x,y[,heading])")
-    if p["camera_model"] == "perspective" and p["intrinsics"] is None:
-        raise ConfigError("coembed.camera_model perspective needs coembed.intrinsics (CSV f,cx,cy[,k1,k2,k3,p1,p2]) "
+    if p["camera_model"] == "pinhole" and p["dim"] != 3:
+        raise ConfigError("coembed.camera_model pinhole maps image points to a 3-D map: set coembed.dim: 3 (or camera_model linear)")
+    if p["camera_model"] in ("perspective", "pinhole") and p["intrinsics"] is None:
+        raise ConfigError(f"coembed.camera_model {p['camera_model']} needs coembed.intrinsics (CSV f,cx,cy[,k1,k2,k3,p1,p2]) "
                           "to turn pixels into directions; or set camera_model: linear")
     if p["landmark_count"] and p["landmark_count"] < p["dim"] + 1:
         raise ConfigError(f"coembed.landmark_count must be 0 or at least dim + 1 = {p['dim'] + 1}")
 
 
 def extract(ctx) -> None:  # noqa: ANN001 - StageContext
-    from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings, take_landmarks
+    from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings_by_cause, take_landmarks
 
     p: CoembedParams = ctx.params
     if p.source == "csv":
@@ -90,9 +92,11 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
     obs.columns_of(ids, "landmark")  # clear error for a landmark id that is unknown or never observed
     if len(ids) < d + 1:
         raise ObservationError(f"a {d}-D map needs at least {d + 1} landmarks; got {len(ids)}")
-    warnings = landmark_warnings(coords[:, :d], d)
-    for w in warnings:
-        log.warning("coembed landmarks: %s", w)
+    by_cause = landmark_warnings_by_cause(coords[:, :d], d)
+    for cause, w in by_cause.items():
+        # The cause lets an experiment that runs many landmark sets show each kind of warning once.
+        log.warning("coembed landmarks: %s", w, extra={"coembed_warning_cause": cause})
+    warnings = list(by_cause.values())
     write_observations(ctx.out.require_group("observations"), obs)
     ctx.out["observations"].attrs["units"] = "normalised image coordinates" if p.intrinsics else "as given"
     g = ctx.out.require_group("landmarks")
@@ -137,6 +141,20 @@ def localize(ctx) -> None:  # noqa: ANN001
             info["alpha"] = alpha_for(obs)
             res = coembed_map(obs, lcols, lxyz, alpha=info["alpha"])
         coords = res.X
+        if p.camera_model == "pinhole":
+            from placeloc.coembed.pinhole import calibrated_map
+
+            # The linear map (above) is the fallback for points whose rays are nearly parallel; the path
+            # read-out below keeps using its transforms.
+            cam = calibrated_map(obs, obs.values, lcols, lxyz, res.X, prior=p.pinhole_prior, max_iter=p.pinhole_max_iter,
+                                 tol=p.pinhole_tol)
+            coords = cam.X
+            g = ctx.out.require_group("cameras")
+            g.create_dataset("rotation", data=np.transpose(cam.Q, (0, 2, 1)))   # world-to-camera R_t, x_cam = R_t (x - C_t)
+            g.create_dataset("centre", data=cam.C)
+            g.create_dataset("depth", data=cam.depth)
+            info["pinhole_iterations"] = cam.iterations
+            info["pinhole_cost"] = cam.costs[-1]
         ctx.out.create_dataset("transforms", data=res.T)
         if p.pose_label_every:
             steps, xy, heading = poses_by_step(p.poses)
@@ -195,7 +213,7 @@ def evaluate(ctx) -> None:  # noqa: ANN001
                      "n_steps": int(art["observations/step_ids"].shape[0]), "fill": float(art["observations"].attrs["fill"]),
                      "map_rmse": None, "map_max_error": None, "path_rmse": None,
                      "solve_seconds": float(loc["map"].attrs["solve_seconds"])}
-    for k in ("pcamd_iterations", "pcamd_converged", "alpha", "isomap_neighbors"):
+    for k in ("pcamd_iterations", "pcamd_converged", "alpha", "isomap_neighbors", "pinhole_iterations"):
         if k in loc["map"].attrs:
             v = loc["map"].attrs[k]
             metrics[k] = v.item() if hasattr(v, "item") else v
@@ -219,6 +237,8 @@ def evaluate(ctx) -> None:  # noqa: ANN001
     write_metrics(ctx.run_dir, metrics, ctx.out)
     if ctx.config.get("plots", True) and est_eval is not None:
         name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
+        if p.solver == "coembed" and p.camera_model != "linear":
+            name += f" ({p.camera_model} camera)"
         title = (f"{name}, top view: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} map units\n"
                  f"({metrics['n_evaluated']} unknown features, {metrics['n_landmarks']} landmarks)")
         plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
@@ -234,9 +254,10 @@ METHOD = Method(
         "extract": Stage(extract, keys=EXTRACT_KEYS),
         # The parent stamp carries extract's keys; localize adds only what its solvers read.
         "localize": Stage(localize, keys=("solver", "alpha", "alpha_select", "alpha_grid", "camera_model", "perspective_iterations",
+                                          "pinhole_prior", "pinhole_max_iter", "pinhole_tol",
                                           "beta", "poses", "pose_label_every", "isomap_neighbors", "isomap_neighbors_select",
                                           "isomap_neighbors_grid", "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")),
-        "evaluate": Stage(evaluate, keys=("solver", "truth", "poses"), sections=("plots",)),
+        "evaluate": Stage(evaluate, keys=("solver", "camera_model", "truth", "poses"), sections=("plots",)),
     },
     required_images=(),
     checker=_check,

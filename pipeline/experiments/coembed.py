@@ -1,11 +1,13 @@
 """``placeloc experiment coembed``: the paper's simulation (fig. 4) over many seeds, and tears-of-steel.
 
 Runs, for each seed, the ABCD world with both sensors (bearing only, range only) and the
-three methods (co-embedding, Isomap, PCAMD); then the real 2-D tracks of tears-of-steel
-(3-D points, checked against the solved points) when the shared data folder has them:
-the fixed landmark rule and 20 random landmark sets of 10 (seeds 0-19, listed in the
-table), each method with its settings chosen by leave-one-landmark-out cross-validation,
-against two blind references. Leaves ``summary.json`` (run name -> metrics),
+three methods (co-embedding, Isomap, PCAMD); then camera tracks, 2-D image points of 3-D
+points: six synthetic ones with lens distortion (``synth coembed world=camera``, the fixed
+landmark rule and 5 random sets each) and the real tracks of tears-of-steel when the shared
+data folder has them (the fixed rule and 20 random landmark sets of 10, seeds 0-19, listed
+in the table). Five methods on each (co-embedding pinhole / perspective / paper's form,
+Isomap, PCAMD), each with its settings chosen by leave-one-landmark-out cross-validation,
+against two blind references. Landmark warnings are logged once per cause and counted. Leaves ``summary.json`` (run name -> metrics),
 ``aggregate.json`` and ``table.md``.
 """
 
@@ -29,12 +31,32 @@ SOLVERS = ("coembed", "isomap", "pcamd")
 SENSORS = ("bearing", "range")
 # Real tracks: every method with its free settings chosen by leave-one-landmark-out cross-validation.
 TEARS_METHODS = {
+    "coembed-pinhole": {"solver": "coembed", "camera_model": "pinhole", "alpha_select": "loo"},
     "coembed-perspective": {"solver": "coembed", "camera_model": "perspective", "alpha_select": "loo"},
     "coembed-paper": {"solver": "coembed", "camera_model": "linear", "alpha_select": "loo", "intrinsics": None},
     "isomap": {"solver": "isomap", "isomap_neighbors_select": "loo"},
     "pcamd": {"solver": "pcamd", "pcamd_rank": 4},
 }
 TEARS_LANDMARK_COUNT = 10
+CAMERA_SEEDS = (0, 1, 2, 3, 4, 5)   # synthetic perspective camera tracks (synth coembed world=camera), a known answer
+
+
+class _OncePerCause(logging.Filter):
+    """Lets through the first landmark warning of each cause and counts the rest (one experiment runs many landmark sets)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.counts: dict[str, int] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        cause = getattr(record, "coembed_warning_cause", None)
+        if cause is None:
+            return True
+        self.counts[cause] = self.counts.get(cause, 0) + 1
+        if self.counts[cause] == 1:
+            record.msg = f"{record.msg} (shown once; the experiment counts the runs it applies to)"
+            return True
+        return False
 PAPER = "co-embedding has the smallest map error for both sensors (fig. 4; no numbers given)"
 
 
@@ -63,7 +85,15 @@ def _fmt(s: dict) -> str:
 
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
-    out_dir = Path(out_dir)
+    once = _OncePerCause()
+    log.addFilter(once)
+    try:
+        return _main(Path(out_dir), quick, quiet, once)
+    finally:
+        log.removeFilter(once)
+
+
+def _main(out_dir: Path, quick: bool, quiet: bool, once: _OncePerCause) -> Path:
     seeds = range(2) if quick else range(10)
     steps = 800 if quick else 2000
     runs: dict[str, dict[str, Any]] = {}
@@ -97,12 +127,19 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
             path = _fmt(st["path_rmse"]) if st["path_rmse"]["n"] else "-"
             lines.append(f"| {sensor} | {solver} | {_fmt(st['map_rmse'])} | {_fmt(st['map_max_error'])} | {path} | "
                          f"{best[solver]}/{len(seeds)} | {failed} |")
+    for seed in CAMERA_SEEDS[:1] if quick else CAMERA_SEEDS:
+        world = out_dir / "data" / f"camera-seed{seed}"
+        generate("coembed", world, seed=seed, world="camera")
+        lines += tears_table(world, out_dir, runs, agg, n_random=3 if quick else 5, quiet=quiet, name=f"camera{seed}",
+                             title=f"synthetic camera track, seed {seed}, synth coembed world=camera: radial distortion, 0.7 px noise")
     root = shared_data_dir()
     tears = root / "tears-of-steel" if root is not None else None
     if tears is not None and (tears / "markers.csv").is_file():
         lines += tears_table(tears, out_dir, runs, agg, n_random=5 if quick else 20, quiet=quiet)
     else:
         lines += ["", "tears-of-steel: ../shared/data/tears-of-steel absent, skipped."]
+    if once.counts:
+        lines += ["", "Landmark warnings (each logged once): " + "; ".join(f"{c}: {k} runs" for c, k in sorted(once.counts.items()))]
     write_summary(out_dir, runs)
     (out_dir / "aggregate.json").write_text(json.dumps(agg, indent=2, sort_keys=True))
     (out_dir / "table.md").write_text("\n".join(lines) + "\n")
@@ -128,8 +165,10 @@ def _blind(points: np.ndarray, lm: list[int]) -> tuple[float, float]:
     return rmse(known.mean(axis=0)), rmse(rest.mean(axis=0))
 
 
-def tears_table(tears: Path, out_dir: Path, runs: dict, agg: dict, n_random: int, quiet: bool) -> list[str]:
-    """Map RMSE on tears-of-steel problem 01 over the fixed landmark rule and ``n_random`` random sets."""
+def tears_table(tears: Path, out_dir: Path, runs: dict, agg: dict, n_random: int, quiet: bool, name: str = "tears",
+                title: str = "tears-of-steel problem 01") -> list[str]:
+    """Map RMSE on a camera track (tears-of-steel problem 01, or a synthetic one in the same layout) over the fixed
+    landmark rule and ``n_random`` random sets."""
     points = np.loadtxt(tears / "points.csv", delimiter=",", skiprows=1)
     sets: dict[str, dict] = {"fixed-rule": {"landmark_count": TEARS_LANDMARK_COUNT}}
     for i, lm in enumerate(random_landmark_sets(points[:, 0].astype(int), n_random, TEARS_LANDMARK_COUNT)):
@@ -142,22 +181,24 @@ def tears_table(tears: Path, out_dir: Path, runs: dict, agg: dict, n_random: int
             section = {"observations": str(tears / "markers.csv"), "landmarks": str(tears / "points.csv"),
                        "truth": str(tears / "points.csv"), "intrinsics": str(tears / "intrinsics.csv"), "dim": 3,
                        **lm_cfg, **settings}
-            name = f"tears-{set_name}-{label}"
+            run_name = f"{name}-{set_name}-{label}"
             plots = set_name == "fixed-rule"
-            m = _run(load_config(data={"method": "coembed", "plots": plots, "coembed": section}), out_dir / name, quiet)
-            runs[name] = m
+            m = _run(load_config(data={"method": "coembed", "plots": plots, "coembed": section}), out_dir / run_name, quiet)
+            runs[run_name] = m
             per[set_name][label] = m.get("map_rmse")
-            if label == "coembed-perspective":
-                lm_used = _landmarks_of(out_dir / name, lm_cfg)
+            if label == next(iter(TEARS_METHODS)):
+                lm_used = _landmarks_of(out_dir / run_name, lm_cfg)
                 per[set_name]["landmarks"] = lm_used  # type: ignore[assignment]
             write_summary(out_dir, runs)
         lm_used = per[set_name]["landmarks"] or []
         per[set_name]["blind-landmarks"], per[set_name]["blind-evaluated"] = _blind(points, lm_used) if lm_used else (None, None)
-        log.info("tears %s: %s", set_name, {k: v for k, v in per[set_name].items() if k != "landmarks"})
+        log.info("%s %s: %s", name, set_name, {k: v for k, v in per[set_name].items() if k != "landmarks"})
     rand = [k for k in sets if k != "fixed-rule"]
-    lines = ["", f"## tears-of-steel problem 01 (333 frames x 26 tracks, 2-D sightings -> 3-D points; {TEARS_LANDMARK_COUNT} landmarks)",
-             "", f"Map RMSE (m) over the 16 non-landmark points. Random sets: median [min, max] over {len(rand)} sets; "
-             "'best' counts the sets on which that method had the lowest RMSE of the four methods.", "",
+    n_tracks = len(points)
+    lines = ["", f"## {title} ({n_tracks} tracks, 2-D sightings -> 3-D points; {TEARS_LANDMARK_COUNT} landmarks)",
+             "", f"Map RMSE (m) over the {n_tracks - TEARS_LANDMARK_COUNT} non-landmark points. "
+             f"Random sets: median [min, max] over {len(rand)} sets; "
+             f"'best' counts the sets on which that method had the lowest RMSE of the {len(TEARS_METHODS)} methods.", "",
              "| method | fixed rule | random sets: median [range] | best on |", "|---|---|---|---|"]
     wins = {c: 0 for c in TEARS_METHODS}
     for k in rand:
@@ -170,7 +211,7 @@ def tears_table(tears: Path, out_dir: Path, runs: dict, agg: dict, n_random: int
         cell = f"{np.median(v):.2f} [{v.min():.2f}, {v.max():.2f}]" if len(v) else "failed"
         best = f"{wins[c]}/{len(rand)}" if c in wins else "-"
         lines.append(f"| {c} | {'failed' if fixed is None else f'{fixed:.2f}'} | {cell} | {best} |")
-        agg[f"tears-{c}"] = {"fixed_rule": fixed, "median": float(np.median(v)) if len(v) else None,
+        agg[f"{name}-{c}"] = {"fixed_rule": fixed, "median": float(np.median(v)) if len(v) else None,
                              "min": float(v.min()) if len(v) else None, "max": float(v.max()) if len(v) else None,
                              "n": int(len(v)), "best_on_sets": wins.get(c)}
     lines += ["", "Per landmark set (map RMSE, m):", "", "| set | landmarks | " + " | ".join(cols) + " |",

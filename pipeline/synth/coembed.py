@@ -123,7 +123,17 @@ def _write_csv(path: Path, header: str, cols: list[np.ndarray], fmts: list[str])
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt=fmts)
 
 
-def generate(out_dir: Path, seed: int = 0, steps: int = 2000, n_features: int = 200, n_letter: int = 100, n_landmarks: int = 11,
+def generate(out_dir: Path, seed: int = 0, world: str = "abcd", **params: Any) -> dict[str, Any]:
+    """``world`` abcd: the paper's simulated world (:func:`generate_abcd`); camera: a perspective camera track
+    with lens distortion (:func:`generate_camera`)."""
+    if world == "abcd":
+        return generate_abcd(out_dir, seed=seed, **params)
+    if world == "camera":
+        return generate_camera(out_dir, seed=seed, **params)
+    raise ValueError(f"synth coembed: world must be abcd or camera, got {world!r}")
+
+
+def generate_abcd(out_dir: Path, seed: int = 0, steps: int = 2000, n_features: int = 200, n_letter: int = 100, n_landmarks: int = 11,
              max_range: float = 8.0, fov_deg: float = 180.0, bearing_noise: float = 0.01, range_noise: float = 0.05,
              speed: float = 0.1, turn_rate_deg: float = 5.0, pose_label_every: int = 50, **unknown: Any) -> dict[str, Any]:
     """Write the ABCD world and both sensors' observations; returns a summary.
@@ -164,3 +174,80 @@ def generate(out_dir: Path, seed: int = 0, steps: int = 2000, n_features: int = 
     return {"out_dir": str(out_dir), "steps": steps, "features": n_features, "landmarks": int(landmark.sum()),
             "observations": len(t), "fill": round(len(t) / (steps * n_features), 4),
             "unobserved_features": int(n_features - len(seen)), "configs": "bearing.yaml, range.yaml"}
+
+
+def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """World-to-camera rotation for a camera looking along +Z, turned by yaw (about Y), pitch (X), roll (Z)."""
+    cy, sy, cp, sp_, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rx = np.array([[1, 0, 0], [0, cp, -sp_], [0, sp_, cp]])
+    rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
+    return (rz @ rx @ ry).T
+
+
+def distort(xn: np.ndarray, k1: float, k2: float, k3: float, p1: float, p2: float) -> np.ndarray:
+    """OpenCV's lens model on normalised coordinates (n, 2): radial k1..k3, tangential p1, p2."""
+    x, y = xn[:, 0], xn[:, 1]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    return np.column_stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                            y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y])
+
+
+def generate_camera(out_dir: Path, seed: int = 0, frames: int = 300, n_near: int = 30, n_far: int = 6, sideways: float = 1.7,
+                    pan_deg: float = 4.0, focal: float = 2500.0, width: int = 2048, height: int = 1080, k1: float = -0.12,
+                    k2: float = 0.03, noise_px: float = 0.7, min_track: int = 30, **unknown: Any) -> dict[str, Any]:
+    """A perspective camera track of the kind film tracking gives, with a known answer.
+
+    The camera looks along +Z and moves ``sideways`` metres along X over ``frames`` frames
+    (with a slight forward drift and a pan of ``pan_deg``), past ``n_near`` points 5-9 m away
+    and ``n_far`` points 20-50 m away. Each point is tracked over a random part of the frames
+    where it is in view (at least ``min_track`` frames), as a tracker loses and finds points.
+    Pixels carry radial distortion (OpenCV's k1, k2) and Gaussian noise of ``noise_px``.
+
+    Files as in the tears-of-steel folder: markers.csv (image,track,x,y), points.csv
+    (track,X,Y,Z), cameras.csv (image, R row-major, t; x_cam = R X + t), intrinsics.csv
+    (problem,f,cx,cy,k1,k2,k3,p1,p2), and camera.yaml (co-embedding, 10 landmarks by the fixed rule).
+    """
+    if unknown:
+        raise TypeError(f"unknown parameter(s) {sorted(unknown)} for synth coembed world=camera")
+    if frames < min_track or n_near + n_far < 8:
+        raise ValueError("synth coembed world=camera needs frames >= min_track and at least 8 points")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    near = np.column_stack([rng.uniform(-2.0, 2.0 + sideways, n_near), rng.uniform(-1.0, 1.0, n_near), rng.uniform(5.0, 9.0, n_near)])
+    zf = rng.uniform(20.0, 50.0, n_far)
+    far = np.column_stack([rng.uniform(-0.15, 0.15, n_far) * zf + sideways / 2, rng.uniform(-0.08, 0.08, n_far) * zf, zf])
+    pts = np.vstack([near, far])
+    s = np.linspace(0.0, 1.0, frames)
+    centres = np.column_stack([sideways * s, 0.02 * np.sin(3 * s), 0.3 * s])
+    rots = np.stack([_rotation(np.deg2rad(pan_deg) * (s_ - 0.5), 0.01 * np.sin(5 * s_), 0.005 * s_) for s_ in s])
+    tvecs = -np.einsum("mab,mb->ma", rots, centres)
+    cam = np.einsum("mab,nb->mna", rots, pts) + tvecs[:, None, :]          # (frames, points, 3)
+    xn = cam[..., :2] / cam[..., 2:3]
+    px = distort(xn.reshape(-1, 2), k1, k2, 0.0, 0.0, 0.0).reshape(xn.shape) * focal + [width / 2, height / 2]
+    inside = (cam[..., 2] > 0.1) & (px[..., 0] >= 0) & (px[..., 0] < width) & (px[..., 1] >= 0) & (px[..., 1] < height)
+    rows = []
+    for j in range(len(pts)):
+        seen = np.flatnonzero(inside[:, j])
+        if len(seen) < min_track:
+            continue
+        length = int(rng.integers(min_track, len(seen) + 1))
+        start = int(rng.integers(0, len(seen) - length + 1))
+        for t in seen[start:start + length]:
+            rows.append((t + 1, j, *(px[t, j] + rng.normal(0.0, noise_px, 2))))
+    obs = np.array(rows)
+    tracks = np.unique(obs[:, 1]).astype(int)
+    _write_csv(out_dir / "markers.csv", "image,track,x,y", [obs[:, 0], obs[:, 1], obs[:, 2:]], ["%d", "%d", "%.4f", "%.4f"])
+    _write_csv(out_dir / "points.csv", "track,X,Y,Z", [tracks, pts[tracks]], ["%d", "%.6f", "%.6f", "%.6f"])
+    _write_csv(out_dir / "cameras.csv", "image," + ",".join(f"R{a}{b}" for a in range(3) for b in range(3)) + ",tx,ty,tz",
+               [np.arange(1, frames + 1), rots.reshape(frames, 9), tvecs], ["%d"] + ["%.9f"] * 12)
+    _write_csv(out_dir / "intrinsics.csv", "problem,f,cx,cy,k1,k2,k3,p1,p2",
+               [np.array([[1, focal, width / 2, height / 2, k1, k2, 0.0, 0.0, 0.0]])], ["%d"] + ["%.6f"] * 8)
+    cfg = {"method": "coembed", "seed": seed,
+           "coembed": {"source": "csv", "observations": "markers.csv", "intrinsics": "intrinsics.csv", "landmarks": "points.csv",
+                       "landmark_count": 10, "truth": "points.csv", "dim": 3, "camera_model": "pinhole"}}
+    (out_dir / "camera.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return {"out_dir": str(out_dir), "frames": frames, "tracks": len(tracks), "observations": len(obs),
+            "fill": round(len(obs) / (frames * len(tracks)), 4), "config": "camera.yaml"}

@@ -41,7 +41,7 @@ from placeloc.umap.panorama import (
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
-from placeloc.umap.render import render_block
+from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
 from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
@@ -111,10 +111,14 @@ def build_dictionary(ctx: Any) -> None:
                  for s in range(0, len(poses), block)]
         render, cam = render_panorama_block, Camera(pw, ph, 90.0)
     else:
+        # Views drawn already dilated by the matching tolerance (the only stored copy), hidden
+        # lines found once per position: a block holds whole positions (all their headings are
+        # consecutive, and the free-space mask keeps or drops them together).
         cam = _camera(p)
+        block = max(1, block // len(g.headings)) * len(g.headings)
         items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m,
-                  p.hidden_lines) for s in range(0, len(poses), block)]
-        render = render_block
+                  p.hidden_lines, int(p.tolerance_px)) for s in range(0, len(poses), block)]
+        render = render_grid_block
     nw = (cam.width * cam.height + 63) // 64
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
     s = 0
@@ -124,20 +128,36 @@ def build_dictionary(ctx: Any) -> None:
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
     ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
-                         kind="panorama" if p.query_kind == "panorama" else "pinhole")
+                         kind="panorama" if p.query_kind == "panorama" else "pinhole",
+                         dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px))
 
 
 # ------------------------------------------------------------------ index
 
 def index(ctx: Any) -> None:
+    """Per-view line pixel counts. Pinhole databases were drawn already dilated, so the
+    build-dictionary artifact's ``db`` is the one stored copy; a panorama database is kept
+    undilated there (the chamfer score needs it) and only its small dilated copy is written
+    here, as ``bits``, for the IoU score."""
     src = ctx.artifact("build-dictionary")
     h, w = int(src.attrs["height"]), int(src.attrs["width"])
     db = src["db"]
     tol = int(ctx.params.tolerance_px)
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
     block = int(ctx.params.block)
-    bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     counts = np.zeros(db.shape[0], dtype=np.int64)
+    if int(src.attrs.get("dilated_px", -1)) >= 0:
+        if int(src.attrs["dilated_px"]) != tol:
+            raise _stage_error(ValueError(f"the database was drawn {int(src.attrs['dilated_px'])} px thick but "
+                                          f"umap.tolerance_px is {tol}: re-run build-dictionary (--force-all)"))
+        for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="count line pixels"):
+            counts[s:s + block] = popcount_rows(np.ascontiguousarray(db[s:s + block]))
+        write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
+        ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                             kind=str(src.attrs.get("kind", "pinhole")), bits_in="build-dictionary/db",
+                             bytes=int(db.shape[0] * db.shape[1] * 8))
+        return
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
+    bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="pack database"):
         words = db[s:s + block]
         if kernel is not None:
@@ -148,8 +168,14 @@ def index(ctx: Any) -> None:
         counts[s:s + len(words)] = popcount_rows(np.ascontiguousarray(words))
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
-                         kind=str(src.attrs.get("kind", "pinhole")),
+                         kind=str(src.attrs.get("kind", "pinhole")), bits_in="index/bits",
                          bytes=int(db.shape[0] * db.shape[1] * 8))
+
+
+def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
+    """The dilated database line images: the index's ``bits`` (panoramas) or the
+    build-dictionary's ``db`` (pinhole views, drawn dilated)."""
+    return idx["bits"][()] if "bits" in idx else ctx.artifact("build-dictionary")["db"][()]
 
 
 # ------------------------------------------------------------------ extract
@@ -256,7 +282,7 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
         raw = ctx.artifact("build-dictionary")["db"][()]
         close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
     else:
-        bits, counts = idx["bits"][()], idx["counts"][()]
+        bits, counts = _dilated_bits(ctx, idx), idx["counts"][()]
     for k in ctx.progress(range(n), total=n, desc="panorama search"):
         if pp.score == "chamfer":
             table = chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
@@ -281,7 +307,7 @@ def localize(ctx: Any) -> None:
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
         _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
         return
-    scorer = Scorer(idx["bits"][()], idx["counts"][()], poses, ex["view_heading"][()])
+    scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()])
     lines = ex["lines"][()]
     names = read_strings(ex["names"])
     n = len(names)
@@ -427,7 +453,7 @@ METHOD = Method(
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px")),
         "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
-                                                          "panorama.width", "panorama.height")),
+                                                          "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px",)),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px")
                           + LOCALIZE_CA_KEYS),

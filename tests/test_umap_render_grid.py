@@ -74,3 +74,24 @@ def test_agrees_with_the_per_pixel_renderer_on_a_generated_home():
     seen = n_old > 0
     assert np.array_equal(n_new[~seen], n_old[~seen])  # a blank view stays blank
     assert ((old & new).sum((1, 2))[seen] / n_old[seen]).min() >= 0.95
+
+
+def test_pruned_search_finds_exactly_the_best_view_and_pooled_cells_match():
+    from placeloc.umap.bits import best_iou, iou_scores, pool_or, popcount_rows
+
+    m = floor_plan_model({"floor_z": 0.0, "ceiling_z": 2.5, "outline": [[0, 0], [9, 0], [9, 4], [0, 4]],
+                          "obstacles": [[[2, 1.5], [3, 1.5], [3, 2.5], [2, 2.5]], [[6, 1], [6.5, 1], [6.5, 3], [6, 3]]]})
+    poses = pose_grid([0.3, 8.7, 0.4], [0.3, 3.7, 0.4], 1.2, list(np.arange(0.0, 360.0, 30.0)))
+    poses = poses[m.inside(poses[:, :2])]
+    db, cells = render_grid(m.segments, m.faces, poses, CAM, near=0.05, hidden=True, tolerance_px=2, pooled=True)
+    assert np.array_equal(cells[::7], pool_or(db[::7], 120, 160))
+    counts = popcount_rows(db)
+    thin = unpack(render_grid(m.segments, m.faces, poses[::331], CAM, near=0.05, hidden=True, tolerance_px=0), 120, 160)
+    rng = np.random.default_rng(1)
+    for q in thin:
+        qw = pack((q & (rng.random(q.shape) < 0.6)) | (rng.random(q.shape) < 0.02))
+        full = iou_scores(db, counts, qw)
+        assert best_iou(db, counts, cells, qw, 120, 160) == (int(np.argmax(full)), float(full.max()))
+        rows = np.arange(5, len(db), 3)
+        sub = iou_scores(db, counts, qw, rows)
+        assert best_iou(db, counts, cells, qw, 120, 160, rows=rows) == (int(rows[np.argmax(sub)]), float(sub.max()))

@@ -19,11 +19,12 @@ second, undilated copy.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
 from placeloc.geometry import Camera
-from placeloc.geometry.bitimage import n_words, pack_into
+from placeloc.geometry.bitimage import POOL_PX, n_words, pack_into
 from placeloc.geometry.rays import occluded
 from placeloc.geometry.visibility import (
     COARSE,
@@ -276,10 +277,11 @@ def _grow_row(src: np.ndarray, dst: np.ndarray, base: int, nwr: int) -> None:
 
 @njit(cache=True)
 def _dilate_pack(rows: np.ndarray, grown: np.ndarray, half_widths: np.ndarray, width: int, height: int, nwr: int,
-                 out_row: np.ndarray) -> None:
+                 out_row: np.ndarray, band: np.ndarray, pooled_row: np.ndarray) -> None:
     """OR of the rows shifted by dy and widened by ``half_widths[dy + t]`` columns (the
     elliptic structuring element of cv2.dilate), packed into the flat layout of
-    :mod:`placeloc.geometry.bitimage`."""
+    :mod:`placeloc.geometry.bitimage`; and its 8 x 8 cells (on when any pixel is: see
+    :func:`placeloc.umap.bits.pool_or`) into ``pooled_row`` when that is not empty."""
     t = (half_widths.shape[0] - 1) // 2
     kmax = 0
     for i in range(half_widths.shape[0]):
@@ -294,6 +296,9 @@ def _dilate_pack(rows: np.ndarray, grown: np.ndarray, half_widths: np.ndarray, w
         last_mask = (np.uint64(1) << np.uint64(width % 64)) - np.uint64(1)
     out_row[:] = 0
     nwords = out_row.shape[0]
+    pool = pooled_row.shape[0] > 0
+    if pool:
+        band[:] = 0
     for y in range(height):
         for j in range(nwr):
             v = np.uint64(0)
@@ -305,19 +310,32 @@ def _dilate_pack(rows: np.ndarray, grown: np.ndarray, half_widths: np.ndarray, w
                 v &= last_mask
             if v == 0:
                 continue
+            if pool:
+                band[(y // POOL_PX) * nwr + j] |= v
             pos = y * width + 64 * j
             wi = pos >> 6
             sh = pos & 63
             out_row[wi] |= v << np.uint64(sh)
             if sh > 0 and wi + 1 < nwords:
                 out_row[wi + 1] |= v >> np.uint64(64 - sh)
+    if pool:
+        # a cell of 8 columns never straddles two words (64 = 8 x 8)
+        pooled_row[:] = 0
+        cw = (width + POOL_PX - 1) // POOL_PX
+        cell_mask = np.uint64((1 << POOL_PX) - 1)
+        for cy in range((height + POOL_PX - 1) // POOL_PX):
+            for cx in range(cw):
+                c0 = cx * POOL_PX
+                if (band[cy * nwr + (c0 >> 6)] >> np.uint64(c0 & 63)) & cell_mask:
+                    p = cy * cw + cx
+                    pooled_row[p >> 6] |= np.uint64(1) << np.uint64(p & 63)
 
 
 @njit(parallel=True, cache=True)
 def _render_grid(segs: np.ndarray, faces: np.ndarray, tall: np.ndarray, positions: np.ndarray, headings: np.ndarray,
                  starts: np.ndarray, rows_out: np.ndarray, width: int, height: int, focal: float, cx: float, cy: float,
                  near: float, hidden: bool, half_widths: np.ndarray, dirs: np.ndarray, n_pieces_max: int, n_hits_max: int,
-                 out: np.ndarray) -> None:
+                 out: np.ndarray, pooled: np.ndarray) -> None:
     nwr = (width + 63) // 64
     kmax = 0
     for i in range(half_widths.shape[0]):
@@ -335,6 +353,7 @@ def _render_grid(segs: np.ndarray, faces: np.ndarray, tall: np.ndarray, position
         pieces = np.empty((n_pieces_max, 6))
         rows = np.empty(height * nwr, np.uint64)
         grown = np.empty((kmax + 1, height * nwr), np.uint64)
+        band = np.empty(((height + POOL_PX - 1) // POOL_PX) * nwr, np.uint64)
         for g in range(c * n_pos // n_chunks, (c + 1) * n_pos // n_chunks):
             px = positions[g, 0]
             py = positions[g, 1]
@@ -347,7 +366,8 @@ def _render_grid(segs: np.ndarray, faces: np.ndarray, tall: np.ndarray, position
             for v in range(starts[g], starts[g + 1]):
                 rows[:] = 0
                 _draw_pieces(pieces, n, px, py, pz, headings[v], width, height, focal, cx, cy, near, nwr, rows)
-                _dilate_pack(rows, grown, half_widths, width, height, nwr, out[rows_out[v]])
+                _dilate_pack(rows, grown, half_widths, width, height, nwr, out[rows_out[v]], band,
+                             pooled[rows_out[v]] if pooled.shape[0] else pooled[0:0, 0])
 
 
 def dilation_half_widths(tolerance_px: int) -> np.ndarray:
@@ -370,14 +390,16 @@ def dilation_half_widths(tolerance_px: int) -> np.ndarray:
 
 
 def render_grid(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, cam: Camera, *, near: float, hidden: bool,
-                tolerance_px: int) -> np.ndarray:
+                tolerance_px: int, pooled: bool = False) -> Any:
     """Line images of ``segments`` from each pose, lines thickened by ``tolerance_px`` (as
     cv2.dilate with the elliptic kernel would): (V, n_words) uint64 in the order of
-    ``poses``. Hidden lines are removed once per distinct position (module docstring)."""
+    ``poses``. Hidden lines are removed once per distinct position (module docstring).
+    ``pooled``: also return their 8 x 8 cell images (:func:`placeloc.umap.bits.pool_or`)."""
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
     out = np.zeros((len(poses), n_words(cam.height, cam.width)), dtype=np.uint64)
+    cells = np.zeros((len(poses) if pooled else 0, n_words(-(-cam.height // POOL_PX), -(-cam.width // POOL_PX))), np.uint64)
     if not len(poses):
-        return out
+        return (out, cells) if pooled else out
     segs = np.ascontiguousarray(segments, np.float64).reshape(-1, 6)
     fc = np.ascontiguousarray(faces, np.float64).reshape(-1, 6)
     positions, inverse = np.unique(poses[:, :3], axis=0, return_inverse=True)
@@ -386,11 +408,12 @@ def render_grid(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, cam:
     _render_grid(segs, fc, tall_faces(segs, fc), positions, np.ascontiguousarray(poses[order, 3]), starts.astype(np.int64),
                  order.astype(np.int64), cam.width, cam.height, cam.focal, cam.cx, cam.cy, float(near),
                  bool(hidden and len(fc) > 0), dilation_half_widths(tolerance_px), bin_directions(N_BINS), max(max_pieces(len(segs)), len(segs)),
-                 MAX_HITS, out)
-    return out
+                 MAX_HITS, out, cells)
+    return (out, cells) if pooled else out
 
 
-def render_grid_block(item: tuple) -> np.ndarray:
-    """Executor work item: (segments, faces, poses, (W, H, hfov), near, hidden, tolerance_px) -> packed block."""
+def render_grid_block(item: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Executor work item: (segments, faces, poses, (W, H, hfov), near, hidden, tolerance_px)
+    -> (packed block, its packed 8 x 8 cell images)."""
     segments, faces, poses, cam, near, hidden, tol = item
-    return render_grid(segments, faces, poses, Camera(*cam), near=near, hidden=hidden, tolerance_px=tol)
+    return render_grid(segments, faces, poses, Camera(*cam), near=near, hidden=hidden, tolerance_px=tol, pooled=True)

@@ -121,8 +121,14 @@ def build_dictionary(ctx: Any) -> None:
         render = render_grid_block
     nw = (cam.width * cam.height + 63) // 64
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
+    cells = None
     s = 0
-    for bits in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
+    for res in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
+        bits, pooled = res if isinstance(res, tuple) else (res, None)
+        if pooled is not None:
+            if cells is None:  # the views' 8 x 8 cell images, which bound eq. (1) before a view is read
+                cells = ctx.out.create_dataset("pooled", shape=(len(poses), pooled.shape[1]), dtype=np.uint64)
+            cells[s:s + len(bits)] = pooled
         db[s:s + len(bits)] = bits
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
@@ -176,6 +182,11 @@ def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
     """The dilated database line images: the index's ``bits`` (panoramas) or the
     build-dictionary's ``db`` (pinhole views, drawn dilated)."""
     return idx["bits"][()] if "bits" in idx else ctx.artifact("build-dictionary")["db"][()]
+
+
+def _pooled(ctx: Any) -> np.ndarray | None:
+    src = ctx.artifact("build-dictionary")
+    return src["pooled"][()] if "pooled" in src else None
 
 
 # ------------------------------------------------------------------ extract
@@ -307,7 +318,8 @@ def localize(ctx: Any) -> None:
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
         _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
         return
-    scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()])
+    scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
+                    shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
     lines = ex["lines"][()]
     names = read_strings(ex["names"])
     n = len(names)

@@ -33,6 +33,10 @@ def unpack(words: np.ndarray, height: int, width: int) -> np.ndarray:
     return bits[:, : height * width].reshape(*lead, height, width)
 
 
+# below this many rows a single thread scores them (starting the thread pool costs more)
+SERIAL_ROWS = 2048
+
+
 @njit(inline="always")
 def _popcount64(x: np.uint64) -> np.uint64:
     # SWAR popcount; LLVM turns this idiom into a single POPCNT where the CPU has one.
@@ -46,6 +50,17 @@ def _popcount64(x: np.uint64) -> np.uint64:
 def _and_count_rows(db: np.ndarray, q: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
     # Contiguous inner loop over a row's words: LLVM vectorizes AND + popcount.
     for r in prange(rows.shape[0]):
+        i = rows[r]
+        s = np.uint64(0)
+        for j in range(q.shape[0]):
+            s += _popcount64(db[i, j] & q[j])
+        out[r] = s
+
+
+@njit(cache=True)
+def _and_count_rows_serial(db: np.ndarray, q: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
+    # few rows: one thread, no wait for the pool's threads to be scheduled
+    for r in range(rows.shape[0]):
         i = rows[r]
         s = np.uint64(0)
         for j in range(q.shape[0]):
@@ -84,8 +99,10 @@ def and_count(db: np.ndarray, query: np.ndarray, rows: np.ndarray | None = None)
         return out
     rows = np.asarray(rows, dtype=np.int64)
     out = np.zeros(rows.shape[0], dtype=np.int64)
-    if rows.size:
+    if rows.size > SERIAL_ROWS:
         _and_count_rows(db, q, rows, out)
+    elif rows.size:
+        _and_count_rows_serial(db, q, rows, out)
     return out
 
 
@@ -99,7 +116,7 @@ def iou_scores(db: np.ndarray, db_counts: np.ndarray, query: np.ndarray, rows: n
     """
     lc = and_count(db, query, rows).astype(np.float64)
     a_db = np.asarray(db_counts if rows is None else db_counts[rows], dtype=np.float64)
-    a_sen = float(popcount_rows(np.ascontiguousarray(query, dtype=np.uint64)[None, :])[0])
+    a_sen = float(np.bitwise_count(np.ascontiguousarray(query, dtype=np.uint64)).sum())
     union = a_db + a_sen - lc
     return np.divide(lc, union, out=np.zeros_like(lc), where=union > 0)
 
@@ -169,7 +186,7 @@ def best_iou(db: np.ndarray, db_counts: np.ndarray, pooled: np.ndarray, query: n
     planes = query_planes(query, height, width)
     ub = np.zeros(db.shape[0], dtype=np.int64)
     _bound_counts(pooled, planes, ub)
-    a_sen = float(popcount_rows(np.ascontiguousarray(query, dtype=np.uint64)[None, :])[0])
+    a_sen = float(np.bitwise_count(np.ascontiguousarray(query, dtype=np.uint64)).sum())
     b = ub[rows].astype(np.float64)
     den = db_counts[rows] + a_sen - b
     bound = np.divide(b, den, out=np.zeros_like(b), where=den > 0)

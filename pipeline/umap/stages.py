@@ -23,7 +23,7 @@ from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
 from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
-from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model
+from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model, wall_distance
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
@@ -34,7 +34,9 @@ from placeloc.umap.panorama import (
     best_pose,
     chamfer_yaw_scores,
     closeness,
+    distinct_candidates,
     iou_yaw_scores,
+    local_grid,
     panorama_line_image,
     render_panorama_block,
     render_panoramas,
@@ -282,27 +284,63 @@ def _extract_panoramas(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ localize
 
-def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Best (grid row, heading, score) of each panorama, every position and yaw scored."""
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Best (grid row, plan position, heading, score) of each panorama, every position and
+    yaw scored; then, with ``panorama.refine_candidates``, the best distinct positions are
+    re-scored on a finer local grid rendered on the spot (the grid step is coarse next to
+    the differences between look-alike rooms) and the best refined pose is kept."""
     pp = ctx.params.panorama
     h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
     lines = unpack(ex["lines"][()][:, 0], h, w)
     n = len(lines)
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    poses = idx["poses"][()]
+    src = ctx.artifact("build-dictionary")
+    segs, faces = src["segments"][()], src["faces"][()]
+    tol = int(ctx.params.tolerance_px)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
     if pp.score == "chamfer":
-        raw = ctx.artifact("build-dictionary")["db"][()]
+        raw = src["db"][()]
         close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
     else:
         bits, counts = _dilated_bits(ctx, idx), idx["counts"][()]
-    for k in ctx.progress(range(n), total=n, desc="panorama search"):
+
+    def table_of(k: int, db_raw: np.ndarray | None = None) -> np.ndarray:
+        if db_raw is None:
+            if pp.score == "chamfer":
+                return chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
+            return iou_yaw_scores(bits, counts, lines[k])
         if pp.score == "chamfer":
-            table = chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
-        else:
-            table = iou_yaw_scores(bits, counts, lines[k])
+            return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
+                                      tau_px=pp.chamfer_tau_px)
+        imgs = unpack(db_raw, h, w)
+        dil = pack(np.stack([cv2.dilate(im, kernel) for im in imgs])) if kernel is not None else db_raw
+        return iou_yaw_scores(dil, popcount_rows(dil), lines[k])
+
+    margin = float(ctx.params.grid.wall_margin_m)
+    refined_xy = np.full((n, 2), np.nan)
+    for k in ctx.progress(range(n), total=n, desc="panorama search"):
+        table = table_of(k)
         best[k], shift, score[k] = best_pose(table)
         heading[k] = shift * 360.0 / w
-    return best, heading, score
-
+        if pp.refine_candidates <= 0:
+            continue
+        for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                     min_separation_m=pp.refine_separation_m):
+            pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
+            if len(faces):  # not through a wall: as far from every wall as the grid keeps its positions
+                pts = pts[wall_distance(pts, faces) >= min(margin, float(wall_distance(poses[c:c + 1, :2], faces)[0]))]
+            local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
+            sub = table_of(k, render_panoramas(segs, faces, local, width=w, height=h, hidden=bool(ctx.params.hidden_lines)))
+            i, s_shift, s = best_pose(sub)
+            if s > score[k]:
+                # the grid row stays that of the candidate; the position is the refined one
+                best[k], heading[k], score[k] = c, s_shift * 360.0 / w, s
+                refined_xy[k] = pts[i]
+    est = poses[best, :2].copy()
+    ok = ~np.isnan(refined_xy[:, 0])
+    est[ok] = refined_xy[ok]
+    return best, est, heading, score
 
 
 def localize(ctx: Any) -> None:
@@ -378,10 +416,10 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
-def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, heading: np.ndarray,
-                              score: np.ndarray) -> None:
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, xy: np.ndarray,
+                              heading: np.ndarray, score: np.ndarray) -> None:
     n = len(names)
-    est = poses[best]
+    est = np.column_stack([xy, poses[best, 2:]])
     nan = np.full(n, np.nan)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
@@ -467,7 +505,10 @@ METHOD = Method(
         "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px",)),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px")
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+                                          "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_radius_m", "panorama.refine_step_m", "tolerance_px", "hidden_lines",
+                                          "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
         "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },

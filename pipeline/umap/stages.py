@@ -286,7 +286,7 @@ def _extract_panoramas(ctx: Any) -> None:
 
 def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Best (grid row, plan position, heading, score) of each panorama, every position and
-    yaw scored; then, with ``panorama.refine_candidates``, the best distinct positions are
+    yaw scored; then, with ``panorama.refine_candidates`` and the chamfer score, the best distinct positions are
     re-scored on a finer local grid rendered on the spot (the grid step is coarse next to
     the differences between look-alike rooms) and the best refined pose is kept."""
     pp = ctx.params.panorama
@@ -297,8 +297,6 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
     poses = idx["poses"][()]
     src = ctx.artifact("build-dictionary")
     segs, faces = src["segments"][()], src["faces"][()]
-    tol = int(ctx.params.tolerance_px)
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
     if pp.score == "chamfer":
         raw = src["db"][()]
         close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
@@ -310,12 +308,8 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
             if pp.score == "chamfer":
                 return chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
             return iou_yaw_scores(bits, counts, lines[k])
-        if pp.score == "chamfer":
-            return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
-                                      tau_px=pp.chamfer_tau_px)
-        imgs = unpack(db_raw, h, w)
-        dil = pack(np.stack([cv2.dilate(im, kernel) for im in imgs])) if kernel is not None else db_raw
-        return iou_yaw_scores(dil, popcount_rows(dil), lines[k])
+        return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
+                                  tau_px=pp.chamfer_tau_px)
 
     margin = float(ctx.params.grid.wall_margin_m)
     refined_xy = np.full((n, 2), np.nan)
@@ -323,8 +317,8 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
         table = table_of(k)
         best[k], shift, score[k] = best_pose(table)
         heading[k] = shift * 360.0 / w
-        if pp.refine_candidates <= 0:
-            continue
+        if pp.refine_candidates <= 0 or pp.score != "chamfer":
+            continue  # eq. (1) on dilated lines is flat over a few centimetres: the paper's score stays on the grid
         for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
                                      min_separation_m=pp.refine_separation_m):
             pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
@@ -507,7 +501,7 @@ METHOD = Method(
         "index": Stage(index, keys=("tolerance_px",)),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_radius_m", "panorama.refine_step_m", "tolerance_px", "hidden_lines",
+                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
         "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),

@@ -168,6 +168,13 @@ def test_tiny_corridor_right_pose_wins(tmp_path):
     assert [r["heading_deg"] for r in rows] == ["315.0"] * 8
     assert (tmp_path / "run" / "error_cdf.png").stat().st_size > 1000
     assert (tmp_path / "run" / "estimates_on_plan.png").stat().st_size > 1000
+    import h5py
+
+    # the database is stored once: drawn dilated by build-dictionary, only counted by index
+    with h5py.File(tmp_path / "run" / "index.h5") as f:
+        assert "bits" not in f and f.attrs["bits_in"] == "build-dictionary/db"
+    with h5py.File(tmp_path / "run" / "build-dictionary.h5") as f:
+        assert int(f.attrs["dilated_px"]) == 2
 
 
 def test_bad_inputs(tmp_path):

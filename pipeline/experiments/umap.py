@@ -10,8 +10,9 @@ to ``OUT/summary.json`` (run name -> metrics, plus the calibration) and ``OUT/ta
 
 Homes (``placeloc synth home``): 360 degree panoramas with unknown heading, localized one by
 one against the floor plan (``query_kind: panorama``) with the paper's IoU score and the
-chamfer score. The generator and the scores were developed on home seed 0; the reported
-homes are seeds 10-14 (2 seeds with fewer panoramas under ``--quick``).
+chamfer score. The generator and the scores were developed on home seed 0, the local
+refinement of the best candidates on home seeds 20-22; the reported homes are seeds 10-14
+(2 seeds with fewer panoramas under ``--quick``).
 """
 
 from __future__ import annotations

@@ -6,6 +6,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+# cell size of the pooled line images (8 x 8 pixels: a cell of 8 columns never straddles two
+# 64-bit words), which bound the eq. (1) score of a view before it is read
+POOL_PX = 8
+
 
 def n_words(height: int, width: int) -> int:
     """Words per packed image of ``height`` x ``width`` pixels."""

@@ -104,6 +104,27 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     return fp, clutter
 
 
+def floor_of_homes(rng: np.random.Generator, homes: int, bedrooms: int) -> dict[str, Any]:
+    """A storey of ``homes`` random homes (:func:`plan`) side by side along x, 0.3 m of wall
+    apart: the multi-room floor plan of a real-scale floor (several hundred segments), for
+    benchmarks. Clutter is not kept."""
+    rooms, openings, windows = [], [], []
+    x0 = 0.0
+    for h in range(homes):
+        fp, _ = plan(rng, bedrooms)
+        xs = [p[0] for r in fp["rooms"] for p in r["polygon"]]
+        dx = x0 - min(xs)
+
+        def moved(pts: list, dx: float = dx) -> list:
+            return [[round(p[0] + dx, 4), p[1]] for p in pts]
+
+        rooms += [{**r, "name": f"home{h + 1}-{r['name']}", "polygon": moved(r["polygon"])} for r in fp["rooms"]]
+        openings += [{**o, "from": moved([o["from"]])[0], "to": moved([o["to"]])[0]} for o in fp["openings"]]
+        windows += [{**w, "from": moved([w["from"]])[0], "to": moved([w["to"]])[0]} for w in fp["windows"]]
+        x0 += max(xs) - min(xs) + 0.3
+    return {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
+
+
 def _door_leaf(clutter: dict[str, list], rng: np.random.Generator, a: tuple[float, float], b: tuple[float, float],
                side: int) -> None:
     """A door leaf in an opening on an east-west wall: closed in the opening (a panelled

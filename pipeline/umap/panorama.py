@@ -141,3 +141,28 @@ def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
     i, k = np.unravel_index(int(np.argmax(scores)), scores.shape)
     return int(i), int(k), float(scores[i, k])
 
+
+
+# ------------------------------------------------------------------ local refinement
+
+def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_separation_m: float) -> np.ndarray:
+    """Rows of the ``count`` best grid positions (each scored at its best yaw), greedily
+    skipping any within ``min_separation_m`` of one already taken: the distinct places that
+    compete (the same spot in two look-alike rooms, say)."""
+    best = scores.max(axis=1)
+    taken: list[int] = []
+    for i in np.argsort(-best, kind="stable"):
+        if all(np.hypot(*(xy[i] - xy[j])) >= min_separation_m for j in taken):
+            taken.append(int(i))
+            if len(taken) == count:
+                break
+    return np.asarray(taken, dtype=np.int64)
+
+
+def local_grid(x: float, y: float, *, radius_m: float, step_m: float) -> np.ndarray:
+    """Plan points of a square grid of spacing ``step_m`` within ``radius_m`` of (x, y) on
+    each axis, (x, y) included."""
+    n = int(np.floor(radius_m / step_m + 1e-9))
+    d = np.arange(-n, n + 1) * step_m
+    gx, gy = np.meshgrid(x + d, y + d, indexing="ij")
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)

@@ -65,6 +65,10 @@ class PanoramaParams(Params):
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
+    refine_candidates: int = param(8, min=0, help="distinct best grid positions re-scored on a finer local grid, chamfer score only (0: off)")
+    refine_separation_m: float = param(0.5, min=0.0, help="least distance between two refined candidates")
+    refine_radius_m: float = param(0.15, min=0.0, help="half width of the local grid around each candidate")
+    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="spacing of the local grid")
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from placeloc.umap.bits import iou_scores
+from placeloc.umap.bits import best_iou, iou_scores
 
 
 class Scorer:
@@ -16,8 +16,12 @@ class Scorer:
     query (heading unknown: every database row is a candidate), or the heading each view of
     a panorama was cut at (only database rows of that heading are compared with it)."""
 
-    def __init__(self, bits: np.ndarray, counts: np.ndarray, poses: np.ndarray, view_heading: np.ndarray) -> None:
+    def __init__(self, bits: np.ndarray, counts: np.ndarray, poses: np.ndarray, view_heading: np.ndarray, *,
+                 pooled: np.ndarray | None = None, shape: tuple[int, int] | None = None) -> None:
+        # pooled: the views' 8 x 8 cell images (placeloc.umap.bits.pool_or), shape: (height,
+        # width) of a view; with both, a search over a whole group reads only views that can win
         self.bits, self.counts, self.poses = bits, counts, poses
+        self.pooled, self.shape = pooled, shape
         self.view_heading = view_heading
         # rows of each cut-view heading (panoramas), or all rows (pinhole: heading unknown)
         self.groups = [np.flatnonzero(np.isclose(poses[:, 3] % 360, hd % 360)) if not math.isnan(hd) else np.arange(len(poses))
@@ -36,10 +40,15 @@ class Scorer:
                 cand = np.intersect1d(group, rows, assume_unique=True)
             if cand.size == 0:
                 continue
-            sc = iou_scores(self.bits, self.counts, lines[v], cand)
-            k = int(np.argmax(sc))
-            if sc[k] > best_s:
-                best_i, best_s = int(cand[k]), float(sc[k])
+            if self.pooled is not None and self.shape is not None and cand.size > 4096:
+                i, sc_best = best_iou(self.bits, self.counts, self.pooled, lines[v], *self.shape,
+                                      rows=None if cand.size == len(self.poses) else cand)
+            else:
+                sc = iou_scores(self.bits, self.counts, lines[v], cand)
+                k = int(np.argmax(sc))
+                i, sc_best = int(cand[k]), float(sc[k])
+            if sc_best > best_s:
+                best_i, best_s = i, sc_best
         return best_i, best_s
 
     def scores(self, lines: np.ndarray, rows: np.ndarray) -> np.ndarray:

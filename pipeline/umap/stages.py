@@ -23,7 +23,7 @@ from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
 from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
-from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model
+from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model, wall_distance
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
@@ -34,14 +34,16 @@ from placeloc.umap.panorama import (
     best_pose,
     chamfer_yaw_scores,
     closeness,
+    distinct_candidates,
     iou_yaw_scores,
+    local_grid,
     panorama_line_image,
     render_panorama_block,
     render_panoramas,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
-from placeloc.umap.render import render_block
+from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
 from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
@@ -111,33 +113,59 @@ def build_dictionary(ctx: Any) -> None:
                  for s in range(0, len(poses), block)]
         render, cam = render_panorama_block, Camera(pw, ph, 90.0)
     else:
+        # Views drawn already dilated by the matching tolerance (the only stored copy), hidden
+        # lines found once per position: a block holds whole positions (all their headings are
+        # consecutive, and the free-space mask keeps or drops them together).
         cam = _camera(p)
+        block = max(1, block // len(g.headings)) * len(g.headings)
         items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m,
-                  p.hidden_lines) for s in range(0, len(poses), block)]
-        render = render_block
+                  p.hidden_lines, int(p.tolerance_px)) for s in range(0, len(poses), block)]
+        render = render_grid_block
     nw = (cam.width * cam.height + 63) // 64
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
+    cells = None
     s = 0
-    for bits in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
+    for res in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
+        bits, pooled = res if isinstance(res, tuple) else (res, None)
+        if pooled is not None:
+            if cells is None:  # the views' 8 x 8 cell images, which bound eq. (1) before a view is read
+                cells = ctx.out.create_dataset("pooled", shape=(len(poses), pooled.shape[1]), dtype=np.uint64)
+            cells[s:s + len(bits)] = pooled
         db[s:s + len(bits)] = bits
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
     ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
-                         kind="panorama" if p.query_kind == "panorama" else "pinhole")
+                         kind="panorama" if p.query_kind == "panorama" else "pinhole",
+                         dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px))
 
 
 # ------------------------------------------------------------------ index
 
 def index(ctx: Any) -> None:
+    """Per-view line pixel counts. Pinhole databases were drawn already dilated, so the
+    build-dictionary artifact's ``db`` is the one stored copy; a panorama database is kept
+    undilated there (the chamfer score needs it) and only its small dilated copy is written
+    here, as ``bits``, for the IoU score."""
     src = ctx.artifact("build-dictionary")
     h, w = int(src.attrs["height"]), int(src.attrs["width"])
     db = src["db"]
     tol = int(ctx.params.tolerance_px)
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
     block = int(ctx.params.block)
-    bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     counts = np.zeros(db.shape[0], dtype=np.int64)
+    if int(src.attrs.get("dilated_px", -1)) >= 0:
+        if int(src.attrs["dilated_px"]) != tol:
+            raise _stage_error(ValueError(f"the database was drawn {int(src.attrs['dilated_px'])} px thick but "
+                                          f"umap.tolerance_px is {tol}: re-run build-dictionary (--force-all)"))
+        for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="count line pixels"):
+            counts[s:s + block] = popcount_rows(np.ascontiguousarray(db[s:s + block]))
+        write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
+        ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                             kind=str(src.attrs.get("kind", "pinhole")), bits_in="build-dictionary/db",
+                             bytes=int(db.shape[0] * db.shape[1] * 8))
+        return
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
+    bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="pack database"):
         words = db[s:s + block]
         if kernel is not None:
@@ -148,8 +176,19 @@ def index(ctx: Any) -> None:
         counts[s:s + len(words)] = popcount_rows(np.ascontiguousarray(words))
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
-                         kind=str(src.attrs.get("kind", "pinhole")),
+                         kind=str(src.attrs.get("kind", "pinhole")), bits_in="index/bits",
                          bytes=int(db.shape[0] * db.shape[1] * 8))
+
+
+def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
+    """The dilated database line images: the index's ``bits`` (panoramas) or the
+    build-dictionary's ``db`` (pinhole views, drawn dilated)."""
+    return idx["bits"][()] if "bits" in idx else ctx.artifact("build-dictionary")["db"][()]
+
+
+def _pooled(ctx: Any) -> np.ndarray | None:
+    src = ctx.artifact("build-dictionary")
+    return src["pooled"][()] if "pooled" in src else None
 
 
 # ------------------------------------------------------------------ extract
@@ -245,27 +284,57 @@ def _extract_panoramas(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ localize
 
-def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Best (grid row, heading, score) of each panorama, every position and yaw scored."""
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Best (grid row, plan position, heading, score) of each panorama, every position and
+    yaw scored; then, with ``panorama.refine_candidates`` and the chamfer score, the best distinct positions are
+    re-scored on a finer local grid rendered on the spot (the grid step is coarse next to
+    the differences between look-alike rooms) and the best refined pose is kept."""
     pp = ctx.params.panorama
     h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
     lines = unpack(ex["lines"][()][:, 0], h, w)
     n = len(lines)
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    poses = idx["poses"][()]
+    src = ctx.artifact("build-dictionary")
+    segs, faces = src["segments"][()], src["faces"][()]
     if pp.score == "chamfer":
-        raw = ctx.artifact("build-dictionary")["db"][()]
+        raw = src["db"][()]
         close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
     else:
-        bits, counts = idx["bits"][()], idx["counts"][()]
+        bits, counts = _dilated_bits(ctx, idx), idx["counts"][()]
+
+    def table_of(k: int, db_raw: np.ndarray | None = None) -> np.ndarray:
+        if db_raw is None:
+            if pp.score == "chamfer":
+                return chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
+            return iou_yaw_scores(bits, counts, lines[k])
+        return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
+                                  tau_px=pp.chamfer_tau_px)
+
+    margin = float(ctx.params.grid.wall_margin_m)
+    refined_xy = np.full((n, 2), np.nan)
     for k in ctx.progress(range(n), total=n, desc="panorama search"):
-        if pp.score == "chamfer":
-            table = chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
-        else:
-            table = iou_yaw_scores(bits, counts, lines[k])
+        table = table_of(k)
         best[k], shift, score[k] = best_pose(table)
         heading[k] = shift * 360.0 / w
-    return best, heading, score
-
+        if pp.refine_candidates <= 0 or pp.score != "chamfer":
+            continue  # eq. (1) on dilated lines is flat over a few centimetres: the paper's score stays on the grid
+        for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                     min_separation_m=pp.refine_separation_m):
+            pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
+            if len(faces):  # not through a wall: as far from every wall as the grid keeps its positions
+                pts = pts[wall_distance(pts, faces) >= min(margin, float(wall_distance(poses[c:c + 1, :2], faces)[0]))]
+            local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
+            sub = table_of(k, render_panoramas(segs, faces, local, width=w, height=h, hidden=bool(ctx.params.hidden_lines)))
+            i, s_shift, s = best_pose(sub)
+            if s > score[k]:
+                # the grid row stays that of the candidate; the position is the refined one
+                best[k], heading[k], score[k] = c, s_shift * 360.0 / w, s
+                refined_xy[k] = pts[i]
+    est = poses[best, :2].copy()
+    ok = ~np.isnan(refined_xy[:, 0])
+    est[ok] = refined_xy[ok]
+    return best, est, heading, score
 
 
 def localize(ctx: Any) -> None:
@@ -281,7 +350,8 @@ def localize(ctx: Any) -> None:
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
         _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
         return
-    scorer = Scorer(idx["bits"][()], idx["counts"][()], poses, ex["view_heading"][()])
+    scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
+                    shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
     lines = ex["lines"][()]
     names = read_strings(ex["names"])
     n = len(names)
@@ -340,10 +410,10 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
-def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, heading: np.ndarray,
-                              score: np.ndarray) -> None:
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, xy: np.ndarray,
+                              heading: np.ndarray, score: np.ndarray) -> None:
     n = len(names)
-    est = poses[best]
+    est = np.column_stack([xy, poses[best, 2:]])
     nan = np.full(n, np.nan)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
@@ -427,9 +497,12 @@ METHOD = Method(
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px")),
         "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
-                                                          "panorama.width", "panorama.height")),
+                                                          "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px",)),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px")
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+                                          "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
+                                          "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
         "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },

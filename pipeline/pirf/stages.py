@@ -33,7 +33,7 @@ from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
 from placeloc.pirf.features import check_sizes, extract_frame_or_error
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
-from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement
+from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_mean
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
 from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
 from placeloc.pirf.tables import write_localization, write_loop_closures
@@ -231,11 +231,18 @@ def stage_evaluate(ctx: Any) -> None:
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
                          "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
-    m["map_seconds_per_frame"] = float(np.mean(build["map_seconds"][()])) if len(build["map_seconds"]) else float("nan")
+    m.update(_mapping_cost(build))
     correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
     if correct is not None:
         m["loop_closures_correct"] = int(correct.sum())
         m["loop_closure_precision"] = float(correct.mean()) if len(correct) else float("nan")
+        # both readings of the same closures, whichever is in use: as the similarity matched them,
+        # and moved for the PIRF track lag on opposite-direction revisits (pirf.direction_correction)
+        matched = build["loop_closures/matched_node"][()]
+        fixed = correct_for_travel_direction(lc_f, matched, ex["reference/window"][()], span=p.eps)
+        for name, nodes in (("as_matched", matched), ("direction_corrected", fixed)):
+            ok = loop_closure_correct(r_xy, lc_f, nodes, radius)
+            m[f"loop_closure_precision_{name}"] = float(ok.mean()) if len(ok) else float("nan")
     else:
         m["loop_closures_correct"] = m["loop_closure_precision"] = None
     backend = str(loc.attrs.get("backend", "none"))
@@ -274,6 +281,22 @@ def stage_evaluate(ctx: Any) -> None:
         if metrics.get("accuracy_gap0") is not None:
             bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
             plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
+
+
+def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
+    """Mapping seconds per frame, wall and CPU, over the run and over its last ``tail``
+    (where the dictionary is largest), with the dictionary size where that tail starts."""
+    wall = build["map_seconds"][()]
+    out = {"map_seconds_per_frame": float(np.mean(wall)) if len(wall) else float("nan"),
+           "map_seconds_per_frame_end": tail_mean(wall, tail)}
+    out["map_frames_per_second_end"] = 1.0 / out["map_seconds_per_frame_end"] if len(wall) else float("nan")
+    if "map_cpu_seconds" in build:  # older maps recorded wall time only
+        cpu = build["map_cpu_seconds"][()]
+        out["map_cpu_seconds_per_frame"] = float(np.mean(cpu)) if len(cpu) else float("nan")
+        out["map_cpu_seconds_per_frame_end"] = tail_mean(cpu, tail)
+    sizes = build["dict_size_after"][()]
+    out["map_end_dictionary_from"] = int(sizes[-max(1, int(round(len(sizes) * tail)))]) if len(sizes) else 0
+    return out
 
 
 def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:

@@ -32,7 +32,9 @@ from typing import Any
 from placeloc.api import read_metrics, run
 from placeloc.experiments import pirf as experiment
 from placeloc.experiments import write_summary
-from placeloc.pirf.results import read_index_info, stage_seconds
+from placeloc.pirf.metrics import loop_closure_correct
+from placeloc.pirf.results import read_frame_names, read_index_info, read_loop_closures, stage_seconds
+from placeloc.pirf.truth import read_frame_xy
 
 LARGE = {"frames": 8000, "test_frames": 400}
 # (update, mapping search) most important first: the default update with both mappings.
@@ -85,6 +87,27 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     return out / "summary.json"
 
 
+def precision_by_length(run_dir: Path, poses: Path, lengths: tuple[int, ...], radius: float = 1.0) -> list[dict[str, Any]]:
+    """Loop-closure precision of the first n frames, for each n of ``lengths`` (up to the run's).
+
+    Every step of the method is causal (PIRFs, mapping, the direction correction and the
+    geometric check use only earlier frames) and the generator renders the same first
+    frames for any length, so the closures among the first n frames are those a run of n
+    frames makes: one long run gives the figures at the shorter sizes too.
+    """
+    names = read_frame_names(run_dir, "reference")
+    xy = read_frame_xy(poses, names, range(len(names)), len(names), "mapping poses")
+    rows = []
+    for kind, c in (("candidates", read_loop_closures(run_dir, candidates=True)), ("loop closures", read_loop_closures(run_dir))):
+        ok = loop_closure_correct(xy, c["frame"], c["node"], radius)
+        for n in lengths:
+            if n <= len(names):
+                sel = c["frame"] < n
+                rows.append({"frames": n, "kind": kind, "count": int(sel.sum()), "correct": int(ok[sel].sum()),
+                             "precision": float(ok[sel].mean()) if sel.any() else float("nan")})
+    return rows
+
+
 def _f(v: Any, nd: int = 3) -> str:
     return "-" if v is None else (f"{v:.{nd}f}" if isinstance(v, float) else str(v))
 
@@ -132,6 +155,21 @@ def write_tables(out: Path, runs: dict[str, dict[str, Any]], steps: list[dict[st
         if m is not None:
             lines.append(f"| {update} | {map_search} | {m['index']} | {_f(m['accuracy_gap0'])} | {_f(m['accuracy_gap2'])} "
                          f"| {_f(m.get('accuracy_gap0_bf'))} | {_f(m.get('accuracy_gap2_bf'))} |")
+    lengths = tuple(n for n in (1200, 2000, 4000, spec["frames"]) if n <= spec["frames"])
+    for update, map_search in STEPS:
+        rd = out / run_name(update, map_search)
+        if run_name(update, map_search) not in runs:
+            continue
+        rows = precision_by_length(rd, out / "data" / "mapping" / "poses.csv", lengths)
+        lines += ["", f"## Loop-closure precision by video length ({update} update, {map_search} mapping; the first n frames of "
+                  "this run, which a run of n frames reproduces)", "",
+                  "| frames | candidates (correct / all) | precision | checked closures (correct / all) | precision |",
+                  "|---|---|---|---|---|"]
+        by = {(r["frames"], r["kind"]): r for r in rows}
+        for n in lengths:
+            a, b = by[(n, "candidates")], by[(n, "loop closures")]
+            lines.append(f"| {n} | {a['correct']} / {a['count']} | {_f(a['precision'], 4)} | {b['correct']} / {b['count']} "
+                         f"| {_f(b['precision'], 4)} |")
     lines += ["", "## Steps (the machine may be shared: wall, CPU and the 1-minute load average at start / end)", "",
               "| step | wall s | CPU s | load |", "|---|---|---|---|"]
     lines += [f"| {s['step']} | {s['wall_s']:.0f} | {s['cpu_s']:.0f} | {s['load_start']:.1f} / {s['load_end']:.1f} |" for s in steps]

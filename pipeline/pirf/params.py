@@ -27,8 +27,13 @@ class PirfParams(Params):
     eps: float = param(30, min=0.0, help="epsilon (table 1)")
     sigma: float = param(2.0, min=0.0, min_exclusive=True, help="Gaussian sigma of the score (table 1)")
     tau: float = param(0.015, min=0.0, help="tau (table 1)")
-    direction_correction: bool = param(False, help="correct loop-closure nodes for the PIRF track lag on "
-                                       "opposite-direction revisits (not in the paper; see docs/pirf.md)")
+    direction_correction: bool = param(True, help="correct loop-closure nodes for the PIRF track lag on "
+                                       "opposite-direction revisits (not in the paper; false: as matched; see docs/pirf.md)")
+    verify_frames: int = param(5, min=0, help="geometric check of each loop closure: keep it when its bearing parallax is no "
+                               "larger than that between the matched node and the map frames this many frames away "
+                               "(5: about 1 m at the paper's 5 frames/s and walking pace; 0: off; not in the paper, see docs/pirf.md)")
+    verify_min_matches: int = param(8, min=2, help="fewest ratio-test feature matches between a closure's two frames for "
+                                    "the geometric check to keep it")
     update: str = param("improved", choices=("plain", "improved"), help="dictionary update")
     map_search: str = param("bruteforce", choices=("bruteforce", "faiss-hnsw"),
                             help="nearest neighbours while mapping: exact, or an HNSW graph grown with the dictionary")

@@ -64,7 +64,7 @@ def plot_closure_strips(path: Path, images: list[tuple[Any, ...]], titles: list[
     the earlier frame that truly stands nearest (greyscale omnidirectional frames)."""
     plt = _plt()
     rows, cols = len(images), max(len(r) for r in images)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.0 * rows + 0.5), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.3 * rows + 0.5), squeeze=False)
     for r, (imgs, tts) in enumerate(zip(images, titles)):
         for c in range(cols):
             ax = axes[r, c]
@@ -73,6 +73,6 @@ def plot_closure_strips(path: Path, images: list[tuple[Any, ...]], titles: list[
                 ax.imshow(imgs[c], cmap="gray", vmin=0, vmax=255)
                 ax.set_title(tts[c], fontsize=8)
     fig.suptitle(heading, fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / (2.0 * rows + 0.5)), h_pad=0.4, w_pad=0.4)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / (2.3 * rows + 0.5)), h_pad=1.0, w_pad=0.4)
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -57,3 +57,21 @@ def stage_seconds(run_dir: str | Path, stage: str) -> float:
     """Wall seconds the stage took when its artifact was written."""
     with _open(run_dir, stage) as f:
         return float(f.attrs["seconds"])
+
+
+def read_loop_closures(run_dir: str | Path, candidates: bool = False) -> dict[str, np.ndarray]:
+    """The map's loop closures (frame, node, matched_node, score); with ``candidates`` every
+    frame whose score reached tau, before the geometric check, with the check's ``keep``,
+    ``residual`` and ``reference`` (maps built before the check existed have no candidates)."""
+    with _open(run_dir, "build-dictionary") as f:
+        group = "closure_candidates" if candidates else "loop_closures"
+        if group not in f:
+            raise ValueError(f"{Path(run_dir) / 'build-dictionary.h5'} has no {group}: it was built before the geometric check "
+                             "existed; re-run build-dictionary")
+        return {k: f[f"{group}/{k}"][()] for k in f[group]}
+
+
+def read_windows(run_dir: str | Path, role: str = "reference") -> np.ndarray:
+    """The PIRF window w each kept frame of ``role`` used (eq. 2)."""
+    with _open(run_dir, "extract") as f:
+        return f[f"{role}/window"][()]

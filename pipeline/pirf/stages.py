@@ -31,14 +31,15 @@ from placeloc.images import ImageError, list_images, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import check_sizes, extract_frame_or_error
+from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
-from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement
+from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_mean
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
 from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
 from placeloc.pirf.tables import write_localization, write_loop_closures
 from placeloc.pirf.truth import read_frame_xy
 from placeloc.pirf.tuning import SEARCH_GRID, build_tuned
+from placeloc.pirf.verify import bearings, frames_needed, verify_closures
 
 log = logging.getLogger("placeloc.pirf")
 
@@ -142,6 +143,8 @@ def stage_build(ctx: Any) -> None:
     if p.direction_correction:
         lc_node = correct_for_travel_direction(lc, lc_node, ex["reference/window"][()], span=p.eps)
     n_nodes = len(best)
+    check = _verify(ctx, ex, lc, lc_node, n_nodes)
+    keep = check["keep"]
     temporal = np.column_stack([np.arange(n_nodes - 1), np.arange(1, n_nodes)]) if n_nodes > 1 else np.zeros((0, 2), np.int64)
     d = res.pop("dictionary")
     ctx.out.attrs["update"] = p.update
@@ -149,8 +152,36 @@ def stage_build(ctx: Any) -> None:
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
     ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
-    write_tree(ctx.out, {**res, "loop_closures": {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]},
-                         "graph": {"temporal": temporal, "loop": np.column_stack([lc, lc_node]).astype(np.int64)}})
+    ctx.out.attrs["verify_frames"] = p.verify_frames
+    cand = {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]}
+    write_tree(ctx.out, {**res, "loop_closures": {k: v[keep] for k, v in cand.items()},
+                         "closure_candidates": {**cand, **check},
+                         "graph": {"temporal": temporal, "loop": np.column_stack([lc[keep], lc_node[keep]]).astype(np.int64)}})
+
+
+def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_frames: int, chunk: int = 256) -> dict[str, np.ndarray]:
+    """The geometric check of :mod:`placeloc.pirf.verify` on the mapping frames' images
+    (every candidate kept when ``verify_frames`` is 0). Features are detected a chunk of
+    closures at a time, in parallel, so memory stays bounded on long videos."""
+    p = ctx.params
+    n = len(frames)
+    if p.verify_frames == 0 or n == 0:
+        return {"keep": np.ones(n, bool), "residual": np.full(n, np.nan), "reference": np.full(n, np.nan)}
+    images = ctx.images.get("reference")
+    if images is None:
+        raise ConfigError("pirf.verify_frames reads the mapping images again: set reference.images, or pirf.verify_frames: 0")
+    folder_pos = ex["reference/index"][()]
+    width = int(ex["reference"].attrs["width"])
+    parts: list[dict[str, np.ndarray]] = []
+    starts = range(0, n, chunk)
+    for s in ctx.progress(starts, total=len(starts), desc=f"verify {n} loop closures"):
+        f, c = frames[s:s + chunk], nodes[s:s + chunk]
+        need = frames_needed(f, c, p.verify_frames, n_frames)
+        items = [(str(images.paths[folder_pos[j]]), p.features, p.n_features) for j in need]
+        feats = {int(j): (bearings(xy[:, 0], width), d) for j, (xy, _r, d, _s) in zip(need, ctx.executor.map(extract_frame, items))}
+        parts.append(verify_closures(f, c, feats.__getitem__, k=p.verify_frames, n_frames=n_frames, ratio=p.ratio,
+                                     min_matches=p.verify_min_matches))
+    return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
 
 
 # -- index ----------------------------------------------------------------------------
@@ -231,11 +262,22 @@ def stage_evaluate(ctx: Any) -> None:
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
                          "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
-    m["map_seconds_per_frame"] = float(np.mean(build["map_seconds"][()])) if len(build["map_seconds"]) else float("nan")
+    m.update(_mapping_cost(build))
     correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
     if correct is not None:
         m["loop_closures_correct"] = int(correct.sum())
         m["loop_closure_precision"] = float(correct.mean()) if len(correct) else float("nan")
+        # The candidates (score >= tau) before the geometric check, read both ways whichever is in
+        # use: as the similarity matched them, and moved for the PIRF track lag on opposite-direction
+        # revisits (pirf.direction_correction); then the check's effect on the nodes in use.
+        group = "closure_candidates" if "closure_candidates" in build else "loop_closures"
+        c_f, matched, c_n = (build[f"{group}/{k}"][()] for k in ("frame", "matched_node", "node"))
+        fixed = correct_for_travel_direction(c_f, matched, ex["reference/window"][()], span=p.eps)
+        for name, nodes in (("as_matched", matched), ("direction_corrected", fixed), ("candidates", c_n)):
+            ok = loop_closure_correct(r_xy, c_f, nodes, radius)
+            m[f"loop_closure_precision_{name}"] = float(ok.mean()) if len(ok) else float("nan")
+        m["loop_closure_candidates"] = int(len(c_f))
+        m["loop_closure_candidates_correct"] = int(loop_closure_correct(r_xy, c_f, c_n, radius).sum())
     else:
         m["loop_closures_correct"] = m["loop_closure_precision"] = None
     backend = str(loc.attrs.get("backend", "none"))
@@ -276,6 +318,22 @@ def stage_evaluate(ctx: Any) -> None:
             plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
 
 
+def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
+    """Mapping seconds per frame, wall and CPU, over the run and over its last ``tail``
+    (where the dictionary is largest), with the dictionary size where that tail starts."""
+    wall = build["map_seconds"][()]
+    out = {"map_seconds_per_frame": float(np.mean(wall)) if len(wall) else float("nan"),
+           "map_seconds_per_frame_end": tail_mean(wall, tail)}
+    out["map_frames_per_second_end"] = 1.0 / out["map_seconds_per_frame_end"] if len(wall) else float("nan")
+    if "map_cpu_seconds" in build:  # older maps recorded wall time only
+        cpu = build["map_cpu_seconds"][()]
+        out["map_cpu_seconds_per_frame"] = float(np.mean(cpu)) if len(cpu) else float("nan")
+        out["map_cpu_seconds_per_frame_end"] = tail_mean(cpu, tail)
+    sizes = build["dict_size_after"][()]
+    out["map_end_dictionary_from"] = int(sizes[-max(1, int(round(len(sizes) * tail)))]) if len(sizes) else 0
+    return out
+
+
 def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
     """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
     the earlier frame that truly stands nearest."""
@@ -304,8 +362,9 @@ METHOD = Method(
         "extract": Stage(stage_extract, keys=("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max",
                                               "n_pmin", "n_pmax")),
         # ratio and n_pmax reach build/localize through the extract stamp
-        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "direction_correction", "map_search", "map_ef_search",
-                                                    "map_hnsw_m", "map_ef_construction")),
+        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "direction_correction", "verify_frames",
+                                                    "verify_min_matches", "map_search", "map_ef_search", "map_hnsw_m",
+                                                    "map_ef_construction")),
         "index": Stage(stage_index, keys=INDEX_KEYS),
         "localize": Stage(stage_localize, keys=("compare_bf",)),
         "evaluate": Stage(stage_evaluate, keys=("query_poses",), sections=("ground_truth", "plots")),

@@ -73,7 +73,7 @@ def floor(args: argparse.Namespace) -> None:
     n_pos = len(np.unique(poses[:, :2], axis=0))
     print(f"\nreal-scale floor: {len(model.segments)} segments, {len(model.faces)} wall faces, {len(model.polygons)} rooms; "
           f"grid {args.grid_step} m x 5 deg: {n_pos} positions, {len(poses):,} views of {cam.width}x{cam.height}; "
-          f"cores {os.cpu_count()}, numba threads {numba.get_num_threads()}; machine shared with other jobs")
+          f"cores {os.cpu_count()}, numba threads {numba.get_num_threads()}; load average {os.getloadavg()[0]:.1f}")
     tol = args.tolerance
     render_grid(model.segments, model.faces, poses[:144], cam, near=0.05, hidden=True, tolerance_px=tol, pooled=True)  # JIT
     (db, cells), wall, cpu = _timed(render_grid, model.segments, model.faces, poses, cam, near=0.05, hidden=True,

@@ -37,6 +37,59 @@ from placeloc.geometry.visibility import (
 )
 
 
+@njit(cache=True, inline="always")
+def _near_clip(ax: float, ay: float, az: float, za: float, bx: float, by: float, bz: float, zb: float,
+               near: float) -> tuple:
+    """Clip the camera-relative segment a-b (depths ``za``, ``zb``) at the near plane,
+    keeping the visible part; the caller has dropped segments wholly behind it."""
+    if za < near:
+        t = (near - za) / (zb - za)
+        ax += t * (bx - ax)
+        ay += t * (by - ay)
+        az += t * (bz - az)
+        za = near
+    elif zb < near:
+        t = (near - zb) / (za - zb)
+        bx += t * (ax - bx)
+        by += t * (ay - by)
+        bz += t * (az - bz)
+        zb = near
+    return ax, ay, az, za, bx, by, bz, zb
+
+
+@njit(cache=True, inline="always")
+def _screen_clip(ua: float, va: float, du: float, dv: float, width: int, height: int) -> tuple:
+    """Liang-Barsky clip of the 2-D segment ``(ua, va) + s (du, dv)`` to the pixel area:
+    ``(inside, s0, s1)``."""
+    s0 = 0.0
+    s1 = 1.0
+    for k in range(4):
+        if k == 0:
+            p, q = -du, ua + 0.5
+        elif k == 1:
+            p, q = du, (width - 0.5) - ua
+        elif k == 2:
+            p, q = -dv, va + 0.5
+        else:
+            p, q = dv, (height - 0.5) - va
+        if abs(p) < 1e-12:
+            if q < 0.0:
+                return False, s0, s1
+        else:
+            r = q / p
+            if p < 0.0:
+                if r > s1:
+                    return False, s0, s1
+                if r > s0:
+                    s0 = r
+            else:
+                if r < s0:
+                    return False, s0, s1
+                if r < s1:
+                    s1 = r
+    return True, s0, s1
+
+
 @njit(parallel=True, cache=True)
 def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int, focal: float,
             cx: float, cy: float, near: float, hidden: bool, out: np.ndarray) -> None:
@@ -86,18 +139,7 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
             if za < near and zb < near:
                 continue
             # near-plane clip in 3-D (world offsets), keeping the visible part
-            if za < near:
-                t = (near - za) / (zb - za)
-                ax += t * (bx - ax)
-                ay += t * (by - ay)
-                az += t * (bz - az)
-                za = near
-            elif zb < near:
-                t = (near - zb) / (za - zb)
-                bx += t * (ax - bx)
-                by += t * (ay - by)
-                bz += t * (az - bz)
-                zb = near
+            ax, ay, az, za, bx, by, bz, zb = _near_clip(ax, ay, az, za, bx, by, bz, zb, near)
             ua = cx + focal * (ax * rx + ay * ry) / za
             va = cy - focal * az / za
             ub = cx + focal * (bx * rx + by * ry) / zb
@@ -105,36 +147,7 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
             # Liang-Barsky clip of the 2-D segment to the pixel area
             du = ub - ua
             dv = vb - va
-            s0 = 0.0
-            s1 = 1.0
-            ok = True
-            for k in range(4):
-                if k == 0:
-                    p, q = -du, ua + 0.5
-                elif k == 1:
-                    p, q = du, (width - 0.5) - ua
-                elif k == 2:
-                    p, q = -dv, va + 0.5
-                else:
-                    p, q = dv, (height - 0.5) - va
-                if abs(p) < 1e-12:
-                    if q < 0.0:
-                        ok = False
-                        break
-                else:
-                    r = q / p
-                    if p < 0.0:
-                        if r > s1:
-                            ok = False
-                            break
-                        if r > s0:
-                            s0 = r
-                    else:
-                        if r < s0:
-                            ok = False
-                            break
-                        if r < s1:
-                            s1 = r
+            ok, s0, s1 = _screen_clip(ua, va, du, dv, width, height)
             if not ok:
                 continue
             npx = int(math.ceil(max(abs(du), abs(dv)) * (s1 - s0))) + 1
@@ -200,54 +213,14 @@ def _draw_pieces(pieces: np.ndarray, n: int, px: float, py: float, pz: float, he
         zb = bx * fx + by * fy
         if za < near and zb < near:
             continue
-        if za < near:
-            t = (near - za) / (zb - za)
-            ax += t * (bx - ax)
-            ay += t * (by - ay)
-            az += t * (bz - az)
-            za = near
-        elif zb < near:
-            t = (near - zb) / (za - zb)
-            bx += t * (ax - bx)
-            by += t * (ay - by)
-            bz += t * (az - bz)
-            zb = near
+        ax, ay, az, za, bx, by, bz, zb = _near_clip(ax, ay, az, za, bx, by, bz, zb, near)
         ua = cx + focal * (ax * rx + ay * ry) / za
         va = cy - focal * az / za
         ub = cx + focal * (bx * rx + by * ry) / zb
         vb = cy - focal * bz / zb
         du = ub - ua
         dv = vb - va
-        s0 = 0.0
-        s1 = 1.0
-        ok = True
-        for k in range(4):
-            if k == 0:
-                p, q = -du, ua + 0.5
-            elif k == 1:
-                p, q = du, (width - 0.5) - ua
-            elif k == 2:
-                p, q = -dv, va + 0.5
-            else:
-                p, q = dv, (height - 0.5) - va
-            if abs(p) < 1e-12:
-                if q < 0.0:
-                    ok = False
-                    break
-            else:
-                r = q / p
-                if p < 0.0:
-                    if r > s1:
-                        ok = False
-                        break
-                    if r > s0:
-                        s0 = r
-                else:
-                    if r < s0:
-                        ok = False
-                        break
-                    if r < s1:
-                        s1 = r
+        ok, s0, s1 = _screen_clip(ua, va, du, dv, width, height)
         if not ok:
             continue
         npx = int(math.ceil(max(abs(du), abs(dv)) * (s1 - s0))) + 1

@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 from numba import njit
-from placeloc.geometry.rays import ray_segment
+from placeloc.geometry.rays import occluded, ray_segment
 
 N_BINS = 2048
 COARSE = 16          # fine bins per coarse bin of the whole-segment rejection test
@@ -121,16 +121,7 @@ def _hidden(px: float, py: float, pz: float, qx: float, qy: float, qz: float, fa
     b = int((math.atan2(dy, dx) + math.pi) * (n_bins / (2.0 * math.pi)))
     if b >= n_bins:
         b = n_bins - 1
-    tmax = 1.0 - CLEARANCE_M / length
-    for i in range(n_hits[b]):
-        f = hit_f[b, i]
-        t, u = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
-        if t <= 1e-9 or t >= tmax or u < 0.0 or u > 1.0:
-            continue
-        z = pz + t * (qz - pz)
-        if faces[f, 4] <= z <= faces[f, 5]:
-            return True
-    return False
+    return occluded(px, py, pz, qx, qy, qz, faces, hit_f[b], n_hits[b])
 
 
 @njit(cache=True)

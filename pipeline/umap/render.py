@@ -90,6 +90,34 @@ def _screen_clip(ua: float, va: float, du: float, dv: float, width: int, height:
     return True, s0, s1
 
 
+@njit(cache=True, inline="always")
+def _segment_on_screen(seg: np.ndarray, px: float, py: float, pz: float, fx: float, fy: float, rx: float, ry: float,
+                       near: float, focal: float, cx: float, cy: float, width: int, height: int) -> tuple:
+    """Segment ``seg`` (x0 y0 z0 x1 y1 z1, world) seen from (px, py, pz) looking along
+    (fx, fy): moved into camera offsets, clipped at the near plane, projected and clipped to
+    the pixel area. Returns ``(inside, ua, va, du, dv, s0, s1, ax, ay, az, za, bx, by, bz,
+    zb)``: the visible screen part is ``(ua, va) + s (du, dv)`` for s in [s0, s1]; a/b are
+    the clipped end points relative to the camera and za/zb their depths (for a
+    perspective-correct point along the segment)."""
+    ax = seg[0] - px
+    ay = seg[1] - py
+    az = seg[2] - pz
+    bx = seg[3] - px
+    by = seg[4] - py
+    bz = seg[5] - pz
+    za = ax * fx + ay * fy
+    zb = bx * fx + by * fy
+    if za < near and zb < near:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ax, ay, az, za, bx, by, bz, zb
+    ax, ay, az, za, bx, by, bz, zb = _near_clip(ax, ay, az, za, bx, by, bz, zb, near)
+    ua = cx + focal * (ax * rx + ay * ry) / za
+    va = cy - focal * az / za
+    du = cx + focal * (bx * rx + by * ry) / zb - ua
+    dv = cy - focal * bz / zb - va
+    inside, s0, s1 = _screen_clip(ua, va, du, dv, width, height)
+    return inside, ua, va, du, dv, s0, s1, ax, ay, az, za, bx, by, bz, zb
+
+
 @njit(parallel=True, cache=True)
 def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int, focal: float,
             cx: float, cy: float, near: float, hidden: bool, out: np.ndarray) -> None:
@@ -128,26 +156,8 @@ def _render(segs: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, 
                 fidx[nf] = f
                 nf += 1
         for s in range(nseg):
-            ax = segs[s, 0] - px
-            ay = segs[s, 1] - py
-            az = segs[s, 2] - pz
-            bx = segs[s, 3] - px
-            by = segs[s, 4] - py
-            bz = segs[s, 5] - pz
-            za = ax * fx + ay * fy
-            zb = bx * fx + by * fy
-            if za < near and zb < near:
-                continue
-            # near-plane clip in 3-D (world offsets), keeping the visible part
-            ax, ay, az, za, bx, by, bz, zb = _near_clip(ax, ay, az, za, bx, by, bz, zb, near)
-            ua = cx + focal * (ax * rx + ay * ry) / za
-            va = cy - focal * az / za
-            ub = cx + focal * (bx * rx + by * ry) / zb
-            vb = cy - focal * bz / zb
-            # Liang-Barsky clip of the 2-D segment to the pixel area
-            du = ub - ua
-            dv = vb - va
-            ok, s0, s1 = _screen_clip(ua, va, du, dv, width, height)
+            ok, ua, va, du, dv, s0, s1, ax, ay, az, za, bx, by, bz, zb = _segment_on_screen(
+                segs[s], px, py, pz, fx, fy, rx, ry, near, focal, cx, cy, width, height)
             if not ok:
                 continue
             npx = int(math.ceil(max(abs(du), abs(dv)) * (s1 - s0))) + 1
@@ -203,24 +213,8 @@ def _draw_pieces(pieces: np.ndarray, n: int, px: float, py: float, pz: float, he
     rx = fy
     ry = -fx
     for s in range(n):
-        ax = pieces[s, 0] - px
-        ay = pieces[s, 1] - py
-        az = pieces[s, 2] - pz
-        bx = pieces[s, 3] - px
-        by = pieces[s, 4] - py
-        bz = pieces[s, 5] - pz
-        za = ax * fx + ay * fy
-        zb = bx * fx + by * fy
-        if za < near and zb < near:
-            continue
-        ax, ay, az, za, bx, by, bz, zb = _near_clip(ax, ay, az, za, bx, by, bz, zb, near)
-        ua = cx + focal * (ax * rx + ay * ry) / za
-        va = cy - focal * az / za
-        ub = cx + focal * (bx * rx + by * ry) / zb
-        vb = cy - focal * bz / zb
-        du = ub - ua
-        dv = vb - va
-        ok, s0, s1 = _screen_clip(ua, va, du, dv, width, height)
+        ok, ua, va, du, dv, s0, s1, _, _, _, _, _, _, _, _ = _segment_on_screen(
+            pieces[s], px, py, pz, fx, fy, rx, ry, near, focal, cx, cy, width, height)
         if not ok:
             continue
         npx = int(math.ceil(max(abs(du), abs(dv)) * (s1 - s0))) + 1

@@ -8,7 +8,6 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
 
 import cv2
 import numpy as np
@@ -90,13 +89,9 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
         files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS),
                        key=lambda q: natural_key(q.name))
     if not files:
-        _no_images(spec)
+        raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
+                         "point reference.images / query.images at a folder of images")
     return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint)
-
-
-def _no_images(spec: str) -> NoReturn:
-    raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
-                     "point reference.images / query.images at a folder of images")
 
 
 def _unreadable(path: str | Path) -> ImageError:

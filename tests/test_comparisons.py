@@ -115,17 +115,29 @@ def test_every_comparison_prefers_the_same_place_under_light_change(comparison):
 
 
 def test_sad_kernels_agree_exactly_on_odd_sizes():
+    """Both compiled uint8 kernels (vpsadbw where the CPU has AVX2, the plain loop
+    everywhere) against NumPy's exact sums, on sizes that leave partial 32-byte blocks and
+    partial tiles, with one thread and with several."""
     from placeloc.seqslam import l1
 
-    if not l1.HAS_AVX2:
-        pytest.skip("the vpsadbw kernel needs AVX2")
+    variants = [False] + ([True] if l1.host_has_avx2() else [])
     rng = np.random.default_rng(5)
-    for n, m, d in ((7, 5, 50), (100, 97, 2048), (33, 70, 2053), (1, 1, 31)):
+    for n, m, d in ((7, 5, 50), (100, 97, 2048), (33, 70, 2053), (1, 1, 31), (4, 130, 7)):
         a = rng.integers(0, 256, (n, d), dtype=np.uint8)
         b = rng.integers(0, 256, (m, d), dtype=np.uint8)
-        fast, plain = np.empty((n, m), np.float32), np.empty((n, m), np.float32)
-        l1._l1_uint8_avx2(a, b, fast)
-        l1._l1_uint8_plain(a, b, plain)
         expect = (np.abs(a.astype(np.int64)[:, None] - b.astype(np.int64)[None]).sum(-1) / d).astype(np.float32)
-        np.testing.assert_array_equal(fast, expect)
-        np.testing.assert_array_equal(plain, expect)
+        for avx2 in variants:
+            for threads in (1, 3):
+                out = np.full((n, m), np.nan, np.float32)
+                l1.l1_uint8(a, b, out, avx2=avx2, threads=threads)
+                np.testing.assert_array_equal(out, expect)
+
+
+def test_float_kernel_matches_numpy():
+    from placeloc.seqslam import l1
+
+    rng = np.random.default_rng(6)
+    a, b = rng.normal(size=(9, 301)).astype(np.float32), rng.normal(size=(50, 301)).astype(np.float32)
+    out = np.empty((9, 50), np.float32)
+    l1.l1_float(a, b, out, threads=2)
+    np.testing.assert_allclose(out, np.abs(a.astype(np.float64)[:, None] - b[None]).mean(-1), rtol=1e-5)

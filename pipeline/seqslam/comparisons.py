@@ -34,8 +34,8 @@ Readings of the paper where it is terse (recorded here, the one place they are u
   to the average of four". We take non-overlapping 2x2 averages (the image at half
   resolution) and apply ISC/OCM to those, which is what absorbs the small shifts.
 
-The kernels: SAD is a numba-parallel uint8 L1 kernel (the compiler turns it into SIMD
-sum-of-absolute-differences); ZNCC, ISC and OCM are matrix products (BLAS) of suitably
+The kernels: SAD is a uint8 L1 kernel compiled with llvmlite (x86 ``vpsadbw`` where the
+CPU has AVX2, see :mod:`placeloc.seqslam.l1`); ZNCC, ISC and OCM are matrix products (BLAS) of suitably
 encoded vectors, which is why their features are stored encoded.
 """
 
@@ -196,8 +196,8 @@ def feature_dtype(comparison: str, normalisation: str) -> np.dtype:
 # Difference blocks
 # ---------------------------------------------------------------------------------------
 def mean_abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``out[i, j] = mean_k |a[i, k] - b[j, k]|`` as float32 (numba, all cores)."""
-    # The numba kernels live in their own module, imported here: extract never pays for numba.
+    """``out[i, j] = mean_k |a[i, k] - b[j, k]|`` as float32 (compiled kernels, all cores)."""
+    # The kernels live in their own module, imported here: extract never compiles them.
     from placeloc.seqslam.l1 import l1_float, l1_uint8
 
     out = np.empty((a.shape[0], b.shape[0]), np.float32)

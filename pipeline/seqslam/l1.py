@@ -1,107 +1,312 @@
-"""Mean absolute difference kernels (numba, all cores) behind ``comparisons.mean_abs_difference``.
-
-Kept in their own module so that importing the comparisons (as ``extract`` does) does not
-import numba.
+"""Mean absolute difference kernels behind ``comparisons.mean_abs_difference``.
 
 The uint8 kernel is SeqSLAM's hot loop (3576 x 3576 x 2048 byte differences for the
-benchmark). numba widens every uint8 operation to 64-bit integers, so a plain loop
-vectorises into 4 lanes at best. On CPUs with AVX2 we therefore emit the x86
-sum-of-absolute-differences instruction directly (``vpsadbw``: 32 byte pairs per
-instruction) through a small LLVM intrinsic, and tile the loops so that a block of query
-rows stays in cache while every reference row streams past it once. Results are exact
-integer sums either way; elsewhere the plain loop runs.
+benchmark). Both kernels are a few lines of LLVM IR compiled for this CPU by llvmlite
+(numba's code generator, used here without numba) the first time a difference block is
+computed (about 0.1 s; the machine code is then cached on disk and loads in 5 ms). numba itself cost every ``localize`` process about 0.7 s before
+its first kernel ran (its import, then the registries its first call loads, which import
+``scipy.linalg``): a fifth of the whole benchmark run.
+
+- uint8: on CPUs with AVX2 the x86 sum-of-absolute-differences instruction (``vpsadbw``,
+  32 byte pairs per instruction) is called directly, because LLVM's own vectoriser turns
+  the plain loop into 8-byte ``psadbw`` steps (measured: 2.5x slower). Elsewhere the
+  plain loop is compiled, which LLVM vectorises for the CPU at hand. Sums are exact
+  integers either way.
+- float32: the plain loop with reassociation allowed (``fadd fast``), so it vectorises.
+
+Loops are tiled so that a block of ``b`` rows stays in cache while every ``a`` row streams
+past it once. The calls go through ctypes, which releases the GIL: one Python thread per
+core runs its share of the tiles.
 """
 
 from __future__ import annotations
 
-import numba
+import contextlib
+import ctypes
+import functools
+import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
 import numpy as np
-from llvmlite import binding as _llvm
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
-# Only when numba compiles for this very CPU (NUMBA_CPU_NAME=generic, for portable caches,
-# would lack the instruction).
-HAS_AVX2 = "+avx2" in _llvm.get_host_cpu_features().flatten() and numba.config.CPU_NAME in (None, "host")
-# Query rows per tile: 48 x 2 KB rows (64x32 thumbnails) stay in a core's L2 cache.
+# Rows of ``b`` per tile: 48 x 2 KB rows (64x32 thumbnails) stay in a core's L2 cache.
 _TILE = 48
+# Per-pair sums are 32-bit: 255 * d must fit.
+MAX_UINT8_LENGTH = (2**31 - 1) // 255
+
+_SAD_AVX2 = r"""
+declare <4 x i64> @llvm.x86.avx2.psad.bw(<32 x i8>, <32 x i8>)
+declare i64 @llvm.vector.reduce.add.v4i64(<4 x i64>)
+declare i32 @llvm.abs.i32(i32, i1)
+
+define internal i32 @sad(i8* noalias nocapture readonly %a, i8* noalias nocapture readonly %b, i64 %d) alwaysinline {
+entry:
+  %nb = lshr i64 %d, 5
+  %none = icmp eq i64 %nb, 0
+  br i1 %none, label %blocks_done, label %block
+block:
+  %k = phi i64 [0, %entry], [%k1, %block]
+  %acc = phi <4 x i64> [zeroinitializer, %entry], [%acc1, %block]
+  %off = shl i64 %k, 5
+  %pa = getelementptr inbounds i8, i8* %a, i64 %off
+  %pb = getelementptr inbounds i8, i8* %b, i64 %off
+  %qa = bitcast i8* %pa to <32 x i8>*
+  %qb = bitcast i8* %pb to <32 x i8>*
+  %va = load <32 x i8>, <32 x i8>* %qa, align 1
+  %vb = load <32 x i8>, <32 x i8>* %qb, align 1
+  %ps = call <4 x i64> @llvm.x86.avx2.psad.bw(<32 x i8> %va, <32 x i8> %vb)
+  %acc1 = add <4 x i64> %acc, %ps
+  %k1 = add nuw i64 %k, 1
+  %more = icmp ult i64 %k1, %nb
+  br i1 %more, label %block, label %blocks_done
+blocks_done:
+  %accf = phi <4 x i64> [zeroinitializer, %entry], [%acc1, %block]
+  %sum64 = call i64 @llvm.vector.reduce.add.v4i64(<4 x i64> %accf)
+  %sum = trunc i64 %sum64 to i32
+  %tail0 = shl i64 %nb, 5
+  %has_tail = icmp ult i64 %tail0, %d
+  br i1 %has_tail, label %tail, label %exit
+tail:
+  %t = phi i64 [%tail0, %blocks_done], [%t1, %tail]
+  %tacc = phi i32 [%sum, %blocks_done], [%tacc1, %tail]
+  %pa2 = getelementptr inbounds i8, i8* %a, i64 %t
+  %pb2 = getelementptr inbounds i8, i8* %b, i64 %t
+  %va2 = load i8, i8* %pa2, align 1
+  %vb2 = load i8, i8* %pb2, align 1
+  %xa = zext i8 %va2 to i32
+  %xb = zext i8 %vb2 to i32
+  %diff = sub nsw i32 %xa, %xb
+  %ad = call i32 @llvm.abs.i32(i32 %diff, i1 true)
+  %tacc1 = add nuw nsw i32 %tacc, %ad
+  %t1 = add nuw i64 %t, 1
+  %tmore = icmp ult i64 %t1, %d
+  br i1 %tmore, label %tail, label %exit
+exit:
+  %r = phi i32 [%sum, %blocks_done], [%tacc1, %tail]
+  ret i32 %r
+}
+"""
+
+_SAD_PLAIN = r"""
+declare i32 @llvm.abs.i32(i32, i1)
+
+define internal i32 @sad(i8* noalias nocapture readonly %a, i8* noalias nocapture readonly %b, i64 %d) alwaysinline {
+entry:
+  %empty = icmp eq i64 %d, 0
+  br i1 %empty, label %exit, label %loop
+loop:
+  %k = phi i64 [0, %entry], [%k1, %loop]
+  %acc = phi i32 [0, %entry], [%acc1, %loop]
+  %pa = getelementptr inbounds i8, i8* %a, i64 %k
+  %pb = getelementptr inbounds i8, i8* %b, i64 %k
+  %va = load i8, i8* %pa, align 1
+  %vb = load i8, i8* %pb, align 1
+  %xa = zext i8 %va to i32
+  %xb = zext i8 %vb to i32
+  %diff = sub nsw i32 %xa, %xb
+  %ad = call i32 @llvm.abs.i32(i32 %diff, i1 true)
+  %acc1 = add nuw nsw i32 %acc, %ad
+  %k1 = add nuw i64 %k, 1
+  %more = icmp ult i64 %k1, %d
+  br i1 %more, label %loop, label %exit
+exit:
+  %r = phi i32 [0, %entry], [%acc1, %loop]
+  ret i32 %r
+}
+"""
+
+_ABS_FLOAT = r"""
+declare float @llvm.fabs.f32(float)
+
+define internal float @l1f(float* noalias nocapture readonly %a, float* noalias nocapture readonly %b, i64 %d) alwaysinline {
+entry:
+  %empty = icmp eq i64 %d, 0
+  br i1 %empty, label %exit, label %loop
+loop:
+  %k = phi i64 [0, %entry], [%k1, %loop]
+  %acc = phi float [0.0, %entry], [%acc1, %loop]
+  %pa = getelementptr inbounds float, float* %a, i64 %k
+  %pb = getelementptr inbounds float, float* %b, i64 %k
+  %va = load float, float* %pa, align 4
+  %vb = load float, float* %pb, align 4
+  %diff = fsub fast float %va, %vb
+  %ad = call fast float @llvm.fabs.f32(float %diff)
+  %acc1 = fadd fast float %acc, %ad
+  %k1 = add nuw i64 %k, 1
+  %more = icmp ult i64 %k1, %d
+  br i1 %more, label %loop, label %exit
+exit:
+  %r = phi float [0.0, %entry], [%acc1, %loop]
+  ret float %r
+}
+"""
+
+# out[i * m + j] = pair(a + i d, b + j d) / d for every row i of a and the b rows j0..j1,
+# tile by tile. {T}: element type, {PAIR}: the per-pair function, {WIDEN}: its sum to double.
+_TILED = r"""
+define void @{NAME}({T}* noalias nocapture readonly %a, {T}* noalias nocapture readonly %b, float* noalias nocapture %out,
+                    i64 %n, i64 %m, i64 %d, i64 %j0, i64 %j1, i64 %tile) {{
+entry:
+  %dd = sitofp i64 %d to double
+  br label %tiles
+tiles:
+  %t = phi i64 [%j0, %entry], [%tnext, %tile_done]
+  %tleft = icmp ult i64 %t, %j1
+  br i1 %tleft, label %tile_start, label %done
+tile_start:
+  %tend0 = add i64 %t, %tile
+  %tshort = icmp ult i64 %tend0, %j1
+  %tend = select i1 %tshort, i64 %tend0, i64 %j1
+  br label %rows
+rows:
+  %i = phi i64 [0, %tile_start], [%inext, %row_done]
+  %ileft = icmp ult i64 %i, %n
+  br i1 %ileft, label %row_start, label %tile_done
+row_start:
+  %ioff = mul i64 %i, %d
+  %pa = getelementptr inbounds {T}, {T}* %a, i64 %ioff
+  %orow = mul i64 %i, %m
+  br label %cols
+cols:
+  %j = phi i64 [%t, %row_start], [%jnext, %cols]
+  %joff = mul i64 %j, %d
+  %pb = getelementptr inbounds {T}, {T}* %b, i64 %joff
+  %s = call {S} @{PAIR}({T}* %pa, {T}* %pb, i64 %d)
+  %sf = {WIDEN} {S} %s to double
+  %mean = fdiv double %sf, %dd
+  %mf = fptrunc double %mean to float
+  %oi = add i64 %orow, %j
+  %po = getelementptr inbounds float, float* %out, i64 %oi
+  store float %mf, float* %po, align 4
+  %jnext = add nuw i64 %j, 1
+  %jleft = icmp ult i64 %jnext, %tend
+  br i1 %jleft, label %cols, label %row_done
+row_done:
+  %inext = add nuw i64 %i, 1
+  br label %rows
+tile_done:
+  %tnext = add i64 %t, %tile
+  br label %tiles
+done:
+  ret void
+}}
+"""
+
+_SIGNATURE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, *[ctypes.c_int64] * 6)
 
 
-@intrinsic
-def _sad_bytes(typingctx, a, ia, b, ib, nblocks):
-    """``sum |a.flat[ia + k] - b.flat[ib + k]|`` for ``k < 32 * nblocks`` (C-contiguous uint8)."""
-    sig = types.int64(a, types.intp, b, types.intp, types.intp)
+def host_has_avx2() -> bool:
+    import llvmlite.binding as llvm
 
-    def codegen(context, builder, signature, args):
-        arr_a, off_a, arr_b, off_b, nb = args
-        pa = builder.gep(context.make_array(signature.args[0])(context, builder, arr_a).data, [off_a])
-        pb = builder.gep(context.make_array(signature.args[2])(context, builder, arr_b).data, [off_b])
-        v8 = ir.VectorType(ir.IntType(8), 32)
-        v64 = ir.VectorType(ir.IntType(64), 4)
-        psad = cgutils.get_or_insert_function(builder.module, ir.FunctionType(v64, [v8, v8]), "llvm.x86.avx2.psad.bw")
-        acc = cgutils.alloca_once_value(builder, ir.Constant(v64, None))
-        with cgutils.for_range(builder, nb) as loop:
-            off = builder.mul(loop.index, ir.Constant(loop.index.type, 32))
-            va = builder.load(builder.bitcast(builder.gep(pa, [off]), v8.as_pointer()), align=1)
-            vb = builder.load(builder.bitcast(builder.gep(pb, [off]), v8.as_pointer()), align=1)
-            builder.store(builder.add(builder.load(acc), builder.call(psad, [va, vb])), acc)
-        v = builder.load(acc)
-        total = builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
-        for lane in range(1, 4):
-            total = builder.add(total, builder.extract_element(v, ir.Constant(ir.IntType(32), lane)))
-        return total
-
-    return sig, codegen
+    return "+avx2" in llvm.get_host_cpu_features().flatten()
 
 
-@numba.njit(parallel=True, cache=True)
-def _l1_uint8_avx2(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+def module_source(kernel: str, avx2: bool) -> str:
+    """The LLVM IR of one kernel: ``l1_u8`` (``avx2`` picks its pair function) or ``l1_f32``."""
+    if kernel == "l1_u8":
+        return (_SAD_AVX2 if avx2 else _SAD_PLAIN) + _TILED.format(NAME="l1_u8", T="i8", S="i32", PAIR="sad", WIDEN="sitofp")
+    return _ABS_FLOAT + _TILED.format(NAME="l1_f32", T="float", S="float", PAIR="l1f", WIDEN="fpext")
+
+
+def cache_dir() -> Path:
+    """Where compiled kernels are kept: ``$XDG_CACHE_HOME/placeloc/kernels`` (``~/.cache``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "placeloc" / "kernels"
+
+
+@functools.lru_cache(maxsize=4)
+def kernel(name: str, avx2: bool | None = None) -> Any:
+    """The compiled kernel ``name`` (``l1_u8`` or ``l1_f32``) as a ctypes function, once per
+    process. ``avx2`` None: as the CPU allows. The machine code is cached on disk, keyed by
+    the IR, the CPU and llvmlite's version (compiling takes about 0.1 s, loading 5 ms);
+    without a writable cache it is compiled every time."""
+    import llvmlite
+    import llvmlite.binding as llvm
+
+    llvm.initialize_native_target()
+    llvm.initialize_native_asmprinter()
+    if avx2 is None:
+        avx2 = host_has_avx2()
+    elif avx2 and not host_has_avx2():
+        raise ValueError("this CPU lacks AVX2: use avx2=None or False")
+    source = module_source(name, bool(avx2))
+    cpu, features = llvm.get_host_cpu_name(), llvm.get_host_cpu_features().flatten()
+    key = hashlib.sha256("\0".join([source, cpu, features, llvmlite.__version__]).encode()).hexdigest()[:32]
+    path = cache_dir() / f"{name}-{key}.o"
+    machine = llvm.Target.from_default_triple().create_target_machine(cpu=cpu, features=features, opt=3)
+    engine = llvm.create_mcjit_compiler(llvm.parse_assembly(""), machine)
+    try:
+        engine.add_object_file(llvm.ObjectFileRef.from_data(path.read_bytes()))
+    except (OSError, RuntimeError):
+        mod = llvm.parse_assembly(source)
+        mod.verify()
+        passes = llvm.create_pass_builder(machine, llvm.create_pipeline_tuning_options(3))
+        passes.getModulePassManager().run(mod, passes)
+        obj = machine.emit_object(mod)
+        engine.add_object_file(llvm.ObjectFileRef.from_data(obj))
+        _store(path, obj)
+    engine.finalize_object()
+    fn = _SIGNATURE(engine.get_function_address(name))
+    fn.engine = engine  # the engine owns the code: keep it alive with the function
+    return fn
+
+
+def _store(path: Path, data: bytes) -> None:
+    """Write a cache file atomically; a cache that cannot be written is skipped."""
+    with contextlib.suppress(OSError):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+
+
+def n_threads() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _run_tiled(fn: Any, a: np.ndarray, b: np.ndarray, out: np.ndarray, threads: int | None) -> None:
     n, d = a.shape
     m = b.shape[0]
-    nb = d // 32
-    for jb in numba.prange((m + _TILE - 1) // _TILE):
-        j0 = jb * _TILE
-        j1 = min(m, j0 + _TILE)
-        for i in range(n):
-            for j in range(j0, j1):
-                s = _sad_bytes(a, i * d, b, j * d, nb)
-                for k in range(nb * 32, d):
-                    x = np.int32(a[i, k]) - np.int32(b[j, k])
-                    s += x if x >= 0 else -x
-                out[i, j] = s / d
+    if b.shape[1] != d or out.shape != (n, m) or out.dtype != np.float32:
+        raise ValueError(f"shapes do not match: a {a.shape}, b {b.shape}, out {out.shape} {out.dtype}")
+    for name, x in (("a", a), ("b", b), ("out", out)):
+        if not x.flags.c_contiguous:
+            raise ValueError(f"{name} must be C-contiguous")
+    if n == 0 or m == 0:
+        return
+    tiles = -(-m // _TILE)
+    parts = max(1, min(threads or n_threads(), tiles))
+    cuts = [min(m, (k * tiles // parts) * _TILE) for k in range(parts + 1)]
+    args = (a.ctypes.data, b.ctypes.data, out.ctypes.data, n, m, d)
+
+    def part(k: int) -> None:
+        fn(*args, cuts[k], cuts[k + 1], _TILE)
+
+    if parts == 1:
+        part(0)
+        return
+    with ThreadPoolExecutor(max_workers=parts) as pool:
+        list(pool.map(part, range(parts)))
 
 
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _l1_uint8_plain(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    n, d = a.shape
-    m = b.shape[0]
-    for i in numba.prange(n):
-        ai = a[i]
-        for j in range(m):
-            bj = b[j]
-            s = 0
-            for k in range(d):
-                x = np.int32(ai[k]) - np.int32(bj[k])
-                s += x if x >= 0 else -x
-            out[i, j] = s / d
+def l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray, *, threads: int | None = None,
+             avx2: bool | None = None) -> None:
+    """``out[i, j] = mean_k |a[i, k] - b[j, k]|``; ``a``, ``b`` C-contiguous uint8, ``out``
+    float32 (the exact integer sum divided in double precision, then rounded to float32).
+    ``threads`` None: every core; ``avx2`` None: as the CPU allows (False forces the plain loop)."""
+    if a.dtype != np.uint8 or b.dtype != np.uint8:
+        raise ValueError(f"l1_uint8 needs uint8 rows, got {a.dtype} and {b.dtype}")
+    if a.shape[1] > MAX_UINT8_LENGTH:
+        raise ValueError(f"rows of {a.shape[1]} bytes are too long for 32-bit sums (at most {MAX_UINT8_LENGTH})")
+    _run_tiled(kernel("l1_u8", avx2), a, b, out, threads)
 
 
-def l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """``out[i, j] = mean_k |a[i, k] - b[j, k]|``; ``a``, ``b`` C-contiguous uint8."""
-    (_l1_uint8_avx2 if HAS_AVX2 else _l1_uint8_plain)(a, b, out)
-
-
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def l1_float(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    n, d = a.shape
-    m = b.shape[0]
-    for i in numba.prange(n):
-        ai = a[i]
-        for j in range(m):
-            bj = b[j]
-            s = np.float32(0.0)
-            for k in range(d):
-                s += abs(ai[k] - bj[k])
-            out[i, j] = s / d
+def l1_float(a: np.ndarray, b: np.ndarray, out: np.ndarray, *, threads: int | None = None) -> None:
+    """``out[i, j] = mean_k |a[i, k] - b[j, k]|``; ``a``, ``b`` C-contiguous float32 (the sum
+    is float32, in any order)."""
+    if a.dtype != np.float32 or b.dtype != np.float32:
+        raise ValueError(f"l1_float needs float32 rows, got {a.dtype} and {b.dtype}")
+    _run_tiled(kernel("l1_f32"), a, b, out, threads)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from placeloc.params import Params, param
 from placeloc.seqslam.comparisons import COMPARISONS
 
-# Kept here (not imported from search.py) so reading the parameters never imports numba.
+# Kept here (not imported from search.py) so reading the parameters never imports the search.
 SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid")
 
 

@@ -1,8 +1,10 @@
-"""Local contrast enhancement (eq. 1) and sequence search (eqs. 2-3), numba kernels.
+"""Local contrast enhancement (eq. 1) and sequence search (eqs. 2-3), in NumPy.
 
 Matrix convention: ``D[r, q]``, rows = reference, columns = query, lower = more alike.
-Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that the inner loops walk
-contiguous reference rows.
+Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that each step is a slice
+of contiguous reference rows, for a chunk of queries at once; chunks run on one thread per
+core (NumPy releases the GIL). This was numba code; NumPy slices do the same adds in the
+same order, and a ``localize`` process no longer pays numba's start-up (about 0.7 s).
 
 Trajectories (OpenSeqSLAM2's precomputed offsets): a trajectory is anchored at reference
 ``r`` for the current query ``T`` and passes through ``(T + t, r + round(V t))`` for the
@@ -16,9 +18,11 @@ with the best score outside ``+-window`` rows of it (see :func:`sequence_search`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
+from placeloc.seqslam.l1 import n_threads
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 
 INVALID = np.float32(np.inf)
@@ -53,25 +57,50 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
-@numba.njit(parallel=True, cache=True)
-def _enhance_t(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
-    nq, nr = dt.shape
-    for q in numba.prange(nq):
-        row = dt[q]
-        c1 = np.zeros(nr + 1)
-        c2 = np.zeros(nr + 1)
-        for r in range(nr):
-            x = np.float64(row[r])
-            c1[r + 1] = c1[r] + x
-            c2[r + 1] = c2[r] + x * x
-        for r in range(nr):
-            lo = max(0, r - window)
-            hi = min(nr, r + window + 1)
-            n = hi - lo
-            mean = (c1[hi] - c1[lo]) / n
-            var = (c2[hi] - c2[lo]) / n - mean * mean
-            sd = math.sqrt(var) if var > 1e-12 else 0.0
-            out[q, r] = ((row[r] - mean) / sd if sd > 0.0 else 0.0) + shift
+def _row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
+    """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
+    step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 16, 512))
+    return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
+
+
+def _threaded(fn: Callable[[int, int], None], chunks: list[tuple[int, int]]) -> None:
+    """``fn(lo, hi)`` for every chunk, on one thread per core (NumPy releases the GIL)."""
+    threads = min(n_threads(), len(chunks))
+    if threads <= 1:
+        for lo, hi in chunks:
+            fn(lo, hi)
+        return
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(lambda c: fn(*c), chunks))
+
+
+def _enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
+    """Eq. (1) along each row of ``dt`` (float64 running sums, as the z-score needs)."""
+    n, nr = dt.shape
+    x = dt.astype(np.float64)
+    c1 = np.zeros((n, nr + 1))
+    c2 = np.zeros((n, nr + 1))
+    np.cumsum(x, axis=1, out=c1[:, 1:])
+    np.cumsum(x * x, axis=1, out=c2[:, 1:])
+    r = np.arange(nr)
+    lo = np.maximum(0, r - window)
+    hi = np.minimum(nr, r + window + 1)
+    count = (hi - lo).astype(np.float64)
+    mean = (c1[:, hi] - c1[:, lo]) / count
+    var = (c2[:, hi] - c2[:, lo]) / count - mean * mean
+    sd = np.sqrt(np.where(var > 1e-12, var, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(sd > 0.0, (x - mean) / sd, 0.0)
+    out[:] = z + shift
+
+
+def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:
+    shift = float(enhancement_shift(window))
+
+    def run(lo: int, hi: int) -> None:
+        _enhance_rows(dt[lo:hi], int(window), shift, out[lo:hi])
+
+    _threaded(run, _row_chunks(dt.shape[0], dt.shape[1]))
 
 
 def enhance(d: np.ndarray, window: int) -> np.ndarray:
@@ -79,7 +108,7 @@ def enhance(d: np.ndarray, window: int) -> np.ndarray:
     plus the constant :func:`enhancement_shift`. Input and output are ``D[r, q]``."""
     dt = np.ascontiguousarray(d.T, dtype=np.float32)
     out = np.empty_like(dt)
-    _enhance_t(dt, int(window), float(enhancement_shift(window)), out)
+    _enhance_into(dt, window, out)
     return out.T
 
 
@@ -87,151 +116,99 @@ def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
     """As :func:`enhance` but on and to the query-major ``Dt[q, r]``."""
     dt = np.ascontiguousarray(dt, dtype=np.float32)
     out = np.empty_like(dt)
-    _enhance_t(dt, int(window), float(enhancement_shift(window)), out)
+    _enhance_into(dt, window, out)
     return out
 
 
-
-
-@numba.njit(cache=True, fastmath=True)
-def _trajectory_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
-    """``s[r] = min_V sum_t et[T + t, r + round(V t)]`` over trajectories inside the matrix."""
+def _trajectory_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """``s[q, r] = min_V sum_t et[T + t, r + round(V t)]`` for ``T`` in ``rows`` (all inside
+    the matrix for these offsets); inf where a trajectory would leave it."""
+    a, b = rows
     nr = et.shape[1]
-    nv, nt = traj.shape
-    acc = np.empty(nr, dtype=np.float32)
-    for v in range(nv):
-        omin = traj[v, 0]
-        omax = traj[v, 0]
-        for j in range(nt):
-            omin = min(omin, traj[v, j])
-            omax = max(omax, traj[v, j])
-        r_lo = max(0, -omin)
-        r_hi = min(nr, nr - omax, limit)
+    s = np.full((b - a, nr), INVALID, np.float32)
+    acc = np.empty((b - a, nr), np.float32)
+    for offsets in traj:
+        r_lo, r_hi = max(0, -int(offsets.min())), min(nr, nr - int(offsets.max()))
         if r_hi <= r_lo:
             continue
-        # Slices with non-negative loop indices: numba drops its negative-index handling
-        # and the adds vectorise (same adds, same order, as a loop over r).
-        a = acc[r_lo:r_hi]
-        a[:] = 0.0
-        for j in range(nt):
-            o = traj[v, j]
-            src = et[T + t_off[j], r_lo + o:r_hi + o]
-            for i in range(r_hi - r_lo):
-                a[i] += src[i]
-        dst = s[r_lo:r_hi]
-        for i in range(r_hi - r_lo):
-            if a[i] < dst[i]:
-                dst[i] = a[i]
+        part = acc[:, r_lo:r_hi]
+        part[:] = 0.0
+        for t, o in zip(t_off, offsets):  # same adds, same order, for every reference
+            part += et[a + t:b + t, r_lo + o:r_hi + o]
+        np.minimum(s[:, r_lo:r_hi], part, out=s[:, r_lo:r_hi])
+    return s
 
 
-@numba.njit(cache=True, fastmath=True)
-def _cone_scores(et: np.ndarray, T: int, t_off: np.ndarray, traj: np.ndarray, limit: int, s: np.ndarray) -> None:
-    """``s[r] = sum_t min_{o in cone(t)} et[T + t, r + o]``: at every query frame the best
+def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """``s[q, r] = sum_t min_{o in cone(t)} et[T + t, r + o]``: at every query frame the best
     reference inside the cone the velocities span, chosen frame by frame."""
+    a, b = rows
     nr = et.shape[1]
-    nv, nt = traj.shape
-    lo = np.empty(nt, np.int64)
-    hi = np.empty(nt, np.int64)
-    for j in range(nt):
-        lo[j] = traj[0, j]
-        hi[j] = traj[0, j]
-        for v in range(nv):
-            lo[j] = min(lo[j], traj[v, j])
-            hi[j] = max(hi[j], traj[v, j])
-    r_lo = 0
-    r_hi = min(nr, limit)
-    for j in range(nt):
-        r_lo = max(r_lo, -lo[j])
-        r_hi = min(r_hi, nr - hi[j])
+    lo, hi = traj.min(axis=0), traj.max(axis=0)
+    r_lo, r_hi = max(0, int((-lo).max())), min(nr, int((nr - hi).min()))
+    s = np.full((b - a, nr), INVALID, np.float32)
     if r_hi <= r_lo:
-        return
-    acc = np.zeros(nr, dtype=np.float32)
-    for j in range(nt):
-        col = et[T + t_off[j]]
-        for r in range(r_lo, r_hi):
-            m = col[r + lo[j]]
-            for o in range(lo[j] + 1, hi[j] + 1):
-                m = min(m, col[r + o])
-            acc[r] += m
-    for r in range(r_lo, r_hi):
-        s[r] = acc[r]
+        return s
+    acc = np.zeros((b - a, r_hi - r_lo), np.float32)
+    for t, o_lo, o_hi in zip(t_off, lo, hi):
+        best = et[a + t:b + t, r_lo + o_lo:r_hi + o_lo].copy()
+        for o in range(o_lo + 1, o_hi + 1):
+            np.minimum(best, et[a + t:b + t, r_lo + o:r_hi + o], out=best)
+        acc += best
+    s[:, r_lo:r_hi] = acc
+    return s
 
 
-@numba.njit(cache=True)
-def _top_k(s: np.ndarray, window: int, k: int, best: np.ndarray, scores: np.ndarray) -> None:
-    """Greedy non-maximum suppression: the k best references at least window+1 apart.
-    Destroys ``s``."""
-    nr = s.shape[0]
+def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy non-maximum suppression per row: the k best references at least window+1
+    apart (ties: the first), -1 / inf when none is left. Destroys ``s``."""
+    n, nr = s.shape
+    best = np.full((n, k), -1, np.int64)
+    scores = np.full((n, k), INVALID, np.float32)
+    rows = np.arange(n)
+    around = np.arange(-window, window + 1)
     for kk in range(k):
-        bi = -1
-        bv = np.inf
-        for r in range(nr):
-            if s[r] < bv:
-                bv = s[r]
-                bi = r
-        best[kk] = bi
-        scores[kk] = bv
-        if bi < 0:
-            for rest in range(kk + 1, k):
-                best[rest] = -1
-                scores[rest] = np.inf
+        bi = np.argmin(s, axis=1)
+        bv = s[rows, bi]
+        found = bv < INVALID
+        if not found.any():
             break
-        for r in range(max(0, bi - window), min(nr, bi + window + 1)):
-            s[r] = np.inf
+        best[found, kk], scores[found, kk] = bi[found], bv[found]
+        hit = rows[found]
+        s[hit[:, None], np.clip(bi[found, None] + around, 0, nr - 1)] = INVALID
+    return best, scores
 
 
-@numba.njit(cache=True)
-def _shifted(t_off: np.ndarray, vels: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
-    """Query offsets moved by ``shift`` frames and their trajectory offsets (same rounding
-    as :func:`trajectory_offsets`)."""
-    nv, nt = vels.shape[0], t_off.shape[0]
-    t2 = t_off + shift
-    traj = np.empty((nv, nt), np.int64)
-    for v in range(nv):
-        for j in range(nt):
-            x = vels[v] * np.float64(t2[j])
-            traj[v, j] = np.int64(np.sign(x) * np.floor(np.abs(x) + 0.5))
-    return t2, traj
+def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray, shape: str, window: int,
+            k: int, limit: np.ndarray) -> np.ndarray:
+    """Sequence scores of queries ``rows`` for one set of offsets; references ``>= limit``
+    (per query) are excluded."""
+    if shape == "trajectory":
+        s = _trajectory_scores(et, rows, t_off, traj)
+    elif shape == "cone":
+        s = _cone_scores(et, rows, t_off, traj)
+    else:
+        # hybrid: the cone proposes k regions, the trajectory score ranks inside them
+        cone = _cone_scores(et, rows, t_off, traj)
+        _exclude(cone, limit)
+        regions, _ = _top_k(cone, window, k)
+        line = _trajectory_scores(et, rows, t_off, traj)
+        s = np.full_like(line, INVALID)
+        nr = s.shape[1]
+        around = np.arange(-window, window + 1)
+        for kk in range(k):
+            ok = regions[:, kk] >= 0
+            q = np.nonzero(ok)[0][:, None]
+            cols = np.clip(regions[ok, kk][:, None] + around, 0, nr - 1)
+            s[q, cols] = line[q, cols]
+    _exclude(s, limit)
+    return s
 
 
-@numba.njit(parallel=True, cache=True, fastmath=True)
-def _search(et: np.ndarray, q_lo: int, q_hi: int, t_off: np.ndarray, traj: np.ndarray, vels: np.ndarray,
-            shift_edges: bool, window: int, k: int, exclude_after: np.ndarray, shape: int, best: np.ndarray,
-            scores: np.ndarray) -> None:
-    ncols, nr = et.shape
-    nt = traj.shape[1]
-    for qi in numba.prange(q_hi - q_lo):
-        T = q_lo + qi  # column of the current query inside et
-        s = np.full(nr, np.inf, dtype=np.float32)
-        to = t_off
-        tr = traj
-        ok = T + t_off[0] >= 0 and T + t_off[nt - 1] < ncols
-        if not ok and shift_edges and nt <= ncols:
-            # near the ends of the traverse: the window of ds + 1 frames nearest the query
-            sh = -(T + t_off[0]) if T + t_off[0] < 0 else ncols - 1 - (T + t_off[nt - 1])
-            to, tr = _shifted(t_off, vels, sh)
-            ok = True
-        if ok:
-            limit = exclude_after[qi]  # references >= limit are excluded (loop closure)
-            if shape == 0:
-                _trajectory_scores(et, T, to, tr, limit, s)
-            elif shape == 1:
-                _cone_scores(et, T, to, tr, limit, s)
-            else:
-                # hybrid: the cone proposes k regions, the trajectory score ranks inside them
-                _cone_scores(et, T, to, tr, limit, s)
-                cb = np.full(k, -1, np.int64)
-                cs = np.full(k, np.inf, np.float32)
-                _top_k(s, window, k, cb, cs)
-                st = np.full(nr, np.inf, dtype=np.float32)
-                _trajectory_scores(et, T, to, tr, limit, st)
-                for r in range(nr):
-                    s[r] = np.inf
-                for kk in range(k):
-                    if cb[kk] >= 0:
-                        for r in range(max(0, cb[kk] - window), min(nr, cb[kk] + window + 1)):
-                            s[r] = st[r]
-        _top_k(s, window, k, best[qi], scores[qi])
+def _exclude(s: np.ndarray, limit: np.ndarray) -> None:
+    nr = s.shape[1]
+    if (limit < nr).any():
+        s[np.arange(nr)[None, :] >= limit[:, None]] = INVALID
 
 
 def sequence_search(
@@ -280,10 +257,32 @@ def sequence_search(
         tg = query_index0 + np.arange(q_lo, q_hi)
         exclude_after = np.clip(tg - int(exclude_recent) + 1, 0, nr).astype(np.int64)
     best = np.full((n, k), -1, np.int64)
-    scores = np.full((n, k), np.inf, np.float32)
-    if n > 0:
-        _search(np.ascontiguousarray(et, dtype=np.float32), q_lo, q_hi, t_off, traj, np.asarray(vels, np.float64),
-                edges == "shift", int(window), int(k), exclude_after, SHAPES.index(shape), best, scores)
+    scores = np.full((n, k), INVALID, np.float32)
+    if n == 0:
+        return best, scores
+    et = np.ascontiguousarray(et, dtype=np.float32)
+    ncols, nt = et.shape[0], len(t_off)
+    window, k = int(window), int(k)
+    # Queries whose whole window lies inside the matrix share the offsets: scored in
+    # chunks of rows, one thread per core. The few near the ends are skipped or, with
+    # edges: shift, scored one by one with the ds + 1 frames nearest them.
+    first = max(q_lo, -int(t_off[0]))
+    last = min(q_hi, ncols - int(t_off[-1]))
+    inner = (first, last) if first < last else (q_lo, q_lo)
+
+    def run(lo: int, hi: int) -> None:
+        a, b = inner[0] + lo, inner[0] + hi
+        s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo])
+        best[a - q_lo:b - q_lo], scores[a - q_lo:b - q_lo] = _top_k(s, window, k)
+
+    _threaded(run, _row_chunks(inner[1] - inner[0], et.shape[1]))
+    if edges == "shift" and nt <= ncols:
+        for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
+            sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))
+            t2 = t_off + sh
+            s = _scores(et, (T, T + 1), t2, trajectory_offsets(vels, t2), shape, window, k,
+                        exclude_after[T - q_lo:T - q_lo + 1])
+            best[T - q_lo], scores[T - q_lo] = (x[0] for x in _top_k(s, window, k))
     return best, scores
 
 

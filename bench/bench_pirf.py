@@ -133,7 +133,7 @@ def main() -> None:
         if b.endswith("-tuned"):  # the default: the search setting tuned to pirf.index_recall
             p = PirfParams()
             ix = AnnIndex(b[: -len("-tuned")], dic, index_settings(p), seed=0)
-            tuned = build_tuned(ix, target=p.index_recall, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
+            tuned = build_tuned(ix, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
             print(f"{b}: {tuned['key']} {tuned['value']} (sample recall {tuned['nn_recall']:.3f}, m_t recall {tuned['mt_recall']:.3f}, "
                   f"{tuned['mt_matched']} matches)")
         else:

@@ -51,7 +51,10 @@ class PirfParams(Params):
     kdtree_trees: int = param(4, min=1, help="FLANN kd-trees")
     index_recall: float | None = param(0.97, min=0.0, max=1.0, help="tune the index's search setting to meet this recall "
                                        "against exact search (null: use ef_search / ivf_nprobe / checks as given)")
-    index_tune_sample: int = param(2000, min=10, help="dictionary entries searched to tune the index")
+    index_jaccard: float = param(0.95, min=0.0, max=1.0, help="and this m_t Jaccard agreement with exact search "
+                                 "(with index_recall)")
+    index_tune_sample: int = param(2000, min=10, help="dictionary entries searched to tune the index (grown until "
+                                   "400 of them pass the ratio test, up to 20,000)")
     compare_bf: bool = param(True, help="also time brute force at localize and report agreement")
     query_poses: str | None = param(None, path=True, help="CSV of the query frames' poses (the reference's: ground_truth.path)")
 
@@ -59,7 +62,7 @@ class PirfParams(Params):
 # Every backend's settings, and the parameters of the index stage.
 BACKEND_SETTINGS = ("checks", "hnsw_m", "hnsw_ef_construction", "ef_search", "ivf_nlist", "ivf_nprobe", "kmeans_branching",
                     "kdtree_trees")
-INDEX_KEYS = ("index", "index_recall", "index_tune_sample", *BACKEND_SETTINGS)
+INDEX_KEYS = ("index", "index_recall", "index_jaccard", "index_tune_sample", *BACKEND_SETTINGS)
 
 
 def index_settings(p: PirfParams) -> dict[str, int]:

@@ -192,10 +192,12 @@ def stage_index(ctx: Any) -> None:
     idx = AnnIndex(p.index, d, index_settings(p), seed)
     tuned = None
     if p.index_recall is not None and p.index in SEARCH_GRID:
-        tuned = build_tuned(idx, target=p.index_recall, sample=p.index_tune_sample, ratio=p.ratio, seed=seed)
+        tuned = build_tuned(idx, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio,
+                            seed=seed)
         if not tuned["target_met"]:
-            log.warning("index: no %s setting up to %s reaches recall %s on the dictionary sample (best %.3f); using it anyway",
-                        p.index, tuned["value"], p.index_recall, tuned["nn_recall"])
+            log.warning("index: no %s setting up to %s reaches m_t recall %s / Jaccard %s on the dictionary sample "
+                        "(it gives %.3f / %.3f); using it anyway", p.index, tuned["value"], p.index_recall,
+                        p.index_jaccard, tuned["mt_recall"], tuned["mt_jaccard"])
     else:
         idx.build()
     g = ctx.out.create_group("index")
@@ -286,7 +288,8 @@ def stage_evaluate(ctx: Any) -> None:
               "mt_seconds_bf", "mt_seconds_ann"):
         m[k] = None
     tuned = ctx.artifact("index")["index"].attrs
-    for k in ("key", "value", "target", "target_met", "sample", "nn_recall", "mt_recall", "mt_jaccard"):
+    for k in ("key", "value", "target", "target_jaccard", "target_met", "rule", "sample", "nn_recall", "mt_recall", "mt_jaccard",
+              "mt_matched"):
         if f"tuned_{k}" in tuned:
             v = tuned[f"tuned_{k}"]
             m[f"index_tuned_{k}"] = v.item() if hasattr(v, "item") else v

@@ -74,24 +74,43 @@ def _threaded(fn: Callable[[int, int], None], chunks: list[tuple[int, int]]) -> 
         list(pool.map(lambda c: fn(*c), chunks))
 
 
+def _window_sums(c: np.ndarray, window: int) -> np.ndarray:
+    """``c[:, min(nr, r + R + 1)] - c[:, max(0, r - R)]`` for every column ``r`` of running
+    sums ``c`` (with a leading zero column): slices inside, the clipped ends apart."""
+    nr = c.shape[1] - 1
+    out = np.empty((c.shape[0], nr))
+    r = np.arange(nr)
+    ends = np.flatnonzero((r < window) | (r >= nr - window))
+    if nr > 2 * window:
+        np.subtract(c[:, 2 * window + 1:], c[:, :nr - 2 * window], out=out[:, window:nr - window])
+    out[:, ends] = c[:, np.minimum(nr, ends + window + 1)] - c[:, np.maximum(0, ends - window)]
+    return out
+
+
 def _enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
     """Eq. (1) along each row of ``dt`` (float64 running sums, as the z-score needs)."""
     n, nr = dt.shape
     x = dt.astype(np.float64)
-    c1 = np.zeros((n, nr + 1))
-    c2 = np.zeros((n, nr + 1))
-    np.cumsum(x, axis=1, out=c1[:, 1:])
-    np.cumsum(x * x, axis=1, out=c2[:, 1:])
+    c = np.zeros((n, nr + 1))
+    np.cumsum(x, axis=1, out=c[:, 1:])
+    mean = _window_sums(c, window)
+    np.multiply(x, x, out=c[:, 1:])
+    np.cumsum(c[:, 1:], axis=1, out=c[:, 1:])
+    var = _window_sums(c, window)
     r = np.arange(nr)
-    lo = np.maximum(0, r - window)
-    hi = np.minimum(nr, r + window + 1)
-    count = (hi - lo).astype(np.float64)
-    mean = (c1[:, hi] - c1[:, lo]) / count
-    var = (c2[:, hi] - c2[:, lo]) / count - mean * mean
-    sd = np.sqrt(np.where(var > 1e-12, var, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.where(sd > 0.0, (x - mean) / sd, 0.0)
-    out[:] = z + shift
+    count = (np.minimum(nr, r + window + 1) - np.maximum(0, r - window)).astype(np.float64)
+    mean /= count
+    var /= count
+    var -= mean * mean
+    # sd = sqrt(var) where var > 1e-12, else the z-score is 0
+    flat = ~(var > 1e-12)
+    var[flat] = 1.0
+    np.sqrt(var, out=var)
+    x -= mean
+    x /= var
+    x[flat] = 0.0
+    x += shift
+    out[:] = x
 
 
 def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:

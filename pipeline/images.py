@@ -8,9 +8,12 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    import cv2
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
@@ -109,6 +112,8 @@ def _unreadable(path: str | Path) -> ImageError:
 
 def read_gray(path: str | Path) -> np.ndarray:
     """Read an image as 8-bit greyscale; colour is converted, 16-bit is scaled down."""
+    import cv2  # here: stages that never decode an image do not pay for OpenCV's import
+
     try:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
@@ -129,6 +134,8 @@ def read_gray(path: str | Path) -> np.ndarray:
 def akaze_detector(threshold: float | None) -> cv2.Feature2D:
     """OpenCV's AKAZE detector (``threshold`` None: OpenCV's own default, 0.001). AKAZE lives
     in ``cv2`` in OpenCV 4.x and in ``cv2.xfeatures2d`` from OpenCV 5 on."""
+    import cv2
+
     kwargs = {} if threshold is None else {"threshold": float(threshold)}
     if hasattr(cv2, "AKAZE_create"):
         return cv2.AKAZE_create(**kwargs)

@@ -532,7 +532,9 @@ def test_permission_denied_image_is_not_called_corrupt(route, monkeypatch):
 
     real_access = os.access
     monkeypatch.setattr(placeloc.images.os, "access", lambda p, m: False if Path(p) == img else real_access(p, m))
-    monkeypatch.setattr(placeloc.images.cv2, "imread", lambda *a: None)  # what OpenCV returns for an unreadable file
+    import cv2
+
+    monkeypatch.setattr(cv2, "imread", lambda *a: None)  # what OpenCV returns for an unreadable file
     with pytest.raises(ImageError, match="permission denied; make it readable"):
         read_gray(img)
     garbage = route / "query" / "zz.png"

@@ -149,7 +149,7 @@ def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store:
 
 def whole_run(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, float]]:
     """``placeloc extract`` and ``placeloc localize``, each its own process; best of ``repeat``
-    after one run that fills numba's cache (a user pays that once per install)."""
+    after one run that fills the compiled-kernel cache (a user pays that once per install)."""
     best: dict[str, tuple[float, float]] = {}
     for i in range(repeat + 1):
         for stage in ("extract", "localize"):
@@ -165,7 +165,9 @@ def main() -> None:
     ap.add_argument("--large", action="store_true", help="also run 36,000 x 36,000 through the pipeline")
     ap.add_argument("--keep", type=Path, default=None, help="keep generated data here")
     args = ap.parse_args()
-    print(f"cores: {os.cpu_count()}, numba threads: {os.environ.get('NUMBA_NUM_THREADS', 'all')}")
+    from placeloc.seqslam.l1 import n_threads
+
+    print(f"cores: {os.cpu_count()}, kernel threads: {n_threads()}")
     work = Path(tempfile.mkdtemp(prefix="bench-seqslam-")) if args.keep is None else args.keep
     try:
         n = args.n

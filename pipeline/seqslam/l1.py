@@ -37,10 +37,46 @@ _TILE = 48
 # Per-pair sums are 32-bit: 255 * d must fit.
 MAX_UINT8_LENGTH = (2**31 - 1) // 255
 
+# sum_k |a[k] - b[k]| by a plain loop, for uint8 (exact, 32-bit) and float32 (any order).
+_PAIR_LOOP = r"""
+define internal {ACC} @{NAME}({T}* noalias nocapture readonly %a, {T}* noalias nocapture readonly %b, i64 %d) alwaysinline {{
+entry:
+  %empty = icmp eq i64 %d, 0
+  br i1 %empty, label %exit, label %loop
+loop:
+  %k = phi i64 [0, %entry], [%k1, %loop]
+  %acc = phi {ACC} [{ZERO}, %entry], [%acc1, %loop]
+  %pa = getelementptr inbounds {T}, {T}* %a, i64 %k
+  %pb = getelementptr inbounds {T}, {T}* %b, i64 %k
+  %va = load {T}, {T}* %pa, align {ALIGN}
+  %vb = load {T}, {T}* %pb, align {ALIGN}
+{ABS_DIFF}
+  %acc1 = {ADD} {ACC} %acc, %ad
+  %k1 = add nuw i64 %k, 1
+  %more = icmp ult i64 %k1, %d
+  br i1 %more, label %loop, label %exit
+exit:
+  %r = phi {ACC} [{ZERO}, %entry], [%acc1, %loop]
+  ret {ACC} %r
+}}
+"""
+
+_SAD_SCALAR = "declare i32 @llvm.abs.i32(i32, i1)\n" + _PAIR_LOOP.format(
+    NAME="sad_scalar", T="i8", ACC="i32", ZERO="0", ALIGN=1, ADD="add nuw nsw", ABS_DIFF="""\
+  %xa = zext i8 %va to i32
+  %xb = zext i8 %vb to i32
+  %diff = sub nsw i32 %xa, %xb
+  %ad = call i32 @llvm.abs.i32(i32 %diff, i1 true)""")
+
+_ABS_FLOAT = "declare float @llvm.fabs.f32(float)\n" + _PAIR_LOOP.format(
+    NAME="l1f", T="float", ACC="float", ZERO="0.0", ALIGN=4, ADD="fadd fast", ABS_DIFF="""\
+  %diff = fsub fast float %va, %vb
+  %ad = call fast float @llvm.fabs.f32(float %diff)""")
+
+# 32-byte blocks through vpsadbw, the last d % 32 bytes through the scalar loop.
 _SAD_AVX2 = r"""
 declare <4 x i64> @llvm.x86.avx2.psad.bw(<32 x i8>, <32 x i8>)
 declare i64 @llvm.vector.reduce.add.v4i64(<4 x i64>)
-declare i32 @llvm.abs.i32(i32, i1)
 
 define internal i32 @sad(i8* noalias nocapture readonly %a, i8* noalias nocapture readonly %b, i64 %d) alwaysinline {
 entry:
@@ -66,81 +102,21 @@ blocks_done:
   %accf = phi <4 x i64> [zeroinitializer, %entry], [%acc1, %block]
   %sum64 = call i64 @llvm.vector.reduce.add.v4i64(<4 x i64> %accf)
   %sum = trunc i64 %sum64 to i32
-  %tail0 = shl i64 %nb, 5
-  %has_tail = icmp ult i64 %tail0, %d
-  br i1 %has_tail, label %tail, label %exit
-tail:
-  %t = phi i64 [%tail0, %blocks_done], [%t1, %tail]
-  %tacc = phi i32 [%sum, %blocks_done], [%tacc1, %tail]
-  %pa2 = getelementptr inbounds i8, i8* %a, i64 %t
-  %pb2 = getelementptr inbounds i8, i8* %b, i64 %t
-  %va2 = load i8, i8* %pa2, align 1
-  %vb2 = load i8, i8* %pb2, align 1
-  %xa = zext i8 %va2 to i32
-  %xb = zext i8 %vb2 to i32
-  %diff = sub nsw i32 %xa, %xb
-  %ad = call i32 @llvm.abs.i32(i32 %diff, i1 true)
-  %tacc1 = add nuw nsw i32 %tacc, %ad
-  %t1 = add nuw i64 %t, 1
-  %tmore = icmp ult i64 %t1, %d
-  br i1 %tmore, label %tail, label %exit
-exit:
-  %r = phi i32 [%sum, %blocks_done], [%tacc1, %tail]
+  %done = shl i64 %nb, 5
+  %rest = sub i64 %d, %done
+  %ta = getelementptr inbounds i8, i8* %a, i64 %done
+  %tb = getelementptr inbounds i8, i8* %b, i64 %done
+  %tail = call i32 @sad_scalar(i8* %ta, i8* %tb, i64 %rest)
+  %r = add nuw nsw i32 %sum, %tail
   ret i32 %r
 }
 """
 
 _SAD_PLAIN = r"""
-declare i32 @llvm.abs.i32(i32, i1)
-
 define internal i32 @sad(i8* noalias nocapture readonly %a, i8* noalias nocapture readonly %b, i64 %d) alwaysinline {
 entry:
-  %empty = icmp eq i64 %d, 0
-  br i1 %empty, label %exit, label %loop
-loop:
-  %k = phi i64 [0, %entry], [%k1, %loop]
-  %acc = phi i32 [0, %entry], [%acc1, %loop]
-  %pa = getelementptr inbounds i8, i8* %a, i64 %k
-  %pb = getelementptr inbounds i8, i8* %b, i64 %k
-  %va = load i8, i8* %pa, align 1
-  %vb = load i8, i8* %pb, align 1
-  %xa = zext i8 %va to i32
-  %xb = zext i8 %vb to i32
-  %diff = sub nsw i32 %xa, %xb
-  %ad = call i32 @llvm.abs.i32(i32 %diff, i1 true)
-  %acc1 = add nuw nsw i32 %acc, %ad
-  %k1 = add nuw i64 %k, 1
-  %more = icmp ult i64 %k1, %d
-  br i1 %more, label %loop, label %exit
-exit:
-  %r = phi i32 [0, %entry], [%acc1, %loop]
+  %r = call i32 @sad_scalar(i8* %a, i8* %b, i64 %d)
   ret i32 %r
-}
-"""
-
-_ABS_FLOAT = r"""
-declare float @llvm.fabs.f32(float)
-
-define internal float @l1f(float* noalias nocapture readonly %a, float* noalias nocapture readonly %b, i64 %d) alwaysinline {
-entry:
-  %empty = icmp eq i64 %d, 0
-  br i1 %empty, label %exit, label %loop
-loop:
-  %k = phi i64 [0, %entry], [%k1, %loop]
-  %acc = phi float [0.0, %entry], [%acc1, %loop]
-  %pa = getelementptr inbounds float, float* %a, i64 %k
-  %pb = getelementptr inbounds float, float* %b, i64 %k
-  %va = load float, float* %pa, align 4
-  %vb = load float, float* %pb, align 4
-  %diff = fsub fast float %va, %vb
-  %ad = call fast float @llvm.fabs.f32(float %diff)
-  %acc1 = fadd fast float %acc, %ad
-  %k1 = add nuw i64 %k, 1
-  %more = icmp ult i64 %k1, %d
-  br i1 %more, label %loop, label %exit
-exit:
-  %r = phi float [0.0, %entry], [%acc1, %loop]
-  ret float %r
 }
 """
 
@@ -207,7 +183,7 @@ def host_has_avx2() -> bool:
 def module_source(kernel: str, avx2: bool) -> str:
     """The LLVM IR of one kernel: ``l1_u8`` (``avx2`` picks its pair function) or ``l1_f32``."""
     if kernel == "l1_u8":
-        return (_SAD_AVX2 if avx2 else _SAD_PLAIN) + _TILED.format(NAME="l1_u8", T="i8", S="i32", PAIR="sad", WIDEN="sitofp")
+        return _SAD_SCALAR + (_SAD_AVX2 if avx2 else _SAD_PLAIN) + _TILED.format(NAME="l1_u8", T="i8", S="i32", PAIR="sad", WIDEN="sitofp")
     return _ABS_FLOAT + _TILED.format(NAME="l1_f32", T="float", S="float", PAIR="l1f", WIDEN="fpext")
 
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from placeloc.evaluation.poses import read_poses
-from placeloc.experiments.pirf_dictionary import dictionary_counts, property_frames, ratio_twins
+from placeloc.experiments.pirf_dictionary import dictionary_counts, merged_chains, property_frames, ratio_twins
 from placeloc.synth.omni import OmniWorld, generate, loop_length, loop_path
 
 SQUARE = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]  # 40 m, counter-clockwise: left = inside
@@ -123,3 +123,18 @@ def test_ratio_twins_finds_the_planted_pair() -> None:
     has, twin = ratio_twins(words, 0.7)
     assert has.nonzero()[0].tolist() == [7, 31]
     assert (twin[7], twin[31]) == (31, 7)
+
+
+def test_merged_chains_are_counted_as_within_frame_twins() -> None:
+    """30 features tracked over 4 frames; in the last frame feature 5 appears twice (a second
+    detection 0.5 % away), so both ratio-match feature 5 of the frame before: their chains
+    merge and their PIRFs (means along the chain) are twins."""
+    rng = np.random.default_rng(2)
+    base = rng.normal(0, 1, (30, 64)).astype(np.float32)
+    frames = [(base + rng.normal(0, 0.01, base.shape).astype(np.float32), np.ones(30, np.float32)) for _ in range(4)]
+    last = np.concatenate([frames[-1][0], frames[-1][0][5:6] + 0.005])
+    frames[-1] = (last, np.ones(31, np.float32))
+    c = merged_chains(frames, ratio=0.7, w_size_default=2, w_size_max=3, n_pmin=1, n_pmax=200)
+    # frames 1-3 give PIRFs (frame 0 has no history): 30 + 30 + 31
+    assert c["pirfs"] == 91
+    assert (c["merged_chain"], c["twins_in_frame"], c["twins_in_merged_chain"]) == (2, 2, 2)

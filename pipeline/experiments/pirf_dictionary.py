@@ -42,7 +42,7 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 from placeloc.api import load_config, run
@@ -118,6 +118,43 @@ def ratio_twins(words: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray
     return ok, twin
 
 
+def merged_chains(frames: Iterable[tuple[np.ndarray, np.ndarray]], *, ratio: float, w_size_default: int, w_size_max: int,
+                  n_pmin: int, n_pmax: int) -> dict[str, Any]:
+    """Where within-frame near-duplicate PIRFs come from. Runs PIRF extraction (sec. 3.1,
+    as the extract stage does) over the frames' (descriptors, detector responses) and, per
+    frame, counts the PIRFs that have a ratio-test twin among the other PIRFs of the same
+    frame, and the PIRFs whose chain is *merged*: another PIRF of the frame ratio-matched the
+    same feature of frame t-1 (the ratio test is not one-to-one), so the two chains, and
+    their mean descriptors, share all but one frame."""
+    from placeloc.pirf.chain import extract_pirfs, ratio_match
+
+    descs: list[np.ndarray] = []
+    resps: list[np.ndarray] = []
+    matches: list[np.ndarray] = []
+    total = twins = merged = both = 0
+    for desc, resp in frames:
+        matches.append(ratio_match(desc, descs[-1], ratio) if descs else np.full(len(desc), -1, np.int64))
+        descs.append(desc)
+        resps.append(resp)
+        if len(descs) > w_size_max + 1:
+            descs.pop(0)
+            resps.pop(0)
+            matches.pop(0)
+        pirf, sel, _w = extract_pirfs(descs, resps, matches, w_size_default, n_pmin, n_pmax, w_size_max)
+        if len(pirf) < 3:
+            continue
+        prev = matches[-1][sel]  # each PIRF's feature in frame t-1
+        ids, counts = np.unique(prev, return_counts=True)
+        shared = np.isin(prev, ids[counts > 1])
+        has, _twin = ratio_twins(pirf, ratio)
+        total += len(pirf)
+        twins += int(has.sum())
+        merged += int(shared.sum())
+        both += int((has & shared).sum())
+    return {"pirfs": total, "twins_in_frame": twins, "merged_chain": merged, "twins_in_merged_chain": both,
+            "twins_in_frame_pct": 100.0 * twins / max(total, 1), "merged_chain_pct": 100.0 * merged / max(total, 1)}
+
+
 def dictionary_counts(pirfs: np.ndarray, offsets: np.ndarray, *, ratio: float, n_pmax: int, eps: int, sigma: float,
                       marked: np.ndarray | None = None) -> dict[str, Any]:
     """Map one video's PIRFs with the plain and the improved update (exact search) and count
@@ -191,6 +228,24 @@ def measure_video(out: Path, prop: Property, level: float, seed: int, quiet: boo
     return row
 
 
+CHAIN_FRAMES = 300  # frames re-detected per setting to find where within-frame twins come from
+
+
+def chain_sources(out: Path, prop: Property, level: float, seed: int) -> dict[str, Any]:
+    """:func:`merged_chains` on ``CHAIN_FRAMES`` frames of a rendered video that carry the
+    property: the first ones for slow motion (three slow stretches), the last ones for
+    revisits (the second lap), with table 1's parameters and the default features."""
+    from placeloc.pirf.features import extract_frame
+
+    p = PirfParams()
+    data = _data(out, prop, level, seed, quiet=True)
+    paths = sorted((data / "mapping").glob("frame_*.png"))
+    paths = paths[:CHAIN_FRAMES] if prop.name == "slow" else paths[-CHAIN_FRAMES:]
+    frames = ((d, r) for _xy, r, d, _shape in (extract_frame((str(q), p.features, p.n_features)) for q in paths))
+    return merged_chains(frames, ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max, n_pmin=p.n_pmin,
+                         n_pmax=p.n_pmax)
+
+
 COLUMNS = ("plain", "improved", "reduction_pct", "within_frame_pct", "twins_plain_pct", "twins_improved_pct",
            "twins_plain_near_pct", "marked_frames", "plain_marked", "improved_marked", "reduction_marked_pct",
            "within_frame_marked_pct", "pirfs_per_frame")
@@ -220,48 +275,52 @@ def _fmt(e: dict[str, Any], c: str, nd: int = 1) -> str:
     return f"{e[c]:.{nd}f} [{e[f'{c}_min']:.{nd}f}, {e[f'{c}_max']:.{nd}f}]"
 
 
-def _write(out: Path, rows: list[dict[str, Any]], table: list[dict[str, Any]]) -> None:
+def _write(out: Path, rows: list[dict[str, Any]], table: list[dict[str, Any]], props: tuple[Property, ...]) -> None:
     for path, rr in ((out / "runs.csv", rows), (out / "table.csv", table)):
         with open(path, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rr[0]))
             w.writeheader()
             w.writerows(rr)
-    units = {p.name: p for p in PROPERTIES}
+    units = {p.name: p for p in props}
     lines = ["# PIRF dictionary: plain vs improved update as properties of real video grow", "",
              "Median [min, max] over seeds. Percentages: reduction = 1 - improved/plain; within-frame = PIRFs the plain "
              "update inserts that the improved rule would reject in the same frame (share of the plain dictionary); twins = "
              "words whose nearest other word passes the ratio test (share of that dictionary), near = twin inserted within "
-             "eps frames. 'marked' = the frames carrying the property (slow stretches; laps after the first).", ""]
+             "eps frames. 'marked' = the frames carrying the property (slow stretches; laps after the first). The last two "
+             f"columns: seed {rows[0]['seed']} only, {CHAIN_FRAMES} frames carrying the property, features re-detected: PIRFs with a "
+             "ratio-test twin among the other PIRFs of their frame, and the share of those whose chain merged with another "
+             "(two features of frame t matched the same feature of t-1).", ""]
     for name in dict.fromkeys(e["property"] for e in table):
         pr = units[name]
         lines += [f"## {name}: {pr.unit}, {pr.frames} mapping frames", "",
                   "| level | plain | improved | reduction % | within-frame % | twins plain % | twins improved % | twins near % "
-                  "| marked frames | reduction in marked % | within-frame in marked % |", "|" + "---|" * 11]
+                  "| marked frames | reduction in marked % | within-frame in marked % | PIRFs with an in-frame twin % "
+                  "| of those, merged chains % |", "|" + "---|" * 13]
         for e in (e for e in table if e["property"] == name):
             lines.append(f"| {e['level']:g} | {_fmt(e, 'plain', 0)} | {_fmt(e, 'improved', 0)} | {_fmt(e, 'reduction_pct')} "
                          f"| {_fmt(e, 'within_frame_pct')} | {_fmt(e, 'twins_plain_pct')} | {_fmt(e, 'twins_improved_pct')} "
                          f"| {_fmt(e, 'twins_plain_near_pct')} | {_fmt(e, 'marked_frames', 0)} | {_fmt(e, 'reduction_marked_pct')} "
-                         f"| {_fmt(e, 'within_frame_marked_pct')} |")
+                         f"| {_fmt(e, 'within_frame_marked_pct')} | {e['chains_twins_in_frame_pct']:.1f} "
+                         f"| {100 * e['chains_twins_in_merged_chain'] / max(e['chains_twins_in_frame'], 1):.0f} |")
         lines.append("")
     (out / "tables.md").write_text("\n".join(lines))
-    _plot(out / "reduction.png", table)
+    _plot(out / "reduction.png", table, units)
 
 
-def _plot(path: Path, table: list[dict[str, Any]]) -> None:
+def _plot(path: Path, table: list[dict[str, Any]], units: dict[str, Property]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(e["property"] for e in table))
-    units = {p.name: p for p in PROPERTIES}
-    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4.4), squeeze=False, sharey=True)
     for ax, name in zip(axes[0], names):
         ee = [e for e in table if e["property"] == name]
         x = np.arange(len(ee))
-        for c, label, mk in (("reduction_pct", "dictionary reduction, all frames", "o-"),
-                             ("reduction_marked_pct", "reduction in the frames with the property", "s--"),
-                             ("within_frame_pct", "within-frame duplicates (plain)", "^:")):
+        for c, label, mk in (("reduction_pct", "dictionary reduction by the improved update, all frames", "o-"),
+                             ("reduction_marked_pct", "the same, words added in the frames with the property", "s--"),
+                             ("within_frame_pct", "within-frame duplicates the plain update inserts", "^:")):
             y = np.array([e[c] for e in ee])
             lo = y - np.array([e[f"{c}_min"] for e in ee])
             hi = np.array([e[f"{c}_max"] for e in ee]) - y
@@ -269,13 +328,14 @@ def _plot(path: Path, table: list[dict[str, Any]]) -> None:
         ax.set_xticks(x)
         ax.set_xticklabels([f"{e['level']:g}" for e in ee])
         ax.set_xlabel(units[name].unit)
-        ax.set_ylabel("% of the plain dictionary (median, min-max over seeds)")
-        ax.set_title(f"{name} ({units[name].frames} mapping frames)", fontsize=10)
+        ax.set_title(f"{name} ({units[name].frames} mapping frames, {ee[0]['seeds']} seeds)", fontsize=10)
         ax.set_ylim(bottom=0)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left")
-    fig.suptitle("Improved PIRF dictionary update (Sasaki and Hamagami): paper -34 %", fontsize=10)
-    fig.tight_layout()
+    axes[0][0].set_ylabel("% of the plain dictionary\n(median, bars: min-max over seeds)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.suptitle("Improved PIRF dictionary update (Sasaki and Hamagami; the paper: -34 %) on generated video", fontsize=10)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
@@ -308,5 +368,12 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, seeds: tuple[i
     rows.sort(key=lambda r: ([p.name for p in props].index(r["property"]), r["level"] if r["property"] != "slow" else -r["level"],
                              r["seed"]))
     table = summarise(rows)
-    _write(out, rows, table)
+    for e in table:  # one seed: re-detecting features is as slow as extraction
+        key = json.dumps({"chains": e["property"], "level": e["level"], "seed": seeds[0], "frames": CHAIN_FRAMES})
+        if key not in cache:
+            prop = next(p for p in props if p.name == e["property"])
+            cache[key] = chain_sources(out, prop, e["level"], seeds[0])
+            cache_path.write_text(json.dumps(cache, indent=1))
+        e.update({f"chains_{k}": v for k, v in cache[key].items()})
+    _write(out, rows, table, props)
     return write_summary(out, {f"{e['property']}-{e['level']:g}": e for e in table})

@@ -10,7 +10,7 @@ experiment-pirf: $(STAMP)
 experiment-pirf-large: $(STAMP)
 	$(PL) experiment pirf-large
 
-# plain vs improved dictionary size as slow motion and sideways revisits grow (about 1 h on 2 cores)
+# plain vs improved dictionary size as slow motion and sideways revisits grow (about 75 min on 2 shared cores)
 experiment-pirf-dictionary: $(STAMP)
 	$(PL) experiment pirf-dictionary
 

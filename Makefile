@@ -22,6 +22,7 @@ help:
 	@echo "make bench-coembed      co-embedding sparse solve at 10,000 x 2,000"
 	@echo "make experiment-pirf    PIRF-nav2 tables 2-4 and figs 4-7 on generated omni video"
 	@echo "make experiment-pirf-large  ... at 8,000 frames, dictionary past 300,000 entries (~30 min)"
+	@echo "make experiment-pirf-dictionary  PIRF plain vs improved dictionary as slow motion and sideways revisits grow (~75 min)"
 	@echo "make bench-pirf         PIRF m_t: ANN backends vs brute force at 500,000 entries"
 	@echo "make bench-scale        extraction throughput: inline, process pool, Dask LocalCluster"
 

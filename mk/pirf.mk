@@ -1,7 +1,7 @@
 # PIRF-nav2 (Sasaki and Hamagami): `make experiment-pirf` reproduces the paper's tables 2-4 and
 # figs. 4-7 on a generated omnidirectional video; `make bench-pirf` measures m_t speed
 # and agreement of every index backend against brute force at a 500,000-entry dictionary.
-.PHONY: experiment-pirf experiment-pirf-quick experiment-pirf-large bench-pirf
+.PHONY: experiment-pirf experiment-pirf-quick experiment-pirf-large experiment-pirf-dictionary bench-pirf
 
 experiment-pirf: $(STAMP)
 	$(PL) experiment pirf
@@ -9,6 +9,10 @@ experiment-pirf: $(STAMP)
 # 8,000 frames: the dictionary passes 300,000 entries (about 30 min on 2 cores)
 experiment-pirf-large: $(STAMP)
 	$(PL) experiment pirf-large
+
+# plain vs improved dictionary size as slow motion and sideways revisits grow (about 75 min on 2 shared cores)
+experiment-pirf-dictionary: $(STAMP)
+	$(PL) experiment pirf-dictionary
 
 experiment-pirf-quick: $(STAMP)
 	$(PL) experiment pirf --quick

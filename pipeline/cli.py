@@ -259,7 +259,7 @@ def compare(config: Path = ConfigArg,
 
 
 @app.command()
-def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large."),
+def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary."),
                out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:

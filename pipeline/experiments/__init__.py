@@ -21,6 +21,7 @@ EXPERIMENTS: dict[str, str] = {
     "coembed": "placeloc.experiments.coembed",
     "pirf": "placeloc.experiments.pirf",
     "pirf-large": "placeloc.experiments.pirf_large",
+    "pirf-dictionary": "placeloc.experiments.pirf_dictionary",
 }
 
 

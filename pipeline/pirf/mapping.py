@@ -125,6 +125,8 @@ class PirfMapper:
     node_words: list[np.ndarray] = field(default_factory=list)
     pairs_after: list[int] = field(default_factory=list)
     best: list[tuple[int, float]] = field(default_factory=list)
+    # after each step: (P_new, squared distances and ids of their 2 nearest words in Q_{t-1}, |Q_{t-1}|)
+    last_new: tuple[np.ndarray, np.ndarray, np.ndarray, int] | None = None
 
     def __post_init__(self) -> None:
         if self.update not in ("plain", "improved"):
@@ -225,6 +227,9 @@ class PirfMapper:
         ok = ratio_ok(d_f, i_f, self.ratio)
         matched = i_f[ok, 0]
         new = np.flatnonzero(~ok)
+        # P_new with its two nearest words in Q_{t-1}, kept for diagnostics (what the other
+        # update would have done with this frame): references, no copies
+        self.last_new = (p[new], d_f[new], i_f[new], self.n)
         if self.update == "plain":
             ids = np.arange(self.n, self.n + len(new))
             add_rows = new

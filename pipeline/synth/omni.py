@@ -54,6 +54,12 @@ def _layout(kind: str) -> tuple[list[tuple[float, float, float, float]], list[tu
     raise ValueError(f"layout {kind!r} is not known; choose small or building")
 
 
+def loop_length(layout: str) -> float:
+    """Length (m) of one lap of ``layout``'s closed loop."""
+    pts = np.array(_layout(layout)[1], float)
+    return float(np.linalg.norm(np.roll(pts, -1, 0) - pts, axis=1).sum())
+
+
 def _grid(rects: list, cell: float, pillar: bool) -> tuple[np.ndarray, float]:
     xs = [r[2] for r in rects] + [r[3] for r in rects]
     size = int(math.ceil((max(xs) + 2) / cell))
@@ -226,33 +232,76 @@ class OmniWorld:
         return np.clip(img, 0, 255).astype(np.uint8)
 
 
+def speed_profile(frames: int, dwell: int = 0, dwell_every: int = 50, slow: float = 1.0, slow_frames: int = 0) -> np.ndarray:
+    """Fraction of the walking step taken on arriving at each frame (frame 0's entry is unused).
+
+    The pattern repeats: ``dwell_every`` frames of walking, then ``slow_frames`` frames at
+    ``slow`` times the walking speed, then ``dwell`` frames standing still. With neither
+    slow motion nor dwelling every entry is 1."""
+    if not 0 < slow <= 1:
+        raise ValueError(f"slow must lie in (0, 1] (a fraction of the walking speed), got {slow}")
+    if dwell < 0 or slow_frames < 0 or dwell_every < 1:
+        raise ValueError(f"need dwell >= 0, slow_frames >= 0 and dwell_every >= 1, got {dwell}, {slow_frames}, {dwell_every}")
+    moving = np.ones(frames)
+    if slow < 1 and slow_frames > 0:
+        phase = np.arange(frames) % (dwell_every + slow_frames + dwell)
+        moving[(phase >= dwell_every) & (phase < dwell_every + slow_frames)] = slow
+        moving[phase >= dwell_every + slow_frames] = 0.0
+    elif dwell > 0:  # written as before slow motion existed, so dwell-only paths stay bit-identical
+        moving = ((np.arange(frames) % (dwell_every + dwell)) < dwell_every).astype(float)
+    return moving
+
+
 def loop_path(loop: list[tuple[float, float]], frames: int, step: float, offset: float = 0.0, reverse: bool = False,
               start: float = 0.0, jitter: float = 0.0, rng: np.random.Generator | None = None, dwell: int = 0,
-              dwell_every: int = 50) -> np.ndarray:
+              dwell_every: int = 50, slow: float = 1.0, slow_frames: int = 0, lap_offset: float = 0.0,
+              lap_ramp: float = 5.0) -> np.ndarray:
     """(frames, 3) poses (x, y, heading) walking the closed polyline at ``step`` m per frame.
 
     ``dwell``: after every ``dwell_every`` frames of walking the camera stands still for
     ``dwell`` frames (a person stopping, as a hand-held or robot video does), so those
-    frames see one place again and again."""
+    frames see one place again and again. ``slow``/``slow_frames``: after every
+    ``dwell_every`` frames of walking, ``slow_frames`` frames at ``slow`` times the walking
+    speed (before any dwell); see :func:`speed_profile`.
+
+    ``lap_offset``: revisits at a slightly different place. Lap k >= 1 (the path's k-th
+    return past its start) is walked ``lap_offset`` metres to the side of the first lap,
+    alternately left (odd k) and right (even k), so no lap retraces an earlier one; the
+    sideways shift changes linearly over the first ``lap_ramp`` metres of each lap, so the
+    camera drifts across instead of jumping."""
     pts = np.array(loop[::-1] if reverse else loop, float)
     seg = np.roll(pts, -1, axis=0) - pts
     seglen = np.linalg.norm(seg, axis=1)
     cum = np.concatenate([[0], np.cumsum(seglen)])
     total = cum[-1]
-    moving = np.ones(frames)
-    if dwell > 0:
-        moving = ((np.arange(frames) % (dwell_every + dwell)) < dwell_every).astype(float)
-    s = (start * total + step * np.concatenate([[0.0], np.cumsum(moving[1:])])) % total
+    moving = speed_profile(frames, dwell, dwell_every, slow, slow_frames)
+    walked = start * total + step * np.concatenate([[0.0], np.cumsum(moving[1:])])
+    s = walked % total
     i = np.searchsorted(cum, s, side="right") - 1
     frac = (s - cum[i]) / seglen[i]
     xy = pts[i] + frac[:, None] * seg[i]
     d = seg[i] / seglen[i][:, None]
     normal = np.stack([-d[:, 1], d[:, 0]], 1)
     xy = xy + offset * normal
+    if lap_offset:
+        xy = xy + lap_shift(walked, total, lap_offset, lap_ramp)[:, None] * normal
     if jitter and rng is not None:
         xy = xy + rng.normal(0, jitter, xy.shape)
     heading = np.arctan2(d[:, 1], d[:, 0])
     return np.column_stack([xy, heading])
+
+
+def lap_shift(walked: np.ndarray, total: float, lap_offset: float, lap_ramp: float) -> np.ndarray:
+    """Sideways shift (m, along the path's left normal) at each arc length ``walked`` (not
+    wrapped): 0 on lap 0, +``lap_offset`` on odd laps, -``lap_offset`` on even laps >= 2,
+    reached linearly over the first ``lap_ramp`` metres of each lap."""
+    if lap_ramp <= 0:
+        raise ValueError(f"lap_ramp must be > 0 m, got {lap_ramp}")
+    lap = np.floor(walked / total).astype(np.int64)
+    target = np.where(lap == 0, 0.0, np.where(lap % 2 == 1, lap_offset, -lap_offset))
+    before = np.where(lap <= 1, 0.0, np.where(lap % 2 == 1, -lap_offset, lap_offset))
+    ramp = np.clip((walked - lap * total) / lap_ramp, 0.0, 1.0)
+    return before + (target - before) * ramp
 
 
 def _render_chunk(args: tuple) -> None:
@@ -290,13 +339,22 @@ def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndar
 
 def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | None = None, width: int = 480,
              layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, workers: int = 1,
-             dwell: int = 0, **extra: Any) -> dict[str, Any]:
+             dwell: int = 0, slow: float = 1.0, slow_frames: int = 50, revisit_offset: float = 0.0,
+             **extra: Any) -> dict[str, Any]:
     """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length).
 
-    ``dwell`` > 0 makes the mapping camera stand still for that many frames after every 50
-    frames of walking (see :func:`loop_path`)."""
+    Properties of real video the mapping run can be given (the test run keeps walking):
+
+    - ``dwell`` > 0: the camera stands still for that many frames after every 50 frames of
+      walking;
+    - ``slow`` < 1: slow motion: after every 50 frames of walking, ``slow_frames`` frames at
+      ``slow`` times the walking speed (``step``);
+    - ``revisit_offset`` > 0: revisits at a slightly different place: every lap after the
+      first is walked that many metres to the side (alternating sides).
+
+    See :func:`loop_path`; with the defaults the output is what it was before they existed."""
     if extra:
-        known = "frames, test_frames, width, layout, step, test_offset, movers, workers, dwell"
+        known = "frames, test_frames, width, layout, step, test_offset, movers, workers, dwell, slow, slow_frames, revisit_offset"
         raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: {known}")
     if width < 64 or width % 2:
         raise ValueError(f"width must be an even number >= 64 (height is width/2), got {width}")
@@ -306,7 +364,10 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     test_frames = frames if test_frames is None else test_frames
     world = OmniWorld(layout, seed, movers=movers)
     rng = np.random.default_rng(seed)
-    mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng, dwell=dwell)
+    if not 0 <= revisit_offset <= 0.6:
+        raise ValueError(f"revisit_offset must lie in [0, 0.6] m (the corridors leave about 0.7 m beside the path), got {revisit_offset}")
+    mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng, dwell=dwell, slow=slow, slow_frames=slow_frames,
+                        lap_offset=revisit_offset)
     test = loop_path(world.loop, test_frames, step, offset=test_offset, reverse=True, start=0.37, jitter=0.02, rng=rng)
     light_map = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
     light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}

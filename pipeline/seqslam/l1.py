@@ -3,9 +3,10 @@
 The uint8 kernel is SeqSLAM's hot loop (3576 x 3576 x 2048 byte differences for the
 benchmark). Both kernels are a few lines of LLVM IR compiled for this CPU by llvmlite
 (numba's code generator, used here without numba) the first time a difference block is
-computed (about 0.1 s; the machine code is then cached on disk and loads in 5 ms). numba itself cost every ``localize`` process about 0.7 s before
-its first kernel ran (its import, then the registries its first call loads, which import
-``scipy.linalg``): a fifth of the whole benchmark run.
+computed: about 0.1 s, after which the machine code is cached on disk and loads in 5 ms.
+numba itself cost every ``localize`` process about 0.7 s before its first kernel ran (its
+import, then the registries its first call loads, which import ``scipy.linalg``): a fifth
+of the whole benchmark run.
 
 - uint8: on CPUs with AVX2 the x86 sum-of-absolute-differences instruction (``vpsadbw``,
   32 byte pairs per instruction) is called directly, because LLVM's own vectoriser turns

@@ -141,3 +141,27 @@ def test_float_kernel_matches_numpy():
     out = np.empty((9, 50), np.float32)
     l1.l1_float(a, b, out, threads=2)
     np.testing.assert_allclose(out, np.abs(a.astype(np.float64)[:, None] - b[None]).mean(-1), rtol=1e-5)
+
+
+def test_sad_kernel_machine_code_is_cached_and_reloaded(tmp_path):
+    """The first process compiles the kernel and stores its machine code; the next one loads
+    that file (it does not compile) and gets the same exact sums; a damaged file is rebuilt."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np, time; from placeloc.seqslam import l1; "
+            "a = np.arange(3 * 70, dtype=np.uint8).reshape(3, 70); b = a[::-1].copy(); "
+            "o = np.empty((3, 3), np.float32); l1.l1_uint8(a, b, o, threads=1); "
+            "e = (np.abs(a.astype(int)[:, None] - b.astype(int)[None]).sum(-1) / 70).astype(np.float32); "
+            "print(int(np.array_equal(o, e)))")
+    env = {**__import__("os").environ, "XDG_CACHE_HOME": str(tmp_path)}
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    cached = list((tmp_path / "placeloc" / "kernels").glob("l1_u8-*.o"))
+    assert first.strip() == "1" and len(cached) == 1
+    stamp = cached[0].stat().st_mtime_ns
+    second = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert second.strip() == "1" and cached[0].stat().st_mtime_ns == stamp  # loaded, not rewritten
+    # A damaged file (LLVM would crash loading it) is recompiled and replaced.
+    cached[0].write_bytes(cached[0].read_bytes()[:100])
+    third = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert third.strip() == "1" and cached[0].stat().st_size > 100

@@ -214,9 +214,10 @@ def kernel(name: str, avx2: bool | None = None) -> Any:
     path = cache_dir() / f"{name}-{key}.o"
     machine = llvm.Target.from_default_triple().create_target_machine(cpu=cpu, features=features, opt=3)
     engine = llvm.create_mcjit_compiler(llvm.parse_assembly(""), machine)
-    try:
-        engine.add_object_file(llvm.ObjectFileRef.from_data(path.read_bytes()))
-    except (OSError, RuntimeError):
+    cached = _load(path)
+    if cached is not None:
+        engine.add_object_file(llvm.ObjectFileRef.from_data(cached))
+    else:
         mod = llvm.parse_assembly(source)
         mod.verify()
         passes = llvm.create_pass_builder(machine, llvm.create_pipeline_tuning_options(3))
@@ -230,12 +231,24 @@ def kernel(name: str, avx2: bool | None = None) -> Any:
     return fn
 
 
+def _load(path: Path) -> bytes | None:
+    """The machine code cached at ``path`` if its checksum holds (LLVM crashes on a damaged
+    object file, so a damaged or foreign file is recompiled, never loaded)."""
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    digest, data = blob[:32], blob[32:]
+    return data if data and hashlib.sha256(data).digest() == digest else None
+
+
 def _store(path: Path, data: bytes) -> None:
-    """Write a cache file atomically; a cache that cannot be written is skipped."""
+    """Write a cache file (checksum, then the machine code) atomically; a cache that cannot
+    be written is skipped."""
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(data)
+        tmp.write_bytes(hashlib.sha256(data).digest() + data)
         os.replace(tmp, path)
 
 

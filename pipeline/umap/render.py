@@ -38,22 +38,22 @@ from placeloc.geometry.visibility import (
 
 
 @njit(cache=True, inline="always")
+def _to_near(px: float, py: float, pz: float, zp: float, qx: float, qy: float, qz: float, zq: float,
+             near: float) -> tuple:
+    """End p moved along p-q to the near plane (depth ``zp`` below it, ``zq`` above)."""
+    t = (near - zp) / (zq - zp)
+    return px + t * (qx - px), py + t * (qy - py), pz + t * (qz - pz), near
+
+
+@njit(cache=True, inline="always")
 def _near_clip(ax: float, ay: float, az: float, za: float, bx: float, by: float, bz: float, zb: float,
                near: float) -> tuple:
     """Clip the camera-relative segment a-b (depths ``za``, ``zb``) at the near plane,
     keeping the visible part; the caller has dropped segments wholly behind it."""
     if za < near:
-        t = (near - za) / (zb - za)
-        ax += t * (bx - ax)
-        ay += t * (by - ay)
-        az += t * (bz - az)
-        za = near
+        ax, ay, az, za = _to_near(ax, ay, az, za, bx, by, bz, zb, near)
     elif zb < near:
-        t = (near - zb) / (za - zb)
-        bx += t * (ax - bx)
-        by += t * (ay - by)
-        bz += t * (az - bz)
-        zb = near
+        bx, by, bz, zb = _to_near(bx, by, bz, zb, ax, ay, az, za, near)
     return ax, ay, az, za, bx, by, bz, zb
 
 

@@ -21,3 +21,13 @@ def shared_data() -> Path | None:
     from placeloc.experiments import shared_data_dir
 
     return shared_data_dir()
+
+
+@pytest.fixture
+def tears_of_steel() -> Path:
+    """The shared tears-of-steel tracks folder (markers.csv, points.csv, intrinsics.csv);
+    the test is skipped when the shared data folder does not have it."""
+    root = shared_data()
+    if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
+        pytest.skip("../shared/data/tears-of-steel is absent")
+    return root / "tears-of-steel"

@@ -13,7 +13,6 @@ from placeloc.coembed.observations import read_observations_csv, read_points_csv
 from placeloc.coembed.pinhole import calibrated_map
 from placeloc.coembed.solver import coembed_map
 from placeloc.config import ConfigError, load_config
-from placeloc.experiments import shared_data_dir
 from placeloc.experiments.coembed import _OncePerCause
 from placeloc.runner import run_all
 from placeloc.synth import generate
@@ -93,11 +92,8 @@ def test_landmark_warnings_are_shown_once_per_cause():
 
 
 @pytest.mark.shared_data
-def test_pinhole_on_tears_of_steel_fixed_rule(tmp_path):
-    root = shared_data_dir()
-    if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
-        pytest.skip("tears-of-steel not in the shared data folder")
-    d = root / "tears-of-steel"
+def test_pinhole_on_tears_of_steel_fixed_rule(tmp_path, tears_of_steel):
+    d = tears_of_steel
     section = {"observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "truth": str(d / "points.csv"),
                "intrinsics": str(d / "intrinsics.csv"), "dim": 3, "landmark_count": 10, "camera_model": "pinhole"}
     run_all(load_config(data={"method": "coembed", "plots": False, "coembed": section}), tmp_path, quiet=True)

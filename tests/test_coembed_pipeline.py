@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from placeloc.coembed.observations import ObservationError
 from placeloc.config import ConfigError, load_config
-from placeloc.experiments import shared_data_dir
 from placeloc.runner import run_all, run_stage
 from placeloc.synth import generate
 
@@ -175,11 +174,8 @@ def test_sift_tracks_follow_a_shifting_texture(tmp_path):
 
 
 @pytest.mark.shared_data
-def test_tears_of_steel_real_tracks(tmp_path):
-    root = shared_data_dir()
-    if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
-        pytest.skip("../shared/data/tears-of-steel is absent")
-    d = root / "tears-of-steel"
+def test_tears_of_steel_real_tracks(tmp_path, tears_of_steel):
+    d = tears_of_steel
     base = {"observations": str(d / "markers.csv"), "landmarks": str(d / "points.csv"), "landmark_count": 10,
             "truth": str(d / "points.csv"), "dim": 3, "camera_model": "linear"}
     runs = {}

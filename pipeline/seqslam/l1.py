@@ -27,6 +27,7 @@ import ctypes
 import functools
 import hashlib
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -245,16 +246,29 @@ def _load(path: Path) -> bytes | None:
 def _store(path: Path, data: bytes) -> None:
     """Write a cache file (checksum, then the machine code) atomically; a cache that cannot
     be written is skipped."""
+    from placeloc.artifacts import atomic_open
+
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(hashlib.sha256(data).digest() + data)
-        os.replace(tmp, path)
+        with atomic_open(path, mode="wb") as fh:
+            fh.write(hashlib.sha256(data).digest() + data)
 
 
 def n_threads() -> int:
     """The cores this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def run_threaded(fn: Callable[[int, int], None], chunks: list[tuple[int, int]], threads: int | None = None) -> None:
+    """``fn(lo, hi)`` for every chunk, on ``threads`` threads (None: one per core, never
+    more than the chunks). For work that releases the GIL: ctypes kernels, NumPy."""
+    threads = min(threads or n_threads(), len(chunks))
+    if threads <= 1:
+        for lo, hi in chunks:
+            fn(lo, hi)
+        return
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(lambda c: fn(*c), chunks))
 
 
 def _run_tiled(fn: Any, a: np.ndarray, b: np.ndarray, out: np.ndarray, threads: int | None) -> None:
@@ -267,19 +281,12 @@ def _run_tiled(fn: Any, a: np.ndarray, b: np.ndarray, out: np.ndarray, threads: 
             raise ValueError(f"{name} must be C-contiguous")
     if n == 0 or m == 0:
         return
+    # One contiguous run of whole tiles of b rows per thread.
     tiles = -(-m // _TILE)
     parts = max(1, min(threads or n_threads(), tiles))
     cuts = [min(m, (k * tiles // parts) * _TILE) for k in range(parts + 1)]
     args = (a.ctypes.data, b.ctypes.data, out.ctypes.data, n, m, d)
-
-    def part(k: int) -> None:
-        fn(*args, cuts[k], cuts[k + 1], _TILE)
-
-    if parts == 1:
-        part(0)
-        return
-    with ThreadPoolExecutor(max_workers=parts) as pool:
-        list(pool.map(part, range(parts)))
+    run_threaded(lambda j0, j1: fn(*args, j0, j1, _TILE), list(zip(cuts[:-1], cuts[1:])), parts)
 
 
 def l1_uint8(a: np.ndarray, b: np.ndarray, out: np.ndarray, *, threads: int | None = None,

@@ -18,11 +18,9 @@ with the best score outside ``+-window`` rows of it (see :func:`sequence_search`
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from placeloc.seqslam.l1 import n_threads
+from placeloc.seqslam.l1 import run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 
 INVALID = np.float32(np.inf)
@@ -61,17 +59,6 @@ def _row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
     """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
     step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 16, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
-
-
-def _threaded(fn: Callable[[int, int], None], chunks: list[tuple[int, int]]) -> None:
-    """``fn(lo, hi)`` for every chunk, on one thread per core (NumPy releases the GIL)."""
-    threads = min(n_threads(), len(chunks))
-    if threads <= 1:
-        for lo, hi in chunks:
-            fn(lo, hi)
-        return
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        list(pool.map(lambda c: fn(*c), chunks))
 
 
 def _window_sums(c: np.ndarray, window: int) -> np.ndarray:
@@ -119,7 +106,7 @@ def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:
     def run(lo: int, hi: int) -> None:
         _enhance_rows(dt[lo:hi], int(window), shift, out[lo:hi])
 
-    _threaded(run, _row_chunks(dt.shape[0], dt.shape[1]))
+    run_threaded(run, _row_chunks(dt.shape[0], dt.shape[1]))
 
 
 def enhance(d: np.ndarray, window: int) -> np.ndarray:
@@ -178,6 +165,17 @@ def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj:
     return s
 
 
+def _around(centres: np.ndarray, window: int, nr: int) -> np.ndarray:
+    """Column indices ``centre - window .. centre + window`` per row, clipped to the matrix
+    (a clipped index repeats the edge column, which lies inside the window anyway)."""
+    return np.clip(centres[:, None] + np.arange(-window, window + 1), 0, nr - 1)
+
+
+def _recent_limits(t_global: np.ndarray, exclude_recent: int, nr: int) -> np.ndarray:
+    """Loop closure: the first reference each query (global index ``t_global``) may not match."""
+    return np.clip(t_global - int(exclude_recent) + 1, 0, nr).astype(np.int64)
+
+
 def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Greedy non-maximum suppression per row: the k best references at least window+1
     apart (ties: the first), -1 / inf when none is left. Destroys ``s``."""
@@ -185,7 +183,6 @@ def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), INVALID, np.float32)
     rows = np.arange(n)
-    around = np.arange(-window, window + 1)
     for kk in range(k):
         bi = np.argmin(s, axis=1)
         bv = s[rows, bi]
@@ -193,8 +190,7 @@ def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
         if not found.any():
             break
         best[found, kk], scores[found, kk] = bi[found], bv[found]
-        hit = rows[found]
-        s[hit[:, None], np.clip(bi[found, None] + around, 0, nr - 1)] = INVALID
+        s[rows[found][:, None], _around(bi[found], window, nr)] = INVALID
     return best, scores
 
 
@@ -213,12 +209,10 @@ def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.n
         regions, _ = _top_k(cone, window, k)
         line = _trajectory_scores(et, rows, t_off, traj)
         s = np.full_like(line, INVALID)
-        nr = s.shape[1]
-        around = np.arange(-window, window + 1)
         for kk in range(k):
             ok = regions[:, kk] >= 0
             q = np.nonzero(ok)[0][:, None]
-            cols = np.clip(regions[ok, kk][:, None] + around, 0, nr - 1)
+            cols = _around(regions[ok, kk], window, s.shape[1])
             s[q, cols] = line[q, cols]
     _exclude(s, limit)
     return s
@@ -273,8 +267,7 @@ def sequence_search(
     if exclude_recent is None:
         exclude_after = np.full(n, nr, np.int64)
     else:
-        tg = query_index0 + np.arange(q_lo, q_hi)
-        exclude_after = np.clip(tg - int(exclude_recent) + 1, 0, nr).astype(np.int64)
+        exclude_after = _recent_limits(query_index0 + np.arange(q_lo, q_hi), exclude_recent, nr)
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), INVALID, np.float32)
     if n == 0:
@@ -294,7 +287,7 @@ def sequence_search(
         s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo])
         best[a - q_lo:b - q_lo], scores[a - q_lo:b - q_lo] = _top_k(s, window, k)
 
-    _threaded(run, _row_chunks(inner[1] - inner[0], et.shape[1]))
+    run_threaded(run, _row_chunks(inner[1] - inner[0], et.shape[1]))
     if edges == "shift" and nt <= ncols:
         for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
             sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))
@@ -329,12 +322,11 @@ def single_image_best(dt: np.ndarray, window: int, exclude_recent: int | None, q
     x = dt
     if exclude_recent is not None:
         x = dt.copy()
-        limit = np.clip(q0 + np.arange(n) - exclude_recent + 1, 0, nr)
-        x[np.arange(nr)[None, :] >= limit[:, None]] = np.inf
+        _exclude(x, _recent_limits(q0 + np.arange(n), exclude_recent, nr))
     best = np.argmin(x, axis=1)
     s1 = x[np.arange(n), best].astype(np.float64)
     x = x.copy() if x is dt else x
-    x[rows, np.clip(best[:, None] + np.arange(-window, window + 1)[None, :], 0, nr - 1)] = np.inf
+    x[rows, _around(best, window, nr)] = np.inf
     s2 = x.min(axis=1).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         conf = 1.0 - np.maximum(s1, 0) / s2

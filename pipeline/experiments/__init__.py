@@ -25,6 +25,14 @@ EXPERIMENTS: dict[str, str] = {
 }
 
 
+def say(experiment: str, quiet: bool, msg: str) -> None:
+    """A timestamped progress line of an experiment (nothing when ``quiet``)."""
+    if not quiet:
+        import time
+
+        print(f"[experiment-{experiment} {time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
 def run_experiment(name: str, out_dir: str | Path | None = None, quick: bool = False, quiet: bool = False) -> Path:
     if name not in EXPERIMENTS:
         raise KeyError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from placeloc.api import load_config, read_metrics, run
 from placeloc.evaluation import write_metrics
-from placeloc.experiments import write_summary
+from placeloc.experiments import say, write_summary
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
 from placeloc.pirf.metrics import set_agreement
@@ -36,11 +36,6 @@ QUICK = {"frames": 1200, "test_frames": 300}
 TIMING_BACKENDS = ("bruteforce", "flann-kmeans", "flann-kdtree", "faiss-hnsw", "faiss-ivf")
 
 
-def _say(quiet: bool, msg: str) -> None:
-    if not quiet:
-        print(f"[experiment-pirf {time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
 def _data(out: Path, spec: dict[str, int], quiet: bool) -> Path:
     data = out / "data"
     meta = data / "params.json"
@@ -48,7 +43,7 @@ def _data(out: Path, spec: dict[str, int], quiet: bool) -> Path:
     if meta.is_file() and json.loads(meta.read_text()) == want:
         return data
     shutil.rmtree(data, ignore_errors=True)
-    _say(quiet, f"rendering {spec['frames']} mapping + {spec['test_frames']} test frames")
+    say("pirf", quiet, f"rendering {spec['frames']} mapping + {spec['test_frames']} test frames")
     generate(data, seed=0, frames=spec["frames"], test_frames=spec["test_frames"], width=480, layout="building",
              workers=min(2, os.cpu_count() or 1))
     meta.write_text(json.dumps(want))
@@ -97,7 +92,7 @@ def _backend_run(out: Path, data: Path, upd: str, b: str, rd: Path, m: dict[str,
     rb = out / f"omni-{upd}-{b}"
     for stage in ("extract", "build-dictionary"):
         _link(rd / f"{stage}.h5", rb / f"{stage}.h5")
-    _say(quiet, f"{upd}: index {b}")
+    say("pirf", quiet, f"{upd}: index {b}")
     run(_config(data, update=upd, index=b, compare_bf=False), rb, quiet=quiet)
     mb = read_metrics(rb)
     ag = set_agreement(*read_node_vectors(rb, b), *bf)
@@ -131,7 +126,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
         rd = out / f"omni-{upd}"
         _link(first / "extract.h5", rd / "extract.h5")  # both updates share the PIRFs
         t0 = time.perf_counter()
-        _say(quiet, f"{upd}: mapping, {DEFAULT_INDEX} index, localization, evaluation")
+        say("pirf", quiet, f"{upd}: mapping, {DEFAULT_INDEX} index, localization, evaluation")
         run(_config(data, update=upd, index=DEFAULT_INDEX), rd, quiet=quiet)
         m = read_metrics(rd)
         m["wall_seconds"] = time.perf_counter() - t0
@@ -148,7 +143,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
         if hnsw_mapping:
             rh = out / f"omni-{upd}-hnsw-mapping"
             _link(rd / "extract.h5", rh / "extract.h5")
-            _say(quiet, f"{upd}: mapping with the incremental HNSW graph")
+            say("pirf", quiet, f"{upd}: mapping with the incremental HNSW graph")
             run(_config(data, update=upd, index=DEFAULT_INDEX, map_search="faiss-hnsw"), rh, quiet=quiet)
             runs[f"omni-{upd}-hnsw-mapping"] = read_metrics(rh)
         write_summary(out, runs)
@@ -161,7 +156,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
         frames = [t for t in range(len(off) - 1) if off[t + 1] > off[t]][:: max(1, (len(off) - 1) // 40)][:40]
         queries = [pirfs[off[t]:off[t + 1]] for t in frames]
         sizes = sorted({int(round(len(dic) * k / 5)) for k in range(1, 6)})
-        _say(quiet, f"{upd}: timing m_t at sizes {sizes}")
+        say("pirf", quiet, f"{upd}: timing m_t at sizes {sizes}")
         for r in timing_sweep(dic, queries, sizes, timing_backends):
             fig_rows.append({"update": upd, **r})
     _write_outputs(out, runs, t3, fig_rows)

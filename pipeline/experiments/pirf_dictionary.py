@@ -49,8 +49,8 @@ from typing import Any, Iterable
 
 import numpy as np
 from placeloc.api import load_config, run
-from placeloc.experiments import write_summary
-from placeloc.pirf.mapping import PirfMapper, improved_insert
+from placeloc.experiments import say, write_summary
+from placeloc.pirf.mapping import PirfMapper, improved_insert, ratio_ok
 from placeloc.pirf.params import PirfParams
 from placeloc.pirf.results import read_pirfs
 from placeloc.synth.omni import generate, loop_length, speed_profile
@@ -76,11 +76,6 @@ PROPERTIES = (
     Property("revisit", "revisit_offset", (0.0, 0.2, 0.5), 1300, "sideways offset of later laps (m)"),
 )
 SEEDS = (0, 1, 2)
-
-
-def _say(quiet: bool, msg: str) -> None:
-    if not quiet:
-        print(f"[experiment-pirf-dictionary {time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 def property_frames(prop: str, level: float, frames: int, layout: str = "building") -> np.ndarray:
@@ -116,7 +111,7 @@ def ratio_twins(words: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray
     keep[own.sum(1) == 0, 2] = False
     d2 = d[keep].reshape(n, 2)
     i2 = i[keep].reshape(n, 2)
-    ok = d2[:, 0] < (ratio * ratio) * d2[:, 1]
+    ok = ratio_ok(d2, i2, ratio)
     twin[ok] = i2[ok, 0]
     return ok, twin
 
@@ -208,7 +203,7 @@ def _data(out: Path, prop: Property, level: float, seed: int, quiet: bool) -> Pa
     want = {"seed": seed, "frames": prop.frames, "test_frames": 2, "width": 480, "layout": "building", prop.param: level}
     if meta.is_file() and json.loads(meta.read_text()) == want:
         return data
-    _say(quiet, f"rendering {data.name}: {prop.frames} frames")
+    say("pirf-dictionary", quiet, f"rendering {data.name}: {prop.frames} frames")
     generate(data, **want, workers=min(2, os.cpu_count() or 1))
     meta.write_text(json.dumps(want))
     return data
@@ -365,7 +360,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, seeds: tuple[i
                     cache[key] = measure_video(out, prop, level, seed, quiet=quiet)
                     cache_path.write_text(json.dumps(cache, indent=1))
                     r = cache[key]
-                    _say(quiet, f"{prop.name} {level:g} seed {seed}: plain {r['plain']}, improved {r['improved']} "
+                    say("pirf-dictionary", quiet, f"{prop.name} {level:g} seed {seed}: plain {r['plain']}, improved {r['improved']} "
                                 f"({r['reduction_pct']:.1f} %), within-frame {r['within_frame_pct']:.1f} %, {r['seconds']:.0f} s")
                 rows.append(cache[key])
     rows.sort(key=lambda r: ([p.name for p in props].index(r["property"]), r["level"] if r["property"] != "slow" else -r["level"],

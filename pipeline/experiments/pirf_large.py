@@ -31,7 +31,7 @@ from typing import Any
 
 from placeloc.api import read_metrics, run
 from placeloc.experiments import pirf as experiment
-from placeloc.experiments import write_summary
+from placeloc.experiments import say, write_summary
 from placeloc.pirf.metrics import loop_closure_correct
 from placeloc.pirf.results import read_frame_names, read_index_info, read_loop_closures, stage_seconds
 from placeloc.pirf.truth import read_frame_xy
@@ -69,7 +69,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
         # The brute-force-mapped runs get the self-tuned default index with brute force beside it
         # (Table 3); the HNSW-mapped ones localize by brute force only (their index is not the question).
         index = experiment.DEFAULT_INDEX if map_search == "bruteforce" else "bruteforce"
-        experiment._say(quiet, f"{name}: mapping ({update} update, {map_search} search), index {index}, localization")
+        say("pirf", quiet, f"{name}: mapping ({update} update, {map_search} search), index {index}, localization")
         t0, c0, load0 = time.perf_counter(), _cpu(), os.getloadavg()
         run(experiment._config(data, update=update, map_search=map_search, index=index, compare_bf=index != "bruteforce"), rd,
             quiet=quiet)

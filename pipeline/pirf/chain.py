@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 from placeloc.pirf.knn import bf_knn2
+from placeloc.pirf.mapping import ratio_ok
 
 
 def ratio_match(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
@@ -30,7 +31,7 @@ def ratio_match(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
     if len(a) == 0 or len(b) < 2:
         return out
     d2, idx = bf_knn2(a, b)
-    ok = d2[:, 0] < (ratio * ratio) * d2[:, 1]
+    ok = ratio_ok(d2, idx, ratio)
     out[ok] = idx[ok, 0]
     return out
 

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.knn import exact_knn
+from placeloc.pirf.mapping import ratio_ok
 
 # Search setting per backend and the values tried, cheapest first. FLANN indexes cannot
 # add entries after building, so holding a sample out would need a second build: not tuned.
@@ -49,8 +50,7 @@ SEARCH_GRID: dict[str, tuple[str, tuple[int, ...]]] = {
 
 def _decisions(d: np.ndarray, i: np.ndarray, ratio: float) -> np.ndarray:
     """Word each row ratio-test-matches (eq. 1), -1 where none."""
-    ok = (i[:, 1] >= 0) & (d[:, 0] < (ratio * ratio) * d[:, 1])
-    return np.where(ok, i[:, 0], -1)
+    return np.where(ratio_ok(d, i, ratio), i[:, 0], -1)
 
 
 def agreement(exact: tuple[np.ndarray, np.ndarray], approx: tuple[np.ndarray, np.ndarray], ratio: float) -> dict[str, float]:

@@ -373,7 +373,6 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}
     _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers)
     _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers)
-    pts = np.array(world.loop, float)
-    length = float(np.linalg.norm(np.roll(pts, -1, 0) - pts, axis=1).sum())
+    length = loop_length(layout)
     return {"mapping": str(out_dir / "mapping"), "test": str(out_dir / "test"), "frames": frames, "test_frames": test_frames,
             "size": f"{width}x{width // 2}", "loop_length_m": round(length, 1), "laps": round(frames * step / length, 2)}

@@ -37,14 +37,18 @@ def loop_closure_correct(xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, 
     return np.linalg.norm(xy[frames, :2] - xy[nodes, :2], axis=1) <= radius
 
 
+def tail_count(n: int, fraction: float) -> int:
+    """How many of ``n`` per-frame values the last ``fraction`` of a run holds (at least one)."""
+    return max(1, int(round(n * fraction)))
+
+
 def tail_mean(values: np.ndarray, fraction: float) -> float:
-    """Mean of the last ``fraction`` of ``values`` (at least one): per-frame mapping cost near
-    the end of a run, where the dictionary is largest."""
+    """Mean of the last ``fraction`` of ``values`` (:func:`tail_count` of them): per-frame
+    mapping cost near the end of a run, where the dictionary is largest."""
     values = np.asarray(values, np.float64)
     if len(values) == 0:
         return float("nan")
-    k = max(1, int(round(len(values) * fraction)))
-    return float(values[-k:].mean())
+    return float(values[-tail_count(len(values), fraction):].mean())
 
 
 def accuracy_at_gap(best: np.ndarray, q_xy: np.ndarray, r_xy: np.ndarray, radius: float, gap: int) -> float:

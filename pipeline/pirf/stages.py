@@ -33,7 +33,7 @@ from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
 from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
-from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_mean
+from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_count, tail_mean
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
 from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
 from placeloc.pirf.tables import write_localization, write_loop_closures
@@ -275,11 +275,12 @@ def stage_evaluate(ctx: Any) -> None:
         group = "closure_candidates" if "closure_candidates" in build else "loop_closures"
         c_f, matched, c_n = (build[f"{group}/{k}"][()] for k in ("frame", "matched_node", "node"))
         fixed = correct_for_travel_direction(c_f, matched, ex["reference/window"][()], span=p.eps)
-        for name, nodes in (("as_matched", matched), ("direction_corrected", fixed), ("candidates", c_n)):
-            ok = loop_closure_correct(r_xy, c_f, nodes, radius)
+        checks = {name: loop_closure_correct(r_xy, c_f, nodes, radius)
+                  for name, nodes in (("as_matched", matched), ("direction_corrected", fixed), ("candidates", c_n))}
+        for name, ok in checks.items():
             m[f"loop_closure_precision_{name}"] = float(ok.mean()) if len(ok) else float("nan")
         m["loop_closure_candidates"] = int(len(c_f))
-        m["loop_closure_candidates_correct"] = int(loop_closure_correct(r_xy, c_f, c_n, radius).sum())
+        m["loop_closure_candidates_correct"] = int(checks["candidates"].sum())
     else:
         m["loop_closures_correct"] = m["loop_closure_precision"] = None
     backend = str(loc.attrs.get("backend", "none"))
@@ -333,7 +334,7 @@ def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
         out["map_cpu_seconds_per_frame"] = float(np.mean(cpu)) if len(cpu) else float("nan")
         out["map_cpu_seconds_per_frame_end"] = tail_mean(cpu, tail)
     sizes = build["dict_size_after"][()]
-    out["map_end_dictionary_from"] = int(sizes[-max(1, int(round(len(sizes) * tail)))]) if len(sizes) else 0
+    out["map_end_dictionary_from"] = int(sizes[-tail_count(len(sizes), tail)]) if len(sizes) else 0
     return out
 
 

@@ -109,7 +109,8 @@ def precision_by_length(run_dir: Path, poses: Path, lengths: tuple[int, ...], ra
 
 
 def _f(v: Any, nd: int = 3) -> str:
-    return "-" if v is None else (f"{v:.{nd}f}" if isinstance(v, float) else str(v))
+    """A table cell as ``make experiment-pirf`` writes it, 3 decimals unless told."""
+    return experiment._f(v, nd)
 
 
 def _ms(v: Any) -> str:

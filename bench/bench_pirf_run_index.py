@@ -15,11 +15,11 @@ import argparse
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.knn import bf_knn2, sq_norms
 from placeloc.pirf.params import PirfParams, index_settings
+from placeloc.pirf.results import read_dictionary, read_pirfs
 from placeloc.pirf.tuning import agreement, build_tuned
 
 
@@ -31,9 +31,8 @@ def main() -> None:
     ap.add_argument("--ef", default="16,24,32,48,64,96", help="efSearch values of the sweep")
     args = ap.parse_args()
     p = PirfParams()
-    words = h5py.File(args.run_dir / "build-dictionary.h5", "r")["dictionary"][()]
-    with h5py.File(args.run_dir / "extract.h5", "r") as ex:
-        pirfs, offsets = ex["query/pirfs"][()], ex["query/offsets"][()]
+    words = read_dictionary(args.run_dir)
+    pirfs, offsets = read_pirfs(args.run_dir, "query")
     n_frames = len(offsets) - 1
     frames = range(0, n_frames, max(1, n_frames // args.frames))
     batches = [pirfs[offsets[t]:offsets[t + 1]] for t in frames]

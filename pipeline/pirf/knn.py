@@ -79,6 +79,10 @@ def exact_knn(a: np.ndarray, b: np.ndarray, k: int, block: int = 65536, rows: in
     missing neighbours (len(b) < k) are +inf / -1. For tuning samples: ``rows`` queries at
     a time against ``block`` rows of ``b`` (a 1024 x 65536 float32 matrix, 268 MB)."""
     a = np.ascontiguousarray(a, np.float32)
+    if k == 2:  # two argmin passes per block: 3x faster than argpartition (3,000 PIRFs x 481k words: 6.9 s against 19.1 s)
+        bn = sq_norms(np.asarray(b, np.float32))
+        parts = [bf_knn2(a[r:r + rows], b, block=block, b_norms=bn) for r in range(0, len(a), rows)]
+        return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])) if parts else bf_knn2(a, b, block=block)
     out_d = np.full((len(a), k), np.inf, np.float32)
     out_i = np.full((len(a), k), -1, np.int64)
     for r in range(0, len(a), rows):

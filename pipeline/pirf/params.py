@@ -58,6 +58,10 @@ class PirfParams(Params):
                                  "(with index_recall)")
     index_tune_sample: int = param(2000, min=10, help="dictionary entries searched to tune the index (grown until "
                                    "400 of them pass the ratio test, up to 20,000)")
+    index_tune_queries: bool = param(True, help="at localize, re-tune the search setting on a random sample of the query "
+                                     "run's own PIRFs (searched exactly: a fixed cost, at most a tenth of brute force), so "
+                                     "index_recall / index_jaccard hold for the queries searched; the dictionary's own "
+                                     "entries are easier (with index_recall)")
     compare_bf: bool = param(True, help="also time brute force at localize and report agreement")
     query_poses: str | None = param(None, path=True, help="CSV of the query frames' poses (the reference's: ground_truth.path)")
 

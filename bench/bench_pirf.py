@@ -3,8 +3,11 @@
 
 The dictionary is real SIFT from frames of the synthetic omnidirectional building
 (``placeloc.synth.omni``), rendered along the loop; the query frames are rendered at
-poses 0.15 m to the side under other lighting, 200 strongest SIFT each. Descriptors are
-cached as .npy under ``--cache``. Prints one table with ratios against brute force.
+poses 0.15 m to the side under other lighting, 200 strongest SIFT each: twice
+``--queries`` of them, every other one timed and compared, the ones between them the
+sample the default index re-tunes on (as localize re-tunes on the query run,
+``pirf.index_tune_queries``). Descriptors are cached as .npy under ``--cache``. Prints
+one table with ratios against brute force.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from placeloc.pirf.knn import sq_norms
 from placeloc.pirf.mapping import PirfMapper, node_vector
 from placeloc.pirf.metrics import set_agreement
 from placeloc.pirf.params import PirfParams, index_settings
-from placeloc.pirf.tuning import build_tuned
+from placeloc.pirf.tuning import build_tuned, tune_on_queries
 from placeloc.synth.omni import OmniWorld, loop_path
 
 
@@ -123,8 +126,10 @@ def main() -> None:
     ap.add_argument("--map-ef", type=int, default=PirfParams().map_ef_search, help="HNSW efSearch while mapping")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    dic, queries = sift_set(args.size, args.queries, args.cache)
-    print(f"dictionary {dic.shape[0]} x {dic.shape[1]} SIFT, {len(queries)} query frames x 200 ({time.perf_counter() - t0:.1f} s to make)")
+    dic, frames = sift_set(args.size, 2 * args.queries, args.cache)
+    queries, tuning_frames = frames[0::2], frames[1::2]
+    print(f"dictionary {dic.shape[0]} x {dic.shape[1]} SIFT, {len(queries)} query frames x 200 timed, {len(tuning_frames)} between "
+          f"them to tune on ({time.perf_counter() - t0:.1f} s to make)")
     bf = AnnIndex("bruteforce", dic, {}).build()
     bf_s, bf_m = time_mt(bf, queries, args.reps)
     ptr_b = np.concatenate([[0], np.cumsum([len(m) for m in bf_m])])
@@ -134,8 +139,13 @@ def main() -> None:
             p = PirfParams()
             ix = AnnIndex(b[: -len("-tuned")], dic, index_settings(p), seed=0)
             tuned = build_tuned(ix, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
-            print(f"{b}: {tuned['key']} {tuned['value']} (sample recall {tuned['nn_recall']:.3f}, m_t recall {tuned['mt_recall']:.3f}, "
-                  f"{tuned['mt_matched']} matches)")
+            print(f"{b}: on the dictionary's entries {tuned['key']} {tuned['value']} (sample recall {tuned['nn_recall']:.3f}, "
+                  f"m_t recall {tuned['mt_recall']:.3f}, {tuned['mt_matched']} matches)")
+            again = tune_on_queries(ix, np.concatenate(tuning_frames), target=p.index_recall, jaccard=p.index_jaccard,
+                                    sample=p.index_tune_sample, ratio=p.ratio, seed=0)
+            print(f"{' ' * len(b)}  re-tuned on {again['sample']} query PIRFs: {again['key']} {again['value']} (rule {again['rule']}, "
+                  f"m_t recall {again['mt_recall']:.3f}, Jaccard {again['mt_jaccard']:.3f}, {again['mt_matched']} matches, "
+                  f"{again['seconds']:.1f} s)")
         else:
             ix = AnnIndex(b, dic, index_settings(PirfParams()), seed=0).build()
         s, ms = time_mt(ix, queries, args.reps)

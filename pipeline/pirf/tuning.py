@@ -170,7 +170,8 @@ def tune_on_queries(index: AnnIndex, queries: np.ndarray, *, target: float, jacc
 
     A seeded random sample of ``queries`` (``sample`` rows at first, grown while fewer
     than :data:`MIN_MATCHES` pass the ratio test, up to :data:`MAX_SAMPLE` and never over
-    a tenth of the queries, so the exact search costs at most a tenth of brute force) is
+    a tenth of the queries (or 100, if more), so the exact search costs at most about a
+    tenth of brute force) is
     searched exactly and with every setting of the grid; the cheapest that :func:`meets`
     the targets is set, below or above the one the index was built with. No ground truth
     is read: the targets are agreement with exact search, so this holds them on the
@@ -182,8 +183,8 @@ def tune_on_queries(index: AnnIndex, queries: np.ndarray, *, target: float, jacc
     t_all = time.perf_counter()
     n = len(queries)
     order = np.random.default_rng(seed).permutation(n)
-    cap = max(min(sample, n), min(MAX_SAMPLE, n // 10))
-    size = min(sample, n)
+    cap = min(MAX_SAMPLE, max(n // 10, min(n, 100)))  # a tenth of the queries; 100 where that is fewer
+    size = min(sample, cap)
     found: list[tuple[np.ndarray, np.ndarray]] = []
     done = 0
     exact_seconds = 0.0

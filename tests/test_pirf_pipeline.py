@@ -124,6 +124,38 @@ def test_localize_only_key_does_not_rerun_extract(omni: Path, full_run: Path, tm
     assert after["localize.h5"] != first["localize.h5"]
     with h5py.File(run / "localize.h5") as f:
         assert "bruteforce" not in f  # the new setting took effect
+        assert "query_tuning" in f  # re-tuned on the queries (the default)
+    run_stage(_config(omni, compare_bf=False, index_tune_queries=False), run, "localize", quiet=True)
+    assert _mtimes(run)["index.h5"] == first["index.h5"]
+    with h5py.File(run / "localize.h5") as f:
+        assert "query_tuning" not in f
+
+
+def test_localize_retunes_the_index_on_the_query_run(full_run: Path) -> None:
+    from placeloc.pirf.ann import AnnIndex
+    from placeloc.pirf.knn import exact_knn
+    from placeloc.pirf.tuning import SEARCH_GRID, agreement, meets
+
+    m = json.loads((full_run / "metrics.json").read_text())
+    with h5py.File(full_run / "localize.h5") as f:
+        tuned = dict(f["query_tuning"].attrs)
+        tried = {k: f[f"query_tuning/tuning/{k}"][()] for k in ("value", "mt_recall", "nn_recall")}
+    assert m["index_query_tuned_value"] == tuned["tuned_value"] in SEARCH_GRID["faiss-hnsw"][1]
+    assert m["index_query_tuned_sample"] == tuned["tuned_sample"] > 0
+    assert m["mt_total_seconds_ann"] >= tuned["tuned_seconds"]  # the re-tuning is counted in the whole run's m_t
+    assert tried["value"][-1] == tuned["tuned_value"] and list(tried["value"]) == sorted(tried["value"])
+    # The stored choice reproduces: the same seeded sample of the query PIRFs, searched
+    # exactly and at the chosen setting, meets the targets (or it is the grid's last).
+    with h5py.File(full_run / "extract.h5") as ex, h5py.File(full_run / "build-dictionary.h5") as b, \
+            h5py.File(full_run / "index.h5") as ix:
+        q, words = ex["query/pirfs"][()], b["dictionary"][()]
+        index = AnnIndex.from_h5(ix["index"], words)
+    n = len(q)
+    ids = np.random.default_rng(0).permutation(n)[: int(tuned["tuned_sample"])]
+    index.set_search("ef_search", int(tuned["tuned_value"]))
+    ag = agreement(exact_knn(q[ids], words, 2), index.knn2(q[ids]), 0.7)
+    assert ag["nn_recall"] == pytest.approx(tuned["tuned_nn_recall"])
+    assert bool(tuned["tuned_target_met"]) == meets(ag, 0.97, 0.95)
 
 
 def test_outputs_csv_and_poses_aligned_by_frame_column(omni: Path, full_run: Path, tmp_path: Path) -> None:

@@ -194,10 +194,7 @@ def stage_index(ctx: Any) -> None:
     if p.index_recall is not None and p.index in SEARCH_GRID:
         tuned = build_tuned(idx, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio,
                             seed=seed)
-        if not tuned["target_met"]:
-            log.warning("index: no %s setting up to %s reaches m_t recall %s / Jaccard %s on the dictionary sample "
-                        "(it gives %.3f / %.3f); using it anyway", p.index, tuned["value"], p.index_recall,
-                        p.index_jaccard, tuned["mt_recall"], tuned["mt_jaccard"])
+        _warn_if_unmet(tuned, p, "index", "the dictionary sample")
     else:
         idx.build()
     g = ctx.out.create_group("index")
@@ -205,6 +202,13 @@ def stage_index(ctx: Any) -> None:
     if tuned is not None:
         _write_tuning(g, tuned)
     ctx.out.attrs["backend"] = p.index
+
+
+def _warn_if_unmet(tuned: dict[str, Any], p: PirfParams, stage: str, sample: str) -> None:
+    if not tuned["target_met"]:
+        log.warning("%s: no %s setting up to %s reaches m_t recall %s / Jaccard %s on %s (it gives %.3f / %.3f); "
+                    "using it anyway", stage, p.index, tuned["value"], p.index_recall, p.index_jaccard, sample,
+                    tuned["mt_recall"], tuned["mt_jaccard"])
 
 
 def _write_tuning(g: Any, tuned: dict[str, Any]) -> None:
@@ -242,10 +246,7 @@ def stage_localize(ctx: Any) -> None:
     if p.index_tune_queries and p.index_recall is not None and index.backend in SEARCH_GRID and len(pirfs):
         tuned = tune_on_queries(index, pirfs, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample,
                                 ratio=p.ratio, seed=int(ctx.config["seed"]))
-        if not tuned["target_met"]:
-            log.warning("localize: no %s setting up to %s reaches m_t recall %s / Jaccard %s on the query sample "
-                        "(it gives %.3f / %.3f); using it anyway", p.index, tuned["value"], p.index_recall,
-                        p.index_jaccard, tuned["mt_recall"], tuned["mt_jaccard"])
+        _warn_if_unmet(tuned, p, "localize", "the query sample")
         _write_tuning(ctx.out.create_group("query_tuning"), tuned)
     runs = {index.backend: index}
     if p.compare_bf and index.backend != "bruteforce":

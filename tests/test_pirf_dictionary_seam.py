@@ -123,3 +123,10 @@ def test_seam_marks_find_the_extract_stages_pirfs(tmp_path: Path) -> None:
     assert len(band) == len(pirfs) and c["pirfs_band"] == int(band.sum()) > 0
     assert c["features_band"] + c["features_out"] == n_features
     assert c["twins_band"] <= c["features_band"] and c["ghost_pairs"] <= c["twins_band"]
+
+
+def test_summary_laps_count_the_distance_walked(tmp_path: Path) -> None:
+    """70 frames of 0.2 m on the 16 m loop: 60 walked + 10 at half speed = 65 steps = 13 m,
+    0.81 laps (not 70 x 0.2 / 16 = 0.88)."""
+    s = generate(tmp_path, seed=0, frames=70, test_frames=2, width=64, layout="small", slow=0.5, slow_frames=10)
+    assert s["laps"] == 0.81

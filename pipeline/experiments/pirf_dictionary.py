@@ -317,6 +317,45 @@ def seam_marks(paths: list[Path], *, features: str, n_features: int, ratio: floa
     return pirfs, np.concatenate(all_band) if all_band else np.zeros(0, bool), {**c, **pct}
 
 
+def seam_frame_check(out_dir: Path, settings: list[tuple[float, float]], frames: int = 150, seed: int = 0,
+                     quiet: bool = False) -> list[dict[str, Any]]:
+    """In-frame counts of :func:`seam_marks` alone (no mapping) for (ghost px, band deg)
+    settings beyond the experiment's levels, each on ``frames`` frames of the seed's
+    building video; writes ``seam_frames.csv`` and ``seam_frames.md`` under ``out_dir``."""
+    out = Path(out_dir)
+    p = PirfParams()
+    rows = []
+    for ghost, band_deg in settings:
+        data = out / "data" / f"seamcheck-{ghost:g}px-{band_deg:g}deg-seed{seed}"
+        want = {"seed": seed, "frames": frames, "test_frames": 2, "width": 480, "layout": "building", "seam_ghost": ghost,
+                "seam_band": band_deg}
+        meta = data / "params.json"
+        if not (meta.is_file() and json.loads(meta.read_text()) == want):
+            say("pirf-dictionary", quiet, f"rendering {data.name}: {frames} frames")
+            generate(data, **want, workers=min(2, os.cpu_count() or 1))
+            meta.write_text(json.dumps(want))
+        _pirfs, _band, c = seam_marks(sorted((data / "mapping").glob("frame_*.png")), features=p.features,
+                                      n_features=p.n_features, ratio=p.ratio, w_size_default=p.w_size_default,
+                                      w_size_max=p.w_size_max, n_pmin=p.n_pmin, n_pmax=p.n_pmax, band_deg=band_deg,
+                                      shift_px=ghost, workers=min(2, os.cpu_count() or 1))
+        rows.append({"ghost_px": ghost, "band_deg": band_deg, "frames": frames, "seed": seed, **c})
+        say("pirf-dictionary", quiet, f"{data.name}: in-band features with a twin {c['feature_twins_band_pct']:.1f} % "
+                                      f"(outside {c['feature_twins_out_pct']:.1f} %), ghost pairs {c['ghost_pairs']}")
+    with open(out / "seam_frames.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    lines = [f"# Seam ghosting within frames (seed {seed}, {frames} frames each, no mapping)", "",
+             "| ghost px | band deg | seam-band PIRFs % | features with an in-frame twin: bands / outside % "
+             "| in-band twins that are ghost pairs | PIRFs with an in-frame twin: bands / outside % |", "|" + "---|" * 6]
+    for r in rows:
+        lines.append(f"| {r['ghost_px']:g} | {r['band_deg']:g} | {r['band_pirfs_pct']:.1f} | {r['feature_twins_band_pct']:.1f} / "
+                     f"{r['feature_twins_out_pct']:.1f} | {r['ghost_pairs']} of {r['twins_band']} "
+                     f"| {r['pirf_twins_band_pct']:.1f} / {r['pirf_twins_out_pct']:.1f} |")
+    (out / "seam_frames.md").write_text("\n".join(lines) + "\n")
+    return rows
+
+
 def _data(out: Path, prop: Property, level: float, seed: int, quiet: bool) -> Path:
     data = out / "data" / f"{prop.name}-{level:g}-seed{seed}"
     meta = data / "params.json"
@@ -545,7 +584,17 @@ if __name__ == "__main__":
                                                  "default all")
     cli.add_argument("--quick", action="store_true", help="seed 0, each property's absent and largest level")
     cli.add_argument("--seeds", default="", help="comma-separated seeds (default 0,1,2)")
+    cli.add_argument("--seam-frames", default="", help="instead: in-frame seam counts only, for GHOST:BAND settings "
+                                                       "(px:deg, comma-separated), e.g. 24:20,24:40,48:40")
     args = cli.parse_args()
+    if args.seam_frames:
+        pairs = [tuple(float(v) for v in item.split(":")) for item in args.seam_frames.split(",") if item.strip()]
+        if any(len(x) != 2 for x in pairs):
+            cli.error(f"--seam-frames {args.seam_frames!r}: expected GHOST:BAND pairs such as 24:40")
+        args.out.mkdir(parents=True, exist_ok=True)
+        seam_frame_check(args.out, [(g, b) for g, b in pairs])
+        print(f"results: {args.out / 'seam_frames.md'}")
+        raise SystemExit(0)
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     unknown = sorted(set(names) - {p.name for p in PROPERTIES})
     if unknown:

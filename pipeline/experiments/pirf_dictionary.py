@@ -510,7 +510,8 @@ def _plot(path: Path, table: list[dict[str, Any]], units: dict[str, Property]) -
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(e["property"] for e in table))
-    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4.4), squeeze=False, sharey=True)
+    # one panel alone (one property run) still needs room for the title and the legend
+    fig, axes = plt.subplots(1, len(names), figsize=(max(5.5 * len(names), 8.0), 4.4 if len(names) > 1 else 5.0), squeeze=False, sharey=True)
     for ax, name in zip(axes[0], names):
         ee = [e for e in table if e["property"] == name]
         x = np.arange(len(ee))
@@ -529,9 +530,10 @@ def _plot(path: Path, table: list[dict[str, Any]], units: dict[str, Property]) -
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel("% of the plain dictionary\n(median, bars: min-max over seeds)")
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    rows = 1 if len(names) > 1 else len(labels)  # one panel is too narrow for the legend in one row
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels) if rows == 1 else 1, fontsize=8, frameon=False)
     fig.suptitle("Improved PIRF dictionary update (Sasaki and Hamagami; the paper: -34 %) on generated video", fontsize=10)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.tight_layout(rect=(0, 0.07 if rows == 1 else 0.16, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
 

@@ -15,7 +15,8 @@ occupancy grid (cell ``cell`` m) finds the wall; per pixel the elevation decides
 floor or ceiling, and textures are looked up in a bank of procedural panels (posters,
 shapes, noise, and a few repeated brick/tile panels so that some places look alike).
 Moving people are vertical cylinders; lighting differs per run (gain, gamma, a smooth
-spatial illumination field) and every frame gets sensor noise.
+spatial illumination field) and every frame gets sensor noise. Optionally
+(``seam_ghost``) the frames carry the ghosting of a two-lens camera's stitching seams.
 """
 
 from __future__ import annotations
@@ -304,23 +305,78 @@ def lap_shift(walked: np.ndarray, total: float, lap_offset: float, lap_ramp: flo
     return before + (target - before) * ramp
 
 
+SEAM_BAND_DEG = 20.0  # overlap of two back-to-back fisheye lenses of about 200 deg each (190 deg gives 10)
+
+
+def seam_weight(width: int, band_deg: float) -> np.ndarray:
+    """Weight of the second lens's (ghost) image in each column of an equirectangular frame.
+
+    A two-lens camera (lenses facing forward and backward) stitches its halves along two
+    seams at azimuth heading +-90 deg; in this renderer's frames (column c looks at azimuth
+    heading + pi - (c + 0.5) / width * 2 pi) those lie at x = width / 4 (left) and
+    3 width / 4 (right), x measured from the frame's left edge in pixels. Around each seam
+    both lenses see the scene over a band ``band_deg`` wide, and the camera feathers one
+    into the other: here the second lens's weight rises as a raised cosine from 0 at the
+    band's edges to 1/2 on the seam, w = sin^2(pi s) / 2 for s in [0, 1] across the band,
+    so the frame is untouched outside the bands and the two images count equally on the
+    seam. Every other column gets 0."""
+    if not 0 < band_deg < 180:
+        raise ValueError(f"seam_band must lie in (0, 180) degrees, got {band_deg}")
+    x = np.arange(width) + 0.5
+    band = band_deg / 360.0 * width
+    w = np.zeros(width)
+    for centre in (width / 4, 3 * width / 4):
+        s = (x - (centre - band / 2)) / band
+        inside = (s > 0) & (s < 1)
+        w[inside] = 0.5 * np.sin(np.pi * s[inside]) ** 2
+    return w
+
+
+def ghost_seams(img: np.ndarray, shift_px: float, band_deg: float, gain: float = 1.0) -> np.ndarray:
+    """Stitching-seam ghosting of an equirectangular uint8 frame.
+
+    In each seam band (see :func:`seam_weight`) the frame is blended with a copy of itself
+    moved ``shift_px`` pixels along azimuth (column c of the copy shows column c + shift_px
+    of the frame, wrapping around; fractional shifts interpolate linearly) and scaled by
+    ``gain`` (the second lens's exposure relative to the first): out = (1 - w) frame +
+    w gain copy, rounded. The same structure is then imaged twice, ``shift_px`` apart, as
+    parallax and calibration error leave it in real stitched video."""
+    w = seam_weight(img.shape[1], band_deg)
+    if not shift_px and gain == 1.0:
+        return img.copy()
+    cols = np.flatnonzero(w)
+    f = img.astype(np.float64)
+    lo = int(np.floor(shift_px))
+    frac = shift_px - lo
+    src = (cols + lo) % img.shape[1]
+    copy = f[:, src]
+    if frac:
+        copy = (1 - frac) * copy + frac * f[:, (src + 1) % img.shape[1]]
+    out = f.copy()
+    out[:, cols] = (1 - w[cols]) * f[:, cols] + w[cols] * gain * copy
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
 def _render_chunk(args: tuple) -> None:
     """Worker: render frames [lo, hi) of one run (each frame's noise seeded by (seed, run, t))."""
-    layout, seed, movers, folder, poses, lo, hi, width, lighting, run = args
+    layout, seed, movers, folder, poses, lo, hi, width, lighting, run, seam = args
     world = OmniWorld(layout, seed, movers=movers)
     for t in range(lo, hi):
         x, y, hd = poses[t]
         rng = np.random.default_rng([seed, run, t])
         img = world.render(float(x), float(y), float(hd), width, lighting, world.movers_at(t, run), rng)
+        if seam is not None:  # after the sensor noise: each lens's noisy image is stitched
+            img = ghost_seams(img, *seam)
         cv2.imwrite(str(Path(folder) / f"frame_{t:05d}.png"), img)
 
 
 def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndarray, width: int, lighting: dict[str, float],
-               run: int, workers: int) -> None:
+               run: int, workers: int, seam: tuple[float, float, float] | None = None) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     n = len(poses)
     step = max(1, -(-n // (4 * workers)))
-    chunks = [(layout, seed, movers, str(folder), poses, lo, min(n, lo + step), width, lighting, run) for lo in range(0, n, step)]
+    chunks = [(layout, seed, movers, str(folder), poses, lo, min(n, lo + step), width, lighting, run, seam)
+              for lo in range(0, n, step)]
     if workers > 1 and len(chunks) > 1:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -340,6 +396,7 @@ def _write_run(layout: str, seed: int, movers: int, folder: Path, poses: np.ndar
 def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | None = None, width: int = 480,
              layout: str = "building", step: float = 0.2, test_offset: float = 0.3, movers: int = 6, workers: int = 1,
              dwell: int = 0, slow: float = 1.0, slow_frames: int = 50, revisit_offset: float = 0.0,
+             seam_ghost: float = 0.0, seam_band: float = SEAM_BAND_DEG, seam_gain: float = 1.0,
              **extra: Any) -> dict[str, Any]:
     """Render a mapping run and an unseen test run; return a summary (paths, sizes, loop length).
 
@@ -352,9 +409,17 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     - ``revisit_offset`` > 0: revisits at a slightly different place: every lap after the
       first is walked that many metres to the side (alternating sides).
 
-    See :func:`loop_path`; with the defaults the output is what it was before they existed."""
+    See :func:`loop_path`. A property of the camera, given to both runs:
+
+    - ``seam_ghost`` > 0 (pixels) or ``seam_gain`` != 1: the stitching seams of a two-lens
+      camera: in a band ``seam_band`` degrees wide around azimuth heading +-90 deg the frame
+      is blended with a copy moved ``seam_ghost`` pixels along azimuth and scaled by
+      ``seam_gain`` (see :func:`ghost_seams`).
+
+    With the defaults the output is what it was before these options existed."""
     if extra:
-        known = "frames, test_frames, width, layout, step, test_offset, movers, workers, dwell, slow, slow_frames, revisit_offset"
+        known = ("frames, test_frames, width, layout, step, test_offset, movers, workers, dwell, slow, slow_frames, revisit_offset, "
+                 "seam_ghost, seam_band, seam_gain")
         raise TypeError(f"unknown omni parameter(s): {', '.join(extra)}; known: {known}")
     if width < 64 or width % 2:
         raise ValueError(f"width must be an even number >= 64 (height is width/2), got {width}")
@@ -366,13 +431,20 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     rng = np.random.default_rng(seed)
     if not 0 <= revisit_offset <= 0.6:
         raise ValueError(f"revisit_offset must lie in [0, 0.6] m (the corridors leave about 0.7 m beside the path), got {revisit_offset}")
+    if not 0 <= seam_ghost <= width / 8:
+        raise ValueError(f"seam_ghost must lie in [0, width/8 = {width / 8:g}] pixels (a shift along azimuth), got {seam_ghost}")
+    if not 0.5 <= seam_gain <= 2:
+        raise ValueError(f"seam_gain must lie in [0.5, 2] (the second lens's exposure relative to the first), got {seam_gain}")
+    seam_weight(width, seam_band)  # checks the band
+    seam = (float(seam_ghost), float(seam_band), float(seam_gain)) if seam_ghost or seam_gain != 1.0 else None
     mapping = loop_path(world.loop, frames, step, jitter=0.02, rng=rng, dwell=dwell, slow=slow, slow_frames=slow_frames,
                         lap_offset=revisit_offset)
     test = loop_path(world.loop, test_frames, step, offset=test_offset, reverse=True, start=0.37, jitter=0.02, rng=rng)
     light_map = {"gain": 1.0, "gamma": 1.0, "field": 0.15, "phase": 0.0, "noise": 2.0}
     light_test = {"gain": 0.85, "gamma": 1.15, "field": 0.25, "phase": 1.3, "noise": 3.0}
-    _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers)
-    _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers)
+    _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers, seam)
+    _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers, seam)
     length = loop_length(layout)
+    walked = step * float(speed_profile(frames, dwell, 50, slow, slow_frames).sum())  # slow motion and dwelling walk less
     return {"mapping": str(out_dir / "mapping"), "test": str(out_dir / "test"), "frames": frames, "test_frames": test_frames,
-            "size": f"{width}x{width // 2}", "loop_length_m": round(length, 1), "laps": round(frames * step / length, 2)}
+            "size": f"{width}x{width // 2}", "loop_length_m": round(length, 1), "laps": round(walked / length, 2)}

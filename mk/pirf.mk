@@ -10,7 +10,8 @@ experiment-pirf: $(STAMP)
 experiment-pirf-large: $(STAMP)
 	$(PL) experiment pirf-large
 
-# plain vs improved dictionary size as slow motion and sideways revisits grow (about 75 min on 2 shared cores)
+# plain vs improved dictionary size as slow motion, sideways revisits and stitching-seam ghosting grow
+# (33 videos, about 2 hours on 2 shared cores; one setting alone: python -m placeloc.experiments.pirf_dictionary --only seam)
 experiment-pirf-dictionary: $(STAMP)
 	$(PL) experiment pirf-dictionary
 

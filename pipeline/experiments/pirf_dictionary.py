@@ -140,24 +140,15 @@ def merged_chains(frames: Iterable[tuple[np.ndarray, np.ndarray]], *, ratio: flo
     frame, and the PIRFs whose chain is *merged*: another PIRF of the frame ratio-matched the
     same feature of frame t-1 (the ratio test is not one-to-one), so the two chains, and
     their mean descriptors, share all but one frame."""
-    from placeloc.pirf.chain import extract_pirfs, ratio_match
+    from placeloc.pirf.chain import PirfTracker
 
-    descs: list[np.ndarray] = []
-    resps: list[np.ndarray] = []
-    matches: list[np.ndarray] = []
+    tracker = PirfTracker(ratio=ratio, w_size_default=w_size_default, w_size_max=w_size_max, n_pmin=n_pmin, n_pmax=n_pmax)
     total = twins = merged = both = 0
     for desc, resp in frames:
-        matches.append(ratio_match(desc, descs[-1], ratio) if descs else np.full(len(desc), -1, np.int64))
-        descs.append(desc)
-        resps.append(resp)
-        if len(descs) > w_size_max + 1:
-            descs.pop(0)
-            resps.pop(0)
-            matches.pop(0)
-        pirf, sel, _w = extract_pirfs(descs, resps, matches, w_size_default, n_pmin, n_pmax, w_size_max)
+        pirf, sel, _w = tracker.push_selected(desc, resp)
         if len(pirf) < 3:
             continue
-        prev = matches[-1][sel]  # each PIRF's feature in frame t-1
+        prev = tracker.matches[-1][sel]  # each PIRF's feature in frame t-1
         ids, counts = np.unique(prev, return_counts=True)
         shared = np.isin(prev, ids[counts > 1])
         has, _twin = ratio_twins(pirf, ratio)
@@ -260,7 +251,7 @@ def seam_marks(paths: list[Path], *, features: str, n_features: int, ratio: floa
     features (PIRFs) of the same frame (eq. 1, leave-one-out), and how many in-band feature
     twins are *ghost pairs*: the twin lies ``shift_px`` (within ``tol_px``) to the side at the
     same height, the doubled image of one structure."""
-    from placeloc.pirf.chain import extract_pirfs, ratio_match
+    from placeloc.pirf.chain import PirfTracker
     from placeloc.pirf.features import extract_frame
 
     items = [(str(q), features, n_features) for q in paths]
@@ -273,9 +264,7 @@ def seam_marks(paths: list[Path], *, features: str, n_features: int, ratio: floa
         detected = [extract_frame(it) for it in items]
     c = dict.fromkeys(("features_band", "features_out", "twins_band", "twins_out", "ghost_pairs", "pirfs_band", "pirfs_out",
                        "pirf_twins_band", "pirf_twins_out"), 0)
-    descs: list[np.ndarray] = []
-    resps: list[np.ndarray] = []
-    matches: list[np.ndarray] = []
+    tracker = PirfTracker(ratio=ratio, w_size_default=w_size_default, w_size_max=w_size_max, n_pmin=n_pmin, n_pmax=n_pmax)
     all_pirfs, all_band = [], []
     for xy, resp, desc, shape in detected:
         width = shape[1]
@@ -290,14 +279,7 @@ def seam_marks(paths: list[Path], *, features: str, n_features: int, ratio: floa
             d = np.abs(xy[j] - xy)
             dx = np.minimum(d[:, 0], width - d[:, 0])  # the frame wraps around in azimuth
             c["ghost_pairs"] += int((has & band & (np.abs(dx - shift_px) <= tol_px) & (d[:, 1] <= tol_px)).sum())
-        matches.append(ratio_match(desc, descs[-1], ratio) if descs else np.full(len(desc), -1, np.int64))
-        descs.append(desc)
-        resps.append(resp)
-        if len(descs) > w_size_max + 1:
-            descs.pop(0)
-            resps.pop(0)
-            matches.pop(0)
-        pirf, sel, _w = extract_pirfs(descs, resps, matches, w_size_default, n_pmin, n_pmax, w_size_max)
+        pirf, sel, _w = tracker.push_selected(desc, resp)
         pband = band[sel]
         phas, _ = ratio_twins(pirf, ratio)
         c["pirfs_band"] += int(pband.sum())
@@ -312,7 +294,7 @@ def seam_marks(paths: list[Path], *, features: str, n_features: int, ratio: floa
            "pirf_twins_band_pct": 100.0 * c["pirf_twins_band"] / max(c["pirfs_band"], 1),
            "pirf_twins_out_pct": 100.0 * c["pirf_twins_out"] / max(c["pirfs_out"], 1),
            "band_pirfs_pct": 100.0 * c["pirfs_band"] / max(c["pirfs_band"] + c["pirfs_out"], 1)}
-    dim = descs[-1].shape[1] if descs else 128
+    dim = tracker.descs[-1].shape[1] if tracker.descs else 128
     pirfs = np.concatenate(all_pirfs) if all_pirfs else np.zeros((0, dim), np.float32)
     return pirfs, np.concatenate(all_band) if all_band else np.zeros(0, bool), {**c, **pct}
 

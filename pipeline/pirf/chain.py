@@ -112,6 +112,12 @@ class PirfTracker:
 
     def push(self, desc: np.ndarray, resp: np.ndarray) -> tuple[np.ndarray, int]:
         """Add the next frame's features; returns its PIRFs (n, d) and the window used."""
+        pirf, _sel, w = self.push_selected(desc, resp)
+        return pirf, w
+
+    def push_selected(self, desc: np.ndarray, resp: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """:meth:`push`, also returning which of the frame's features each PIRF ends in (``sel``);
+        ``self.matches[-1][sel]`` are then their features in the frame before."""
         self.matches.append(ratio_match(desc, self.descs[-1], self.ratio) if self.descs else np.full(len(desc), -1, np.int64))
         self.descs.append(desc)
         self.resps.append(resp)
@@ -119,5 +125,4 @@ class PirfTracker:
             self.descs.pop(0)
             self.resps.pop(0)
             self.matches.pop(0)
-        pirf, _sel, w = extract_pirfs(self.descs, self.resps, self.matches, self.w_default, self.n_pmin, self.n_pmax, self.w_max)
-        return pirf, w
+        return extract_pirfs(self.descs, self.resps, self.matches, self.w_default, self.n_pmin, self.n_pmax, self.w_max)

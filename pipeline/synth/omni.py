@@ -445,6 +445,6 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 40, test_frames: int | 
     _write_run(layout, seed, movers, out_dir / "mapping", mapping, width, light_map, 0, workers, seam)
     _write_run(layout, seed, movers, out_dir / "test", test, width, light_test, 1, workers, seam)
     length = loop_length(layout)
-    walked = step * float(speed_profile(frames, dwell, 50, slow, slow_frames).sum())  # slow motion and dwelling walk less
+    walked = step * float(speed_profile(frames, dwell, slow=slow, slow_frames=slow_frames).sum())  # slow motion and dwelling walk less
     return {"mapping": str(out_dir / "mapping"), "test": str(out_dir / "test"), "frames": frames, "test_frames": test_frames,
             "size": f"{width}x{width // 2}", "loop_length_m": round(length, 1), "laps": round(walked / length, 2)}

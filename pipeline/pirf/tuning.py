@@ -94,6 +94,12 @@ def meets(ag: dict[str, float], target: float, jaccard: float) -> bool:
                 and lower_bound(ag["mt_jaccard"], int(ag["mt_union"])) >= jaccard)
 
 
+def _grown(size: int, matched: int, cap: int) -> int:
+    """The next sample size: enough (with a quarter to spare) for :data:`MIN_MATCHES` at the
+    match rate seen so far, at most ``cap``."""
+    return min(cap, int(np.ceil(size * 1.25 * MIN_MATCHES / max(matched, 1))))
+
+
 def _sample(data: np.ndarray, size: int, ratio: float, rng: np.random.Generator) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Entries to hold out and their exact two nearest neighbours among the rest: ``size``
     at first, more (up to :data:`MAX_SAMPLE`, never over a tenth of the dictionary) while
@@ -112,7 +118,7 @@ def _sample(data: np.ndarray, size: int, ratio: float, rng: np.random.Generator)
         matched = int((_decisions(*exact, ratio) >= 0).sum())
         if matched >= MIN_MATCHES or size >= cap:
             return ids, exact
-        size = min(cap, int(np.ceil(size * 1.25 * MIN_MATCHES / max(matched, 1))))
+        size = _grown(size, matched, cap)
 
 
 def _pick(index: AnnIndex, q: np.ndarray, exact: tuple[np.ndarray, np.ndarray], *, target: float, jaccard: float,
@@ -171,9 +177,9 @@ def tune_on_queries(index: AnnIndex, queries: np.ndarray, *, target: float, jacc
     A seeded random sample of ``queries`` (``sample`` rows at first, grown while fewer
     than :data:`MIN_MATCHES` pass the ratio test, up to :data:`MAX_SAMPLE` and never over
     a tenth of the queries (or 100, if more), so the exact search costs at most about a
-    tenth of brute force) is
-    searched exactly and with every setting of the grid; the cheapest that :func:`meets`
-    the targets is set, below or above the one the index was built with. No ground truth
+    tenth of brute force) is searched exactly and with every setting of the grid; the
+    cheapest that :func:`meets` the targets is set, below or above the one the index was
+    built with. No ground truth
     is read: the targets are agreement with exact search, so this holds them on the
     distribution that is searched rather than on the dictionary's own entries, which were
     easier on the 8,000-frame run (m_t recall 0.985 on them, 0.960 on the query run, at
@@ -197,6 +203,6 @@ def tune_on_queries(index: AnnIndex, queries: np.ndarray, *, target: float, jacc
         matched = int((_decisions(*exact, ratio) >= 0).sum())
         if matched >= MIN_MATCHES or size >= cap:
             break
-        size = min(cap, int(np.ceil(size * 1.25 * MIN_MATCHES / max(matched, 1))))
+        size = _grown(size, matched, cap)
     tuned = _pick(index, queries[order[:size]], exact, target=target, jaccard=jaccard, ratio=ratio)
     return {**tuned, "exact_seconds": exact_seconds, "seconds": time.perf_counter() - t_all}

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+
 from placeloc.artifacts import atomic_h5
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.knn import sq_norms
 from placeloc.pirf.mapping import PirfMapper, node_vector

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.knn import bf_knn2, sq_norms
 from placeloc.pirf.params import PirfParams, index_settings

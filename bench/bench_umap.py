@@ -24,6 +24,7 @@ import time
 import cv2
 import numba
 import numpy as np
+
 from placeloc.geometry import Camera, pose_grid
 from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.synth.corridor import building

@@ -7,6 +7,7 @@ import logging
 
 import numpy as np
 import pytest
+
 from placeloc.coembed.camera import normalised_coordinates, read_intrinsics
 from placeloc.coembed.landmarks import farthest_point_landmarks
 from placeloc.coembed.observations import read_observations_csv, read_points_csv

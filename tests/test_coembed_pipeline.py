@@ -8,6 +8,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.coembed.observations import ObservationError
 from placeloc.config import ConfigError, load_config
 from placeloc.runner import run_all, run_stage

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from placeloc.coembed.camera import Intrinsics, normalised_coordinates, read_intrinsics
 from placeloc.coembed.landmarks import farthest_point_landmarks, landmark_warnings
 from placeloc.coembed.observations import ObservationError, Observations, from_triplets

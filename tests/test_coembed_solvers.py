@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from placeloc.coembed.align import AlignmentError, align_to_landmarks, apply_affine, fit_affine
 from placeloc.coembed.isomap import IsomapError, feature_distances, isomap_from_distances, isomap_points
 from placeloc.coembed.observations import ObservationError, from_triplets

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from placeloc.coembed.observations import poses_by_step, read_observations_csv, read_points_csv
 from placeloc.synth import generate
 

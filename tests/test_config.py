@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import yaml
+
 from placeloc.config import ConfigError, load_config
 
 

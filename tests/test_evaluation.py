@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+
 from placeloc.config import load_config
 from placeloc.evaluation.ground_truth import GroundTruth
 from placeloc.evaluation.matching import score_matches
@@ -126,8 +127,9 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
     show_run(run)
     assert side_outputs_intact(run / "evaluate.h5")
 
-    from placeloc.cli import app
     from typer.testing import CliRunner
+
+    from placeloc.cli import app
 
     res = CliRunner().invoke(app, ["show", str(run), "--recall-at", "1,20,99", "-q"])
     m = json.loads((run / "metrics.json").read_text())
@@ -139,6 +141,7 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
 
 def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
     import yaml
+
     from placeloc.experiments.sweep import parse_grid, run_sweep
 
     raw = yaml.safe_load((route / "config.yaml").read_text())

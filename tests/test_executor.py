@@ -8,6 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.config import load_config
 from placeloc.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item, make_executor
 from placeloc.runner import run_stage

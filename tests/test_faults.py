@@ -21,13 +21,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from typer.testing import CliRunner
+
 from placeloc.artifacts import DiskFullError, atomic_h5, atomic_open
 from placeloc.config import ConfigError, load_config
 from placeloc.images import ImageError, ImageSet, read_gray
 from placeloc.limits import ResourceError, check_resources, image_size
 from placeloc.methods import STAGES
 from placeloc.runner import RunDirError, image_sets, lock_run_dir, run_all, run_stage
-from typer.testing import CliRunner
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACELOC = [sys.executable, "-m", "placeloc.cli"]
@@ -131,6 +132,7 @@ def _children(pid: int) -> list[int]:
 
 def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp_path):
     import psutil
+
     from placeloc.synth.route import generate
 
     generate(tmp_path / "data", seed=1, frames=240)
@@ -172,6 +174,7 @@ def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp
 @pytest.mark.parametrize("sig,rc", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
     import psutil
+
     from placeloc.synth.route import generate
 
     # Long enough that the pool is still extracting when the signal comes (the whole run
@@ -455,6 +458,7 @@ def test_bug_shows_traceback_and_ctrl_c_is_one_line(route, tmp_path, monkeypatch
 
 def test_error_classes_are_user_errors():
     import cv2
+
     from placeloc.cli import classify
     from placeloc.coembed.solver import CoembedError
     from placeloc.evaluation.ground_truth import GroundTruthError

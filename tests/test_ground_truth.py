@@ -10,6 +10,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.config import ConfigError, load_config
 from placeloc.evaluation.ground_truth import GroundTruth, GroundTruthError
 from placeloc.evaluation.poses import latlon_to_utm, positions_from_names, read_poses, utm_zone_number

@@ -5,6 +5,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.evaluation.ground_truth import GroundTruth, GroundTruthError
 from placeloc.evaluation.metrics import dissimilarity_ratios, pr_curve, recall_at_k, summarise_ratios
 

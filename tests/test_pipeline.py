@@ -11,6 +11,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.artifacts import atomic_h5, describe, read_stamp
 from placeloc.config import load_config
 from placeloc.images import ImageError, list_images, natural_key

@@ -7,6 +7,7 @@ import math
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.pirf.ann import BACKENDS, AnnIndex, IndexMismatchError
 from placeloc.pirf.chain import adaptive_window, chain_lengths, extract_pirfs, ratio_match
 from placeloc.pirf.knn import bf_knn2

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from placeloc.evaluation.poses import read_poses
 from placeloc.experiments.pirf_dictionary import dictionary_counts, merged_chains, property_frames, ratio_twins
 from placeloc.synth.omni import OmniWorld, generate, loop_length, loop_path

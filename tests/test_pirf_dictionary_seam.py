@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from placeloc.evaluation.poses import read_poses
 from placeloc.experiments.pirf_dictionary import dictionary_counts, in_seam_bands, seam_marks
 from placeloc.pirf.chain import PirfTracker

@@ -10,6 +10,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
+
 from placeloc.config import ConfigError, load_config
 from placeloc.evaluation.poses import read_poses
 from placeloc.images import ImageError

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from placeloc.pirf.metrics import tail_mean
 from placeloc.pirf.verify import bearing_residual, bearings, frames_needed, verify_closures
 

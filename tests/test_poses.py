@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from placeloc.evaluation.poses import PoseError, read_poses
 
 

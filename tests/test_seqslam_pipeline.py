@@ -6,6 +6,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+
 from placeloc.config import load_config
 from placeloc.runner import run_stage
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from placeloc.seqslam.matching import auto_velocity_scale, sequence_match
 from placeloc.seqslam.search import query_offsets, sequence_search, trajectory_offsets, velocities
 

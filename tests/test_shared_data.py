@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from placeloc.config import load_config
 from placeloc.experiments import shared_data_dir
 from placeloc.runner import read_metrics, run_all

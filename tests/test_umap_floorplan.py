@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from placeloc.geometry.floorplan import Model, ModelError, floor_plan_model, free_space_mask
 
 # Two 4 x 3 m rooms side by side, sharing the wall x = 4; a 1 m door in it at y 1..2; the

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid, project_segments
 from placeloc.geometry.floorplan import ModelError, floor_plan_model, load_model
 from placeloc.umap.bits import unpack

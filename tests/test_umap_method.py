@@ -8,6 +8,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+
 from placeloc.umap import ca
 from placeloc.umap.bits import and_count, iou_naive, iou_scores, pack, popcount_rows, unpack
 

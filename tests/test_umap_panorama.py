@@ -9,6 +9,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+
 from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.geometry.panorama import panorama_line_image, render_panoramas
 from placeloc.umap.bits import pack, popcount_rows, unpack
@@ -90,6 +91,7 @@ def test_panorama_line_image_lies_on_the_map_lines():
 @pytest.mark.parametrize("score", ["iou", "chamfer"])
 def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
     import yaml
+
     from placeloc.config import load_config
     from placeloc.runner import run_all
 

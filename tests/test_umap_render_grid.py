@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+
 from placeloc.geometry import Camera, pose_grid
 from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
 from placeloc.geometry.visibility import visible_pieces

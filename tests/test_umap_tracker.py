@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+
 from placeloc.params import defaults
 from placeloc.synth.corridor import building
 from placeloc.umap import ca

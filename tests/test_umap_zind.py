@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+
 from placeloc.geometry.floorplan import ModelError, floor_plan_model
 from placeloc.geometry.zind import import_zind, zind_home
 

@@ -1,0 +1,344 @@
+"""placeloc command line: parse arguments, call :mod:`placeloc.api`, print one line per result.
+
+Every stage command takes a YAML config and a run directory and writes
+``RUN_DIR/<stage>.h5``; earlier stages that are missing or out of date run first, and
+stages that are up to date are skipped.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import traceback
+from pathlib import Path
+from typing import Any, List
+
+import typer
+from typer.core import TyperGroup
+
+from placeloc.interrupts import Terminated, raise_if_interrupted
+from placeloc.interrupts import install as install_signal_handlers
+
+try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
+    from typer._click import ClickException
+except ImportError:  # older Typer uses Click itself
+    from click import ClickException  # type: ignore[no-redef]
+
+# Where a bug goes: the project has no public tracker address yet, so name what to send.
+BUG_REPORT = "the placeloc issue tracker, with the traceback above, the command and the config"
+
+
+def _user_error_types() -> tuple[type, ...]:
+    """Exceptions caused by input (files, config, data, the machine's limits), never by a bug.
+
+    ValueError covers every placeloc error about bad data (ConfigError, GroundTruthError,
+    PoseError, the co-embedding errors, ResourceError) and UnicodeDecodeError; OSError
+    covers missing files, permissions, folders given for files and a full disk."""
+    import yaml
+
+    from placeloc.images import ImageError
+    from placeloc.runner import StageError
+
+    types: list[type] = [ValueError, OSError, yaml.YAMLError, MemoryError, ImageError, StageError]
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None:
+        types.append(cv2.error)
+    return tuple(types)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, MemoryError):
+        text = f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, or executor.workers"
+    elif isinstance(exc, OSError) and exc.filename and str(exc.filename) not in text:
+        text = f"{exc.filename}: {text}"
+    elif not text:
+        text = type(exc).__name__
+    return text
+
+
+def classify(exc: BaseException) -> str:
+    """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
+    judged by the exception it wraps)."""
+    from placeloc.executor import WorkItemError
+
+    if isinstance(exc, WorkItemError):
+        return classify(exc.original)
+    return "user" if isinstance(exc, _user_error_types()) else "bug"
+
+
+class ErrorBoundaryGroup(TyperGroup):
+    """The one error boundary: every command, including ones added later, runs inside it.
+
+    - a user-caused error: one line ``error: ...`` naming the file or key and the fix, rc 2;
+    - Ctrl-C: one line ``interrupted; rerun to resume``, rc 130;
+    - anything else is a bug: the traceback, then one line saying so and where to report it, rc 1.
+    """
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            result = super().invoke(ctx)
+            raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
+            return result
+        except (typer.Exit, typer.Abort, ClickException):
+            raise
+        except KeyboardInterrupt as exc:
+            typer.echo("interrupted; rerun to resume", err=True)
+            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
+        except Exception as exc:
+            if classify(exc) == "user":
+                typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
+                raise typer.Exit(2) from None
+            traceback.print_exc()
+            typer.secho(f"error: this is a bug in placeloc ({type(exc).__name__}), not a problem with your input; "
+                        f"please report it to {BUG_REPORT}", fg="red", err=True)
+            raise typer.Exit(1) from None
+
+
+app = typer.Typer(
+    cls=ErrorBoundaryGroup,
+    help="placeloc: where am I, from images alone. Staged, resumable localization pipelines "
+    "(SeqSLAM, PIRF-nav2, UMap, co-embedding) over image folders, with HDF5 artifacts.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    # Plain Click help: Typer's rich help prints "<bool>" after every flag with Click 8.2+.
+    rich_markup_mode=None,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from placeloc import __version__
+
+        typer.echo(f"placeloc {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit.")) -> None:
+    """placeloc: where am I, from images alone."""
+
+ConfigArg = typer.Argument(..., help="YAML config (see configs/); relative paths in it start at its folder.")
+RunDirOpt = typer.Option(None, "--run-dir", "-o", help="Run directory for artifacts (default: runs/<config name>).")
+SetOpt = typer.Option(None, "--set", "-s", help="Override a config value by dotted path, e.g. --set seqslam.ds=20. Repeatable.")
+ForceOpt = typer.Option(False, "--force", "-f", help="Re-run even if the artifact is up to date.")
+QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars, warnings only.")
+WaitOpt = typer.Option(False, "--wait", help="If another run holds the run directory, wait for it instead of stopping.")
+
+
+def _setup_logging(quiet: bool) -> None:
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO,
+                        format="placeloc: %(message)s", stream=sys.stderr, force=True)
+
+
+def _fail(exc: Exception) -> None:
+    typer.secho(f"error: {_one_line(exc)}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(2)
+
+
+def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | None, force: bool,
+           quiet: bool, all_stages: bool = False, wait: bool = False) -> None:
+    from placeloc.config import load_config
+    from placeloc.runner import run_stage
+
+    _setup_logging(quiet)
+    # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
+    cfg = load_config(config, sets)
+    out = run_dir or Path("runs") / config.stem
+    path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages,
+                     wait=wait)
+    typer.echo(f"{stage}: {path}")
+    if stage == "evaluate" and (path.parent / "metrics.json").is_file():
+        typer.echo(f"metrics: {path.parent / 'metrics.json'}")
+
+
+@app.command()
+def extract(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+            force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Stage 1: read the image folders and compute per-image features -> extract.h5."""
+    _stage("extract", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command("build-dictionary")
+def build_dictionary(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+                     force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Stage 2: build the method's map/dictionary/database -> build-dictionary.h5."""
+    _stage("build-dictionary", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command("build")
+def build(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+          force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Alias of build-dictionary."""
+    _stage("build-dictionary", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command()
+def index(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+          force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Stage 3: index the dictionary/database for fast search -> index.h5."""
+    _stage("index", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command()
+def localize(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Stage 4: match every query against the reference -> localize.h5 (+ matches.csv)."""
+    _stage("localize", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command()
+def evaluate(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+    """Stage 5: score against ground truth -> evaluate.h5, metrics.json and plots."""
+    _stage("evaluate", config, run_dir, set, force, quiet, wait=wait)
+
+
+@app.command()
+def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
+        force: bool = typer.Option(False, "--force", "-f", help="Re-run every stage."), quiet: bool = QuietOpt,
+        wait: bool = WaitOpt) -> None:
+    """All stages in order; up-to-date stages are skipped, so an interrupted run resumes."""
+    _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True, wait=wait)
+
+
+@app.command()
+def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by placeloc.")) -> None:
+    """Explain an artifact: its stage, provenance (config, inputs, version) and contents."""
+    from placeloc.artifacts import describe
+
+    try:
+        typer.echo(describe(file))
+    except (IsADirectoryError, FileNotFoundError):
+        raise
+    except OSError as exc:
+        # h5py's text alone does not name the file.
+        raise ValueError(f"{file}: cannot be read as a placeloc artifact ({_one_line(exc)})") from exc
+
+
+@app.command()
+def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM route pair), corridor (UMap building), home (UMap panoramas), "
+                                     "coembed (ABCD world), omni (PIRF video)."),
+          out: Path = typer.Argument(..., help="Output folder."),
+          seed: int = typer.Option(0, help="Random seed."),
+          set: List[str] | None = typer.Option(None, "--set", "-s", help="Generator parameter, e.g. --set frames=200.")) -> None:
+    """Generate a synthetic data set with known ground truth."""
+    import yaml
+
+    from placeloc.synth import generate
+
+    params = {}
+    for item in set or []:
+        if "=" not in item:
+            _fail(ValueError(f"--set {item!r}: expected name=value"))
+        k, v = item.split("=", 1)
+        params[k.strip()] = yaml.safe_load(v)
+    try:
+        summary = generate(kind, out, seed=seed, **params)
+    except (KeyError, TypeError) as exc:  # an unknown kind or generator parameter
+        _fail(ValueError(str(exc).strip("'\"")))
+    for k, v in summary.items():
+        typer.echo(f"{k}: {v}")
+
+
+@app.command()
+def compare(config: Path = ConfigArg,
+            methods: str = typer.Option("sad,histeq,zncc,abs_zncc,isc,isc_ext,ocm,ocm_ext", help="Comma-separated SeqSLAM comparisons."),
+            run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt, quiet: bool = QuietOpt) -> None:
+    """Run several SeqSLAM image comparisons on one data set; write a table and one PR plot."""
+    from placeloc.config import ConfigError, load_config
+    from placeloc.experiments.compare import compare_methods
+
+    _setup_logging(quiet)
+    cfg = load_config(config, set)
+    if cfg["method"] != "seqslam":
+        raise ConfigError(f"{config}: compare runs SeqSLAM image comparisons, but this config's method is "
+                          f"{cfg['method']!r}; give a SeqSLAM config (method: seqslam), e.g. configs/demo.yaml")
+    out = run_dir or Path("runs") / f"{config.stem}-compare"
+    table = compare_methods(cfg, out, [m.strip() for m in methods.split(",") if m.strip()], quiet=quiet)
+    typer.echo(table.read_text())
+
+
+@app.command()
+def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary."),
+               out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
+               quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
+               quiet: bool = QuietOpt) -> None:
+    """Reproduce a paper's experiment; writes its runs, tables and summary.json."""
+    from placeloc.config import ConfigError
+    from placeloc.experiments import EXPERIMENTS, run_experiment
+
+    _setup_logging(quiet)
+    if name not in EXPERIMENTS:
+        raise ConfigError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}, "
+                          "e.g. placeloc experiment seqslam --quick")
+    path = run_experiment(name, out, quick=quick, quiet=quiet)
+    typer.echo(f"results: {path}")
+
+
+def main() -> None:
+    install_signal_handlers()
+    app()
+
+
+if __name__ == "__main__":
+    main()
+
+
+# ---------------------------------------------------------------------------------------
+# Looking at results and sweeping parameters (evaluation layer)
+# ---------------------------------------------------------------------------------------
+@app.command()
+def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
+         sample: int = typer.Option(8, help="Queries spread over the traverse to draw."),
+         failures: int = typer.Option(8, help="Most confident wrong matches to draw (needs ground truth)."),
+         recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
+                                                         "(from per_query.csv; N up to its 20 candidates)."),
+         quiet: bool = QuietOpt) -> None:
+    """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
+    from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
+
+    _setup_logging(quiet)
+    if not run_dir.is_dir():
+        _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
+    try:
+        strips, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in strips:
+            typer.echo(f"strips: {path}")
+        if recall_at:
+            ns = [int(n) for n in recall_at.split(",") if n.strip()]
+            for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
+                fmt = lambda v: "n/a" if v is None else f"{v:.4f}"  # noqa: E731
+                typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
+    except (ShowError, ValueError) as exc:
+        _fail(exc)
+    typer.echo(f"report: {report}")
+
+
+@app.command()
+def sweep(config: Path = ConfigArg,
+          grid: List[str] = typer.Option(..., "--grid", "-g", help="key=v1,v2,... (repeatable), e.g. --grid seqslam.ds=10,20"),
+          out: Path | None = typer.Option(None, "--out", "-o", help="Sweep folder (default runs/<config name>-sweep)."),
+          set: List[str] | None = SetOpt, force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
+    """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
+    import yaml
+
+    from placeloc.config import ConfigError, apply_override
+    from placeloc.experiments.sweep import parse_grid, run_sweep
+    from placeloc.images import ImageError
+    from placeloc.runner import StageError
+
+    _setup_logging(quiet)
+    try:
+        if not config.is_file():
+            raise ConfigError(f"config file {config} does not exist")
+        raw = yaml.safe_load(config.read_text()) or {}
+        for item in set or []:
+            apply_override(raw, item)
+        table = run_sweep(raw, config.resolve().parent, parse_grid(grid), out or Path("runs") / f"{config.stem}-sweep",
+                          quiet=quiet, force=force)
+    except (ConfigError, ImageError, StageError, FileNotFoundError, yaml.YAMLError) as exc:
+        _fail(exc)
+    typer.echo(table.read_text())

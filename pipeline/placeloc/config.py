@@ -1,0 +1,366 @@
+"""YAML run configuration: load, override with ``--set``, validate, resolve paths, hash.
+
+A config is a plain nested dict. Its schema is the union of ``COMMON_DEFAULTS`` and the
+chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
+one default there, the type of that default is the type a user value must have, and a
+declared range or list of choices is checked. Values whose default is ``None`` must have
+the type their dataclass field declares (``float | None`` takes a number or null). Relative
+paths resolve against the folder of the config file, so a config can be moved together
+with its data.
+
+YAML is read with a safe loader that also refuses aliases (``*name``): an alias can expand
+a few hundred bytes into gigabytes (the "billion laughs" attack), and a config never needs
+one.
+"""
+
+from __future__ import annotations
+
+import copy
+import glob
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from placeloc.params import check_bounds, declared_types
+
+# A config larger than this is not a hand-written preset; refuse it before parsing.
+MAX_CONFIG_BYTES = 1 << 20
+
+
+class ConfigError(ValueError):
+    """A config value is missing, unknown, of the wrong type or points nowhere."""
+
+
+# Sections shared by every method. ``query`` omitted means loop closure within reference.
+COMMON_DEFAULTS: dict[str, Any] = {
+    "method": None,
+    "seed": 0,
+    "reference": {"images": None, "on_error": "stop", "fingerprint": "stat"},
+    "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
+    # radius: metres for position ground truth (25 m is the VPR-Bench / VPR-methods-evaluation convention).
+    # recall_at: the N of Recall@N in metrics.json and the Recall@N curve.
+    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20]},
+    "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
+    "plots": True,
+}
+COMMON_CHOICES: dict[str, tuple] = {
+    "reference.on_error": ("stop", "skip"),
+    "query.on_error": ("stop", "skip"),
+    # stat: name, size, mtime of each image (default, cheap); content: a hash of its bytes.
+    "reference.fingerprint": ("stat", "content"),
+    "query.fingerprint": ("stat", "content"),
+    "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses"),
+    "executor.kind": ("local", "dask"),
+}
+COMMON_PATH_KEYS = ("reference.images", "query.images", "ground_truth.path")
+# Types of the common keys whose default is None (the others take their default's type).
+COMMON_TYPES: dict[str, tuple[type, ...]] = {
+    "method": (str,), "reference.images": (str,), "query.images": (str,), "ground_truth.path": (str,),
+}
+# Ranges of common keys: (min, max, min_exclusive), as params.param declares them.
+COMMON_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
+    "executor.workers": (1, None, False),
+    "executor.retries": (0, None, False),
+    "ground_truth.tolerance": (0, None, False),
+    "ground_truth.radius": (0, None, True),
+    "ground_truth.recall_at": (1, None, False),
+}
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """SafeLoader that refuses YAML aliases, so a tiny file cannot expand without bound."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(
+                None, None, f"found alias *{event.anchor}: aliases are not allowed in placeloc configs "
+                "(write the value out instead)", event.start_mark)
+        return super().compose_node(parent, index)
+
+
+def safe_yaml(text: str) -> Any:
+    """Parse YAML text with the safe, alias-free loader."""
+    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+
+
+def read_yaml_file(path: Path, what: str = "config file") -> Any:
+    """Read and parse a YAML file; every failure becomes a ConfigError naming the file and the fix."""
+    if path.is_dir():
+        raise ConfigError(f"{what} {path} is a folder, not a YAML file: give the path of a .yaml file, e.g. configs/demo.yaml")
+    if not path.exists():
+        raise ConfigError(f"{what} {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{what} {path} is {size / 1e6:.1f} MB; the limit is {MAX_CONFIG_BYTES / 1e6:.0f} MB "
+                              "(a config holds settings, not data: put data in files and name them)")
+        raw = path.read_bytes()
+    except PermissionError as exc:
+        raise ConfigError(f"{what} {path}: permission denied; make it readable (chmod u+r) or copy it") from exc
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what} {path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+                          "save it as UTF-8") from exc
+    try:
+        return safe_yaml(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from exc
+# Sections a user may leave out entirely (their absence means something).
+OPTIONAL_SECTIONS = ("query",)
+
+
+def load_config(
+    path: str | Path | None = None,
+    overrides: list[str] | None = None,
+    data: dict | None = None,
+    base_dir: str | Path | None = None,
+) -> dict[str, Any]:
+    """Read a YAML config (or take ``data``), apply ``key.path=value`` overrides, validate.
+
+    Returns the full config with every default filled in and paths made absolute.
+    Raises :class:`ConfigError` naming the offending key and the fix.
+    """
+    if path is not None:
+        path = Path(path)
+        data = read_yaml_file(path) or {}
+        base_dir = path.resolve().parent
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path or 'config'}: the top level must be a mapping of keys to values")
+    data = copy.deepcopy(data)
+    for item in overrides or []:
+        apply_override(data, item)
+    return validate(data, Path(base_dir or Path.cwd()))
+
+
+def apply_override(data: dict, item: str) -> None:
+    """Apply one ``--set a.b.c=value`` (value parsed as YAML) to a raw config dict."""
+    if "=" not in item:
+        raise ConfigError(f"--set {item!r}: expected key.path=value, e.g. --set seqslam.ds=20")
+    key, raw = item.split("=", 1)
+    try:
+        value = safe_yaml(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"--set {item!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
+                          f"e.g. --set {key.strip()}=[1, 2] or --set {key.strip()}='text'") from exc
+    node = data
+    parts = key.strip().split(".")
+    if not all(parts):
+        raise ConfigError(f"--set {item!r}: empty key part; expected key.path=value, e.g. --set seqslam.ds=20")
+    for part in parts[:-1]:
+        if not isinstance(node.get(part), dict):
+            node[part] = {}
+        node = node[part]
+    node[parts[-1]] = value
+
+
+def validate(data: dict, base_dir: Path) -> dict[str, Any]:
+    """Check ``data`` against the schema of its method and return the completed config."""
+    from placeloc.methods import METHOD_NAMES, get_method
+
+    method_name = data.get("method")
+    if method_name is None:
+        raise ConfigError(f"key 'method' is missing: set it to one of {', '.join(METHOD_NAMES)}")
+    if method_name not in METHOD_NAMES:
+        raise ConfigError(f"method: {method_name!r} is not known; choose one of {', '.join(METHOD_NAMES)}")
+    method = get_method(method_name)
+    schema = copy.deepcopy(COMMON_DEFAULTS)
+    schema[method.name] = copy.deepcopy(method.defaults)
+    choices = {**COMMON_CHOICES, **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
+    types = {**COMMON_TYPES, **{f"{method.name}.{k}": v for k, v in declared_types(method.params).items()}}
+
+    path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
+
+    query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
+    reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
+    config = _merge(schema, data, prefix="", choices=choices, types=types)
+    config["method"] = method_name
+    problems = check_bounds(method.params, config[method.name], f"{method.name}.")
+    problems += _check_common_bounds(config)
+    problems += _check_min_max_pairs(config[method.name], f"{method.name}.")
+    if problems:
+        raise ConfigError(problems[0])
+    for key in path_keys:
+        _resolve_path(config, key, base_dir)
+    if not query_given:
+        config["query"] = None
+    if not reference_given:
+        config["reference"] = None
+    for role in method.required_images:
+        if config[role] is None or config[role]["images"] is None:
+            raise ConfigError(f"{role}.images is missing: give the folder (or glob) of the {role} images")
+    for role in ("reference", "query"):
+        if config[role] is not None and config[role]["images"] is not None:
+            _check_image_source(config[role]["images"], f"{role}.images")
+    gt = config["ground_truth"]
+    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+        raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
+    if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
+        raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
+    method.check(config)
+    from placeloc.limits import config_problems
+
+    problems = config_problems(config)
+    if problems:
+        raise ConfigError(problems[0])
+    from placeloc.evaluation.ground_truth import check_config
+
+    check_config(config)  # a bad ground-truth file fails here, before any stage runs
+    return config
+
+
+def _check_common_bounds(config: dict) -> list[str]:
+    problems = []
+    for key, (lo, hi, strict) in COMMON_BOUNDS.items():
+        node, leaf = _get(config, key)
+        value = node.get(leaf) if node else None
+        for v in value if isinstance(value, list) else [value]:
+            if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
+                rng = f"{'>' if strict else '>='} {lo}" if hi is None else f"in [{lo}, {hi}]"
+                problems.append(f"{key}: {value!r} is out of range; it must be {rng}")
+                break
+    return problems
+
+
+def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
+    """Generic cross-key rule: keys that differ only by ``min`` <-> ``max`` in their name
+    (``v_min``/``v_max``, ``n_pmin``/``n_pmax``) must satisfy min <= max."""
+    problems = []
+    for key, lo in section.items():
+        if isinstance(lo, dict):
+            problems += _check_min_max_pairs(lo, f"{prefix}{key}.")
+            continue
+        if "min" not in key or isinstance(lo, bool) or not isinstance(lo, (int, float)):
+            continue
+        other = key.replace("min", "max")
+        hi = section.get(other)
+        if isinstance(hi, (int, float)) and not isinstance(hi, bool) and lo > hi:
+            problems.append(f"{prefix}{key} ({lo!r}) is larger than {prefix}{other} ({hi!r}); "
+                            f"it must be <= {prefix}{other}")
+    return problems
+
+
+def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None) -> dict:
+    out = {}
+    for key in data:
+        if key not in schema:
+            where = prefix.rstrip(".") or "the top level"
+            known = ", ".join(sorted(schema))
+            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; known keys: {known}")
+    for key, default in schema.items():
+        dotted = f"{prefix}{key}"
+        if key not in data:
+            out[key] = copy.deepcopy(default)
+            continue
+        value = data[key]
+        if isinstance(default, dict):
+            if value is None and key in OPTIONAL_SECTIONS:
+                out[key] = copy.deepcopy(default)
+                continue
+            if not isinstance(value, dict):
+                raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
+            out[key] = _merge(default, value, f"{dotted}.", choices, types)
+            continue
+        if default is None and types and dotted in types:
+            out[key] = _check_declared(dotted, value, types[dotted])
+        else:
+            out[key] = _check_type(dotted, value, default)
+        if dotted in choices and out[key] not in choices[dotted]:
+            raise ConfigError(f"{dotted}: {out[key]!r} is not allowed; choose one of {', '.join(map(str, choices[dotted]))}")
+    return out
+
+
+_TYPE_WORDS = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
+               tuple: "a list", dict: "a mapping"}
+
+
+def _check_declared(key: str, value: Any, allowed: tuple[type, ...]) -> Any:
+    """Check a value whose default is None against the field's declared types."""
+    if value is None:
+        return None
+    for t in allowed:
+        if t is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if t is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if t in (list, tuple) and isinstance(value, list):
+            return value
+        if t not in (int, float) and isinstance(value, t):
+            return value
+    kinds = " or ".join(_TYPE_WORDS.get(t, t.__name__) for t in allowed)
+    raise ConfigError(f"{key} must be {kinds} or null, got {value!r} ({type(value).__name__})")
+
+
+def _check_type(key: str, value: Any, default: Any) -> Any:
+    def fail(kind: str) -> ConfigError:
+        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}); e.g. {key}: {default!r}")
+
+    if default is None or value is None and not isinstance(default, (bool, int, float, list)):
+        return value
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise fail("true or false")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise fail("an integer")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fail("a number")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise fail("a string")
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise fail("a list")
+        if default and len(default) in (2, 3) and len(value) != len(default):
+            raise fail(f"a list of {len(default)} items")
+        if default:
+            return [_check_type(f"{key}[{i}]", v, default[0]) for i, v in enumerate(value)]
+        return value
+    return value
+
+
+def _get(config: dict, dotted: str) -> tuple[dict | None, str]:
+    node: Any = config
+    parts = dotted.split(".")
+    for part in parts[:-1]:
+        node = node.get(part) if isinstance(node, dict) else None
+    return (node if isinstance(node, dict) else None), parts[-1]
+
+
+def _resolve_path(config: dict, dotted: str, base_dir: Path) -> None:
+    node, leaf = _get(config, dotted)
+    if node is None or node.get(leaf) is None:
+        return
+    value = str(node[leaf])
+    p = Path(value).expanduser()
+    node[leaf] = str(p if p.is_absolute() else (base_dir / p).resolve())
+
+
+def _check_image_source(spec: str, key: str) -> None:
+    p = Path(spec)
+    if p.is_dir():
+        return
+    if any(ch in spec for ch in "*?[") and glob.glob(spec):
+        return
+    raise ConfigError(f"{key}: {spec} is neither a folder nor a glob that matches files; fix the path (relative paths start at the config's folder)")
+
+
+def config_hash(obj: Any) -> str:
+    """Stable SHA-256 of a JSON-able object (dict key order does not matter)."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def to_yaml(config: dict) -> str:
+    return yaml.safe_dump(config, sort_keys=False)

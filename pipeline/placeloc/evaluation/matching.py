@@ -1,0 +1,143 @@
+"""Scoring ranked place matches against ground truth, for every method that ranks reference
+images per query, and the per-query CSV.
+
+Conventions (the keys of ``metrics.json``):
+
+- ``standard_recall_at_N``: Recall@N as the field reports it (Lowry et al.'s survey, VPR-Bench,
+  Berton et al.): a query is right at N when ANY of its N best candidates is a positive;
+  candidates are the plain ranking (neighbouring frames allowed). Denominator: all
+  queries (a query without any positive is a miss).
+- ``standard_recall_at_N_with_positive``: the same over the queries that have at least
+  one positive (``queries_with_ground_truth`` of them), the denominator most benchmarks
+  use since their every query has one.
+- ``separated_recall_at_N``: as the standard one but over candidates kept at least a
+  method-specific distance apart (SeqSLAM: ``enhance_window + 1`` reference frames), so
+  the N candidates are N distinct places. ``recall_at_5``/``recall_at_10`` (older key
+  names) hold this value; ``recall_at_1`` is the same for both rankings.
+- Precision-recall (``auc_pr``, ``recall_at_100_precision``, ``max_f1``): one match per
+  query (the best candidate) accepted when its confidence is at least a threshold;
+  recall over all queries (see :mod:`placeloc.evaluation.metrics`).
+- Soft ground truth: candidates in the soft set only are removed from every ranking
+  before scoring (not counted wrong, not required).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from placeloc.artifacts import atomic_open
+from placeloc.evaluation.ground_truth import GroundTruth
+from placeloc.evaluation.metrics import DEFAULT_RECALL_N, PRCurve, drop_soft, first_correct_rank, pr_curve, recall_at_n
+
+
+@dataclass
+class MatchScores:
+    """Per-query results in ORIGINAL indices (positions in the listed folders)."""
+
+    query: np.ndarray  # (n,) original query index
+    ranked: np.ndarray  # (n, K) plain ranking, -1 = none (soft-only removed)
+    ranked_scores: np.ndarray  # (n, K) the method's score per candidate (NaN = none)
+    ranked_correct: np.ndarray  # (n, K) bool
+    separated: np.ndarray  # (n, K2) separated candidates (soft-only removed)
+    separated_correct: np.ndarray
+    confidence: np.ndarray  # (n,) of the best match
+    has_positive: np.ndarray  # (n,) bool
+    example_positive: np.ndarray  # (n,) one positive reference (-1 = none)
+    pr: PRCurve
+    ns: tuple[int, ...]
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def best(self) -> np.ndarray:
+        return self.separated[:, 0]
+
+    @property
+    def best_correct(self) -> np.ndarray:
+        return self.separated_correct[:, 0]
+
+
+def _to_orig(cand: np.ndarray, ref_index: np.ndarray) -> np.ndarray:
+    cand = np.asarray(cand, np.int64)
+    return np.where(cand >= 0, ref_index[np.clip(cand, 0, None)], -1)
+
+
+def score_matches(gt: GroundTruth, query_index: np.ndarray, ref_index: np.ndarray, *, separated: np.ndarray,
+                  confidence: np.ndarray, ranked: np.ndarray | None = None, ranked_scores: np.ndarray | None = None,
+                  ns: Sequence[int] = DEFAULT_RECALL_N) -> MatchScores:
+    """Score one run. ``separated`` (n, K2) and ``ranked`` (n, K) hold candidate positions
+    in the method's (possibly filtered) reference list, best first, -1 = none;
+    ``ref_index``/``query_index`` map list positions to original indices. Without a
+    plain ``ranked`` list only N = 1 of the standard recall is known (the best candidate
+    is the same in both rankings) and the others are reported as None."""
+    q = np.asarray(query_index, np.int64)
+    ref_index = np.asarray(ref_index, np.int64)
+    ns = tuple(int(n) for n in ns)
+    sep = _to_orig(separated, ref_index)
+    (sep,) = drop_soft(sep, gt.soft_only(q[:, None], sep))
+    sep_ok = gt.correct(q[:, None], sep)
+    plain_known = ranked is not None
+    if ranked is None:
+        ranked, ranked_scores = separated[:, :1], np.full((len(q), 1), np.nan)
+    rk = _to_orig(ranked, ref_index)
+    rk, rs = drop_soft(rk, gt.soft_only(q[:, None], rk),
+                       np.full(rk.shape, np.nan) if ranked_scores is None else ranked_scores)
+    rk_ok = gt.correct(q[:, None], rk)
+    has_pos = gt.has_match()[q]
+    example = gt.example_positive()[q]
+    conf = np.asarray(confidence, np.float64)
+    pr = pr_curve(conf, sep_ok[:, 0], n_queries=len(q), has_match=sep[:, 0] >= 0)
+    m: dict[str, Any] = {}
+    sep_r = recall_at_n(sep_ok, ns)
+    std_all = recall_at_n(rk_ok, ns)
+    std_pos = recall_at_n(rk_ok, ns, has_positive=has_pos)
+    for n in ns:
+        known = plain_known or n == 1
+        m[f"standard_recall_at_{n}"] = std_all[n] if known else None
+        m[f"standard_recall_at_{n}_with_positive"] = std_pos[n] if known else None
+    for n in ns:  # unknown (None) beyond the candidates the method kept (SeqSLAM: top_k)
+        m[f"separated_recall_at_{n}"] = sep_r[n] if n <= sep.shape[1] else None
+    legacy = recall_at_n(sep_ok, (1, 5, 10))
+    m.update({"recall_at_1": legacy[1], "recall_at_5": legacy[5], "recall_at_10": legacy[10],
+              "auc_pr": pr.auc, "recall_at_100_precision": pr.recall_at_100_precision, "max_f1": pr.max_f1,
+              "n_queries": int(len(q)), "queries_with_ground_truth": int(has_pos.sum()),
+              "n_matched": int((sep[:, 0] >= 0).sum()),
+              "recall_denominator": "recall_at_* and standard_recall_at_N: all queries; "
+                                    "*_with_positive: queries with at least one positive"})
+    return MatchScores(query=q, ranked=rk, ranked_scores=rs, ranked_correct=rk_ok, separated=sep,
+                       separated_correct=sep_ok, confidence=conf, has_positive=has_pos, example_positive=example,
+                       pr=pr, ns=ns, metrics=m)
+
+
+def write_per_query_csv(path: str | Path, s: MatchScores, query_names: Sequence[str], ref_names: Sequence[str],
+                        top_k: int | None = None) -> Path:
+    """One row per query: its image, whether it has a positive (and one, for pictures),
+    the best match with its confidence and correctness, the rank of the first positive,
+    then the top-K plain candidates as ``ref_i, image_i, score_i, correct_i``. Names are
+    indexed by original index."""
+    path = Path(path)
+    k = s.ranked.shape[1] if top_k is None else min(top_k, s.ranked.shape[1])
+    first = first_correct_rank(s.ranked_correct)
+    with atomic_open(path, newline="") as fh:
+        w = csv.writer(fh)
+        head = ["query", "query_image", "has_positive", "positive_reference", "positive_image", "best_reference",
+                "best_image", "confidence", "correct", "first_correct_rank"]
+        for i in range(1, k + 1):
+            head += [f"ref_{i}", f"image_{i}", f"score_{i}", f"correct_{i}"]
+        w.writerow(head)
+        for j, q in enumerate(s.query):
+            b, p = int(s.best[j]), int(s.example_positive[j])
+            row = [int(q), query_names[q], int(s.has_positive[j]), p if p >= 0 else "", ref_names[p] if p >= 0 else "",
+                   b if b >= 0 else "", ref_names[b] if b >= 0 else "", f"{s.confidence[j]:.6f}",
+                   int(s.best_correct[j]), int(first[j])]
+            for i in range(k):
+                r = int(s.ranked[j, i])
+                sc = s.ranked_scores[j, i]
+                row += [r if r >= 0 else "", ref_names[r] if r >= 0 else "",
+                        "" if r < 0 or not np.isfinite(sc) else f"{sc:.6g}", int(s.ranked_correct[j, i])]
+            w.writerow(row)
+    return path

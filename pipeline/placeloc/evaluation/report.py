@@ -1,0 +1,115 @@
+"""One self-contained ``report.html`` per run directory: config summary, metrics table and
+every PNG of the run (match strips included) embedded as base64, so a person opens one
+file in a browser instead of a folder of pictures."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from placeloc.artifacts import atomic_open
+
+REPORT = "report.html"
+# Pictures first that say most; any other PNG follows in name order.
+ORDER = ("strips_sample.png", "strips_failures.png", "recall_at_n.png", "pr_curve.png", "difference_matrix.png")
+CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
+table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
+th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
+img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
+.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}"""
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4f}"
+    if v is None:
+        return "n/a"
+    return str(v)
+
+
+def _flatten(d: dict, prefix: str = "") -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out += _flatten(v, f"{prefix}{k}.")
+        else:
+            out.append((f"{prefix}{k}", v))
+    return out
+
+
+def _table(rows: list[tuple[str, Any]], head: tuple[str, str]) -> str:
+    body = "".join(f"<tr><td>{html.escape(k)}</td><td class='{'num' if isinstance(v, (int, float)) else ''}'>"
+                   f"{html.escape(_fmt(v))}</td></tr>" for k, v in rows)
+    return f"<table><tr><th>{head[0]}</th><th>{head[1]}</th></tr>{body}</table>"
+
+
+def run_config(run_dir: Path) -> dict[str, Any]:
+    """The config of the newest stage artifact in ``run_dir`` (config.yaml is written only
+    after a run succeeds, so during a stage it may still describe the previous run)."""
+    import h5py
+
+    from placeloc.methods import STAGES
+
+    for stage in reversed(STAGES):
+        path = run_dir / f"{stage}.h5"
+        if path.is_file():
+            try:
+                with h5py.File(path, "r") as f:
+                    text = f.attrs.get("config_yaml")
+            except OSError:
+                continue
+            if text:
+                return yaml.safe_load(str(text)) or {}
+    return {}
+
+
+def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None) -> Path:
+    """Write ``run_dir/report.html`` from what the run directory holds now; ``config`` is the
+    run's config (default: the one stamped in its newest artifact)."""
+    run_dir = Path(run_dir)
+    cfg = config if config is not None else run_config(run_dir)
+    metrics: dict[str, Any] = {}
+    if (run_dir / "metrics.json").is_file():
+        metrics = json.loads((run_dir / "metrics.json").read_text())
+    method = cfg.get("method", "?")
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title or run_dir.name)}</title>"
+             f"<style>{CSS}</style></head><body>",
+             f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
+             f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
+    summary = [("method", method)]
+    for role in ("reference", "query"):
+        if cfg.get(role):
+            summary.append((f"{role} images", cfg[role].get("images")))
+    gt = cfg.get("ground_truth") or {}
+    # only the ground-truth settings its kind reads
+    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius")}
+    summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
+        f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
+    parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
+    if isinstance(cfg.get(method), dict):
+        parts.append(_table(_flatten(cfg[method]), (f"{method} parameter", "value")))
+    parts.append("</div>")
+    if metrics:
+        main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
+        parts.append("<h2>Metrics</h2><p class='muted'>recall_at_* and standard_recall_at_N divide by all queries; "
+                     "*_with_positive by the queries that have a positive (see docs/evaluation.md).</p>"
+                     + _table(main, ("metric", "value")))
+    else:
+        parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
+    pngs = sorted(run_dir.glob("*.png"), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
+    parts.append("<h2>Pictures</h2>")
+    for png in pngs:
+        data = base64.b64encode(png.read_bytes()).decode("ascii")
+        parts.append(f"<h3>{html.escape(png.name)}</h3><img alt='{html.escape(png.name)}' src='data:image/png;base64,{data}'>")
+    if not pngs:
+        parts.append("<p>No pictures in this run directory (plots: false?).</p>")
+    parts.append("</body></html>")
+    path = run_dir / REPORT
+    with atomic_open(path) as fh:
+        fh.write("\n".join(parts))
+    return path

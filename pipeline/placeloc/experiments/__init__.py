@@ -1,0 +1,63 @@
+"""Experiment drivers (``placeloc experiment NAME``), one per method, plus shared helpers.
+
+An experiment runs several configs into ``runs/experiment-<name>/<run>/`` and leaves
+``summary.json`` there: one object per run, keyed by run name, holding that run's
+metrics.json figures.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from placeloc.artifacts import atomic_open
+
+EXPERIMENTS: dict[str, str] = {
+    "seqslam": "placeloc.experiments.seqslam",
+    "umap": "placeloc.experiments.umap",
+    "coembed": "placeloc.experiments.coembed",
+    "pirf": "placeloc.experiments.pirf",
+    "pirf-large": "placeloc.experiments.pirf_large",
+    "pirf-dictionary": "placeloc.experiments.pirf_dictionary",
+}
+
+
+def say(experiment: str, quiet: bool, msg: str) -> None:
+    """A timestamped progress line of an experiment (nothing when ``quiet``)."""
+    if not quiet:
+        import time
+
+        print(f"[experiment-{experiment} {time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+def run_experiment(name: str, out_dir: str | Path | None = None, quick: bool = False, quiet: bool = False) -> Path:
+    if name not in EXPERIMENTS:
+        raise KeyError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    out = Path(out_dir or f"runs/experiment-{name}")
+    out.mkdir(parents=True, exist_ok=True)
+    module = importlib.import_module(EXPERIMENTS[name])
+    return module.main(out, quick=quick, quiet=quiet)
+
+
+
+def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
+    """Write ``summary.json`` atomically (run name -> metrics)."""
+    path = out_dir / "summary.json"
+    with atomic_open(path) as fh:
+        fh.write(json.dumps(runs, indent=2, sort_keys=True, default=float))
+    return path
+
+
+def shared_data_dir() -> Path | None:
+    """``../shared/data`` beside the checkout (or $PLACELOC_SHARED_DATA), if present."""
+    env = os.environ.get("PLACELOC_SHARED_DATA")
+    candidates = [Path(env)] if env else []
+    here = Path(__file__).resolve().parents[3]  # the checkout: pipeline/placeloc/experiments/ -> ./
+    candidates += [here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"]
+    for c in candidates:
+        if c.is_dir():
+            return c
+    return None

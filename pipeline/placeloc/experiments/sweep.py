@@ -1,0 +1,105 @@
+"""Parameter sweeps (OpenSeqSLAM2's batch mode for any config key): every combination of
+the ``--grid key=v1,v2,...`` values runs as its own run directory under the sweep folder
+(so an interrupted sweep resumes: finished combinations are up to date and skipped),
+then one table (``sweep.md``, ``sweep.csv``) and one figure (``sweep.png``: PR curves and
+Recall@N of every combination) sum it up."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import itertools
+import json
+import logging
+from pathlib import Path
+from typing import Any, Sequence
+
+import h5py
+import numpy as np
+import yaml
+
+from placeloc.artifacts import atomic_open
+from placeloc.config import ConfigError, apply_override, validate
+
+log = logging.getLogger("placeloc")
+TABLE_KEYS = ("recall_at_1", "standard_recall_at_5", "standard_recall_at_10", "standard_recall_at_20",
+              "separated_recall_at_5", "auc_pr", "recall_at_100_precision", "max_f1", "n_queries")
+
+
+def parse_grid(items: Sequence[str]) -> list[tuple[str, list[Any]]]:
+    """``["seqslam.ds=10,20", "seqslam.comparison=sad,zncc"]`` -> [(key, [values])]; values
+    are parsed as YAML (``10`` is an integer, ``[64,32]`` needs quoting as one value)."""
+    grid = []
+    for item in items:
+        if "=" not in item:
+            raise ConfigError(f"--grid {item!r}: expected key.path=v1,v2,..., e.g. --grid seqslam.ds=10,20,30")
+        key, raw = item.split("=", 1)
+        values = [yaml.safe_load(v) for v in raw.split(",") if v.strip()]
+        if not values:
+            raise ConfigError(f"--grid {item!r}: no values after '='")
+        grid.append((key.strip(), values))
+    keys = [k for k, _ in grid]
+    if len(set(keys)) != len(keys):
+        raise ConfigError(f"--grid names a key twice ({keys}); give all its values in one --grid")
+    return grid
+
+
+def _label(combo: dict[str, Any]) -> str:
+    return ",".join(f"{k.split('.')[-1]}={v}" for k, v in combo.items())
+
+
+def _dir_name(combo: dict[str, Any]) -> str:
+    text = "__".join(f"{k}={v}" for k, v in combo.items())
+    return "".join(c if c.isalnum() or c in "=._-" else "_" for c in text)
+
+
+def run_sweep(raw_config: dict[str, Any], base_dir: Path, grid: list[tuple[str, list[Any]]], out_dir: str | Path,
+              *, quiet: bool = True, force: bool = False) -> Path:
+    """Run every combination (each validated first, so a bad value fails before any
+    work) and write the table and figure; returns the path of ``sweep.md``."""
+    from placeloc.api import run
+    from placeloc.evaluation.plots import plot_sweep
+
+    out_dir = Path(out_dir)
+    combos = [dict(zip([k for k, _ in grid], values)) for values in itertools.product(*[v for _, v in grid])]
+    configs = []
+    for combo in combos:
+        data = copy.deepcopy(raw_config)
+        for key, value in combo.items():
+            apply_override(data, f"{key}={json.dumps(value)}")
+        configs.append(validate(data, base_dir))
+    rows: list[dict[str, Any]] = []
+    curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    recalls: dict[str, tuple[list[int], list[float | None]]] = {}
+    for i, (combo, cfg) in enumerate(zip(combos, configs), start=1):
+        run_dir = out_dir / _dir_name(combo)
+        log.info("sweep %d/%d: %s", i, len(combos), _label(combo))
+        run(cfg, run_dir, force=force, quiet=quiet)
+        metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else {}
+        rows.append({"run": run_dir.name, **combo, **{k: metrics.get(k) for k in TABLE_KEYS}})
+        label = _label(combo)
+        if (run_dir / "evaluate.h5").is_file():
+            with h5py.File(run_dir / "evaluate.h5", "r") as f:
+                if "pr" in f:
+                    curves[label] = (f["pr/recall"][()], f["pr/precision"][()])
+        ns = sorted(int(k.split("_")[-1]) for k in metrics if k.startswith("standard_recall_at_") and k[-1].isdigit())
+        if ns:
+            recalls[label] = (ns, [metrics[f"standard_recall_at_{n}"] for n in ns])
+    columns = ["run", *combos[0].keys(), *TABLE_KEYS] if combos else ["run"]
+    with atomic_open(out_dir / "sweep.csv", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns)
+        w.writeheader()
+        w.writerows(rows)
+
+    def cell(v: Any) -> str:
+        return "n/a" if v is None else f"{v:.3f}" if isinstance(v, float) else str(v)
+
+    lines = [f"# Sweep: {', '.join(k for k, _ in grid)} ({len(combos)} runs)", "",
+             "| " + " | ".join(columns[1:]) + " |", "|" + "---|" * (len(columns) - 1)]
+    lines += ["| " + " | ".join(cell(r.get(c)) for c in columns[1:]) + " |" for r in rows]
+    lines += ["", "recall_at_1 and standard_recall_at_N divide by all queries; see docs/evaluation.md.", ""]
+    with atomic_open(out_dir / "sweep.md") as fh:
+        fh.write("\n".join(lines))
+    if curves or recalls:
+        plot_sweep(curves, recalls, out_dir / "sweep.png", title=f"Sweep over {', '.join(k for k, _ in grid)}")
+    return out_dir / "sweep.md"

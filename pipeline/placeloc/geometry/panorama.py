@@ -1,0 +1,193 @@
+"""Equirectangular (360 degree) line images: a wireframe rendered as a panorama from a pose,
+and the LSD lines of a grey panorama drawn into one.
+
+Convention (that of :func:`placeloc.geometry.equirect_to_pinhole`): column u shows azimuth
+``pi - 2 pi (u + 0.5) / W`` relative to the heading (centre column = the heading, azimuth
+growing to the left), row v elevation ``pi / 2 - pi (v + 0.5) / H``. A panorama taken at
+heading ``psi`` is the one taken at heading 0 rolled by ``k = psi W / 360`` columns
+(``img_psi[:, u] = img_0[:, u - k]``). Packed images hold 64 pixels per uint64 word,
+row-major, pixel p in word p >> 6 at bit p & 63.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry.bitimage import n_words, pack_into
+from placeloc.geometry.rays import occluded
+
+
+def detect_segments(gray: np.ndarray) -> np.ndarray:
+    """LSD segments of a grey image: (N, 4) float64 rows x0 y0 x1 y1 in its pixels."""
+    found = cv2.createLineSegmentDetector().detect(gray)[0]
+    return np.zeros((0, 4)) if found is None else found.reshape(-1, 4).astype(np.float64)  # (N,1,4) in 4.x
+
+
+# ------------------------------------------------------------------ rendering the map
+
+@njit(cache=True)
+def _angle_to_col(az: float, width: int) -> float:
+    return ((math.pi - az) / (2.0 * math.pi) % 1.0) * width - 0.5
+
+
+
+@njit(parallel=True, cache=True)
+def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
+                     hidden: bool, which: int, out: np.ndarray) -> None:
+    """``which``: 0 every segment, 1 only vertical ones, 2 only the others."""
+    nf = faces.shape[0]
+    step = 2.0 * math.pi / width
+    for v in prange(poses.shape[0]):
+        px = poses[v, 0]
+        py = poses[v, 1]
+        pz = poses[v, 2]
+        head = math.radians(poses[v, 3])
+        img = np.zeros(height * width, dtype=np.uint8)
+        # faces per column: a face can only hide points whose azimuth lies in its angular span
+        counts = np.zeros(width, dtype=np.int64)
+        lists = np.empty((width, max(nf, 1)), dtype=np.int64)
+        if hidden:
+            for f in range(nf):
+                a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
+                a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
+                c0 = _angle_to_col(a0, width)
+                c1 = _angle_to_col(a1, width)
+                lo = min(c0, c1)
+                hi = max(c0, c1)
+                if hi - lo > width / 2.0:  # the span wraps around the seam
+                    lo, hi = hi, lo + width
+                for c in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 2):
+                    cc = c % width
+                    lists[cc, counts[cc]] = f
+                    counts[cc] += 1
+        for s in range(segs.shape[0]):
+            if which == 1 and not vertical[s]:
+                continue
+            if which == 2 and vertical[s]:
+                continue
+            ax = segs[s, 0] - px
+            ay = segs[s, 1] - py
+            az = segs[s, 2] - pz
+            ex = segs[s, 3] - segs[s, 0]
+            ey = segs[s, 4] - segs[s, 1]
+            ez = segs[s, 5] - segs[s, 2]
+            ll = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if ll < 1e-9:
+                continue
+            # closest distance camera -> segment bounds the angular speed along it
+            t0 = -(ax * ex + ay * ey + az * ez) / (ll * ll)
+            t0 = min(max(t0, 0.0), 1.0)
+            cxp = ax + t0 * ex
+            cyp = ay + t0 * ey
+            czp = az + t0 * ez
+            dmin = max(math.sqrt(cxp * cxp + cyp * cyp + czp * czp), 0.05)
+            n = min(int(math.ceil(2.0 * ll / dmin / step)) + 1, 20000)
+            for i in range(n + 1):
+                t = i / n
+                qx = ax + t * ex
+                qy = ay + t * ey
+                qz = az + t * ez
+                r = math.sqrt(qx * qx + qy * qy)
+                azm = math.atan2(qy, qx) - head
+                el = math.atan2(qz, r)
+                fu = _angle_to_col(azm, width)
+                iu = int(math.floor(fu + 0.5)) % width
+                iv = int(math.floor((math.pi / 2.0 - el) / math.pi * height - 0.5 + 0.5))
+                iv = min(max(iv, 0), height - 1)
+                pix = iv * width + iu
+                if img[pix]:
+                    continue
+                if hidden and counts[iu] > 0:
+                    if occluded(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
+                        continue
+                img[pix] = 1
+        pack_into(img, height * width, out[v])
+
+
+def vertical_segments(segments: np.ndarray) -> np.ndarray:
+    """True for segments within 10 degrees of vertical (wall corners, door jambs)."""
+    d = np.asarray(segments, float).reshape(-1, 6)
+    d = d[:, 3:6] - d[:, 0:3]
+    return np.abs(d[:, 2]) >= np.cos(np.radians(10.0)) * np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+
+
+def render_panoramas(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, *, width: int, height: int,
+                     hidden: bool, which: str = "all") -> np.ndarray:
+    """Equirectangular line images of ``segments`` from each pose (x, y, z, heading): packed
+    (V, n_words) uint64 (layout of :mod:`placeloc.geometry.bitimage`). ``which``: ``all``, or only
+    the ``vertical`` or ``other`` segments (for the direction-split score)."""
+    poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
+    segs = np.ascontiguousarray(segments, np.float64).reshape(-1, 6)
+    out = np.zeros((len(poses), n_words(height, width)), dtype=np.uint64)
+    if len(poses):
+        _render_equirect(segs, vertical_segments(segs), np.ascontiguousarray(faces, np.float64).reshape(-1, 6), poses,
+                         int(width), int(height), bool(hidden), {"all": 0, "vertical": 1, "other": 2}[which], out)
+    return out
+
+
+def render_panorama_block(item: tuple) -> np.ndarray:
+    """Executor work item: (segments, faces, poses, width, height, hidden, which) -> packed block."""
+    segments, faces, poses, width, height, hidden, which = item
+    return render_panoramas(segments, faces, poses, width=width, height=height, hidden=hidden, which=which)
+
+
+# ------------------------------------------------------------------ the query's line image
+
+def _face_rays(u: np.ndarray, v: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """World azimuth and elevation of face pixels (the inverse of equirect_to_pinhole's sampling)."""
+    X = (u - cam.cx) / cam.focal
+    Y = (v - cam.cy) / cam.focal
+    p = math.radians(pitch_deg)
+    fz = np.cos(p) + Y * np.sin(p)
+    up = np.sin(p) - Y * np.cos(p)
+    return math.radians(heading_deg) - np.arctan2(X, fz), np.arctan2(up, np.hypot(X, fz))
+
+
+# the six faces of a cube around the camera: four around, one up, one down
+CUBE_FACES = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (0.0, 90.0), (0.0, -90.0))
+
+
+def panorama_lines(pano: np.ndarray, *, face_px: int, min_length: float) -> list[np.ndarray]:
+    """LSD segments of a grey equirectangular panorama, found on its six cube faces (where
+    world lines are straight) and returned per face as (N, 4) pixel rows of a ``face_px``
+    square 90 degree view; segments shorter than ``min_length`` face pixels are dropped."""
+    cam = Camera(face_px, face_px, 90.0)
+    out = []
+    for hd, pitch in CUBE_FACES:
+        segs = detect_segments(equirect_to_pinhole(pano, hd, cam, pitch))
+        out.append(segs[np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) >= min_length])
+    return out
+
+
+def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
+                        split: bool = False) -> np.ndarray:
+    """Binary equirectangular line image (``height`` x ``width``) of a grey panorama's LSD
+    lines (see :func:`panorama_lines`). ``split``: a (2, H, W) pair instead, the lines that
+    are vertical in the world (vertical on an upright face, through the nadir/zenith on the
+    floor/ceiling faces) and the rest."""
+    cam = Camera(face_px, face_px, 90.0)
+    img = np.zeros((2 if split else 1, height, width), np.uint8)
+    for (hd, pitch), segs in zip(CUBE_FACES, panorama_lines(pano, face_px=face_px, min_length=min_length)):
+        for x0, y0, x1, y1 in segs:
+            n = int(math.ceil(2.0 * math.hypot(x1 - x0, y1 - y0))) + 1
+            t = np.linspace(0.0, 1.0, n)
+            az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, hd, pitch)
+            u = np.floor(((math.pi - az) / (2 * math.pi) % 1.0) * width).astype(np.int64) % width
+            v = np.clip(np.floor((math.pi / 2 - el) / math.pi * height).astype(np.int64), 0, height - 1)
+            ch = 0
+            if split:
+                if pitch == 0.0:  # upright face: vertical world lines are vertical in the image
+                    vert = abs(x1 - x0) <= math.tan(math.radians(10.0)) * abs(y1 - y0)
+                else:  # up/down face: vertical world lines run through the image centre
+                    c = (face_px - 1) / 2.0
+                    dx, dy = x1 - x0, y1 - y0
+                    dist = abs(dx * (c - y0) - dy * (c - x0)) / max(math.hypot(dx, dy), 1e-9)
+                    vert = dist <= 0.05 * face_px
+                ch = 0 if vert else 1
+            img[ch, v, u] = 1
+    return img if split else img[0]

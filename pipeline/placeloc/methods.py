@@ -1,0 +1,101 @@
+"""The method registry and the one template every method follows.
+
+A method lives in its own subpackage (``pipeline/placeloc/<name>/``, imported as
+``placeloc.<name>``) whose ``stages.py`` exposes ``METHOD``, a :class:`Method`:
+
+- ``params``: the method's parameter dataclass (``<name>/params.py``, see
+  :mod:`placeloc.params`): the one home of every default, type, range and help text;
+- ``stages``: stage name -> :class:`Stage`, the function plus exactly the parameters and
+  common config sections its result depends on.
+
+Stage functions receive a :class:`placeloc.runner.StageContext`, read their inputs through
+it, call the method's numerical modules with explicit keyword arguments taken from
+``ctx.params`` and write arrays into ``ctx.out`` (an open HDF5 group) and side outputs
+(CSV, JSON, PNG) through ``ctx.output(name)``. They never open another stage's artifact
+by path or parse YAML. A stage a method does not define passes its input through.
+``docs/architecture.md`` walks through adding a method.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from placeloc import params as P
+
+STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
+
+# name -> module that defines METHOD; imported lazily so one method's deps never load another's.
+METHOD_MODULES: dict[str, str] = {
+    "seqslam": "placeloc.seqslam.stages",
+    "umap": "placeloc.umap.stages",
+    "coembed": "placeloc.coembed.stages",
+    "pirf": "placeloc.pirf.stages",
+}
+METHOD_NAMES = tuple(METHOD_MODULES)
+
+# Common config sections every stage depends on.
+BASE_SECTIONS = ("method", "seed", "reference", "query")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a method: its function and exactly what its result depends on.
+
+    ``keys`` are dotted keys of the method's parameters (``"ds"``, ``"ca.tie_tol"``; a
+    section name covers the whole section); ``sections`` are common config sections beyond
+    method, seed, reference and query (``"ground_truth"``, ``"plots"``). Changing anything
+    else does not re-run the stage. Images, files named by path parameters and the parent
+    artifact are always inputs.
+    """
+
+    run: Callable[[Any], None]
+    keys: tuple[str, ...] = ()
+    sections: tuple[str, ...] = ()
+
+
+@dataclass
+class Method:
+    name: str
+    params: type
+    stages: dict[str, Stage]
+    # Image traverses the method needs (validated up front); the others are optional.
+    required_images: tuple[str, ...] = ("reference",)
+    # Extra whole-config checks (cross-field rules); raise ConfigError.
+    checker: Callable[[dict], None] | None = None
+    # Published source, by authors, title, venue and year (shown by `placeloc inspect`).
+    citation: str = ""
+    defaults: dict[str, Any] = field(init=False)
+    choices: dict[str, tuple] = field(init=False)
+    path_keys: tuple[str, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.defaults = P.defaults(self.params)
+        self.choices = P.choices(self.params)
+        self.path_keys = P.path_keys(self.params)
+        known = set(self.defaults) | {k for k, _ in P._walk(self.params)}
+        for name, stage in self.stages.items():
+            if name not in STAGES:
+                raise ValueError(f"{self.name}: unknown stage {name!r}")
+            for key in stage.keys:
+                if key not in known:
+                    raise ValueError(f"{self.name}.{name} depends on unknown parameter {key!r}")
+
+    @property
+    def uses_images(self) -> bool:
+        return bool(self.required_images)
+
+    def check(self, config: dict) -> None:
+        if self.checker is not None:
+            self.checker(config)
+
+    def build_params(self, config: dict) -> Any:
+        """The parameter object for a validated config."""
+        return P.from_section(self.params, config[self.name])
+
+
+def get_method(name: str) -> Method:
+    if name not in METHOD_MODULES:
+        raise KeyError(f"unknown method {name!r}; known: {', '.join(METHOD_NAMES)}")
+    return importlib.import_module(METHOD_MODULES[name]).METHOD

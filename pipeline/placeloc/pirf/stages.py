@@ -1,0 +1,402 @@
+"""PIRF-nav2 as pipeline stages: extract -> build-dictionary -> index -> localize -> evaluate.
+
+Artifacts (one HDF5 file per stage, written into ``ctx.out``):
+
+- extract.h5: per traverse (``reference``, ``query``) the PIRFs of every frame as one
+  chunked (n, dim) float32 array with per-frame offsets, the window used, feature counts,
+  the kept images' names and folder positions (``index``) and the ``skipped`` ones.
+- build-dictionary.h5: the dictionary, node vectors (CSR: ``node_ptr``, ``node_words``),
+  the topological graph (temporal and loop-closure edges), every frame's best candidate
+  and score, and the loop closures (score >= tau).
+- index.h5: the ANN index (bytes) with its parameters and the dictionary hash.
+- localize.h5: for each query frame the best node and score, for the configured backend
+  and (``compare_bf``) brute force, with m_t of both (CSR) and per-frame times.
+- evaluate.h5 + metrics.json, loop_closures.csv, localization.csv and plots.
+
+The numerics live in chain.py (PIRFs), mapping.py (dictionary, similarity, localization),
+ann.py (indexes), metrics.py, truth.py (poses per frame), tables.py (CSV) and plots.py.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import h5py
+import numpy as np
+
+from placeloc.artifacts import write_tree
+from placeloc.config import ConfigError
+from placeloc.evaluation.poses import PoseError
+from placeloc.images import ImageError, list_images, read_gray
+from placeloc.methods import Method, Stage
+from placeloc.pirf.ann import AnnIndex
+from placeloc.pirf.chain import PirfTracker
+from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
+from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
+from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_count, tail_mean
+from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
+from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
+from placeloc.pirf.tables import write_localization, write_loop_closures
+from placeloc.pirf.truth import read_frame_xy
+from placeloc.pirf.tuning import SEARCH_GRID, build_tuned, tune_on_queries
+from placeloc.pirf.verify import bearings, frames_needed, verify_closures
+
+log = logging.getLogger("placeloc.pirf")
+
+
+def _check(config: dict) -> None:
+    p = config["pirf"]
+    if not 0 < p["ratio"] < 1:
+        raise ConfigError(f"pirf.ratio must lie in (0, 1), got {p['ratio']}; the paper uses 0.7")
+    if not 1 <= p["n_pmin"] <= p["n_pmax"]:
+        raise ConfigError(f"pirf: need 1 <= n_pmin <= n_pmax, got {p['n_pmin']} and {p['n_pmax']}")
+    if p["w_size_default"] < 1 or p["w_size_max"] < p["w_size_default"]:
+        raise ConfigError("pirf: need 1 <= w_size_default <= w_size_max")
+    if p["eps"] < 1:
+        raise ConfigError("pirf: eps must be >= 1")
+    gt = config["ground_truth"]
+    if gt["kind"] not in ("none", "poses"):
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2 is evaluated against poses, not {gt['kind']!r}; set ground_truth.kind: "
+                          "poses with ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's)")
+    if p["query_poses"] is not None and gt["kind"] != "poses":
+        raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
+    # Every image needs a pose: check the counts now, not after mapping.
+    for role, path in (("reference", gt["path"] if gt["kind"] == "poses" else None), ("query", p["query_poses"])):
+        section = config.get(role) or {}
+        if path is None or not section.get("images"):
+            continue
+        images = list_images(section["images"])
+        what = "ground_truth.path" if role == "reference" else "pirf.query_poses"
+        try:
+            read_frame_xy(path, images.names, range(len(images)), len(images), what)
+        except PoseError as exc:
+            raise ConfigError(f"{exc} ({role}.images: {section['images']})") from None
+
+
+# -- extract --------------------------------------------------------------------------
+def stage_extract(ctx: Any) -> None:
+    p = ctx.params
+    ctx.out.attrs["features"] = p.features
+    for role, images in ctx.images.items():
+        tracker = PirfTracker(ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max,
+                              n_pmin=p.n_pmin, n_pmax=p.n_pmax)
+        items = [(str(q), p.features, p.n_features, images.on_error == "skip") for q in images.paths]
+        pirfs: list[np.ndarray] = []
+        windows, n_feat, index, shapes, skipped = [], [], [], [], []
+        frames = ctx.progress(ctx.executor.map(extract_frame_or_error, items), total=len(items), desc=f"extract {role}")
+        for i, res in enumerate(frames):
+            if isinstance(res, str):
+                skipped.append(res)
+                log.warning("skipped: %s", res)
+                continue
+            _xy, resp, d, shape = res
+            shapes.append(shape)
+            if shape != shapes[0]:
+                check_sizes(shapes, [images.paths[k] for k in index + [i]])
+            if len(d) == 0 and p.blank_frames == "stop":
+                raise ImageError(f"{images.paths[i]}: no {p.features} features found (blank or featureless frame); "
+                                 "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
+            pirf, w = tracker.push(d, resp)
+            pirfs.append(pirf)
+            windows.append(w)
+            n_feat.append(len(d))
+            index.append(i)
+        if not index:
+            raise ImageError(f"{images.source}: no image could be read; check the folder")
+        dim = pirfs[-1].shape[1]
+        counts = np.array([len(x) for x in pirfs], np.int64)
+        allp = np.concatenate(pirfs) if counts.sum() else np.zeros((0, dim), np.float32)
+        g = ctx.out.create_group(role)
+        g.attrs["height"], g.attrs["width"] = shapes[0]
+        g.attrs["dim"] = dim
+        g.attrs["source"] = images.source
+        g.attrs["n_listed"] = len(items)
+        g.create_dataset("pirfs", data=allp, chunks=(min(max(len(allp), 1), 16384), dim), maxshape=(None, dim))
+        write_tree(g, {"offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                       "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
+                       "index": np.array(index, np.int64)})
+        g.create_dataset("names", data=np.array([images.paths[k].name for k in index], dtype=object), dtype=h5py.string_dtype())
+        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
+
+
+def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
+    return f[f"{role}/pirfs"][()], f[f"{role}/offsets"][()]
+
+
+def _frames(f: h5py.File, role: str) -> tuple[list[str], np.ndarray, int]:
+    g = f[role]
+    names = [n.decode() if isinstance(n, bytes) else str(n) for n in g["names"][()]]
+    return names, g["index"][()], int(g.attrs["n_listed"])
+
+
+# -- build-dictionary -----------------------------------------------------------------
+def stage_build(ctx: Any) -> None:
+    p = ctx.params
+    ex = ctx.artifact("extract")
+    pirfs, off = _pirfs(ex, "reference")
+    bar = lambda it: ctx.progress(it, total=len(off) - 1, desc=f"map ({p.update})")  # noqa: E731
+    res = map_video(pirfs, off, ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=p.map_search,
+                    hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
+    best, score = res["best_node"], res["best_score"]
+    lc = loop_closures(best, score, p.tau)
+    lc_node = best[lc]
+    if p.direction_correction:
+        lc_node = correct_for_travel_direction(lc, lc_node, ex["reference/window"][()], span=p.eps)
+    n_nodes = len(best)
+    check = _verify(ctx, ex, lc, lc_node, n_nodes)
+    keep = check["keep"]
+    temporal = np.column_stack([np.arange(n_nodes - 1), np.arange(1, n_nodes)]) if n_nodes > 1 else np.zeros((0, 2), np.int64)
+    d = res.pop("dictionary")
+    ctx.out.attrs["update"] = p.update
+    ctx.out.attrs["map_search"] = p.map_search
+    ctx.out.attrs["features"] = ex.attrs["features"]
+    ctx.out.attrs["dictionary_size"] = len(d)
+    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
+    ctx.out.attrs["verify_frames"] = p.verify_frames
+    cand = {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]}
+    write_tree(ctx.out, {**res, "loop_closures": {k: v[keep] for k, v in cand.items()},
+                         "closure_candidates": {**cand, **check},
+                         "graph": {"temporal": temporal, "loop": np.column_stack([lc[keep], lc_node[keep]]).astype(np.int64)}})
+
+
+def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_frames: int, chunk: int = 256) -> dict[str, np.ndarray]:
+    """The geometric check of :mod:`placeloc.pirf.verify` on the mapping frames' images
+    (every candidate kept when ``verify_frames`` is 0). Features are detected a chunk of
+    closures at a time, in parallel, so memory stays bounded on long videos."""
+    p = ctx.params
+    n = len(frames)
+    if p.verify_frames == 0 or n == 0:
+        return {"keep": np.ones(n, bool), "residual": np.full(n, np.nan), "reference": np.full(n, np.nan)}
+    images = ctx.images.get("reference")
+    if images is None:
+        raise ConfigError("pirf.verify_frames reads the mapping images again: set reference.images, or pirf.verify_frames: 0")
+    folder_pos = ex["reference/index"][()]
+    width = int(ex["reference"].attrs["width"])
+    parts: list[dict[str, np.ndarray]] = []
+    starts = range(0, n, chunk)
+    for s in ctx.progress(starts, total=len(starts), desc=f"verify {n} loop closures"):
+        f, c = frames[s:s + chunk], nodes[s:s + chunk]
+        need = frames_needed(f, c, p.verify_frames, n_frames)
+        items = [(str(images.paths[folder_pos[j]]), p.features, p.n_features) for j in need]
+        feats = {int(j): (bearings(xy[:, 0], width), d) for j, (xy, _r, d, _s) in zip(need, ctx.executor.map(extract_frame, items))}
+        parts.append(verify_closures(f, c, feats.__getitem__, k=p.verify_frames, n_frames=n_frames, ratio=p.ratio,
+                                     min_matches=p.verify_min_matches))
+    return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+
+
+# -- index ----------------------------------------------------------------------------
+def stage_index(ctx: Any) -> None:
+    p = ctx.params
+    d = ctx.artifact("build-dictionary")["dictionary"][()]
+    seed = int(ctx.config["seed"])
+    idx = AnnIndex(p.index, d, index_settings(p), seed)
+    tuned = None
+    if p.index_recall is not None and p.index in SEARCH_GRID:
+        tuned = build_tuned(idx, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio,
+                            seed=seed)
+        _warn_if_unmet(tuned, p, "index", "the dictionary sample")
+    else:
+        idx.build()
+    g = ctx.out.create_group("index")
+    idx.to_h5(g)
+    if tuned is not None:
+        _write_tuning(g, tuned)
+    ctx.out.attrs["backend"] = p.index
+
+
+def _warn_if_unmet(tuned: dict[str, Any], p: PirfParams, stage: str, sample: str) -> None:
+    if not tuned["target_met"]:
+        log.warning("%s: no %s setting up to %s reaches m_t recall %s / Jaccard %s on %s (it gives %.3f / %.3f); "
+                    "using it anyway", stage, p.index, tuned["value"], p.index_recall, p.index_jaccard, sample,
+                    tuned["mt_recall"], tuned["mt_jaccard"])
+
+
+def _write_tuning(g: Any, tuned: dict[str, Any]) -> None:
+    """A tuning result as attributes ``tuned_*`` of ``g`` and the table of every setting tried as ``g/tuning``."""
+    tried = tuned["tried"]
+    for k, v in tuned.items():
+        if k != "tried":
+            g.attrs[f"tuned_{k}"] = v
+    write_tree(g, {"tuning": {k: np.array([r[k] for r in tried]) for k in tried[0]}})
+
+
+# -- localize -------------------------------------------------------------------------
+def check_feature_type(ex: Any, build: Any, where: Any) -> None:
+    fe, fb = str(ex.attrs["features"]), str(build.attrs["features"])
+    if fe != fb:
+        raise ImageError(f"{where}: the query was extracted with {fe} features but the dictionary was built from {fb}; "
+                         f"set pirf.features: {fb} (or rebuild the map with {fe})")
+
+
+def stage_localize(ctx: Any) -> None:
+    p = ctx.params
+    ex = ctx.artifact("extract")
+    if "query" not in ex:
+        ctx.out.attrs["note"] = "no query traverse configured: nothing to localize"
+        return
+    build = ctx.artifact("build-dictionary")
+    check_feature_type(ex, build, ctx.run_dir / "extract.h5")
+    d = build["dictionary"][()]
+    nodes = csr_rows(build["node_ptr"][()], build["node_words"][()], len(d))
+    index = AnnIndex.from_h5(ctx.artifact("index")["index"], d, where=str(ctx.run_dir / "index.h5"))
+    pirfs, off = _pirfs(ex, "query")
+    if pirfs.shape[1] != d.shape[1]:
+        raise ImageError(f"{ctx.run_dir / 'extract.h5'}: query descriptors have {pirfs.shape[1]} dimensions, the dictionary {d.shape[1]}; "
+                         "extract the query with the map's feature type")
+    if p.index_tune_queries and p.index_recall is not None and index.backend in SEARCH_GRID and len(pirfs):
+        tuned = tune_on_queries(index, pirfs, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample,
+                                ratio=p.ratio, seed=int(ctx.config["seed"]))
+        _warn_if_unmet(tuned, p, "localize", "the query sample")
+        _write_tuning(ctx.out.create_group("query_tuning"), tuned)
+    runs = {index.backend: index}
+    if p.compare_bf and index.backend != "bruteforce":
+        runs["bruteforce"] = AnnIndex("bruteforce", d, {}).build()
+    ctx.out.attrs["backend"] = index.backend
+    for name, ix in runs.items():
+        res = localize_video(pirfs, off, ix.knn2, nodes, ratio=p.ratio, n_pmax=p.n_pmax, sigma=p.sigma)
+        write_tree(ctx.out.create_group(name), res)
+
+
+# -- evaluate -------------------------------------------------------------------------
+def _xy(f: h5py.File, role: str, path: str | None, what: str) -> np.ndarray | None:
+    if path is None or role not in f:
+        return None
+    try:
+        return read_frame_xy(path, *_frames(f, role), what=what)
+    except PoseError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def stage_evaluate(ctx: Any) -> None:
+    from placeloc.evaluation import write_metrics
+
+    p = ctx.params
+    gt = ctx.config["ground_truth"]
+    ex, build, loc = ctx.artifact("extract"), ctx.artifact("build-dictionary"), ctx.artifact("localize")
+    radius = float(gt["radius"])
+    r_xy = _xy(ex, "reference", gt["path"] if gt["kind"] == "poses" else None, "ground_truth.path")
+    q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
+    lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
+    m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
+                         "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
+    m.update(_mapping_cost(build))
+    correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
+    if correct is not None:
+        m["loop_closures_correct"] = int(correct.sum())
+        m["loop_closure_precision"] = float(correct.mean()) if len(correct) else float("nan")
+        # The candidates (score >= tau) before the geometric check, read both ways whichever is in
+        # use: as the similarity matched them, and moved for the PIRF track lag on opposite-direction
+        # revisits (pirf.direction_correction); then the check's effect on the nodes in use.
+        group = "closure_candidates" if "closure_candidates" in build else "loop_closures"
+        c_f, matched, c_n = (build[f"{group}/{k}"][()] for k in ("frame", "matched_node", "node"))
+        fixed = correct_for_travel_direction(c_f, matched, ex["reference/window"][()], span=p.eps)
+        checks = {name: loop_closure_correct(r_xy, c_f, nodes, radius)
+                  for name, nodes in (("as_matched", matched), ("direction_corrected", fixed), ("candidates", c_n))}
+        for name, ok in checks.items():
+            m[f"loop_closure_precision_{name}"] = float(ok.mean()) if len(ok) else float("nan")
+        m["loop_closure_candidates"] = int(len(c_f))
+        m["loop_closure_candidates_correct"] = int(checks["candidates"].sum())
+    else:
+        m["loop_closures_correct"] = m["loop_closure_precision"] = None
+    backend = str(loc.attrs.get("backend", "none"))
+    m["index"] = backend
+    for k in ("accuracy_gap0", "accuracy_gap1", "accuracy_gap2", "jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
+              "mt_seconds_bf", "mt_seconds_ann", "mt_total_seconds_bf", "mt_total_seconds_ann"):
+        m[k] = None
+    tunings = {"index_tuned": ctx.artifact("index")["index"].attrs}
+    if "query_tuning" in loc:
+        tunings["index_query_tuned"] = loc["query_tuning"].attrs
+    for prefix, tuned in tunings.items():
+        for k in ("key", "value", "target", "target_jaccard", "target_met", "rule", "sample", "nn_recall", "mt_recall",
+                  "mt_jaccard", "mt_matched", "exact_seconds", "seconds"):
+            if f"tuned_{k}" in tuned:
+                v = tuned[f"tuned_{k}"]
+                m[f"{prefix}_{k}"] = v.item() if hasattr(v, "item") else v
+    r_names = _frames(ex, "reference")[0]
+    write_loop_closures(ctx.run_dir / "loop_closures.csv", lc_f, lc_n, lc_s, r_names, r_xy, radius)
+    if backend in loc:
+        a = loc[backend]
+        m["mt_seconds_ann"] = float(np.mean(a["mt_seconds"][()]))
+        m["localize_fps"] = float(1.0 / max(m["mt_seconds_ann"], 1e-12))
+        # the whole query run's m_t, with the re-tuning on its sample (a fixed cost) counted in
+        m["mt_total_seconds_ann"] = float(np.sum(a["mt_seconds"][()])) + float(m.get("index_query_tuned_seconds", 0.0))
+        if "bruteforce" in loc:
+            b = loc["bruteforce"]
+            m["mt_seconds_bf"] = float(np.mean(b["mt_seconds"][()]))
+            m["mt_total_seconds_bf"] = float(np.sum(b["mt_seconds"][()]))
+            ag = set_agreement(a["m_ptr"][()], a["m_words"][()], b["m_ptr"][()], b["m_words"][()])
+            m["jaccard_ann_bf"], m["precision_ann_bf"], m["recall_ann_bf"] = ag["jaccard"], ag["precision"], ag["recall"]
+        results = {name: (loc[name]["best_node"][()], loc[name]["score"][()]) for name in dict.fromkeys((backend, "bruteforce"))
+                   if name in loc}
+        if q_xy is not None:
+            for name, suffix in ((backend, ""), ("bruteforce", "_bf")):
+                if name in results:
+                    for gap in (0, 1, 2):
+                        m[f"accuracy_gap{gap}{suffix}"] = accuracy_at_gap(results[name][0], q_xy, r_xy, radius, gap)
+        write_localization(ctx.run_dir / "localization.csv", results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
+    metrics = write_metrics(ctx.run_dir, m, ctx.out)
+    if ctx.config.get("plots", True) and r_xy is not None:
+        plot_loop_closures(ctx.run_dir / "loop_closures.png", r_xy, lc_f, lc_n, correct, radius)
+        _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius)
+        if metrics.get("accuracy_gap0") is not None:
+            bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
+            plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
+
+
+def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
+    """Mapping seconds per frame, wall and CPU, over the run and over its last ``tail``
+    (where the dictionary is largest), with the dictionary size where that tail starts."""
+    wall = build["map_seconds"][()]
+    out = {"map_seconds_per_frame": float(np.mean(wall)) if len(wall) else float("nan"),
+           "map_seconds_per_frame_end": tail_mean(wall, tail)}
+    out["map_frames_per_second_end"] = 1.0 / out["map_seconds_per_frame_end"] if len(wall) else float("nan")
+    if "map_cpu_seconds" in build:  # older maps recorded wall time only
+        cpu = build["map_cpu_seconds"][()]
+        out["map_cpu_seconds_per_frame"] = float(np.mean(cpu)) if len(cpu) else float("nan")
+        out["map_cpu_seconds_per_frame_end"] = tail_mean(cpu, tail)
+    sizes = build["dict_size_after"][()]
+    out["map_end_dictionary_from"] = int(sizes[-tail_count(len(sizes), tail)]) if len(sizes) else 0
+    return out
+
+
+def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
+    """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
+    the earlier frame that truly stands nearest."""
+    path = ctx.run_dir / "wrong_loop_closures.png"
+    images = ctx.images.get("reference")
+    if not len(frames) or images is None:
+        path.unlink(missing_ok=True)
+        return
+    pick = np.linspace(0, len(frames) - 1, min(most, len(frames))).round().astype(int)
+    near = nearest_earlier(r_xy, frames[pick], ctx.params.eps)
+    ex = ctx.artifact("extract")
+    by_name = {q.name: q for q in images.paths}
+    names = _frames(ex, "reference")[0]
+    imgs, titles = [], []
+    for t, c, k in zip(frames[pick], nodes[pick], near):
+        d_c, d_k = (float(np.linalg.norm(r_xy[t] - r_xy[j])) for j in (c, k))
+        imgs.append(tuple(read_gray(by_name[names[j]]) for j in (t, c, k)))
+        titles.append((f"frame {t} (closed the loop)", f"matched node {c}: {d_c:.2f} m away", f"nearest earlier frame {k}: {d_k:.2f} m"))
+    plot_closure_strips(path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = within {radius:g} m)")
+
+
+METHOD = Method(
+    name="pirf",
+    params=PirfParams,
+    stages={
+        "extract": Stage(stage_extract, keys=("features", "n_features", "blank_frames", "ratio", "w_size_default", "w_size_max",
+                                              "n_pmin", "n_pmax")),
+        # ratio and n_pmax reach build/localize through the extract stamp
+        "build-dictionary": Stage(stage_build, keys=("eps", "sigma", "tau", "update", "direction_correction", "verify_frames",
+                                                    "verify_min_matches", "map_search", "map_ef_search", "map_hnsw_m",
+                                                    "map_ef_construction")),
+        "index": Stage(stage_index, keys=INDEX_KEYS),
+        "localize": Stage(stage_localize, keys=("compare_bf", "index_tune_queries", "index_recall", "index_jaccard",
+                                                "index_tune_sample")),
+        "evaluate": Stage(stage_evaluate, keys=("query_poses",), sections=("ground_truth", "plots")),
+    },
+    checker=_check,
+    citation="H. Sasaki and T. Hamagami, \"Construction of feature space for speeding up self-localization using time "
+             "series omnidirectional images\" (PIRF-nav2: A. Kawewong, N. Tongprasit and O. Hasegawa)",
+)

@@ -1,0 +1,472 @@
+"""Run stages in order, skip the ones whose artifact is up to date, write atomically.
+
+``run_stage(config, run_dir, "localize")`` first brings every earlier stage up to date
+(running only those whose stamp changed), then runs ``localize`` if its own stamp changed
+or ``force`` is set. Each stage's function gets a :class:`StageContext`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import h5py
+
+from placeloc import __version__
+from placeloc.artifacts import (
+    TMP_MARK,
+    DiskFullError,
+    atomic_h5,
+    atomic_open,
+    disk_full_error,
+    is_disk_full,
+    provenance_attrs,
+    raise_if_disk_full,
+    read_stamp,
+    read_write_id,
+    remove_stale_tmp,
+)
+from placeloc.config import config_hash, to_yaml
+from placeloc.executor import Executor, make_executor, remove_stale_shared
+from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
+from placeloc.interrupts import raise_if_interrupted
+from placeloc.limits import check_resources
+from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: runs are not locked (documented in docs/reliability.md)
+    fcntl = None  # type: ignore[assignment]
+
+log = logging.getLogger("placeloc")
+
+# Files in a run directory that belong to no stage (written by the runner itself).
+RUN_FILES = ("config.yaml", "log.txt", ".lock")
+# First line of every config.yaml the runner writes: a config.yaml without it is the
+# user's own file, which a run never overwrites.
+CONFIG_HEADER = "# placeloc run config: written by placeloc after the last run that finished without error\n"
+# Non-image files in an image folder that a stage may read implicitly (poses, timestamps).
+SIDECAR_SUFFIXES = (".csv", ".txt", ".json", ".yaml", ".yml")
+
+
+class StageError(RuntimeError):
+    """A stage cannot run (missing parent, bad input); the message says what to do."""
+
+
+class RunDirError(StageError):
+    """The run directory cannot be used (locked by another run, an image folder, a foreign config.yaml)."""
+
+
+@dataclass
+class StageContext:
+    """What a stage function sees. It writes its results into ``out`` (an HDF5 group)."""
+
+    stage: str
+    method: Method
+    config: dict[str, Any]
+    run_dir: Path
+    out: h5py.Group
+    executor: Executor
+    quiet: bool = False
+    images: dict[str, ImageSet] = field(default_factory=dict)
+    _open: list[h5py.File] = field(default_factory=list)
+
+    # The method's parameter object (see placeloc.params), built once per run.
+    params: Any = None
+
+    def artifact(self, stage: str) -> h5py.File:
+        """Open the artifact of an earlier stage read-only (closed by the runner)."""
+        path = self.run_dir / f"{stage}.h5"
+        if not path.is_file():
+            raise StageError(f"{path} is missing: run `placeloc {stage}` first")
+        try:
+            f = h5py.File(path, "r")
+        except OSError as exc:
+            raise StageError(f"{path} cannot be read as HDF5 ({' '.join(str(exc).split())}); "
+                             f"re-run that stage: placeloc {stage} --force") from exc
+        self._open.append(f)
+        return f
+
+    def progress(self, iterable: Iterable[Any], total: int | None = None, desc: str = "") -> Iterator[Any]:
+        bar = iterable
+        if not self.quiet:
+            from tqdm import tqdm  # here: importing tqdm costs a quiet run 30-100 ms
+
+            bar = tqdm(iterable, total=total, desc=desc or self.stage, file=sys.stderr, dynamic_ncols=True, leave=False)
+        for item in bar:
+            # A full disk, or a Ctrl-C whose exception was swallowed, stops the stage at the
+            # next step instead of at its end.
+            raise_if_disk_full(self.out)
+            raise_if_interrupted()
+            yield item
+
+    def close(self) -> None:
+        for f in self._open:
+            f.close()
+        self._open.clear()
+
+
+def normalise_stage(name: str) -> str:
+    if name not in STAGES:
+        raise StageError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}")
+    return name
+
+
+def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
+    sets = {}
+    for role in ("reference", "query"):
+        section = config.get(role)
+        if section and section.get("images"):
+            sets[role] = list_images(section["images"], section.get("on_error", "stop"),
+                                     fingerprint=section.get("fingerprint", "stat"))
+    return sets
+
+
+def _sidecar_fingerprint(images: dict[str, ImageSet]) -> str:
+    """Fingerprint of the non-image files (CSV, TXT, JSON, YAML) in the image folders: a
+    stage that reads ground truth may read them implicitly (e.g. poses.csv beside frames)."""
+    rows = []
+    for role, s in sorted(images.items()):
+        folder = Path(s.source) if Path(s.source).is_dir() else (s.paths[0].parent if s.paths else None)
+        if folder is None:
+            continue
+        for p in sorted(folder.iterdir()):
+            if p.is_file() and p.suffix.lower() in SIDECAR_SUFFIXES:
+                rows.append(f"{role}/{p.name}:{_path_fingerprint(p)}")
+    return config_hash(rows)
+
+
+def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
+                 parent_stamp: str | None) -> dict[str, Any]:
+    """Everything a stage's result depends on, as JSON-able fingerprints: the parameters
+    and sections it declares, images and files named by path parameters (first stage), the
+    ground-truth file (if it reads that section) and the parent's stamp."""
+    declared = method.stages.get(stage)
+    keys = declared.keys if declared is not None else ()
+    sections = declared.sections if declared is not None else ()
+    section = config.get(method.name, {})
+    method_part = {k: _lookup(section, k) for k in keys}
+    common = {k: config.get(k) for k in BASE_SECTIONS + tuple(sections)}
+    inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
+    if stage == STAGES[0]:
+        for role, s in images.items():
+            inputs[f"images.{role}"] = s.fingerprint()
+        # Files named by the method's own path keys (models, observation CSVs, ...): a change
+        # re-runs the first stage and so, through the parent stamps, everything after it.
+        for key in method.path_keys:
+            node: Any = section
+            for part in key.split("."):
+                node = node.get(part) if isinstance(node, dict) else None
+            if node:
+                inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
+    gt_path = (config.get("ground_truth") or {}).get("path")
+    if "ground_truth" in sections and gt_path and Path(gt_path).is_file():
+        inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))
+    if "ground_truth" in sections and images:
+        inputs["sidecar_files"] = _sidecar_fingerprint(images)
+    if parent_stamp is not None:
+        inputs["parent"] = parent_stamp
+    return inputs
+
+
+def _lookup(section: dict[str, Any], dotted: str) -> Any:
+    node: Any = section
+    for part in dotted.split("."):
+        node = node.get(part) if isinstance(node, dict) else None
+    return node
+
+
+def _path_fingerprint(path: Path) -> str:
+    """Size and modification time of a file, or of every file below a folder."""
+    if path.is_file():
+        st = path.stat()
+        return f"{st.st_size}:{st.st_mtime_ns}"
+    if path.is_dir():
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+        return config_hash([f"{p.relative_to(path)}:{p.stat().st_size}:{p.stat().st_mtime_ns}" for p in files])
+    return "missing"
+
+
+def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bool = False,
+              quiet: bool = False, force_all: bool = False, wait: bool = False) -> Path:
+    """Bring ``stage`` (and every stage before it) up to date; return its artifact path.
+
+    ``force`` re-runs ``stage`` even when up to date; ``force_all`` every stage up to it.
+    The run directory is locked for the whole call: a second run on it stops at once
+    (``wait=False``, naming the holder) or waits for the first to finish.
+    """
+    stage = normalise_stage(stage)
+    run_dir = Path(run_dir)
+    check_run_dir(config, run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with lock_run_dir(run_dir, wait=wait), run_log(run_dir):
+        log.info("run: %s up to %s in %s (placeloc %s, pid %d)", config["method"], stage, run_dir, __version__, os.getpid())
+        try:
+            path = _run_locked(config, run_dir, stage, force, quiet, force_all)
+        except BaseException as exc:
+            log.debug("failed: %s: %s", type(exc).__name__, exc)
+            _log_to_file_only(run_dir, f"failed: {type(exc).__name__}: {' '.join(str(exc).split())}")
+            raise
+        write_run_config(run_dir, config)
+        return path
+
+
+def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, quiet: bool, force_all: bool) -> Path:
+    remove_stale_tmp(run_dir)
+    remove_stale_shared()
+    method = get_method(config["method"])
+    images = image_sets(config) if method.uses_images else {}
+    parent_stamp: str | None = None
+    executor: Executor | None = None
+    try:
+        for name in STAGES[: STAGES.index(stage) + 1]:
+            raise_if_interrupted()
+            path = run_dir / f"{name}.h5"
+            inputs = stage_inputs(config, method, name, images, parent_stamp)
+            stamp = config_hash({"version": __version__, "stage": name, "inputs": inputs})
+            forced = force_all or (force and name == stage)
+            if read_stamp(path) == stamp and side_outputs_intact(path) and not forced:
+                log.info("%s: up to date (%s), skipped", name, path)
+                parent_stamp = _parent_token(stamp, path)
+                continue
+            if executor is None:
+                # Before the first stage that does work: will it fit in memory and on disk?
+                check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
+                executor = make_executor(config["executor"])
+            _remove_previous_outputs(path, stamp)
+            _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
+            parent_stamp = _parent_token(stamp, path)
+    finally:
+        if executor is not None:
+            executor.close()
+    return run_dir / f"{stage}.h5"
+
+
+def _parent_token(stamp: str, path: Path) -> str:
+    """What a child records of its parent: the stamp and the id of the write that produced
+    the file, so rewriting the parent (even with the same stamp) re-runs the child."""
+    write_id = read_write_id(path)
+    return stamp if write_id is None else f"{stamp}:{write_id}"
+
+
+def _remove_previous_outputs(path: Path, stamp: str) -> None:
+    """Before a stage re-runs, delete the side outputs its previous run recorded (so a
+    failure cannot leave e.g. an old metrics.json beside a new config) and the previous
+    artifact when it belongs to other inputs."""
+    if not path.is_file():
+        return
+    recorded = _recorded_side_outputs(path) or {}
+    old_stamp = read_stamp(path)
+    run_dir = path.parent.resolve()
+    for name in recorded:
+        target = (path.parent / name).resolve()
+        if run_dir in target.parents:  # never outside the run directory
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+                target.unlink()
+    if old_stamp is None or str(old_stamp) != stamp:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+# ----------------------------------------------------------------- the run directory
+
+def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
+    """Refuse a run directory that is (or lies inside) an input image folder, that holds
+    images but no placeloc run, or whose config.yaml placeloc did not write."""
+    rd = run_dir.resolve()
+    for role in ("reference", "query"):
+        section = config.get(role) or {}
+        spec = section.get("images")
+        if not spec:
+            continue
+        folder = Path(spec) if Path(spec).is_dir() else Path(spec).parent
+        folder = folder.resolve()
+        if rd == folder or folder in rd.parents:
+            raise RunDirError(f"--run-dir {run_dir} is the {role} image folder ({role}.images) or inside it: "
+                              "its PNG plots would be read as images next time; choose another --run-dir, e.g. runs/NAME")
+    if not rd.is_dir():
+        return
+    cfg = rd / "config.yaml"
+    if cfg.is_file():
+        try:
+            head = cfg.open("r", errors="replace").readline()
+        except OSError:
+            head = ""
+        if head != CONFIG_HEADER and not _written_by_older_placeloc(cfg):
+            raise RunDirError(f"{cfg} was not written by placeloc; refusing to overwrite it: "
+                              "choose another --run-dir (a run directory holds only placeloc's outputs)")
+    elif not any(rd.glob("*.h5")):
+        for p in rd.iterdir():
+            if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS:
+                raise RunDirError(f"--run-dir {run_dir} holds images ({p.name}) but no placeloc run: it looks like an "
+                                  "image folder; choose another --run-dir, e.g. runs/NAME")
+
+
+def _written_by_older_placeloc(cfg: Path) -> bool:
+    """Run directories from before the header: config.yaml is ours when an artifact beside
+    it carries the same config text."""
+    try:
+        text = cfg.read_text(errors="replace")
+    except OSError:
+        return False
+    for artifact in cfg.parent.glob("*.h5"):
+        try:
+            with h5py.File(artifact, "r") as f:
+                if str(f.attrs.get("config_yaml", "")) == text:
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
+    with atomic_open(run_dir / "config.yaml") as fh:
+        fh.write(CONFIG_HEADER + to_yaml(config))
+
+
+@contextlib.contextmanager
+def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
+    """Hold an exclusive lock on RUN_DIR/.lock (released by the OS if the process dies)."""
+    if fcntl is None:
+        yield
+        return
+    lock_path = run_dir / ".lock"
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            if not wait:
+                raise RunDirError(f"{run_dir} is in use by another placeloc run (pid {holder}); wait for it to finish, "
+                                  "or pass --wait to queue behind it, or choose another --run-dir") from None
+            log.info("waiting for placeloc pid %s to finish with %s", holder, run_dir)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing drops the lock
+
+
+class _BestEffortFileHandler(logging.FileHandler):
+    """log.txt is a record, not a result: a full disk must not turn each log line into a
+    "Logging error" traceback (the write that matters reports the full disk itself)."""
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def run_log(run_dir: Path) -> Iterator[None]:
+    """Append this run's log lines (with times) to RUN_DIR/log.txt."""
+    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
+    handler.setLevel(logging.INFO)
+    old_level = log.level
+    if log.getEffectiveLevel() > logging.INFO:
+        log.setLevel(logging.INFO)  # the file gets INFO lines even when the terminal is quiet
+        for h in logging.getLogger().handlers:
+            if h.level == logging.NOTSET:
+                h.setLevel(logging.getLogger().level)
+    log.addHandler(handler)
+    try:
+        yield
+    finally:
+        log.removeHandler(handler)
+        handler.close()
+        log.setLevel(old_level)
+
+
+def _log_to_file_only(run_dir: Path, line: str) -> None:
+    with contextlib.suppress(OSError), (run_dir / "log.txt").open("a", encoding="utf-8") as fh:
+        fh.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {line}\n")
+
+
+def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, path: Path,
+             inputs: dict[str, Any], stamp: str, images: dict[str, ImageSet], executor: Executor,
+             quiet: bool) -> None:
+    declared = method.stages.get(name)
+    fn = declared.run if declared is not None else None
+    note = "" if fn is not None else f"{method.name} has no work in {name}: input passed through"
+    attrs = provenance_attrs(name, method.name, __version__, to_yaml(config),
+                             config_hash(config), inputs, stamp, passthrough=fn is None, note=note)
+    t0 = time.perf_counter()
+    with atomic_h5(path, attrs) as f:
+        if fn is None:
+            log.info("%s: %s", name, note)
+            return
+        log.info("%s: running %s", name, method.name)
+        ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
+                           executor=executor, quiet=quiet, images=images, params=method.build_params(config))
+        before = _run_files(run_dir)
+        opened: list[str] = []
+        try:
+            fn(ctx)
+        except OSError as exc:
+            # A side output (CSV, JSON, PNG) written with plain Python I/O met a full disk:
+            # name the place, as atomic_h5 does for artifacts.
+            if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+                where = Path(exc.filename) if exc.filename else run_dir / f"(a side output of {name})"
+                raise disk_full_error(where, 0) from None
+            raise
+        except KeyError as exc:
+            # h5py's "Unable to synchronously open object": an artifact lacks a dataset.
+            if "open object" not in str(exc) and "doesn't exist" not in str(exc):
+                raise
+            opened = [f.filename for f in ctx._open]
+            which = ", ".join(opened) or "an earlier artifact"
+            raise StageError(f"{which}: a dataset the {name} stage needs is missing ({' '.join(str(exc).split())}); "
+                             "the artifact is damaged or from another version: re-run the stage that wrote it with --force") from exc
+        finally:
+            ctx.close()
+        f.attrs["seconds"] = time.perf_counter() - t0
+        # Side outputs (CSV, JSON, PNG) are whatever the stage created or changed in the run
+        # directory; their fingerprints make deleting or editing one re-run the stage.
+        after = _run_files(run_dir)
+        f.attrs["side_outputs"] = json.dumps({k: v for k, v in after.items() if before.get(k) != v}, sort_keys=True)
+    log.info("%s: wrote %s in %.2f s", name, path, time.perf_counter() - t0)
+
+
+def _run_files(run_dir: Path) -> dict[str, str]:
+    """Fingerprints of the files in a run directory that are not artifacts, temporary
+    files or the runner's own files."""
+    out = {}
+    for p in run_dir.rglob("*"):
+        rel = p.relative_to(run_dir)
+        if not p.is_file() or TMP_MARK in p.name or (len(rel.parts) == 1 and (p.suffix == ".h5" or p.name in RUN_FILES)):
+            continue
+        out[str(rel)] = _path_fingerprint(p)
+    return out
+
+
+def _recorded_side_outputs(path: Path) -> dict[str, str] | None:
+    """The side outputs (file -> fingerprint) recorded in an artifact; None if unreadable."""
+    try:
+        with h5py.File(path, "r") as f:
+            return json.loads(f.attrs.get("side_outputs", "{}"))
+    except (OSError, ValueError):
+        return None
+
+
+def side_outputs_intact(path: Path) -> bool:
+    """True when every side output recorded in the artifact at ``path`` is still there,
+    unchanged (same size and modification time)."""
+    recorded = _recorded_side_outputs(path)
+    return recorded is not None and all(_path_fingerprint(path.parent / name) == fp for name, fp in recorded.items())
+
+
+def run_all(config: dict[str, Any], run_dir: str | Path, force: bool = False, quiet: bool = False) -> Path:
+    """All stages in order (each skipped when up to date); returns the evaluate artifact."""
+    return run_stage(config, run_dir, STAGES[-1], quiet=quiet, force_all=force)
+
+
+def read_metrics(run_dir: str | Path) -> dict[str, Any]:
+    return json.loads((Path(run_dir) / "metrics.json").read_text())

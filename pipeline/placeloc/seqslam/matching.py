@@ -1,0 +1,116 @@
+"""SeqSLAM's localize step on feature rows: difference matrix -> enhancement -> sequence search.
+
+The difference matrix is computed block by block (query columns), each block with the
+``before``/``after`` query columns a sequence window needs on either side, so memory is
+bounded by ``block_size`` whatever the traverse length. Every block is enhanced and
+searched as soon as it arrives; ``on_difference`` receives its raw columns (the stage
+writes them to ``localize.h5``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+from placeloc.seqslam.comparisons import difference_block
+from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, single_image_best, velocities
+
+# (fn, jobs, shared, describe) -> results in job order; the executor's map has this shape.
+MapBlocks = Callable[..., Iterator[Any]]
+
+
+@dataclass
+class SequenceMatches:
+    """Per query (positions in the feature lists): ``candidates``/``scores`` (n, k) ranked
+    sequence matches, ``confidence`` of the best, and the single-image baseline."""
+
+    candidates: np.ndarray
+    scores: np.ndarray
+    confidence: np.ndarray
+    single_best: np.ndarray
+    single_confidence: np.ndarray
+    velocities: np.ndarray
+
+
+def difference_job(job: tuple[tuple[int, int, int, int], np.ndarray, str], ref: np.ndarray) -> np.ndarray:
+    """One difference-matrix block (runs in a worker), (n_ref, hi - lo); ``ref`` is shared."""
+    _, query_block, comparison = job
+    return difference_block(ref, query_block, comparison)
+
+
+def auto_velocity_scale(n_reference: int, n_query: int) -> float:
+    """Reference frames per query frame if both traverses cover the same route: a query
+    recorded at half the frame rate (half as many frames) moves 2 references per frame."""
+    return n_reference / max(1, n_query)
+
+
+def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
+    for job in jobs:
+        yield fn(job, shared)
+
+
+def sequence_match(
+    ref: np.ndarray,
+    query: np.ndarray,
+    *,
+    comparison: str,
+    enhance_window: int,
+    ds: int,
+    v_min: float,
+    v_max: float,
+    v_step: float,
+    v_auto: bool,
+    search: str,
+    sequence_shape: str,
+    edges: str,
+    top_k: int,
+    exclude_recent: int | None,
+    block_size: int,
+    map_blocks: MapBlocks | None = None,
+    on_difference: Callable[[int, int, np.ndarray], None] | None = None,
+    progress: Callable[..., Iterable] | None = None,
+) -> SequenceMatches:
+    """Match every query row against the reference rows (features from ``extract``).
+
+    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
+    many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
+    difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
+    raw difference columns ``c0:c1`` as they are computed.
+    """
+    n_q = len(query)
+    window, k, block = int(enhance_window), int(top_k), int(block_size)
+    vels = velocities(v_min, v_max, v_step)
+    if v_auto:
+        vels = np.round(vels * auto_velocity_scale(len(ref), n_q), 9)
+    t_off = query_offsets(int(ds), search)
+    before, after = int(-t_off.min()), int(t_off.max())
+    candidates = np.full((n_q, k), -1, np.int64)
+    scores = np.full((n_q, k), np.inf, np.float32)
+    single_best = np.full(n_q, -1, np.int64)
+    single_conf = np.zeros(n_q, np.float64)
+
+    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
+    # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
+    # enhancement, search and writing stay here, in order.
+    jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)
+    blocks = (map_blocks or _inline_map)(difference_job, jobs, shared=ref,
+                                         describe=lambda job: f"difference block, query columns {job[0][2]}:{job[0][3]}")
+    # blocks first in zip: its exhaustion runs the executor's clean-up (release the shared input).
+    pairs: Iterable = zip(blocks, spans)
+    if progress is not None:
+        pairs = progress(pairs, total=len(spans), desc="localize blocks")
+    for d, (c0, c1, lo, _hi) in pairs:
+        if on_difference is not None:
+            on_difference(c0, c1, d[:, c0 - lo:c1 - lo])
+        dt = np.ascontiguousarray(d.T)
+        # single-image baseline on the raw differences
+        sb, ss = single_image_best(dt[c0 - lo:c1 - lo], window, exclude_recent, c0)
+        single_best[c0:c1], single_conf[c0:c1] = sb, ss
+        et = enhance_t(dt, window)
+        del dt, d
+        b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
+                               shape=sequence_shape, edges=edges)
+        candidates[c0:c1], scores[c0:c1] = b, s
+    return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

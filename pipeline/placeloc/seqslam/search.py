@@ -1,0 +1,336 @@
+"""Local contrast enhancement (eq. 1) and sequence search (eqs. 2-3), in NumPy.
+
+Matrix convention: ``D[r, q]``, rows = reference, columns = query, lower = more alike.
+Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that each step is a slice
+of contiguous reference rows, for a chunk of queries at once; chunks run on one thread per
+core (NumPy releases the GIL). This was numba code; NumPy slices do the same adds in the
+same order, and a ``localize`` process no longer pays numba's start-up (about 0.7 s).
+
+Trajectories (OpenSeqSLAM2's precomputed offsets): a trajectory is anchored at reference
+``r`` for the current query ``T`` and passes through ``(T + t, r + round(V t))`` for the
+query offsets ``t`` of the window: ``t = -ds..0`` (``causal``, the paper: only the past)
+or ``t = -ds//2..ds - ds//2`` (``centred``, OpenSeqSLAM). The score is
+``S(r, T) = min_V sum_t D^[r + round(V t), T + t]``; a trajectory that leaves the matrix
+is not scored. The match is the ``r`` with the smallest score; its confidence compares it
+with the best score outside ``+-window`` rows of it (see :func:`sequence_search`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from placeloc.seqslam.l1 import run_threaded
+from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
+
+INVALID = np.float32(np.inf)
+
+
+def velocities(v_min: float, v_max: float, v_step: float) -> np.ndarray:
+    n = int(math.floor((v_max - v_min) / v_step + 1e-9)) + 1
+    return np.round(v_min + v_step * np.arange(n), 9)
+
+
+def query_offsets(ds: int, search: str) -> np.ndarray:
+    """Query offsets ``t`` of the window (ds + 1 frames, as ``sum_{T-ds}^{T}`` in eq. 2)."""
+    if search == "causal":
+        return np.arange(-ds, 1, dtype=np.int64)
+    before = ds // 2
+    return np.arange(-before, ds - before + 1, dtype=np.int64)
+
+
+def trajectory_offsets(vels: np.ndarray, t_offsets: np.ndarray) -> np.ndarray:
+    """``round(V t)`` for every velocity (rows) and query offset (columns)."""
+    # Round half away from zero so +t and -t give mirror offsets.
+    x = vels[:, None] * t_offsets[None, :].astype(np.float64)
+    return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
+
+
+def enhancement_shift(window: int) -> float:
+    """A z-score over n <= 2R+1 samples is >= -sqrt(n-1); adding sqrt(2R) makes D^ >= 0.
+
+    A constant shift keeps every argmin (all trajectories have the same length) and makes
+    the ratio-based confidence and the dissimilarity ratio meaningful after enhancement.
+    """
+    return math.sqrt(2 * window)
+
+
+def _row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
+    """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
+    step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 16, 512))
+    return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
+
+
+def _window_sums(c: np.ndarray, window: int) -> np.ndarray:
+    """``c[:, min(nr, r + R + 1)] - c[:, max(0, r - R)]`` for every column ``r`` of running
+    sums ``c`` (with a leading zero column): slices inside, the clipped ends apart."""
+    nr = c.shape[1] - 1
+    out = np.empty((c.shape[0], nr))
+    r = np.arange(nr)
+    ends = np.flatnonzero((r < window) | (r >= nr - window))
+    if nr > 2 * window:
+        np.subtract(c[:, 2 * window + 1:], c[:, :nr - 2 * window], out=out[:, window:nr - window])
+    out[:, ends] = c[:, np.minimum(nr, ends + window + 1)] - c[:, np.maximum(0, ends - window)]
+    return out
+
+
+def _enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
+    """Eq. (1) along each row of ``dt`` (float64 running sums, as the z-score needs)."""
+    n, nr = dt.shape
+    x = dt.astype(np.float64)
+    c = np.zeros((n, nr + 1))
+    np.cumsum(x, axis=1, out=c[:, 1:])
+    mean = _window_sums(c, window)
+    np.multiply(x, x, out=c[:, 1:])
+    np.cumsum(c[:, 1:], axis=1, out=c[:, 1:])
+    var = _window_sums(c, window)
+    r = np.arange(nr)
+    count = (np.minimum(nr, r + window + 1) - np.maximum(0, r - window)).astype(np.float64)
+    mean /= count
+    var /= count
+    var -= mean * mean
+    # sd = sqrt(var) where var > 1e-12, else the z-score is 0
+    flat = ~(var > 1e-12)
+    var[flat] = 1.0
+    np.sqrt(var, out=var)
+    x -= mean
+    x /= var
+    x[flat] = 0.0
+    x += shift
+    out[:] = x
+
+
+def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:
+    shift = float(enhancement_shift(window))
+
+    def run(lo: int, hi: int) -> None:
+        _enhance_rows(dt[lo:hi], int(window), shift, out[lo:hi])
+
+    run_threaded(run, _row_chunks(dt.shape[0], dt.shape[1]))
+
+
+def enhance(d: np.ndarray, window: int) -> np.ndarray:
+    """Eq. (1), per query column over reference rows ``r-R..r+R`` (clipped at the ends),
+    plus the constant :func:`enhancement_shift`. Input and output are ``D[r, q]``."""
+    dt = np.ascontiguousarray(d.T, dtype=np.float32)
+    out = np.empty_like(dt)
+    _enhance_into(dt, window, out)
+    return out.T
+
+
+def enhance_t(dt: np.ndarray, window: int) -> np.ndarray:
+    """As :func:`enhance` but on and to the query-major ``Dt[q, r]``."""
+    dt = np.ascontiguousarray(dt, dtype=np.float32)
+    out = np.empty_like(dt)
+    _enhance_into(dt, window, out)
+    return out
+
+
+def _trajectory_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """``s[q, r] = min_V sum_t et[T + t, r + round(V t)]`` for ``T`` in ``rows`` (all inside
+    the matrix for these offsets); inf where a trajectory would leave it."""
+    a, b = rows
+    nr = et.shape[1]
+    s = np.full((b - a, nr), INVALID, np.float32)
+    acc = np.empty((b - a, nr), np.float32)
+    for offsets in traj:
+        r_lo, r_hi = max(0, -int(offsets.min())), min(nr, nr - int(offsets.max()))
+        if r_hi <= r_lo:
+            continue
+        part = acc[:, r_lo:r_hi]
+        part[:] = 0.0
+        for t, o in zip(t_off, offsets):  # same adds, same order, for every reference
+            part += et[a + t:b + t, r_lo + o:r_hi + o]
+        np.minimum(s[:, r_lo:r_hi], part, out=s[:, r_lo:r_hi])
+    return s
+
+
+def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray) -> np.ndarray:
+    """``s[q, r] = sum_t min_{o in cone(t)} et[T + t, r + o]``: at every query frame the best
+    reference inside the cone the velocities span, chosen frame by frame."""
+    a, b = rows
+    nr = et.shape[1]
+    lo, hi = traj.min(axis=0), traj.max(axis=0)
+    r_lo, r_hi = max(0, int((-lo).max())), min(nr, int((nr - hi).min()))
+    s = np.full((b - a, nr), INVALID, np.float32)
+    if r_hi <= r_lo:
+        return s
+    acc = np.zeros((b - a, r_hi - r_lo), np.float32)
+    for t, o_lo, o_hi in zip(t_off, lo, hi):
+        best = et[a + t:b + t, r_lo + o_lo:r_hi + o_lo].copy()
+        for o in range(o_lo + 1, o_hi + 1):
+            np.minimum(best, et[a + t:b + t, r_lo + o:r_hi + o], out=best)
+        acc += best
+    s[:, r_lo:r_hi] = acc
+    return s
+
+
+def _around(centres: np.ndarray, window: int, nr: int) -> np.ndarray:
+    """Column indices ``centre - window .. centre + window`` per row, clipped to the matrix
+    (a clipped index repeats the edge column, which lies inside the window anyway)."""
+    return np.clip(centres[:, None] + np.arange(-window, window + 1), 0, nr - 1)
+
+
+def _recent_limits(t_global: np.ndarray, exclude_recent: int, nr: int) -> np.ndarray:
+    """Loop closure: the first reference each query (global index ``t_global``) may not match."""
+    return np.clip(t_global - int(exclude_recent) + 1, 0, nr).astype(np.int64)
+
+
+def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy non-maximum suppression per row: the k best references at least window+1
+    apart (ties: the first), -1 / inf when none is left. Destroys ``s``."""
+    n, nr = s.shape
+    best = np.full((n, k), -1, np.int64)
+    scores = np.full((n, k), INVALID, np.float32)
+    rows = np.arange(n)
+    for kk in range(k):
+        bi = np.argmin(s, axis=1)
+        bv = s[rows, bi]
+        found = bv < INVALID
+        if not found.any():
+            break
+        best[found, kk], scores[found, kk] = bi[found], bv[found]
+        s[rows[found][:, None], _around(bi[found], window, nr)] = INVALID
+    return best, scores
+
+
+def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray, shape: str, window: int,
+            k: int, limit: np.ndarray) -> np.ndarray:
+    """Sequence scores of queries ``rows`` for one set of offsets; references ``>= limit``
+    (per query) are excluded."""
+    if shape == "trajectory":
+        s = _trajectory_scores(et, rows, t_off, traj)
+    elif shape == "cone":
+        s = _cone_scores(et, rows, t_off, traj)
+    else:
+        # hybrid: the cone proposes k regions, the trajectory score ranks inside them
+        cone = _cone_scores(et, rows, t_off, traj)
+        _exclude(cone, limit)
+        regions, _ = _top_k(cone, window, k)
+        line = _trajectory_scores(et, rows, t_off, traj)
+        s = np.full_like(line, INVALID)
+        for kk in range(k):
+            ok = regions[:, kk] >= 0
+            q = np.nonzero(ok)[0][:, None]
+            cols = _around(regions[ok, kk], window, s.shape[1])
+            s[q, cols] = line[q, cols]
+    _exclude(s, limit)
+    return s
+
+
+def _exclude(s: np.ndarray, limit: np.ndarray) -> None:
+    nr = s.shape[1]
+    if (limit < nr).any():
+        s[np.arange(nr)[None, :] >= limit[:, None]] = INVALID
+
+
+def sequence_search(
+    et: np.ndarray,
+    q_lo: int,
+    q_hi: int,
+    ds: int,
+    vels: np.ndarray,
+    search: str,
+    window: int,
+    k: int,
+    exclude_recent: int | None,
+    query_index0: int,
+    *,
+    shape: str,
+    edges: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
+
+    ``shape`` is how a sequence may run through the matrix (as in OpenSeqSLAM2):
+    ``trajectory`` (straight lines of the given slopes, the original SeqSLAM), ``cone``
+    (at each query frame the best reference anywhere between the slowest and the fastest
+    line: tolerates speed changes inside the window) or ``hybrid`` (the cone proposes the
+    ``k`` best regions, straight lines rank the references inside them).
+
+    ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
+    (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
+    first and last ds/2 queries get a (one-sided) sequence too.
+
+    Returns ``best`` (n, k) reference indices (-1 = none) and their ``scores`` (n, k),
+    ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
+    closure, reference == query) drops references ``r > T_global - exclude_recent`` where
+    ``T_global = query_index0 + column``.
+    """
+    if edges not in ("skip", "shift"):
+        raise ValueError(f"unknown edge handling {edges!r}; choose skip or shift")
+    if shape not in SHAPES:
+        raise ValueError(f"unknown sequence shape {shape!r}; choose one of {', '.join(SHAPES)}")
+    t_off = query_offsets(ds, search)
+    traj = trajectory_offsets(vels, t_off)
+    n = q_hi - q_lo
+    nr = et.shape[1]
+    if exclude_recent is None:
+        exclude_after = np.full(n, nr, np.int64)
+    else:
+        exclude_after = _recent_limits(query_index0 + np.arange(q_lo, q_hi), exclude_recent, nr)
+    best = np.full((n, k), -1, np.int64)
+    scores = np.full((n, k), INVALID, np.float32)
+    if n == 0:
+        return best, scores
+    et = np.ascontiguousarray(et, dtype=np.float32)
+    ncols, nt = et.shape[0], len(t_off)
+    window, k = int(window), int(k)
+    # Queries whose whole window lies inside the matrix share the offsets: scored in
+    # chunks of rows, one thread per core. The few near the ends are skipped or, with
+    # edges: shift, scored one by one with the ds + 1 frames nearest them.
+    first = max(q_lo, -int(t_off[0]))
+    last = min(q_hi, ncols - int(t_off[-1]))
+    inner = (first, last) if first < last else (q_lo, q_lo)
+
+    def run(lo: int, hi: int) -> None:
+        a, b = inner[0] + lo, inner[0] + hi
+        s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo])
+        best[a - q_lo:b - q_lo], scores[a - q_lo:b - q_lo] = _top_k(s, window, k)
+
+    run_threaded(run, _row_chunks(inner[1] - inner[0], et.shape[1]))
+    if edges == "shift" and nt <= ncols:
+        for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
+            sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))
+            t2 = t_off + sh
+            s = _scores(et, (T, T + 1), t2, trajectory_offsets(vels, t2), shape, window, k,
+                        exclude_after[T - q_lo:T - q_lo + 1])
+            best[T - q_lo], scores[T - q_lo] = (x[0] for x in _top_k(s, window, k))
+    return best, scores
+
+
+def confidence(scores: np.ndarray) -> np.ndarray:
+    """Match confidence from the two best (NMS-separated) scores: ``1 - S_best / S_second``.
+
+    In [0, 1], higher = more distinct; 0 when there is no second candidate or no match.
+    Scores are non-negative thanks to :func:`enhancement_shift`.
+    """
+    s1 = scores[:, 0].astype(np.float64)
+    s2 = scores[:, 1].astype(np.float64) if scores.shape[1] > 1 else np.full_like(s1, np.inf)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = 1.0 - s1 / s2
+    c[~np.isfinite(s1) | ~np.isfinite(s2) | (s2 <= 0)] = 0.0
+    return np.clip(c, 0.0, 1.0)
+
+
+def single_image_best(dt: np.ndarray, window: int, exclude_recent: int | None, q0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Single-image baseline: best reference per query on raw differences ``dt[q, r]``
+    (query-major), confidence as for sequences: ``1 - best / best outside +-window``
+    (differences are >= 0 for every comparison). ``q0`` is the global index of row 0, for
+    ``exclude_recent`` (loop closure)."""
+    n, nr = dt.shape
+    rows = np.arange(n)[:, None]
+    x = dt
+    if exclude_recent is not None:
+        x = dt.copy()
+        _exclude(x, _recent_limits(q0 + np.arange(n), exclude_recent, nr))
+    best = np.argmin(x, axis=1)
+    s1 = x[np.arange(n), best].astype(np.float64)
+    x = x.copy() if x is dt else x
+    x[rows, _around(best, window, nr)] = np.inf
+    s2 = x.min(axis=1).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conf = 1.0 - np.maximum(s1, 0) / s2
+    conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0
+    best[~np.isfinite(s1)] = -1
+    return best, np.clip(conf, 0, 1)

@@ -1,0 +1,366 @@
+"""Synthetic empty homes with 360 degree panoramas (``placeloc synth home OUT``).
+
+Built to fail the way real homes do for line-map localization: a hallway with several
+bedrooms of nearly the same size and layout, a living room and a kitchen, all with the
+same paint, so that
+
+- many detected lines are not in the map: window blinds, kitchen cabinets and wardrobes,
+  door leaves with panels (closed) or standing open against the wall, skirting boards just
+  above the floor line, floor planks and tiles, sunlight patches cast through windows;
+- many map lines are hardly visible: walls and ceiling are painted alike, so the
+  wall/ceiling corners and the vertical room corners have little contrast.
+
+Written under OUT:
+
+- ``floor_plan.yaml``: the multi-room plan (rooms, openings, windows; the format of
+  :mod:`placeloc.geometry.floorplan`), i.e. the map, without any of the clutter above;
+- ``panoramas/pano_000.png ...``: grey equirectangular panoramas (2:1) at random free-space
+  poses, with random headings, sensor noise and blur;
+- ``poses.csv``: frame, x, y, z, heading_deg (ground truth);
+- ``line_stats.json``: how much the panoramas' LSD lines and the map's lines agree at the
+  true poses (share of detected line pixels on map lines, share of map line pixels
+  detected), which :func:`generate` also returns and the CLI prints.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from numba import njit, prange
+
+from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
+from placeloc.geometry.panorama import panorama_line_image, render_panoramas
+from placeloc.geometry.rays import ray_box, ray_segment
+from placeloc.synth.texture import cell_hash, value_noise
+
+CEILING = 2.5
+HALL_W = 1.4
+
+# surface kinds of the ray caster
+FLOOR, CEIL, WALL, BOX, LEAF = 1, 2, 3, 4, 5
+
+
+def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A random home: (the floor plan in the multi-room format, the clutter that is not in
+    the map). Bedrooms north of an east-west hallway, living room and kitchen south of it."""
+    rooms, openings, windows = [], [], []
+    bed_w = [round(3.2 + rng.uniform(-0.15, 0.15), 2) for _ in range(n_bedrooms)]
+    bed_d = round(3.4 + rng.uniform(-0.1, 0.1), 2)
+    length = sum(bed_w)
+    y0, y1 = 0.0, HALL_W
+    rooms.append({"name": "hall", "polygon": [[0, y0], [length, y0], [length, y1], [0, y1]]})
+    x = 0.0
+    door_w = 0.85
+    clutter: dict[str, list] = {"boxes": [], "leaves": [], "blinds": [], "lamps": []}
+    for i, w in enumerate(bed_w):
+        rooms.append({"name": f"bedroom{i + 1}", "polygon": [[x, y1], [x + w, y1], [x + w, y1 + bed_d], [x, y1 + bed_d]]})
+        dx = x + 0.3 + rng.uniform(0.0, 0.4)
+        openings.append({"from": [round(dx, 3), y1], "to": [round(dx + door_w, 3), y1], "height": 2.05})
+        wx = x + w / 2 - 0.7 + rng.uniform(-0.3, 0.3)
+        windows.append({"from": [round(wx, 3), y1 + bed_d], "to": [round(wx + 1.4, 3), y1 + bed_d], "sill": 0.9, "top": 2.1})
+        # a wardrobe against a side wall, opposite the door side
+        ww, wd = rng.uniform(1.2, 1.8), 0.6
+        clutter["boxes"].append([x + w - wd, y1 + bed_d - 0.2 - ww, 0.0, x + w, y1 + bed_d - 0.2, 2.1, 0.55 + 0.1 * rng.random(), 1.0])
+        _door_leaf(clutter, rng, (dx, y1), (dx + door_w, y1), +1)
+        x += w
+    liv_w = round(length * 0.6, 2)
+    south = 4.2 + rng.uniform(-0.2, 0.2)
+    rooms.append({"name": "living", "polygon": [[0, -south], [liv_w, -south], [liv_w, 0], [0, 0]]})
+    rooms.append({"name": "kitchen", "polygon": [[liv_w, -south], [length, -south], [length, 0], [liv_w, 0]]})
+    openings.append({"from": [1.0, 0.0], "to": [2.4, 0.0], "height": 2.3})                          # wide opening
+    kd = liv_w + 0.5 + rng.uniform(0, 0.5)
+    openings.append({"from": [round(kd, 3), 0.0], "to": [round(kd + door_w, 3), 0.0], "height": 2.05})
+    _door_leaf(clutter, rng, (kd, 0.0), (kd + door_w, 0.0), -1)
+    for wx in (0.8, liv_w - 2.6):
+        windows.append({"from": [round(wx, 3), -south], "to": [round(wx + 1.8, 3), -south], "sill": 0.6, "top": 2.2})
+    windows.append({"from": [length, round(-south + 1.0, 3)], "to": [length, round(-south + 2.2, 3)], "sill": 1.0, "top": 2.1})
+    # kitchen cabinets: a counter run along the south wall and wall cabinets above it
+    k0 = liv_w + 0.1
+    clutter["boxes"].append([k0, -south, 0.0, length - 0.1, -south + 0.6, 0.9, 0.45, 0.6])
+    clutter["boxes"].append([k0, -south, 1.45, length - 0.1, -south + 0.35, 2.15, 0.5, 0.6])
+    # a radiator under each window (its fins are vertical lines), a ceiling lamp panel per room
+    for w in windows:
+        (ax, ay), (bx, by) = w["from"], w["to"]
+        if abs(ay - by) < 1e-9:  # on an east-west wall: the radiator stands 0.1 m into the room
+            inward = -1.0 if ay > 0 else 1.0
+            y_a, y_b = sorted((ay, ay + 0.1 * inward))
+            clutter["boxes"].append([min(ax, bx) + 0.1, y_a, 0.12, max(ax, bx) - 0.1, y_b, min(0.7, w["sill"] - 0.1), 0.88, 0.06])
+    for r in rooms:
+        (x0, y0), (x1, y1_) = np.min(r["polygon"], axis=0), np.max(r["polygon"], axis=0)
+        cx, cy = (x0 + x1) / 2 + rng.uniform(-0.3, 0.3), (y0 + y1_) / 2 + rng.uniform(-0.3, 0.3)
+        half = 0.3 if r["name"] != "kitchen" else 0.6
+        clutter["lamps"].append([cx - half, cy - 0.3, cx + half, cy + 0.3])
+    # blinds on most windows, sunlight through all of them
+    for w in windows:
+        if rng.random() < 0.75:
+            clutter["blinds"].append([*w["from"], *w["to"], w["sill"], w["top"] - rng.uniform(0.0, 0.6)])
+    fp = {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
+    return fp, clutter
+
+
+def floor_of_homes(rng: np.random.Generator, homes: int, bedrooms: int) -> dict[str, Any]:
+    """A storey of ``homes`` random homes (:func:`plan`) side by side along x, 0.3 m of wall
+    apart: the multi-room floor plan of a real-scale floor (several hundred segments), for
+    benchmarks. Clutter is not kept."""
+    rooms, openings, windows = [], [], []
+    x0 = 0.0
+    for h in range(homes):
+        fp, _ = plan(rng, bedrooms)
+        xs = [p[0] for r in fp["rooms"] for p in r["polygon"]]
+        dx = x0 - min(xs)
+
+        def moved(pts: list, dx: float = dx) -> list:
+            return [[round(p[0] + dx, 4), p[1]] for p in pts]
+
+        rooms += [{**r, "name": f"home{h + 1}-{r['name']}", "polygon": moved(r["polygon"])} for r in fp["rooms"]]
+        openings += [{**o, "from": moved([o["from"]])[0], "to": moved([o["to"]])[0]} for o in fp["openings"]]
+        windows += [{**w, "from": moved([w["from"]])[0], "to": moved([w["to"]])[0]} for w in fp["windows"]]
+        x0 += max(xs) - min(xs) + 0.3
+    return {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
+
+
+def _door_leaf(clutter: dict[str, list], rng: np.random.Generator, a: tuple[float, float], b: tuple[float, float],
+               side: int) -> None:
+    """A door leaf in an opening on an east-west wall: closed in the opening (a panelled
+    face) or open, turned 90 degrees against the wall inside the room on ``side`` (+1 north)."""
+    if rng.random() < 0.4:
+        clutter["leaves"].append([a[0], a[1] + 0.02 * side, b[0], b[1] + 0.02 * side, 1.0])     # closed: panels
+    else:
+        clutter["boxes"].append([a[0], a[1] + (0.0 if side > 0 else -0.82), 0.0, a[0] + 0.04,
+                                 a[1] + (0.82 if side > 0 else 0.0), 2.0, 0.7, 0.0])
+
+
+
+
+@njit(parallel=True, cache=True)
+def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes: np.ndarray, leaves: np.ndarray,
+             blinds: np.ndarray, windows: np.ndarray, sun: np.ndarray, rooms_floor: np.ndarray, rooms_xy: np.ndarray,
+             lamps: np.ndarray, ceiling: float, out: np.ndarray) -> None:
+    px, py, pz = pose[0], pose[1], pose[2]
+    head = math.radians(pose[3])
+    for v in prange(height):
+        el = math.pi / 2.0 - math.pi * (v + 0.5) / height
+        for u in range(width):
+            az = head + math.pi - 2.0 * math.pi * (u + 0.5) / width
+            dx = math.cos(el) * math.cos(az)
+            dy = math.cos(el) * math.sin(az)
+            dz = math.sin(el)
+            best = 1e9
+            kind = 0
+            idx = -1
+            if dz < -1e-9:
+                best = -pz / dz
+                kind = FLOOR
+            elif dz > 1e-9:
+                best = (ceiling - pz) / dz
+                kind = CEIL
+            for f in range(faces.shape[0]):
+                t, s = ray_segment(px, py, dx, dy, faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
+                if t <= 1e-6 or t >= best or s < 0.0 or s > 1.0:
+                    continue
+                z = pz + t * dz
+                if faces[f, 4] <= z <= faces[f, 5]:
+                    best = t
+                    kind = WALL
+                    idx = f
+            for f in range(leaves.shape[0]):
+                t, s = ray_segment(px, py, dx, dy, leaves[f, 0], leaves[f, 1], leaves[f, 2], leaves[f, 3])
+                if t <= 1e-6 or t >= best or s < 0.0 or s > 1.0:
+                    continue
+                if pz + t * dz <= 2.0:
+                    best = t
+                    kind = LEAF
+                    idx = f
+            for k in range(boxes.shape[0]):
+                t0 = ray_box(px, py, pz, dx, dy, dz, boxes[k], best)
+                if 1e-6 < t0 < best:
+                    best = t0
+                    kind = BOX
+                    idx = k
+            qx = px + best * dx
+            qy = py + best * dy
+            qz = pz + best * dz
+            col = 0.8
+            if kind == FLOOR:
+                style = 0
+                for r in range(rooms_xy.shape[0]):
+                    if rooms_xy[r, 0] <= qx <= rooms_xy[r, 2] and rooms_xy[r, 1] <= qy <= rooms_xy[r, 3]:
+                        style = int(rooms_floor[r])
+                if style == 1:    # wood planks along x, 0.14 m wide, staggered joints
+                    row = math.floor(qy / 0.14)
+                    col = 0.5 + 0.08 * cell_hash(int(row), int(math.floor(qx / 1.2 + 0.37 * row)), 21)
+                    col += 0.04 * (value_noise(qx * 0.2, qy * 8.0, 0.05, 22) - 0.5)
+                    if qy / 0.14 - row < 0.04:
+                        col -= 0.08
+                elif style == 2:  # tiles with grout
+                    col = 0.62 + 0.04 * value_noise(qx, qy, 0.05, 23)
+                    if qx / 0.45 - math.floor(qx / 0.45) < 0.025 or qy / 0.45 - math.floor(qy / 0.45) < 0.025:
+                        col = 0.45
+                else:             # carpet
+                    col = 0.55 + 0.06 * value_noise(qx, qy, 0.02, 24)
+                # sunlight: the floor point sees the sky through a window along the sun direction
+                # (the first wall the sun ray meets must be the window's)
+                first = 1e9
+                for f in range(faces.shape[0]):
+                    t, s = ray_segment(qx, qy, sun[0], sun[1], faces[f, 0], faces[f, 1], faces[f, 2], faces[f, 3])
+                    if t > 1e-6 and 0.0 <= s <= 1.0 and faces[f, 4] <= t * sun[2] <= faces[f, 5] and t < first:
+                        first = t
+                for w in range(windows.shape[0]):
+                    ax, ay, bx, by = windows[w, 0], windows[w, 1], windows[w, 2], windows[w, 3]
+                    t, s = ray_segment(qx, qy, sun[0], sun[1], ax, ay, bx, by)
+                    if t > 0.0 and 0.0 <= s <= 1.0 and t <= first + 1e-3:
+                        zz = t * sun[2]
+                        if windows[w, 4] <= zz <= windows[w, 5]:
+                            col = min(1.0, col * 1.7)
+            elif kind == CEIL:
+                col = 0.84 + 0.01 * value_noise(qx, qy, 0.3, 25)
+                for k in range(lamps.shape[0]):
+                    if lamps[k, 0] <= qx <= lamps[k, 2] and lamps[k, 1] <= qy <= lamps[k, 3]:
+                        col = 0.98
+                        if min(qx - lamps[k, 0], lamps[k, 2] - qx, qy - lamps[k, 1], lamps[k, 3] - qy) < 0.03:
+                            col = 0.7  # the lamp's rim
+            elif kind == WALL:
+                # one paint everywhere; faces along x a little brighter than along y (light from the south)
+                ex = faces[idx, 2] - faces[idx, 0]
+                ey = faces[idx, 3] - faces[idx, 1]
+                along_x = abs(ex) / max(math.hypot(ex, ey), 1e-9)
+                col = 0.80 + 0.025 * along_x + 0.012 * (value_noise(qx + qy, qz, 0.4, 26) - 0.5)
+                if qz < 0.09:                      # skirting board
+                    col = 0.93
+                    if qz > 0.08:
+                        col = 0.7
+                for w in range(windows.shape[0]):
+                    ax, ay, bx, by = windows[w, 0], windows[w, 1], windows[w, 2], windows[w, 3]
+                    lw = math.hypot(bx - ax, by - ay)
+                    s = ((qx - ax) * (bx - ax) + (qy - ay) * (by - ay)) / max(lw * lw, 1e-9)
+                    off = abs((qx - ax) * (by - ay) - (qy - ay) * (bx - ax)) / max(lw, 1e-9)
+                    if off < 0.02 and 0.0 <= s <= 1.0 and windows[w, 4] <= qz <= windows[w, 5]:
+                        m = 0.05 / max(lw, 1e-9)
+                        if s < m or s > 1 - m or qz < windows[w, 4] + 0.05 or qz > windows[w, 5] - 0.05:
+                            col = 0.95             # the frame
+                        else:
+                            col = 0.97 - 0.1 * value_noise(s * lw, qz, 0.3, 27)   # bright sky / outside
+                            for b in range(blinds.shape[0]):
+                                if abs(blinds[b, 0] - ax) < 1e-6 and abs(blinds[b, 1] - ay) < 1e-6 and qz >= blinds[b, 5]:
+                                    slat = (qz * 20.0) - math.floor(qz * 20.0)
+                                    col = 0.88 if slat < 0.7 else 0.62
+            elif kind == LEAF:
+                ax, ay = leaves[idx, 0], leaves[idx, 1]
+                s = math.hypot(qx - ax, qy - ay)
+                col = 0.9
+                # two raised panels: their edges are lines the map does not have
+                inset = 0.12 < s < 0.73 and (0.15 < qz < 0.95 or 1.1 < qz < 1.9)
+                edge = inset and (abs(s - 0.12) < 0.02 or abs(s - 0.73) < 0.02 or abs(qz - 0.15) < 0.02
+                                  or abs(qz - 0.95) < 0.02 or abs(qz - 1.1) < 0.02 or abs(qz - 1.9) < 0.02)
+                if edge:
+                    col = 0.72
+                if abs(s - 0.72) < 0.03 and abs(qz - 1.0) < 0.03:
+                    col = 0.3  # handle
+            elif kind == BOX:
+                base = boxes[idx, 6]
+                col = base + 0.03 * value_noise(qx + qy, qz, 0.1, 28)
+                if abs(qz - boxes[idx, 5]) < 1e-3:
+                    col = base + 0.12
+                if boxes[idx, 7] > 0.0:   # cabinet/wardrobe doors every 0.6 m: dark gaps
+                    s = qx if abs(dy) > abs(dx) else qy
+                    if (s / boxes[idx, 7]) - math.floor(s / boxes[idx, 7]) < 0.02:
+                        col -= 0.2
+            col *= 1.0 / (1.0 + 0.02 * best)
+            out[v, u] = col
+
+
+def render_panorama(pose: np.ndarray, scene: dict[str, np.ndarray], width: int, height: int) -> np.ndarray:
+    """Grey equirectangular panorama (float, 0..1) of the home from ``pose`` (x, y, z, heading_deg)."""
+    out = np.zeros((height, width))
+    _raycast(np.asarray(pose, float), width, height, scene["faces"], scene["boxes"], scene["leaves"], scene["blinds"],
+             scene["windows"], scene["sun"], scene["rooms_floor"], scene["rooms_xy"], scene["lamps"], CEILING, out)
+    return out
+
+
+def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    model = floor_plan_model(fp)
+    rooms_xy = np.array([[*np.min(r["polygon"], axis=0), *np.max(r["polygon"], axis=0)] for r in fp["rooms"]], float)
+    styles = {"hall": 1, "living": 1, "kitchen": 2}
+    rooms_floor = np.array([styles.get(r["name"], 0) for r in fp["rooms"]], float)
+    sun_az = math.radians(rng.uniform(210.0, 330.0))   # from the south: it shines through the south windows
+    sun_el = math.radians(rng.uniform(25, 50))
+    sun = np.array([math.cos(sun_az), math.sin(sun_az), math.tan(sun_el)])  # plan direction, rise per metre
+    return {"faces": model.faces, "boxes": np.asarray(clutter["boxes"], float).reshape(-1, 8),
+            "leaves": np.asarray(clutter["leaves"], float).reshape(-1, 5),
+            "blinds": np.asarray(clutter["blinds"], float).reshape(-1, 6),
+            "windows": np.array([[*w["from"], *w["to"], w["sill"], w["top"]] for w in fp["windows"]], float).reshape(-1, 6),
+            "sun": sun, "rooms_floor": rooms_floor, "rooms_xy": rooms_xy,
+            "lamps": np.asarray(clutter["lamps"], float).reshape(-1, 4)}
+
+
+def line_agreement(query_lines: np.ndarray, map_lines: np.ndarray) -> tuple[float, float]:
+    """(share of detected line pixels within one pixel of a map line, share of map line
+    pixels within one pixel of a detected line) of two binary images of the same size."""
+    near = np.ones((3, 3), np.uint8)
+    q, m = (query_lines > 0).astype(np.uint8), (map_lines > 0).astype(np.uint8)
+    on_map = float((q & cv2.dilate(m, near)).sum()) / max(int(q.sum()), 1)
+    found = float((m & cv2.dilate(q, near)).sum()) / max(int(m.sum()), 1)
+    return on_map, found
+
+
+def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
+             noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, **unknown: Any) -> dict[str, Any]:
+    """Write the home, its panoramas, their ground truth and the line statistics under ``out_dir``."""
+    if unknown:
+        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, noise, blur, "
+                        "stats_width")
+    out_dir = Path(out_dir)
+    (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    fp, clutter = plan(rng, bedrooms)
+    (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(fp, sort_keys=False))
+    model = floor_plan_model(fp)
+    scene = scene_arrays(fp, clutter, rng)
+    lo, hi = np.min([np.min(r["polygon"], axis=0) for r in fp["rooms"]], axis=0), np.max([np.max(r["polygon"], axis=0) for r in fp["rooms"]], axis=0)
+    # free-space poses, away from walls and out of the furniture
+    cand = rng.uniform(lo, hi, size=(4000, 2))
+    keep, _ = free_space_mask(cand, model, inside_only=True, wall_margin_m=0.5)
+    boxes = scene["boxes"]
+    for b in boxes:
+        keep &= ~((cand[:, 0] > b[0] - 0.3) & (cand[:, 0] < b[3] + 0.3) & (cand[:, 1] > b[1] - 0.3) & (cand[:, 1] < b[4] + 0.3))
+    cand = cand[keep][:panoramas]
+    if len(cand) < panoramas:
+        raise ValueError(f"only {len(cand)} free-space poses found for {panoramas} panoramas; ask for fewer")
+    height = width // 2
+    sh = stats_width // 2
+    on_map, found = [], []
+    with open(out_dir / "poses.csv", "w", newline="") as fpz:
+        w = csv.writer(fpz)
+        w.writerow(["frame", "x", "y", "z", "heading_deg"])
+        for i, (x, y) in enumerate(cand):
+            heading = float(rng.uniform(0, 360))
+            zz = z + float(rng.uniform(-0.03, 0.03))
+            img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
+            img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
+            if blur > 0:
+                img = cv2.GaussianBlur(img, (0, 0), blur)
+            name = f"pano_{i:03d}.png"
+            cv2.imwrite(str(out_dir / "panoramas" / name), img)
+            w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}"])
+            q = panorama_line_image(img, width=stats_width, height=sh, face_px=width // 4, min_length=8.0)
+            m = render_panoramas(model.segments, model.faces, np.array([[x, y, zz, heading]]), width=stats_width, height=sh,
+                                 hidden=True)
+            bits = np.unpackbits(m.view(np.uint8), bitorder="little")[: sh * stats_width].reshape(sh, stats_width)
+            a, b = line_agreement(q, bits)
+            on_map.append(a)
+            found.append(b)
+    stats = {"detected_on_map": float(np.median(on_map)), "map_detected": float(np.median(found)),
+             "detected_on_map_range": [float(np.min(on_map)), float(np.max(on_map))],
+             "map_detected_range": [float(np.min(found)), float(np.max(found))], "n_panoramas": len(cand),
+             "at": f"{stats_width}x{sh} equirectangular, within 1 px"}
+    (out_dir / "line_stats.json").write_text(json.dumps(stats, indent=2) + "\n")
+    return {"out": str(out_dir), "panoramas": len(cand), "rooms": len(fp["rooms"]), "segments": len(model.segments),
+            "faces": len(model.faces), "detected line pixels on map lines (median)": f"{stats['detected_on_map']:.0%}",
+            "map line pixels detected (median)": f"{stats['map_detected']:.0%}"}

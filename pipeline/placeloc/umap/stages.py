@@ -1,0 +1,514 @@
+"""UMap stages: render the line-image database from a wireframe, pack it, extract query
+line images (LSD) and AKAZE features, localize (UMap / UMap+CA) and evaluate.
+
+The numerics live in modules named for what they do: :mod:`placeloc.umap.render` (database
+line images), :mod:`placeloc.umap.bits` (packing and the eq. (1) score),
+:mod:`placeloc.umap.lines` (query line images), :mod:`placeloc.umap.scoring`,
+:mod:`placeloc.umap.ca` (CA geometry) and :mod:`placeloc.umap.tracker` (the CA trackers);
+floor plans and plan ray casting in :mod:`placeloc.geometry`. docs/umap.md says where this
+project reads the paper one way or another.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from placeloc.artifacts import atomic_open, read_strings, write_tree
+from placeloc.config import ConfigError
+from placeloc.evaluation.poses import read_poses
+from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
+from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model, wall_distance
+from placeloc.images import ImageError, read_gray
+from placeloc.methods import Method, Stage
+from placeloc.umap import ca as ca_mod
+from placeloc.umap.bits import pack, popcount_rows, unpack
+from placeloc.umap.lines import check_query_size, line_image
+from placeloc.umap.metrics import error_metrics, recall_metrics, yaw_errors
+from placeloc.umap.panorama import (
+    best_pose,
+    chamfer_yaw_scores,
+    closeness,
+    distinct_candidates,
+    iou_yaw_scores,
+    local_grid,
+    panorama_line_image,
+    render_panorama_block,
+    render_panoramas,
+)
+from placeloc.umap.params import UMapParams
+from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
+from placeloc.umap.render import render_grid_block
+from placeloc.umap.scoring import Scorer
+from placeloc.umap.sensor import read_sensor_csv
+from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
+
+log = logging.getLogger("placeloc")
+
+
+def _camera(p: Any) -> Camera:
+    c = p.camera
+    return Camera(int(c.width), int(c.height), float(c.hfov_deg))
+
+
+def _check(config: dict[str, Any]) -> None:
+    p = config["umap"]
+    if p["model"] is None:
+        raise ConfigError("umap.model is missing: give the wireframe (.yaml/.json/.obj) or floor plan (.yaml) file")
+    if not Path(p["model"]).is_file():
+        raise ConfigError(f"umap.model: {p['model']} does not exist; fix the path (relative paths start at the config's folder)")
+    if p["mode"] == "umap+ca":
+        if p["sensor_csv"] is None or not Path(p["sensor_csv"]).is_file():
+            raise ConfigError("umap.sensor_csv is missing or does not exist: mode umap+ca needs the per-frame CSV "
+                              "(frame, d, theta_deg); or set umap.mode: umap")
+    if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
+        raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
+                          "one by one: set umap.mode: umap for umap.query_kind: panorama")
+    try:
+        c = p["camera"]
+        Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
+    except ValueError as exc:
+        raise ConfigError(f"umap.camera: {exc}") from exc
+
+
+def _stage_error(exc: Exception) -> Exception:
+    from placeloc.runner import StageError
+
+    return StageError(str(exc))
+
+
+# ------------------------------------------------------------------ build-dictionary
+
+def build_dictionary(ctx: Any) -> None:
+    p = ctx.params
+    try:
+        model = load_model(p.model)
+    except ModelError as exc:
+        raise _stage_error(exc) from exc
+    g = p.grid
+    try:
+        poses = pose_grid(g.x, g.y, g.z, g.headings)
+    except ValueError as exc:
+        raise ConfigError(f"umap.grid: {exc}") from exc
+    keep, notes = free_space_mask(poses[:, :2], model, inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
+    for note in notes:
+        log.warning("umap.%s", note)
+    poses = poses[keep]
+    if len(poses) == 0:
+        raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
+                          f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")
+    block = int(p.block)
+    if p.query_kind == "panorama":
+        # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
+        poses = poses[np.unique(poses[:, :2], axis=0, return_index=True)[1]]
+        poses = poses[np.lexsort((poses[:, 1], poses[:, 0]))]
+        poses[:, 3] = 0.0
+        pw, ph = int(p.panorama.width), int(p.panorama.height)
+        items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
+                 for s in range(0, len(poses), block)]
+        render, cam = render_panorama_block, Camera(pw, ph, 90.0)
+    else:
+        # Views drawn already dilated by the matching tolerance (the only stored copy), hidden
+        # lines found once per position: a block holds whole positions (all their headings are
+        # consecutive, and the free-space mask keeps or drops them together).
+        cam = _camera(p)
+        block = max(1, block // len(g.headings)) * len(g.headings)
+        items = [(model.segments, model.faces, poses[s:s + block], (cam.width, cam.height, cam.hfov_deg), p.near_m,
+                  p.hidden_lines, int(p.tolerance_px)) for s in range(0, len(poses), block)]
+        render = render_grid_block
+    nw = (cam.width * cam.height + 63) // 64
+    db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
+    cells = None
+    s = 0
+    for res in ctx.progress(ctx.executor.map(render, items), total=len(items), desc="render database"):
+        bits, pooled = res if isinstance(res, tuple) else (res, None)
+        if pooled is not None:
+            if cells is None:  # the views' 8 x 8 cell images, which bound eq. (1) before a view is read
+                cells = ctx.out.create_dataset("pooled", shape=(len(poses), pooled.shape[1]), dtype=np.uint64)
+            cells[s:s + len(bits)] = pooled
+        db[s:s + len(bits)] = bits
+        s += len(bits)
+    write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
+                         "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
+    ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
+                         kind="panorama" if p.query_kind == "panorama" else "pinhole",
+                         dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px))
+
+
+# ------------------------------------------------------------------ index
+
+def index(ctx: Any) -> None:
+    """Per-view line pixel counts. Pinhole databases were drawn already dilated, so the
+    build-dictionary artifact's ``db`` is the one stored copy; a panorama database is kept
+    undilated there (the chamfer score needs it) and only its small dilated copy is written
+    here, as ``bits``, for the IoU score."""
+    src = ctx.artifact("build-dictionary")
+    h, w = int(src.attrs["height"]), int(src.attrs["width"])
+    db = src["db"]
+    tol = int(ctx.params.tolerance_px)
+    block = int(ctx.params.block)
+    counts = np.zeros(db.shape[0], dtype=np.int64)
+    if int(src.attrs.get("dilated_px", -1)) >= 0:
+        if int(src.attrs["dilated_px"]) != tol:
+            raise _stage_error(ValueError(f"the database was drawn {int(src.attrs['dilated_px'])} px thick but "
+                                          f"umap.tolerance_px is {tol}: re-run build-dictionary (--force-all)"))
+        for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="count line pixels"):
+            counts[s:s + block] = popcount_rows(np.ascontiguousarray(db[s:s + block]))
+        write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
+        ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                             kind=str(src.attrs.get("kind", "pinhole")), bits_in="build-dictionary/db",
+                             bytes=int(db.shape[0] * db.shape[1] * 8))
+        return
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
+    bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
+    for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="pack database"):
+        words = db[s:s + block]
+        if kernel is not None:
+            imgs = unpack(words, h, w)
+            imgs = np.stack([cv2.dilate(im, kernel) for im in imgs])
+            words = pack(imgs)
+        bits[s:s + len(words)] = words
+        counts[s:s + len(words)] = popcount_rows(np.ascontiguousarray(words))
+    write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
+    ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
+                         kind=str(src.attrs.get("kind", "pinhole")), bits_in="index/bits",
+                         bytes=int(db.shape[0] * db.shape[1] * 8))
+
+
+def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
+    """The dilated database line images: the index's ``bits`` (panoramas) or the
+    build-dictionary's ``db`` (pinhole views, drawn dilated)."""
+    return idx["bits"][()] if "bits" in idx else ctx.artifact("build-dictionary")["db"][()]
+
+
+def _pooled(ctx: Any) -> np.ndarray | None:
+    src = ctx.artifact("build-dictionary")
+    return src["pooled"][()] if "pooled" in src else None
+
+
+# ------------------------------------------------------------------ extract
+
+def _query_images(ctx: Any, desc: str, check: Any) -> Any:
+    """(path, grey image) of each readable query image. With ``query.on_error: skip`` an
+    image that cannot be read or has the wrong size is left out with a warning (and listed
+    in the artifact's ``skipped``); otherwise its error stops the run."""
+    images = ctx.images["query"]
+    skipped = ctx.skipped = []
+    for path in ctx.progress(images.paths, total=len(images), desc=desc):
+        try:
+            gray = read_gray(path)
+            check(path, gray)
+        except ImageError as exc:
+            if images.on_error != "skip":
+                raise
+            log.warning("skipped: %s", exc)
+            skipped.append(str(exc))
+            continue
+        yield path, gray
+
+
+
+def extract(ctx: Any) -> None:
+    p = ctx.params
+    cam = _camera(p)
+    kind = p.query_kind
+    headings = [float(hd) for hd in p.grid.headings] if kind == "equirect" else [math.nan]
+    lines, pts_all, desc_all, offsets, names = [], [], [], [0], []
+    first: list[tuple[int, ...]] = []
+    qcam = None
+    if kind == "panorama":
+        _extract_panoramas(ctx)
+        return
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, cam, kind)
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD + AKAZE", check):
+        names.append(path.name)
+        if kind == "equirect":
+            # Cut views at twice the database resolution, so LSD sees enough detail.
+            qcam = Camera(cam.width * 2, cam.height * 2, cam.hfov_deg)
+            views = [equirect_to_pinhole(gray, hd, qcam) for hd in headings]
+        else:
+            qcam = Camera(gray.shape[1], gray.shape[0], cam.hfov_deg)
+            views = [gray]
+        lines.append(pack(np.stack([line_image(v, cam, min_length=p.lsd_min_length_px, thickness=p.query_thickness_px)
+                                    for v in views])))
+        pts, desc = ca_mod.akaze(views[0], p.ca.akaze_threshold)
+        pts_all.append(pts)
+        desc_all.append(desc)
+        offsets.append(offsets[-1] + len(pts))
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": names,
+                         "kp_pts": np.concatenate(pts_all), "kp_desc": np.concatenate(desc_all),
+                         "kp_offsets": np.asarray(offsets, dtype=np.int64), "skipped": ctx.skipped})
+    ctx.out.attrs.update(width=cam.width, height=cam.height, query_width=qcam.width, query_height=qcam.height,
+                         query_focal=qcam.focal, query_kind=kind)
+
+
+def _no_queries_left(ctx: Any, names: list[str]) -> None:
+    if not names:
+        raise ImageError(f"{ctx.images['query'].source}: none of the {len(ctx.images['query'])} query images could be used "
+                         f"(first problem: {ctx.skipped[0] if ctx.skipped else 'none'}); fix or replace them")
+
+
+def _extract_panoramas(ctx: Any) -> None:
+    """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
+    pp = ctx.params.panorama
+    lines, names = [], []
+    first: list[tuple[int, ...]] = []
+
+    def check(path: Path, gray: np.ndarray) -> None:
+        check_query_size(path, gray.shape, first[0] if first else None, Camera(2, 2, 90.0), "equirect")
+        if not first:
+            first.append(gray.shape[:2])
+
+    for path, gray in _query_images(ctx, "LSD on cube faces", check):
+        names.append(path.name)
+        img = panorama_line_image(gray, width=pp.width, height=pp.height, face_px=pp.face_px, min_length=pp.lsd_min_length_px)
+        lines.append(pack(img[None]))
+    _no_queries_left(ctx, names)
+    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": names,
+                         "kp_pts": np.zeros((0, 2), np.float32), "kp_desc": np.zeros((0, 61), np.uint8),
+                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64), "skipped": ctx.skipped})
+    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[0][1]), query_height=int(first[0][0]),
+                         query_focal=0.0, query_kind="panorama")
+
+
+# ------------------------------------------------------------------ localize
+
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Best (grid row, plan position, heading, score) of each panorama, every position and
+    yaw scored; then, with ``panorama.refine_candidates`` and the chamfer score, the best distinct positions are
+    re-scored on a finer local grid rendered on the spot (the grid step is coarse next to
+    the differences between look-alike rooms) and the best refined pose is kept."""
+    pp = ctx.params.panorama
+    h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
+    lines = unpack(ex["lines"][()][:, 0], h, w)
+    n = len(lines)
+    best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    poses = idx["poses"][()]
+    src = ctx.artifact("build-dictionary")
+    segs, faces = src["segments"][()], src["faces"][()]
+    if pp.score == "chamfer":
+        raw = src["db"][()]
+        close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
+    else:
+        bits, counts = _dilated_bits(ctx, idx), idx["counts"][()]
+
+    def table_of(k: int, db_raw: np.ndarray | None = None) -> np.ndarray:
+        if db_raw is None:
+            if pp.score == "chamfer":
+                return chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
+            return iou_yaw_scores(bits, counts, lines[k])
+        return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
+                                  tau_px=pp.chamfer_tau_px)
+
+    margin = float(ctx.params.grid.wall_margin_m)
+    refined_xy = np.full((n, 2), np.nan)
+    for k in ctx.progress(range(n), total=n, desc="panorama search"):
+        table = table_of(k)
+        best[k], shift, score[k] = best_pose(table)
+        heading[k] = shift * 360.0 / w
+        if pp.refine_candidates <= 0 or pp.score != "chamfer":
+            continue  # eq. (1) on dilated lines is flat over a few centimetres: the paper's score stays on the grid
+        for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                     min_separation_m=pp.refine_separation_m):
+            pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
+            if len(faces):  # not through a wall: as far from every wall as the grid keeps its positions
+                pts = pts[wall_distance(pts, faces) >= min(margin, float(wall_distance(poses[c:c + 1, :2], faces)[0]))]
+            local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
+            sub = table_of(k, render_panoramas(segs, faces, local, width=w, height=h, hidden=bool(ctx.params.hidden_lines)))
+            i, s_shift, s = best_pose(sub)
+            if s > score[k]:
+                # the grid row stays that of the candidate; the position is the refined one
+                best[k], heading[k], score[k] = c, s_shift * 360.0 / w, s
+                refined_xy[k] = pts[i]
+    est = poses[best, :2].copy()
+    ok = ~np.isnan(refined_xy[:, 0])
+    est[ok] = refined_xy[ok]
+    return best, est, heading, score
+
+
+def localize(ctx: Any) -> None:
+    p = ctx.params
+    c = p.ca
+    idx = ctx.artifact("index")
+    ex = ctx.artifact("extract")
+    if (int(ex.attrs["width"]), int(ex.attrs["height"])) != (int(idx.attrs["width"]), int(idx.attrs["height"])):
+        raise _stage_error(ValueError("extract and index line images differ in size: re-run extract (--force)"))
+    poses = idx["poses"][()]
+    if str(ex.attrs["query_kind"]) == "panorama" or str(idx.attrs.get("kind", "pinhole")) == "panorama":
+        if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
+            raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
+        return
+    scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
+                    shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
+    lines = ex["lines"][()]
+    names = read_strings(ex["names"])
+    n = len(names)
+    umap_best = np.zeros(n, dtype=np.int64)
+    umap_score = np.zeros(n)
+    for k in ctx.progress(range(n), total=n, desc="UMap search"):
+        umap_best[k], umap_score[k] = scorer.best(lines[k])
+    best, score = umap_best.copy(), umap_score.copy()
+    ca_dist = np.full(n, np.nan)
+    radius = np.full(n, np.nan)
+    n_kept = np.zeros(n, dtype=np.int64)
+    anchor = int(np.argmax(umap_score))
+    if p.mode == "umap+ca":
+        sensor = read_sensor_csv(p.sensor_csv, names)
+        laser_d = np.array([sensor[nm][0] for nm in names])
+        laser_theta = np.array([sensor[nm][1] for nm in names])
+        wall_right = c.wall_side == "right"
+        steps = ca_steps(ex["kp_pts"][()], ex["kp_desc"][()], ex["kp_offsets"][()], laser_d, laser_theta,
+                         focal=float(ex.attrs["query_focal"]), width=int(ex.attrs["query_width"]),
+                         hfov_deg=float(idx.attrs["hfov_deg"]), tracker=c.tracker, formula=c.formula, phi_deg=c.phi_deg,
+                         wall_right=wall_right, vote_tol_m=c.vote_tol_m, vote_rel_tol=c.vote_rel_tol,
+                         reliable_matches=c.reliable_matches, reliable_ratio=c.reliable_ratio, bin_px=c.bin_px,
+                         min_matches=c.min_matches)
+        ca_dist, n_kept = steps.distance, steps.matches
+        faces = ctx.artifact("build-dictionary")["faces"][()]
+        # Anchor: the paper starts from the frame with the best UMap score ("best"); "chain"
+        # starts a chain from every frame's UMap estimate and keeps the chain with the highest
+        # summed score, so one confidently wrong frame cannot carry the whole sequence off.
+        anchors = [anchor] if c.anchor == "best" else list(np.argsort(-umap_score, kind="stable"))
+        best_total = -1.0
+        for a in ctx.progress(anchors, total=len(anchors), desc="CA chains"):
+            if c.tracker == "robust":
+                b, s, r = ca_track(int(a), umap_best, umap_score, steps.step, steps.reliable, steps.theta, poses, lines, scorer,
+                                   error_mean_m=c.error_mean_m, error_std_m=c.error_std_m,
+                                   fallback_radius_m=c.fallback_radius_m, fallback_step_m=c.fallback_step_m,
+                                   wall_right=wall_right, keep_heading=c.keep_heading, tie_tol=c.tie_tol,
+                                   recover_ratio=c.recover_ratio, laser_tol_m=c.laser_tol_m, alt=steps.alt,
+                                   laser=(laser_d, laser_theta, faces) if c.use_laser else None)
+            else:
+                b, s, r = ca_chain(int(a), umap_best, umap_score, ca_dist, poses, lines, scorer,
+                                   error_mean_m=c.error_mean_m, error_std_m=c.error_std_m,
+                                   fallback_radius_m=c.fallback_radius_m, keep_heading=c.keep_heading)
+            if s.sum() > best_total:
+                best_total, anchor = float(s.sum()), int(a)
+                best, score, radius = b, s, r
+    est = poses[best]
+    write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": est[:, 3],
+                         "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
+                         "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
+    ctx.out.attrs.update(mode=p.mode, anchor=anchor)
+    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
+        for k in range(n):
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{est[k, 3]:.1f}", f"{score[k]:.5f}",
+                        "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
+
+
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, xy: np.ndarray,
+                              heading: np.ndarray, score: np.ndarray) -> None:
+    n = len(names)
+    est = np.column_stack([xy, poses[best, 2:]])
+    nan = np.full(n, np.nan)
+    write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
+                         "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
+                         "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
+    ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
+    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "heading_deg", "score"])
+        for k in range(n):
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
+
+
+# ------------------------------------------------------------------ evaluate
+
+def evaluate(ctx: Any) -> None:
+    from placeloc.evaluation import write_metrics
+
+    gt_cfg = ctx.config["ground_truth"]
+    if gt_cfg["kind"] != "poses":
+        raise ConfigError(f"ground_truth.kind is {gt_cfg['kind']!r}; UMap is scored against poses: set ground_truth.kind: poses "
+                          "and ground_truth.path to a CSV with frame, x, y")
+    loc = ctx.artifact("localize")
+    names = read_strings(loc["names"])
+    gt = read_poses(gt_cfg["path"], what="ground-truth poses")
+    truth = gt.xy[gt.rows_for_names(names, what="query frames")]
+    est = np.stack([loc["x"][()], loc["y"][()]], axis=1)
+    err = np.hypot(*(est - truth).T)
+    rows = gt.rows_for_names(names, what="query frames")
+    yaw_err = yaw_errors(loc["heading_deg"][()], np.degrees(gt.heading[rows])) if gt.heading is not None else None
+    metrics = error_metrics(err)
+    metrics.update(recall_metrics(err, yaw_err))
+    metrics["mode"] = str(loc.attrs["mode"])
+    write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
+    write_metrics(ctx.run_dir, metrics, ctx.out)
+    if ctx.config.get("plots", True):
+        plan = ctx.artifact("build-dictionary")
+        polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
+        plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
+        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
+                               np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
+        ex = ctx.artifact("extract")
+        if str(ex.attrs["query_kind"]) == "panorama":
+            _panorama_pictures(ctx, ex, plan, loc, gt, rows, err)
+
+
+# pictures of the first panoramas only: one PNG each
+PANORAMA_PICTURES = 12
+
+
+def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
+    h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+    segs, faces = plan["segments"][()], plan["faces"][()]
+    z = float(ctx.artifact("index")["poses"][0, 2])
+    names = read_strings(loc["names"])
+    est_h = loc["heading_deg"][()]
+    for k in range(min(len(names), PANORAMA_PICTURES)):
+        query = unpack(ex["lines"][k, 0], h, w)
+        est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
+        at_est = unpack(render_panoramas(segs, faces, est_pose, width=w, height=h, hidden=True), h, w)[0]
+        at_truth = None
+        if gt.heading is not None:
+            tz = float(gt.z[rows[k]]) if gt.z is not None else z
+            true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
+            at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
+        # each render is in the frame of a camera at its own heading, as the query is in its own
+        plot_panorama_overlay(ctx.run_dir / f"panorama_{Path(names[k]).stem}.png", query, at_est, at_truth,
+                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
+
+
+# Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).
+LOCALIZE_CA_KEYS = tuple(f"ca.{k}" for k in (
+    "formula", "wall_side", "phi_deg", "error_mean_m", "error_std_m", "bin_px", "min_matches", "fallback_radius_m", "anchor",
+    "keep_heading", "tracker", "vote_tol_m", "vote_rel_tol", "reliable_matches", "reliable_ratio", "tie_tol", "recover_ratio",
+    "fallback_step_m", "laser_tol_m", "use_laser"))
+
+METHOD = Method(
+    name="umap",
+    params=UMapParams,
+    stages={
+        "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
+                                        "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
+                                        "panorama.lsd_min_length_px")),
+        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+                                                          "panorama.width", "panorama.height", "tolerance_px")),
+        "index": Stage(index, keys=("tolerance_px",)),
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+                                          "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
+                                          "grid.wall_margin_m")
+                          + LOCALIZE_CA_KEYS),
+        "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
+    },
+    required_images=("query",),
+    checker=_check,
+    citation="K. Takahashi, J. Takahashi, T. Kaneko and Y. Tobe, \"Improving pre-map indoor localization by comparing "
+             "consecutive images\" (Universal Map with Consistency Adjustment)",
+)

@@ -81,6 +81,14 @@ class StageContext:
     # The method's parameter object (see placeloc.params), built once per run.
     params: Any = None
 
+    def output(self, name: str) -> Path:
+        """Where this stage writes the side output ``name`` (CSV, JSON, PNG, HTML).
+
+        Stages write side outputs only through this path, so the runner decides where they
+        go and when they appear beside the artifact.
+        """
+        return self.run_dir / name
+
     def artifact(self, stage: str) -> h5py.File:
         """Open the artifact of an earlier stage read-only (closed by the runner)."""
         path = self.run_dir / f"{stage}.h5"

@@ -36,8 +36,8 @@ def _user_error_types() -> tuple[type, ...]:
     covers missing files, permissions, folders given for files and a full disk."""
     import yaml
 
+    from placeloc.errors import StageError
     from placeloc.images import ImageError
-    from placeloc.runner import StageError
 
     types: list[type] = [ValueError, OSError, yaml.YAMLError, MemoryError, ImageError, StageError]
     cv2 = sys.modules.get("cv2")
@@ -326,9 +326,9 @@ def sweep(config: Path = ConfigArg,
     import yaml
 
     from placeloc.config import ConfigError, apply_override
+    from placeloc.errors import StageError
     from placeloc.experiments.sweep import parse_grid, run_sweep
     from placeloc.images import ImageError
-    from placeloc.runner import StageError
 
     _setup_logging(quiet)
     try:

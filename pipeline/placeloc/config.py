@@ -24,14 +24,11 @@ from typing import Any
 
 import yaml
 
+from placeloc.errors import ConfigError  # noqa: F401 - re-exported: placeloc.config.ConfigError
 from placeloc.params import check_bounds, declared_types
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
-
-
-class ConfigError(ValueError):
-    """A config value is missing, unknown, of the wrong type or points nowhere."""
 
 
 # Sections shared by every method. ``query`` omitted means loop closure within reference.

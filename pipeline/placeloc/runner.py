@@ -34,6 +34,7 @@ from placeloc.artifacts import (
     remove_stale_tmp,
 )
 from placeloc.config import config_hash, to_yaml
+from placeloc.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.runner
 from placeloc.executor import Executor, make_executor, remove_stale_shared
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.interrupts import raise_if_interrupted
@@ -54,14 +55,6 @@ RUN_FILES = ("config.yaml", "log.txt", ".lock")
 CONFIG_HEADER = "# placeloc run config: written by placeloc after the last run that finished without error\n"
 # Non-image files in an image folder that a stage may read implicitly (poses, timestamps).
 SIDECAR_SUFFIXES = (".csv", ".txt", ".json", ".yaml", ".yml")
-
-
-class StageError(RuntimeError):
-    """A stage cannot run (missing parent, bad input); the message says what to do."""
-
-
-class RunDirError(StageError):
-    """The run directory cannot be used (locked by another run, an image folder, a foreign config.yaml)."""
 
 
 @dataclass

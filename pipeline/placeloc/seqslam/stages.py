@@ -183,7 +183,7 @@ def evaluate(ctx: Any) -> None:
     q_group = ex["reference" if loop_closure else "query"]
     q_index = q_group["index"][()]
     if ctx.config["ground_truth"]["kind"] == "none":
-        from placeloc.runner import StageError
+        from placeloc.errors import StageError
 
         raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv, hdf5 or poses); "
                          "`placeloc show RUN_DIR` draws the matches without it")

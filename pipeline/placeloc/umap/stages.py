@@ -78,7 +78,7 @@ def _check(config: dict[str, Any]) -> None:
 
 
 def _stage_error(exc: Exception) -> Exception:
-    from placeloc.runner import StageError
+    from placeloc.errors import StageError
 
     return StageError(str(exc))
 

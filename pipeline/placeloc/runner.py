@@ -127,6 +127,8 @@ def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
         if section and section.get("images"):
             sets[role] = list_images(section["images"], section.get("on_error", "stop"),
                                      fingerprint=section.get("fingerprint", "stat"))
+            for message in sets[role].skipped:  # link loops found while listing (on_error: skip)
+                log.warning("skipped: %s", message)
     return sets
 
 

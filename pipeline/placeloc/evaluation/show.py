@@ -84,14 +84,15 @@ def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
 
 
 def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
-    import cv2
+    from placeloc.images import ImageError, read_rgb
 
     if path is None:
         return np.full((*shape, 3), 235, np.uint8)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
+
+    try:
+        return read_rgb(path)  # upright (EXIF orientation), as the stages saw it
+    except ImageError:
         return np.full((*shape, 3), 200, np.uint8)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def pick_sample(n: int, count: int) -> list[int]:

@@ -162,3 +162,187 @@ def test_symlink_loop_names_the_link_and_on_error_skip_skips_it(route, tmp_path)
     assert loop not in images.paths and len(images.skipped) == 1
     res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "s"), "-q", "--set", "query.on_error=skip"])
     assert res.exit_code == 0, _err(res)
+
+
+# ----------------------------------------------------------------- 2. side outputs commit with the artifact
+
+EVALUATE_OUTPUTS = ("metrics.json", "per_query.csv", "pr_curve.png", "recall_at_n.png", "difference_matrix.png",
+                    "strips_sample.png", "report.html")
+
+
+def _leftovers(run: Path) -> list[str]:
+    """Temporary files or staging folders anywhere in the run directory."""
+    return [str(p.relative_to(run)) for p in run.rglob("*") if ".tmp" in p.name]
+
+
+def test_a_folder_where_report_html_goes_fails_cleanly_and_mixes_nothing(route, tmp_path):
+    """mkdir RUN/report.html, then a run whose evaluate re-runs: it stops with one line
+    naming the folder, and no side output of the failed evaluate appears beside the
+    artifacts and config.yaml of the earlier run."""
+    run = tmp_path / "R"
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
+    assert res.exit_code == 0, _err(res)
+    assert all((run / n).is_file() for n in EVALUATE_OUTPUTS)
+    config_before = (run / "config.yaml").read_text()
+    (run / "report.html").unlink()
+    (run / "report.html").mkdir()
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q", "--set", "ground_truth.recall_at=[1, 2]"])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert f"{run / 'report.html'} is a folder" in lines[0] and "rmdir" in lines[0]
+    # all of evaluate's outputs went together with its artifact: none from the failed run
+    assert [n for n in EVALUATE_OUTPUTS[:-1] if (run / n).exists()] == [] and not (run / "evaluate.h5").exists()
+    assert (run / "config.yaml").read_text() == config_before and _leftovers(run) == []
+    (run / "report.html").rmdir()
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q", "--set", "ground_truth.recall_at=[1, 2]"])
+    assert res.exit_code == 0 and all((run / n).is_file() for n in EVALUATE_OUTPUTS)
+    assert '"standard_recall_at_2"' in (run / "metrics.json").read_text()
+
+
+def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, tmp_path, monkeypatch):
+    """The disk fills while evaluate saves its difference-matrix picture (after metrics.json
+    and per_query.csv were written): one line, and nothing of that evaluate in the run dir."""
+    import errno
+
+    import matplotlib.figure
+
+    run = tmp_path / "R"
+    real = matplotlib.figure.Figure.savefig
+
+    def full(self, fname, *a, **k):
+        if "difference_matrix" in str(fname):
+            Path(fname).write_bytes(b"\x89PNG half")
+            raise OSError(errno.ENOSPC, "No space left on device", str(fname))
+        return real(self, fname, *a, **k)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: no space left on "), lines
+    assert f"while writing {run}/difference_matrix.png" in lines[0], lines
+    assert (run / "localize.h5").is_file() and (run / "matches.csv").is_file()  # localize finished and committed
+    assert [n for n in EVALUATE_OUTPUTS if (run / n).exists()] == [] and not (run / "evaluate.h5").exists()
+    assert _leftovers(run) == []
+
+
+def test_a_localize_that_fails_leaves_no_matches_csv(route, tmp_path, monkeypatch):
+    """Ctrl-C right after localize wrote matches.csv (before its artifact was complete):
+    no matches.csv appears, and the next run resumes from extract."""
+    import placeloc.seqslam.matches_csv as matches_csv
+
+    real = matches_csv.write_matches_csv
+
+    def then_interrupt(path, **k):
+        real(path, **k)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(matches_csv, "write_matches_csv", then_interrupt)
+    run = tmp_path / "R"
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
+    assert res.exit_code == 130 and _err(res).strip() == "interrupted; rerun to resume"
+    assert (run / "extract.h5").is_file() and not (run / "localize.h5").exists()
+    assert not (run / "matches.csv").exists() and _leftovers(run) == []
+    monkeypatch.undo()
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
+    assert res.exit_code == 0 and (run / "matches.csv").is_file()
+
+
+def test_forced_rerun_that_fails_keeps_the_previous_complete_set(route, tmp_path, monkeypatch):
+    """--force on the same inputs: until the new results are complete, the old artifact and
+    all its side outputs stay exactly as they were."""
+    import placeloc.seqslam.stages as stages
+
+    run = tmp_path / "R"
+    cfg = load_config(route / "config.yaml")
+    from placeloc.runner import run_all, run_stage
+
+    run_all(cfg, run, quiet=True)
+    before = {n: (run / n).read_bytes() for n in EVALUATE_OUTPUTS + ("evaluate.h5",)}
+
+    def broken(ctx):
+        (ctx.output("metrics.json")).write_text("{}")
+        raise RuntimeError("fails halfway")
+
+    import dataclasses
+
+    monkeypatch.setitem(stages.METHOD.stages, "evaluate", dataclasses.replace(stages.METHOD.stages["evaluate"], run=broken))
+    with pytest.raises(RuntimeError):
+        run_stage(cfg, run, "evaluate", force=True, quiet=True)
+    assert {n: (run / n).read_bytes() for n in before} == before and _leftovers(run) == []
+
+
+def test_stale_staging_folder_of_a_killed_run_is_removed(route, tmp_path):
+    from placeloc.runner import run_all
+
+    run = tmp_path / "R"
+    stale = run / ".evaluate.outputs.tmp-999999999"
+    stale.mkdir(parents=True)
+    (stale / "metrics.json").write_text("{}")
+    run_all(load_config(route / "config.yaml", ["plots=false"]), run, quiet=True)
+    assert not stale.exists() and _leftovers(run) == []
+
+
+# ----------------------------------------------------------------- 3. nothing hangs
+
+def _children(pid: int) -> list[int]:
+    import psutil
+
+    try:
+        return [c.pid for c in psutil.Process(pid).children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _start_pooled_run(tmp_path: Path, frames: int = 600):
+    import subprocess
+    import time
+
+    import psutil
+
+    from placeloc.synth.route import generate
+
+    generate(tmp_path / "data", seed=2, frames=frames)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+                      "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
+    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        with __import__("contextlib").suppress(psutil.Error):
+            if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in _children(proc.pid)) >= 2:
+                break
+        time.sleep(0.1)
+    time.sleep(0.3)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    return proc, tmpdir
+
+
+@pytest.mark.parametrize("gap", [0.15, 0.02])
+def test_double_ctrl_c_during_a_pooled_stage_exits_at_once(tmp_path, gap):
+    """Two Ctrl-C in quick succession (a terminal sends them to the whole group): one line,
+    rc 130, the process and its workers gone within a few seconds."""
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    proc, tmpdir = _start_pooled_run(tmp_path)
+    family = _children(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    t0 = time.perf_counter()
+    time.sleep(gap)
+    with __import__("contextlib").suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=8)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("placeloc did not exit within 8 s of a double Ctrl-C")
+    assert time.perf_counter() - t0 < 5
+    assert proc.returncode == 130 and err.strip() == "interrupted; rerun to resume", err
+    time.sleep(0.5)
+    alive = [p for p in family if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    assert alive == [] and list(tmpdir.glob("placeloc-shared-*")) == []

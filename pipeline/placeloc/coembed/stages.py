@@ -168,7 +168,7 @@ def localize(ctx) -> None:  # noqa: ANN001
             g.create_dataset("label_steps", data=obs.step_ids[rows])
             if phead is not None:
                 g.create_dataset("heading", data=phead)
-            write_path_csv(ctx.run_dir / "path.csv", obs.step_ids, pxy, phead, obs.step_ids[rows])
+            write_path_csv(ctx.output("path.csv"), obs.step_ids, pxy, phead, obs.step_ids[rows])
     elif p.solver == "isomap":
         from placeloc.coembed.isomap import isomap_features
 
@@ -197,7 +197,7 @@ def localize(ctx) -> None:  # noqa: ANN001
     out.create_dataset("is_landmark", data=np.isin(obs.feature_ids, lid))
     for k, v in info.items():
         out.attrs[k] = v
-    write_map_csv(ctx.run_dir / "map.csv", obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
+    write_map_csv(ctx.output("map.csv"), obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
 
 
 def evaluate(ctx) -> None:  # noqa: ANN001
@@ -235,14 +235,14 @@ def evaluate(ctx) -> None:  # noqa: ANN001
         metrics.update(found)
         if path_truth is None:
             path_est = None
-    write_metrics(ctx.run_dir, metrics, ctx.out)
+    write_metrics(ctx.output_dir, metrics, ctx.out)
     if ctx.config.get("plots", True) and est_eval is not None:
         name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
         if p.solver == "coembed" and p.camera_model != "linear":
             name += f" ({p.camera_model} camera)"
         title = (f"{name}, top view: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} map units\n"
                  f"({metrics['n_evaluated']} unknown features, {metrics['n_landmarks']} landmarks)")
-        plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
+        plot_map(ctx.output("map.png"), est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
                  units="map units")
 
 

@@ -13,11 +13,20 @@ import numpy as np  # noqa: E402
 
 
 def _save(fig: plt.Figure, path: Path) -> Path:
+    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
+    a failed save (a full disk) leaves no temporary file either."""
+    import os
+
+    from placeloc.artifacts import TMP_MARK
+
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
     return path
 
 

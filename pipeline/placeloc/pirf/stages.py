@@ -312,7 +312,7 @@ def stage_evaluate(ctx: Any) -> None:
                 v = tuned[f"tuned_{k}"]
                 m[f"{prefix}_{k}"] = v.item() if hasattr(v, "item") else v
     r_names = _frames(ex, "reference")[0]
-    write_loop_closures(ctx.run_dir / "loop_closures.csv", lc_f, lc_n, lc_s, r_names, r_xy, radius)
+    write_loop_closures(ctx.output("loop_closures.csv"), lc_f, lc_n, lc_s, r_names, r_xy, radius)
     if backend in loc:
         a = loc[backend]
         m["mt_seconds_ann"] = float(np.mean(a["mt_seconds"][()]))
@@ -332,14 +332,14 @@ def stage_evaluate(ctx: Any) -> None:
                 if name in results:
                     for gap in (0, 1, 2):
                         m[f"accuracy_gap{gap}{suffix}"] = accuracy_at_gap(results[name][0], q_xy, r_xy, radius, gap)
-        write_localization(ctx.run_dir / "localization.csv", results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
-    metrics = write_metrics(ctx.run_dir, m, ctx.out)
+        write_localization(ctx.output("localization.csv"), results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
+    metrics = write_metrics(ctx.output_dir, m, ctx.out)
     if ctx.config.get("plots", True) and r_xy is not None:
-        plot_loop_closures(ctx.run_dir / "loop_closures.png", r_xy, lc_f, lc_n, correct, radius)
+        plot_loop_closures(ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
         _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius)
         if metrics.get("accuracy_gap0") is not None:
             bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
-            plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
+            plot_accuracy_gap(ctx.output("accuracy_gap.png"), [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
 
 
 def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
@@ -361,7 +361,7 @@ def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
 def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
     """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
     the earlier frame that truly stands nearest."""
-    path = ctx.run_dir / "wrong_loop_closures.png"
+    path = ctx.output("wrong_loop_closures.png")
     images = ctx.images.get("reference")
     if not len(frames) or images is None:
         path.unlink(missing_ok=True)

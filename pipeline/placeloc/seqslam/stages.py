@@ -162,7 +162,7 @@ def localize(ctx: Any) -> None:
     out.attrs["loop_closure"] = loop_closure
     out.attrs["velocities"] = m.velocities
     q_group = ex["reference" if loop_closure else "query"]
-    write_matches_csv(ctx.run_dir / "matches.csv", best=m.candidates[:, 0], confidence=m.confidence,
+    write_matches_csv(ctx.output("matches.csv"), best=m.candidates[:, 0], confidence=m.confidence,
                       query_index=q_group["index"][()], query_names=read_strings(q_group["names"]),
                       reference_index=ex["reference/index"][()], reference_names=read_strings(ex["reference/names"]))
 
@@ -259,26 +259,26 @@ def evaluate(ctx: Any) -> None:
     for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
         pr_group.create_dataset(name, data=arr)
     ctx.out.create_dataset("correct", data=s.best_correct)
-    write_metrics(ctx.run_dir, metrics, ctx.out)
-    matching.write_per_query_csv(ctx.run_dir / "per_query.csv", s, q_names, ref_names)
+    write_metrics(ctx.output_dir, metrics, ctx.out)
+    matching.write_per_query_csv(ctx.output("per_query.csv"), s, q_names, ref_names)
 
     if ctx.config.get("plots", True):
         label = f"SeqSLAM {p.comparison} ds={ds}"
         plots.plot_pr_curves({label: (s.pr.recall, s.pr.precision),
                               "single image": (single_s.pr.recall, single_s.pr.precision)},
-                             ctx.run_dir / "pr_curve.png", title=f"Precision-recall, {p.comparison}, {n_q} queries")
+                             ctx.output("pr_curve.png"), title=f"Precision-recall, {p.comparison}, {n_q} queries")
         plots.plot_recall_at_n({f"{label}, standard": (ns, [metrics[f"standard_recall_at_{n}"] for n in ns]),
                                 f"{label}, separated by > {window} frames": (ns, [metrics[f"separated_recall_at_{n}"]
                                                                                   for n in ns])},
-                               ctx.run_dir / "recall_at_n.png", title=f"Recall@N over all {n_q} queries")
+                               ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
         if plot_raw:
             plots.plot_difference_matrices(
                 {"D (raw)": np.concatenate(plot_raw, axis=1), f"D^ (enhanced, R_window={window})": np.concatenate(plot_enh, axis=1)},
-                ctx.run_dir / "difference_matrix.png", matches=s.best, correct=s.best_correct, gt_lo=band[0], gt_hi=band[1],
+                ctx.output("difference_matrix.png"), matches=s.best, correct=s.best_correct, gt_lo=band[0], gt_hi=band[1],
                 stride=(sr, sq), title=f"SeqSLAM {p.comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
                                        f"search={p.search}, R_window={window}; recall@1 {metrics['recall_at_1']:.3f}")
-        show.draw_strips(ctx.run_dir)
-        report.write_report(ctx.run_dir, config=ctx.config)
+        show.draw_strips(ctx.run_dir, out_dir=ctx.output_dir)
+        report.write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir)
 
 
 METHOD = Method(

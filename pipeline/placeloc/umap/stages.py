@@ -403,7 +403,7 @@ def localize(ctx: Any) -> None:
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
     ctx.out.attrs.update(mode=p.mode, anchor=anchor)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
         for k in range(n):
@@ -420,7 +420,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], bes
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score"])
         for k in range(n):
@@ -448,12 +448,12 @@ def evaluate(ctx: Any) -> None:
     metrics.update(recall_metrics(err, yaw_err))
     metrics["mode"] = str(loc.attrs["mode"])
     write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
-    write_metrics(ctx.run_dir, metrics, ctx.out)
+    write_metrics(ctx.output_dir, metrics, ctx.out)
     if ctx.config.get("plots", True):
         plan = ctx.artifact("build-dictionary")
         polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
-        plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
-        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
+        plot_error_cdf(ctx.output("error_cdf.png"), err, metrics["mode"])
+        plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), truth, est, polys, plan["segments"][()], metrics["mode"],
                                np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
         ex = ctx.artifact("extract")
         if str(ex.attrs["query_kind"]) == "panorama":
@@ -480,7 +480,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
             true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
             at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
         # each render is in the frame of a camera at its own heading, as the query is in its own
-        plot_panorama_overlay(ctx.run_dir / f"panorama_{Path(names[k]).stem}.png", query, at_est, at_truth,
+        plot_panorama_overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), query, at_est, at_truth,
                               f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
 
 

@@ -38,6 +38,7 @@ demo: $(STAMP)
 	$(PL) run configs/demo.yaml --run-dir runs/demo
 	@echo
 	@echo "Results in runs/demo: report.html (open it in a browser), metrics.json, per_query.csv, matches.csv, *.png"
+	@echo "placeloc is in .venv/bin: 'source .venv/bin/activate' puts it on your PATH (then: placeloc --help)"
 	@$(BIN)/python -c "import json; m=json.load(open('runs/demo/metrics.json')); print({k: m[k] for k in ('recall_at_1','auc_pr','recall_at_100_precision','n_queries')})"
 
 test: $(STAMP)

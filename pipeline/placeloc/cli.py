@@ -151,7 +151,13 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
                      wait=wait)
     typer.echo(f"{stage}: {path}")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
+        from placeloc.evaluation.contracts import format_value, headline
+
+        for key, value in headline(path.parent):
+            typer.echo(f"  {key}: {format_value(value)}")
         typer.echo(f"metrics: {path.parent / 'metrics.json'}")
+        if (path.parent / "report.html").is_file():
+            typer.echo(f"report: {path.parent / 'report.html'}")
 
 
 @app.command()
@@ -297,16 +303,16 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
-    """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
+    """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
         _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
     try:
-        strips, report = show_run(run_dir, sample=sample, failures=failures)
-        for path in strips:
-            typer.echo(f"strips: {path}")
+        pictures, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in pictures:
+            typer.echo(f"picture: {path}")
         if recall_at:
             ns = [int(n) for n in recall_at.split(",") if n.strip()]
             for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():

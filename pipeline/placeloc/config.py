@@ -39,7 +39,10 @@ COMMON_DEFAULTS: dict[str, Any] = {
     "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
     # radius: metres for position ground truth (25 m is the VPR-Bench / VPR-methods-evaluation convention).
     # recall_at: the N of Recall@N in metrics.json and the Recall@N curve.
-    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20]},
+    # exclude_recent: loop closures only; a frame is never a loop candidate for the next this-many
+    # frames (the evaluation kit of the public loop-closure sets uses frame rate x 40 s).
+    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20],
+                     "exclude_recent": 50},
     "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
     "plots": True,
 }
@@ -49,7 +52,7 @@ COMMON_CHOICES: dict[str, tuple] = {
     # stat: name, size, mtime of each image (default, cheap); content: a hash of its bytes.
     "reference.fingerprint": ("stat", "content"),
     "query.fingerprint": ("stat", "content"),
-    "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses"),
+    "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses", "matrix"),
     "executor.kind": ("local", "dask"),
 }
 COMMON_PATH_KEYS = ("reference.images", "query.images", "ground_truth.path")
@@ -64,6 +67,7 @@ COMMON_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
     "ground_truth.tolerance": (0, None, False),
     "ground_truth.radius": (0, None, True),
     "ground_truth.recall_at": (1, None, False),
+    "ground_truth.exclude_recent": (0, None, False),
 }
 
 
@@ -195,7 +199,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         if config[role] is not None and config[role]["images"] is not None:
             _check_image_source(config[role]["images"], f"{role}.images")
     gt = config["ground_truth"]
-    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+    if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
@@ -205,9 +209,9 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     problems = config_problems(config)
     if problems:
         raise ConfigError(problems[0])
-    from placeloc.evaluation.ground_truth import check_config
+    from placeloc.evaluation.contracts import check_ground_truth
 
-    check_config(config)  # a bad ground-truth file fails here, before any stage runs
+    check_ground_truth(config)  # the method's result contract checks its ground truth before any stage runs
     return config
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from placeloc.evaluation.metrics import tail_count, tail_mean  # noqa: F401  (re-exported: PIRF reads them here)
+
 
 def set_agreement(ptr_a: np.ndarray, wa: np.ndarray, ptr_b: np.ndarray, wb: np.ndarray) -> dict[str, float]:
     """Jaccard, precision, recall of vectors a (approximate) against b (exact), pooled over frames.
@@ -35,20 +37,6 @@ def loop_closure_correct(xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, 
     if len(frames) == 0:
         return np.zeros(0, bool)
     return np.linalg.norm(xy[frames, :2] - xy[nodes, :2], axis=1) <= radius
-
-
-def tail_count(n: int, fraction: float) -> int:
-    """How many of ``n`` per-frame values the last ``fraction`` of a run holds (at least one)."""
-    return max(1, int(round(n * fraction)))
-
-
-def tail_mean(values: np.ndarray, fraction: float) -> float:
-    """Mean of the last ``fraction`` of ``values`` (:func:`tail_count` of them): per-frame
-    mapping cost near the end of a run, where the dictionary is largest."""
-    values = np.asarray(values, np.float64)
-    if len(values) == 0:
-        return float("nan")
-    return float(values[-tail_count(len(values), fraction):].mean())
 
 
 def accuracy_at_gap(best: np.ndarray, q_xy: np.ndarray, r_xy: np.ndarray, radius: float, gap: int) -> float:

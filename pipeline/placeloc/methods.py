@@ -77,10 +77,15 @@ class Method:
     # poses, map). The contract supplies the evaluate stage (unless the method defines one),
     # the up-front ground-truth check, `placeloc show` and the report.
     result: str | None = None
+    # The contract written when the config names no query traverse, if another (SeqSLAM: loops).
+    result_without_query: str | None = None
     # Optional hook(ctx, evaluation) run by the contract's evaluate after scoring: the method's
     # own metrics and figures. evaluate_keys: the method parameters the hook reads.
     evaluate_extra: Callable[[Any, Any], None] | None = None
     evaluate_keys: tuple[str, ...] = ()
+    # Where the contract finds ground truth the method's own parameters name (role -> parameter),
+    # e.g. the map contract's {"points": "truth"}; the shared ground_truth section otherwise.
+    truth_keys: dict[str, str] = field(default_factory=dict)
     defaults: dict[str, Any] = field(init=False)
     choices: dict[str, tuple] = field(init=False)
     path_keys: tuple[str, ...] = field(init=False)
@@ -103,6 +108,12 @@ class Method:
             for key in stage.keys:
                 if key not in known:
                     raise ValueError(f"{self.name}.{name} depends on unknown parameter {key!r}")
+
+    def result_kind(self, config: dict) -> str | None:
+        """The result contract this method's localize writes for ``config``."""
+        if self.result_without_query is not None and not (config.get("query") or {}).get("images"):
+            return self.result_without_query
+        return self.result
 
     @property
     def uses_images(self) -> bool:

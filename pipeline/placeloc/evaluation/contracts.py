@@ -195,9 +195,9 @@ def check_ground_truth(config: dict[str, Any]) -> None:
     from placeloc.methods import get_method
 
     method = get_method(config["method"])
-    if method.result is None:
-        return
-    contract(method.result).check_ground_truth(config, method)
+    kind = method.result_kind(config)
+    if kind is not None:
+        contract(kind).check_ground_truth(config, method)
 
 
 def evaluate_stage(ctx: Any) -> None:

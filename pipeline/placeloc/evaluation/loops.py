@@ -201,7 +201,7 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     from placeloc.images import ImageError, list_images
 
     section = config.get("ground_truth") or {}
-    if section.get("kind", "none") == "none" or config.get("query") or not config.get("reference"):
+    if section.get("kind", "none") == "none" or not config.get("reference"):
         return
     try:
         frames = list_images(config["reference"]["images"])

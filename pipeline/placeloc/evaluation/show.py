@@ -74,7 +74,7 @@ def _num(text: str) -> float:
         return float("nan")
 
 
-def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
+def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, Path], dict[str, Path]]:
     from placeloc.evaluation.report import run_config
     from placeloc.images import ImageError, list_images
 
@@ -92,7 +92,7 @@ def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
             return {}
 
     ref = names("reference")
-    query = names("query") or ref
+    query = ref if within_reference else (names("query") or ref)
     return ref, query
 
 
@@ -139,7 +139,7 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
         shape = q_img.shape[:2]
         panels = [(q_img, f"query {r.query_image}", "black"),
                   (_read(ref.get(r.best_image) if r.best_image else None, shape),
-                   f"best {r.best_image}  conf {r.confidence:.2f}" if r.best_image else "best: none (no full sequence)",
+                   f"best {r.best_image}  conf {r.confidence:.3g}" if r.best_image else "best: none (no full sequence)",
                    "grey" if r.correct is None else ("limegreen" if r.correct else "red"))]
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),
@@ -169,7 +169,7 @@ def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows
     """Write the sample strips (and, with ground truth, the worst failures); return paths."""
     run_dir = Path(run_dir)
     rows = read_rows(run_dir) if rows is None else rows
-    ref, query = _folders(run_dir)
+    ref, query = _folders(run_dir, within_reference=what == "loop closures")
     out: list[Path] = []
     with_gt = any(r.correct is not None for r in rows)
     picks = pick_sample(len(rows), sample)

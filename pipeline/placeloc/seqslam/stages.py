@@ -295,6 +295,7 @@ METHOD = Method(
                                           "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
     },
     result="ranked",
+    result_without_query="loops",
     evaluate_extra=evaluate_extra,
     evaluate_keys=("comparison", "ds", "search", "enhance_window", "sequence_shape", "edges", "descriptors_reference",
                    "descriptor_distance"),

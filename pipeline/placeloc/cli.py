@@ -268,7 +268,8 @@ def compare(config: Path = ConfigArg,
 
 
 @app.command()
-def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary."),
+def experiment(name: str = typer.Argument(..., help="Experiment: one of the modules of placeloc/experiments/ with a main() "
+                                                   "(seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary, ...)."),
                out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:

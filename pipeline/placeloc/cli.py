@@ -7,7 +7,9 @@ stages that are up to date are skipped.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -76,6 +78,7 @@ class ErrorBoundaryGroup(TyperGroup):
     """
 
     def invoke(self, ctx: Any) -> Any:
+        _announced.clear()  # one "interrupted" line per command, also when commands run in one process (tests, API)
         try:
             result = super().invoke(ctx)
             raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
@@ -83,7 +86,7 @@ class ErrorBoundaryGroup(TyperGroup):
         except (typer.Exit, typer.Abort, ClickException):
             raise
         except KeyboardInterrupt as exc:
-            typer.echo("interrupted; rerun to resume", err=True)
+            _announce_interrupt()
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
             if classify(exc) == "user":
@@ -286,8 +289,70 @@ def experiment(name: str = typer.Argument(..., help="Experiment: one of the modu
 
 
 def main() -> None:
-    install_signal_handlers()
-    app()
+    install_signal_handlers(on_repeat=_second_signal)
+    try:
+        app()
+    except SystemExit as exc:
+        from placeloc.interrupts import received
+
+        if received() is not None:
+            _exit_now(exc.code if isinstance(exc.code, int) else 130)
+        raise
+
+
+_announced: list[bool] = []
+
+
+def _announce_interrupt() -> None:
+    if not _announced:
+        _announced.append(True)
+        typer.echo("interrupted; rerun to resume", err=True)
+
+
+def _second_signal(signum: int) -> None:
+    """A second Ctrl-C (or SIGTERM) while the first is being handled: say it once, remove
+    this process's shared arrays, kill the workers and leave now (temporary files in the
+    run directory are removed by the next run)."""
+    import shutil
+    import signal
+    import tempfile
+
+    from placeloc.executor import SHARED_PREFIX
+
+    _announce_interrupt()
+    for folder in Path(tempfile.gettempdir()).glob(f"{SHARED_PREFIX}{os.getpid()}-*"):
+        shutil.rmtree(folder, ignore_errors=True)
+    _exit_now(143 if signum == signal.SIGTERM else 130)
+
+
+def _exit_now(code: int) -> None:
+    """Leave at once after Ctrl-C or SIGTERM, cleanup done: the run's own ``finally`` blocks
+    have removed temporary files and shared arrays and closed the executor. Python's exit
+    handlers are skipped on purpose: multiprocessing's joins a worker that may be blocked on
+    its queue, and a second Ctrl-C in there left the process waiting for ever. Child
+    processes still alive are killed first (they would die with us anyway: parent-death
+    signal)."""
+    import multiprocessing
+    import multiprocessing.resource_tracker
+    import signal
+
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    logging.shutdown()
+    # What dying threads and processes would print now is noise after our one line (a
+    # pool's manager thread reporting its killed workers, the resource tracker's warning).
+    with contextlib.suppress(OSError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
+    for child in multiprocessing.active_children():
+        with contextlib.suppress(Exception):
+            child.kill()
+    tracker = getattr(multiprocessing.resource_tracker, "_resource_tracker", None)
+    pid = getattr(tracker, "_pid", None)
+    if pid:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -258,9 +258,18 @@ class LocalExecutor(Executor):
             raise WorkItemError(self.kind, fn, (describe or describe_item)(item), exc) from exc
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
-            self._pool = None
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        from placeloc.interrupts import received
+
+        if received() is None:
+            pool.shutdown(cancel_futures=True)
+            return
+        # Interrupted: do not wait for the workers to finish their items (a second Ctrl-C
+        # would land in that wait). The command line then kills them and leaves without
+        # Python's exit handlers, which would join a worker blocked on its queue for ever.
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def make_executor(section: dict[str, Any]) -> Executor:

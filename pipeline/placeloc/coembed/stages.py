@@ -168,7 +168,7 @@ def localize(ctx) -> None:  # noqa: ANN001
             g.create_dataset("label_steps", data=obs.step_ids[rows])
             if phead is not None:
                 g.create_dataset("heading", data=phead)
-            write_path_csv(ctx.run_dir / "path.csv", obs.step_ids, pxy, phead, obs.step_ids[rows])
+            write_path_csv(ctx.output("path.csv"), obs.step_ids, pxy, phead, obs.step_ids[rows])
     elif p.solver == "isomap":
         from placeloc.coembed.isomap import isomap_features
 
@@ -204,7 +204,7 @@ def localize(ctx) -> None:  # noqa: ANN001
                path=None if path is None else {"step_ids": path["step_ids"][()], "xy": path["xy"][()],
                                                "heading": path["heading"][()] if "heading" in path else None,
                                                "label_steps": path["label_steps"][()]})
-    write_map_csv(ctx.run_dir / "map.csv", obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
+    write_map_csv(ctx.output("map.csv"), obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
 
 
 def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001

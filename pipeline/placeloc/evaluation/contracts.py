@@ -216,14 +216,16 @@ def evaluate_stage(ctx: Any) -> None:
     for k, v in ev.arrays.items():
         _write_array(ctx.out, k, v)
     ctx.out.attrs["result_kind"] = res.kind
-    write_metrics(ctx.output("metrics.json").parent, ev.metrics, ctx.out)
+    write_metrics(ctx.output_dir, ev.metrics, ctx.out)
     plots = bool(ctx.config.get("plots", True))
     mod.finish(ctx, ev, plots=plots)
     if plots:
         from placeloc.evaluation.report import write_report
 
-        mod.show(ctx.run_dir, res)
-        write_report(ctx.run_dir, config=ctx.config)
+        # side outputs are staged in ctx.output_dir until the stage commits: read and write there
+        if mod.SHOW_AT_EVALUATE:
+            mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
+        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir)
 
 
 def _write_array(group: h5py.Group, name: str, value: Any) -> None:
@@ -247,8 +249,12 @@ def headline(run_dir: str | Path) -> list[tuple[str, Any]]:
             res_kind = result_kind(f)
     if not path.is_file() or res_kind is None:
         return []
-    metrics = json.loads(path.read_text())
-    return [(k, metrics[k]) for k in contract(res_kind).headline(metrics) if k in metrics]
+    return headline_of(res_kind, json.loads(path.read_text()))
+
+
+def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:
+    """The headline figures (name, value) of ``metrics`` for a result of ``kind``."""
+    return [(k, metrics[k]) for k in contract(kind).headline(metrics) if k in metrics]
 
 
 def format_value(v: Any) -> str:

@@ -49,6 +49,9 @@ from placeloc.evaluation.ground_truth import GroundTruthError
 
 log = logging.getLogger("placeloc")
 
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = True
+
 SCHEMA = {
     "frame_index": Field("int", ("N",)),
     "frame_names": Field("str", ("N",)),
@@ -346,11 +349,13 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     return list(metrics.get("headline") or ["recall_at_100_precision", "auc_pr"])
 
 
-def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8) -> list[Path]:
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
     """Strips frame | matched earlier frame | a true earlier one, for the accepted loop
     closures spread over the traverse (and the most confident wrong ones)."""
     from placeloc.evaluation.show import draw_strips, read_rows
 
     run_dir = Path(run_dir)
-    rows = read_rows(run_dir, only_matched=True)
-    return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures")
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    rows = read_rows(out_dir if (out_dir / "per_query.csv").is_file() else run_dir, only_matched=True)
+    return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir)

@@ -23,6 +23,9 @@ import numpy as np
 
 from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
 
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = False
+
 SCHEMA = {
     "feature_ids": Field("int", ("M",)),
     "coords": Field("float", ("M", "D")),
@@ -163,15 +166,17 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     return list(metrics.get("headline") or ["map_rmse"])
 
 
-def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8) -> list[Path]:
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
     """The map against the truth (from per_query.csv when evaluate has run), else the map alone."""
     from placeloc.evaluation.contracts import localize_result
 
     run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
     res = res or localize_result(run_dir)
     coords, is_lm = res["coords"], res["is_landmark"]
     est = truth = None
-    per_query = run_dir / "per_query.csv"
+    per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
     if per_query.is_file():
         rows = list(csv.DictReader(per_query.open(newline="")))
         d = coords.shape[1]
@@ -180,7 +185,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
             truth = np.array([[float(r[f"true_x{i}"]) for i in range(d)] for r in rows])
     if est is None:
         est = truth = coords[~is_lm]
-    path = run_dir / "map.png"
+    path = out_dir / "map.png"
     title = (f"map: {len(est)} features, {int(is_lm.sum())} landmarks" +
              ("" if est is truth else f"; RMSE {np.sqrt(np.mean(np.sum((est - truth) ** 2, axis=1))):.3g} map units"))
     path_xy = res.get("path_xy")
@@ -189,13 +194,22 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
 
 
 def _save(fig: Any, path: Path) -> Path:
+    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
+    a failed save (a full disk) leaves no temporary file either."""
+    import os
+
     import matplotlib.pyplot as plt
 
+    from placeloc.artifacts import TMP_MARK
+
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")   # a killed run never leaves half a PNG
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
     return path
 
 

@@ -23,6 +23,9 @@ import numpy as np
 
 from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
 
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = False
+
 SCHEMA = {
     "names": Field("str", ("Q",)),
     "x": Field("float", ("Q",)),
@@ -180,7 +183,8 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     return list(metrics.get("headline") or ["within_1m", "median_error_m"])
 
 
-def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8) -> list[Path]:
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
     """The estimates on the plan: against the truth when evaluate has run (per_query.csv),
     else the estimates alone."""
     import csv
@@ -188,10 +192,11 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     from placeloc.evaluation.contracts import localize_result
 
     run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
     res = res or localize_result(run_dir)
     est = np.stack([res["x"], res["y"]], axis=1)
     truth = truth_heading = None
-    per_query = run_dir / "per_query.csv"
+    per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
     if per_query.is_file():
         with per_query.open(newline="") as fh:
             rows = {r["frame"]: r for r in csv.DictReader(fh)}
@@ -199,7 +204,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
             truth = np.array([[float(rows[n]["true_x"]), float(rows[n]["true_y"])] for n in res["names"]])
             if all(rows[n]["true_heading_deg"] for n in res["names"]):
                 truth_heading = np.array([float(rows[n]["true_heading_deg"]) for n in res["names"]])
-    path = run_dir / "estimates_on_plan.png"
+    path = out_dir / "estimates_on_plan.png"
     plot_estimates_on_plan(path, truth, est, [], _segments6(res), str(res.attrs.get("label", "estimates")), truth_heading,
                            res["heading_deg"])
     return [path]

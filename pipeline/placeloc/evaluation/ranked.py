@@ -27,6 +27,9 @@ import numpy as np
 
 from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
 
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = True
+
 SCHEMA = {
     "query_index": Field("int", ("Q",)),
     "query_names": Field("str", ("Q",)),
@@ -205,8 +208,10 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     return list(metrics.get("headline") or ["recall_at_1", "auc_pr", "recall_at_100_precision"])
 
 
-def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8) -> list[Path]:
-    """Strips query | best match | a true one (from per_query.csv, else from the result)."""
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
+    """Strips query | best match | a true one (from per_query.csv, else from the result),
+    written into ``out_dir`` (default ``run_dir``)."""
     from placeloc.evaluation.show import draw_strips
 
-    return draw_strips(run_dir, sample=sample, failures=failures)
+    return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir)

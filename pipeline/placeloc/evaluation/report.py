@@ -81,12 +81,12 @@ def _result_kind(run_dir: Path) -> str | None:
     return None if res is None else res.kind
 
 
-def _headline_html(run_dir: Path) -> str:
+def _headline_html(run_dir: Path, metrics: dict[str, Any]) -> str:
     """The headline figures first, as large numbers, with the contract they belong to."""
-    from placeloc.evaluation.contracts import format_value, headline
+    from placeloc.evaluation.contracts import format_value, headline_of
 
     kind = _result_kind(run_dir)
-    figures = headline(run_dir) if kind else []
+    figures = headline_of(kind, metrics) if kind and metrics else []
     if not figures:
         what = f"result: {kind}; " if kind else ""
         return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
@@ -107,20 +107,25 @@ def _metrics_doc(run_dir: Path) -> str:
     return f"<ul class='muted'>{items}</ul>"
 
 
-def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None) -> Path:
-    """Write ``run_dir/report.html`` from what the run directory holds now; ``config`` is the
-    run's config (default: the one stamped in its newest artifact)."""
+def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
+                 out_dir: str | Path | None = None) -> Path:
+    """Write ``report.html`` from what the run directory holds now; ``config`` is the
+    run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
+    ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
+    PNGs staged there by the same stage take the place of the run directory's."""
     run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
-    if (run_dir / "metrics.json").is_file():
-        metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics_path = next((d / "metrics.json" for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
+    if metrics_path is not None:
+        metrics = json.loads(metrics_path.read_text())
     method = cfg.get("method", "?")
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title or run_dir.name)}</title>"
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
-    parts.append(_headline_html(run_dir))
+    parts.append(_headline_html(run_dir, metrics))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
@@ -140,7 +145,8 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
         parts.append("<h2>Metrics</h2>" + _metrics_doc(run_dir) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
-    pngs = sorted(run_dir.glob("*.png"), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
+    found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}
+    pngs = sorted(found.values(), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
     parts.append("<h2>Pictures</h2>")
     for png in pngs:
         data = base64.b64encode(png.read_bytes()).decode("ascii")
@@ -148,7 +154,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     if not pngs:
         parts.append("<p>No pictures in this run directory (plots: false?).</p>")
     parts.append("</body></html>")
-    path = run_dir / REPORT
+    path = out_dir / REPORT
     with atomic_open(path) as fh:
         fh.write("\n".join(parts))
     return path

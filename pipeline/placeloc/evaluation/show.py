@@ -97,14 +97,15 @@ def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, P
 
 
 def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
-    import cv2
+    from placeloc.images import ImageError, read_rgb
 
     if path is None:
         return np.full((*shape, 3), 235, np.uint8)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
+
+    try:
+        return read_rgb(path)  # upright (EXIF orientation), as the stages saw it
+    except ImageError:
         return np.full((*shape, 3), 200, np.uint8)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def pick_sample(n: int, count: int) -> list[int]:
@@ -165,22 +166,28 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
 
 
 def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows: list[Row] | None = None,
-                what: str = "best matches") -> list[Path]:
-    """Write the sample strips (and, with ground truth, the worst failures); return paths."""
+                what: str = "best matches", out_dir: str | Path | None = None) -> list[Path]:
+    """Write the sample strips (and, with ground truth, the worst failures); return paths.
+
+    ``out_dir`` (a stage's ``ctx.output_dir``): where the figures go, and where this stage's
+    own per_query.csv is looked for first (staged there until the stage commits); default
+    ``run_dir``."""
     run_dir = Path(run_dir)
-    rows = read_rows(run_dir) if rows is None else rows
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    if rows is None:
+        rows = read_rows(out_dir if (out_dir / "per_query.csv").is_file() else run_dir)
     ref, query = _folders(run_dir, within_reference=what == "loop closures")
     out: list[Path] = []
     with_gt = any(r.correct is not None for r in rows)
     picks = pick_sample(len(rows), sample)
     n_right = sum(1 for r in rows if r.correct)
     verdict = f"{n_right} of {len(rows)} {what} right" if with_gt else f"no ground truth: {what} not judged"
-    p = draw_strip_figure(rows, picks, ref, query, run_dir / SAMPLE_PNG,
+    p = draw_strip_figure(rows, picks, ref, query, out_dir / SAMPLE_PNG,
                           f"{len(picks)} {what} spread over the traverse ({verdict})")
     if p:
         out.append(p)
     fail = pick_failures(rows, failures)
-    stale = run_dir / FAILURES_PNG
+    stale = out_dir / FAILURES_PNG
     if fail:
         p = draw_strip_figure(rows, fail, ref, query, stale, f"worst failures: the {len(fail)} most confident wrong {what}")
         if p:

@@ -402,7 +402,7 @@ def localize(ctx: Any) -> None:
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
     ctx.out.attrs.update(mode=p.mode, anchor=anchor)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
         for k in range(n):
@@ -420,7 +420,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], bes
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score"])
         for k in range(n):

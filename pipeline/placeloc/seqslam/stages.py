@@ -9,12 +9,15 @@ Artifacts:
 - ``extract.h5``: per traverse (``reference/``, ``query/``) the ``features`` the chosen
   comparison works on (one row per image), the ``thumbnails``, image ``names``, their
   original positions ``index`` and the ``skipped`` files.
-- ``localize.h5``: ``difference`` D[r, q] (rows = reference, columns = query, lower = more
-  alike; chunked, written block by block), ``candidates``/``scores`` (n_query, K) ranked
-  sequence matches, ``confidence`` of the best, and the single-image baseline
-  ``single_best``/``single_confidence``. Indices are positions in the extracted lists.
-  Side output ``matches.csv``.
-- ``evaluate.h5`` + ``metrics.json``, ``pr_curve.png``, ``difference_matrix.png``.
+- ``localize.h5``: the result contract in ``result`` (``ranked``; ``loops`` without a
+  query traverse; :mod:`placeloc.evaluation.contracts`), and SeqSLAM's own arrays:
+  ``difference`` D[r, q] (rows = reference, columns = query, lower = more alike; chunked,
+  written block by block), ``candidates``/``scores`` (n_query, K) ranked sequence matches
+  and ``confidence`` of the best (positions in the extracted lists), and the single-image
+  baseline ``single_best``/``single_confidence``. Side output ``matches.csv``.
+- evaluate is the contract's; :func:`evaluate_extra` adds the standard (unseparated)
+  sequence ranking, the dissimilarity ratios, the single-image figures and
+  ``difference_matrix.png``.
 """
 
 from __future__ import annotations

@@ -78,7 +78,7 @@ class UMapParams(Params):
     grid: GridParams = section(GridParams)
     near_m: float = param(0.05, min=0.0, min_exclusive=True, help="near clipping distance")
     hidden_lines: bool = param(True, help="remove hidden lines when rendering")
-    block: int = param(2048, min=1, help="database views scored per block")
+    block: int = param(2048, min=1, affects_result=False, help="database views scored per block")
     tolerance_px: int = param(2, min=0, help="line dilation for matching")
     query_kind: str = param("pinhole", choices=("pinhole", "equirect", "panorama"),
                             help="pinhole images; equirect: panoramas cut into views at the grid headings, best single "

@@ -346,3 +346,136 @@ def test_double_ctrl_c_during_a_pooled_stage_exits_at_once(tmp_path, gap):
     time.sleep(0.5)
     alive = [p for p in family if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
     assert alive == [] and list(tmpdir.glob("placeloc-shared-*")) == []
+
+
+@pytest.fixture
+def http_server():
+    """python -m http.server on a free loopback port."""
+    import socket
+    import subprocess
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 10
+        while time.time() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                time.sleep(0.05)
+        yield f"tcp://127.0.0.1:{port}"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture
+def silent_peer():
+    """A socket that accepts connections and never says anything."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held: list = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                continue
+
+    t = threading.Thread(target=accept, daemon=True)
+    t.start()
+    try:
+        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    finally:
+        stop.set()
+        t.join()
+        for c in held:
+            c.close()
+        srv.close()
+
+
+@pytest.mark.parametrize("peer", ["http_server", "silent_peer"])
+def test_a_scheduler_address_that_is_not_dask_fails_within_5s(route, tmp_path, request, peer):
+    """A web server (which waits for a request) and a peer that never speaks: one line
+    within the documented 3-5 s, not Dask's 300 s wait or its "(MemoryError)"."""
+    import time
+
+    pytest.importorskip("distributed")
+    address = request.getfixturevalue(peer)
+    t0 = time.perf_counter()
+    res = _cli(["extract", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q",
+                "--set", "executor.kind=dask", "--set", f"executor.scheduler={address}"])
+    took = time.perf_counter() - t0
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert f"no Dask scheduler answers at {address} (something accepts connections there but says nothing within 3 s)" \
+        in lines[0] and "local-cluster" in lines[0], lines
+    assert "MemoryError" not in lines[0]
+    assert took < 5.0, took
+
+
+def _dask_run(tmp_path: Path, frames: int):
+    import subprocess
+
+    from placeloc.synth.route import generate
+
+    generate(tmp_path / "data", seed=3, frames=frames)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+                      "--set", "executor.kind=dask", "--set", "executor.workers=2", "--set", "executor.scheduler=local-cluster",
+                      "--set", "seqslam.images_per_task=4", "--set", "plots=false"]
+    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return proc, tmpdir
+
+
+def test_local_dask_cluster_leaves_no_scratch_space_in_tmpdir(tmp_path):
+    pytest.importorskip("distributed")
+    proc, tmpdir = _dask_run(tmp_path, 60)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert list(tmpdir.iterdir()) == [], list(tmpdir.iterdir())
+
+
+def test_ctrl_c_under_a_local_dask_cluster_is_one_line(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    pytest.importorskip("distributed")
+    proc, tmpdir = _dask_run(tmp_path, 3000)
+    deadline = time.time() + 60
+    # extract's staging folder appears once the cluster is up and the stage has begun (a
+    # Ctrl-C while the cluster is still starting may show Dask's own messages: documented)
+    while time.time() < deadline and proc.poll() is None and not list((tmp_path / "run").glob(".extract.outputs.tmp-*")):
+        time.sleep(0.1)
+    time.sleep(1.0)  # the workers are extracting
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    family = _children(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    t0 = time.perf_counter()
+    try:
+        out, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("placeloc did not exit within 10 s of Ctrl-C under a local Dask cluster")
+    assert proc.returncode == 130 and err.strip() == "interrupted; rerun to resume", err
+    assert time.perf_counter() - t0 < 10
+    time.sleep(0.5)
+    alive = [p for p in family if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    assert alive == [] and list(tmpdir.iterdir()) == []

@@ -187,6 +187,10 @@ class DaskExecutor(Executor):
             _wait_interruptibly(fut)
             return fut.result()
         except Exception as exc:  # the task's own exception, or KilledWorker after repeated worker deaths
+            if type(exc).__name__ == "KilledWorker":
+                from placeloc.executor import worker_lost
+
+                raise worker_lost(fn, describe(item), self.workers) from None
             raise WorkItemError(self.kind, fn, describe(item), exc, self.retries) from exc
         finally:
             fut.release()  # drop the result from the cluster as soon as we hold it

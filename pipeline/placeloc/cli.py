@@ -137,7 +137,7 @@ class ErrorBoundaryGroup(TyperGroup):
     """
 
     def invoke(self, ctx: Any) -> Any:
-        _announced.clear()  # one "interrupted" line per command (tests invoke many in one process)
+        _announced.clear()  # one "interrupted" line per command, also when commands run in one process (tests, API)
         try:
             result = super().invoke(ctx)
             raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed

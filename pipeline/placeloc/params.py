@@ -127,11 +127,6 @@ def path_keys(cls: type) -> tuple[str, ...]:
     return tuple(k for k, f in _walk(cls) if f.metadata.get("path"))
 
 
-def help_text(cls: type) -> dict[str, str]:
-    """Dotted key -> one-line help, for ``placeloc inspect`` and the docs."""
-    return {k: f.metadata.get("help", "") for k, f in _walk(cls)}
-
-
 def from_section(cls: type[T], section_values: dict[str, Any]) -> T:
     """Build the parameter object from a validated config section (a nested dict)."""
     kwargs: dict[str, Any] = {}

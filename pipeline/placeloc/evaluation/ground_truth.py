@@ -46,9 +46,12 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
-from placeloc.config import COMMON_DEFAULTS, ConfigError
+from placeloc.common_params import GroundTruthParams
+from placeloc.errors import ConfigError
 
-DEFAULT_RADIUS_M: float = COMMON_DEFAULTS["ground_truth"]["radius"]
+# The shared defaults (one home: placeloc.common_params), for callers that pass no config section.
+DEFAULT_RADIUS_M: float = GroundTruthParams().radius
+DEFAULT_TOLERANCE: int = GroundTruthParams().tolerance
 TRUE_WORDS = {"1", "true", "yes", "y", "soft"}
 FALSE_WORDS = {"", "0", "false", "no", "n", "hard"}
 
@@ -71,7 +74,7 @@ class GroundTruth:
     a second GroundTruth over the same pair holding the soft set (a superset of this one).
     """
 
-    def __init__(self, n_ref: int, n_query: int, *, tolerance: int = 0, lo: np.ndarray | None = None,
+    def __init__(self, n_ref: int, n_query: int, *, tolerance: int = DEFAULT_TOLERANCE, lo: np.ndarray | None = None,
                  hi: np.ndarray | None = None, matrix: np.ndarray | None = None, synchronous: bool = False,
                  intervals: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                  ref_xy: np.ndarray | None = None, query_xy: np.ndarray | None = None, radius: float | None = None,
@@ -105,7 +108,7 @@ class GroundTruth:
         """Build from the ``ground_truth`` config section. ``ref_names``/``query_names``
         are the file names of the listed images (needed for names and positions)."""
         kind = section.get("kind", "none")
-        tol = section.get("tolerance", 0)
+        tol = section.get("tolerance", DEFAULT_TOLERANCE)
         tol = 0 if tol is None else tol
         if int(tol) < 0:
             raise GroundTruthError(f"ground_truth.tolerance is {tol}; it must be >= 0 (frames either side of a "
@@ -126,7 +129,7 @@ class GroundTruth:
         raise GroundTruthError(f"ground_truth.kind {kind!r} cannot score place matches; use synchronous, csv, hdf5 or poses")
 
     @classmethod
-    def from_csv(cls, path: str | Path, n_ref: int, n_query: int, tolerance: int = 0, *,
+    def from_csv(cls, path: str | Path, n_ref: int, n_query: int, tolerance: int = DEFAULT_TOLERANCE, *,
                  ref_names: Sequence[str] | None = None, query_names: Sequence[str] | None = None) -> GroundTruth:
         """Pairs or ranges, by index or file name, several rows per query (module docstring)."""
         path = Path(path)

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from placeloc.common_params import GroundTruthParams
+
 
 @dataclass
 class PRCurve:
@@ -103,7 +105,8 @@ def summarise_ratios(ratio: np.ndarray) -> tuple[float, int]:
 # ---------------------------------------------------------------------------------------
 # Ranked candidates against ground truth: standard Recall@N, soft ground truth, denominators
 # ---------------------------------------------------------------------------------------
-DEFAULT_RECALL_N = (1, 5, 10, 20)
+# The shared default (one home: ground_truth.recall_at in placeloc.common_params).
+DEFAULT_RECALL_N: tuple[int, ...] = GroundTruthParams().recall_at
 
 
 def drop_soft(candidates: np.ndarray, soft_only: np.ndarray, *extra: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -46,7 +46,12 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 def safe_yaml(text: str) -> Any:
     """Parse YAML text with the safe, alias-free loader."""
-    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    try:
+        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    except RecursionError:
+        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
+        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
+                             "of keys and values: close the brackets") from None
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:

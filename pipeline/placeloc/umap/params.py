@@ -22,10 +22,10 @@ class CameraParams(Params):
 
 @dataclass(frozen=True)
 class GridParams(Params):
-    x: tuple[float, float, float] = param([0.0, 90.0, 0.1], help="x start, stop, step in metres")
-    y: tuple[float, float, float] = param([-1.5, 4.0, 0.2], help="y start, stop, step in metres")
+    x: tuple[float, float, float] = param([0.0, 90.0, 0.1], min_len=3, help="x start, stop, step in metres")
+    y: tuple[float, float, float] = param([-1.5, 4.0, 0.2], min_len=3, help="y start, stop, step in metres")
     z: float = param(1.14, help="camera height in metres")
-    headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], help="headings in degrees")
+    headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
     wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from walls")
 

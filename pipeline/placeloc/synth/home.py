@@ -320,6 +320,7 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     fp, clutter = plan(rng, bedrooms)
+    fp["camera_z"] = z   # the tripod's height, as the ZInD importer writes it
     (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(fp, sort_keys=False))
     model = floor_plan_model(fp)
     scene = scene_arrays(fp, clutter, rng)

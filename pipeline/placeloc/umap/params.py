@@ -22,12 +22,17 @@ class CameraParams(Params):
 
 @dataclass(frozen=True)
 class GridParams(Params):
-    x: tuple[float, float, float] = param([0.0, 90.0, 0.1], help="x start, stop, step in metres")
-    y: tuple[float, float, float] = param([-1.5, 4.0, 0.2], help="y start, stop, step in metres")
-    z: float = param(1.14, help="camera height in metres")
+    x: tuple[float, float, float] | None = param(None, help="x start, stop, step in metres (none: the model's plan bounds "
+                                                            "at grid.step_m)")
+    y: tuple[float, float, float] | None = param(None, help="y start, stop, step in metres (none: the model's plan bounds "
+                                                            "at grid.step_m)")
+    step_m: float = param(0.25, min=0.0, min_exclusive=True, help="grid spacing where x or y is left to the model")
+    z: float | None = param(None, help="camera height in metres (none: the plan's camera_z, which the ZInD importer and "
+                                       "the home generator write)")
     headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
-    wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from walls")
+    wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "
+                                                    "height (lintels over doorways do not count)")
 
 
 @dataclass(frozen=True)
@@ -73,7 +78,10 @@ class PanoramaParams(Params):
 
 @dataclass(frozen=True)
 class UMapParams(Params):
-    model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj), floor plan (.yaml) or a Zillow Indoor "
+                                                    "Dataset zind_data.json")
+    floor: str | None = param(None, help="the floor of a zind_data.json model, e.g. floor_02 (none: its only floor with "
+                                         "a scale; an error naming the floors when it has several)")
     camera: CameraParams = section(CameraParams)
     grid: GridParams = section(GridParams)
     near_m: float = param(0.05, min=0.0, min_exclusive=True, help="near clipping distance")

@@ -23,8 +23,8 @@ import numpy as np
 from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
 from placeloc.evaluation.poses import read_poses
-from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
-from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model, wall_distance
+from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry.floorplan import ModelError, blocking_faces, load_model, plan_grid, wall_distance
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
@@ -88,21 +88,17 @@ def _stage_error(exc: Exception) -> Exception:
 def build_dictionary(ctx: Any) -> None:
     p = ctx.params
     try:
-        model = load_model(p.model)
+        model = load_model(p.model, p.floor)
     except ModelError as exc:
         raise _stage_error(exc) from exc
     g = p.grid
     try:
-        poses = pose_grid(g.x, g.y, g.z, g.headings)
+        poses, notes = plan_grid(model, x=g.x, y=g.y, step_m=g.step_m, z=g.z, headings=g.headings,
+                                 inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
     except ValueError as exc:
         raise ConfigError(f"umap.grid: {exc}") from exc
-    keep, notes = free_space_mask(poses[:, :2], model, inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
     for note in notes:
         log.warning("umap.%s", note)
-    poses = poses[keep]
-    if len(poses) == 0:
-        raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
-                          f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")
     block = int(p.block)
     if p.query_kind == "panorama":
         # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
@@ -313,6 +309,7 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
                                   tau_px=pp.chamfer_tau_px)
 
     margin = float(ctx.params.grid.wall_margin_m)
+    walls = blocking_faces(faces, float(poses[0, 2])) if len(poses) else faces
     refined_xy = np.full((n, 2), np.nan)
     for k in ctx.progress(range(n), total=n, desc="panorama search"):
         table = table_of(k)
@@ -323,8 +320,8 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
         for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
                                      min_separation_m=pp.refine_separation_m):
             pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
-            if len(faces):  # not through a wall: as far from every wall as the grid keeps its positions
-                pts = pts[wall_distance(pts, faces) >= min(margin, float(wall_distance(poses[c:c + 1, :2], faces)[0]))]
+            if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
+                pts = pts[wall_distance(pts, walls) >= min(margin, float(wall_distance(poses[c:c + 1, :2], walls)[0]))]
             local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
             sub = table_of(k, render_panoramas(segs, faces, local, width=w, height=h, hidden=bool(ctx.params.hidden_lines)))
             i, s_shift, s = best_pose(sub)
@@ -497,7 +494,7 @@ METHOD = Method(
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px")),
-        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+        "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px",)),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",

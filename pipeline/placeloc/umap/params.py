@@ -70,10 +70,15 @@ class PanoramaParams(Params):
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
-    refine_candidates: int = param(8, min=0, help="distinct best grid positions re-scored on a finer local grid, chamfer score only (0: off)")
+    polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
+                                                        "polar_weight in the chamfer score")
+    polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "
+                                                           "sunlight stripes, rugs, tripod; ceiling fans)")
+    refine_candidates: int = param(8, min=0, help="distinct best grid positions refined coarse to fine around themselves, "
+                                                  "for either score (0: off)")
     refine_separation_m: float = param(0.5, min=0.0, help="least distance between two refined candidates")
-    refine_radius_m: float = param(0.15, min=0.0, help="half width of the local grid around each candidate")
-    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="spacing of the local grid")
+    refine_radius_m: float = param(0.15, min=0.0, help="how far the local search may move a candidate (per axis)")
+    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="the local search's finest step")
 
 
 @dataclass(frozen=True)

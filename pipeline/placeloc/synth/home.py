@@ -363,7 +363,7 @@ def doorway_poses(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Ge
     doors = []
     for o in fp["openings"]:
         a, b = np.asarray(o["from"], float), np.asarray(o["to"], float)
-        closed = any(abs(lf[0] - a[0]) < 1e-6 and abs(lf[1] - lf[3]) < 1e-6 and abs(lf[1] - a[1]) < 0.05
+        closed = any(abs(lf[0] - a[0]) < 0.01 and abs(lf[1] - lf[3]) < 1e-6 and abs(lf[1] - a[1]) < 0.05
                      for lf in clutter["leaves"])
         if np.hypot(*(b - a)) < 1.2 and not closed:
             doors.append((a, b))

@@ -66,7 +66,7 @@ class PanoramaParams(Params):
     height: int = param(72, min=4, help="equirectangular line image height in pixels")
     face_px: int = param(256, min=32, help="size of the six cube faces LSD runs on")
     lsd_min_length_px: float = param(8.0, min=0.0, help="shortest LSD line kept, in face pixels")
-    score: str = param("iou", choices=("iou", "chamfer"),
+    score: str = param("chamfer", choices=("iou", "chamfer"),
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")

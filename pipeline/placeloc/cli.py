@@ -312,6 +312,28 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
         typer.echo(f"{k}: {v}")
 
 
+@app.command(name="import")
+def import_(kind: str = typer.Argument(..., help="Format: zind (a Zillow Indoor Dataset tour's zind_data.json)."),
+            source: Path = typer.Argument(..., help="The file to import, e.g. zind_data.json."),
+            out: Path = typer.Argument(..., help="Output folder: floor_plan.yaml and poses.csv (one folder per floor "
+                                                "when the tour has several and --floor is not given)."),
+            floor: str | None = typer.Option(None, help="The floor to import, e.g. floor_01 (default: every floor).")) -> None:
+    """Import a home's floor plan and panorama poses for UMap (umap.model, ground_truth.path)."""
+    from placeloc.geometry.floorplan import ModelError
+    from placeloc.geometry.zind import import_zind
+
+    if kind != "zind":
+        _fail(ValueError(f"import {kind!r}: unknown format; known: zind"))
+    if not source.is_file():
+        _fail(ValueError(f"{source}: file not found; give the tour's zind_data.json"))
+    try:
+        summary = import_zind(source, out, floor)
+    except ModelError as exc:
+        _fail(exc)
+    for part in (summary.values() if "floor" not in summary else [summary]):
+        typer.echo(", ".join(f"{k}: {v}" for k, v in part.items()))
+
+
 @app.command()
 def compare(config: Path = ConfigArg,
             methods: str = typer.Option("sad,histeq,zncc,abs_zncc,isc,isc_ext,ocm,ocm_ext", help="Comma-separated SeqSLAM comparisons."),

@@ -178,8 +178,8 @@ def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list
         for part in key.split("."):
             node = node.get(part) if isinstance(node, dict) else None
         if isinstance(node, (list, tuple)) and len(node) < need:
-            problems.append(f"{prefix}{key}: {list(node)!r} has {len(node)} item(s); it needs at least {need}, "
-                            f"e.g. {prefix}{key}={list(f.default)[:max(need, 3)]!r}")
+            example = f", e.g. {prefix}{key}={list(f.default)[:max(need, 3)]!r}" if isinstance(f.default, (list, tuple)) else ""
+            problems.append(f"{prefix}{key}: {list(node)!r} has {len(node)} item(s); it needs at least {need}{example}")
     for key, (lo, hi, strict) in bounds(cls).items():
         node: Any = section_values
         for part in key.split("."):

@@ -78,8 +78,9 @@ def test_parameter_objects_are_built_from_the_config_with_nested_sections(tmp_pa
     from placeloc.umap.params import UMapParams
 
     d = defaults(UMapParams)
-    assert d["ca"]["tie_tol"] == 0.003 and d["grid"]["x"] == [0.0, 90.0, 0.1]
-    p = get_method("umap").build_params({"umap": {**d, "ca": {**d["ca"], "tie_tol": 0.01}}})
+    assert d["ca"]["tie_tol"] == 0.003 and d["grid"]["x"] is None  # the grid covers the model's plan
+    p = get_method("umap").build_params({"umap": {**d, "ca": {**d["ca"], "tie_tol": 0.01},
+                                                  "grid": {**d["grid"], "x": [0.0, 90.0, 0.1]}}})
     assert p.ca.tie_tol == 0.01 and p.grid.x == (0.0, 90.0, 0.1) and p.camera.width == 160
 
 

@@ -46,7 +46,12 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 def safe_yaml(text: str) -> Any:
     """Parse YAML text with the safe, alias-free loader."""
-    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    try:
+        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    except RecursionError:
+        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
+        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
+                             "of keys and values: close the brackets") from None
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:
@@ -162,7 +167,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         if config[role] is not None and config[role]["images"] is not None:
             _check_image_source(config[role]["images"], f"{role}.images")
     gt = config["ground_truth"]
-    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+    if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
@@ -172,9 +177,9 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     problems = config_problems(config)
     if problems:
         raise ConfigError(problems[0])
-    from placeloc.evaluation.ground_truth import check_config
+    from placeloc.evaluation.contracts import check_ground_truth
 
-    check_config(config)  # a bad ground-truth file fails here, before any stage runs
+    check_ground_truth(config, method)  # the method's result contract checks its ground truth before any stage runs
     return config
 
 

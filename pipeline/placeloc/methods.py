@@ -20,19 +20,24 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 from placeloc import params as P
+from placeloc.stage_names import STAGES  # noqa: F401 - re-exported: placeloc.methods.STAGES
 
-STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
 
-# name -> module that defines METHOD; imported lazily so one method's deps never load another's.
-METHOD_MODULES: dict[str, str] = {
-    "seqslam": "placeloc.seqslam.stages",
-    "umap": "placeloc.umap.stages",
-    "coembed": "placeloc.coembed.stages",
-    "pirf": "placeloc.pirf.stages",
-}
+def _discover() -> dict[str, str]:
+    """Method name -> module defining METHOD: every subpackage ``placeloc/<name>/`` with a
+    ``stages.py`` is a method (found by listing the package folder, nothing imported), so
+    adding a method registers nothing by hand. Imported lazily, so one method's
+    dependencies never load another's."""
+    root = Path(__file__).resolve().parent
+    return {d.name: f"placeloc.{d.name}.stages" for d in sorted(root.iterdir())
+            if d.is_dir() and (d / "stages.py").is_file() and (d / "__init__.py").is_file()}
+
+
+METHOD_MODULES: dict[str, str] = _discover()
 METHOD_NAMES = tuple(METHOD_MODULES)
 
 # Common config sections every stage depends on.
@@ -69,6 +74,19 @@ class Method:
     checker: Callable[[dict], None] | None = None
     # Published source, by authors, title, venue and year (shown by `placeloc inspect`).
     citation: str = ""
+    # The result contract its localize writes (placeloc.evaluation.contracts: ranked, loops,
+    # poses, map). The contract supplies the evaluate stage (unless the method defines one),
+    # the up-front ground-truth check, `placeloc show` and the report.
+    result: str | None = None
+    # The contract written when the config names no query traverse, if another (SeqSLAM: loops).
+    result_without_query: str | None = None
+    # Optional hook(ctx, evaluation) run by the contract's evaluate after scoring: the method's
+    # own metrics and figures. evaluate_keys: the method parameters the hook reads.
+    evaluate_extra: Callable[[Any, Any], None] | None = None
+    evaluate_keys: tuple[str, ...] = ()
+    # Where the contract finds ground truth the method's own parameters name (role -> parameter),
+    # e.g. the map contract's {"points": "truth"}; the shared ground_truth section otherwise.
+    truth_keys: dict[str, str] = field(default_factory=dict)
     defaults: dict[str, Any] = field(init=False)
     choices: dict[str, tuple] = field(init=False)
     path_keys: tuple[str, ...] = field(init=False)
@@ -77,6 +95,16 @@ class Method:
         self.defaults = P.defaults(self.params)
         self.choices = P.choices(self.params)
         self.path_keys = P.path_keys(self.params)
+        if self.result is not None and "evaluate" not in self.stages:
+            from placeloc.evaluation.contracts import KINDS
+            from placeloc.evaluation.evaluate import evaluate_stage
+
+            if self.result not in KINDS:
+                raise ValueError(f"{self.name}: unknown result contract {self.result!r}; known: {', '.join(KINDS)}")
+            # truth named by the method's own parameters (truth_keys) is in evaluate_keys;
+            # the shared ground_truth section is read only by the contracts that use it.
+            sections = ("plots",) if self.truth_keys else ("ground_truth", "plots")
+            self.stages = {**self.stages, "evaluate": Stage(evaluate_stage, keys=self.evaluate_keys, sections=sections)}
         known = set(self.defaults) | {k for k, _ in P._walk(self.params)}
         for name, stage in self.stages.items():
             if name not in STAGES:
@@ -84,6 +112,12 @@ class Method:
             for key in stage.keys:
                 if key not in known:
                     raise ValueError(f"{self.name}.{name} depends on unknown parameter {key!r}")
+
+    def result_kind(self, config: dict) -> str | None:
+        """The result contract this method's localize writes for ``config``."""
+        if self.result_without_query is not None and not (config.get("query") or {}).get("images"):
+            return self.result_without_query
+        return self.result
 
     @property
     def uses_images(self) -> bool:

@@ -329,7 +329,11 @@ class _Lookup:
         self.index: dict[str, int] | None = None
 
     def bound(self, cell: str, line: int) -> int:
-        """A range end: an index may reach past the traverse (the range is clipped)."""
+        """A range end: an index may reach past the end of the traverse (the range is
+        clipped there); a negative one is refused, as a negative index is."""
+        if _is_int(cell) and int(cell.strip()) < 0:
+            raise GroundTruthError(f"{self.path}:{line}: {self.role} index {int(cell.strip())} is negative; indices count "
+                                   "the folder's images in natural order from 0")
         return int(cell.strip()) if _is_int(cell) else self(cell, line)
 
     def __call__(self, cell: str, line: int) -> int:
@@ -425,41 +429,3 @@ def _traverse_positions(poses: Any, n_ref: int, n_query: int, ref_names: Sequenc
     ref_xy = poses.xy[rows(ref_names, n_ref, "reference")]
     q_xy = ref_xy if loop_closure else poses.xy[rows(query_names, n_query, "query")]
     return ref_xy, q_xy
-
-
-def check_config(config: dict[str, Any]) -> None:
-    """Validate the ground truth of a completed config before any stage runs.
-
-    For methods that score image-to-image matches (``IMAGE_MATCHING``) the ground truth is
-    built in full against the listed images, so every problem (format, columns, indices
-    or names outside the traverses, matrix type and shape, missing positions) is one
-    :class:`GroundTruthError` naming the file, row and fix. For other methods only what
-    is method-independent is checked (that a pose file parses).
-    """
-    section = config.get("ground_truth") or {}
-    kind = section.get("kind", "none")
-    if kind == "none":
-        return
-    # tolerance >= 0 and radius > 0 are declared ranges, checked by placeloc.config before this.
-    if config.get("method") not in IMAGE_MATCHING:
-        if kind == "poses" and section.get("path") and Path(section["path"]).is_file():
-            from placeloc.evaluation.poses import PoseError, read_poses
-
-            try:
-                read_poses(section["path"], what="ground_truth.path")
-            except PoseError as exc:
-                raise GroundTruthError(str(exc)) from None
-        return
-    from placeloc.images import ImageError, list_images
-
-    try:
-        ref = list_images(config["reference"]["images"])
-        query = list_images(config["query"]["images"]) if config.get("query") else None
-    except ImageError:
-        return  # the image check reports this one
-    GroundTruth.from_config(section, len(ref), len(query) if query else len(ref), ref_names=ref.names,
-                            query_names=query.names if query else None)
-
-
-# Methods whose evaluate scores reference/query image matches with :class:`GroundTruth`.
-IMAGE_MATCHING = ("seqslam",)

@@ -20,7 +20,7 @@ class SeqSLAMParams(Params):
                                                    "image in folder order): used instead of thumbnails")
     descriptors_query: str | None = param(None, path=True, help="the same for the query images")
     descriptor_distance: str = param("cosine", choices=("cosine", "l2"), help="distance between brought descriptors")
-    thumbnail: tuple[int, int] = param([64, 32], min=4, help="thumbnail width, height in pixels")
+    thumbnail: tuple[int, int] = param([64, 32], min=4, min_len=2, help="thumbnail width, height in pixels")
     patch: int = param(8, min=1, help="patch normalisation block size (sad)")
     normalisation: str = param("minmax", choices=("minmax", "zscore"), help="patch normalisation: minmax (paper) or zscore (OpenSeqSLAM)")
     gaussian_sigma: float = param(1.0, min=0.0, help="Gaussian filter before isc*/ocm*")

@@ -228,12 +228,12 @@ def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, 
 def test_a_localize_that_fails_leaves_no_matches_csv(route, tmp_path, monkeypatch):
     """Ctrl-C right after localize wrote matches.csv (before its artifact was complete):
     no matches.csv appears, and the next run resumes from extract."""
-    import placeloc.seqslam.matches_csv as matches_csv
+    import placeloc.evaluation.ranked as matches_csv
 
     real = matches_csv.write_matches_csv
 
-    def then_interrupt(path, **k):
-        real(path, **k)
+    def then_interrupt(path, *a, **k):
+        real(path, *a, **k)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(matches_csv, "write_matches_csv", then_interrupt)

@@ -38,3 +38,7 @@ class EnvironmentFailure(RuntimeError):
 class WorkerLostError(EnvironmentFailure):
     """A worker process died while it ran a work item (killed with SIGKILL: usually the
     out-of-memory killer)."""
+
+
+class ModelError(ValueError):
+    """The model file cannot be used; the message names the file and the fix."""

@@ -44,6 +44,9 @@ METRICS_DOC = {
 }
 
 
+# what the evaluate stage reads of the shared config: the truth files are method parameters
+SECTIONS = ("plots",)
+
 def write(ctx: Any, *, feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray,
           path: dict[str, np.ndarray] | None = None) -> None:
     """Write the contract into ``ctx.out/result``; ``path``: step_ids, xy, heading, label_steps."""
@@ -124,7 +127,8 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
                          "map_max_error": None}
     ev = Evaluation("map", res, metrics=m)
     ev.extra.update(est=None, truth=None, landmarks=coords[is_lm], path_est=None, path_truth=None)
-    truth_path = _truth_path(ctx.config, ctx.method, "points")
+    key = (ctx.method.truth_keys or {}).get("points")
+    truth_path = None if key is None else getattr(ctx.params, key)
     if truth_path is not None:
         from placeloc.evaluation.ground_truth import GroundTruthError
 

@@ -8,7 +8,7 @@ import base64
 import html
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Sequence
 
 import yaml
 
@@ -56,10 +56,8 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     after a run succeeds, so during a stage it may still describe the previous run)."""
     import h5py
 
-    from placeloc.methods import STAGES
-
-    for stage in reversed(STAGES):
-        path = run_dir / f"{stage}.h5"
+    # newest first; the report names no stage or method (it sits below both)
+    for path in sorted(Path(run_dir).glob("*.h5"), key=lambda p: p.stat().st_mtime_ns, reverse=True):
         if path.is_file():
             try:
                 with h5py.File(path, "r") as f:
@@ -71,48 +69,34 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return {}
 
 
-def _result_kind(run_dir: Path) -> str | None:
-    from placeloc.evaluation.contracts import localize_result
-
-    try:
-        res = localize_result(run_dir)
-    except (OSError, ValueError):
-        return None
-    return None if res is None else res.kind
-
-
-def _headline_html(run_dir: Path, metrics: dict[str, Any]) -> str:
+def _headline_html(kind: str | None, figures: Sequence[tuple[str, str]]) -> str:
     """The headline figures first, as large numbers, with the contract they belong to."""
-    from placeloc.evaluation.contracts import format_value, headline_of
-
-    kind = _result_kind(run_dir)
-    figures = headline_of(kind, metrics) if kind and metrics else []
     if not figures:
         what = f"result: {kind}; " if kind else ""
         return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
-    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(format_value(v))}</div><div class='k'>{html.escape(k)}</div>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(v)}</div><div class='k'>{html.escape(k)}</div>"
                     "</div>" for k, v in figures)
     return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
-def _metrics_doc(run_dir: Path) -> str:
-    from placeloc.evaluation.contracts import contract
-
-    kind = _result_kind(run_dir)
-    if kind is None:
+def _metrics_doc(doc: dict[str, str]) -> str:
+    if not doc:
         return ""
-    doc = getattr(contract(kind), "METRICS_DOC", {})
     items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in doc.items())
     return f"<ul class='muted'>{items}</ul>"
 
 
 def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
-                 out_dir: str | Path | None = None) -> Path:
+                 out_dir: str | Path | None = None, *, kind: str | None = None,
+                 headline: Callable[[dict[str, Any]], Sequence[tuple[str, str]]] | None = None,
+                 metrics_doc: dict[str, str] | None = None) -> Path:
     """Write ``report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
     ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
-    PNGs staged there by the same stage take the place of the run directory's."""
+    PNGs staged there by the same stage take the place of the run directory's. The result
+    contract supplies ``kind``, ``headline`` (metrics -> formatted (name, value) pairs) and
+    ``metrics_doc`` (key -> meaning); see :func:`placeloc.evaluation.contracts.write_run_report`."""
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
@@ -125,7 +109,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
-    parts.append(_headline_html(run_dir, metrics))
+    parts.append(_headline_html(kind, list(headline(metrics)) if headline is not None and metrics else []))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
@@ -142,7 +126,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2>" + _metrics_doc(run_dir) + _table(main, ("metric", "value")))
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc or {}) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}

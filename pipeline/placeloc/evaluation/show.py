@@ -227,8 +227,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     file look out of date."""
     import os
 
-    from placeloc.evaluation.contracts import contract, localize_result
-    from placeloc.evaluation.report import REPORT, write_report
+    from placeloc.evaluation.contracts import contract, localize_result, write_run_report
+    from placeloc.evaluation.report import REPORT
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
@@ -238,7 +238,7 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     names = [p.name for p in run_dir.glob("*.png")] + [REPORT]
     before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
     pictures = mod.show(run_dir, res, sample=sample, failures=failures)
-    report = write_report(run_dir)
+    report = write_run_report(run_dir, res.kind)
     for name, (data, st) in before.items():
         p = run_dir / name
         if p.is_file() and p.read_bytes() == data:

@@ -61,9 +61,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-
-class ModelError(ValueError):
-    """The model file cannot be used; the message names the file and the fix."""
+from placeloc.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
 
 
 @dataclass

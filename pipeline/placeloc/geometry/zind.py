@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from placeloc.geometry.floorplan import ModelError
+from placeloc.errors import ModelError
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:

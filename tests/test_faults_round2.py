@@ -346,3 +346,294 @@ def test_double_ctrl_c_during_a_pooled_stage_exits_at_once(tmp_path, gap):
     time.sleep(0.5)
     alive = [p for p in family if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
     assert alive == [] and list(tmpdir.glob("placeloc-shared-*")) == []
+
+
+@pytest.fixture
+def http_server():
+    """python -m http.server on a free loopback port."""
+    import socket
+    import subprocess
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 10
+        while time.time() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                time.sleep(0.05)
+        yield f"tcp://127.0.0.1:{port}"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture
+def silent_peer():
+    """A socket that accepts connections and never says anything."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held: list = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                continue
+
+    t = threading.Thread(target=accept, daemon=True)
+    t.start()
+    try:
+        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    finally:
+        stop.set()
+        t.join()
+        for c in held:
+            c.close()
+        srv.close()
+
+
+@pytest.mark.parametrize("peer", ["http_server", "silent_peer"])
+def test_a_scheduler_address_that_is_not_dask_fails_within_5s(route, tmp_path, request, peer):
+    """A web server (which waits for a request) and a peer that never speaks: one line
+    within the documented 3-5 s, not Dask's 300 s wait or its "(MemoryError)"."""
+    import time
+
+    pytest.importorskip("distributed")
+    address = request.getfixturevalue(peer)
+    t0 = time.perf_counter()
+    res = _cli(["extract", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q",
+                "--set", "executor.kind=dask", "--set", f"executor.scheduler={address}"])
+    took = time.perf_counter() - t0
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert f"no Dask scheduler answers at {address} (something accepts connections there but says nothing within 3 s)" \
+        in lines[0] and "local-cluster" in lines[0], lines
+    assert "MemoryError" not in lines[0]
+    assert took < 5.0, took
+
+
+def _dask_run(tmp_path: Path, frames: int):
+    import subprocess
+
+    from placeloc.synth.route import generate
+
+    generate(tmp_path / "data", seed=3, frames=frames)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+                      "--set", "executor.kind=dask", "--set", "executor.workers=2", "--set", "executor.scheduler=local-cluster",
+                      "--set", "seqslam.images_per_task=4", "--set", "plots=false"]
+    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return proc, tmpdir
+
+
+def test_local_dask_cluster_leaves_no_scratch_space_in_tmpdir(tmp_path):
+    pytest.importorskip("distributed")
+    proc, tmpdir = _dask_run(tmp_path, 60)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert list(tmpdir.iterdir()) == [], list(tmpdir.iterdir())
+
+
+def test_ctrl_c_under_a_local_dask_cluster_is_one_line(tmp_path):
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    pytest.importorskip("distributed")
+    proc, tmpdir = _dask_run(tmp_path, 3000)
+    deadline = time.time() + 60
+    # extract's staging folder appears once the cluster is up and the stage has begun (a
+    # Ctrl-C while the cluster is still starting may show Dask's own messages: documented)
+    while time.time() < deadline and proc.poll() is None and not list((tmp_path / "run").glob(".extract.outputs.tmp-*")):
+        time.sleep(0.1)
+    time.sleep(1.0)  # the workers are extracting
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    family = _children(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    t0 = time.perf_counter()
+    try:
+        out, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("placeloc did not exit within 10 s of Ctrl-C under a local Dask cluster")
+    assert proc.returncode == 130 and err.strip() == "interrupted; rerun to resume", err
+    assert time.perf_counter() - t0 < 10
+    time.sleep(0.5)
+    alive = [p for p in family if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    assert alive == [] and list(tmpdir.iterdir()) == []
+
+
+# ----------------------------------------------------------------- 5. one classification of failures
+
+def test_a_pool_worker_killed_with_sigkill_is_an_environment_failure(tmp_path):
+    """What the out-of-memory killer does to a worker: one line that says so and what to
+    change, rc 3, no traceback, no "bug"."""
+    import signal
+    import time
+
+    import psutil
+
+    proc, _ = _start_pooled_run(tmp_path)
+    workers = []
+    for p in _children(proc.pid):
+        with __import__("contextlib").suppress(psutil.Error):
+            cmd = " ".join(psutil.Process(p).cmdline())
+            if "spawn_main" in cmd and "resource_tracker" not in cmd:
+                workers.append(p)
+    assert workers
+    os.kill(workers[0], signal.SIGKILL)
+    out, err = proc.communicate(timeout=30)
+    lines = _lines(err)
+    assert proc.returncode == 3 and len(lines) == 1, err
+    assert lines[0].startswith("error: a worker process was killed (out of memory?)") and "executor.workers (now 2)" in lines[0]
+    assert "Traceback" not in err and "bug" not in err and "array(" not in err
+    time.sleep(0.2)
+
+
+def test_killed_dask_worker_is_an_environment_failure():
+    """Dask gives up on a task after its workers died repeatedly (KilledWorker): the same
+    environment failure as a killed pool worker."""
+    pytest.importorskip("distributed")
+    from distributed.scheduler import KilledWorker
+
+    from placeloc.dask_executor import DaskExecutor
+    from placeloc.errors import WorkerLostError
+
+    class Dead:
+        def result(self):
+            raise KilledWorker("extract_chunk-1", "tcp://127.0.0.1:1", [])
+
+        def done(self):
+            return True
+
+        def release(self):
+            pass
+
+    ex = DaskExecutor.__new__(DaskExecutor)
+    ex.workers, ex.retries = 2, 2
+    with pytest.raises(WorkerLostError, match=r"a worker process was killed \(out of memory\?\) .*executor.workers \(now 2\)"):
+        ex._result(len, (np.zeros((500, 500)), "x"), Dead(), lambda item: "chunk 3")
+
+
+def test_describe_item_never_dumps_an_array():
+    from placeloc.executor import describe_item
+
+    text = describe_item((np.zeros((1000, 64)), {"a": np.ones(10)}, "settings"))
+    assert "array(1000, 64) float64" in text and "0." not in text and len(text) <= 160
+
+
+@pytest.mark.parametrize("where", ["file", "set"])
+def test_100000_nested_brackets_are_a_one_line_config_error(route, tmp_path, where):
+    deep = "[" * 100_000
+    if where == "file":
+        cfg = tmp_path / "deep.yaml"
+        cfg.write_text(f"method: seqslam\nseqslam: {{ds: {deep}}}\n")
+        args = ["run", str(cfg)]
+    else:
+        args = ["run", str(route / "config.yaml"), "--set", f"seqslam.ds={deep}"]
+    res = _cli(args + ["--run-dir", str(tmp_path / "r")])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1 and "nested too deeply" in lines[0], lines[:3]
+    assert "RecursionError" not in _err(res)
+
+
+def test_raw_os_errors_are_worded_with_the_file_and_the_fix():
+    from placeloc.cli import _one_line, classify
+
+    exc = OSError(30, "Read-only file system", "/mnt/ro/run/.lock")
+    assert classify(exc) == "user"
+    assert _one_line(exc) == "/mnt/ro/run/.lock: is on a read-only file system; choose a writable place, e.g. another --run-dir"
+    assert "Errno" not in _one_line(FileExistsError(17, "File exists", "R"))
+
+
+# ----------------------------------------------------------------- 6. bad input refused up front
+
+def test_a_sequence_longer_than_the_traverse_is_refused_up_front(route, tmp_path):
+    res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q", "--set", "seqslam.ds=100000"])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert "seqslam.ds=100000 needs sequences of ds + 1 = 100001 frames" in lines[0] and "set seqslam.ds to at most" in lines[0]
+    assert not (tmp_path / "r" / "extract.h5").exists()
+
+
+def test_a_negative_ground_truth_range_end_is_refused_like_a_negative_index(route, tmp_path):
+    from placeloc.evaluation.ground_truth import GroundTruthError
+
+    (route / "ground_truth.csv").write_text("query,ref_first,ref_last\n40,-3,2\n")
+    with pytest.raises(GroundTruthError, match=r"ground_truth.csv:2: reference index -3 is negative"):
+        load_config(route / "config.yaml", ["plots=false"])  # the config check reads the ground truth
+
+
+def test_an_empty_list_parameter_is_refused_at_config_check(route):
+    from placeloc.config import ConfigError
+
+    data = {"method": "coembed", "coembed": {"observations": str(route / "x.csv")}}
+    with pytest.raises(ConfigError, match=r"coembed.alpha_grid: \[\] has 0 item\(s\); it needs at least 1"):
+        load_config(data=data, overrides=["coembed.alpha_grid=[]"])
+
+
+# ----------------------------------------------------------------- 7. messages with a fix
+
+def test_run_dir_that_is_a_file_or_read_only(route, tmp_path, monkeypatch):
+    afile = tmp_path / "R"
+    afile.write_text("x")
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(afile), "-q"])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1 and "is a file, not a folder" in lines[0] and "Errno" not in lines[0]
+    # an up-to-date run in a run directory that became read-only (EROFS on the lock file)
+    run = tmp_path / "run"
+    assert _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q", "--set", "plots=false"]).exit_code == 0
+    real_open = os.open
+
+    def read_only(path, flags, *a):
+        if str(path).endswith(".lock"):
+            raise OSError(30, "Read-only file system", str(path))
+        return real_open(path, flags, *a)
+
+    monkeypatch.setattr(os, "open", read_only)
+    res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q", "--set", "plots=false"])
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert f"--run-dir {run} is on a read-only file system" in lines[0] and "even when every stage is up to date" in lines[0]
+
+
+@pytest.mark.parametrize("var", ["PLACELOC_MEMORY_LIMIT_MB", "PLACELOC_DISK_LIMIT_MB"])
+def test_limit_variables_that_are_not_numbers(route, tmp_path, var):
+    res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q"], **{var: "abc"})
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert f"{var}='abc' is not a number of megabytes" in lines[0] and "could not convert" not in lines[0]
+
+
+def test_disk_limit_variable_is_named_not_the_file_system(route, tmp_path):
+    res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q"], PLACELOC_DISK_LIMIT_MB="1")
+    lines = _lines(_err(res))
+    assert res.exit_code == 2 and len(lines) == 1, lines
+    assert "more than PLACELOC_DISK_LIMIT_MB=1 allows" in lines[0] and "no space left" not in lines[0]
+
+
+def test_poses_csv_with_a_utf8_bom_is_read(tmp_path):
+    from placeloc.evaluation.poses import read_poses
+
+    path = tmp_path / "poses.csv"
+    path.write_bytes("\ufeffname,x,y\na.png,1.5,2\nb.png,3,4\n".encode())
+    poses = read_poses(path)
+    assert poses.keys == ("a.png", "b.png") and np.allclose(poses.xy, [[1.5, 2], [3, 4]])

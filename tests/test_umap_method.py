@@ -184,8 +184,14 @@ def test_bad_inputs(tmp_path):
     from placeloc.runner import run_stage
 
     _tiny_corridor(tmp_path)
-    with pytest.raises(ConfigError, match="pose grid is empty"):
-        run_stage(_config(tmp_path, grid={"x": [20.0, 30.0, 0.5]}), tmp_path / "r1", "build-dictionary", quiet=True)
+    # a grid that misses the model names both
+    with pytest.raises(ConfigError, match=r"grid \(x 20.00..30.00 m, y 0.40..2.00 m\) keeps no position of .*plan.yaml "
+                                          r"\(plan x 0.00..12.00 m, y 0.00..2.40 m\)"):
+        run_stage(_config(tmp_path, grid={"x": [20.0, 30.0, 0.5], "y": [0.4, 2.0, 0.4], "z": 1.14}), tmp_path / "r1",
+                  "build-dictionary", quiet=True)
+    # no z and a plan without camera_z: told to give one
+    with pytest.raises(ConfigError, match=r"gives no camera height \(camera_z\): set grid.z"):
+        run_stage(_config(tmp_path, grid={}), tmp_path / "r1", "build-dictionary", quiet=True)
     with pytest.raises(ConfigError, match="umap.sensor_csv"):
         _config(tmp_path, mode="umap+ca", sensor_csv=None)
     # a query of another size (aspect) than the database camera (its pose is known, so the

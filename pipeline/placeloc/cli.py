@@ -30,49 +30,108 @@ except ImportError:  # older Typer uses Click itself
 BUG_REPORT = "the placeloc issue tracker, with the traceback above, the command and the config"
 
 
-def _user_error_types() -> tuple[type, ...]:
-    """Exceptions caused by input (files, config, data, the machine's limits), never by a bug.
+_PACKAGE_DIR = str(Path(__file__).resolve().parent)
 
-    ValueError covers every placeloc error about bad data (ConfigError, GroundTruthError,
-    PoseError, the co-embedding errors, ResourceError) and UnicodeDecodeError; OSError
-    covers missing files, permissions, folders given for files and a full disk."""
-    import yaml
+# What an OSError's errno means for the user, and the usual fix.
+_OS_FIXES = {
+    "ENOENT": "does not exist; check the path",
+    "EACCES": "permission denied; make it readable/writable for you (chmod) or choose another path",
+    "EPERM": "operation not permitted; check its owner and permissions, or choose another path",
+    "EROFS": "is on a read-only file system; choose a writable place, e.g. another --run-dir",
+    "EISDIR": "is a folder where a file was expected; give a file, or remove the folder",
+    "ENOTDIR": "a part of the path is a file where a folder was expected; fix the path (is -o/--run-dir a file?)",
+    "EEXIST": "already exists as something else (a file where a folder goes?); remove it or choose another path",
+    "ELOOP": "is a symbolic link that points to itself (a link loop); fix or remove the link",
+    "ENOSPC": "no space left on the device; free space or choose another --run-dir",
+    "EDQUOT": "disk quota exceeded; free space or choose another --run-dir",
+    "ENAMETOOLONG": "the path is too long; choose a shorter one",
+    "EMFILE": "too many open files; raise the limit (ulimit -n) or lower executor.workers",
+    "EIO": "an input/output error on the device; check the disk",
+}
 
-    from placeloc.errors import StageError
-    from placeloc.images import ImageError
 
-    types: list[type] = [ValueError, OSError, yaml.YAMLError, MemoryError, ImageError, StageError]
-    cv2 = sys.modules.get("cv2")
-    if cv2 is not None:
-        types.append(cv2.error)
-    return tuple(types)
+def _raised_in_placeloc(exc: BaseException) -> bool:
+    """True when a ``raise`` statement in placeloc's own code raised ``exc`` (a message
+    written for the user); False when it came from Python or a library, or from a builtin
+    called by placeloc (``float("abc")``): a raw text."""
+    import linecache
+
+    tb = exc.__traceback__
+    if tb is None:
+        return True  # built, not raised: only placeloc builds errors for the boundary
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    filename = tb.tb_frame.f_code.co_filename
+    if not str(Path(filename).resolve()).startswith(_PACKAGE_DIR):
+        return False
+    return linecache.getline(filename, tb.tb_lineno).strip().startswith("raise")
+
+
+def _os_error_line(exc: OSError) -> str:
+    """A raw OSError as one line: the file, what its errno means and the usual fix."""
+    import errno as errno_names
+
+    text = " ".join(str(exc).split())
+    name = errno_names.errorcode.get(exc.errno or -1, "")
+    if name not in _OS_FIXES or "; " in text:  # placeloc's own wording (it gives a fix) stays
+        if exc.filename and str(exc.filename) not in text:
+            return f"{exc.filename}: {text}"
+        return text
+    where = exc.filename or "a file"
+    also = f" (and {exc.filename2})" if getattr(exc, "filename2", None) else ""
+    return f"{where}{also}: {_OS_FIXES[name]}"
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
     if isinstance(exc, MemoryError):
-        text = f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, or executor.workers"
-    elif isinstance(exc, OSError) and exc.filename and str(exc.filename) not in text:
-        text = f"{exc.filename}: {text}"
-    elif not text:
-        text = type(exc).__name__
-    return text
+        text = " ".join(str(exc).split())
+        return (f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, "
+                "or executor.workers, or free memory")
+    if isinstance(exc, OSError):
+        return _os_error_line(exc)
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
 
 
 def classify(exc: BaseException) -> str:
-    """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
-    judged by the exception it wraps)."""
+    """The one classification of failures (see placeloc.errors):
+
+    - ``user``: the input, the config or the files are wrong; placeloc's own errors (every
+      exception type defined in placeloc, a ValueError placeloc raised with its message),
+      every OSError (worded by errno with the file and the fix), invalid YAML, an image
+      OpenCV cannot decode, a file that is not UTF-8;
+    - ``environment``: the machine failed the run (a worker killed, memory exhausted);
+    - ``bug``: anything else, including a raw ValueError from Python or a library (placeloc
+      should have checked the input before: its text would not tell the user what to do).
+    A work item's failure is judged by the exception it wraps."""
+    import yaml
+
+    from placeloc.errors import EnvironmentFailure
     from placeloc.executor import WorkItemError
 
     if isinstance(exc, WorkItemError):
         return classify(exc.original)
-    return "user" if isinstance(exc, _user_error_types()) else "bug"
+    if isinstance(exc, (EnvironmentFailure, MemoryError)):
+        return "environment"
+    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)):
+        return "user"
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and isinstance(exc, cv2.error):
+        return "user"
+    if isinstance(exc, (RecursionError, WorkItemError)):
+        return "bug"
+    if type(exc).__module__.split(".")[0] == "placeloc":
+        return "user"  # ConfigError, StageError, ImageError, GroundTruthError, PoseError, ResourceError, ...
+    if isinstance(exc, ValueError) and _raised_in_placeloc(exc):
+        return "user"
+    return "bug"
 
 
 class ErrorBoundaryGroup(TyperGroup):
     """The one error boundary: every command, including ones added later, runs inside it.
 
     - a user-caused error: one line ``error: ...`` naming the file or key and the fix, rc 2;
+    - an environment failure (a worker killed, out of memory): one line with what to change, rc 3;
     - Ctrl-C: one line ``interrupted; rerun to resume``, rc 130;
     - anything else is a bug: the traceback, then one line saying so and where to report it, rc 1.
     """
@@ -89,9 +148,10 @@ class ErrorBoundaryGroup(TyperGroup):
             _announce_interrupt()
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
-            if classify(exc) == "user":
+            kind = classify(exc)
+            if kind in ("user", "environment"):
                 typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
-                raise typer.Exit(2) from None
+                raise typer.Exit(2 if kind == "user" else 3) from None
             traceback.print_exc()
             typer.secho(f"error: this is a bug in placeloc ({type(exc).__name__}), not a problem with your input; "
                         f"please report it to {BUG_REPORT}", fg="red", err=True)
@@ -250,6 +310,28 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
         _fail(ValueError(str(exc).strip("'\"")))
     for k, v in summary.items():
         typer.echo(f"{k}: {v}")
+
+
+@app.command(name="import")
+def import_(kind: str = typer.Argument(..., help="Format: zind (a Zillow Indoor Dataset tour's zind_data.json)."),
+            source: Path = typer.Argument(..., help="The file to import, e.g. zind_data.json."),
+            out: Path = typer.Argument(..., help="Output folder: floor_plan.yaml and poses.csv (one folder per floor "
+                                                "when the tour has several and --floor is not given)."),
+            floor: str | None = typer.Option(None, help="The floor to import, e.g. floor_01 (default: every floor).")) -> None:
+    """Import a home's floor plan and panorama poses for UMap (umap.model, ground_truth.path)."""
+    from placeloc.geometry.floorplan import ModelError
+    from placeloc.geometry.zind import import_zind
+
+    if kind != "zind":
+        _fail(ValueError(f"import {kind!r}: unknown format; known: zind"))
+    if not source.is_file():
+        _fail(ValueError(f"{source}: file not found; give the tour's zind_data.json"))
+    try:
+        summary = import_zind(source, out, floor)
+    except ModelError as exc:
+        _fail(exc)
+    for part in (summary.values() if "floor" not in summary else [summary]):
+        typer.echo(", ".join(f"{k}: {v}" for k, v in part.items()))
 
 
 @app.command()

@@ -46,7 +46,12 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 def safe_yaml(text: str) -> Any:
     """Parse YAML text with the safe, alias-free loader."""
-    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    try:
+        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    except RecursionError:
+        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
+        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
+                             "of keys and values: close the brackets") from None
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:
@@ -136,12 +141,13 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     choices = {**P.choices(CommonParams), **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
     types = {**P.declared_types(CommonParams),
              **{f"{method.name}.{k}": v for k, v in P.declared_types(method.params).items()}}
+    nullable = set(P.nullable_keys(CommonParams)) | {f"{method.name}.{k}" for k in P.nullable_keys(method.params)}
 
     path_keys = P.path_keys(CommonParams) + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
-    config = _merge(schema, data, prefix="", choices=choices, types=types)
+    config = _merge(schema, data, prefix="", choices=choices, types=types, nullable=nullable)
     config["method"] = method_name
     problems = P.check_bounds(method.params, config[method.name], f"{method.name}.")
     problems += P.check_bounds(CommonParams, config, "")
@@ -195,7 +201,8 @@ def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
     return problems
 
 
-def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None) -> dict:
+def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None,
+           nullable: set[str] | None = None) -> dict:
     out = {}
     for key in data:
         if key not in schema:
@@ -214,7 +221,10 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
-            out[key] = _merge(default, value, f"{dotted}.", choices, types)
+            out[key] = _merge(default, value, f"{dotted}.", choices, types, nullable)
+            continue
+        if value is None and nullable and dotted in nullable:
+            out[key] = None  # declared ``X | None``: null is one of its values
             continue
         if default is None and types and dotted in types:
             out[key] = _check_declared(dotted, value, types[dotted])

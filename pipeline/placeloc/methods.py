@@ -54,7 +54,10 @@ class Stage:
     section name covers the whole section); ``sections`` are common config sections beyond
     method, seed, reference and query (``"ground_truth"``, ``"plots"``). Changing anything
     else does not re-run the stage. Images, files named by path parameters and the parent
-    artifact are always inputs.
+    artifact are always inputs; a key an earlier stage declares reaches this one through
+    the parent's stamp, and a key declared ``affects_result=False`` (block and task sizes)
+    needs no declaration. tests/test_stage_keys.py runs every method with a parameter
+    object that records what each stage reads and fails on any difference.
     """
 
     run: Callable[[Any], None]

@@ -36,10 +36,11 @@ from placeloc.artifacts import (
 )
 from placeloc.config import config_hash, to_yaml
 from placeloc.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.runner
-from placeloc.executor import Executor, make_executor, remove_stale_shared
+from placeloc.executor import Executor, remove_stale_shared
+from placeloc.executors import make_executor
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.interrupts import raise_if_interrupted
-from placeloc.limits import check_resources
+from placeloc.limits import check_inputs, check_resources
 from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 
 try:
@@ -230,7 +231,7 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
     stage = normalise_stage(stage)
     run_dir = Path(run_dir)
     check_run_dir(config, run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    make_run_dir(run_dir)
     with lock_run_dir(run_dir, wait=wait), run_log(run_dir):
         log.info("run: %s up to %s in %s (placeloc %s, pid %d)", config["method"], stage, run_dir, __version__, os.getpid())
         try:
@@ -248,6 +249,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     remove_stale_shared()
     method = get_method(config["method"])
     images = image_sets(config) if method.uses_images else {}
+    check_inputs(config, images)
     parent_stamp: str | None = None
     executor: Executor | None = None
     try:
@@ -340,6 +342,33 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
                                   "image folder; choose another --run-dir, e.g. runs/NAME")
 
 
+def make_run_dir(run_dir: Path) -> None:
+    """Create the run directory, or say why it cannot be one (a file, not writable)."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise RunDirError(f"--run-dir {run_dir} is a file, not a folder; give a folder for the run's results "
+                          f"(e.g. {run_dir.with_suffix('')}-run) or move the file away")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError as exc:  # a part of the path is a file
+        raise RunDirError(f"--run-dir {run_dir}: a part of the path is a file ({exc.filename}); choose another --run-dir") from None
+    except NotADirectoryError:
+        raise RunDirError(f"--run-dir {run_dir}: a part of the path is a file, not a folder; choose another --run-dir") from None
+    except OSError as exc:
+        raise _unwritable(run_dir, exc) from None
+    if not os.access(run_dir, os.W_OK | os.X_OK):
+        raise _unwritable(run_dir, PermissionError(13, "Permission denied"))
+
+
+def _unwritable(run_dir: Path, exc: OSError) -> RunDirError:
+    import errno
+
+    why = "is on a read-only file system" if exc.errno == errno.EROFS else (
+        "is not writable for you (permission denied)" if exc.errno in (errno.EACCES, errno.EPERM)
+        else f"cannot be written ({exc.strerror or exc})")
+    return RunDirError(f"--run-dir {run_dir} {why}: placeloc writes its lock, log and results there, even when every "
+                       "stage is up to date; make it writable (chmod u+w) or choose another --run-dir")
+
+
 def _written_by_older_placeloc(cfg: Path) -> bool:
     """Run directories from before the header: config.yaml is ours when an artifact beside
     it carries the same config text."""
@@ -369,7 +398,10 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
         yield
         return
     lock_path = run_dir / ".lock"
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:  # read-only file system, or a folder (or .lock) we may not write
+        raise _unwritable(run_dir, exc) from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -329,7 +329,11 @@ class _Lookup:
         self.index: dict[str, int] | None = None
 
     def bound(self, cell: str, line: int) -> int:
-        """A range end: an index may reach past the traverse (the range is clipped)."""
+        """A range end: an index may reach past the end of the traverse (the range is
+        clipped there); a negative one is refused, as a negative index is."""
+        if _is_int(cell) and int(cell.strip()) < 0:
+            raise GroundTruthError(f"{self.path}:{line}: {self.role} index {int(cell.strip())} is negative; indices count "
+                                   "the folder's images in natural order from 0")
         return int(cell.strip()) if _is_int(cell) else self(cell, line)
 
     def __call__(self, cell: str, line: int) -> int:

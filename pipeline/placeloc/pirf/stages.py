@@ -47,14 +47,12 @@ log = logging.getLogger("placeloc.pirf")
 
 def _check(config: dict) -> None:
     p = config["pirf"]
-    if not 0 < p["ratio"] < 1:
+    # Single-key ranges are declared in PirfParams (and n_pmin <= n_pmax by the generic
+    # min/max pair rule); what a range cannot say is checked here.
+    if p["ratio"] >= 1:
         raise ConfigError(f"pirf.ratio must lie in (0, 1), got {p['ratio']}; the paper uses 0.7")
-    if not 1 <= p["n_pmin"] <= p["n_pmax"]:
-        raise ConfigError(f"pirf: need 1 <= n_pmin <= n_pmax, got {p['n_pmin']} and {p['n_pmax']}")
-    if p["w_size_default"] < 1 or p["w_size_max"] < p["w_size_default"]:
-        raise ConfigError("pirf: need 1 <= w_size_default <= w_size_max")
-    if p["eps"] < 1:
-        raise ConfigError("pirf: eps must be >= 1")
+    if p["w_size_max"] < p["w_size_default"]:
+        raise ConfigError(f"pirf: need w_size_default <= w_size_max, got {p['w_size_default']} and {p['w_size_max']}")
     gt = config["ground_truth"]
     if gt["kind"] not in ("none", "poses", "matrix", "csv"):
         raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius) or a "

@@ -209,6 +209,9 @@ def seqslam_variants(tmp: Path) -> list[Variant]:
     n_query = len(list((ROOT / "data-samples" / "route" / "query").glob("*.png")))
     np.save(tmp / "ref.npy", rng.standard_normal((n_ref, 16)).astype(np.float32))
     np.save(tmp / "query.npy", rng.standard_normal((n_query, 16)).astype(np.float32))
+    loops = np.zeros((n_ref, n_ref), np.uint8)
+    loops[np.arange(60, n_ref), np.arange(60, n_ref) - 60] = 1  # loop-closure truth: a binary N x N matrix
+    np.save(tmp / "loops.npy", loops)
     base = {"plots": False}
     return [
         _preset("demo.yaml", {}, {"plots": True}),
@@ -220,8 +223,9 @@ def seqslam_variants(tmp: Path) -> list[Variant]:
         _preset("demo.yaml", {}, {**base, "seqslam.descriptors_reference": str(tmp / "ref.npy"),
                                   "seqslam.descriptors_query": str(tmp / "query.npy"),
                                   "seqslam.descriptor_distance": "l2"}),
-        # loop closure within the reference traverse (no query): exclude_recent
-        _preset("demo.yaml", {}, {**base, "query": None, "ground_truth": {"kind": "synchronous", "tolerance": 2}}),
+        # loop closure within the reference traverse (no query): exclude_recent, the loops contract
+        _preset("demo.yaml", {}, {**base, "query": None,
+                                  "ground_truth": {"kind": "matrix", "path": str(tmp / "loops.npy"), "tolerance": 2}}),
     ]
 
 

@@ -179,7 +179,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         raise ConfigError(problems[0])
     from placeloc.evaluation.contracts import check_ground_truth
 
-    check_ground_truth(config)  # the method's result contract checks its ground truth before any stage runs
+    check_ground_truth(config, method)  # the method's result contract checks its ground truth before any stage runs
     return config
 
 

@@ -189,9 +189,9 @@ def localize_result(run_dir: str | Path) -> Result | None:
 # What a run sees of the contracts
 # ---------------------------------------------------------------------------------------
 def check_ground_truth(config: dict[str, Any], method: Any) -> None:
-    """The up-front ground-truth check, before any stage runs: the contract of ``method``
-    (a :class:`placeloc.methods.Method`) builds its ground truth from the config and the
-    image lists (a bad file or a missing frame is one error naming the file and the fix)."""
+    """The up-front ground-truth check, before any stage runs: ``method``'s contract
+    builds its ground truth from the config and the image lists (a bad file or a missing
+    frame is one error naming the file and the fix)."""
     kind = method.result_kind(config)
     if kind is not None:
         contract(kind).check_ground_truth(config, method)
@@ -213,14 +213,16 @@ def evaluate_stage(ctx: Any) -> None:
     for k, v in ev.arrays.items():
         _write_array(ctx.out, k, v)
     ctx.out.attrs["result_kind"] = res.kind
-    write_metrics(ctx.output_dir, ev.metrics, ctx.out)
+    clean = write_metrics(ctx.output_dir, ev.metrics, ctx.out)
     plots = bool(ctx.config.get("plots", True))
     mod.finish(ctx, ev, plots=plots)
     if plots:
+        from placeloc.evaluation.report import write_report
+
         # side outputs are staged in ctx.output_dir until the stage commits: read and write there
         if mod.SHOW_AT_EVALUATE:
             mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
-        write_run_report(ctx.run_dir, res.kind, config=ctx.config, out_dir=ctx.output_dir)
+        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
 
 
 def _write_array(group: h5py.Group, name: str, value: Any) -> None:
@@ -247,17 +249,13 @@ def headline(run_dir: str | Path) -> list[tuple[str, Any]]:
     return headline_of(res_kind, json.loads(path.read_text()))
 
 
-def write_run_report(run_dir: str | Path, kind: str | None, *, config: dict[str, Any] | None = None,
-                     out_dir: str | Path | None = None) -> Path:
-    """``report.html`` for a run whose localize wrote contract ``kind`` (None: not yet
-    localized), with that contract's headline figures and metric meanings."""
-    from placeloc.evaluation.report import write_report
-
-    def headline(metrics: dict[str, Any]) -> list[tuple[str, str]]:
-        return [(k, format_value(v)) for k, v in headline_of(kind, metrics)] if kind else []
-
-    doc = dict(getattr(contract(kind), "METRICS_DOC", {})) if kind else {}
-    return write_report(run_dir, config=config, out_dir=out_dir, kind=kind, headline=headline, metrics_doc=doc)
+def report_parts(kind: str | None, metrics: dict[str, Any] | None) -> dict[str, Any]:
+    """What report.html shows of the contract: its kind, the headline figures and the
+    documented meaning of its metrics (keyword arguments of ``write_report``)."""
+    if kind is None:
+        return {}
+    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [],
+            "metrics_doc": getattr(contract(kind), "METRICS_DOC", {})}
 
 
 def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:

@@ -49,6 +49,8 @@ from placeloc.evaluation.ground_truth import GroundTruthError
 
 log = logging.getLogger("placeloc")
 
+# common config sections the evaluate stage reads
+SECTIONS = ("ground_truth", "plots")
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = True
 

@@ -8,7 +8,7 @@ import base64
 import html
 import json
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import yaml
 
@@ -56,8 +56,13 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     after a run succeeds, so during a stage it may still describe the previous run)."""
     import h5py
 
-    # newest first; the report names no stage or method (it sits below both)
-    for path in sorted(Path(run_dir).glob("*.h5"), key=lambda p: p.stat().st_mtime_ns, reverse=True):
+    def newest_first(p: Path) -> float:
+        try:
+            return -p.stat().st_mtime
+        except OSError:
+            return 0.0
+
+    for path in sorted(Path(run_dir).glob("*.h5"), key=newest_first):
         if path.is_file():
             try:
                 with h5py.File(path, "r") as f:
@@ -69,34 +74,29 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return {}
 
 
-def _headline_html(kind: str | None, figures: Sequence[tuple[str, str]]) -> str:
+def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
     """The headline figures first, as large numbers, with the contract they belong to."""
     if not figures:
         what = f"result: {kind}; " if kind else ""
         return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
-    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(v)}</div><div class='k'>{html.escape(k)}</div>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(_fmt(v))}</div><div class='k'>{html.escape(k)}</div>"
                     "</div>" for k, v in figures)
     return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
-def _metrics_doc(doc: dict[str, str]) -> str:
-    if not doc:
-        return ""
-    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in doc.items())
-    return f"<ul class='muted'>{items}</ul>"
+def _metrics_doc(doc: dict[str, str] | None) -> str:
+    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
+    return f"<ul class='muted'>{items}</ul>" if items else ""
 
 
 def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
-                 out_dir: str | Path | None = None, *, kind: str | None = None,
-                 headline: Callable[[dict[str, Any]], Sequence[tuple[str, str]]] | None = None,
-                 metrics_doc: dict[str, str] | None = None) -> Path:
+                 out_dir: str | Path | None = None, result_kind: str | None = None,
+                 headline: list[tuple[str, Any]] | None = None, metrics_doc: dict[str, str] | None = None) -> Path:
     """Write ``report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
     ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
-    PNGs staged there by the same stage take the place of the run directory's. The result
-    contract supplies ``kind``, ``headline`` (metrics -> formatted (name, value) pairs) and
-    ``metrics_doc`` (key -> meaning); see :func:`placeloc.evaluation.contracts.write_run_report`."""
+    PNGs staged there by the same stage take the place of the run directory's."""
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
@@ -109,7 +109,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
-    parts.append(_headline_html(kind, list(headline(metrics)) if headline is not None and metrics else []))
+    parts.append(_headline_html(result_kind, headline or []))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
@@ -126,7 +126,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc or {}) + _table(main, ("metric", "value")))
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}

@@ -46,9 +46,6 @@ METRICS_DOC = {
 }
 
 
-# what the evaluate stage reads of the shared config: the truth files are method parameters
-SECTIONS = ("plots",)
-
 def write(ctx: Any, *, feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray,
           path: dict[str, np.ndarray] | None = None) -> None:
     """Write the contract into ``ctx.out/result``; ``path``: step_ids, xy, heading, label_steps."""

@@ -41,4 +41,6 @@ class WorkerLostError(EnvironmentFailure):
 
 
 class ModelError(ValueError):
-    """The model file cannot be used; the message names the file and the fix."""
+    """A map model file (wireframe, floor plan, ZInD home) cannot be used; the message names
+    the file and the fix. Here, not in geometry.floorplan, so that the ZInD importer and the
+    floor-plan loader (which reads ZInD homes through it) need not import each other."""

@@ -145,7 +145,7 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
-        from placeloc.geometry.zind import zind_home  # zind imports this module
+        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
 
         return floor_plan_model(zind_home(path, floor)[0], str(path))
     if isinstance(data, dict) and ("outline" in data or "rooms" in data):

@@ -100,6 +100,8 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     clutter["boxes"].append([tx - 0.8, ty - 0.45, 0.72, tx + 0.8, ty + 0.45, 0.76, 0.35, 0.0])
     _fan(clutter, liv_w / 2 + rng.uniform(-0.4, 0.4), -south / 2 + rng.uniform(-0.4, 0.4))
     clutter["flat"].append([tx - 1.3, ty - 1.0, 0.0, tx + 1.3, ty + 1.0, 0.012, 0.4 + 0.15 * rng.random(), 0.0])   # a rug
+    ru = rng.uniform(0.5, length - 3.0)
+    clutter["flat"].append([ru, 0.35, 0.0, ru + 2.4, HALL_W - 0.35, 0.012, 0.3 + 0.2 * rng.random(), 0.0])  # a hall runner
     # kitchen cabinets: a counter run along the south wall and wall cabinets above it
     k0 = liv_w + 0.1
     clutter["boxes"].append([k0, -south, 0.0, length - 0.1, -south + 0.6, 0.9, 0.45, 0.6])
@@ -414,6 +416,8 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             heading = float(rng.uniform(0, 360))
             zz = z + float(rng.uniform(-0.03, 0.03))
             img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
+            # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
+            img[int(height * (90 + 78) / 180):] *= 0.45
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)

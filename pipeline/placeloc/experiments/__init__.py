@@ -18,6 +18,7 @@ from placeloc.artifacts import atomic_open
 EXPERIMENTS: dict[str, str] = {
     "seqslam": "placeloc.experiments.seqslam",
     "umap": "placeloc.experiments.umap",
+    "umap-homes": "placeloc.experiments.umap_homes",
     "coembed": "placeloc.experiments.coembed",
     "pirf": "placeloc.experiments.pirf",
     "pirf-large": "placeloc.experiments.pirf_large",

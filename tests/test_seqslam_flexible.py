@@ -1,0 +1,159 @@
+"""Known answers for the flexible sequence search: a path whose speed may change inside the window."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from placeloc.seqslam.search import (
+    _flexible_scores,
+    query_offsets,
+    segment_length,
+    sequence_search,
+    trajectory_offsets,
+    velocities,
+)
+
+
+def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
+    """Every chain of segment velocities written out, for every reference: the cheapest
+    path through (T, r) (the definition the dynamic programme must reproduce)."""
+    nr = et.shape[1]
+    seg = segment_length(vels)
+    before, after = -int(t_off[0]), int(t_off[-1])
+
+    def chains(n_frames: int) -> list[tuple[float, np.ndarray, float]]:
+        n_seg = -(-n_frames // seg)
+        out = []
+        for vs in itertools.product(vels, repeat=n_seg):
+            pos, p = [], 0
+            for j, v in enumerate(vs):
+                o = trajectory_offsets(np.array([v]), np.arange(seg + 1))[0]
+                pos += [p + int(o[t]) for t in range(min(seg, n_frames - j * seg))]
+                p += int(o[seg])
+            bends = sum(abs(vs[j] - vs[j + 1]) for j in range(n_seg - 1)) * cost * seg
+            out.append((vs[0], np.array(pos), bends))
+        return out
+
+    s = np.full(nr, np.inf)
+    r = np.arange(nr)[:, None]
+    for (v1, p1, c1), (v2, p2, c2) in itertools.product(chains(after + 1), chains(before + 1)):
+        fwd, back = r + p1, r - p2  # (reference, frame) along the path through (T, r)
+        ok = (fwd.max(axis=1) < nr) & (back.min(axis=1) >= 0)
+        total = (et[T + np.arange(len(p1)), np.clip(fwd, 0, nr - 1)].sum(axis=1)
+                 + et[T - np.arange(len(p2)), np.clip(back, 0, nr - 1)].sum(axis=1) - et[T])
+        total += c1 + c2 + cost * seg * abs(v1 - v2)
+        s = np.where(ok, np.minimum(s, total), s)
+    return s
+
+
+@pytest.mark.parametrize("search,ds", [("centred", 8), ("causal", 5), ("centred", 5)])
+def test_dynamic_programme_equals_every_chain_written_out(search, ds):
+    rng = np.random.default_rng(0)
+    et = rng.random((14, 20)).astype(np.float32)
+    vels = velocities(0.0, 1.5, 0.5)  # segments of 2 frames, standing still allowed
+    t_off = query_offsets(ds, search)
+    rows = (-int(t_off[0]), 14 - int(t_off[-1]))
+    s = _flexible_scores(et, rows, t_off, vels, 0.3)
+    for T in range(*rows):
+        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3), rtol=1e-5)
+
+
+def _planted(speeds: np.ndarray, n_ref: int, seed: int, gone: np.ndarray | None = None,
+             snr: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """D (query-major) with the path a query moving at ``speeds`` traces planted in it:
+    zeros in uniform 0.6-1.0 noise, or (``snr``) Gaussian noise lowered by ``snr`` standard
+    deviations on the path, as enhanced real differences look. Queries in ``gone`` (a
+    detour) see nothing of the reference."""
+    rng = np.random.default_rng(seed)
+    path = 20 + np.floor(np.concatenate([[0.0], np.cumsum(speeds[:-1])]) + 0.5).astype(np.int64)
+    seen = np.flatnonzero(np.ones(len(speeds), bool) if gone is None else ~gone)
+    if snr is None:
+        et = rng.uniform(0.6, 1.0, (len(speeds), n_ref)).astype(np.float32)
+        et[seen, path[seen]] = 0.0
+    else:
+        et = (rng.normal(0, 1, (len(speeds), n_ref)) + 4).astype(np.float32)
+        et[seen, path[seen]] -= snr
+    return et, path
+
+
+def _search(et: np.ndarray, shape: str, vels: np.ndarray, ds: int = 20) -> np.ndarray:
+    best, _ = sequence_search(et, 0, len(et), ds, vels, "centred", 5, 2, None, 0, shape=shape, edges="shift")
+    return best[:, 0]
+
+
+# speed steps, a stop of 50 frames, a 0.5x and a 2x stretch: all inside one route
+SPEEDS = np.concatenate([np.full(60, 1.0), np.full(50, 2.0), np.zeros(50), np.full(80, 0.5), np.full(60, 1.5),
+                         np.full(60, 1.0)])
+
+
+def test_flexible_follows_speed_steps_a_stop_and_half_and_double_speed():
+    et, path = _planted(SPEEDS, 420, seed=1)
+    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
+    # every query, through the steps and the stop, lands within one frame of its place
+    # (fractional speeds are rounded along the segment, so one frame is the resolution)
+    assert np.abs(flexible - path).max() <= 1
+    assert (flexible == path).mean() > 0.95
+
+
+def test_flexible_beats_straight_lines_when_the_path_is_faint():
+    # the path 1.5 standard deviations below the noise: a straight line through a bend
+    # collects half the window's evidence, a bending path all of it
+    et, path = _planted(SPEEDS, 420, seed=1, snr=1.5)
+    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
+    line = _search(et, "trajectory", velocities(0.1, 2.0, 0.1))
+    assert (np.abs(flexible - path) <= 2).mean() >= 0.97
+    assert (np.abs(line - path) <= 2).mean() <= 0.90
+
+
+def test_flexible_stands_still_through_a_stop_only_when_zero_speed_is_allowed():
+    speeds = np.concatenate([np.full(40, 1.0), np.zeros(50), np.full(40, 1.0)])
+    et, path = _planted(speeds, 200, seed=2)
+    assert np.abs(_search(et, "flexible", velocities(0.0, 1.5, 0.1)) - path).max() <= 1
+    moving = _search(et, "flexible", velocities(0.5, 1.5, 0.1))
+    assert (np.abs(moving - path) > 2).sum() >= 10  # cannot stop: drifts during the stop
+
+
+def test_flexible_rejoins_after_a_detour_that_leaves_the_reference():
+    # 15 query frames off the route, coming back to where it left (a loop round a block)
+    speeds = np.concatenate([np.full(80, 1.0), np.zeros(15), np.full(80, 1.0)])
+    gone = np.zeros(len(speeds), bool)
+    gone[81:95] = True
+    et, path = _planted(speeds, 220, seed=3, gone=gone)
+    on_route = ~gone
+    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
+    # every query on the route, those whose window spans the detour included
+    assert np.abs(flexible - path)[on_route].max() <= 1
+
+
+def test_steady_speed_scores_as_the_straight_line_does():
+    # at one constant speed the best flexible path is the straight line: same matches, same scores
+    et, path = _planted(np.full(150, 1.0), 200, seed=4)
+    vels = velocities(0.8, 1.2, 0.1)
+    kw = dict(window=5, k=2, exclude_recent=None, query_index0=0, edges="skip")
+    fb, fs = sequence_search(et, 0, 150, 20, vels, "centred", shape="flexible", **kw)
+    tb, ts = sequence_search(et, 0, 150, 20, vels, "centred", shape="trajectory", **kw)
+    inside = np.arange(10, 140)
+    np.testing.assert_array_equal(fb[inside, 0], path[inside])
+    np.testing.assert_array_equal(tb[inside, 0], path[inside])
+    assert (fs[inside, 0] == 0).all() and (ts[inside, 0] == 0).all()
+    assert (fb[:10] == -1).all()  # edges skipped as for every shape
+
+
+def test_flexible_chunks_and_edges_agree_with_one_query_at_a_time():
+    rng = np.random.default_rng(5)
+    et = rng.random((70, 90)).astype(np.float32)
+    vels = velocities(0.0, 2.0, 0.25)
+    t_off = query_offsets(12, "centred")
+    best, scores = sequence_search(et, 0, 70, 12, vels, "centred", 3, 3, None, 0, shape="flexible", edges="shift")
+    for T in (0, 3, 6, 30, 63, 69):
+        sh = 0
+        if T + t_off[0] < 0:
+            sh = -(T + int(t_off[0]))
+        elif T + t_off[-1] > 69:
+            sh = 69 - (T + int(t_off[-1]))
+        s = _flexible_scores(et, (T, T + 1), t_off + sh, vels, 0.5)[0]
+        assert best[T, 0] == int(np.argmin(s))
+        assert scores[T, 0] == pytest.approx(float(s.min()), rel=1e-5)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from placeloc.seqslam.search import (
+    UNRELATED_CHANGE,
     _flexible_scores,
     query_offsets,
     segment_length,
@@ -17,56 +18,86 @@ from placeloc.seqslam.search import (
 )
 
 
-def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
-    """Every chain of segment velocities written out, for every reference: the cheapest
-    path through (T, r) (the definition the dynamic programme must reproduce)."""
+def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float, stop: float) -> np.ndarray:
+    """Every chain of segment speeds written out, for every reference: the cheapest path
+    through (T, r) (the definition the dynamic programme must reproduce). With 0 among the
+    speeds, every frame but the anchor counts around its column's mean by its novelty (its
+    change from the frame before it on the path, over that of two unrelated columns), and
+    a segment that stands still pays ``stop`` per unit of the query's change meanwhile."""
     nr = et.shape[1]
     seg = segment_length(vels)
+    speeds = np.unique(vels)
+    stops = speeds[0] == 0  # standing still: frames count by their novelty
     before, after = -int(t_off[0]), int(t_off[-1])
 
-    def chains(n_frames: int) -> list[tuple[float, np.ndarray, float]]:
+    def change(f: int, g: int) -> float:
+        return float(np.abs(et[f].astype(np.float64) - et[g]).mean())
+
+    def chains(n_frames: int, d: int) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]]:
+        """(first speed, reference offsets, frames, still?, cost) of every chain on one side."""
         n_seg = -(-n_frames // seg)
         out = []
-        for vs in itertools.product(vels, repeat=n_seg):
-            pos, p = [], 0
+        for vs in itertools.product(speeds, repeat=n_seg):
+            pos, still, p = [], [], 0
             for j, v in enumerate(vs):
                 o = trajectory_offsets(np.array([v]), np.arange(seg + 1))[0]
                 pos += [p + int(o[t]) for t in range(min(seg, n_frames - j * seg))]
+                still += [v == 0] * min(seg, n_frames - j * seg)
                 p += int(o[seg])
-            bends = sum(abs(vs[j] - vs[j + 1]) for j in range(n_seg - 1)) * cost * seg
-            out.append((vs[0], np.array(pos), bends))
+            frames = T + d * np.arange(n_frames)
+            c = sum(abs(vs[j] - vs[j + 1]) for j in range(n_seg - 1)) * cost * seg
+            # standing from each still frame to the next frame on the path (the next
+            # segment's first frame included: it starts where a still segment ends)
+            c += sum(stop * change(frames[t], frames[t + 1]) for t in range(n_frames - 1) if still[t])
+            out.append((vs[0], d * np.array(pos), frames, np.array(still), c))
         return out
+
+    def values(frames: np.ndarray, refs: np.ndarray, still: np.ndarray) -> np.ndarray:
+        """Sum over the path of each frame's value, (n_ref,) for refs (n_ref, n_frames)."""
+        total = np.zeros(len(refs))
+        for t, f in enumerate(frames):
+            x = et[f, np.clip(refs[:, t], 0, nr - 1)].astype(np.float64)
+            if stops and t > 0:
+                w = min(1.0, change(f, frames[t - 1]) / UNRELATED_CHANGE)
+                m = float(et[f].astype(np.float64).mean())
+                x = m + w * (x - m)
+            total += x
+        return total
 
     s = np.full(nr, np.inf)
     r = np.arange(nr)[:, None]
-    for (v1, p1, c1), (v2, p2, c2) in itertools.product(chains(after + 1), chains(before + 1)):
-        fwd, back = r + p1, r - p2  # (reference, frame) along the path through (T, r)
-        ok = (fwd.max(axis=1) < nr) & (back.min(axis=1) >= 0)
-        total = (et[T + np.arange(len(p1)), np.clip(fwd, 0, nr - 1)].sum(axis=1)
-                 + et[T - np.arange(len(p2)), np.clip(back, 0, nr - 1)].sum(axis=1) - et[T])
-        total += c1 + c2 + cost * seg * abs(v1 - v2)
-        s = np.where(ok, np.minimum(s, total), s)
+    fwd_chains, back_chains = chains(after + 1, +1), chains(before + 1, -1)
+    fwd_vals = [values(fr, r + p, st) for _, p, fr, st, _ in fwd_chains]
+    back_vals = [values(fr, r + p, st) for _, p, fr, st, _ in back_chains]
+    for (v1, p1, _, _, c1), x1 in zip(fwd_chains, fwd_vals):
+        for (v2, p2, _, _, c2), x2 in zip(back_chains, back_vals):
+            ok = ((r + p1).max(axis=1) < nr) & ((r + p2).min(axis=1) >= 0)
+            total = x1 + x2 - et[T] + c1 + c2 + cost * seg * abs(v1 - v2)
+            s = np.where(ok, np.minimum(s, total), s)
     return s
 
 
-@pytest.mark.parametrize("search,ds", [("centred", 8), ("causal", 5), ("centred", 5)])
-def test_dynamic_programme_equals_every_chain_written_out(search, ds):
+@pytest.mark.parametrize("search,ds,v_min", [("centred", 8, 0.0), ("causal", 5, 0.0), ("centred", 5, 0.0),
+                                             ("centred", 8, 0.5)])
+def test_dynamic_programme_equals_every_chain_written_out(search, ds, v_min):
     rng = np.random.default_rng(0)
     et = rng.random((14, 20)).astype(np.float32)
-    vels = velocities(0.0, 1.5, 0.5)  # segments of 2 frames, standing still allowed
+    et[5] = et[4]  # the query stands still for a frame
+    vels = velocities(v_min, 1.5, 0.5)  # segments of 2 frames; with v_min 0 standing still
     t_off = query_offsets(ds, search)
     rows = (-int(t_off[0]), 14 - int(t_off[-1]))
-    s = _flexible_scores(et, rows, t_off, vels, 0.3)
+    s = _flexible_scores(et, rows, t_off, vels, 0.3, 0.7)
     for T in range(*rows):
-        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3), rtol=1e-5)
+        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3, 0.7), rtol=1e-5)
 
 
 def _planted(speeds: np.ndarray, n_ref: int, seed: int, gone: np.ndarray | None = None,
              snr: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """D (query-major) with the path a query moving at ``speeds`` traces planted in it:
     zeros in uniform 0.6-1.0 noise, or (``snr``) Gaussian noise lowered by ``snr`` standard
-    deviations on the path, as enhanced real differences look. Queries in ``gone`` (a
-    detour) see nothing of the reference."""
+    deviations on the path, as enhanced real differences look. A query that has not moved
+    since its last frame sees that frame again (its column repeats). Queries in ``gone``
+    (a detour) see nothing of the reference."""
     rng = np.random.default_rng(seed)
     path = 20 + np.floor(np.concatenate([[0.0], np.cumsum(speeds[:-1])]) + 0.5).astype(np.int64)
     seen = np.flatnonzero(np.ones(len(speeds), bool) if gone is None else ~gone)
@@ -76,6 +107,9 @@ def _planted(speeds: np.ndarray, n_ref: int, seed: int, gone: np.ndarray | None 
     else:
         et = (rng.normal(0, 1, (len(speeds), n_ref)) + 4).astype(np.float32)
         et[seen, path[seen]] -= snr
+    for q in range(1, len(speeds)):
+        if path[q] == path[q - 1] and (gone is None or gone[q] == gone[q - 1]):
+            et[q] = et[q - 1]
     return et, path
 
 
@@ -99,13 +133,15 @@ def test_flexible_follows_speed_steps_a_stop_and_half_and_double_speed():
 
 
 def test_flexible_beats_straight_lines_when_the_path_is_faint():
-    # the path 1.5 standard deviations below the noise: a straight line through a bend
-    # collects half the window's evidence, a bending path all of it
-    et, path = _planted(SPEEDS, 420, seed=1, snr=1.5)
-    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
-    line = _search(et, "trajectory", velocities(0.1, 2.0, 0.1))
+    # the path 1.5 standard deviations below the noise and a speed that changes every 30
+    # frames, under a 61-frame window: a straight line collects the evidence of one
+    # stretch, a bending path that of the whole window
+    speeds = np.repeat([1.0, 2.0, 0.5, 1.5, 0.7, 1.8, 1.0, 0.5, 2.0, 1.2, 0.6, 1.6], 30)
+    et, path = _planted(speeds, int(speeds.sum()) + 60, seed=2, snr=1.5)
+    flexible = _search(et, "flexible", velocities(0.5, 2.0, 0.1), ds=60)
+    line = _search(et, "trajectory", velocities(0.5, 2.0, 0.1), ds=60)
     assert (np.abs(flexible - path) <= 2).mean() >= 0.97
-    assert (np.abs(line - path) <= 2).mean() <= 0.90
+    assert (np.abs(line - path) <= 2).mean() <= 0.80
 
 
 def test_flexible_stands_still_through_a_stop_only_when_zero_speed_is_allowed():

@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from placeloc.seqslam.matching import sequence_match
 from placeloc.seqslam.search import (
     UNRELATED_CHANGE,
     _flexible_scores,
@@ -193,3 +194,20 @@ def test_flexible_chunks_and_edges_agree_with_one_query_at_a_time():
         s = _flexible_scores(et, (T, T + 1), t_off + sh, vels, 0.5)[0]
         assert best[T, 0] == int(np.argmin(s))
         assert scores[T, 0] == pytest.approx(float(s.min()), rel=1e-5)
+
+
+@pytest.mark.parametrize("v_min", [0.0, 0.5])
+def test_block_size_never_changes_a_flexible_result(v_min):
+    # the stop model measures each frame's novelty inside its own window, so cutting the
+    # queries into blocks (localize, evaluate) gives the same matches and scores
+    rng = np.random.default_rng(6)
+    ref = rng.integers(0, 256, (120, 32), dtype=np.uint8)
+    places = np.repeat(np.arange(10, 110, 2), 2)[:90]  # half speed: every frame twice
+    query = np.clip(ref[places].astype(int) + rng.integers(-40, 41, (len(places), 32)), 0, 255).astype(np.uint8)
+    common = dict(comparison="sad", enhance_window=4, ds=16, v_min=v_min, v_max=1.5, v_step=0.25, v_auto=False,
+                  search="centred", sequence_shape="flexible", edges="shift", top_k=3, exclude_recent=None)
+    one = sequence_match(ref, query, block_size=1000, **common)
+    cut = sequence_match(ref, query, block_size=20, **common)
+    np.testing.assert_array_equal(one.candidates, cut.candidates)
+    np.testing.assert_array_equal(one.scores, cut.scores)
+    assert (np.abs(one.candidates[:, 0] - places) <= 2).mean() > 0.9

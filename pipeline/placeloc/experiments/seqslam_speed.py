@@ -218,16 +218,19 @@ def write_query(out: Path, lo: int, hi: int, pos: np.ndarray) -> tuple[Path, Pat
 
 
 def report_settings() -> dict[str, dict[str, Any]]:
-    """The searches of the report table: the preset as shipped (straight lines), straight
-    lines over the speeds the query may have, the cone and hybrid of OpenSeqSLAM2 over
-    those speeds, and the flexible switch."""
-    wide = {"v_min": 0.5, "v_max": 2.0, "v_step": 0.1}
+    """The searches of the report table (overrides of ``configs/nordland.yaml``): the
+    preset as shipped (flexible), the straight lines it replaced, straight lines, cone and
+    hybrid over the speeds the query may have, and the flexible search allowed to stand
+    still."""
+    wide = {"v_min": 0.5, "v_max": 2.0, "v_step": 0.1, "ds": 60}
     return {
-        "preset (trajectory, v 0.8-1.2)": {},
-        "trajectory, v 0.5-2.0": {"sequence_shape": "trajectory", **wide},
-        "cone, v 0.5-2.0": {"sequence_shape": "cone", **wide},
-        "hybrid, v 0.5-2.0": {"sequence_shape": "hybrid", **wide},
-        "flexible (sequence_shape: flexible)": {"sequence_shape": "flexible"},
+        "preset: flexible, ds 120, v 0.5-2.0": {},
+        "trajectory, ds 60, v 0.8-1.2 (the previous preset)": {"sequence_shape": "trajectory", "ds": 60, "v_min": 0.8,
+                                                               "v_max": 1.2},
+        "trajectory, ds 60, v 0.5-2.0": {"sequence_shape": "trajectory", **wide},
+        "cone, ds 60, v 0.5-2.0": {"sequence_shape": "cone", **wide},
+        "hybrid, ds 60, v 0.5-2.0": {"sequence_shape": "hybrid", **wide},
+        "flexible, ds 120, v 0-2.0 (may stand still)": {"v_min": 0.0},
     }
 
 
@@ -252,7 +255,7 @@ def report(out: Path, quiet: bool = True) -> Path:
                              "ground_truth.kind=csv", f"ground_truth.path={gt}"]
                 overrides += [f"seqslam.{k}={v}" for k, v in keys.items()]
                 cfg = load_config(CONFIGS / "nordland.yaml", overrides)
-                run_dir = out / "runs" / tag / name.split(" (")[0].replace(",", "").replace(" ", "-")
+                run_dir = out / "runs" / tag / "".join(c if c.isalnum() or c in ".-" else "-" for c in name)
                 t0 = time.perf_counter()
                 run_all(cfg, run_dir, quiet=quiet)
                 m = read_metrics(run_dir)

@@ -174,7 +174,7 @@ def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj:
 # changing speed by dv between two segments of L frames costs SPEED_CHANGE_COST * L * |dv|.
 # Enhanced values are z-scores, so this is in units of one frame's standard deviation.
 # Chosen on nordland-dev frames 1-600 only (docs/seqslam.md, `make seqslam-speed`).
-SPEED_CHANGE_COST = 0.5
+SPEED_CHANGE_COST = 1.0
 # Cost of standing still, per unit of the query's own change from one frame to the next
 # (:class:`StopModel`): a stopped path is cheap only where the query itself stands still.
 STOP_COST = 2.0

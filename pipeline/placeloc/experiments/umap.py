@@ -28,7 +28,6 @@ import numpy as np
 from placeloc.config import load_config
 from placeloc.evaluation.poses import read_poses
 from placeloc.experiments import write_summary
-from placeloc.geometry.floorplan import load_model
 from placeloc.runner import read_metrics, run_all
 from placeloc.synth import generate
 from placeloc.umap import ca as ca_mod
@@ -50,9 +49,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 CALIBRATED = ("umap+ca", "umap+ca-no-laser")
 
+# the paper's grid for the corridor: 0.1 m along it, 0.2 m across, four headings
+CORRIDOR_GRID = {"x": [0.0, 90.0, 0.1], "y": [-1.5, 4.0, 0.2], "z": 1.14, "headings": [45.0, 135.0, 225.0, 315.0]}
 HOME_SEEDS = (10, 11, 12, 13, 14)
 HOME_PANORAMAS = 20
-HOME_GRID_STEP_M = 0.25
 HOME_SCORES = ("iou", "chamfer")
 
 
@@ -92,22 +92,15 @@ def home_runs(out_dir: Path, seeds: tuple[int, ...], panoramas: int, quiet: bool
     out: dict[str, dict[str, Any]] = {}
     for seed in seeds:
         data = _home(out_dir, seed, panoramas)
-        plan = load_model(data / "floor_plan.yaml")
-        lo = np.min([p.min(0) for p in plan.polygons], axis=0)
-        hi = np.max([p.max(0) for p in plan.polygons], axis=0)
-        z = float(np.median(read_poses(data / "poses.csv").z))   # the camera height is assumed known
         stats = json.loads((data / "line_stats.json").read_text())
         for score in HOME_SCORES:
             name = f"home{seed}-panorama-{score}"
-            step = HOME_GRID_STEP_M
             cfg = load_config(data={
                 "method": "umap",
                 "query": {"images": str(data / "panoramas")},
                 "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
+                # the grid is the model's own (plan bounds, free space, the plan's camera height)
                 "umap": {"model": str(data / "floor_plan.yaml"), "query_kind": "panorama", "mode": "umap",
-                         "grid": {"x": [float(lo[0]) + step / 2, float(hi[0]), step],
-                                  "y": [float(lo[1]) + step / 2, float(hi[1]), step], "z": z, "headings": [0.0],
-                                  "wall_margin_m": 0.2},
                          "panorama": {"score": score}},
                 "executor": {"workers": 2},
             }, base_dir=out_dir)
@@ -160,7 +153,8 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                 "method": "umap",
                 "query": {"images": str(data / "images")},
                 "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
-                "umap": {"model": str(data / "floor_plan.yaml"), "sensor_csv": str(data / "sensor.csv"), **umap},
+                "umap": {"model": str(data / "floor_plan.yaml"), "sensor_csv": str(data / "sensor.csv"), "grid": CORRIDOR_GRID,
+                         **umap},
                 "executor": {"workers": 2},
             }, base_dir=out_dir)
             log.info("experiment umap: %s", name)

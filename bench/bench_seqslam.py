@@ -1,6 +1,7 @@
 """SeqSLAM speed and memory: placeloc's kernels and whole run against straightforward NumPy.
 
     python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails
+    python bench/bench_seqslam.py --flexible-block  # the flexible preset on one block at 36,000 refs
     python bench/bench_seqslam.py --large    # also a 36,000 x 36,000 run through the pipeline
                                              # (localize with the trajectory and the flexible search)
 
@@ -161,14 +162,37 @@ def whole_run(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, f
     return best
 
 
+def flexible_block(n_ref: int = 36000, block: int = 1024, ds: int = 120, anchors: int = 32) -> None:
+    """One localize block of the Nordland preset's flexible search at 36,000 references:
+    the block of D^ (block + ds query rows) and the search of ``anchors`` of its queries
+    (memory peaks within the first chunk; time scales with the anchors)."""
+    rng = np.random.default_rng(0)
+    et = rng.random((block + ds, n_ref), dtype=np.float32) + 4
+    for v_min in (0.5, 0.0):
+        t0 = time.perf_counter()
+        sequence_search(et, ds // 2, ds // 2 + anchors, ds, velocities(v_min, 2.0, 0.1), "centred", 10, 10, None, 0,
+                        shape="flexible", edges="shift")
+        dt = time.perf_counter() - t0
+        print(f"flexible, ds {ds}, v {v_min:g}-2.0, {anchors} queries x {n_ref} references: {dt:.1f} s "
+              f"(all {n_ref} queries: about {dt * n_ref / anchors / 60:.0f} min); peak RSS "
+              f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576:.2f} GB with the block of D^ "
+              f"({et.nbytes / 1e9:.2f} GB)", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3576)
     ap.add_argument("--large", action="store_true", help="also run 36,000 x 36,000 through the pipeline")
     ap.add_argument("--keep", type=Path, default=None, help="keep generated data here")
+    ap.add_argument("--flexible-block", action="store_true",
+                    help="only: memory and time of the Nordland preset's flexible search on one block of queries "
+                         "against 36,000 references (random D^), moving only and allowed to stand still")
     ap.add_argument("--large-shapes", default="trajectory,flexible",
                     help="sequence shapes whose localize the --large run measures (comma-separated)")
     args = ap.parse_args()
+    if args.flexible_block:
+        flexible_block()
+        return
     from placeloc.seqslam.l1 import n_threads
 
     print(f"cores: {os.cpu_count()}, kernel threads: {n_threads()}")

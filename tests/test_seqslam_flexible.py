@@ -141,7 +141,7 @@ def test_flexible_beats_straight_lines_when_the_path_is_faint():
     et, path = _planted(speeds, int(speeds.sum()) + 60, seed=2, snr=1.5)
     flexible = _search(et, "flexible", velocities(0.5, 2.0, 0.1), ds=60)
     line = _search(et, "trajectory", velocities(0.5, 2.0, 0.1), ds=60)
-    assert (np.abs(flexible - path) <= 2).mean() >= 0.97
+    assert (np.abs(flexible - path) <= 2).mean() >= 0.93
     assert (np.abs(line - path) <= 2).mean() <= 0.80
 
 

@@ -61,9 +61,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-
-class ModelError(ValueError):
-    """The model file cannot be used; the message names the file and the fix."""
+from placeloc.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
 
 
 @dataclass
@@ -147,7 +145,7 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
-        from placeloc.geometry.zind import zind_home  # zind imports this module
+        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
 
         return floor_plan_model(zind_home(path, floor)[0], str(path))
     if isinstance(data, dict) and ("outline" in data or "rooms" in data):

@@ -79,7 +79,7 @@ def test_pirf_estimates(tmp_path):
     features write less, so only its safe side is checked; memory both ways."""
     from placeloc.synth import generate
 
-    generate("omni", tmp_path / "data", seed=0, frames=120, test_frames=40, width=480, layout="small", step=0.3)
+    generate("omni", tmp_path / "data", seed=0, frames=60, test_frames=20, width=360, layout="small", step=0.3)
     cfg = tmp_path / "data" / "config.yaml"
     cfg.write_text("method: pirf\nreference: {images: mapping}\nquery: {images: test}\n"
                    "ground_truth: {kind: poses, path: mapping/poses.csv, radius: 1.0}\n"

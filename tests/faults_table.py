@@ -23,19 +23,26 @@ def record(rc: int | None, stderr: str) -> None:
     LAST.append((rc if rc is not None else -1, lines[-1] if lines else ""))
 
 
+def _last() -> list[tuple[int, str]]:
+    """The cases import this file as the module ``faults_table``; ``make faults`` runs it as
+    ``__main__``: read the list the cases wrote to."""
+    module = sys.modules.get("faults_table")
+    return module.LAST if module is not None else LAST
+
+
 class _Table:
     def __init__(self) -> None:
         self.rows: list[tuple[str, str, str, float, str]] = []
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item, nextitem):
-        LAST.clear()
+        _last().clear()
         t0 = time.perf_counter()
         outcome = {"value": "passed"}
         item._faults_outcome = outcome
         yield
         seconds = time.perf_counter() - t0
-        rc, line = LAST[-1] if LAST else ("-", "")
+        rc, line = _last()[-1] if _last() else ("-", "")
         self.rows.append((item.nodeid.split("::", 1)[-1], outcome["value"], str(rc), seconds, line))
 
     @pytest.hookimpl(hookwrapper=True)

@@ -11,7 +11,15 @@
    dilation pass (timed on an evenly spread subset and extrapolated per view), their
    agreement on a few hundred views, the stored size and the time to score one query.
 
-    python bench/bench_umap.py [--views 36032] [--floor-only] [--old-views 3000]
+3. Whole panoramas (``--panorama-only``): about 2,000 grid positions of a generated home x
+   144 yaws, 32 query line images (map renders at off-grid poses and random headings, a
+   third of their lines dropped, clutter added): the localize stage's search
+   (:func:`placeloc.umap.panorama.search_panoramas` with the default parameters: chamfer
+   spectra, batched, coarse-to-fine refinement) against the search before it (the chamfer
+   score pixel by pixel for every shift, then 8 candidates each re-scored on a 7 x 7 local
+   grid), both timed in the same run, per panorama, wall and CPU.
+
+    python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 """
 
 from __future__ import annotations
@@ -40,10 +48,89 @@ def main() -> None:
     ap.add_argument("--old-views", type=int, default=3000, help="views the per-pixel renderer is timed on (floor case)")
     ap.add_argument("--grid-step", type=float, default=0.3, help="grid spacing of the floor case in metres")
     ap.add_argument("--queries", type=int, default=30, help="queries timed in the floor case")
+    ap.add_argument("--panorama-only", action="store_true", help="only the whole-panorama search")
+    ap.add_argument("--panorama-positions", type=int, default=2000, help="grid positions of the panorama case (about)")
+    ap.add_argument("--old-panoramas", type=int, default=6, help="panoramas the search before is timed on")
     args = ap.parse_args()
-    if not args.floor_only:
-        corridor(args)
-    floor(args)
+    if not args.panorama_only:
+        if not args.floor_only:
+            corridor(args)
+        floor(args)
+    panorama(args)
+
+
+def _today_search(lines: np.ndarray, poses: np.ndarray, model, db: np.ndarray, close: np.ndarray, w: int, h: int) -> list:  # noqa: ANN001
+    """The panorama search before the spectra: the chamfer score pixel by pixel for every
+    shift, then the 8 best distinct positions re-scored on a 7 x 7 local grid (0.05 m)."""
+    from placeloc.geometry.floorplan import wall_distance
+    from placeloc.umap.panorama import best_pose, chamfer_yaw_scores, closeness, distinct_candidates, local_grid, render_panoramas
+
+    out = []
+    for q in lines:
+        table = chamfer_yaw_scores(db, close, q, tau_px=3.0)
+        i, k, s = best_pose(table)
+        best = (poses[i, :2], k, s)
+        for c in distinct_candidates(table, poses[:, :2], count=8, min_separation_m=0.5):
+            pts = local_grid(poses[c, 0], poses[c, 1], radius_m=0.15, step_m=0.05)
+            pts = pts[wall_distance(pts, model.faces) >= min(0.1, float(wall_distance(poses[c:c + 1, :2], model.faces)[0]))]
+            local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
+            raw = render_panoramas(model.segments, model.faces, local, width=w, height=h, hidden=True)
+            sub = chamfer_yaw_scores(raw, closeness(unpack(raw, h, w), 3.0), q, tau_px=3.0)
+            j, ks, sc = best_pose(sub)
+            if sc > best[2]:
+                best = (pts[j], ks, sc)
+        out.append(best)
+    return out
+
+
+def panorama(args: argparse.Namespace) -> None:
+    from placeloc.geometry.floorplan import plan_grid
+    from placeloc.synth.home import plan as home_plan
+    from placeloc.umap.panorama import chamfer_spectra, closeness, render_panoramas, row_weights, search_panoramas
+    from placeloc.umap.params import PanoramaParams
+
+    fp, _ = home_plan(np.random.default_rng(0), 3)
+    model = floor_plan_model({**fp, "camera_z": 1.5}, "a generated home")
+    # the grid step that gives about the asked number of positions
+    area = len(plan_grid(model, step_m=0.1)[0]) * 0.01
+    step = round(float(np.sqrt(area / args.panorama_positions)), 3)
+    poses = plan_grid(model, step_m=step)[0]
+    pp = PanoramaParams()
+    w, h = pp.width, pp.height
+    rng = np.random.default_rng(1)
+    truth = poses[rng.choice(len(poses), 32, replace=False)].copy()
+    truth[:, :2] += rng.uniform(-step / 2, step / 2, size=(32, 2))
+    truth[:, 3] = rng.choice(w, 32) * 360.0 / w
+    q = unpack(render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True), h, w)
+    q = (q & (rng.random(q.shape) < 0.66)) | (rng.random(q.shape) < 0.01)
+    print(f"\nwhole panoramas: {len(poses):,} grid positions ({step} m) x {w} yaws, {len(q)} queries; score {pp.score}, "
+          f"{pp.refine_candidates} refined candidates; cores {os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
+    db = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    spectra, t_idx, c_idx = _timed(chamfer_spectra, unpack(db, h, w), tau_px=pp.chamfer_tau_px, weights=weights)
+    print(f"index (map spectra, once per database): {t_idx:.2f} s wall, {c_idx:.2f} s CPU, {spectra.nbytes / 2**20:.0f} MiB")
+    search_panoramas(q[:2], poses, model.segments, model.faces, {"spectra": spectra}, pp, tolerance_px=2,
+                     wall_margin_m=0.1, hidden=True)  # JIT and caches
+    res, t_new, c_new = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp,
+                               tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    pp0 = PanoramaParams(refine_candidates=0)
+    _, t_glob, c_glob = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp0,
+                               tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    err = np.hypot(*(res[1] - truth[:, :2]).T)
+    n = len(q)
+    print(f"localize search, default: {t_new / n * 1e3:.0f} ms wall, {c_new / n * 1e3:.0f} ms CPU per panorama (target "
+          f"<= 100 ms); of it every position x yaw: {t_glob / n * 1e3:.1f} ms wall; within 0.1 m of the truth {np.mean(err <= 0.1):.0%}")
+    close = closeness(unpack(db, h, w), 3.0)
+    m = min(args.old_panoramas, n)
+    _today_search(q[:1], poses, model, db, close, w, h)  # JIT
+    old, t_old, c_old = _timed(_today_search, q[:m], poses, model, db, close, w, h)
+    from placeloc.umap.panorama import chamfer_yaw_scores
+
+    _, t_oglob, _ = _timed(lambda: [chamfer_yaw_scores(db, close, x, tau_px=3.0) for x in q[:m]])
+    print(f"the search before (timed on {m} panoramas): {t_old / m * 1e3:.0f} ms wall, {c_old / m * 1e3:.0f} ms CPU per panorama; "
+          f"of it every position x yaw: {t_oglob / m * 1e3:.0f} ms wall")
+    print(f"ratio, before / now, per panorama: whole search {t_old / m / (t_new / n):.1f}x wall, {c_old / m / (c_new / n):.1f}x "
+          f"CPU; every position x yaw {t_oglob / m / (t_glob / n):.1f}x wall")
 
 
 def _dilate(db: np.ndarray, cam: Camera, tolerance: int) -> np.ndarray:

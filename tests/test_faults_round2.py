@@ -199,7 +199,7 @@ def test_a_folder_where_report_html_goes_fails_cleanly_and_mixes_nothing(route, 
     (run / "report.html").rmdir()
     res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q", "--set", "ground_truth.recall_at=[1, 2]"])
     assert res.exit_code == 0 and all((run / n).is_file() for n in EVALUATE_OUTPUTS)
-    assert '"standard_recall_at_2"' in (run / "metrics.json").read_text()
+    assert '"recall_at_2"' in (run / "metrics.json").read_text()
 
 
 def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, tmp_path, monkeypatch):
@@ -231,15 +231,15 @@ def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, 
 def test_a_localize_that_fails_leaves_no_matches_csv(route, tmp_path, monkeypatch):
     """Ctrl-C right after localize wrote matches.csv (before its artifact was complete):
     no matches.csv appears, and the next run resumes from extract."""
-    import placeloc.seqslam.matches_csv as matches_csv
+    import placeloc.evaluation.ranked as ranked
 
-    real = matches_csv.write_matches_csv
+    real = ranked.write_matches_csv
 
-    def then_interrupt(path, **k):
-        real(path, **k)
+    def then_interrupt(path, *a, **k):
+        real(path, *a, **k)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(matches_csv, "write_matches_csv", then_interrupt)
+    monkeypatch.setattr(ranked, "write_matches_csv", then_interrupt)
     run = tmp_path / "R"
     res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
     assert res.exit_code == 130 and _err(res).strip() == "interrupted; rerun to resume"

@@ -50,8 +50,9 @@ def test_free_space_is_inside_any_room_and_away_from_walls():
     m = floor_plan_model(PLAN)
     xy = np.array([[2.0, 1.5], [6.0, 1.5], [9.0, 1.5], [0.05, 1.5], [4.0, 1.5]])
     keep, notes = free_space_mask(xy, m, inside_only=True, wall_margin_m=0.2)
-    # the doorway itself (x = 4, y = 1.5) is 0.5 m from its jambs but under its lintel face
-    assert keep.tolist() == [True, True, False, False, False] and notes == []
+    # the doorway itself (x = 4, y = 1.5) is 0.5 m from its jambs; its lintel face (from 2.0 m
+    # up) is no wall for a camera below it
+    assert keep.tolist() == [True, True, False, False, True] and notes == []
 
 
 def test_grid_settings_that_do_nothing_are_reported():
@@ -69,3 +70,69 @@ def test_bad_rooms_are_named():
         floor_plan_model({**PLAN, "rooms": [PLAN["rooms"][0], {**PLAN["rooms"][1], "ceiling_z": 0.0}]})
     with pytest.raises(ModelError, match=r"windows\[0\] needs"):
         floor_plan_model({**PLAN, "windows": [{"from": [0, 0.5], "to": [0, 2.5]}]})
+
+
+# Two rooms with a 0.2 m thick wall between them (each polygon stops at its own side, as in
+# ZInD), a door through it at y 1..2 under a 2.0 m lintel, a kitchen wall block inside the
+# left room, and the camera height in the plan.
+THICK = {"floor_z": 0.0, "ceiling_z": 2.6, "camera_z": 1.4,
+         "rooms": [{"name": "left", "polygon": [[0, 0], [4, 0], [4, 3], [0, 3]],
+                    "internal": [[[1, 2.5], [2, 2.5], [2, 2.7], [1, 2.7]]]},
+                   {"name": "right", "polygon": [[4.2, 0], [8, 0], [8, 3], [4.2, 3]]}],
+         "doors": [{"from": [4, 1], "to": [4, 2], "height": 2.0}, {"from": [4.2, 1], "to": [4.2, 2], "height": 2.0}],
+         "openings": [{"from": [8, 0.5], "to": [8, 2.5], "height": 2.6}]}
+
+
+def test_doorway_is_free_space_and_lintels_are_no_walls():
+    from placeloc.geometry.floorplan import blocking_faces
+
+    m = floor_plan_model(THICK)
+    # in the door gap, inside the wall's thickness, 0.02-0.12 m from the lintel faces: free
+    doorway = np.array([[4.1, 1.5], [4.02, 1.3], [4.18, 1.7]])
+    keep, notes = free_space_mask(doorway, m, inside_only=True, wall_margin_m=0.2, z=1.4)
+    assert keep.all() and not notes
+    # the lintels are faces from 2.0 m to the ceiling: they do not span a 1.4 m camera
+    lintels = m.faces[(m.faces[:, 4] == 2.0)]
+    assert len(lintels) == 2
+    assert not any((blocking_faces(m.faces, 1.4) == row).all(1).any() for row in lintels)
+    # but inside the wall beside the door (not a gap), and beyond the gap depth: not free
+    keep, _ = free_space_mask(np.array([[4.1, 0.5], [4.1, 2.6], [8.5, 1.5]]), m, inside_only=True, wall_margin_m=0.0)
+    assert list(keep) == [False, False, False]
+    # an opening on the outer wall admits its doorway only up to GAP_DEPTH_M outside
+    keep, _ = free_space_mask(np.array([[8.2, 1.5], [8.3, 1.5]]), m, inside_only=True, wall_margin_m=0.0)
+    assert list(keep) == [True, False]
+
+
+def test_internal_walls_are_walls_and_not_free_space():
+    m = floor_plan_model(THICK)
+    # its four edges are full-height faces, its corners vertical lines
+    block = m.faces[(m.faces[:, 0] >= 1) & (m.faces[:, 0] <= 2) & (m.faces[:, 1] >= 2.5) & (m.faces[:, 1] <= 2.7)
+                    & (m.faces[:, 2] >= 1) & (m.faces[:, 2] <= 2) & (m.faces[:, 3] >= 2.5) & (m.faces[:, 3] <= 2.7)]
+    assert len(block) == 4 and (block[:, 4] == 0).all() and (block[:, 5] == 2.6).all()
+    assert _has(m.segments, [2, 2.7, 0, 2, 2.7, 2.6])
+    keep, _ = free_space_mask(np.array([[1.5, 2.6], [1.5, 1.5]]), m, inside_only=True, wall_margin_m=0.0)
+    assert list(keep) == [False, True]
+
+
+def test_grid_from_the_model_by_default():
+    from placeloc.geometry.floorplan import plan_grid
+
+    m = floor_plan_model(THICK, "two-rooms.yaml")
+    poses, notes = plan_grid(m, step_m=0.25, wall_margin_m=0.1)
+    assert not notes
+    assert (poses[:, 2] == 1.4).all()                       # z: the plan's camera height
+    assert poses[:, 0].min() == pytest.approx(0.125) and poses[:, 1].min() == pytest.approx(0.125)
+    assert poses[:, 0].max() <= 8.0 and poses[:, 1].max() <= 3.0
+    # the door gap is on the grid (x 4.125 lies in the wall's thickness)
+    assert ((np.abs(poses[:, 0] - 4.125) < 1e-9) & (poses[:, 1] > 1.0) & (poses[:, 1] < 2.0)).sum() >= 3
+    # a grid that misses the model: an error naming the grid and the model's bounds
+    with pytest.raises(ValueError, match=r"keeps no position of two-rooms.yaml \(plan x 0.00..8.00 m, y 0.00..3.00 m\)"):
+        plan_grid(m, x=[20, 30, 0.5], y=[0, 3, 0.5])
+    # z outside the storey, and a grid that covers a corner of the plan only: said
+    with pytest.raises(ValueError, match=r"grid z 3.0 m lies outside the storey"):
+        plan_grid(m, z=3.0)
+    _, notes = plan_grid(m, x=[0.1, 1.0, 0.25], y=[0.1, 1.0, 0.25])
+    assert any("covers only" in n and "two-rooms.yaml" in n for n in notes)
+    # no camera height anywhere: the caller is told to give one
+    with pytest.raises(ValueError, match=r"no camera height \(camera_z\)"):
+        plan_grid(floor_plan_model({**THICK, "camera_z": None}))

@@ -152,3 +152,33 @@ def test_distinct_candidates_and_local_grid():
     g = local_grid(1.0, 2.0, radius_m=0.1, step_m=0.05)
     assert g.shape == (25, 2) and [1.0, 2.0] in g.tolist()
     assert np.allclose(g.min(0), [0.9, 1.9]) and np.allclose(g.max(0), [1.1, 2.1])
+
+
+def test_chamfer_spectra_equal_the_pixel_loop_and_weights_drop_rows():
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, chamfer_yaw_scores, closeness, row_weights
+
+    rng = np.random.default_rng(3)
+    db = (rng.random((12, H, W)) < 0.03).astype(np.uint8)
+    qs = (rng.random((3, H, W)) < 0.03).astype(np.uint8)
+    ones = np.ones(H, np.float32)
+    fast = chamfer_table(chamfer_spectra(db, tau_px=3.0, weights=ones), qs, tau_px=3.0, weights=ones)
+    slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0) for q in qs])
+    assert np.abs(fast - slow).max() < 1e-5
+    # weight 0 beyond 60 degrees: the same as the plain score on images whose polar rows are
+    # empty (closeness does not reach across: tau 1 px and the rows next to them cleared too)
+    wts = row_weights(H, polar_deg=60.0, polar_weight=0.0)
+    assert wts[0] == 0 and wts[H // 2] == 1 and (wts == 0).sum() == 2 * round(H * 30 / 180)
+    keep = np.convolve(wts, np.ones(3), "same") == 3
+    cleared_db, cleared_q = db * keep[None, :, None], qs * keep[None, :, None]
+    weighted = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=wts), qs * keep[None, :, None], tau_px=1.0,
+                             weights=wts)
+    plain = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=ones), cleared_q, tau_px=1.0, weights=ones)
+    assert np.abs(weighted - plain).max() < 1e-5
+
+
+def test_refine_steps_halve_down_to_the_finest():
+    from placeloc.umap.panorama import refine_steps
+
+    assert refine_steps(0.15, 0.05) == [0.1, 0.05]        # reaches 0.15 m
+    assert refine_steps(0.35, 0.05) == [0.2, 0.1, 0.05]   # reaches 0.35 m
+    assert refine_steps(0.05, 0.05) == [0.05]

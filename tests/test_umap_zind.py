@@ -50,7 +50,7 @@ def test_rooms_doors_windows_and_poses_in_metres(tmp_path):
     # room 2: centred on (10, 2) -> (5, -1) m, rotation keeps the square: x 3.5..6.5, y -2.5..0.5
     r2 = np.array(plan["rooms"][1]["polygon"])
     assert r2.min(0) == pytest.approx([3.5, -2.5]) and r2.max(0) == pytest.approx([6.5, 0.5])
-    door = plan["openings"][0]
+    door = plan["doors"][0]
     assert np.array([door["from"], door["to"]]) == pytest.approx(np.array([[3.5, -0.25], [3.5, -1.75]]))
     assert door["height"] == pytest.approx(2.0)                         # (1/3 + 1) * 1.5 m
     win = plan["windows"][0]
@@ -70,9 +70,11 @@ def test_rooms_doors_windows_and_poses_in_metres(tmp_path):
 
 def test_import_writes_plan_and_poses(tmp_path):
     summary = import_zind(_write(tmp_path), tmp_path / "out")
-    assert summary == {"rooms": 2, "openings": 1, "windows": 1, "panoramas": 3}
+    assert summary == {"floor": "floor_01", "out": str(tmp_path / "out"), "rooms": 2, "internal walls": 0, "doors": 1,
+                       "openings": 0, "windows": 1, "panoramas": 3, "primary": 2, "camera_z": 1.5}
     rows = list(csv.DictReader(open(tmp_path / "out" / "poses.csv")))
     assert [r["frame"] for r in rows] == ["a.jpg", "b.jpg", "c.jpg"]
+    assert [r["primary"] for r in rows] == ["1", "1", "0"]
     assert floor_plan_model(__import__("yaml").safe_load((tmp_path / "out" / "floor_plan.yaml").read_text())).rooms
 
 
@@ -81,5 +83,5 @@ def test_uncalibrated_floor_is_refused(tmp_path):
     data = json.loads(p.read_text())
     data["scale_meters_per_coordinate"]["floor_01"] = None
     p.write_text(json.dumps(data))
-    with pytest.raises(ModelError, match="floor_01 has no scale_meters_per_coordinate"):
+    with pytest.raises(ModelError, match="no floor has a scale_meters_per_coordinate"):
         zind_home(p)

@@ -178,10 +178,19 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+# Set by the global --verbose flag (placeloc --verbose run ...).
+_VERBOSE = False
+
+
 @app.callback()
 def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
-                                       help="Print the version and exit.")) -> None:
+                                       help="Print the version and exit."),
+          verbose: bool = typer.Option(False, "--verbose", "-v",
+                                       help="Also show the libraries' log lines (faiss, Dask, ...) and placeloc's "
+                                            "debug lines. Give it before the command: placeloc --verbose run ...")) -> None:
     """placeloc: where am I, from images alone."""
+    global _VERBOSE
+    _VERBOSE = verbose
 
 ConfigArg = typer.Argument(..., help="YAML config (see configs/); relative paths in it start at its folder.")
 RunDirOpt = typer.Option(None, "--run-dir", "-o", help="Run directory for artifacts (default: runs/<config name>).")
@@ -191,9 +200,30 @@ QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars, warnings
 WaitOpt = typer.Option(False, "--wait", help="If another run holds the run directory, wait for it instead of stopping.")
 
 
+class _SourceFormatter(logging.Formatter):
+    """``placeloc: message`` for our lines, ``faiss.loader: message`` for a library's."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        source = "placeloc" if record.name == "placeloc" or record.name.startswith("placeloc.") else record.name
+        return f"{source}: {record.getMessage()}" + (f"\n{self.formatException(record.exc_info)}" if record.exc_info else "")
+
+
 def _setup_logging(quiet: bool) -> None:
-    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO,
-                        format="placeloc: %(message)s", stream=sys.stderr, force=True)
+    """placeloc's progress lines at INFO (warnings only with --quiet). Libraries speak at
+    WARNING and above unless --verbose: faiss, for one, logs at INFO which CPU build it
+    loaded ("Could not load library with AVX512 support") on every run that uses it."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_SourceFormatter())
+    logging.basicConfig(level=logging.INFO if _VERBOSE else logging.WARNING, handlers=[handler], force=True)
+    ours = logging.DEBUG if _VERBOSE else logging.WARNING if quiet else logging.INFO
+    logging.getLogger("placeloc").setLevel(ours)
+
+
+def _say_written(folder: Path, names: tuple[str, ...], runs: str) -> None:
+    """The last lines of sweep and compare: where the table, figure and runs are."""
+    wrote = [n for n in names if (folder / n).is_file()]
+    typer.echo(f"wrote {', '.join(str(folder / n) for n in wrote)}")
+    typer.echo(f"runs: {folder}/ ({runs}; open one with placeloc show {folder}/RUN)")
 
 
 def _fail(exc: Exception) -> None:
@@ -214,7 +244,13 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
                      wait=wait)
     typer.echo(f"{stage}: {path}")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
+        from placeloc.evaluation.contracts import format_value, headline
+
+        for key, value in headline(path.parent):
+            typer.echo(f"  {key}: {format_value(value)}")
         typer.echo(f"metrics: {path.parent / 'metrics.json'}")
+        if (path.parent / "report.html").is_file():
+            typer.echo(f"report: {path.parent / 'report.html'}")
 
 
 @app.command()
@@ -306,6 +342,28 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
         typer.echo(f"{k}: {v}")
 
 
+@app.command(name="import")
+def import_(kind: str = typer.Argument(..., help="Format: zind (a Zillow Indoor Dataset tour's zind_data.json)."),
+            source: Path = typer.Argument(..., help="The file to import, e.g. zind_data.json."),
+            out: Path = typer.Argument(..., help="Output folder: floor_plan.yaml and poses.csv (one folder per floor "
+                                                "when the tour has several and --floor is not given)."),
+            floor: str | None = typer.Option(None, help="The floor to import, e.g. floor_01 (default: every floor).")) -> None:
+    """Import a home's floor plan and panorama poses for UMap (umap.model, ground_truth.path)."""
+    from placeloc.geometry.floorplan import ModelError
+    from placeloc.geometry.zind import import_zind
+
+    if kind != "zind":
+        _fail(ValueError(f"import {kind!r}: unknown format; known: zind"))
+    if not source.is_file():
+        _fail(ValueError(f"{source}: file not found; give the tour's zind_data.json"))
+    try:
+        summary = import_zind(source, out, floor)
+    except ModelError as exc:
+        _fail(exc)
+    for part in (summary.values() if "floor" not in summary else [summary]):
+        typer.echo(", ".join(f"{k}: {v}" for k, v in part.items()))
+
+
 @app.command()
 def compare(config: Path = ConfigArg,
             methods: str = typer.Option("sad,histeq,zncc,abs_zncc,isc,isc_ext,ocm,ocm_ext", help="Comma-separated SeqSLAM comparisons."),
@@ -322,10 +380,12 @@ def compare(config: Path = ConfigArg,
     out = run_dir or Path("runs") / f"{config.stem}-compare"
     table = compare_methods(cfg, out, [m.strip() for m in methods.split(",") if m.strip()], quiet=quiet)
     typer.echo(table.read_text())
+    _say_written(table.parent, ("table.md", "table.csv", "pr_curves.png"), "one run directory per comparison")
 
 
 @app.command()
-def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary."),
+def experiment(name: str = typer.Argument(..., help="Experiment: one of the modules of placeloc/experiments/ with a main() "
+                                                   "(seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary, ...)."),
                out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:
@@ -422,16 +482,16 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
-    """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
+    """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
         _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
     try:
-        strips, report = show_run(run_dir, sample=sample, failures=failures)
-        for path in strips:
-            typer.echo(f"strips: {path}")
+        pictures, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in pictures:
+            typer.echo(f"picture: {path}")
         if recall_at:
             ns = [int(n) for n in recall_at.split(",") if n.strip()]
             for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
@@ -467,3 +527,4 @@ def sweep(config: Path = ConfigArg,
     except (ConfigError, ImageError, StageError, FileNotFoundError, yaml.YAMLError) as exc:
         _fail(exc)
     typer.echo(table.read_text())
+    _say_written(table.parent, ("sweep.md", "sweep.csv", "sweep.png"), "one run directory per combination")

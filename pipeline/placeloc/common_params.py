@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from placeloc.params import Params, param, section
 
-GROUND_TRUTH_KINDS = ("none", "synchronous", "csv", "hdf5", "poses")
+GROUND_TRUTH_KINDS = ("none", "synchronous", "csv", "hdf5", "poses", "matrix")
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,8 @@ class GroundTruthParams(Params):
 
     kind: str = param("none", choices=GROUND_TRUTH_KINDS,
                       help="none | synchronous (query i is reference i) | csv (pairs or ranges) | hdf5 (a matrix) | "
-                           "poses (positions within radius)")
+                           "poses (positions within radius) | matrix (loop closures: a binary N x N file, .npy .npz "
+                           ".mat .txt .csv .h5)")
     # One tolerance for every kind that uses it: a pairs CSV is exact unless one is set.
     tolerance: int = param(0, min=0, help="frames either side of the true reference that also count (synchronous "
                                           "and csv pairs; not added to csv ranges); 0: exact")
@@ -49,6 +50,10 @@ class GroundTruthParams(Params):
                           help="poses: metres within which a reference (or loop closure) is correct")
     recall_at: tuple[int, ...] = param([1, 5, 10, 20], min=1, help="the N of Recall@N in metrics.json and the "
                                                                    "Recall@N curve")
+    # The evaluation kit of the public loop-closure sets (City Centre, New College, Lip6) uses
+    # frame rate x 40 s; 50 frames matches SeqSLAM's own loop-mode exclusion by default.
+    exclude_recent: int = param(50, min=0, help="loop closures: a frame is never a loop candidate for the next this "
+                                                "many frames (pairs closer in time never count)")
 
 
 @dataclass(frozen=True)

@@ -142,12 +142,13 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     choices = {**P.choices(CommonParams), **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
     types = {**P.declared_types(CommonParams),
              **{f"{method.name}.{k}": v for k, v in P.declared_types(method.params).items()}}
+    nullable = set(P.nullable_keys(CommonParams)) | {f"{method.name}.{k}" for k in P.nullable_keys(method.params)}
 
     path_keys = P.path_keys(CommonParams) + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
-    config = _merge(schema, data, prefix="", choices=choices, types=types)
+    config = _merge(schema, data, prefix="", choices=choices, types=types, nullable=nullable)
     config["method"] = method_name
     problems = P.check_bounds(method.params, config[method.name], f"{method.name}.")
     problems += P.check_bounds(CommonParams, config, "")
@@ -167,7 +168,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         if config[role] is not None and config[role]["images"] is not None:
             _check_image_source(config[role]["images"], f"{role}.images")
     gt = config["ground_truth"]
-    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+    if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
@@ -177,9 +178,9 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     problems = config_problems(config)
     if problems:
         raise ConfigError(problems[0])
-    from placeloc.evaluation.ground_truth import check_config
+    from placeloc.evaluation.contracts import check_ground_truth
 
-    check_config(config)  # a bad ground-truth file fails here, before any stage runs
+    check_ground_truth(config, method)  # the method's result contract checks its ground truth before any stage runs
     return config
 
 
@@ -201,7 +202,8 @@ def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
     return problems
 
 
-def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None) -> dict:
+def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None,
+           nullable: set[str] | None = None) -> dict:
     out = {}
     for key in data:
         if key not in schema:
@@ -220,7 +222,10 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
-            out[key] = _merge(default, value, f"{dotted}.", choices, types)
+            out[key] = _merge(default, value, f"{dotted}.", choices, types, nullable)
+            continue
+        if value is None and nullable and dotted in nullable:
+            out[key] = None  # declared ``X | None``: null is one of its values
             continue
         if default is None and types and dotted in types:
             out[key] = _check_declared(dotted, value, types[dotted])

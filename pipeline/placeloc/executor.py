@@ -1,7 +1,7 @@
 """Map independent work items over a pool of workers, results back in order.
 
-Stages call :func:`make_executor` with the ``executor:`` config section and then
-``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
+The runner builds one with :func:`placeloc.executors.make_executor` from the
+``executor:`` config section, and stages call ``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
 reference) and its results small enough to send back; the calling process alone writes
 artifacts. ``workers: 1`` runs in-process, which is also what tests use by default.
 
@@ -299,19 +299,3 @@ class LocalExecutor(Executor):
         # would land in that wait). The command line then kills them and leaves without
         # Python's exit handlers, which would join a worker blocked on its queue for ever.
         pool.shutdown(wait=False, cancel_futures=True)
-
-
-def make_executor(section: dict[str, Any]) -> Executor:
-    kind = section.get("kind", "local")
-    if kind == "dask":
-        from placeloc.config import ConfigError
-
-        try:
-            from placeloc.dask_executor import DaskExecutor  # optional extra
-        except ImportError as exc:
-            raise ConfigError(f"executor.kind: dask is not available ({exc}); "
-                              "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
-
-        return DaskExecutor(section)
-    workers = int(section.get("workers", 1))
-    return InlineExecutor() if workers <= 1 else LocalExecutor(workers)

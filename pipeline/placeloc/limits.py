@@ -285,6 +285,8 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[
     g = p["grid"]
     axes = []
     for name in ("x", "y"):
+        if g.get(name) is None:  # the grid covers the model's plan at grid.step_m: a home's few thousand positions
+            return _decode_need(config, images, 16, "decoding", stages)
         start, stop, step = (float(v) for v in g[name])
         if step <= 0 or stop < start:
             return []  # pose_grid reports these with its own message

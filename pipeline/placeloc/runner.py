@@ -36,7 +36,8 @@ from placeloc.artifacts import (
 )
 from placeloc.config import config_hash, to_yaml
 from placeloc.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.runner
-from placeloc.executor import Executor, make_executor, remove_stale_shared
+from placeloc.executor import Executor, remove_stale_shared
+from placeloc.executors import make_executor
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.interrupts import raise_if_interrupted
 from placeloc.limits import check_inputs, check_resources

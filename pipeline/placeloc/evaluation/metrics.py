@@ -148,3 +148,17 @@ def first_correct_rank(ranked_correct: np.ndarray) -> np.ndarray:
     """1-based rank of the first positive candidate per query (0 = none in the list)."""
     c = np.asarray(ranked_correct, bool)
     return np.where(c.any(axis=1), np.argmax(c, axis=1) + 1, 0)
+
+
+def tail_count(n: int, fraction: float) -> int:
+    """How many of ``n`` per-frame values the last ``fraction`` of a run holds (at least one)."""
+    return max(1, int(round(n * fraction)))
+
+
+def tail_mean(values: np.ndarray, fraction: float) -> float:
+    """Mean of the last ``fraction`` of ``values`` (:func:`tail_count` of them): per-frame
+    mapping cost near the end of a run, where the dictionary is largest."""
+    values = np.asarray(values, np.float64)
+    if len(values) == 0:
+        return float("nan")
+    return float(values[-tail_count(len(values), fraction):].mean())

@@ -16,12 +16,15 @@ from placeloc.artifacts import atomic_open
 
 REPORT = "report.html"
 # Pictures first that say most; any other PNG follows in name order.
-ORDER = ("strips_sample.png", "strips_failures.png", "recall_at_n.png", "pr_curve.png", "difference_matrix.png")
+ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "map.png", "recall_at_n.png", "pr_curve.png",
+         "error_cdf.png", "time_per_frame.png", "difference_matrix.png")
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
-.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}"""
+.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}
+.headline{display:flex;gap:14px;flex-wrap:wrap;margin:10px 0 6px}.fig{border:1px solid #ccd;border-radius:6px;padding:8px 14px;
+background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
 
 
 def _fmt(v: Any) -> str:
@@ -53,10 +56,13 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     after a run succeeds, so during a stage it may still describe the previous run)."""
     import h5py
 
-    from placeloc.methods import STAGES
+    def newest_first(p: Path) -> float:
+        try:
+            return -p.stat().st_mtime
+        except OSError:
+            return 0.0
 
-    for stage in reversed(STAGES):
-        path = run_dir / f"{stage}.h5"
+    for path in sorted(Path(run_dir).glob("*.h5"), key=newest_first):
         if path.is_file():
             try:
                 with h5py.File(path, "r") as f:
@@ -68,8 +74,25 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return {}
 
 
+def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
+    """The headline figures first, as large numbers, with the contract they belong to."""
+    if not figures:
+        what = f"result: {kind}; " if kind else ""
+        return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(_fmt(v))}</div><div class='k'>{html.escape(k)}</div>"
+                    "</div>" for k, v in figures)
+    return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
+            f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
+
+
+def _metrics_doc(doc: dict[str, str] | None) -> str:
+    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
+    return f"<ul class='muted'>{items}</ul>" if items else ""
+
+
 def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
-                 out_dir: str | Path | None = None) -> Path:
+                 out_dir: str | Path | None = None, result_kind: str | None = None,
+                 headline: list[tuple[str, Any]] | None = None, metrics_doc: dict[str, str] | None = None) -> Path:
     """Write ``report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
     ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
@@ -86,13 +109,15 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
+    parts.append(_headline_html(result_kind, headline or []))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
             summary.append((f"{role} images", cfg[role].get("images")))
     gt = cfg.get("ground_truth") or {}
     # only the ground-truth settings its kind reads
-    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius")}
+    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius"),
+            "matrix": ("path", "tolerance", "exclude_recent")}
     summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
         f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
@@ -101,9 +126,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2><p class='muted'>recall_at_* and standard_recall_at_N divide by all queries; "
-                     "*_with_positive by the queries that have a positive (see docs/evaluation.md).</p>"
-                     + _table(main, ("metric", "value")))
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}

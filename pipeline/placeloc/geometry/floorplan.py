@@ -17,22 +17,33 @@ Floor plan YAML (``outline`` key present)::
 From it we build floor and ceiling edges, wall corners (verticals at every vertex) and
 door frames (two jambs and a lintel), and one vertical wall face per polygon edge.
 
-Multi-room floor plan YAML (``rooms`` key present)::
+Multi-room floor plan YAML (``rooms`` key present; the format the ZInD importer writes and
+the one to use for a plan drawn by hand)::
 
     floor_z: 0.0                     # default for rooms that do not give their own
     ceiling_z: 2.6
+    camera_z: 1.5                    # optional: the camera height above the floor (the grid's z)
     rooms:
-      - {name: kitchen, polygon: [[x, y], ...], ceiling_z: 2.4}   # floor_z/ceiling_z optional
-    openings:                        # doors and openings: real gaps in the wall
+      - name: kitchen
+        polygon: [[x, y], ...]       # the room's walls, in metres, any orientation
+        ceiling_z: 2.4               # floor_z / ceiling_z optional
+        internal: [[[x, y], ...]]    # optional: wall blocks inside the room (a kitchen wall, a pillar)
+    doors:                           # doors: real gaps in the wall under a lintel
       - {from: [x, y], to: [x, y], height: 2.0}
+    openings:                        # openings (archways, open plan): gaps like doors, often ceiling-high
+      - {from: [x, y], to: [x, y], height: 2.6}
     windows:                         # frames on the wall (the wall face stays opaque)
       - {from: [x, y], to: [x, y], sill: 0.9, top: 2.1}
 
-Each room's polygon edges are walls with its own floor and ceiling height. An opening on
-an edge (both ends within 1 cm of it) cuts the floor line and the wall face there, leaves
-the wall face above it (if lower than the ceiling) and adds its two jambs and lintel. A
-wall shared by two rooms is drawn by both (the same pixels). Grid positions are free space
-when inside any room.
+Each room's polygon edges are walls with its own floor and ceiling height. A door or
+opening on an edge (both ends within 1 cm of it) cuts the floor line and the wall face
+there, leaves the wall face above it (if lower than the ceiling: the lintel) and adds its
+two jambs and lintel. A wall shared by two rooms is drawn by both (the same pixels). Each
+``internal`` polygon is a block of wall from floor to ceiling: its edges are wall faces
+with their floor, ceiling and corner lines, and its inside is not free space. Grid
+positions are free space when inside any room (outside its internal blocks) or in a
+doorway: between the ends of a door or opening and at most ``GAP_DEPTH_M`` from its wall
+line (real walls have a thickness, and each room's polygon stops at its own side).
 
 Faces are vertical rectangles ``[x0, y0, x1, y1, z0, z1]`` (a wall from (x0, y0) to
 (x1, y1), from height z0 to z1). That is what a floor plan gives, and it lets hidden-line
@@ -50,9 +61,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-
-class ModelError(ValueError):
-    """The model file cannot be used; the message names the file and the fix."""
+from placeloc.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
 
 
 @dataclass
@@ -62,6 +71,9 @@ class Model:
     polygons: list[np.ndarray] = field(default_factory=list)  # plan outlines, for plots and grid filtering
     source: str = ""
     rooms: bool = False             # polygons are rooms (inside = in any) rather than outline + obstacles
+    camera_z: float | None = None   # the camera height the plan was drawn for (importer, generator), if known
+    gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (G, 4) door/opening ends x0 y0 x1 y1
+    internal: list[np.ndarray] = field(default_factory=list)            # wall blocks inside rooms (ZInD "internal")
 
     def inside(self, xy: np.ndarray) -> np.ndarray:
         """True for plan points inside the outline and outside every obstacle, or inside any
@@ -73,11 +85,38 @@ class Model:
             ok = np.zeros(len(xy), dtype=bool)
             for poly in self.polygons:
                 ok |= point_in_polygon(xy, poly)
+            ok |= in_gaps(xy, self.gaps)
+            for poly in self.internal:
+                ok &= ~point_in_polygon(xy, poly)
             return ok
         ok = point_in_polygon(xy, self.polygons[0])
         for poly in self.polygons[1:]:
             ok &= ~point_in_polygon(xy, poly)
         return ok
+
+
+# How far either side of a door or opening its gap counts as free space: a camera may stand
+# in the doorway, inside the thickness of the wall between two rooms (real walls are
+# 0.1-0.3 m thick; each room's polygon stops at its own side of the wall).
+GAP_DEPTH_M = 0.25
+
+
+def in_gaps(xy: np.ndarray, gaps: np.ndarray, depth_m: float = GAP_DEPTH_M) -> np.ndarray:
+    """True for plan points in the doorway of any gap (x0, y0, x1, y1): between its two ends
+    along the wall and at most ``depth_m`` from the wall line on either side."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    ok = np.zeros(len(xy), dtype=bool)
+    for x0, y0, x1, y1 in np.asarray(gaps, float).reshape(-1, 4):
+        e = np.array([x1 - x0, y1 - y0])
+        length = float(np.hypot(*e))
+        if length < 1e-9:
+            continue
+        e /= length
+        d = xy - [x0, y0]
+        along = d @ e
+        across = np.abs(d[:, 0] * e[1] - d[:, 1] * e[0])
+        ok |= (along >= 0) & (along <= length) & (across <= depth_m)
+    return ok
 
 
 def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
@@ -91,7 +130,10 @@ def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
 
 
-def load_model(path: str | Path) -> Model:
+def load_model(path: str | Path, floor: str | None = None) -> Model:
+    """The model in a wireframe (.yaml/.json/.obj), a floor plan (.yaml) or a Zillow Indoor
+    Dataset ``zind_data.json`` (``floor`` picks one of its floors; see
+    :mod:`placeloc.geometry.zind`)."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
@@ -102,6 +144,10 @@ def load_model(path: str | Path) -> Model:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
+    if isinstance(data, dict) and "merger" in data:
+        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
+
+        return floor_plan_model(zind_home(path, floor)[0], str(path))
     if isinstance(data, dict) and ("outline" in data or "rooms" in data):
         return floor_plan_model(data, str(path))
     if isinstance(data, list):
@@ -111,7 +157,8 @@ def load_model(path: str | Path) -> Model:
                          "or a floor plan with 'outline'")
     segs = _rows(data["segments"], 6, path, "segments", "[x0, y0, z0, x1, y1, z1]")
     faces = _rows(data.get("faces") or [], 6, path, "faces", "[x0, y0, x1, y1, z0, z1]")
-    return Model(segs, faces, source=str(path))
+    return Model(segs, faces, source=str(path),
+                 camera_z=float(data["camera_z"]) if isinstance(data.get("camera_z"), (int, float)) else None)
 
 
 def _rows(items: Any, n: int, path: Path, key: str, form: str) -> np.ndarray:
@@ -194,7 +241,8 @@ def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
         segs.append([p[0], p[1], zf, p[0], p[1], zf + h])
         segs.append([q[0], q[1], zf, q[0], q[1], zf + h])
         segs.append([p[0], p[1], zf + h, q[0], q[1], zf + h])
-    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source)
+    camera_z = _num(plan, "camera_z", None, source, "the plan") if plan.get("camera_z") is not None else None
+    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source, camera_z=camera_z)
 
 
 def _num(d: dict[str, Any], key: str, default: float | None, source: str, what: str) -> float:
@@ -231,11 +279,19 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
     zf0 = float(plan.get("floor_z", 0.0))
     zc0 = plan.get("ceiling_z")
     openings = []
-    for i, o in enumerate(plan.get("openings") or plan.get("doors") or []):
-        try:
-            openings.append((np.asarray(o["from"], float), np.asarray(o["to"], float), _num(o, "height", 2.0, source, f"openings[{i}]")))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ModelError(f"{source}: openings[{i}] needs from: [x, y], to: [x, y] and a numeric height ({exc})") from exc
+    for key in ("doors", "openings"):
+        items = plan.get(key) or []
+        if not isinstance(items, list):
+            raise ModelError(f"{source}: {key} must be a list of {{from: [x, y], to: [x, y], height: ...}}")
+        for i, o in enumerate(items):
+            try:
+                openings.append((np.asarray(o["from"], float).reshape(2), np.asarray(o["to"], float).reshape(2),
+                                 _num(o, "height", 2.0, source, f"{key}[{i}]")))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ModelError(f"{source}: {key}[{i}] needs from: [x, y], to: [x, y] and a numeric height ({exc})") from exc
+    camera_z = plan.get("camera_z")
+    if camera_z is not None:
+        camera_z = _num(plan, "camera_z", None, source, "the plan")
     windows = []
     for i, w in enumerate(plan.get("windows") or []):
         try:
@@ -246,6 +302,7 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
     segs: list[list[float]] = []
     faces: list[list[float]] = []
     polys = []
+    internal = []
     for r, room in enumerate(rooms):
         what = f"rooms[{r}]" + (f" ({room.get('name')})" if isinstance(room, dict) and room.get("name") else "")
         if not isinstance(room, dict) or "polygon" not in room:
@@ -288,7 +345,18 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
                 lo, hi = max(sill + zf, zf), min(top + zf, zc)
                 segs += [[p0[0], p0[1], lo, p1[0], p1[1], lo], [p0[0], p0[1], hi, p1[0], p1[1], hi],
                          [p0[0], p0[1], lo, p0[0], p0[1], hi], [p1[0], p1[1], lo, p1[0], p1[1], hi]]
-    return Model(np.asarray(segs, float), np.asarray(faces, float).reshape(-1, 6), polygons=polys, source=source, rooms=True)
+        blocks = room.get("internal") or []
+        if not isinstance(blocks, list):
+            raise ModelError(f"{source}: {what}.internal must be a list of polygons [[[x, y], ...], ...]")
+        for j, block in enumerate(blocks):
+            poly_in = _poly(block, source, f"{what}.internal[{j}]")
+            internal.append(poly_in)
+            for a, b in zip(poly_in, np.roll(poly_in, -1, axis=0)):
+                segs += [[a[0], a[1], zf, a[0], a[1], zc], [a[0], a[1], zc, b[0], b[1], zc], [a[0], a[1], zf, b[0], b[1], zf]]
+                faces.append([a[0], a[1], b[0], b[1], zf, zc])
+    gaps = np.array([[*p, *q] for p, q, _h in openings], float).reshape(-1, 4)
+    return Model(np.asarray(segs, float), np.asarray(faces, float).reshape(-1, 6), polygons=polys, source=source, rooms=True,
+                 camera_z=camera_z, gaps=gaps, internal=internal)
 
 
 def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -307,13 +375,27 @@ def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
-def free_space_mask(xy: np.ndarray, model: Model, *, inside_only: bool, wall_margin_m: float) -> tuple[np.ndarray, list[str]]:
+def blocking_faces(faces: np.ndarray, z: float | None) -> np.ndarray:
+    """The wall faces a camera at height ``z`` cannot stand in: those spanning that height.
+    A lintel (the wall above a door) starts above a standing camera and does not count, so a
+    camera in a doorway is not "near a wall" because of it. ``z`` None: the faces that reach
+    down to the lowest floor of the model."""
+    faces = np.asarray(faces, float).reshape(-1, 6)
+    if z is None:
+        return faces[faces[:, 4] <= faces[:, 4].min(initial=0.0) + 1e-6] if len(faces) else faces
+    return faces[(faces[:, 4] <= z) & (faces[:, 5] >= z)]
+
+
+def free_space_mask(xy: np.ndarray, model: Model, *, inside_only: bool, wall_margin_m: float,
+                    z: float | None = None) -> tuple[np.ndarray, list[str]]:
     """Which plan points are free space for camera poses, and the settings that did nothing.
 
-    ``inside_only`` keeps points inside the plan (outline minus obstacles, or any room);
-    ``wall_margin_m`` keeps points at least that far from every wall face. A wireframe has
-    no polygons, so ``inside_only`` cannot apply, and without faces neither can the margin:
-    each such case is returned as a sentence for the caller to warn with."""
+    ``inside_only`` keeps points inside the plan (outline minus obstacles, or any room
+    outside its internal blocks, or a doorway); ``wall_margin_m`` keeps points at least that
+    far from every wall face that spans the camera height ``z`` (:func:`blocking_faces`:
+    lintels above doorways do not count). A wireframe has no polygons, so ``inside_only``
+    cannot apply, and without faces neither can the margin: each such case is returned as a
+    sentence for the caller to warn with."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     keep = np.ones(len(xy), dtype=bool)
     notes: list[str] = []
@@ -325,8 +407,61 @@ def free_space_mask(xy: np.ndarray, model: Model, *, inside_only: bool, wall_mar
                          "polygons (give a floor plan, or set grid.inside_only: false)")
     if wall_margin_m > 0:
         if len(model.faces):
-            keep &= wall_distance(xy, model.faces) >= wall_margin_m
+            keep &= wall_distance(xy, blocking_faces(model.faces, z)) >= wall_margin_m
         else:
             notes.append(f"grid.wall_margin_m does nothing for {model.source or 'this model'}: it has no wall faces "
                          "(add faces: [[x0, y0, x1, y1, z0, z1], ...] or use a floor plan)")
     return keep, notes
+
+
+def model_bounds(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) plan corners of the model: its polygons, else its segments."""
+    pts = np.concatenate(model.polygons) if model.polygons else model.segments.reshape(-1, 3)[:, :2]
+    return pts.min(0), pts.max(0)
+
+
+def plan_grid(model: Model, *, x: Any = None, y: Any = None, step_m: float = 0.25, z: float | None = None,
+              headings: Any = (0.0,), inside_only: bool = True, wall_margin_m: float = 0.1) -> tuple[np.ndarray, list[str]]:
+    """The camera pose grid over a model: (N, 4) rows x, y, z, heading (x slowest) and the
+    notes of settings that did nothing.
+
+    ``x``/``y`` None: the model's plan bounds at ``step_m`` (the first point half a step in);
+    ``z`` None: the model's camera height (``camera_z`` of the plan). A grid that keeps no
+    position of the model, or a z outside its storey, is a ValueError naming both."""
+    from placeloc.geometry import pose_grid
+
+    lo, hi = model_bounds(model)
+    where = f"{model.source or 'the model'} (plan x {lo[0]:.2f}..{hi[0]:.2f} m, y {lo[1]:.2f}..{hi[1]:.2f} m)"
+    if z is None:
+        if model.camera_z is None:
+            raise ValueError(f"{model.source or 'the model'} gives no camera height (camera_z): set grid.z to the "
+                             "camera's height above the floor in metres, or add camera_z to the plan")
+        z = float(model.camera_z)
+    if len(model.faces):
+        zlo, zhi = float(model.faces[:, 4].min()), float(model.faces[:, 5].max())
+        if not zlo < z < zhi:
+            raise ValueError(f"grid z {z} m lies outside the storey of {where}: floor {zlo} m, ceiling {zhi} m; set "
+                             "grid.z to the camera height above the floor (or leave it out to use the plan's camera_z)")
+    explicit = x is not None and y is not None
+    if x is None:
+        x = [float(lo[0]) + step_m / 2, float(hi[0]), step_m]
+    if y is None:
+        y = [float(lo[1]) + step_m / 2, float(hi[1]), step_m]
+    poses = pose_grid(list(x), list(y), z, list(headings))
+    keep, notes = free_space_mask(poses[:, :2], model, inside_only=inside_only, wall_margin_m=wall_margin_m, z=z)
+    if explicit and keep.any() and model.polygons:
+        # the share of the plan's free space the given grid reaches (a grid made for another model)
+        full = pose_grid([float(lo[0]), float(hi[0]), 0.25], [float(lo[1]), float(hi[1]), 0.25], z, [0.0])[:, :2]
+        full = full[free_space_mask(full, model, inside_only=True, wall_margin_m=wall_margin_m, z=z)[0]]
+        g = poses[keep]
+        reached = ((full[:, 0] >= g[:, 0].min() - 0.25) & (full[:, 0] <= g[:, 0].max() + 0.25)
+                   & (full[:, 1] >= g[:, 1].min() - 0.25) & (full[:, 1] <= g[:, 1].max() + 0.25)).mean() if len(full) else 1.0
+        if reached < 0.5:
+            notes.append(f"grid covers only {reached:.0%} of the free space of {where}: leave grid.x and grid.y out to "
+                         "cover the whole plan")
+    if not keep.any():
+        gx, gy = poses[:, 0], poses[:, 1]
+        raise ValueError(f"the pose grid (x {gx.min():.2f}..{gx.max():.2f} m, y {gy.min():.2f}..{gy.max():.2f} m) keeps "
+                         f"no position of {where}{' inside the rooms' if inside_only else ''}: leave grid.x and grid.y out "
+                         "to cover the plan, or fix them (or the model's coordinates)")
+    return poses[keep], notes

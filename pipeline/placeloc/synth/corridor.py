@@ -231,7 +231,7 @@ def generate(out_dir: Path, seed: int = 0, frames: int = 50, start_x: float = 8.
     out_dir = Path(out_dir)
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    plan = building()
+    plan = {**building(), "camera_z": z}
     (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(plan, sort_keys=False))
     model = floor_plan_model(plan)
     (out_dir / "wireframe.yaml").write_text(yaml.safe_dump({"segments": model.segments.round(4).tolist(),

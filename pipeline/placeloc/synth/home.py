@@ -17,6 +17,9 @@ Written under OUT:
 - ``panoramas/pano_000.png ...``: grey equirectangular panoramas (2:1) at random free-space
   poses, with random headings, sensor noise and blur;
 - ``poses.csv``: frame, x, y, z, heading_deg (ground truth);
+- ``zind_data.json``: the same home and poses in the Zillow Indoor Dataset's format (one
+  complete room per room, the layout in its primary panorama's frame: what
+  ``placeloc import zind`` and ``umap.model: zind_data.json`` read);
 - ``line_stats.json``: how much the panoramas' LSD lines and the map's lines agree at the
   true poses (share of detected line pixels on map lines, share of map line pixels
   detected), which :func:`generate` also returns and the CLI prints.
@@ -38,6 +41,7 @@ from numba import njit, prange
 from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
 from placeloc.geometry.panorama import panorama_line_image, render_panoramas
 from placeloc.geometry.rays import ray_box, ray_segment
+from placeloc.geometry.zind import write_zind
 from placeloc.synth.texture import cell_hash, value_noise
 
 CEILING = 2.5
@@ -58,7 +62,8 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     rooms.append({"name": "hall", "polygon": [[0, y0], [length, y0], [length, y1], [0, y1]]})
     x = 0.0
     door_w = 0.85
-    clutter: dict[str, list] = {"boxes": [], "leaves": [], "blinds": [], "lamps": []}
+    # boxes: furniture a camera keeps away from; fans and flat things (rugs, pictures) it may stand under or on
+    clutter: dict[str, list] = {"boxes": [], "fans": [], "flat": [], "leaves": [], "blinds": [], "lamps": []}
     for i, w in enumerate(bed_w):
         rooms.append({"name": f"bedroom{i + 1}", "polygon": [[x, y1], [x + w, y1], [x + w, y1 + bed_d], [x, y1 + bed_d]]})
         dx = x + 0.3 + rng.uniform(0.0, 0.4)
@@ -69,6 +74,15 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
         ww, wd = rng.uniform(1.2, 1.8), 0.6
         clutter["boxes"].append([x + w - wd, y1 + bed_d - 0.2 - ww, 0.0, x + w, y1 + bed_d - 0.2, 2.1, 0.55 + 0.1 * rng.random(), 1.0])
         _door_leaf(clutter, rng, (dx, y1), (dx + door_w, y1), +1)
+        # a bed against the window wall (its edges hide the floor line there), a fan over some
+        bx = x + w / 2 + rng.uniform(-0.3, 0.1)
+        clutter["boxes"].append([bx - 0.8, y1 + bed_d - 2.05, 0.0, bx + 0.8, y1 + bed_d - 0.05, 0.55, 0.62 + 0.1 * rng.random(), 0.0])
+        if rng.random() < 0.5:
+            _fan(clutter, x + w / 2 + rng.uniform(-0.2, 0.2), y1 + bed_d / 2 + rng.uniform(-0.2, 0.2))
+        # a rug beside the bed and a picture on the west wall: lines the map does not have
+        clutter["flat"].append([bx - 1.4, y1 + bed_d - 1.8, 0.0, bx - 0.85, y1 + bed_d - 0.6, 0.012, 0.35 + 0.2 * rng.random(), 0.0])
+        py = y1 + bed_d / 2 + rng.uniform(-0.6, 0.2)
+        clutter["flat"].append([x, py, 1.2, x + 0.02, py + 0.7, 1.7, 0.45 + 0.3 * rng.random(), 0.0])
         x += w
     liv_w = round(length * 0.6, 2)
     south = 4.2 + rng.uniform(-0.2, 0.2)
@@ -81,6 +95,17 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     for wx in (0.8, liv_w - 2.6):
         windows.append({"from": [round(wx, 3), -south], "to": [round(wx + 1.8, 3), -south], "sill": 0.6, "top": 2.2})
     windows.append({"from": [length, round(-south + 1.0, 3)], "to": [length, round(-south + 2.2, 3)], "sill": 1.0, "top": 2.1})
+    # an internal wall in the kitchen (in the map: a free-standing full-height block, as ZInD's
+    # "internal" polygons), a sofa and a dining table in the living room, a fan over it
+    iw = liv_w + 2.0 + rng.uniform(-0.3, 0.3)
+    rooms[-1]["internal"] = [[[round(iw, 3), -2.7], [round(iw + 0.12, 3), -2.7], [round(iw + 0.12, 3), -1.3], [round(iw, 3), -1.3]]]
+    clutter["boxes"].append([0.0, -south + 0.9, 0.0, 0.9, -south + 3.0, 0.8, 0.4, 0.0])
+    tx, ty = liv_w / 2 + rng.uniform(-0.5, 0.5), -south / 2 + rng.uniform(-0.3, 0.3)
+    clutter["boxes"].append([tx - 0.8, ty - 0.45, 0.72, tx + 0.8, ty + 0.45, 0.76, 0.35, 0.0])
+    _fan(clutter, liv_w / 2 + rng.uniform(-0.4, 0.4), -south / 2 + rng.uniform(-0.4, 0.4))
+    clutter["flat"].append([tx - 1.3, ty - 1.0, 0.0, tx + 1.3, ty + 1.0, 0.012, 0.4 + 0.15 * rng.random(), 0.0])   # a rug
+    ru = rng.uniform(0.5, length - 3.0)
+    clutter["flat"].append([ru, 0.35, 0.0, ru + 2.4, HALL_W - 0.35, 0.012, 0.3 + 0.2 * rng.random(), 0.0])  # a hall runner
     # kitchen cabinets: a counter run along the south wall and wall cabinets above it
     k0 = liv_w + 0.1
     clutter["boxes"].append([k0, -south, 0.0, length - 0.1, -south + 0.6, 0.9, 0.45, 0.6])
@@ -124,6 +149,15 @@ def floor_of_homes(rng: np.random.Generator, homes: int, bedrooms: int) -> dict[
         windows += [{**w, "from": moved([w["from"]])[0], "to": moved([w["to"]])[0]} for w in fp["windows"]]
         x0 += max(xs) - min(xs) + 0.3
     return {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
+
+
+def _fan(clutter: dict[str, list], cx: float, cy: float) -> None:
+    """A ceiling fan: two crossed dark blades 1.2 m long just under the ceiling and its rod
+    (boxes: a fan is axis-aligned here, which is all the line detector sees of it)."""
+    z0 = CEILING - 0.32
+    clutter["fans"].append([cx - 0.6, cy - 0.06, z0, cx + 0.6, cy + 0.06, z0 + 0.03, 0.3, 0.0])
+    clutter["fans"].append([cx - 0.06, cy - 0.6, z0, cx + 0.06, cy + 0.6, z0 + 0.03, 0.3, 0.0])
+    clutter["fans"].append([cx - 0.02, cy - 0.02, z0, cx + 0.02, cy + 0.02, CEILING, 0.35, 0.0])
 
 
 def _door_leaf(clutter: dict[str, list], rng: np.random.Generator, a: tuple[float, float], b: tuple[float, float],
@@ -218,9 +252,14 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                     if t > 0.0 and 0.0 <= s <= 1.0 and t <= first + 1e-3:
                         zz = t * sun[2]
                         if windows[w, 4] <= zz <= windows[w, 5]:
-                            col = min(1.0, col * 1.7)
+                            lit = True
+                            for b in range(blinds.shape[0]):  # through the slats of a blind: stripes
+                                if abs(blinds[b, 0] - ax) < 1e-6 and abs(blinds[b, 1] - ay) < 1e-6 and zz >= blinds[b, 5]:
+                                    lit = (zz * 20.0) - math.floor(zz * 20.0) >= 0.6
+                            if lit:
+                                col = min(1.0, col * 1.7)
             elif kind == CEIL:
-                col = 0.84 + 0.01 * value_noise(qx, qy, 0.3, 25)
+                col = 0.87 + 0.01 * value_noise(qx, qy, 0.3, 25)
                 for k in range(lamps.shape[0]):
                     if lamps[k, 0] <= qx <= lamps[k, 2] and lamps[k, 1] <= qy <= lamps[k, 3]:
                         col = 0.98
@@ -231,7 +270,7 @@ def _raycast(pose: np.ndarray, width: int, height: int, faces: np.ndarray, boxes
                 ex = faces[idx, 2] - faces[idx, 0]
                 ey = faces[idx, 3] - faces[idx, 1]
                 along_x = abs(ex) / max(math.hypot(ex, ey), 1e-9)
-                col = 0.80 + 0.025 * along_x + 0.012 * (value_noise(qx + qy, qz, 0.4, 26) - 0.5)
+                col = 0.78 + 0.04 * along_x + 0.012 * (value_noise(qx + qy, qz, 0.4, 26) - 0.5)
                 if qz < 0.09:                      # skirting board
                     col = 0.93
                     if qz > 0.08:
@@ -292,7 +331,7 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
     sun_az = math.radians(rng.uniform(210.0, 330.0))   # from the south: it shines through the south windows
     sun_el = math.radians(rng.uniform(25, 50))
     sun = np.array([math.cos(sun_az), math.sin(sun_az), math.tan(sun_el)])  # plan direction, rise per metre
-    return {"faces": model.faces, "boxes": np.asarray(clutter["boxes"], float).reshape(-1, 8),
+    return {"faces": model.faces, "boxes": np.asarray(clutter["boxes"] + clutter["fans"] + clutter["flat"], float).reshape(-1, 8),
             "leaves": np.asarray(clutter["leaves"], float).reshape(-1, 5),
             "blinds": np.asarray(clutter["blinds"], float).reshape(-1, 6),
             "windows": np.array([[*w["from"], *w["to"], w["sill"], w["top"]] for w in fp["windows"]], float).reshape(-1, 6),
@@ -300,26 +339,63 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
             "lamps": np.asarray(clutter["lamps"], float).reshape(-1, 4)}
 
 
-def line_agreement(query_lines: np.ndarray, map_lines: np.ndarray) -> tuple[float, float]:
+# the figures of a real home (a held-out Zillow Indoor Dataset tour, 32 panoramas) the
+# generator is built to match: detected line pixels on map lines, map line pixels detected,
+# off-map detected pixels more than 60 degrees below the horizon
+REAL_HOME_STATS = {"detected_on_map": 0.43, "map_detected": 0.66, "off_map_below_60": 0.35}
+
+
+def line_agreement(query_lines: np.ndarray, map_lines: np.ndarray) -> tuple[float, float, float]:
     """(share of detected line pixels within one pixel of a map line, share of map line
-    pixels within one pixel of a detected line) of two binary images of the same size."""
+    pixels within one pixel of a detected line, share of the detected pixels off the map
+    that lie more than 60 degrees below the horizon) of two equirectangular binary images
+    of the same size."""
     near = np.ones((3, 3), np.uint8)
     q, m = (query_lines > 0).astype(np.uint8), (map_lines > 0).astype(np.uint8)
-    on_map = float((q & cv2.dilate(m, near)).sum()) / max(int(q.sum()), 1)
+    on = q & cv2.dilate(m, near)
+    on_map = float(on.sum()) / max(int(q.sum()), 1)
     found = float((m & cv2.dilate(q, near)).sum()) / max(int(m.sum()), 1)
-    return on_map, found
+    off = q & (1 - on)
+    el = 90.0 - 180.0 * (np.arange(q.shape[0]) + 0.5) / q.shape[0]
+    below = float(off[el < -60.0].sum()) / max(int(off.sum()), 1)
+    return on_map, found, below
+
+
+def doorway_poses(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Generator, count: int) -> np.ndarray:
+    """``count`` camera positions in doorways, as real tours photograph closets and
+    bathrooms from the door: inside a door (an opening narrower than 1.2 m) whose leaf is
+    not closed, 40-70 % along it (away from the hinge of an open leaf) and 0.02-0.12 m from the wall line (from the lintel face)
+    on either side."""
+    doors = []
+    for o in fp["openings"]:
+        a, b = np.asarray(o["from"], float), np.asarray(o["to"], float)
+        closed = any(abs(lf[0] - a[0]) < 0.01 and abs(lf[1] - lf[3]) < 1e-6 and abs(lf[1] - a[1]) < 0.05
+                     for lf in clutter["leaves"])
+        if np.hypot(*(b - a)) < 1.2 and not closed:
+            doors.append((a, b))
+    out = []
+    for i in range(count if doors else 0):
+        a, b = doors[i % len(doors)]
+        e = (b - a) / np.hypot(*(b - a))
+        n = np.array([-e[1], e[0]]) * rng.choice([-1.0, 1.0])
+        out.append(a + (b - a) * rng.uniform(0.4, 0.7) + n * rng.uniform(0.02, 0.12))
+    return np.asarray(out, float).reshape(-1, 2)
 
 
 def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
-             noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, **unknown: Any) -> dict[str, Any]:
-    """Write the home, its panoramas, their ground truth and the line statistics under ``out_dir``."""
+             noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
+             **unknown: Any) -> dict[str, Any]:
+    """Write the home, its panoramas, their ground truth and the line statistics under
+    ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
+    32 cameras within 0.12 m of a door's lintel face)."""
     if unknown:
         raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, noise, blur, "
-                        "stats_width")
+                        "stats_width, doorway_share")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     fp, clutter = plan(rng, bedrooms)
+    fp["camera_z"] = z   # the tripod's height, as the ZInD importer writes it
     (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(fp, sort_keys=False))
     model = floor_plan_model(fp)
     scene = scene_arrays(fp, clutter, rng)
@@ -327,15 +403,17 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     # free-space poses, away from walls and out of the furniture
     cand = rng.uniform(lo, hi, size=(4000, 2))
     keep, _ = free_space_mask(cand, model, inside_only=True, wall_margin_m=0.5)
-    boxes = scene["boxes"]
+    boxes = np.asarray(clutter["boxes"], float).reshape(-1, 8)   # furniture (a camera may stand under a fan)
     for b in boxes:
         keep &= ~((cand[:, 0] > b[0] - 0.3) & (cand[:, 0] < b[3] + 0.3) & (cand[:, 1] > b[1] - 0.3) & (cand[:, 1] < b[4] + 0.3))
-    cand = cand[keep][:panoramas]
+    n_door = int(round(doorway_share * panoramas))
+    cand = np.concatenate([doorway_poses(fp, clutter, rng, n_door), cand[keep]])[:panoramas]
     if len(cand) < panoramas:
         raise ValueError(f"only {len(cand)} free-space poses found for {panoramas} panoramas; ask for fewer")
     height = width // 2
     sh = stats_width // 2
-    on_map, found = [], []
+    on_map, found, below = [], [], []
+    written = []
     with open(out_dir / "poses.csv", "w", newline="") as fpz:
         w = csv.writer(fpz)
         w.writerow(["frame", "x", "y", "z", "heading_deg"])
@@ -343,24 +421,36 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             heading = float(rng.uniform(0, 360))
             zz = z + float(rng.uniform(-0.03, 0.03))
             img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
+            # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
+            img[int(height * (90 + 78) / 180):] *= 0.45
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)
             name = f"pano_{i:03d}.png"
             cv2.imwrite(str(out_dir / "panoramas" / name), img)
             w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}"])
+            written.append({"frame": name, "x": float(x), "y": float(y), "z": zz, "heading_deg": heading})
             q = panorama_line_image(img, width=stats_width, height=sh, face_px=width // 4, min_length=8.0)
             m = render_panoramas(model.segments, model.faces, np.array([[x, y, zz, heading]]), width=stats_width, height=sh,
                                  hidden=True)
             bits = np.unpackbits(m.view(np.uint8), bitorder="little")[: sh * stats_width].reshape(sh, stats_width)
-            a, b = line_agreement(q, bits)
+            a, b, c = line_agreement(q, bits)
             on_map.append(a)
             found.append(b)
+            below.append(c)
+    write_zind(fp, written, out_dir / "zind_data.json", image_dir="panoramas")
     stats = {"detected_on_map": float(np.median(on_map)), "map_detected": float(np.median(found)),
+             "off_map_below_60": float(np.median(below)),
              "detected_on_map_range": [float(np.min(on_map)), float(np.max(on_map))],
-             "map_detected_range": [float(np.min(found)), float(np.max(found))], "n_panoramas": len(cand),
-             "at": f"{stats_width}x{sh} equirectangular, within 1 px"}
+             "map_detected_range": [float(np.min(found)), float(np.max(found))],
+             "off_map_below_60_range": [float(np.min(below)), float(np.max(below))], "n_panoramas": len(cand),
+             "doorway_panoramas": min(n_door, len(cand)), "at": f"{stats_width}x{sh} equirectangular, within 1 px",
+             "real_home": REAL_HOME_STATS}
     (out_dir / "line_stats.json").write_text(json.dumps(stats, indent=2) + "\n")
-    return {"out": str(out_dir), "panoramas": len(cand), "rooms": len(fp["rooms"]), "segments": len(model.segments),
-            "faces": len(model.faces), "detected line pixels on map lines (median)": f"{stats['detected_on_map']:.0%}",
-            "map line pixels detected (median)": f"{stats['map_detected']:.0%}"}
+    real = REAL_HOME_STATS
+    return {"out": str(out_dir), "panoramas": len(cand), "in doorways": stats["doorway_panoramas"], "rooms": len(fp["rooms"]),
+            "segments": len(model.segments), "faces": len(model.faces),
+            "detected line pixels on map lines (median; real home)": f"{stats['detected_on_map']:.0%} ({real['detected_on_map']:.0%})",
+            "map line pixels detected (median; real home)": f"{stats['map_detected']:.0%} ({real['map_detected']:.0%})",
+            "off-map pixels > 60 deg below the horizon (median; real home)":
+                f"{stats['off_map_below_60']:.0%} ({real['off_map_below_60']:.0%})"}

@@ -22,12 +22,17 @@ class CameraParams(Params):
 
 @dataclass(frozen=True)
 class GridParams(Params):
-    x: tuple[float, float, float] = param([0.0, 90.0, 0.1], min_len=3, help="x start, stop, step in metres")
-    y: tuple[float, float, float] = param([-1.5, 4.0, 0.2], min_len=3, help="y start, stop, step in metres")
-    z: float = param(1.14, help="camera height in metres")
+    x: tuple[float, float, float] | None = param(None, min_len=3, help="x start, stop, step in metres (none: the model's plan bounds "
+                                                            "at grid.step_m)")
+    y: tuple[float, float, float] | None = param(None, min_len=3, help="y start, stop, step in metres (none: the model's plan bounds "
+                                                            "at grid.step_m)")
+    step_m: float = param(0.25, min=0.0, min_exclusive=True, help="grid spacing where x or y is left to the model")
+    z: float | None = param(None, help="camera height in metres (none: the plan's camera_z, which the ZInD importer and "
+                                       "the home generator write)")
     headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
-    wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from walls")
+    wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "
+                                                    "height (lintels over doorways do not count)")
 
 
 @dataclass(frozen=True)
@@ -61,24 +66,32 @@ class PanoramaParams(Params):
     height: int = param(72, min=4, help="equirectangular line image height in pixels")
     face_px: int = param(256, min=32, help="size of the six cube faces LSD runs on")
     lsd_min_length_px: float = param(8.0, min=0.0, help="shortest LSD line kept, in face pixels")
-    score: str = param("iou", choices=("iou", "chamfer"),
+    score: str = param("chamfer", choices=("iou", "chamfer"),
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
-    refine_candidates: int = param(8, min=0, help="distinct best grid positions re-scored on a finer local grid, chamfer score only (0: off)")
+    polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
+                                                        "polar_weight in the chamfer score")
+    polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "
+                                                           "sunlight stripes, rugs, tripod; ceiling fans)")
+    refine_candidates: int = param(8, min=0, help="distinct best grid positions refined coarse to fine around themselves, "
+                                                  "for either score (0: off)")
     refine_separation_m: float = param(0.5, min=0.0, help="least distance between two refined candidates")
-    refine_radius_m: float = param(0.15, min=0.0, help="half width of the local grid around each candidate")
-    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="spacing of the local grid")
+    refine_radius_m: float = param(0.15, min=0.0, help="how far the local search may move a candidate (per axis)")
+    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="the local search's finest step")
 
 
 @dataclass(frozen=True)
 class UMapParams(Params):
-    model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    model: str | None = param(None, path=True, help="wireframe (.yaml/.json/.obj), floor plan (.yaml) or a Zillow Indoor "
+                                                    "Dataset zind_data.json")
+    floor: str | None = param(None, help="the floor of a zind_data.json model, e.g. floor_02 (none: its only floor with "
+                                         "a scale; an error naming the floors when it has several)")
     camera: CameraParams = section(CameraParams)
     grid: GridParams = section(GridParams)
     near_m: float = param(0.05, min=0.0, min_exclusive=True, help="near clipping distance")
     hidden_lines: bool = param(True, help="remove hidden lines when rendering")
-    block: int = param(2048, min=1, help="database views scored per block")
+    block: int = param(2048, min=1, affects_result=False, help="database views scored per block")
     tolerance_px: int = param(2, min=0, help="line dilation for matching")
     query_kind: str = param("pinhole", choices=("pinhole", "equirect", "panorama"),
                             help="pinhole images; equirect: panoramas cut into views at the grid headings, best single "

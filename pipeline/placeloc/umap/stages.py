@@ -22,28 +22,23 @@ import numpy as np
 
 from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
-from placeloc.evaluation.poses import read_poses
-from placeloc.geometry import Camera, equirect_to_pinhole, pose_grid
-from placeloc.geometry.floorplan import ModelError, free_space_mask, load_model, wall_distance
+from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.lines import check_query_size, line_image
-from placeloc.umap.metrics import error_metrics, recall_metrics, yaw_errors
 from placeloc.umap.panorama import (
-    best_pose,
-    chamfer_yaw_scores,
-    closeness,
-    distinct_candidates,
-    iou_yaw_scores,
-    local_grid,
+    chamfer_spectra,
     panorama_line_image,
     render_panorama_block,
     render_panoramas,
+    row_weights,
+    search_panoramas,
 )
 from placeloc.umap.params import UMapParams
-from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
+from placeloc.umap.plots import plot_panorama_overlay
 from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
@@ -88,21 +83,17 @@ def _stage_error(exc: Exception) -> Exception:
 def build_dictionary(ctx: Any) -> None:
     p = ctx.params
     try:
-        model = load_model(p.model)
+        model = load_model(p.model, p.floor)
     except ModelError as exc:
         raise _stage_error(exc) from exc
     g = p.grid
     try:
-        poses = pose_grid(g.x, g.y, g.z, g.headings)
+        poses, notes = plan_grid(model, x=g.x, y=g.y, step_m=g.step_m, z=g.z, headings=g.headings,
+                                 inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
     except ValueError as exc:
         raise ConfigError(f"umap.grid: {exc}") from exc
-    keep, notes = free_space_mask(poses[:, :2], model, inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
     for note in notes:
         log.warning("umap.%s", note)
-    poses = poses[keep]
-    if len(poses) == 0:
-        raise ConfigError(f"umap.grid: the pose grid is empty (x {g.x}, y {g.y}, headings {g.headings}"
-                          f"{', inside the floor plan' if g.inside_only else ''}); widen the ranges or check the model's coordinates")
     block = int(p.block)
     if p.query_kind == "panorama":
         # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
@@ -165,6 +156,9 @@ def index(ctx: Any) -> None:
                              kind=str(src.attrs.get("kind", "pinhole")), bits_in="build-dictionary/db",
                              bytes=int(db.shape[0] * db.shape[1] * 8))
         return
+    if str(src.attrs.get("kind", "pinhole")) == "panorama" and ctx.params.panorama.score == "chamfer":
+        _index_spectra(ctx, src, db, h, w)
+        return
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * tol + 1, 2 * tol + 1)) if tol > 0 else None
     bits = ctx.out.create_dataset("bits", shape=db.shape, dtype=np.uint64, chunks=(min(block, db.shape[0]), db.shape[1]))
     for s in ctx.progress(range(0, db.shape[0], block), total=-(-db.shape[0] // block), desc="pack database"):
@@ -179,6 +173,25 @@ def index(ctx: Any) -> None:
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=tol,
                          kind=str(src.attrs.get("kind", "pinhole")), bits_in="index/bits",
                          bytes=int(db.shape[0] * db.shape[1] * 8))
+
+
+def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
+    """A panorama database for the chamfer score: the map side of the score as row spectra
+    (:func:`placeloc.umap.panorama.chamfer_spectra`), so localize scores every position and
+    yaw of a batch of queries with one matrix product per frequency."""
+    pp = ctx.params.panorama
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    n = db.shape[0]
+    spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * h), dtype=np.complex64)
+    counts = np.zeros(n, dtype=np.int64)
+    block = 1024
+    for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
+        words = np.ascontiguousarray(db[s:s + block])
+        spectra[:, s:s + len(words)] = chamfer_spectra(unpack(words, h, w), tau_px=pp.chamfer_tau_px, weights=weights)
+        counts[s:s + len(words)] = popcount_rows(words)
+    write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
+    ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=int(ctx.params.tolerance_px),
+                         kind="panorama", bits_in="index/spectra", bytes=int(spectra.size * 8))
 
 
 def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
@@ -286,56 +299,23 @@ def _extract_panoramas(ctx: Any) -> None:
 # ------------------------------------------------------------------ localize
 
 def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Best (grid row, plan position, heading, score) of each panorama, every position and
-    yaw scored; then, with ``panorama.refine_candidates`` and the chamfer score, the best distinct positions are
-    re-scored on a finer local grid rendered on the spot (the grid step is coarse next to
-    the differences between look-alike rooms) and the best refined pose is kept."""
+    """Best (grid row, plan position, heading, score) of each panorama:
+    :func:`placeloc.umap.panorama.search_panoramas` over the index's database."""
     pp = ctx.params.panorama
     h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
     lines = unpack(ex["lines"][()][:, 0], h, w)
-    n = len(lines)
-    best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
-    poses = idx["poses"][()]
     src = ctx.artifact("build-dictionary")
-    segs, faces = src["segments"][()], src["faces"][()]
     if pp.score == "chamfer":
-        raw = src["db"][()]
-        close = closeness(unpack(raw, h, w), pp.chamfer_tau_px)
+        if "spectra" not in idx:
+            raise _stage_error(ValueError("the index holds no chamfer spectra (it was built for umap.panorama.score iou): "
+                                          "re-run index (--force)"))
+        database = {"spectra": idx["spectra"][()]}
     else:
-        bits, counts = _dilated_bits(ctx, idx), idx["counts"][()]
-
-    def table_of(k: int, db_raw: np.ndarray | None = None) -> np.ndarray:
-        if db_raw is None:
-            if pp.score == "chamfer":
-                return chamfer_yaw_scores(raw, close, lines[k], tau_px=pp.chamfer_tau_px)
-            return iou_yaw_scores(bits, counts, lines[k])
-        return chamfer_yaw_scores(db_raw, closeness(unpack(db_raw, h, w), pp.chamfer_tau_px), lines[k],
-                                  tau_px=pp.chamfer_tau_px)
-
-    margin = float(ctx.params.grid.wall_margin_m)
-    refined_xy = np.full((n, 2), np.nan)
-    for k in ctx.progress(range(n), total=n, desc="panorama search"):
-        table = table_of(k)
-        best[k], shift, score[k] = best_pose(table)
-        heading[k] = shift * 360.0 / w
-        if pp.refine_candidates <= 0 or pp.score != "chamfer":
-            continue  # eq. (1) on dilated lines is flat over a few centimetres: the paper's score stays on the grid
-        for c in distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                     min_separation_m=pp.refine_separation_m):
-            pts = local_grid(poses[c, 0], poses[c, 1], radius_m=pp.refine_radius_m, step_m=pp.refine_step_m)
-            if len(faces):  # not through a wall: as far from every wall as the grid keeps its positions
-                pts = pts[wall_distance(pts, faces) >= min(margin, float(wall_distance(poses[c:c + 1, :2], faces)[0]))]
-            local = np.column_stack([pts, np.full(len(pts), poses[c, 2]), np.zeros(len(pts))])
-            sub = table_of(k, render_panoramas(segs, faces, local, width=w, height=h, hidden=bool(ctx.params.hidden_lines)))
-            i, s_shift, s = best_pose(sub)
-            if s > score[k]:
-                # the grid row stays that of the candidate; the position is the refined one
-                best[k], heading[k], score[k] = c, s_shift * 360.0 / w, s
-                refined_xy[k] = pts[i]
-    est = poses[best, :2].copy()
-    ok = ~np.isnan(refined_xy[:, 0])
-    est[ok] = refined_xy[ok]
-    return best, est, heading, score
+        database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
+    return search_panoramas(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
+                            tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                            hidden=bool(ctx.params.hidden_lines),
+                            progress=lambda it: ctx.progress(it, total=len(lines), desc="panorama search"))
 
 
 def localize(ctx: Any) -> None:
@@ -399,6 +379,7 @@ def localize(ctx: Any) -> None:
                 best_total, anchor = float(s.sum()), int(a)
                 best, score, radius = b, s, r
     est = poses[best]
+    _write_result(ctx, names, est[:, 0], est[:, 1], est[:, 3], score)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": est[:, 3],
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
@@ -416,6 +397,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], bes
     n = len(names)
     est = np.column_stack([xy, poses[best, 2:]])
     nan = np.full(n, np.nan)
+    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
@@ -427,37 +409,31 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], bes
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
 
 
-# ------------------------------------------------------------------ evaluate
+def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, heading: np.ndarray, score: np.ndarray) -> None:
+    """The ``poses`` contract, with the plan's walls (room outlines, else the wireframe seen from above)."""
+    from placeloc.evaluation import pose_estimates
 
-def evaluate(ctx: Any) -> None:
-    from placeloc.evaluation import write_metrics
+    plan = ctx.artifact("build-dictionary")
+    if "plan" in plan:
+        walls = [np.column_stack([q, np.roll(q, -1, axis=0)]) for q in (plan["plan"][k][()] for k in sorted(plan["plan"].keys()))]
+        segments = np.concatenate(walls) if walls else np.zeros((0, 4))
+    else:
+        segments = plan["segments"][()][:, [0, 1, 3, 4]]
+    pose_estimates.write(ctx, names=names, x=x, y=y, heading_deg=heading, score=score, plan_segments=segments,
+                         label=str(ctx.params.mode))
 
-    gt_cfg = ctx.config["ground_truth"]
-    if gt_cfg["kind"] != "poses":
-        raise ConfigError(f"ground_truth.kind is {gt_cfg['kind']!r}; UMap is scored against poses: set ground_truth.kind: poses "
-                          "and ground_truth.path to a CSV with frame, x, y")
+
+# ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds
+
+def evaluate_extra(ctx: Any, ev: Any) -> None:
+    """UMap's own figures: the mode in metrics.json and, for panoramas, each panorama's
+    lines against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
-    names = read_strings(loc["names"])
-    gt = read_poses(gt_cfg["path"], what="ground-truth poses")
-    truth = gt.xy[gt.rows_for_names(names, what="query frames")]
-    est = np.stack([loc["x"][()], loc["y"][()]], axis=1)
-    err = np.hypot(*(est - truth).T)
-    rows = gt.rows_for_names(names, what="query frames")
-    yaw_err = yaw_errors(loc["heading_deg"][()], np.degrees(gt.heading[rows])) if gt.heading is not None else None
-    metrics = error_metrics(err)
-    metrics.update(recall_metrics(err, yaw_err))
-    metrics["mode"] = str(loc.attrs["mode"])
-    write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
-    write_metrics(ctx.output_dir, metrics, ctx.out)
-    if ctx.config.get("plots", True):
-        plan = ctx.artifact("build-dictionary")
-        polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
-        plot_error_cdf(ctx.output("error_cdf.png"), err, metrics["mode"])
-        plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), truth, est, polys, plan["segments"][()], metrics["mode"],
-                               np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
-        ex = ctx.artifact("extract")
-        if str(ex.attrs["query_kind"]) == "panorama":
-            _panorama_pictures(ctx, ex, plan, loc, gt, rows, err)
+    ev.metrics["mode"] = str(loc.attrs["mode"])
+    ev.label = ev.metrics["mode"]
+    ex = ctx.artifact("extract")
+    if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
+        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.extra["poses"], ev.extra["rows"], ev.extra["err"])
 
 
 # pictures of the first panoramas only: one PNG each
@@ -497,16 +473,19 @@ METHOD = Method(
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px")),
-        "build-dictionary": Stage(build_dictionary, keys=("model", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+        "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px")),
-        "index": Stage(index, keys=("tolerance_px",)),
+        "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
+                                    "panorama.polar_weight")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+                                          "panorama.polar_deg", "panorama.polar_weight", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
                                           "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
-        "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },
+    result="poses",
+    evaluate_extra=evaluate_extra,
     required_images=("query",),
     checker=_check,
     citation="K. Takahashi, J. Takahashi, T. Kaneko and Y. Tobe, \"Improving pre-map indoor localization by comparing "

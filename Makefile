@@ -9,7 +9,7 @@ STAMP   = $(VENV)/.installed
 .PHONY: help venv demo test lint clean
 
 help:
-	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print where results are"
+	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print and explain its figures"
 	@echo "make test               set up .venv, run the test suite"
 	@echo "make lint               ruff"
 	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
@@ -38,7 +38,8 @@ demo: $(STAMP)
 	$(PL) run configs/demo.yaml --run-dir runs/demo
 	@echo
 	@echo "Results in runs/demo: report.html (open it in a browser), metrics.json, per_query.csv, matches.csv, *.png"
-	@$(BIN)/python -c "import json; m=json.load(open('runs/demo/metrics.json')); print({k: m[k] for k in ('recall_at_1','auc_pr','recall_at_100_precision','n_queries')})"
+	@echo "(to type 'placeloc' instead of $(PL): source $(BIN)/activate)"
+	@$(BIN)/python -m placeloc.seqslam.demo runs/demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider

@@ -82,3 +82,20 @@ def test_parameter_objects_are_built_from_the_config_with_nested_sections(tmp_pa
     p = get_method("umap").build_params({"umap": {**d, "ca": {**d["ca"], "tie_tol": 0.01},
                                                   "grid": {**d["grid"], "x": [0.0, 90.0, 0.1]}}})
     assert p.ca.tie_tol == 0.01 and p.grid.x == (0.0, 90.0, 0.1) and p.camera.width == 160
+
+
+def test_null_is_accepted_where_the_parameter_declares_it(route):
+    """pirf.index_recall is ``float | None`` with default 0.97: null (use the search setting
+    as given) must pass, a string must not; a plain float key still refuses null."""
+    import pytest
+
+    from placeloc.config import ConfigError, load_config
+
+    def cfg(**pirf):
+        return load_config(data={"method": "pirf", "reference": {"images": str(route / "reference")}, "pirf": pirf})
+
+    assert cfg(index_recall=None)["pirf"]["index_recall"] is None
+    with pytest.raises(ConfigError, match="pirf.index_recall must be a number"):
+        cfg(index_recall="high")
+    with pytest.raises(ConfigError, match="pirf.tau must be a number"):
+        cfg(tau=None)

@@ -16,7 +16,7 @@ from placeloc.evaluation.metrics import drop_soft, first_correct_rank, recall_at
 from placeloc.runner import run_stage
 
 
-def test_standard_recall_at_n_and_denominators_by_hand():
+def test_recall_at_n_and_denominators_by_hand():
     c = np.array([[False, True, False], [True, False, False], [False, False, False], [False, False, True]])
     assert recall_at_n(c, (1, 2, 3, 20)) == {1: 0.25, 2: 0.5, 3: 0.75, 20: 0.75}
     has = np.array([True, True, False, True])  # query 2 has no positive at all
@@ -40,14 +40,14 @@ def test_soft_matches_neither_count_wrong_nor_are_required(tmp_path):
     s = score_matches(gt, np.arange(3), np.arange(10), separated=separated, confidence=np.array([0.9, 0.8, 0.1]),
                       ranked=separated, ranked_scores=np.ones((3, 3)), ns=(1, 2))
     m = s.metrics
-    assert m["standard_recall_at_1"] == pytest.approx(1 / 3) and m["standard_recall_at_2"] == pytest.approx(2 / 3)
-    assert m["standard_recall_at_1_with_positive"] == 0.5 and m["standard_recall_at_2_with_positive"] == 1.0
+    assert m["recall_at_1"] == pytest.approx(1 / 3) and m["recall_at_2"] == pytest.approx(2 / 3)
+    assert m["recall_at_1_with_positive"] == 0.5 and m["recall_at_2_with_positive"] == 1.0
     assert m["queries_with_ground_truth"] == 2 and s.best.tolist() == [2, 8, 1]
     # without the soft rows, the soft candidate 3 of query 0 is simply wrong
     p.write_text("query,reference\n0,2\n1,5\n")
     hard = score_matches(GroundTruth.from_csv(p, 10, 3), np.arange(3), np.arange(10), separated=separated,
                          confidence=np.ones(3), ranked=separated, ns=(1, 2))
-    assert hard.metrics["standard_recall_at_1"] == 0.0 and hard.metrics["standard_recall_at_2"] == pytest.approx(1 / 3)
+    assert hard.metrics["recall_at_1"] == 0.0 and hard.metrics["recall_at_2"] == pytest.approx(1 / 3)
 
 
 def test_standard_and_separated_rankings_differ_as_defined():
@@ -55,11 +55,11 @@ def test_standard_and_separated_rankings_differ_as_defined():
     gt = GroundTruth(10, 1, intervals=(np.array([0]), np.array([1]), np.array([1])))
     s = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1),
                       ranked=np.array([[5, 6, 1]]), ns=(1, 2, 3))
-    assert [s.metrics[f"standard_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 0.0, 1.0]
+    assert [s.metrics[f"recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 0.0, 1.0]
     # only 2 separated candidates were kept: recall at 3 is unknown, not silently the value at 2
     assert [s.metrics[f"separated_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 1.0, None]
     none = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1))
-    assert none.metrics["standard_recall_at_1"] == 0.0 and none.metrics["standard_recall_at_5"] is None
+    assert none.metrics["recall_at_1"] == 0.0 and none.metrics["recall_at_5"] is None
 
 
 def _positions_csv(route, path):
@@ -85,19 +85,19 @@ def test_seqslam_evaluate_with_positions_names_and_ranges_agree(route, tmp_path)
     poses = json.loads((run / "metrics.json").read_text())
     keys = [k for k in ranges if "recall" in k or k in ("auc_pr", "max_f1", "queries_with_ground_truth")]
     assert {k: poses[k] for k in keys} == {k: ranges[k] for k in keys}
-    assert ranges["recall_at_1"] > 0.8 and ranges["standard_recall_at_20"] >= ranges["standard_recall_at_1"]
+    assert ranges["recall_at_1"] > 0.8 and ranges["recall_at_20"] >= ranges["recall_at_1"]
     with (run / "per_query.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == ranges["n_queries"]
     assert np.mean([r["correct"] == "1" for r in rows]) == pytest.approx(ranges["recall_at_1"])
     first = np.array([int(r["first_correct_rank"]) for r in rows])
     for n in (1, 5, 20):
-        assert np.mean((first >= 1) & (first <= n)) == pytest.approx(ranges[f"standard_recall_at_{n}"])
+        assert np.mean((first >= 1) & (first <= n)) == pytest.approx(ranges[f"recall_at_{n}"])
     assert rows[30]["query_image"] == "frame30.png" and rows[30]["image_1"].startswith("frame")
     from placeloc.evaluation.show import recall_from_per_query
 
     again = recall_from_per_query(run, [5, 20, 21])
-    assert again[5][0] == pytest.approx(ranges["standard_recall_at_5"]) and again[21] == (None, None)
+    assert again[5][0] == pytest.approx(ranges["recall_at_5"]) and again[21] == (None, None)
 
 
 def test_show_without_ground_truth_and_report(route, tmp_path):
@@ -121,7 +121,7 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
 
     run_stage(load_config(route / "config.yaml", ["seqslam.comparison=sad"]), run, "evaluate", quiet=True)
     html = (run / "report.html").read_text()
-    assert "standard_recall_at_20" in html
+    assert "recall_at_20" in html
     for name in ("strips_sample.png", "pr_curve.png", "recall_at_n.png", "difference_matrix.png"):
         assert f"<h3>{name}</h3><img" in html
     show_run(run)
@@ -133,7 +133,7 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
 
     res = CliRunner().invoke(app, ["show", str(run), "--recall-at", "1,20,99", "-q"])
     m = json.loads((run / "metrics.json").read_text())
-    assert res.exit_code == 0 and f"recall@1: {m['standard_recall_at_1']:.4f} (all queries)" in res.output
+    assert res.exit_code == 0 and f"recall@1: {m['recall_at_1']:.4f} (all queries)" in res.output
     assert "recall@99: n/a" in res.output and side_outputs_intact(run / "evaluate.h5")
     res = CliRunner().invoke(app, ["show", str(tmp_path / "nowhere")])
     assert res.exit_code == 2
@@ -171,9 +171,9 @@ def test_recall_at_n_list_comes_from_the_config(route, tmp_path):
     cfg = load_config(route / "config.yaml", ["plots=false", "ground_truth.recall_at=[3, 1]"])
     run_stage(cfg, run, "evaluate", quiet=True)
     m = json.loads((run / "metrics.json").read_text())
-    assert "standard_recall_at_3" in m and "standard_recall_at_20" not in m
+    assert "recall_at_3" in m and "recall_at_20" not in m
     with open(run / "per_query.csv", newline="") as fh:
         ranks = [int(r["first_correct_rank"] or 0) for r in csv.DictReader(fh)]  # 0: no positive among them
     n = len(ranks)
-    assert m["standard_recall_at_3"] == pytest.approx(sum(1 for r in ranks if 1 <= r <= 3) / n)
-    assert m["standard_recall_at_1"] == pytest.approx(sum(1 for r in ranks if r == 1) / n)
+    assert m["recall_at_3"] == pytest.approx(sum(1 for r in ranks if 1 <= r <= 3) / n)
+    assert m["recall_at_1"] == pytest.approx(sum(1 for r in ranks if r == 1) / n)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from placeloc.config import load_config
-from placeloc.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item, make_executor
+from placeloc.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item
+from placeloc.executors import make_executor
 from placeloc.runner import run_stage
 
 # Every dataset extract and localize write; compared bit for bit between executors.

@@ -246,3 +246,34 @@ def test_loop_closure_pairs_by_name(tmp_path):
     names = [f"f{i}.png" for i in range(8)]
     gt = GroundTruth.from_config({"kind": "csv", "path": str(p), "tolerance": 0}, 8, 8, ref_names=names)
     assert gt.correct(np.array([5, 6, 6]), np.array([1, 2, 1])).tolist() == [True, True, False]
+
+
+def test_a_pairs_csv_is_exact_unless_a_tolerance_is_set(route, tmp_path):
+    """The config's default tolerance is the ground truth's (0): a pair marks one reference."""
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_text("query,reference\n3,3\n10,12\n")
+    cfg = load_config(route / "config.yaml", ["ground_truth.kind=csv", f"ground_truth.path={pairs}"])
+    assert cfg["ground_truth"]["tolerance"] == 0
+    n_ref, n_query = 80, 81
+    exact = GroundTruth.from_config(cfg["ground_truth"], n_ref, n_query)
+    assert np.flatnonzero(_dense(exact)[:, 10]).tolist() == [12]
+    assert np.flatnonzero(_dense(exact)[:, 3]).tolist() == [3]
+    cfg = load_config(route / "config.yaml", ["ground_truth.kind=csv", f"ground_truth.path={pairs}",
+                                              "ground_truth.tolerance=2"])
+    banded = GroundTruth.from_config(cfg["ground_truth"], n_ref, n_query)
+    assert np.flatnonzero(_dense(banded)[:, 10]).tolist() == [10, 11, 12, 13, 14]
+
+
+def test_shared_settings_have_one_home():
+    """Config defaults, the ground truth's and the metrics' defaults all come from CommonParams."""
+    from placeloc import params as P
+    from placeloc.common_params import CommonParams, GroundTruthParams
+    from placeloc.evaluation import ground_truth, metrics
+
+    gt = P.defaults(CommonParams)["ground_truth"]
+    assert gt == {"kind": "none", "tolerance": 0, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20]}
+    assert ground_truth.DEFAULT_RADIUS_M == GroundTruthParams().radius
+    assert ground_truth.DEFAULT_TOLERANCE == GroundTruthParams().tolerance
+    assert list(metrics.DEFAULT_RECALL_N) == gt["recall_at"]
+    # a section without a tolerance scores like the validated config's default
+    assert GroundTruth.from_config({"kind": "synchronous"}, 5, 5).tolerance == gt["tolerance"]

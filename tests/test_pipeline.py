@@ -136,10 +136,15 @@ def test_loop_closure_on_a_route_driven_twice(route, tmp_path):
     with h5py.File(tmp_path / "lc" / "localize.h5") as f:
         best = f["candidates"][:, 0]
         assert bool(f.attrs["loop_closure"])
+        assert f["result"].attrs["kind"] == "loops" and (f["result/match"][()] == best).all()
     q = np.arange(160)
     assert (best[q >= 95] == q[q >= 95] - 80).all()
     matched = best >= 0
     assert (best[matched] <= q[matched] - 40).all()
+    # scored as loop closures: 80 frames close a loop (exclusion 50 frames, the default)
+    m = json.loads((tmp_path / "lc" / "metrics.json").read_text())
+    assert m["frames_with_loop"] == 80 and m["n_frames"] == 160
+    assert m["recall_at_100_precision"] >= 65 / 80
 
 
 def test_cli_run_end_to_end_on_data_samples(tmp_path):

@@ -189,8 +189,12 @@ def test_fewer_poses_than_frames_is_an_error(omni: Path, tmp_path: Path) -> None
             "ground_truth": {"kind": "poses", "path": str(short), "radius": 1.0}}
     with pytest.raises(ConfigError, match=r"short\.csv: 3 poses for 80 frames"):
         load_config(data=data)
+    # a poses file given as loop-closure pairs: the loops contract reads it up front and says what it expects
     data["ground_truth"] = {"kind": "csv", "path": str(short)}
-    with pytest.raises(ConfigError, match="evaluated against poses"):
+    with pytest.raises(ConfigError, match=r"short\.csv:1: header must be 'query,reference'"):
+        load_config(data=data)
+    data["ground_truth"] = {"kind": "synchronous"}
+    with pytest.raises(ConfigError, match="scored against poses"):
         load_config(data=data)
 
 

@@ -194,8 +194,11 @@ def test_bad_inputs(tmp_path):
         run_stage(_config(tmp_path, grid={}), tmp_path / "r1", "build-dictionary", quiet=True)
     with pytest.raises(ConfigError, match="umap.sensor_csv"):
         _config(tmp_path, mode="umap+ca", sensor_csv=None)
-    # a query of another size (aspect) than the database camera
+    # a query of another size (aspect) than the database camera (its pose is known, so the
+    # ground-truth check before any stage passes and the image check at extract speaks)
     cv2.imwrite(str(tmp_path / "q" / "f9.png"), np.zeros((100, 100), np.uint8))
+    with open(tmp_path / "poses.csv", "a") as f:
+        f.write("f9.png,1.0,1.2,1.14,315.0\n")
     with pytest.raises(ImageError, match=r"f9.png: query image is 100x100"):
         run_stage(_config(tmp_path), tmp_path / "r2", "extract", quiet=True)
 
@@ -227,6 +230,8 @@ def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
 
     _tiny_corridor(tmp_path)
     (tmp_path / "q" / "f3b.png").write_bytes(b"not an image")
+    with open(tmp_path / "poses.csv", "a") as f:
+        f.write("f3b.png,3.0,1.2,1.14,315.0\n")
     with pytest.raises(ImageError, match="f3b.png: cannot be read"):
         run_stage(_config(tmp_path), tmp_path / "r1", "extract", quiet=True)
     cfg = _config(tmp_path)
@@ -238,3 +243,14 @@ def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
 
     with h5py.File(tmp_path / "r2" / "extract.h5") as f:
         assert "f3b.png" not in read_strings(f["names"]) and len(read_strings(f["skipped"])) == 1
+
+
+def test_poses_file_lacking_a_query_frame_is_refused_before_any_stage(tmp_path):
+    """The poses contract checks its ground truth when the config is loaded: a query image
+    without a pose is one error naming the file and the frame, and no stage has run."""
+    from placeloc.config import ConfigError
+
+    _tiny_corridor(tmp_path)
+    cv2.imwrite(str(tmp_path / "q" / "f8.png"), cv2.imread(str(tmp_path / "q" / "f0.png")))
+    with pytest.raises(ConfigError, match=r"poses.csv: no pose for 1 of 9 query frames \(first: f8.png\)"):
+        _config(tmp_path)

@@ -20,10 +20,11 @@ import errno
 import io
 import json
 import os
+import shutil
 import time
 import uuid
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import h5py
 import numpy as np
@@ -203,13 +204,16 @@ def raise_if_disk_full(f: h5py.File) -> None:
 
 
 @contextlib.contextmanager
-def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator[h5py.File]:
+def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None,
+              before_rename: Callable[[], None] | None = None) -> Iterator[h5py.File]:
     """Open a temporary HDF5 file for writing; rename it to ``path`` only on success.
 
     ``attrs`` are written last, just before the rename, so a file that has a ``stamp``
     attribute is always complete. A unique ``write_id`` attribute is added, so a child
     stage can tell that its parent was rewritten even when the parent's stamp is the same.
     A full disk raises :class:`DiskFullError` and leaves no temporary file behind.
+    ``before_rename`` runs once the file is complete on disk, just before the rename (the
+    runner moves the stage's side outputs into place there); if it raises, no file appears.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -230,6 +234,8 @@ def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator
         if guard.full is not None:
             raise guard.full
         guard.close()
+        if before_rename is not None:
+            before_rename()
         os.replace(tmp, path)
     except BaseException as exc:
         written = tmp.stat().st_size if tmp.exists() else 0
@@ -241,6 +247,8 @@ def atomic_h5(path: str | Path, attrs: dict[str, Any] | None = None) -> Iterator
             guard.close()
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, DiskFullError) and (guard is None or guard.full is None):
+            raise  # a side output met the full disk: its message already names that file
         full = (guard is not None and guard.full is not None) or (isinstance(exc, Exception) and is_disk_full(exc))
         if full:
             pending = sum(len(p) for p in guard._pages.values()) if guard is not None else 0
@@ -284,6 +292,10 @@ def remove_stale_tmp(run_dir: Path) -> list[Path]:
     for p in run_dir.rglob(f".*{TMP_MARK}*"):
         pid = p.name.rsplit(TMP_MARK, 1)[-1]
         if pid.isdigit() and pid_alive(int(pid)) and int(pid) != os.getpid():
+            continue
+        if p.is_dir() and not p.is_symlink():  # a stage's staged side outputs
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
             continue
         with contextlib.suppress(FileNotFoundError):
             p.unlink()

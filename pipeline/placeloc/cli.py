@@ -7,7 +7,9 @@ stages that are up to date are skipped.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -28,54 +30,114 @@ except ImportError:  # older Typer uses Click itself
 BUG_REPORT = "the placeloc issue tracker, with the traceback above, the command and the config"
 
 
-def _user_error_types() -> tuple[type, ...]:
-    """Exceptions caused by input (files, config, data, the machine's limits), never by a bug.
+_PACKAGE_DIR = str(Path(__file__).resolve().parent)
 
-    ValueError covers every placeloc error about bad data (ConfigError, GroundTruthError,
-    PoseError, the co-embedding errors, ResourceError) and UnicodeDecodeError; OSError
-    covers missing files, permissions, folders given for files and a full disk."""
-    import yaml
+# What an OSError's errno means for the user, and the usual fix.
+_OS_FIXES = {
+    "ENOENT": "does not exist; check the path",
+    "EACCES": "permission denied; make it readable/writable for you (chmod) or choose another path",
+    "EPERM": "operation not permitted; check its owner and permissions, or choose another path",
+    "EROFS": "is on a read-only file system; choose a writable place, e.g. another --run-dir",
+    "EISDIR": "is a folder where a file was expected; give a file, or remove the folder",
+    "ENOTDIR": "a part of the path is a file where a folder was expected; fix the path (is -o/--run-dir a file?)",
+    "EEXIST": "already exists as something else (a file where a folder goes?); remove it or choose another path",
+    "ELOOP": "is a symbolic link that points to itself (a link loop); fix or remove the link",
+    "ENOSPC": "no space left on the device; free space or choose another --run-dir",
+    "EDQUOT": "disk quota exceeded; free space or choose another --run-dir",
+    "ENAMETOOLONG": "the path is too long; choose a shorter one",
+    "EMFILE": "too many open files; raise the limit (ulimit -n) or lower executor.workers",
+    "EIO": "an input/output error on the device; check the disk",
+}
 
-    from placeloc.errors import StageError
-    from placeloc.images import ImageError
 
-    types: list[type] = [ValueError, OSError, yaml.YAMLError, MemoryError, ImageError, StageError]
-    cv2 = sys.modules.get("cv2")
-    if cv2 is not None:
-        types.append(cv2.error)
-    return tuple(types)
+def _raised_in_placeloc(exc: BaseException) -> bool:
+    """True when a ``raise`` statement in placeloc's own code raised ``exc`` (a message
+    written for the user); False when it came from Python or a library, or from a builtin
+    called by placeloc (``float("abc")``): a raw text."""
+    import linecache
+
+    tb = exc.__traceback__
+    if tb is None:
+        return True  # built, not raised: only placeloc builds errors for the boundary
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    filename = tb.tb_frame.f_code.co_filename
+    if not str(Path(filename).resolve()).startswith(_PACKAGE_DIR):
+        return False
+    return linecache.getline(filename, tb.tb_lineno).strip().startswith("raise")
+
+
+def _os_error_line(exc: OSError) -> str:
+    """A raw OSError as one line: the file, what its errno means and the usual fix."""
+    import errno as errno_names
+
+    text = " ".join(str(exc).split())
+    name = errno_names.errorcode.get(exc.errno or -1, "")
+    if name not in _OS_FIXES or "; " in text:  # placeloc's own wording (it gives a fix) stays
+        if exc.filename and str(exc.filename) not in text:
+            return f"{exc.filename}: {text}"
+        return text
+    where = exc.filename or "a file"
+    also = f" (and {exc.filename2})" if getattr(exc, "filename2", None) else ""
+    return f"{where}{also}: {_OS_FIXES[name]}"
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
     if isinstance(exc, MemoryError):
-        text = f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, or executor.workers"
-    elif isinstance(exc, OSError) and exc.filename and str(exc.filename) not in text:
-        text = f"{exc.filename}: {text}"
-    elif not text:
-        text = type(exc).__name__
-    return text
+        text = " ".join(str(exc).split())
+        return (f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, "
+                "or executor.workers, or free memory")
+    if isinstance(exc, OSError):
+        return _os_error_line(exc)
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
 
 
 def classify(exc: BaseException) -> str:
-    """'user' for an error the user can fix, 'bug' otherwise (a work item failure is
-    judged by the exception it wraps)."""
+    """The one classification of failures (see placeloc.errors):
+
+    - ``user``: the input, the config or the files are wrong; placeloc's own errors (every
+      exception type defined in placeloc, a ValueError placeloc raised with its message),
+      every OSError (worded by errno with the file and the fix), invalid YAML, an image
+      OpenCV cannot decode, a file that is not UTF-8;
+    - ``environment``: the machine failed the run (a worker killed, memory exhausted);
+    - ``bug``: anything else, including a raw ValueError from Python or a library (placeloc
+      should have checked the input before: its text would not tell the user what to do).
+    A work item's failure is judged by the exception it wraps."""
+    import yaml
+
+    from placeloc.errors import EnvironmentFailure
     from placeloc.executor import WorkItemError
 
     if isinstance(exc, WorkItemError):
         return classify(exc.original)
-    return "user" if isinstance(exc, _user_error_types()) else "bug"
+    if isinstance(exc, (EnvironmentFailure, MemoryError)):
+        return "environment"
+    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)):
+        return "user"
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and isinstance(exc, cv2.error):
+        return "user"
+    if isinstance(exc, (RecursionError, WorkItemError)):
+        return "bug"
+    if type(exc).__module__.split(".")[0] == "placeloc":
+        return "user"  # ConfigError, StageError, ImageError, GroundTruthError, PoseError, ResourceError, ...
+    if isinstance(exc, ValueError) and _raised_in_placeloc(exc):
+        return "user"
+    return "bug"
 
 
 class ErrorBoundaryGroup(TyperGroup):
     """The one error boundary: every command, including ones added later, runs inside it.
 
     - a user-caused error: one line ``error: ...`` naming the file or key and the fix, rc 2;
+    - an environment failure (a worker killed, out of memory): one line with what to change, rc 3;
     - Ctrl-C: one line ``interrupted; rerun to resume``, rc 130;
     - anything else is a bug: the traceback, then one line saying so and where to report it, rc 1.
     """
 
     def invoke(self, ctx: Any) -> Any:
+        _announced.clear()  # one "interrupted" line per command, also when commands run in one process (tests, API)
         try:
             result = super().invoke(ctx)
             raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
@@ -83,12 +145,13 @@ class ErrorBoundaryGroup(TyperGroup):
         except (typer.Exit, typer.Abort, ClickException):
             raise
         except KeyboardInterrupt as exc:
-            typer.echo("interrupted; rerun to resume", err=True)
+            _announce_interrupt()
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
-            if classify(exc) == "user":
+            kind = classify(exc)
+            if kind in ("user", "environment"):
                 typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
-                raise typer.Exit(2) from None
+                raise typer.Exit(2 if kind == "user" else 3) from None
             traceback.print_exc()
             typer.secho(f"error: this is a bug in placeloc ({type(exc).__name__}), not a problem with your input; "
                         f"please report it to {BUG_REPORT}", fg="red", err=True)
@@ -151,7 +214,13 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
                      wait=wait)
     typer.echo(f"{stage}: {path}")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
+        from placeloc.evaluation.contracts import format_value, headline
+
+        for key, value in headline(path.parent):
+            typer.echo(f"  {key}: {format_value(value)}")
         typer.echo(f"metrics: {path.parent / 'metrics.json'}")
+        if (path.parent / "report.html").is_file():
+            typer.echo(f"report: {path.parent / 'report.html'}")
 
 
 @app.command()
@@ -284,7 +353,8 @@ def compare(config: Path = ConfigArg,
 
 
 @app.command()
-def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary."),
+def experiment(name: str = typer.Argument(..., help="Experiment: one of the modules of placeloc/experiments/ with a main() "
+                                                   "(seqslam, umap, coembed, pirf, pirf-large, pirf-dictionary, ...)."),
                out: Path | None = typer.Option(None, help="Output folder (default runs/experiment-NAME)."),
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:
@@ -301,8 +371,70 @@ def experiment(name: str = typer.Argument(..., help="Experiment: seqslam, umap, 
 
 
 def main() -> None:
-    install_signal_handlers()
-    app()
+    install_signal_handlers(on_repeat=_second_signal)
+    try:
+        app()
+    except SystemExit as exc:
+        from placeloc.interrupts import received
+
+        if received() is not None:
+            _exit_now(exc.code if isinstance(exc.code, int) else 130)
+        raise
+
+
+_announced: list[bool] = []
+
+
+def _announce_interrupt() -> None:
+    if not _announced:
+        _announced.append(True)
+        typer.echo("interrupted; rerun to resume", err=True)
+
+
+def _second_signal(signum: int) -> None:
+    """A second Ctrl-C (or SIGTERM) while the first is being handled: say it once, remove
+    this process's shared arrays, kill the workers and leave now (temporary files in the
+    run directory are removed by the next run)."""
+    import shutil
+    import signal
+    import tempfile
+
+    from placeloc.executor import SHARED_PREFIX
+
+    _announce_interrupt()
+    for folder in Path(tempfile.gettempdir()).glob(f"{SHARED_PREFIX}{os.getpid()}-*"):
+        shutil.rmtree(folder, ignore_errors=True)
+    _exit_now(143 if signum == signal.SIGTERM else 130)
+
+
+def _exit_now(code: int) -> None:
+    """Leave at once after Ctrl-C or SIGTERM, cleanup done: the run's own ``finally`` blocks
+    have removed temporary files and shared arrays and closed the executor. Python's exit
+    handlers are skipped on purpose: multiprocessing's joins a worker that may be blocked on
+    its queue, and a second Ctrl-C in there left the process waiting for ever. Child
+    processes still alive are killed first (they would die with us anyway: parent-death
+    signal)."""
+    import multiprocessing
+    import multiprocessing.resource_tracker
+    import signal
+
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    logging.shutdown()
+    # What dying threads and processes would print now is noise after our one line (a
+    # pool's manager thread reporting its killed workers, the resource tracker's warning).
+    with contextlib.suppress(OSError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
+    for child in multiprocessing.active_children():
+        with contextlib.suppress(Exception):
+            child.kill()
+    tracker = getattr(multiprocessing.resource_tracker, "_resource_tracker", None)
+    pid = getattr(tracker, "_pid", None)
+    if pid:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    os._exit(code)
 
 
 if __name__ == "__main__":
@@ -319,16 +451,16 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
-    """Draw query | best match | a true positive strips and write RUN_DIR/report.html."""
+    """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
         _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
     try:
-        strips, report = show_run(run_dir, sample=sample, failures=failures)
-        for path in strips:
-            typer.echo(f"strips: {path}")
+        pictures, report = show_run(run_dir, sample=sample, failures=failures)
+        for path in pictures:
+            typer.echo(f"picture: {path}")
         if recall_at:
             ns = [int(n) for n in recall_at.split(",") if n.strip()]
             for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():

@@ -1,7 +1,7 @@
 """YAML run configuration: load, override with ``--set``, validate, resolve paths, hash.
 
-A config is a plain nested dict. Its schema is the union of ``COMMON_DEFAULTS`` and the
-chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
+A config is a plain nested dict. Its schema is the union of the shared sections
+(:class:`placeloc.common_params.CommonParams`) and the chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
 one default there, the type of that default is the type a user value must have, and a
 declared range or list of choices is checked. Values whose default is ``None`` must have
 the type their dataclass field declares (``float | None`` takes a number or null). Relative
@@ -24,47 +24,12 @@ from typing import Any
 
 import yaml
 
+from placeloc import params as P
+from placeloc.common_params import CommonParams
 from placeloc.errors import ConfigError  # noqa: F401 - re-exported: placeloc.config.ConfigError
-from placeloc.params import check_bounds, declared_types
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
-
-
-# Sections shared by every method. ``query`` omitted means loop closure within reference.
-COMMON_DEFAULTS: dict[str, Any] = {
-    "method": None,
-    "seed": 0,
-    "reference": {"images": None, "on_error": "stop", "fingerprint": "stat"},
-    "query": {"images": None, "on_error": "stop", "fingerprint": "stat"},
-    # radius: metres for position ground truth (25 m is the VPR-Bench / VPR-methods-evaluation convention).
-    # recall_at: the N of Recall@N in metrics.json and the Recall@N curve.
-    "ground_truth": {"kind": "none", "tolerance": 2, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20]},
-    "executor": {"kind": "local", "workers": 1, "scheduler": "local-cluster", "retries": 2},
-    "plots": True,
-}
-COMMON_CHOICES: dict[str, tuple] = {
-    "reference.on_error": ("stop", "skip"),
-    "query.on_error": ("stop", "skip"),
-    # stat: name, size, mtime of each image (default, cheap); content: a hash of its bytes.
-    "reference.fingerprint": ("stat", "content"),
-    "query.fingerprint": ("stat", "content"),
-    "ground_truth.kind": ("none", "synchronous", "csv", "hdf5", "poses"),
-    "executor.kind": ("local", "dask"),
-}
-COMMON_PATH_KEYS = ("reference.images", "query.images", "ground_truth.path")
-# Types of the common keys whose default is None (the others take their default's type).
-COMMON_TYPES: dict[str, tuple[type, ...]] = {
-    "method": (str,), "reference.images": (str,), "query.images": (str,), "ground_truth.path": (str,),
-}
-# Ranges of common keys: (min, max, min_exclusive), as params.param declares them.
-COMMON_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
-    "executor.workers": (1, None, False),
-    "executor.retries": (0, None, False),
-    "ground_truth.tolerance": (0, None, False),
-    "ground_truth.radius": (0, None, True),
-    "ground_truth.recall_at": (1, None, False),
-}
 
 
 class _NoAliasLoader(yaml.SafeLoader):
@@ -81,7 +46,12 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 def safe_yaml(text: str) -> Any:
     """Parse YAML text with the safe, alias-free loader."""
-    return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    try:
+        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    except RecursionError:
+        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
+        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
+                             "of keys and values: close the brackets") from None
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:
@@ -166,19 +136,21 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     if method_name not in METHOD_NAMES:
         raise ConfigError(f"method: {method_name!r} is not known; choose one of {', '.join(METHOD_NAMES)}")
     method = get_method(method_name)
-    schema = copy.deepcopy(COMMON_DEFAULTS)
+    schema = P.defaults(CommonParams)
     schema[method.name] = copy.deepcopy(method.defaults)
-    choices = {**COMMON_CHOICES, **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
-    types = {**COMMON_TYPES, **{f"{method.name}.{k}": v for k, v in declared_types(method.params).items()}}
+    choices = {**P.choices(CommonParams), **{f"{method.name}.{k}": v for k, v in method.choices.items()}}
+    types = {**P.declared_types(CommonParams),
+             **{f"{method.name}.{k}": v for k, v in P.declared_types(method.params).items()}}
+    nullable = set(P.nullable_keys(CommonParams)) | {f"{method.name}.{k}" for k in P.nullable_keys(method.params)}
 
-    path_keys = COMMON_PATH_KEYS + tuple(f"{method.name}.{k}" for k in method.path_keys)
+    path_keys = P.path_keys(CommonParams) + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
-    config = _merge(schema, data, prefix="", choices=choices, types=types)
+    config = _merge(schema, data, prefix="", choices=choices, types=types, nullable=nullable)
     config["method"] = method_name
-    problems = check_bounds(method.params, config[method.name], f"{method.name}.")
-    problems += _check_common_bounds(config)
+    problems = P.check_bounds(method.params, config[method.name], f"{method.name}.")
+    problems += P.check_bounds(CommonParams, config, "")
     problems += _check_min_max_pairs(config[method.name], f"{method.name}.")
     if problems:
         raise ConfigError(problems[0])
@@ -195,7 +167,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         if config[role] is not None and config[role]["images"] is not None:
             _check_image_source(config[role]["images"], f"{role}.images")
     gt = config["ground_truth"]
-    if gt["kind"] in ("csv", "hdf5", "poses") and gt["path"] is None:
+    if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
@@ -205,25 +177,10 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     problems = config_problems(config)
     if problems:
         raise ConfigError(problems[0])
-    from placeloc.evaluation.ground_truth import check_config
+    from placeloc.evaluation.contracts import check_ground_truth
 
-    check_config(config)  # a bad ground-truth file fails here, before any stage runs
+    check_ground_truth(config)  # the method's result contract checks its ground truth before any stage runs
     return config
-
-
-def _check_common_bounds(config: dict) -> list[str]:
-    problems = []
-    for key, (lo, hi, strict) in COMMON_BOUNDS.items():
-        node, leaf = _get(config, key)
-        value = node.get(leaf) if node else None
-        for v in value if isinstance(value, list) else [value]:
-            if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
-                continue
-            if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
-                rng = f"{'>' if strict else '>='} {lo}" if hi is None else f"in [{lo}, {hi}]"
-                problems.append(f"{key}: {value!r} is out of range; it must be {rng}")
-                break
-    return problems
 
 
 def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
@@ -244,7 +201,8 @@ def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
     return problems
 
 
-def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None) -> dict:
+def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None,
+           nullable: set[str] | None = None) -> dict:
     out = {}
     for key in data:
         if key not in schema:
@@ -263,7 +221,10 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
-            out[key] = _merge(default, value, f"{dotted}.", choices, types)
+            out[key] = _merge(default, value, f"{dotted}.", choices, types, nullable)
+            continue
+        if value is None and nullable and dotted in nullable:
+            out[key] = None  # declared ``X | None``: null is one of its values
             continue
         if default is None and types and dotted in types:
             out[key] = _check_declared(dotted, value, types[dotted])

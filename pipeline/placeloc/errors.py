@@ -6,7 +6,14 @@ can raise them without importing the layer that defines the behaviour.
 - :class:`StageError`: a stage cannot run (missing parent, bad input); the message says
   what to do;
 - :class:`RunDirError`: the run directory cannot be used (locked, an image folder, a
-  foreign ``config.yaml``).
+  foreign ``config.yaml``);
+- :class:`EnvironmentFailure`: the machine failed the run, not the input and not
+  placeloc (a worker process killed, by the out-of-memory killer most often); the message
+  says what to change.
+
+The command line's error boundary (``placeloc.cli.classify``) sorts every exception into
+one of three kinds: ``user`` (one line naming the file or key and the fix, rc 2),
+``environment`` (one line, rc 3) and ``bug`` (traceback and where to report it, rc 1).
 """
 
 from __future__ import annotations
@@ -22,3 +29,12 @@ class StageError(RuntimeError):
 
 class RunDirError(StageError):
     """The run directory cannot be used (locked by another run, an image folder, a foreign config.yaml)."""
+
+
+class EnvironmentFailure(RuntimeError):
+    """The machine failed the run (a worker killed, memory exhausted); the message says what to change."""
+
+
+class WorkerLostError(EnvironmentFailure):
+    """A worker process died while it ran a work item (killed with SIGKILL: usually the
+    out-of-memory killer)."""

@@ -1,7 +1,7 @@
 """Map independent work items over a pool of workers, results back in order.
 
-Stages call :func:`make_executor` with the ``executor:`` config section and then
-``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
+The runner builds one with :func:`placeloc.executors.make_executor` from the
+``executor:`` config section, and stages call ``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
 reference) and its results small enough to send back; the calling process alone writes
 artifacts. ``workers: 1`` runs in-process, which is also what tests use by default.
 
@@ -46,13 +46,38 @@ class WorkItemError(RuntimeError):
         self.original = exc
 
 
+def worker_lost(fn: Callable, description: str, workers: int) -> Exception:
+    """The one-line error for a worker process that died under a work item (SIGKILL, most
+    often from the out-of-memory killer): an environment failure, not a bug."""
+    from placeloc.errors import WorkerLostError
+
+    return WorkerLostError(f"a worker process was killed (out of memory?) while running {getattr(fn, '__name__', fn)} on "
+                           f"{description}; lower executor.workers (now {workers}) or the method's size parameters, "
+                           "free memory, then rerun to resume (finished stages are kept)")
+
+
 def describe_item(item: Any, limit: int = 160) -> str:
     """Default readable name of a work item: a chunk of paths as first .. last, else a short repr."""
     head = item[0] if isinstance(item, tuple) and item else item
     if isinstance(head, (list, tuple)) and head and all(isinstance(p, (str, Path)) for p in head):
         return f"chunk of {len(head)} item(s) {head[0]} .. {head[-1]}"
-    text = repr(item)
+    if isinstance(item, tuple):
+        text = "(" + ", ".join(_short_repr(v) for v in item) + ")"
+    else:
+        text = _short_repr(item)
+    text = " ".join(text.split())
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _short_repr(value: Any) -> str:
+    """A value as it should appear in one line: an array by its shape, not its numbers."""
+    if isinstance(value, np.ndarray):
+        return f"array{value.shape} {value.dtype}"
+    if isinstance(value, (list, tuple)) and len(value) > 4:
+        return f"{type(value).__name__} of {len(value)} ({_short_repr(value[0])}, ...)"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_short_repr(v)}" for k, v in list(value.items())[:4]) + (", ...}" if len(value) > 4 else "}")
+    return repr(value)
 
 
 class Executor:
@@ -252,28 +277,25 @@ class LocalExecutor(Executor):
                 shutil.rmtree(tmp, ignore_errors=True)
 
     def _result(self, fn: Callable, item: Any, fut: Any, describe: Describe | None) -> Any:
+        from concurrent.futures.process import BrokenProcessPool
+
         try:
             return fut.result()
+        except BrokenProcessPool:
+            raise worker_lost(fn, (describe or describe_item)(item), self.workers) from None
         except Exception as exc:
             raise WorkItemError(self.kind, fn, (describe or describe_item)(item), exc) from exc
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
-            self._pool = None
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        from placeloc.interrupts import received
 
-
-def make_executor(section: dict[str, Any]) -> Executor:
-    kind = section.get("kind", "local")
-    if kind == "dask":
-        from placeloc.config import ConfigError
-
-        try:
-            from placeloc.dask_executor import DaskExecutor  # optional extra
-        except ImportError as exc:
-            raise ConfigError(f"executor.kind: dask is not available ({exc}); "
-                              "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
-
-        return DaskExecutor(section)
-    workers = int(section.get("workers", 1))
-    return InlineExecutor() if workers <= 1 else LocalExecutor(workers)
+        if received() is None:
+            pool.shutdown(cancel_futures=True)
+            return
+        # Interrupted: do not wait for the workers to finish their items (a second Ctrl-C
+        # would land in that wait). The command line then kills them and leaves without
+        # Python's exit handlers, which would join a worker blocked on its queue for ever.
+        pool.shutdown(wait=False, cancel_futures=True)

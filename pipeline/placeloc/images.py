@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import glob
 import hashlib
 import os
@@ -83,18 +84,37 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     """List the images of a folder (or glob) in natural sort order."""
     spec = str(spec)
     p = Path(spec)
+    skipped: list[str] = []
+
+    def usable(path: Path, entry: os.DirEntry | None = None) -> bool:
+        """A regular file (or a link to one). A link loop is an error naming the link, or
+        skipped (and recorded in the artifact) with on_error: skip."""
+        try:
+            # scandir's entry types come with the listing: no stat per file (is_file stats only links).
+            return entry.is_file() if entry is not None else path.is_file()
+        except OSError as exc:
+            message = os_error_message(path, exc)
+        if on_error == "skip":
+            skipped.append(message)
+            return False
+        raise ImageError(message)
+
     if p.is_dir():
-        # scandir's entry types come with the listing: no stat per file (is_file stats only links).
-        with os.scandir(p) as entries:
-            names = [e.name for e in entries if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and e.is_file()]
+        try:
+            with os.scandir(p) as entries:
+                names = [e.name for e in entries
+                         if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and usable(p / e.name, e)]
+        except PermissionError as exc:
+            raise ImageError(f"{spec}: the image folder cannot be listed (permission denied); "
+                             "make it readable (chmod a+rx)") from exc
         files = [p / n for n in sorted(names, key=natural_key)]
     else:
-        files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS),
+        files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS and usable(Path(q))),
                        key=lambda q: natural_key(q.name))
     if not files:
         raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
                          "point reference.images / query.images at a folder of images")
-    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint)
+    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped)
 
 
 def _unreadable(path: str | Path) -> ImageError:
@@ -110,17 +130,116 @@ def _unreadable(path: str | Path) -> ImageError:
                       "remove or replace it, or set on_error: skip beside images:")
 
 
-def read_gray(path: str | Path) -> np.ndarray:
-    """Read an image as 8-bit greyscale; colour is converted, 16-bit is scaled down."""
-    import cv2  # here: stages that never decode an image do not pay for OpenCV's import
+def os_error_message(path: str | Path, exc: OSError) -> str:
+    """What an OSError on an image path means, with the fix (never Python's raw text)."""
+    fix = "or set on_error: skip beside images:"
+    if exc.errno == errno.ELOOP:
+        return f"{path}: is a symbolic link that points to itself (a link loop); remove or fix the link, {fix}"
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return f"{path}: permission denied; make it readable (chmod a+r), {fix}"
+    if exc.errno == errno.ENOENT:
+        return f"{path}: does not exist (a dangling link, or deleted while the run was going?); restore or remove it, {fix}"
+    if exc.errno == errno.EISDIR:
+        return f"{path}: is a folder, not an image; move it out of the image folder"
+    return f"{path}: cannot be read ({exc.strerror or exc}); check the disk or the file, {fix}"
+
+
+def _read_bytes(path: str | Path) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise ImageError(os_error_message(path, exc)) from exc
+
+
+def jpeg_is_complete(data: bytes) -> bool:
+    """True when a JPEG's compressed data ends with its end-of-image marker. libjpeg
+    decodes a truncated file (grey or repeated rows for the missing part) and only prints
+    "Premature end of JPEG file", so the check is ours: walk the segments to the first
+    start-of-scan (an EXIF thumbnail's own markers lie inside APP1 and are skipped), then
+    look for end-of-image after it (0xFF inside scan data is always escaped as FF 00)."""
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            return False
+        kind = data[i + 1]
+        if kind == 0xFF:  # fill byte
+            i += 1
+            continue
+        if kind == 0xD9:
+            return False  # end of image before any scan
+        if kind in (0x01,) or 0xD0 <= kind <= 0xD7:
+            i += 2
+            continue
+        length = int.from_bytes(data[i + 2:i + 4], "big")
+        if kind == 0xDA:  # start of scan: EOI must follow somewhere after it
+            return data.find(b"\xff\xd9", i + 2 + length) >= 0
+        i += 2 + length
+    return False
+
+
+# EXIF Orientation (tag 0x0112) -> how to turn the stored pixels upright: (rotate k x 90 deg
+# counter-clockwise with np.rot90, then flip left-right). 1 is upright already.
+_ORIENTATION = {2: (0, True), 3: (2, False), 4: (2, True), 5: (1, True), 6: (3, False), 7: (3, True), 8: (1, False)}
+
+
+def exif_orientation(data: bytes) -> int:
+    """The EXIF Orientation (1..8) of an encoded image (JPEG, PNG eXIf, TIFF, WebP); 1 when
+    it has none. Read with Pillow from the header only (no decoding)."""
+    if data[:2] != b"\xff\xd8" and data[:4] not in (b"II*\x00", b"MM\x00*") and data[:8] != b"\x89PNG\r\n\x1a\n":
+        return 1
+    import io
+
+    from PIL import Image
 
     try:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        with Image.open(io.BytesIO(data)) as im:
+            value = im.getexif().get(0x0112, 1)
+    except Exception:  # a damaged EXIF block: the decoder judges the pixels; no rotation
+        return 1
+    return int(value) if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
+def upright(img: np.ndarray, orientation: int) -> np.ndarray:
+    """Apply an EXIF orientation to pixels stored as they came off the sensor."""
+    if orientation not in _ORIENTATION:
+        return img
+    k, flip = _ORIENTATION[orientation]
+    if flip:
+        img = img[:, ::-1]
+    return np.ascontiguousarray(np.rot90(img, k))
+
+
+def decode_image(path: str | Path) -> np.ndarray:
+    """Every image placeloc reads comes through here: the file's bytes are read once (an
+    unreadable path, a link loop or a permission problem named with the fix), a truncated
+    JPEG is refused (libjpeg would return it half grey with only a warning), OpenCV decodes
+    the pixels unchanged (bit depth, channels), and the EXIF Orientation is applied, so an
+    image a phone stored rotated with Orientation=3 or 6 reads upright, as any viewer shows it."""
+    import cv2  # here: stages that never decode an image do not pay for OpenCV's import
+
+    data = _read_bytes(path)
+    if not data:
+        raise ImageError(f"{path}: is empty (0 bytes); remove or replace it, or set on_error: skip beside images:")
+    if data[:2] == b"\xff\xd8" and not jpeg_is_complete(data):
+        raise ImageError(f"{path}: truncated JPEG (its data ends before the end-of-image marker: a copy or download "
+                         "that did not finish); replace it, or set on_error: skip beside images:")
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
         raise ImageError(f"{path}: OpenCV cannot decode it ({' '.join(str(exc).split())[:200]}); "
                          "remove or replace it, or set on_error: skip beside images:") from exc
     if img is None or img.size == 0:
         raise _unreadable(path)
+    return upright(img, exif_orientation(data))
+
+
+def read_gray(path: str | Path) -> np.ndarray:
+    """Read an image as 8-bit greyscale, upright (EXIF orientation applied); colour is
+    converted, 16-bit is scaled down."""
+    import cv2
+
+    img = decode_image(path)
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     elif img.dtype != np.uint8:
@@ -129,6 +248,20 @@ def read_gray(path: str | Path) -> np.ndarray:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
     return img
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Read an image as 8-bit RGB, upright (for figures)."""
+    import cv2
+
+    img = decode_image(path)
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
 
 
 def akaze_detector(threshold: float | None) -> cv2.Feature2D:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import signal
 import sys
-from typing import Any
+from typing import Any, Callable
 
 _received: list[int] = []
 
@@ -25,8 +25,15 @@ def _exception(signum: int) -> KeyboardInterrupt:
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
+_on_repeat: list[Callable[[int], None]] = []
+
+
 def _handler(signum: int, frame: Any) -> None:
     _received.append(signum)
+    if len(_received) > 1 and _on_repeat:
+        # A second signal while the first is still being handled: the user wants out now,
+        # whatever the cleanup is waiting for (the next run removes what is left).
+        _on_repeat[0](signum)
     raise _exception(signum)
 
 
@@ -37,8 +44,11 @@ def _unraisable(unraisable: Any, default: Any = sys.unraisablehook) -> None:
     default(unraisable)
 
 
-def install() -> None:
-    """Handle SIGINT and SIGTERM as above (the command line calls this once)."""
+def install(on_repeat: Callable[[int], None] | None = None) -> None:
+    """Handle SIGINT and SIGTERM as above (the command line calls this once).
+    ``on_repeat(signum)`` is called for a second signal instead of raising again (the
+    command line exits at once there)."""
+    _on_repeat[:] = [on_repeat] if on_repeat is not None else []
     signal.signal(signal.SIGINT, _handler)
     signal.signal(signal.SIGTERM, _handler)
     sys.unraisablehook = _unraisable

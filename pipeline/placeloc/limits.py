@@ -42,11 +42,26 @@ def _mb(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
+def env_megabytes(name: str) -> int | None:
+    """A size limit in MB from the environment variable ``name`` (None when unset)."""
+    env = os.environ.get(name, "").strip()
+    if not env:
+        return None
+    try:
+        value = float(env)
+    except ValueError:
+        value = float("nan")
+    if not math.isfinite(value) or value < 0:
+        raise ResourceError(f"{name}={env!r} is not a number of megabytes; set it to e.g. {name}=4096, or unset it "
+                            f"(unset {name})")
+    return int(value * 2**20)
+
+
 def memory_limit() -> int:
     """Bytes of memory a run may use: PLACELOC_MEMORY_LIMIT_MB if set, else MemAvailable."""
-    env = os.environ.get("PLACELOC_MEMORY_LIMIT_MB")
-    if env:
-        return int(float(env) * 2**20)
+    env = env_megabytes("PLACELOC_MEMORY_LIMIT_MB")
+    if env is not None:
+        return env
     try:
         for line in Path("/proc/meminfo").read_text().splitlines():
             if line.startswith("MemAvailable:"):
@@ -62,8 +77,8 @@ def disk_free(folder: Path) -> int:
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     free = shutil.disk_usage(folder).free
-    env = os.environ.get("PLACELOC_DISK_LIMIT_MB")
-    return min(free, int(float(env) * 2**20)) if env else free
+    env = env_megabytes("PLACELOC_DISK_LIMIT_MB")
+    return min(free, env) if env is not None else free
 
 
 # ----------------------------------------------------------------- image headers
@@ -222,6 +237,38 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     return fn(config) if fn else []
 
 
+def seqslam_input_rules(config: dict[str, Any], images: dict[str, Any]) -> list[str]:
+    """A sequence of ds + 1 frames must fit in each traverse (else every query is
+    unmatched and Recall@1 is 0 with no word)."""
+    ds = int(config["seqslam"]["ds"])
+    problems = []
+    for role in ("query", "reference"):
+        if role in images and ds + 1 > len(images[role]):
+            n = len(images[role])
+            problems.append(f"seqslam.ds={ds} needs sequences of ds + 1 = {ds + 1} frames, but the {role} traverse "
+                            f"({images[role].source}) has {n} image(s); set seqslam.ds to at most {max(1, n - 1)} "
+                            f"(e.g. --set seqslam.ds={max(1, min(10, n - 1))})")
+            break
+    return problems
+
+
+# Method name -> rules over the config and the listed image sets (counted, never decoded),
+# checked before the first stage runs.
+INPUT_RULES: dict[str, Callable[[dict[str, Any], dict[str, Any]], list[str]]] = {
+    "seqslam": seqslam_input_rules,
+}
+
+
+def check_inputs(config: dict[str, Any], images: dict[str, Any]) -> None:
+    """Raise a ConfigError for parameters that cannot work on these inputs."""
+    fn = INPUT_RULES.get(config["method"])
+    problems = fn(config, images) if fn and images else []
+    if problems:
+        from placeloc.errors import ConfigError
+
+        raise ConfigError("; ".join(problems))
+
+
 ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any], Sequence[str]], list[Need]]] = {
     "seqslam": seqslam_needs,
     "pirf": pirf_needs,
@@ -240,7 +287,12 @@ def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Pat
     """Raise :class:`ResourceError` when what ``stages`` need exceeds the memory or disk there is."""
     needs = estimate(config, images, stages)
     mem = memory_limit()
+    cap = env_megabytes("PLACELOC_MEMORY_LIMIT_MB")
     for need in needs:
+        if need.memory > mem and cap is not None:
+            raise ResourceError(f"{need.what} needs about {_mb(need.memory)} of memory, more than "
+                                f"PLACELOC_MEMORY_LIMIT_MB={os.environ['PLACELOC_MEMORY_LIMIT_MB'].strip()} allows "
+                                f"({_mb(mem)}); raise or unset PLACELOC_MEMORY_LIMIT_MB, or reduce {need.key}")
         if need.memory > mem:
             raise ResourceError(f"{need.what} needs about {_mb(need.memory)} of memory; {_mb(mem)} is available "
                                 f"(limit: MemAvailable or PLACELOC_MEMORY_LIMIT_MB); reduce {need.key}")
@@ -250,6 +302,11 @@ def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Pat
         from placeloc.artifacts import mount_point
 
         biggest = max(needs, key=lambda n: n.disk)
+        cap = env_megabytes("PLACELOC_DISK_LIMIT_MB")
+        if cap is not None and cap == free:  # the variable, not the file system, is what is short
+            raise ResourceError(f"{run_dir}: the run needs about {disk / 2**20:.0f} MB of disk for {biggest.what}, more than "
+                                f"PLACELOC_DISK_LIMIT_MB={os.environ['PLACELOC_DISK_LIMIT_MB'].strip()} allows; raise or "
+                                f"unset PLACELOC_DISK_LIMIT_MB, or reduce {biggest.key}")
         raise ResourceError(f"no space left on {mount_point(run_dir)} while writing {run_dir} (needs about "
                             f"{disk / 2**20:.0f} MB for {biggest.what}; {free / 2**20:.0f} MB free); free space, "
                             f"choose another --run-dir or reduce {biggest.key}")

@@ -20,19 +20,26 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 from placeloc import params as P
 
 STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
 
-# name -> module that defines METHOD; imported lazily so one method's deps never load another's.
-METHOD_MODULES: dict[str, str] = {
-    "seqslam": "placeloc.seqslam.stages",
-    "umap": "placeloc.umap.stages",
-    "coembed": "placeloc.coembed.stages",
-    "pirf": "placeloc.pirf.stages",
-}
+
+
+def _discover() -> dict[str, str]:
+    """Method name -> module defining METHOD: every subpackage ``placeloc/<name>/`` with a
+    ``stages.py`` is a method (found by listing the package folder, nothing imported), so
+    adding a method registers nothing by hand. Imported lazily, so one method's
+    dependencies never load another's."""
+    root = Path(__file__).resolve().parent
+    return {d.name: f"placeloc.{d.name}.stages" for d in sorted(root.iterdir())
+            if d.is_dir() and (d / "stages.py").is_file() and (d / "__init__.py").is_file()}
+
+
+METHOD_MODULES: dict[str, str] = _discover()
 METHOD_NAMES = tuple(METHOD_MODULES)
 
 # Common config sections every stage depends on.
@@ -47,7 +54,10 @@ class Stage:
     section name covers the whole section); ``sections`` are common config sections beyond
     method, seed, reference and query (``"ground_truth"``, ``"plots"``). Changing anything
     else does not re-run the stage. Images, files named by path parameters and the parent
-    artifact are always inputs.
+    artifact are always inputs; a key an earlier stage declares reaches this one through
+    the parent's stamp, and a key declared ``affects_result=False`` (block and task sizes)
+    needs no declaration. tests/test_stage_keys.py runs every method with a parameter
+    object that records what each stage reads and fails on any difference.
     """
 
     run: Callable[[Any], None]
@@ -66,6 +76,19 @@ class Method:
     checker: Callable[[dict], None] | None = None
     # Published source, by authors, title, venue and year (shown by `placeloc inspect`).
     citation: str = ""
+    # The result contract its localize writes (placeloc.evaluation.contracts: ranked, loops,
+    # poses, map). The contract supplies the evaluate stage (unless the method defines one),
+    # the up-front ground-truth check, `placeloc show` and the report.
+    result: str | None = None
+    # The contract written when the config names no query traverse, if another (SeqSLAM: loops).
+    result_without_query: str | None = None
+    # Optional hook(ctx, evaluation) run by the contract's evaluate after scoring: the method's
+    # own metrics and figures. evaluate_keys: the method parameters the hook reads.
+    evaluate_extra: Callable[[Any, Any], None] | None = None
+    evaluate_keys: tuple[str, ...] = ()
+    # Where the contract finds ground truth the method's own parameters name (role -> parameter),
+    # e.g. the map contract's {"points": "truth"}; the shared ground_truth section otherwise.
+    truth_keys: dict[str, str] = field(default_factory=dict)
     defaults: dict[str, Any] = field(init=False)
     choices: dict[str, tuple] = field(init=False)
     path_keys: tuple[str, ...] = field(init=False)
@@ -74,6 +97,13 @@ class Method:
         self.defaults = P.defaults(self.params)
         self.choices = P.choices(self.params)
         self.path_keys = P.path_keys(self.params)
+        if self.result is not None and "evaluate" not in self.stages:
+            from placeloc.evaluation.contracts import KINDS, evaluate_stage
+
+            if self.result not in KINDS:
+                raise ValueError(f"{self.name}: unknown result contract {self.result!r}; known: {', '.join(KINDS)}")
+            self.stages = {**self.stages, "evaluate": Stage(evaluate_stage, keys=self.evaluate_keys,
+                                                            sections=("ground_truth", "plots"))}
         known = set(self.defaults) | {k for k, _ in P._walk(self.params)}
         for name, stage in self.stages.items():
             if name not in STAGES:
@@ -81,6 +111,12 @@ class Method:
             for key in stage.keys:
                 if key not in known:
                     raise ValueError(f"{self.name}.{name} depends on unknown parameter {key!r}")
+
+    def result_kind(self, config: dict) -> str | None:
+        """The result contract this method's localize writes for ``config``."""
+        if self.result_without_query is not None and not (config.get("query") or {}).get("images"):
+            return self.result_without_query
+        return self.result
 
     @property
     def uses_images(self) -> bool:

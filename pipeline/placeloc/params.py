@@ -32,14 +32,21 @@ class Params:
 
 
 def param(default: Any, *, help: str = "", min: float | None = None, max: float | None = None,
-          choices: tuple | None = None, path: bool = False, min_exclusive: bool = False) -> Any:
+          choices: tuple | None = None, path: bool = False, min_exclusive: bool = False, min_len: int | None = None,
+          affects_result: bool = True) -> Any:
     """A parameter with its default and the facts the config validator checks.
 
     ``min``/``max`` bound a number (or every item of a list of numbers); ``min_exclusive``
     makes ``min`` a strict bound; ``choices`` lists the allowed strings; ``path`` marks a
-    file or folder (resolved against the config's folder and fingerprinted by the runner).
+    file or folder (resolved against the config's folder and fingerprinted by the runner);
+    ``min_len`` is the fewest items a list parameter may have (checked with the config, so
+    an empty list fails there, not stages later).
+    ``affects_result=False`` marks a setting that changes only how the work is cut (block
+    and task sizes), never a result: a stage may read it without declaring it, so changing
+    it re-runs nothing (tests/test_stage_keys.py holds stages to this).
     """
-    meta = {"help": help, "min": min, "max": max, "choices": choices, "path": path, "min_exclusive": min_exclusive}
+    meta = {"help": help, "min": min, "max": max, "choices": choices, "path": path, "min_exclusive": min_exclusive,
+            "min_len": min_len, "affects_result": affects_result}
     if isinstance(default, dict):
         raise TypeError("a mapping of parameters is a section(): declare it as a dataclass of its own")
     # Lists are stored as tuples so parameter objects stay immutable; YAML shows them as lists.
@@ -119,14 +126,29 @@ def declared_types(cls: type, prefix: str = "") -> dict[str, tuple[type, ...]]:
     return out
 
 
+def nullable_keys(cls: type, prefix: str = "") -> tuple[str, ...]:
+    """Dotted keys whose annotation admits ``None`` (``float | None``): null is a value
+    they take (e.g. "not set: use the default rule") even when their default is a number."""
+    hints = typing.get_type_hints(cls)
+    out: list[str] = []
+    for f in _fields(cls):
+        if _is_section(f):
+            out += nullable_keys(_section_type(cls, f), f"{prefix}{f.name}.")
+            continue
+        hint = hints.get(f.name, Any)
+        if (isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union) and type(None) in typing.get_args(hint):
+            out.append(f"{prefix}{f.name}")
+    return tuple(out)
+
+
 def path_keys(cls: type) -> tuple[str, ...]:
     """Dotted keys that name files or folders."""
     return tuple(k for k, f in _walk(cls) if f.metadata.get("path"))
 
 
-def help_text(cls: type) -> dict[str, str]:
-    """Dotted key -> one-line help, for ``placeloc inspect`` and the docs."""
-    return {k: f.metadata.get("help", "") for k, f in _walk(cls)}
+def work_layout_keys(cls: type) -> tuple[str, ...]:
+    """Dotted keys declared ``affects_result=False`` (they cut the work, not the result)."""
+    return tuple(k for k, f in _walk(cls) if f.metadata.get("affects_result") is False)
 
 
 def from_section(cls: type[T], section_values: dict[str, Any]) -> T:
@@ -145,8 +167,19 @@ def from_section(cls: type[T], section_values: dict[str, Any]) -> T:
 
 
 def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list[str]:
-    """Messages for every value outside its declared range (empty when all are inside)."""
+    """Messages for every value outside its declared range, and every list shorter than
+    its declared ``min_len`` (empty when all are inside)."""
     problems = []
+    for key, f in _walk(cls):
+        need = f.metadata.get("min_len")
+        if need is None:
+            continue
+        node = section_values
+        for part in key.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, (list, tuple)) and len(node) < need:
+            example = f", e.g. {prefix}{key}={list(f.default)[:max(need, 3)]!r}" if isinstance(f.default, (list, tuple)) else ""
+            problems.append(f"{prefix}{key}: {list(node)!r} has {len(node)} item(s); it needs at least {need}{example}")
     for key, (lo, hi, strict) in bounds(cls).items():
         node: Any = section_values
         for part in key.split("."):
@@ -156,7 +189,8 @@ def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list
             if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
                 continue
             if lo is not None and (v <= lo if strict else v < lo) or hi is not None and v > hi:
-                rng = f"{'>' if strict else '>='} {lo}" if hi is None else (f"<= {hi}" if lo is None else f"in [{lo}, {hi}]")
+                rng = f"{'>' if strict else '>='} {lo}" if hi is None else (
+                    f"<= {hi}" if lo is None else f"in {'(' if strict else '['}{lo}, {hi}]")
                 problems.append(f"{prefix}{key}: {node!r} is out of range; it must be {rng}")
                 break
     return problems

@@ -11,6 +11,7 @@ import contextlib
 import json
 import logging
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -35,10 +36,11 @@ from placeloc.artifacts import (
 )
 from placeloc.config import config_hash, to_yaml
 from placeloc.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.runner
-from placeloc.executor import Executor, make_executor, remove_stale_shared
+from placeloc.executor import Executor, remove_stale_shared
+from placeloc.executors import make_executor
 from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.interrupts import raise_if_interrupted
-from placeloc.limits import check_resources
+from placeloc.limits import check_inputs, check_resources
 from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
 
 try:
@@ -73,14 +75,35 @@ class StageContext:
 
     # The method's parameter object (see placeloc.params), built once per run.
     params: Any = None
+    # Where side outputs are written while the stage runs (a hidden folder in the run
+    # directory); the runner moves them into the run directory together with the artifact,
+    # and only when the stage succeeded. None: straight into the run directory.
+    staging: Path | None = None
+
+    @property
+    def output_dir(self) -> Path:
+        """The folder :meth:`output` paths lie in (for writers that take a folder)."""
+        return self.staging if self.staging is not None else self.run_dir
 
     def output(self, name: str) -> Path:
         """Where this stage writes the side output ``name`` (CSV, JSON, PNG, HTML).
 
-        Stages write side outputs only through this path, so the runner decides where they
-        go and when they appear beside the artifact.
+        Stages write side outputs only through this path: it lies in a staging folder, and
+        the runner moves every file there into ``run_dir`` together with the artifact when
+        the stage finished without error (none of them appear when it fails).
         """
-        return self.run_dir / name
+        path = self.output_dir / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def public_path(self, path: Path) -> Path:
+        """Where a staged file will appear (for messages): RUN_DIR/name, not the staging folder."""
+        path = Path(path)
+        if path.name.startswith(".") and TMP_MARK in path.name:  # a writer's temporary file
+            path = path.with_name(path.name[1:].rsplit(TMP_MARK, 1)[0])
+        if self.staging is not None and self.staging in path.parents:
+            return self.run_dir / path.relative_to(self.staging)
+        return path
 
     def artifact(self, stage: str) -> h5py.File:
         """Open the artifact of an earlier stage read-only (closed by the runner)."""
@@ -127,6 +150,8 @@ def image_sets(config: dict[str, Any]) -> dict[str, ImageSet]:
         if section and section.get("images"):
             sets[role] = list_images(section["images"], section.get("on_error", "stop"),
                                      fingerprint=section.get("fingerprint", "stat"))
+            for message in sets[role].skipped:  # link loops found while listing (on_error: skip)
+                log.warning("skipped: %s", message)
     return sets
 
 
@@ -206,7 +231,7 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
     stage = normalise_stage(stage)
     run_dir = Path(run_dir)
     check_run_dir(config, run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    make_run_dir(run_dir)
     with lock_run_dir(run_dir, wait=wait), run_log(run_dir):
         log.info("run: %s up to %s in %s (placeloc %s, pid %d)", config["method"], stage, run_dir, __version__, os.getpid())
         try:
@@ -224,6 +249,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     remove_stale_shared()
     method = get_method(config["method"])
     images = image_sets(config) if method.uses_images else {}
+    check_inputs(config, images)
     parent_stamp: str | None = None
     executor: Executor | None = None
     try:
@@ -258,22 +284,28 @@ def _parent_token(stamp: str, path: Path) -> str:
 
 
 def _remove_previous_outputs(path: Path, stamp: str) -> None:
-    """Before a stage re-runs, delete the side outputs its previous run recorded (so a
-    failure cannot leave e.g. an old metrics.json beside a new config) and the previous
-    artifact when it belongs to other inputs."""
+    """Before a stage re-runs on other inputs, delete its previous artifact and the side
+    outputs that run recorded, together: they describe inputs that are gone, and a failure
+    must not leave e.g. an old metrics.json beside a new localize.h5. A forced re-run on the
+    same inputs keeps them until the new ones replace them all at once (so a failed
+    ``--force`` leaves the previous complete set as it was)."""
     if not path.is_file():
         return
-    recorded = _recorded_side_outputs(path) or {}
     old_stamp = read_stamp(path)
-    run_dir = path.parent.resolve()
-    for name in recorded:
-        target = (path.parent / name).resolve()
-        if run_dir in target.parents:  # never outside the run directory
-            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+    if old_stamp is not None and str(old_stamp) == stamp:
+        return
+    _remove_side_outputs(path.parent, _recorded_side_outputs(path) or {})
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+
+
+def _remove_side_outputs(run_dir: Path, names: Iterable[str]) -> None:
+    root = run_dir.resolve()
+    for name in names:
+        target = (run_dir / name).resolve()
+        if root in target.parents:  # never outside the run directory
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError, NotADirectoryError):
                 target.unlink()
-    if old_stamp is None or str(old_stamp) != stamp:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
 
 
 # ----------------------------------------------------------------- the run directory
@@ -310,6 +342,33 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
                                   "image folder; choose another --run-dir, e.g. runs/NAME")
 
 
+def make_run_dir(run_dir: Path) -> None:
+    """Create the run directory, or say why it cannot be one (a file, not writable)."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise RunDirError(f"--run-dir {run_dir} is a file, not a folder; give a folder for the run's results "
+                          f"(e.g. {run_dir.with_suffix('')}-run) or move the file away")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError as exc:  # a part of the path is a file
+        raise RunDirError(f"--run-dir {run_dir}: a part of the path is a file ({exc.filename}); choose another --run-dir") from None
+    except NotADirectoryError:
+        raise RunDirError(f"--run-dir {run_dir}: a part of the path is a file, not a folder; choose another --run-dir") from None
+    except OSError as exc:
+        raise _unwritable(run_dir, exc) from None
+    if not os.access(run_dir, os.W_OK | os.X_OK):
+        raise _unwritable(run_dir, PermissionError(13, "Permission denied"))
+
+
+def _unwritable(run_dir: Path, exc: OSError) -> RunDirError:
+    import errno
+
+    why = "is on a read-only file system" if exc.errno == errno.EROFS else (
+        "is not writable for you (permission denied)" if exc.errno in (errno.EACCES, errno.EPERM)
+        else f"cannot be written ({exc.strerror or exc})")
+    return RunDirError(f"--run-dir {run_dir} {why}: placeloc writes its lock, log and results there, even when every "
+                       "stage is up to date; make it writable (chmod u+w) or choose another --run-dir")
+
+
 def _written_by_older_placeloc(cfg: Path) -> bool:
     """Run directories from before the header: config.yaml is ours when an artifact beside
     it carries the same config text."""
@@ -339,7 +398,10 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
         yield
         return
     lock_path = run_dir / ".lock"
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:  # read-only file system, or a folder (or .lock) we may not write
+        raise _unwritable(run_dir, exc) from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -400,40 +462,109 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
     attrs = provenance_attrs(name, method.name, __version__, to_yaml(config),
                              config_hash(config), inputs, stamp, passthrough=fn is None, note=note)
     t0 = time.perf_counter()
-    with atomic_h5(path, attrs) as f:
-        if fn is None:
-            log.info("%s: %s", name, note)
-            return
-        log.info("%s: running %s", name, method.name)
-        ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
-                           executor=executor, quiet=quiet, images=images, params=method.build_params(config))
-        before = _run_files(run_dir)
-        opened: list[str] = []
-        try:
-            fn(ctx)
-        except OSError as exc:
-            # A side output (CSV, JSON, PNG) written with plain Python I/O met a full disk:
-            # name the place, as atomic_h5 does for artifacts.
-            if is_disk_full(exc) and not isinstance(exc, DiskFullError):
-                where = Path(exc.filename) if exc.filename else run_dir / f"(a side output of {name})"
-                raise disk_full_error(where, 0) from None
-            raise
-        except KeyError as exc:
-            # h5py's "Unable to synchronously open object": an artifact lacks a dataset.
-            if "open object" not in str(exc) and "doesn't exist" not in str(exc):
-                raise
-            opened = [f.filename for f in ctx._open]
-            which = ", ".join(opened) or "an earlier artifact"
-            raise StageError(f"{which}: a dataset the {name} stage needs is missing ({' '.join(str(exc).split())}); "
-                             "the artifact is damaged or from another version: re-run the stage that wrote it with --force") from exc
-        finally:
-            ctx.close()
-        f.attrs["seconds"] = time.perf_counter() - t0
-        # Side outputs (CSV, JSON, PNG) are whatever the stage created or changed in the run
-        # directory; their fingerprints make deleting or editing one re-run the stage.
-        after = _run_files(run_dir)
-        f.attrs["side_outputs"] = json.dumps({k: v for k, v in after.items() if before.get(k) != v}, sort_keys=True)
+    staging = run_dir / f".{name}.outputs{TMP_MARK}{os.getpid()}"
+    previous = (_recorded_side_outputs(path) or {}) if path.is_file() else {}
+    staged: dict[str, str] = {}
+
+    def commit() -> None:
+        # Called by atomic_h5 once the artifact is complete on disk, just before its rename:
+        # the side outputs move into place first, the artifact last.
+        _commit_side_outputs(run_dir, staging, staged, previous)
+
+    try:
+        with atomic_h5(path, attrs, before_rename=commit) as f:
+            if fn is None:
+                log.info("%s: %s", name, note)
+                return
+            log.info("%s: running %s", name, method.name)
+            staging.mkdir()
+            ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
+                               executor=executor, quiet=quiet, images=images, params=method.build_params(config),
+                               staging=staging)
+            before = _run_files(run_dir)
+            _run_stage_fn(fn, ctx, run_dir, name)
+            f.attrs["seconds"] = time.perf_counter() - t0
+            staged.update(_staged_files(staging))
+            _check_targets(run_dir, staged)
+            # Side outputs (CSV, JSON, PNG): the files the stage staged, and any it wrote into
+            # the run directory itself; their fingerprints (kept by the rename) make deleting or
+            # editing one re-run the stage.
+            after = _run_files(run_dir)
+            direct = {k: v for k, v in after.items() if before.get(k) != v}
+            f.attrs["side_outputs"] = json.dumps({**direct, **staged}, sort_keys=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     log.info("%s: wrote %s in %.2f s", name, path, time.perf_counter() - t0)
+
+
+def _run_stage_fn(fn: Any, ctx: StageContext, run_dir: Path, name: str) -> None:
+    """Call a stage function, turning the failures it cannot word itself into one line."""
+    opened: list[str] = []
+    try:
+        fn(ctx)
+    except OSError as exc:
+        # A side output (CSV, JSON, PNG) written with plain Python I/O met a full disk:
+        # name the place, as atomic_h5 does for artifacts.
+        if isinstance(exc, DiskFullError) and ctx.staging is not None:
+            # name the file where it would have appeared, not its staging folder
+            raise DiskFullError(exc.errno, str(exc).replace(f"{ctx.staging}/", f"{run_dir}/")) from None
+        if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+            where = Path(exc.filename) if exc.filename else run_dir / f"(a side output of {name})"
+            raise disk_full_error(ctx.public_path(where), 0) from None
+        raise
+    except KeyError as exc:
+        # h5py's "Unable to synchronously open object": an artifact lacks a dataset.
+        if "open object" not in str(exc) and "doesn't exist" not in str(exc):
+            raise
+        opened = [f.filename for f in ctx._open]
+        which = ", ".join(opened) or "an earlier artifact"
+        raise StageError(f"{which}: a dataset the {name} stage needs is missing ({' '.join(str(exc).split())}); "
+                         "the artifact is damaged or from another version: re-run the stage that wrote it with --force") from exc
+    finally:
+        ctx.close()
+
+
+def _staged_files(staging: Path) -> dict[str, str]:
+    """name -> fingerprint of every complete file a stage staged (not temporary files)."""
+    out = {}
+    for p in staging.rglob("*"):
+        if p.is_file() and TMP_MARK not in p.name and not p.name.endswith(".tmp.png"):
+            out[str(p.relative_to(staging))] = _path_fingerprint(p)
+    return out
+
+
+def _check_targets(run_dir: Path, staged: dict[str, str]) -> None:
+    """Before anything moves: every staged file's place in the run directory must take a
+    file (not a folder someone made there; the folder writable)."""
+    for name in staged:
+        target = run_dir / name
+        if target.is_dir() and not target.is_symlink():
+            raise RunDirError(f"{target} is a folder, but placeloc writes its {name} there; remove the folder "
+                              f"(rmdir {target}) or choose another --run-dir, then re-run")
+        folder = target.parent
+        folder.mkdir(parents=True, exist_ok=True)
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise RunDirError(f"{folder} is not writable, so {name} cannot be written there; make it writable "
+                              "(chmod u+w) or choose another --run-dir")
+
+
+def _commit_side_outputs(run_dir: Path, staging: Path, staged: dict[str, str], previous: dict[str, str]) -> None:
+    """Move the staged side outputs into the run directory (renames within one file system)
+    and remove the ones the previous run of this stage wrote that this run did not; on a
+    failure halfway, the ones already moved are removed again, so none of this run's appear."""
+    moved: list[Path] = []
+    try:
+        for name in sorted(staged):
+            target = run_dir / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / name, target)
+            moved.append(target)
+    except BaseException:
+        for target in moved:
+            with contextlib.suppress(OSError):
+                target.unlink()
+        raise
+    _remove_side_outputs(run_dir, [n for n in previous if n not in staged])
 
 
 def _run_files(run_dir: Path) -> dict[str, str]:
@@ -442,7 +573,8 @@ def _run_files(run_dir: Path) -> dict[str, str]:
     out = {}
     for p in run_dir.rglob("*"):
         rel = p.relative_to(run_dir)
-        if not p.is_file() or TMP_MARK in p.name or (len(rel.parts) == 1 and (p.suffix == ".h5" or p.name in RUN_FILES)):
+        if not p.is_file() or any(TMP_MARK in part for part in rel.parts) or p.name.endswith(".tmp.png") \
+                or (len(rel.parts) == 1 and (p.suffix == ".h5" or p.name in RUN_FILES)):
             continue
         out[str(rel)] = _path_fingerprint(p)
     return out

@@ -4,31 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from placeloc.evaluation.maps import map_errors  # noqa: F401  (re-exported)
+
 
 def _rmse(err: np.ndarray) -> float:
     return float(np.sqrt(np.mean(err ** 2)))
-
-
-def map_errors(feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray, truth_ids: np.ndarray,
-               truth_xyz: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-    """Errors over the non-landmark features that have a true position.
-
-    Returns (metrics, estimates, truths) with the evaluated rows in map order. Features with a
-    true position that were never observed cannot be mapped: they are counted, not hidden.
-    """
-    d = coords.shape[1]
-    have = np.isin(feature_ids, truth_ids) & ~is_landmark
-    order = {int(f): j for j, f in enumerate(truth_ids)}
-    rows = np.array([order[int(f)] for f in feature_ids[have]], dtype=np.int64)
-    est, truth = coords[have], truth_xyz[rows, :d]
-    err = np.linalg.norm(est - truth, axis=1)
-    out: dict = {"map_rmse": _rmse(err) if len(err) else None, "map_max_error": float(err.max()) if len(err) else None,
-                 "map_median_error": float(np.median(err)) if len(err) else None, "n_evaluated": int(len(err)),
-                 "n_truth_unobserved": int((~np.isin(truth_ids, feature_ids)).sum())}
-    lm_rows = np.array([order[int(f)] for f in feature_ids[is_landmark] if int(f) in order], dtype=np.int64)
-    if len(lm_rows) == int(is_landmark.sum()):
-        out["landmark_rmse"] = _rmse(np.linalg.norm(coords[is_landmark] - truth_xyz[lm_rows, :d], axis=1))
-    return out, est, truth
 
 
 def path_errors(step_ids: np.ndarray, xy: np.ndarray, heading: np.ndarray | None, label_steps: np.ndarray,

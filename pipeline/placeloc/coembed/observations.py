@@ -107,7 +107,7 @@ def _read_numeric_csv(path: str | Path, min_cols: int, what: str) -> tuple[list[
     path = Path(path)
     if not path.is_file():
         raise ObservationError(f"{what}: {path} does not exist")
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding="utf-8-sig") as fh:  # a BOM is not part of the header
         header = next(csv.reader(fh), None)
     if header is None or len(header) < min_cols:
         raise ObservationError(f"{what}: {path} needs a header row with at least {min_cols} columns")

@@ -39,7 +39,7 @@ class CoembedParams(Params):
     alpha_select: str = param("loo", choices=("fixed", "loo"),
                               help="fixed: use alpha; loo: the alpha_grid value with the smallest leave-one-landmark-out error")
     alpha_grid: tuple[float, ...] = param([0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0, 10000.0],
-                                          min=0.0, help="alpha candidates for alpha_select loo")
+                                          min=0.0, min_len=1, help="alpha candidates for alpha_select loo")
     beta: float = param(1.0, min=0.0, help="path smoothness weight")
     poses: str | None = param(None, path=True, help="CSV t,x,y[,heading]: known poses (labels) and path truth")
     pose_label_every: int = param(0, min=0, help="steps t with t % k == 0 are labelled poses (0: no path)")
@@ -47,7 +47,7 @@ class CoembedParams(Params):
     isomap_neighbors_select: str = param("loo", choices=("fixed", "loo"),
                                          help="fixed: use isomap_neighbors; loo: the grid value with the smallest "
                                               "leave-one-landmark-out alignment error")
-    isomap_neighbors_grid: tuple[int, ...] = param([3, 4, 5, 6, 8, 10, 12, 15, 20], min=1,
+    isomap_neighbors_grid: tuple[int, ...] = param([3, 4, 5, 6, 8, 10, 12, 15, 20], min=1, min_len=1,
                                                    help="neighbour counts tried by isomap_neighbors_select loo")
     isomap_min_common: int = param(1, min=1, help="steps two features must share to have a distance")
     pcamd_rank: int = param(3, min=1, help="PCAMD factor rank: fixed by the sensor model (scalar sightings of a 2-D map: 3; "

@@ -168,7 +168,7 @@ def localize(ctx) -> None:  # noqa: ANN001
             g.create_dataset("label_steps", data=obs.step_ids[rows])
             if phead is not None:
                 g.create_dataset("heading", data=phead)
-            write_path_csv(ctx.run_dir / "path.csv", obs.step_ids, pxy, phead, obs.step_ids[rows])
+            write_path_csv(ctx.output("path.csv"), obs.step_ids, pxy, phead, obs.step_ids[rows])
     elif p.solver == "isomap":
         from placeloc.coembed.isomap import isomap_features
 
@@ -197,53 +197,47 @@ def localize(ctx) -> None:  # noqa: ANN001
     out.create_dataset("is_landmark", data=np.isin(obs.feature_ids, lid))
     for k, v in info.items():
         out.attrs[k] = v
-    write_map_csv(ctx.run_dir / "map.csv", obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
+    from placeloc.evaluation import maps
+
+    path = ctx.out.get("path")
+    maps.write(ctx, feature_ids=obs.feature_ids, coords=coords, is_landmark=np.isin(obs.feature_ids, lid),
+               path=None if path is None else {"step_ids": path["step_ids"][()], "xy": path["xy"][()],
+                                               "heading": path["heading"][()] if "heading" in path else None,
+                                               "label_steps": path["label_steps"][()]})
+    write_map_csv(ctx.output("map.csv"), obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
 
 
-def evaluate(ctx) -> None:  # noqa: ANN001
-    from placeloc.coembed.metrics import map_errors, path_errors
-    from placeloc.coembed.plots import plot_map
-    from placeloc.evaluation import write_metrics
+def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
+    """Co-embedding's own figures beside the map contract's: the solver's settings and cost,
+    the landmark warnings, and the path read out from the map against the true poses."""
+    from placeloc.coembed.metrics import path_errors
 
     p: CoembedParams = ctx.params
     loc = ctx.artifact("localize")
     art = ctx.artifact("extract")
-    ids, coords, is_lm = loc["map/feature_ids"][()], loc["map/coords"][()], loc["map/is_landmark"][()]
-    d = coords.shape[1]
-    metrics: dict = {"method": "coembed", "solver": p.solver, "n_features": int(len(ids)), "n_landmarks": int(is_lm.sum()),
-                     "n_steps": int(art["observations/step_ids"].shape[0]), "fill": float(art["observations"].attrs["fill"]),
-                     "map_rmse": None, "map_max_error": None, "path_rmse": None,
-                     "solve_seconds": float(loc["map"].attrs["solve_seconds"])}
+    m = ev.metrics
+    m.update({"method": "coembed", "solver": p.solver, "n_steps": int(art["observations/step_ids"].shape[0]),
+              "fill": float(art["observations"].attrs["fill"]), "path_rmse": None,
+              "solve_seconds": float(loc["map"].attrs["solve_seconds"])})
     for k in ("pcamd_iterations", "pcamd_converged", "alpha", "isomap_neighbors", "pinhole_iterations"):
         if k in loc["map"].attrs:
             v = loc["map"].attrs[k]
-            metrics[k] = v.item() if hasattr(v, "item") else v
-    metrics["landmark_warnings"] = json.loads(art["landmarks"].attrs.get("warnings", "[]"))
-    est_eval = truth_eval = None
-    if p.truth is not None:
-        tid, txyz = read_points_csv(p.truth, "truth")
-        if txyz.shape[1] < d:
-            raise ObservationError(f"truth file {p.truth} has {txyz.shape[1]} coordinates per row; the map is {d}-D")
-        found, est_eval, truth_eval = map_errors(ids, coords, is_lm, tid, txyz)
-        metrics.update(found)
-    path_est = path_truth = None
+            m[k] = v.item() if hasattr(v, "item") else v
+    m["landmark_warnings"] = json.loads(art["landmarks"].attrs.get("warnings", "[]"))
+    ev.extra["landmarks"] = art["landmarks/coords"][()]
     if "path" in loc and p.poses is not None:
         steps, xy, heading = poses_by_step(p.poses)
         path_est = loc["path/xy"][()]
         found, path_truth = path_errors(loc["path/step_ids"][()], path_est, loc["path/heading"][()] if "path/heading" in loc else None,
                                         loc["path/label_steps"][()], steps, xy, heading)
-        metrics.update(found)
-        if path_truth is None:
-            path_est = None
-    write_metrics(ctx.run_dir, metrics, ctx.out)
-    if ctx.config.get("plots", True) and est_eval is not None:
-        name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
-        if p.solver == "coembed" and p.camera_model != "linear":
-            name += f" ({p.camera_model} camera)"
-        title = (f"{name}, top view: map RMSE {metrics['map_rmse']:.3g}, max {metrics['map_max_error']:.3g} map units\n"
-                 f"({metrics['n_evaluated']} unknown features, {metrics['n_landmarks']} landmarks)")
-        plot_map(ctx.run_dir / "map.png", est_eval, truth_eval, art["landmarks/coords"][()], path_est, path_truth, title,
-                 units="map units")
+        m.update(found)
+        if path_truth is not None:
+            ev.extra.update(path_est=path_est, path_truth=path_truth)
+            m["headline"] = list(m["headline"]) + ["path_rmse"]
+    name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
+    if p.solver == "coembed" and p.camera_model != "linear":
+        name += f" ({p.camera_model} camera)"
+    ev.label = name
 
 
 EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",
@@ -258,8 +252,11 @@ METHOD = Method(
                                           "pinhole_prior", "pinhole_max_iter", "pinhole_tol",
                                           "beta", "poses", "pose_label_every", "isomap_neighbors", "isomap_neighbors_select",
                                           "isomap_neighbors_grid", "isomap_min_common", "pcamd_rank", "pcamd_max_iter", "pcamd_tol")),
-        "evaluate": Stage(evaluate, keys=("solver", "camera_model", "truth", "poses"), sections=("plots",)),
     },
+    result="map",
+    evaluate_extra=evaluate_extra,
+    evaluate_keys=("solver", "camera_model", "truth", "poses"),
+    truth_keys={"points": "truth", "poses": "poses"},
     required_images=(),
     checker=_check,
     citation="S. Nakamura and T. Yairi, \"Experimental Study on Mapping by Dimensionality Reduction\" (co-embedding; "

@@ -46,9 +46,12 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
-from placeloc.config import COMMON_DEFAULTS, ConfigError
+from placeloc.common_params import GroundTruthParams
+from placeloc.errors import ConfigError
 
-DEFAULT_RADIUS_M: float = COMMON_DEFAULTS["ground_truth"]["radius"]
+# The shared defaults (one home: placeloc.common_params), for callers that pass no config section.
+DEFAULT_RADIUS_M: float = GroundTruthParams().radius
+DEFAULT_TOLERANCE: int = GroundTruthParams().tolerance
 TRUE_WORDS = {"1", "true", "yes", "y", "soft"}
 FALSE_WORDS = {"", "0", "false", "no", "n", "hard"}
 
@@ -71,7 +74,7 @@ class GroundTruth:
     a second GroundTruth over the same pair holding the soft set (a superset of this one).
     """
 
-    def __init__(self, n_ref: int, n_query: int, *, tolerance: int = 0, lo: np.ndarray | None = None,
+    def __init__(self, n_ref: int, n_query: int, *, tolerance: int = DEFAULT_TOLERANCE, lo: np.ndarray | None = None,
                  hi: np.ndarray | None = None, matrix: np.ndarray | None = None, synchronous: bool = False,
                  intervals: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                  ref_xy: np.ndarray | None = None, query_xy: np.ndarray | None = None, radius: float | None = None,
@@ -105,7 +108,7 @@ class GroundTruth:
         """Build from the ``ground_truth`` config section. ``ref_names``/``query_names``
         are the file names of the listed images (needed for names and positions)."""
         kind = section.get("kind", "none")
-        tol = section.get("tolerance", 0)
+        tol = section.get("tolerance", DEFAULT_TOLERANCE)
         tol = 0 if tol is None else tol
         if int(tol) < 0:
             raise GroundTruthError(f"ground_truth.tolerance is {tol}; it must be >= 0 (frames either side of a "
@@ -126,7 +129,7 @@ class GroundTruth:
         raise GroundTruthError(f"ground_truth.kind {kind!r} cannot score place matches; use synchronous, csv, hdf5 or poses")
 
     @classmethod
-    def from_csv(cls, path: str | Path, n_ref: int, n_query: int, tolerance: int = 0, *,
+    def from_csv(cls, path: str | Path, n_ref: int, n_query: int, tolerance: int = DEFAULT_TOLERANCE, *,
                  ref_names: Sequence[str] | None = None, query_names: Sequence[str] | None = None) -> GroundTruth:
         """Pairs or ranges, by index or file name, several rows per query (module docstring)."""
         path = Path(path)
@@ -326,7 +329,11 @@ class _Lookup:
         self.index: dict[str, int] | None = None
 
     def bound(self, cell: str, line: int) -> int:
-        """A range end: an index may reach past the traverse (the range is clipped)."""
+        """A range end: an index may reach past the end of the traverse (the range is
+        clipped there); a negative one is refused, as a negative index is."""
+        if _is_int(cell) and int(cell.strip()) < 0:
+            raise GroundTruthError(f"{self.path}:{line}: {self.role} index {int(cell.strip())} is negative; indices count "
+                                   "the folder's images in natural order from 0")
         return int(cell.strip()) if _is_int(cell) else self(cell, line)
 
     def __call__(self, cell: str, line: int) -> int:
@@ -422,41 +429,3 @@ def _traverse_positions(poses: Any, n_ref: int, n_query: int, ref_names: Sequenc
     ref_xy = poses.xy[rows(ref_names, n_ref, "reference")]
     q_xy = ref_xy if loop_closure else poses.xy[rows(query_names, n_query, "query")]
     return ref_xy, q_xy
-
-
-def check_config(config: dict[str, Any]) -> None:
-    """Validate the ground truth of a completed config before any stage runs.
-
-    For methods that score image-to-image matches (``IMAGE_MATCHING``) the ground truth is
-    built in full against the listed images, so every problem (format, columns, indices
-    or names outside the traverses, matrix type and shape, missing positions) is one
-    :class:`GroundTruthError` naming the file, row and fix. For other methods only what
-    is method-independent is checked (that a pose file parses).
-    """
-    section = config.get("ground_truth") or {}
-    kind = section.get("kind", "none")
-    if kind == "none":
-        return
-    # tolerance >= 0 and radius > 0 are declared ranges, checked by placeloc.config before this.
-    if config.get("method") not in IMAGE_MATCHING:
-        if kind == "poses" and section.get("path") and Path(section["path"]).is_file():
-            from placeloc.evaluation.poses import PoseError, read_poses
-
-            try:
-                read_poses(section["path"], what="ground_truth.path")
-            except PoseError as exc:
-                raise GroundTruthError(str(exc)) from None
-        return
-    from placeloc.images import ImageError, list_images
-
-    try:
-        ref = list_images(config["reference"]["images"])
-        query = list_images(config["query"]["images"]) if config.get("query") else None
-    except ImageError:
-        return  # the image check reports this one
-    GroundTruth.from_config(section, len(ref), len(query) if query else len(ref), ref_names=ref.names,
-                            query_names=query.names if query else None)
-
-
-# Methods whose evaluate scores reference/query image matches with :class:`GroundTruth`.
-IMAGE_MATCHING = ("seqslam",)

@@ -1,19 +1,19 @@
 """Scoring ranked place matches against ground truth, for every method that ranks reference
 images per query, and the per-query CSV.
 
-Conventions (the keys of ``metrics.json``):
+Conventions (the keys of ``metrics.json``, the ``ranked`` contract's schema):
 
-- ``standard_recall_at_N``: Recall@N as the field reports it (Lowry et al.'s survey, VPR-Bench,
+- ``recall_at_N``: Recall@N as the field reports it (Lowry et al.'s survey, VPR-Bench,
   Berton et al.): a query is right at N when ANY of its N best candidates is a positive;
   candidates are the plain ranking (neighbouring frames allowed). Denominator: all
   queries (a query without any positive is a miss).
-- ``standard_recall_at_N_with_positive``: the same over the queries that have at least
-  one positive (``queries_with_ground_truth`` of them), the denominator most benchmarks
-  use since their every query has one.
+- ``recall_at_N_with_positive``: the same over the queries that have at least one
+  positive (``queries_with_ground_truth`` of them), the denominator most benchmarks use
+  since their every query has one.
 - ``separated_recall_at_N``: as the standard one but over candidates kept at least a
   method-specific distance apart (SeqSLAM: ``enhance_window + 1`` reference frames), so
-  the N candidates are N distinct places. ``recall_at_5``/``recall_at_10`` (older key
-  names) hold this value; ``recall_at_1`` is the same for both rankings.
+  the N candidates are N distinct places. The best candidate is the same in both
+  rankings, so ``separated_recall_at_1`` equals ``recall_at_1``.
 - Precision-recall (``auc_pr``, ``recall_at_100_precision``, ``max_f1``): one match per
   query (the best candidate) accepted when its confidence is at least a threshold;
   recall over all queries (see :mod:`placeloc.evaluation.metrics`).
@@ -97,17 +97,14 @@ def score_matches(gt: GroundTruth, query_index: np.ndarray, ref_index: np.ndarra
     std_pos = recall_at_n(rk_ok, ns, has_positive=has_pos)
     for n in ns:
         known = plain_known or n == 1
-        m[f"standard_recall_at_{n}"] = std_all[n] if known else None
-        m[f"standard_recall_at_{n}_with_positive"] = std_pos[n] if known else None
+        m[f"recall_at_{n}"] = std_all[n] if known else None
+        m[f"recall_at_{n}_with_positive"] = std_pos[n] if known else None
     for n in ns:  # unknown (None) beyond the candidates the method kept (SeqSLAM: top_k)
         m[f"separated_recall_at_{n}"] = sep_r[n] if n <= sep.shape[1] else None
-    legacy = recall_at_n(sep_ok, (1, 5, 10))
-    m.update({"recall_at_1": legacy[1], "recall_at_5": legacy[5], "recall_at_10": legacy[10],
-              "auc_pr": pr.auc, "recall_at_100_precision": pr.recall_at_100_precision, "max_f1": pr.max_f1,
+    m.update({"auc_pr": pr.auc, "recall_at_100_precision": pr.recall_at_100_precision, "max_f1": pr.max_f1,
               "n_queries": int(len(q)), "queries_with_ground_truth": int(has_pos.sum()),
               "n_matched": int((sep[:, 0] >= 0).sum()),
-              "recall_denominator": "recall_at_* and standard_recall_at_N: all queries; "
-                                    "*_with_positive: queries with at least one positive"})
+              "recall_denominator": "recall_at_N: all queries; recall_at_N_with_positive: queries with at least one positive"})
     return MatchScores(query=q, ranked=rk, ranked_scores=rs, ranked_correct=rk_ok, separated=sep,
                        separated_correct=sep_ok, confidence=conf, has_positive=has_pos, example_positive=example,
                        pr=pr, ns=ns, metrics=m)

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from placeloc.common_params import GroundTruthParams
+
 
 @dataclass
 class PRCurve:
@@ -103,7 +105,8 @@ def summarise_ratios(ratio: np.ndarray) -> tuple[float, int]:
 # ---------------------------------------------------------------------------------------
 # Ranked candidates against ground truth: standard Recall@N, soft ground truth, denominators
 # ---------------------------------------------------------------------------------------
-DEFAULT_RECALL_N = (1, 5, 10, 20)
+# The shared default (one home: ground_truth.recall_at in placeloc.common_params).
+DEFAULT_RECALL_N: tuple[int, ...] = GroundTruthParams().recall_at
 
 
 def drop_soft(candidates: np.ndarray, soft_only: np.ndarray, *extra: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -145,3 +148,17 @@ def first_correct_rank(ranked_correct: np.ndarray) -> np.ndarray:
     """1-based rank of the first positive candidate per query (0 = none in the list)."""
     c = np.asarray(ranked_correct, bool)
     return np.where(c.any(axis=1), np.argmax(c, axis=1) + 1, 0)
+
+
+def tail_count(n: int, fraction: float) -> int:
+    """How many of ``n`` per-frame values the last ``fraction`` of a run holds (at least one)."""
+    return max(1, int(round(n * fraction)))
+
+
+def tail_mean(values: np.ndarray, fraction: float) -> float:
+    """Mean of the last ``fraction`` of ``values`` (:func:`tail_count` of them): per-frame
+    mapping cost near the end of a run, where the dictionary is largest."""
+    values = np.asarray(values, np.float64)
+    if len(values) == 0:
+        return float("nan")
+    return float(values[-tail_count(len(values), fraction):].mean())

@@ -13,11 +13,20 @@ import numpy as np  # noqa: E402
 
 
 def _save(fig: plt.Figure, path: Path) -> Path:
+    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
+    a failed save (a full disk) leaves no temporary file either."""
+    import os
+
+    from placeloc.artifacts import TMP_MARK
+
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
     return path
 
 
@@ -129,42 +138,6 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path)
-
-
-def plot_difference_matrix(matrix: np.ndarray, path: Path, matches: np.ndarray | None = None,
-                           correct: np.ndarray | None = None, gt_lo: np.ndarray | None = None,
-                           gt_hi: np.ndarray | None = None, stride: tuple[int, int] = (1, 1),
-                           title: str = "difference matrix (rows = reference, columns = query)") -> Path:
-    """Show ``matrix[r, q]`` (lower = darker = more alike), the ground-truth band and the
-    matches (green = correct, red = wrong). ``stride`` is the subsampling already applied."""
-    fig, ax = plt.subplots(figsize=(6.5, 6.0))
-    sr, sq = stride
-    nr, nq = matrix.shape
-    finite = matrix[np.isfinite(matrix)]
-    vmin, vmax = (np.percentile(finite, [1, 99]) if finite.size else (0, 1))
-    ax.imshow(matrix, cmap="gray", aspect="auto", vmin=vmin, vmax=vmax, interpolation="nearest",
-              extent=(-0.5 * sq, (nq - 0.5) * sq, (nr - 0.5) * sr, -0.5 * sr))
-    if gt_lo is not None and gt_hi is not None:
-        q = np.arange(len(gt_lo))
-        ok = gt_hi >= gt_lo
-        ax.fill_between(q[ok], gt_lo[ok], gt_hi[ok], color="deepskyblue", alpha=0.25, lw=0, label="ground truth")
-    if matches is not None:
-        q = np.arange(len(matches))
-        has = matches >= 0
-        if correct is None:
-            ax.scatter(q[has], matches[has], s=4, c="orange", label="match")
-        else:
-            good = has & correct
-            bad = has & ~correct
-            ax.scatter(q[good], matches[good], s=4, c="lime", label="correct match")
-            ax.scatter(q[bad], matches[bad], s=4, c="red", label="wrong match")
-    ax.set_xlabel("query")
-    ax.set_ylabel("reference")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper right", markerscale=2)
-    return _save(fig, path)
-
-
 
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],

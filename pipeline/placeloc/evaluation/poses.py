@@ -115,7 +115,8 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
     """Read a pose CSV (see the module docstring for the columns it understands)."""
     path = Path(path)
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a byte-order mark (Excel writes one) is not part of the first column's name
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             fields = list(reader.fieldnames or [])
             rows = list(reader)

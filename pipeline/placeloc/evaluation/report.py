@@ -16,12 +16,15 @@ from placeloc.artifacts import atomic_open
 
 REPORT = "report.html"
 # Pictures first that say most; any other PNG follows in name order.
-ORDER = ("strips_sample.png", "strips_failures.png", "recall_at_n.png", "pr_curve.png", "difference_matrix.png")
+ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "map.png", "recall_at_n.png", "pr_curve.png",
+         "error_cdf.png", "time_per_frame.png", "difference_matrix.png")
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
-.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}"""
+.cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}
+.headline{display:flex;gap:14px;flex-wrap:wrap;margin:10px 0 6px}.fig{border:1px solid #ccd;border-radius:6px;padding:8px 14px;
+background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
 
 
 def _fmt(v: Any) -> str:
@@ -68,26 +71,69 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return {}
 
 
-def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None) -> Path:
-    """Write ``run_dir/report.html`` from what the run directory holds now; ``config`` is the
-    run's config (default: the one stamped in its newest artifact)."""
+def _result_kind(run_dir: Path) -> str | None:
+    from placeloc.evaluation.contracts import localize_result
+
+    try:
+        res = localize_result(run_dir)
+    except (OSError, ValueError):
+        return None
+    return None if res is None else res.kind
+
+
+def _headline_html(run_dir: Path, metrics: dict[str, Any]) -> str:
+    """The headline figures first, as large numbers, with the contract they belong to."""
+    from placeloc.evaluation.contracts import format_value, headline_of
+
+    kind = _result_kind(run_dir)
+    figures = headline_of(kind, metrics) if kind and metrics else []
+    if not figures:
+        what = f"result: {kind}; " if kind else ""
+        return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(format_value(v))}</div><div class='k'>{html.escape(k)}</div>"
+                    "</div>" for k, v in figures)
+    return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
+            f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
+
+
+def _metrics_doc(run_dir: Path) -> str:
+    from placeloc.evaluation.contracts import contract
+
+    kind = _result_kind(run_dir)
+    if kind is None:
+        return ""
+    doc = getattr(contract(kind), "METRICS_DOC", {})
+    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in doc.items())
+    return f"<ul class='muted'>{items}</ul>"
+
+
+def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
+                 out_dir: str | Path | None = None) -> Path:
+    """Write ``report.html`` from what the run directory holds now; ``config`` is the
+    run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
+    ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
+    PNGs staged there by the same stage take the place of the run directory's."""
     run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
-    if (run_dir / "metrics.json").is_file():
-        metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics_path = next((d / "metrics.json" for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
+    if metrics_path is not None:
+        metrics = json.loads(metrics_path.read_text())
     method = cfg.get("method", "?")
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title or run_dir.name)}</title>"
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
+    parts.append(_headline_html(run_dir, metrics))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
             summary.append((f"{role} images", cfg[role].get("images")))
     gt = cfg.get("ground_truth") or {}
     # only the ground-truth settings its kind reads
-    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius")}
+    used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius"),
+            "matrix": ("path", "tolerance", "exclude_recent")}
     summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
         f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
@@ -96,12 +142,11 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2><p class='muted'>recall_at_* and standard_recall_at_N divide by all queries; "
-                     "*_with_positive by the queries that have a positive (see docs/evaluation.md).</p>"
-                     + _table(main, ("metric", "value")))
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(run_dir) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
-    pngs = sorted(run_dir.glob("*.png"), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
+    found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}
+    pngs = sorted(found.values(), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
     parts.append("<h2>Pictures</h2>")
     for png in pngs:
         data = base64.b64encode(png.read_bytes()).decode("ascii")
@@ -109,7 +154,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     if not pngs:
         parts.append("<p>No pictures in this run directory (plots: false?).</p>")
     parts.append("</body></html>")
-    path = run_dir / REPORT
+    path = out_dir / REPORT
     with atomic_open(path) as fh:
         fh.write("\n".join(parts))
     return path

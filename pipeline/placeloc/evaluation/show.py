@@ -1,8 +1,9 @@
 """Pictures of the matches: strips of query | best match | a true positive.
 
 Reads a run directory: ``per_query.csv`` (written by evaluate, with ground truth) or,
-without ground truth, ``matches.csv`` (written by localize: query image, best reference
-image, confidence), and ``config.yaml`` for the image folders. Writes
+without ground truth, the ``ranked`` or ``loops`` result in ``localize.h5`` (query image,
+best reference image, confidence), and the config stamped in the artifacts for the image
+folders. :func:`show_run` is ``placeloc show`` for every result contract. Writes
 ``strips_sample.png`` (queries spread evenly over the traverse) and, with ground truth,
 ``strips_failures.png`` (the wrong matches made with the highest confidence, i.e. the
 ones a threshold would let through first).
@@ -33,25 +34,37 @@ class Row:
     positive_image: str
 
 
-def read_rows(run_dir: Path) -> list[Row]:
-    """Per-query rows from per_query.csv, else matches.csv (no ground truth)."""
-    per_query, matches = run_dir / "per_query.csv", run_dir / "matches.csv"
+def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
+    """Per-query rows from per_query.csv (evaluate), else from the ``ranked`` or ``loops``
+    result in localize.h5 (no ground truth: matches not judged). ``only_matched``: the
+    rows with a match (loop closures: the frames that closed one)."""
+    per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
         with per_query.open(newline="") as fh:
             for r in csv.DictReader(fh):
-                rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]),
-                                r["correct"] == "1",
+                if only_matched and not r["best_image"]:
+                    continue
+                rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
                                 r["positive_image"]))
         return rows
-    if matches.is_file():
-        with matches.open(newline="") as fh:
-            for r in csv.DictReader(fh):
-                rows.append(Row(r.get("query_image", ""), r.get("reference_image", ""), _num(r.get("confidence", "")),
-                                None, ""))
-        return rows
-    raise ShowError(f"{run_dir}: neither per_query.csv (evaluate) nor matches.csv (localize) is there; "
-                    "run `placeloc localize CONFIG -o RUN_DIR` first")
+    from placeloc.evaluation.contracts import localize_result
+
+    res = localize_result(run_dir)
+    if res is None or res.kind not in ("ranked", "loops"):
+        raise ShowError(f"{run_dir}: holds no localize result with matches (per_query.csv or localize.h5); "
+                        "run `placeloc localize CONFIG -o RUN_DIR` first")
+    if res.kind == "ranked":
+        name_of = dict(zip(res["reference_index"].tolist(), res["reference_names"]))
+        pairs = zip(res["query_names"], res["candidates"][:, 0], res["confidence"])
+    else:
+        name_of = dict(zip(res["frame_index"].tolist(), res["frame_names"]))
+        pairs = zip(res["frame_names"], res["match"], res["confidence"])
+    for qn, j, c in pairs:
+        if only_matched and j < 0:
+            continue
+        rows.append(Row(qn, name_of.get(int(j), "") if j >= 0 else "", float(c), None, ""))
+    return rows
 
 
 def _num(text: str) -> float:
@@ -61,7 +74,7 @@ def _num(text: str) -> float:
         return float("nan")
 
 
-def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
+def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, Path], dict[str, Path]]:
     from placeloc.evaluation.report import run_config
     from placeloc.images import ImageError, list_images
 
@@ -79,19 +92,20 @@ def _folders(run_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
             return {}
 
     ref = names("reference")
-    query = names("query") or ref
+    query = ref if within_reference else (names("query") or ref)
     return ref, query
 
 
 def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
-    import cv2
+    from placeloc.images import ImageError, read_rgb
 
     if path is None:
         return np.full((*shape, 3), 235, np.uint8)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
+
+    try:
+        return read_rgb(path)  # upright (EXIF orientation), as the stages saw it
+    except ImageError:
         return np.full((*shape, 3), 200, np.uint8)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def pick_sample(n: int, count: int) -> list[int]:
@@ -113,6 +127,7 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
     """One row per picked query: query | best match | a true positive, the match framed
     green (right), red (wrong) or grey (no ground truth)."""
     if not picks:
+        path.unlink(missing_ok=True)
         return None
     from placeloc.evaluation.plots import _save, plt
 
@@ -125,7 +140,7 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
         shape = q_img.shape[:2]
         panels = [(q_img, f"query {r.query_image}", "black"),
                   (_read(ref.get(r.best_image) if r.best_image else None, shape),
-                   f"best {r.best_image}  conf {r.confidence:.2f}" if r.best_image else "best: none (no full sequence)",
+                   f"best {r.best_image}  conf {r.confidence:.3g}" if r.best_image else "best: none (no full sequence)",
                    "grey" if r.correct is None else ("limegreen" if r.correct else "red"))]
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),
@@ -150,24 +165,31 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
     return _save(fig, path)
 
 
-def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> list[Path]:
-    """Write the sample strips (and, with ground truth, the worst failures); return paths."""
+def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows: list[Row] | None = None,
+                what: str = "best matches", out_dir: str | Path | None = None) -> list[Path]:
+    """Write the sample strips (and, with ground truth, the worst failures); return paths.
+
+    ``out_dir`` (a stage's ``ctx.output_dir``): where the figures go, and where this stage's
+    own per_query.csv is looked for first (staged there until the stage commits); default
+    ``run_dir``."""
     run_dir = Path(run_dir)
-    rows = read_rows(run_dir)
-    ref, query = _folders(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    if rows is None:
+        rows = read_rows(out_dir if (out_dir / "per_query.csv").is_file() else run_dir)
+    ref, query = _folders(run_dir, within_reference=what == "loop closures")
     out: list[Path] = []
     with_gt = any(r.correct is not None for r in rows)
     picks = pick_sample(len(rows), sample)
     n_right = sum(1 for r in rows if r.correct)
-    what = f"{n_right} of {len(rows)} best matches right" if with_gt else "no ground truth: matches not judged"
-    p = draw_strip_figure(rows, picks, ref, query, run_dir / SAMPLE_PNG,
-                          f"{len(picks)} queries spread over the traverse ({what})")
+    verdict = f"{n_right} of {len(rows)} {what} right" if with_gt else f"no ground truth: {what} not judged"
+    p = draw_strip_figure(rows, picks, ref, query, out_dir / SAMPLE_PNG,
+                          f"{len(picks)} {what} spread over the traverse ({verdict})")
     if p:
         out.append(p)
     fail = pick_failures(rows, failures)
-    stale = run_dir / FAILURES_PNG
+    stale = out_dir / FAILURES_PNG
     if fail:
-        p = draw_strip_figure(rows, fail, ref, query, stale, f"worst failures: the {len(fail)} most confident wrong matches")
+        p = draw_strip_figure(rows, fail, ref, query, stale, f"worst failures: the {len(fail)} most confident wrong {what}")
         if p:
             out.append(p)
     elif stale.exists():
@@ -199,20 +221,26 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
 
 
 def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tuple[list[Path], Path]:
-    """Strips and report.html for a run directory, as ``placeloc show`` does. A file that
-    comes out byte-identical keeps its old modification time, so that re-showing a run
-    does not make the evaluate stage that wrote the same file look out of date."""
+    """The contract's pictures (strips, plan, map) and report.html for a run directory, as
+    ``placeloc show`` does. A file that comes out byte-identical keeps its old modification
+    time, so that re-showing a run does not make the evaluate stage that wrote the same
+    file look out of date."""
     import os
 
+    from placeloc.evaluation.contracts import contract, localize_result
     from placeloc.evaluation.report import REPORT, write_report
 
     run_dir = Path(run_dir)
-    names = [SAMPLE_PNG, FAILURES_PNG, REPORT]
+    res = localize_result(run_dir)
+    if res is None:
+        raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
+    mod = contract(res.kind)
+    names = [p.name for p in run_dir.glob("*.png")] + [REPORT]
     before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
-    strips = draw_strips(run_dir, sample=sample, failures=failures)
+    pictures = mod.show(run_dir, res, sample=sample, failures=failures)
     report = write_report(run_dir)
     for name, (data, st) in before.items():
         p = run_dir / name
         if p.is_file() and p.read_bytes() == data:
             os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
-    return strips, report
+    return pictures, report

@@ -15,15 +15,21 @@ from typing import Any
 
 from placeloc.artifacts import atomic_open
 
-EXPERIMENTS: dict[str, str] = {
-    "seqslam": "placeloc.experiments.seqslam",
-    "umap": "placeloc.experiments.umap",
-    "umap-homes": "placeloc.experiments.umap_homes",
-    "coembed": "placeloc.experiments.coembed",
-    "pirf": "placeloc.experiments.pirf",
-    "pirf-large": "placeloc.experiments.pirf_large",
-    "pirf-dictionary": "placeloc.experiments.pirf_dictionary",
-}
+
+def _discover() -> dict[str, str]:
+    """Experiment name -> module: every module of this package that defines
+    ``main(out_dir, quick=, quiet=)`` at top level (found by reading the files, nothing
+    imported); ``pirf_large.py`` is the experiment ``pirf-large``. Adding a file adds
+    the experiment."""
+    here = Path(__file__).resolve().parent
+    found = {}
+    for f in sorted(here.glob("*.py")):
+        if f.stem != "__init__" and "\ndef main(" in f.read_text(encoding="utf-8"):
+            found[f.stem.replace("_", "-")] = f"placeloc.experiments.{f.stem}"
+    return found
+
+
+EXPERIMENTS: dict[str, str] = _discover()
 
 
 def say(experiment: str, quiet: bool, msg: str) -> None:

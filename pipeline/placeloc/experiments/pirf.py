@@ -26,7 +26,7 @@ from placeloc.evaluation import write_metrics
 from placeloc.experiments import say, write_summary
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
-from placeloc.pirf.metrics import set_agreement
+from placeloc.pirf.metrics import PAPER_RADIUS_M, set_agreement
 from placeloc.pirf.params import PirfParams, index_settings
 from placeloc.pirf.results import read_dictionary, read_index_info, read_node_vectors, read_pirfs, stage_seconds
 from placeloc.synth.omni import generate
@@ -55,7 +55,7 @@ def _config(data: Path, **pirf: Any) -> dict[str, Any]:
     return load_config(data={
         "method": "pirf", "seed": 0,
         "reference": {"images": str(data / "mapping")}, "query": {"images": str(data / "test")},
-        "ground_truth": {"kind": "poses", "path": str(data / "mapping" / "poses.csv"), "radius": 1.0},
+        "ground_truth": {"kind": "poses", "path": str(data / "mapping" / "poses.csv"), "radius": PAPER_RADIUS_M},
         "executor": {"workers": min(2, os.cpu_count() or 1)}, "pirf": {"query_poses": str(data / "test" / "poses.csv"), **pirf}})
 
 

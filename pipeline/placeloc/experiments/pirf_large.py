@@ -32,7 +32,7 @@ from typing import Any
 from placeloc.api import read_metrics, run
 from placeloc.experiments import pirf as experiment
 from placeloc.experiments import say, write_summary
-from placeloc.pirf.metrics import loop_closure_correct
+from placeloc.pirf.metrics import PAPER_RADIUS_M, loop_closure_correct
 from placeloc.pirf.results import read_frame_names, read_index_info, read_loop_closures, stage_seconds
 from placeloc.pirf.truth import read_frame_xy
 
@@ -89,7 +89,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     return out / "summary.json"
 
 
-def precision_by_length(run_dir: Path, poses: Path, lengths: tuple[int, ...], radius: float = 1.0) -> list[dict[str, Any]]:
+def precision_by_length(run_dir: Path, poses: Path, lengths: tuple[int, ...], radius: float) -> list[dict[str, Any]]:
     """Loop-closure precision of the first n frames, for each n of ``lengths`` (up to the run's).
 
     Every step of the method is causal (PIRFs, mapping, the direction correction and the
@@ -171,7 +171,7 @@ def write_tables(out: Path, runs: dict[str, dict[str, Any]], steps: list[dict[st
                      f"| {_f(m.get('mt_speedup_vs_bf'), 1)}x | {_f(m.get('mt_total_seconds_ann'), 1)} / "
                      f"{_f(m.get('mt_total_seconds_bf'), 1)}, {_f(m.get('mt_total_speedup_vs_bf'), 1)}x "
                      f"| {_f(m['index_build_seconds'], 1)} |")
-    lines += ["", "## Table 4: localization of the unseen run (gap 0 = matched node within 1 m)", "",
+    lines += ["", f"## Table 4: localization of the unseen run (gap 0 = matched node within {PAPER_RADIUS_M:g} m)", "",
               "| update | mapping | index | gap 0 | gap 2 | gap 0 BF | gap 2 BF |", "|---|---|---|---|---|---|---|"]
     for update, map_search in STEPS:
         m = runs.get(run_name(update, map_search))
@@ -183,7 +183,7 @@ def write_tables(out: Path, runs: dict[str, dict[str, Any]], steps: list[dict[st
         rd = out / run_name(update, map_search)
         if run_name(update, map_search) not in runs:
             continue
-        rows = precision_by_length(rd, out / "data" / "mapping" / "poses.csv", lengths)
+        rows = precision_by_length(rd, out / "data" / "mapping" / "poses.csv", lengths, PAPER_RADIUS_M)
         lines += ["", f"## Loop-closure precision by video length ({update} update, {map_search} mapping; the first n frames of "
                   "this run, which a run of n frames reproduces)", "",
                   "| frames | candidates (correct / all) | precision | checked closures (correct / all) | precision |",

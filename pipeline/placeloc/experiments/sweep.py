@@ -22,7 +22,7 @@ from placeloc.artifacts import atomic_open
 from placeloc.config import ConfigError, apply_override, validate
 
 log = logging.getLogger("placeloc")
-TABLE_KEYS = ("recall_at_1", "standard_recall_at_5", "standard_recall_at_10", "standard_recall_at_20",
+TABLE_KEYS = ("recall_at_1", "recall_at_5", "recall_at_10", "recall_at_20",
               "separated_recall_at_5", "auc_pr", "recall_at_100_precision", "max_f1", "n_queries")
 
 
@@ -82,9 +82,10 @@ def run_sweep(raw_config: dict[str, Any], base_dir: Path, grid: list[tuple[str, 
             with h5py.File(run_dir / "evaluate.h5", "r") as f:
                 if "pr" in f:
                     curves[label] = (f["pr/recall"][()], f["pr/precision"][()])
-        ns = sorted(int(k.split("_")[-1]) for k in metrics if k.startswith("standard_recall_at_") and k[-1].isdigit())
+        ns = sorted(int(k.split("_")[-1]) for k in metrics if k.startswith("recall_at_") and k[-1].isdigit()
+                    and k[len("recall_at_"):].isdigit())
         if ns:
-            recalls[label] = (ns, [metrics[f"standard_recall_at_{n}"] for n in ns])
+            recalls[label] = (ns, [metrics[f"recall_at_{n}"] for n in ns])
     columns = ["run", *combos[0].keys(), *TABLE_KEYS] if combos else ["run"]
     with atomic_open(out_dir / "sweep.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns)
@@ -97,7 +98,7 @@ def run_sweep(raw_config: dict[str, Any], base_dir: Path, grid: list[tuple[str, 
     lines = [f"# Sweep: {', '.join(k for k, _ in grid)} ({len(combos)} runs)", "",
              "| " + " | ".join(columns[1:]) + " |", "|" + "---|" * (len(columns) - 1)]
     lines += ["| " + " | ".join(cell(r.get(c)) for c in columns[1:]) + " |" for r in rows]
-    lines += ["", "recall_at_1 and standard_recall_at_N divide by all queries; see docs/evaluation.md.", ""]
+    lines += ["", "recall_at_N (standard Recall@N) divides by all queries; see docs/evaluation.md.", ""]
     with atomic_open(out_dir / "sweep.md") as fh:
         fh.write("\n".join(lines))
     if curves or recalls:

@@ -22,9 +22,9 @@ class PirfParams(Params):
     ratio: float = param(0.7, min=0.0, max=1.0, min_exclusive=True, help="D_surf ratio test (table 1), below 1")
     w_size_default: int = param(3, min=2, help="sliding window size (table 1)")
     w_size_max: int = param(30, min=2, help="largest adaptive window")
-    n_pmin: int = param(40, min=0, help="fewest PIRFs per window (table 1)")
+    n_pmin: int = param(40, min=1, help="fewest PIRFs per window (table 1)")
     n_pmax: int = param(200, min=1, help="most PIRFs per window (table 1)")
-    eps: float = param(30, min=0.0, help="epsilon (table 1)")
+    eps: float = param(30, min=1, help="epsilon (table 1)")
     sigma: float = param(2.0, min=0.0, min_exclusive=True, help="Gaussian sigma of the score (table 1)")
     tau: float = param(0.015, min=0.0, help="tau (table 1)")
     direction_correction: bool = param(True, help="correct loop-closure nodes for the PIRF track lag on "

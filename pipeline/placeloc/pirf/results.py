@@ -69,9 +69,3 @@ def read_loop_closures(run_dir: str | Path, candidates: bool = False) -> dict[st
             raise ValueError(f"{Path(run_dir) / 'build-dictionary.h5'} has no {group}: it was built before the geometric check "
                              "existed; re-run build-dictionary")
         return {k: f[f"{group}/{k}"][()] for k in f[group]}
-
-
-def read_windows(run_dir: str | Path, role: str = "reference") -> np.ndarray:
-    """The PIRF window w each kept frame of ``role`` used (eq. 2)."""
-    with _open(run_dir, "extract") as f:
-        return f[f"{role}/window"][()]

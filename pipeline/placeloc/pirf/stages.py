@@ -47,18 +47,17 @@ log = logging.getLogger("placeloc.pirf")
 
 def _check(config: dict) -> None:
     p = config["pirf"]
-    if not 0 < p["ratio"] < 1:
+    # Single-key ranges are declared in PirfParams (and n_pmin <= n_pmax by the generic
+    # min/max pair rule); what a range cannot say is checked here.
+    if p["ratio"] >= 1:
         raise ConfigError(f"pirf.ratio must lie in (0, 1), got {p['ratio']}; the paper uses 0.7")
-    if not 1 <= p["n_pmin"] <= p["n_pmax"]:
-        raise ConfigError(f"pirf: need 1 <= n_pmin <= n_pmax, got {p['n_pmin']} and {p['n_pmax']}")
-    if p["w_size_default"] < 1 or p["w_size_max"] < p["w_size_default"]:
-        raise ConfigError("pirf: need 1 <= w_size_default <= w_size_max")
-    if p["eps"] < 1:
-        raise ConfigError("pirf: eps must be >= 1")
+    if p["w_size_max"] < p["w_size_default"]:
+        raise ConfigError(f"pirf: need w_size_default <= w_size_max, got {p['w_size_default']} and {p['w_size_max']}")
     gt = config["ground_truth"]
-    if gt["kind"] not in ("none", "poses"):
-        raise ConfigError(f"ground_truth.kind: PIRF-nav2 is evaluated against poses, not {gt['kind']!r}; set ground_truth.kind: "
-                          "poses with ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's)")
+    if gt["kind"] not in ("none", "poses", "matrix", "csv"):
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius) or a "
+                          f"loop-closure matrix, not {gt['kind']!r}; set ground_truth.kind: poses with ground_truth.path = the "
+                          "reference poses CSV (and pirf.query_poses for the query's), or kind: matrix")
     if p["query_poses"] is not None and gt["kind"] != "poses":
         raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
     # Every image needs a pose: check the counts now, not after mapping.
@@ -229,13 +228,33 @@ def check_feature_type(ex: Any, build: Any, where: Any) -> None:
                          f"set pirf.features: {fb} (or rebuild the map with {fe})")
 
 
+def _write_loops(ctx: Any, ex: h5py.File, build: h5py.File) -> None:
+    """The ``loops`` contract from the map: per mapping frame its best earlier node (moved
+    for the track lag where pirf.direction_correction applies) with its score; a candidate
+    the geometric check rejected closes no loop; tau is the acceptance threshold; the
+    mapping time per frame against the dictionary's size."""
+    names, index, _ = _frames(ex, "reference")
+    best = build["best_node"][()].copy()
+    if "closure_candidates/frame" in build:
+        c_f, c_n = build["closure_candidates/frame"][()], build["closure_candidates/node"][()]
+        best[c_f] = c_n  # the nodes in use (direction-corrected when configured)
+        if "closure_candidates/keep" in build:
+            best[c_f[~build["closure_candidates/keep"][()].astype(bool)]] = -1
+    match = np.where(best >= 0, index[np.clip(best, 0, None)], -1)
+    from placeloc.evaluation import loops
+
+    loops.write(ctx, frame_index=index, frame_names=names, match=match, confidence=build["best_score"][()],
+                threshold=float(ctx.params.tau), seconds=build["map_seconds"][()], map_size=build["dict_size_after"][()])
+
+
 def stage_localize(ctx: Any) -> None:
     p = ctx.params
     ex = ctx.artifact("extract")
-    if "query" not in ex:
-        ctx.out.attrs["note"] = "no query traverse configured: nothing to localize"
-        return
     build = ctx.artifact("build-dictionary")
+    _write_loops(ctx, ex, build)
+    if "query" not in ex:
+        ctx.out.attrs["note"] = "no query traverse configured: the loop closures only"
+        return
     check_feature_type(ex, build, ctx.run_dir / "extract.h5")
     d = build["dictionary"][()]
     nodes = csr_rows(build["node_ptr"][()], build["node_words"][()], len(d))
@@ -268,14 +287,17 @@ def _xy(f: h5py.File, role: str, path: str | None, what: str) -> np.ndarray | No
         raise ConfigError(str(exc)) from None
 
 
-def stage_evaluate(ctx: Any) -> None:
-    from placeloc.evaluation import write_metrics
-
+def evaluate_extra(ctx: Any, ev: Any) -> None:
+    """PIRF-nav2's own figures beside the loops contract's: loop-closure precision within
+    the radius (as matched, direction-corrected, after the geometric check), the mapping
+    cost, the ANN index against brute force, and the query traverse's localization
+    accuracy at node gaps 0-2 (the paper's Figs. 6-7)."""
     p = ctx.params
     gt = ctx.config["ground_truth"]
     ex, build, loc = ctx.artifact("extract"), ctx.artifact("build-dictionary"), ctx.artifact("localize")
     radius = float(gt["radius"])
     r_xy = _xy(ex, "reference", gt["path"] if gt["kind"] == "poses" else None, "ground_truth.path")
+    m_contract = ev.metrics
     q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
@@ -314,7 +336,7 @@ def stage_evaluate(ctx: Any) -> None:
                 v = tuned[f"tuned_{k}"]
                 m[f"{prefix}_{k}"] = v.item() if hasattr(v, "item") else v
     r_names = _frames(ex, "reference")[0]
-    write_loop_closures(ctx.run_dir / "loop_closures.csv", lc_f, lc_n, lc_s, r_names, r_xy, radius)
+    write_loop_closures(ctx.output("loop_closures.csv"), lc_f, lc_n, lc_s, r_names, r_xy, radius)
     if backend in loc:
         a = loc[backend]
         m["mt_seconds_ann"] = float(np.mean(a["mt_seconds"][()]))
@@ -334,14 +356,16 @@ def stage_evaluate(ctx: Any) -> None:
                 if name in results:
                     for gap in (0, 1, 2):
                         m[f"accuracy_gap{gap}{suffix}"] = accuracy_at_gap(results[name][0], q_xy, r_xy, radius, gap)
-        write_localization(ctx.run_dir / "localization.csv", results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
-    metrics = write_metrics(ctx.run_dir, m, ctx.out)
+        write_localization(ctx.output("localization.csv"), results, _frames(ex, "query")[0], r_names, q_xy, r_xy, radius)
+    m_contract.update(m)
+    metrics = m_contract
+    ev.label = f"PIRF-nav2 ({p.update})"
     if ctx.config.get("plots", True) and r_xy is not None:
-        plot_loop_closures(ctx.run_dir / "loop_closures.png", r_xy, lc_f, lc_n, correct, radius)
+        plot_loop_closures(ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
         _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius)
         if metrics.get("accuracy_gap0") is not None:
             bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
-            plot_accuracy_gap(ctx.run_dir / "accuracy_gap.png", [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
+            plot_accuracy_gap(ctx.output("accuracy_gap.png"), [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
 
 
 def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
@@ -363,7 +387,7 @@ def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
 def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
     """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
     the earlier frame that truly stands nearest."""
-    path = ctx.run_dir / "wrong_loop_closures.png"
+    path = ctx.output("wrong_loop_closures.png")
     images = ctx.images.get("reference")
     if not len(frames) or images is None:
         path.unlink(missing_ok=True)
@@ -394,8 +418,10 @@ METHOD = Method(
         "index": Stage(stage_index, keys=INDEX_KEYS),
         "localize": Stage(stage_localize, keys=("compare_bf", "index_tune_queries", "index_recall", "index_jaccard",
                                                 "index_tune_sample")),
-        "evaluate": Stage(stage_evaluate, keys=("query_poses",), sections=("ground_truth", "plots")),
     },
+    result="loops",
+    evaluate_extra=evaluate_extra,
+    evaluate_keys=("query_poses", "update", "eps"),
     checker=_check,
     citation="H. Sasaki and T. Hamagami, \"Construction of feature space for speeding up self-localization using time "
              "series omnidirectional images\" (PIRF-nav2: A. Kawewong, N. Tongprasit and O. Hasegawa)",

@@ -9,12 +9,15 @@ Artifacts:
 - ``extract.h5``: per traverse (``reference/``, ``query/``) the ``features`` the chosen
   comparison works on (one row per image), the ``thumbnails``, image ``names``, their
   original positions ``index`` and the ``skipped`` files.
-- ``localize.h5``: ``difference`` D[r, q] (rows = reference, columns = query, lower = more
-  alike; chunked, written block by block), ``candidates``/``scores`` (n_query, K) ranked
-  sequence matches, ``confidence`` of the best, and the single-image baseline
-  ``single_best``/``single_confidence``. Indices are positions in the extracted lists.
-  Side output ``matches.csv``.
-- ``evaluate.h5`` + ``metrics.json``, ``pr_curve.png``, ``difference_matrix.png``.
+- ``localize.h5``: the result contract in ``result`` (``ranked``; ``loops`` without a
+  query traverse; :mod:`placeloc.evaluation.contracts`), and SeqSLAM's own arrays:
+  ``difference`` D[r, q] (rows = reference, columns = query, lower = more alike; chunked,
+  written block by block), ``candidates``/``scores`` (n_query, K) ranked sequence matches
+  and ``confidence`` of the best (positions in the extracted lists), and the single-image
+  baseline ``single_best``/``single_confidence``. Side output ``matches.csv``.
+- evaluate is the contract's; :func:`evaluate_extra` adds the standard (unseparated)
+  sequence ranking, the dissimilarity ratios, the single-image figures and
+  ``difference_matrix.png``.
 """
 
 from __future__ import annotations
@@ -26,8 +29,6 @@ import h5py
 import numpy as np
 
 from placeloc.artifacts import read_strings
-from placeloc.evaluation import write_metrics
-from placeloc.evaluation.ground_truth import GroundTruth
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.images import ImageError
 from placeloc.methods import Method, Stage
@@ -125,7 +126,8 @@ def _extract_descriptors(ctx: Any) -> None:
 # localize
 # ---------------------------------------------------------------------------------------
 def localize(ctx: Any) -> None:
-    from placeloc.seqslam.matches_csv import write_matches_csv
+    """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
+    ``loops`` contract (no query: each frame against the earlier ones)."""
     from placeloc.seqslam.matching import sequence_match
 
     p: SeqSLAMParams = ctx.params
@@ -161,19 +163,41 @@ def localize(ctx: Any) -> None:
     out.create_dataset("single_confidence", data=m.single_confidence)
     out.attrs["loop_closure"] = loop_closure
     out.attrs["velocities"] = m.velocities
+    ref_index = ex["reference/index"][()]
     q_group = ex["reference" if loop_closure else "query"]
-    write_matches_csv(ctx.run_dir / "matches.csv", best=m.candidates[:, 0], confidence=m.confidence,
-                      query_index=q_group["index"][()], query_names=read_strings(q_group["names"]),
-                      reference_index=ex["reference/index"][()], reference_names=read_strings(ex["reference/names"]))
+    original = np.where(m.candidates >= 0, ref_index[np.clip(m.candidates, 0, None)], -1)
+    if loop_closure:
+        from placeloc.evaluation import loops
+
+        loops.write(ctx, frame_index=ref_index, frame_names=read_strings(ex["reference/names"]), match=original[:, 0],
+                    confidence=m.confidence, threshold=None)
+        return
+    from placeloc.evaluation import ranked
+
+    ranked.write(ctx, query_index=q_group["index"][()], query_names=read_strings(q_group["names"]), reference_index=ref_index,
+                 reference_names=read_strings(ex["reference/names"]), candidates=original, scores=m.scores,
+                 confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1)
 
 
 # ---------------------------------------------------------------------------------------
-# evaluate
+# evaluate: the contract scores the matches; this hook adds SeqSLAM's own figures
 # ---------------------------------------------------------------------------------------
-def evaluate(ctx: Any) -> None:
-    """Score the matches: standard, separated and PR metrics (conventions in
-    :mod:`placeloc.evaluation.matching`), the per-query CSV, plots and report.html."""
-    from placeloc.evaluation import matching, plots, report, show
+def comparison_label(p: SeqSLAMParams) -> str:
+    """What the frames were compared with: the image comparison, or one's own descriptors
+    named after their file (never the image comparison they bypass)."""
+    if p.descriptors_reference is not None:
+        from pathlib import Path
+
+        return f"descriptors {Path(p.descriptors_reference).name} ({p.descriptor_distance})"
+    return str(p.comparison)
+
+
+def evaluate_extra(ctx: Any, ev: Any) -> None:
+    """SeqSLAM's own figures beside the contract's: the standard (unseparated) sequence
+    ranking for Recall@N, the paper's dissimilarity ratio before/after enhancement, the
+    single-image baseline, and the difference matrices (conventions in
+    :mod:`placeloc.evaluation.matching`)."""
+    from placeloc.evaluation import matching, plots
     from placeloc.seqslam.search import enhance, enhance_t, query_offsets, sequence_search
 
     p = ctx.params
@@ -182,19 +206,11 @@ def evaluate(ctx: Any) -> None:
     ref_index = ex["reference/index"][()]
     q_group = ex["reference" if loop_closure else "query"]
     q_index = q_group["index"][()]
-    if ctx.config["ground_truth"]["kind"] == "none":
-        from placeloc.errors import StageError
-
-        raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv, hdf5 or poses); "
-                         "`placeloc show RUN_DIR` draws the matches without it")
-    ref_names = ctx.images["reference"].names
-    q_names = ref_names if loop_closure else ctx.images["query"].names
-    gt = GroundTruth.from_config(ctx.config["ground_truth"], len(ref_names), len(q_names), ref_names=ref_names,
-                                 query_names=None if loop_closure else q_names)
-    candidates, conf = lo_art["candidates"][()], lo_art["confidence"][()]
-    n_q, n_ref = len(candidates), len(ref_index)
-    ns = tuple(sorted(set(int(n) for n in ctx.config["ground_truth"]["recall_at"])))
+    gt = ev.extra.get("gt")  # image-matching ground truth (ranked); loop closures have their own
+    n_q, n_ref = len(q_index), len(ref_index)
+    ns = ev.extra.get("ns", (1,))
     window, ds, block = int(p.enhance_window), int(p.ds), max(1, int(p.block_size))
+    comparison = comparison_label(p)
 
     # One streaming pass over D (when stored): the plain (unseparated) sequence ranking for
     # the standard Recall@N, the paper's dissimilarity ratio before/after enhancement, the
@@ -209,76 +225,66 @@ def evaluate(ctx: Any) -> None:
         d_ds = lo_art["difference"]
         t_off = query_offsets(ds, p.search)
         before, after = int(-t_off.min()), int(t_off.max())
-        ranked = np.full((n_q, max(ns)), -1, np.int64)
-        ranked_scores = np.full((n_q, max(ns)), np.inf, np.float32)
+        k_plain = max(ns)
+        ranked = np.full((n_q, k_plain), -1, np.int64)
+        ranked_scores = np.full((n_q, k_plain), np.inf, np.float32)
         for c0 in ctx.progress(range(0, n_q, block), total=(n_q + block - 1) // block, desc="evaluate blocks"):
             c1 = min(n_q, c0 + block)
             lo, hi = max(0, c0 - before), min(n_q, c1 + after)
             d = d_ds[:, lo:hi]
-            et = enhance_t(np.ascontiguousarray(d.T), window)
-            ranked[c0:c1], ranked_scores[c0:c1] = sequence_search(
-                et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, max(ns),
-                int(p.exclude_recent) if loop_closure else None, lo, shape=p.sequence_shape, edges=p.edges)
+            if not loop_closure:
+                et = enhance_t(np.ascontiguousarray(d.T), window)
+                ranked[c0:c1], ranked_scores[c0:c1] = sequence_search(
+                    et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, k_plain,
+                    None, lo, shape=p.sequence_shape, edges=p.edges)
             d = d[:, c0 - lo:c1 - lo]
             e = enhance(d, window)
-            g = gt.block_idx(ref_index, q_index[c0:c1])
-            band[0][c0:c1], band[1][c0:c1] = gt.band(ref_index, q_index[c0:c1])
-            for key, mat in (("raw", d), ("enh", e)):
-                mc, mw = mins[key]
-                np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
-                np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
+            if gt is not None:
+                g = gt.block_idx(ref_index, q_index[c0:c1])
+                band[0][c0:c1], band[1][c0:c1] = gt.band(ref_index, q_index[c0:c1])
+                for key, mat in (("raw", d), ("enh", e)):
+                    mc, mw = mins[key]
+                    np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
+                    np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
             sel = np.arange(c0, c1)
             sel = sel[sel % sq == 0] - c0
             plot_raw.append(d[::sr][:, sel])
             plot_enh.append(e[::sr][:, sel])
-
-    s = matching.score_matches(gt, q_index, ref_index, separated=candidates, confidence=conf, ranked=ranked,
-                               ranked_scores=None if ranked_scores is None else np.where(np.isfinite(ranked_scores),
-                                                                                          ranked_scores, np.nan),
-                               ns=ns)
-    single = lo_art["single_best"][()]
-    single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
-                                      confidence=lo_art["single_confidence"][()], ns=(1,))
-    metrics: dict[str, Any] = dict(s.metrics)
-    metrics.update({
-        "dissimilarity_mean": None, "dissimilarity_count_ge1": None,
-        "dissimilarity_mean_enhanced": None, "dissimilarity_count_ge1_enhanced": None,
-        "n_reference": int(n_ref),
-        "single_image_recall_at_1": single_s.metrics["recall_at_1"],
-        "single_image_auc_pr": single_s.metrics["auc_pr"],
-        "comparison": p.comparison, "ds": ds, "search": p.search,
-        "localize_seconds": float(lo_art.attrs.get("seconds", float("nan"))),
-    })
+    label = f"SeqSLAM {comparison} ds={ds}"
+    ev.label = label
+    metrics = ev.metrics
+    if ev.kind == "ranked":
+        if ranked is not None:
+            ev.rescore(plain=np.where(ranked >= 0, ref_index[np.clip(ranked, 0, None)], -1),
+                       plain_scores=np.where(np.isfinite(ranked_scores), ranked_scores, np.nan))
+            metrics = ev.metrics
+        single = lo_art["single_best"][()]
+        single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
+                                          confidence=lo_art["single_confidence"][()], ns=(1,))
+        metrics.update({"single_image_recall_at_1": single_s.metrics["recall_at_1"],
+                        "single_image_auc_pr": single_s.metrics["auc_pr"]})
+        metrics["headline"] = list(metrics["headline"]) + ["single_image_recall_at_1"]
+        ev.pr_curves["single image (no sequence)"] = (single_s.pr.recall, single_s.pr.precision)
+        best, best_ok = ev.scores.best, ev.scores.best_correct
+    else:
+        best, best_ok = ev.extra["match_local"], ev.extra["correct"]
+    metrics.update({"dissimilarity_mean": None, "dissimilarity_count_ge1": None,
+                    "dissimilarity_mean_enhanced": None, "dissimilarity_count_ge1_enhanced": None,
+                    "comparison": comparison, "ds": ds, "search": p.search})
     if plot_raw and not loop_closure:
         for key, suffix in (("raw", ""), ("enh", "_enhanced")):
             ratio = dissimilarity_ratios(*mins[key])
             metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
-            ctx.out.create_dataset(f"dissimilarity{suffix or '_raw'}", data=ratio)
-
-    pr_group = ctx.out.create_group("pr")
-    for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
-        pr_group.create_dataset(name, data=arr)
-    ctx.out.create_dataset("correct", data=s.best_correct)
-    write_metrics(ctx.run_dir, metrics, ctx.out)
-    matching.write_per_query_csv(ctx.run_dir / "per_query.csv", s, q_names, ref_names)
-
-    if ctx.config.get("plots", True):
-        label = f"SeqSLAM {p.comparison} ds={ds}"
-        plots.plot_pr_curves({label: (s.pr.recall, s.pr.precision),
-                              "single image": (single_s.pr.recall, single_s.pr.precision)},
-                             ctx.run_dir / "pr_curve.png", title=f"Precision-recall, {p.comparison}, {n_q} queries")
-        plots.plot_recall_at_n({f"{label}, standard": (ns, [metrics[f"standard_recall_at_{n}"] for n in ns]),
-                                f"{label}, separated by > {window} frames": (ns, [metrics[f"separated_recall_at_{n}"]
-                                                                                  for n in ns])},
-                               ctx.run_dir / "recall_at_n.png", title=f"Recall@N over all {n_q} queries")
-        if plot_raw:
-            plots.plot_difference_matrices(
-                {"D (raw)": np.concatenate(plot_raw, axis=1), f"D^ (enhanced, R_window={window})": np.concatenate(plot_enh, axis=1)},
-                ctx.run_dir / "difference_matrix.png", matches=s.best, correct=s.best_correct, gt_lo=band[0], gt_hi=band[1],
-                stride=(sr, sq), title=f"SeqSLAM {p.comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
-                                       f"search={p.search}, R_window={window}; recall@1 {metrics['recall_at_1']:.3f}")
-        show.draw_strips(ctx.run_dir)
-        report.write_report(ctx.run_dir, config=ctx.config)
+            ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
+    if ctx.config.get("plots", True) and plot_raw:
+        head = metrics.get("recall_at_1", metrics.get("recall_at_100_precision"))
+        what = "recall@1" if "recall_at_1" in metrics else "recall at 100% precision"
+        head_text = "n/a" if head is None else f"{head:.3f}"
+        plots.plot_difference_matrices(
+            {"D (raw)": np.concatenate(plot_raw, axis=1), f"D^ (enhanced, R_window={window})": np.concatenate(plot_enh, axis=1)},
+            ctx.output("difference_matrix.png"), matches=best, correct=best_ok, gt_lo=band[0], gt_hi=band[1],
+            stride=(sr, sq), title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
+                                   f"search={p.search}, R_window={window}; {what} {head_text}")
 
 
 METHOD = Method(
@@ -290,10 +296,12 @@ METHOD = Method(
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
                                           "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
-        "evaluate": Stage(evaluate, keys=("comparison", "ds", "search", "enhance_window", "sequence_shape", "edges",
-                                          "exclude_recent"),
-                          sections=("ground_truth", "plots")),
     },
+    result="ranked",
+    result_without_query="loops",
+    evaluate_extra=evaluate_extra,
+    evaluate_keys=("comparison", "ds", "search", "enhance_window", "sequence_shape", "edges", "descriptors_reference",
+                   "descriptor_distance"),
     checker=_check,
     citation="M. Milford and G. Wyeth, \"SeqSLAM: Visual route-based navigation for sunny summer days and stormy winter "
              "nights\", ICRA 2012; with the illumination-robust comparisons (ZNCC, ISC, OCM) studied for it",

@@ -8,7 +8,7 @@ import math
 import cv2
 import numpy as np
 
-from placeloc.images import akaze_detector
+from placeloc.images import akaze_detector, read_gray
 
 
 def akaze(gray: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -172,7 +172,7 @@ def calibrate(images: list[str], truth_xy: np.ndarray, heading_deg: float, d: np
     feats = []
     width = focal = 0.0
     for path in images:
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        gray = read_gray(path)  # upright (EXIF orientation), as the stages read frames
         width = gray.shape[1]
         focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
         feats.append(akaze(gray, akaze_threshold))

@@ -22,14 +22,14 @@ class CameraParams(Params):
 
 @dataclass(frozen=True)
 class GridParams(Params):
-    x: tuple[float, float, float] | None = param(None, help="x start, stop, step in metres (none: the model's plan bounds "
+    x: tuple[float, float, float] | None = param(None, min_len=3, help="x start, stop, step in metres (none: the model's plan bounds "
                                                             "at grid.step_m)")
-    y: tuple[float, float, float] | None = param(None, help="y start, stop, step in metres (none: the model's plan bounds "
+    y: tuple[float, float, float] | None = param(None, min_len=3, help="y start, stop, step in metres (none: the model's plan bounds "
                                                             "at grid.step_m)")
     step_m: float = param(0.25, min=0.0, min_exclusive=True, help="grid spacing where x or y is left to the model")
     z: float | None = param(None, help="camera height in metres (none: the plan's camera_z, which the ZInD importer and "
                                        "the home generator write)")
-    headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], help="headings in degrees")
+    headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
     wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "
                                                     "height (lintels over doorways do not count)")
@@ -91,7 +91,7 @@ class UMapParams(Params):
     grid: GridParams = section(GridParams)
     near_m: float = param(0.05, min=0.0, min_exclusive=True, help="near clipping distance")
     hidden_lines: bool = param(True, help="remove hidden lines when rendering")
-    block: int = param(2048, min=1, help="database views scored per block")
+    block: int = param(2048, min=1, affects_result=False, help="database views scored per block")
     tolerance_px: int = param(2, min=0, help="line dilation for matching")
     query_kind: str = param("pinhole", choices=("pinhole", "equirect", "panorama"),
                             help="pinhole images; equirect: panoramas cut into views at the grid headings, best single "

@@ -194,12 +194,6 @@ def render_packed(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, ca
     return out
 
 
-def render_block(item: tuple) -> np.ndarray:
-    """Executor work item: (segments, faces, poses, (W, H, hfov), near, hidden) -> packed block."""
-    segments, faces, poses, cam, near, hidden = item
-    return render_packed(segments, faces, poses, Camera(*cam), near, hidden)
-
-
 # ------------------------------------------------------------------ the fast renderer
 
 @njit(cache=True)

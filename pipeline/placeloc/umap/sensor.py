@@ -12,7 +12,7 @@ def read_sensor_csv(path: str | Path, names: list[str]) -> dict[str, tuple[float
     """frame -> (d, theta_deg) from a CSV with columns frame, d, theta_deg; every query frame
     must be present. Errors name the file, the line and the columns it needs."""
     out: dict[str, tuple[float, float]] = {}
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:  # a BOM is not part of the header
         reader = csv.DictReader(f)
         need = {"frame", "d", "theta_deg"}
         if reader.fieldnames is None or not need <= set(reader.fieldnames):

@@ -22,7 +22,6 @@ import numpy as np
 
 from placeloc.artifacts import atomic_open, read_strings, write_tree
 from placeloc.config import ConfigError
-from placeloc.evaluation.poses import read_poses
 from placeloc.geometry import Camera, equirect_to_pinhole
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.images import ImageError, read_gray
@@ -30,7 +29,6 @@ from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.lines import check_query_size, line_image
-from placeloc.umap.metrics import error_metrics, recall_metrics, yaw_errors
 from placeloc.umap.panorama import (
     chamfer_spectra,
     panorama_line_image,
@@ -40,7 +38,7 @@ from placeloc.umap.panorama import (
     search_panoramas,
 )
 from placeloc.umap.params import UMapParams
-from placeloc.umap.plots import plot_error_cdf, plot_estimates_on_plan, plot_panorama_overlay
+from placeloc.umap.plots import plot_panorama_overlay
 from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
@@ -381,11 +379,12 @@ def localize(ctx: Any) -> None:
                 best_total, anchor = float(s.sum()), int(a)
                 best, score, radius = b, s, r
     est = poses[best]
+    _write_result(ctx, names, est[:, 0], est[:, 1], est[:, 3], score)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": est[:, 3],
                          "score": score, "ca_distance_m": ca_dist, "search_radius_m": radius, "ca_matches": n_kept,
                          "umap_x": poses[umap_best, 0], "umap_y": poses[umap_best, 1], "umap_score": umap_score})
     ctx.out.attrs.update(mode=p.mode, anchor=anchor)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "ca_distance_m", "search_radius_m"])
         for k in range(n):
@@ -398,48 +397,43 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], bes
     n = len(names)
     est = np.column_stack([xy, poses[best, 2:]])
     nan = np.full(n, np.nan)
+    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score)
     write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
                          "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
-    with atomic_open(ctx.run_dir / "estimates.csv", newline="") as f:
+    with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
 
 
-# ------------------------------------------------------------------ evaluate
+def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, heading: np.ndarray, score: np.ndarray) -> None:
+    """The ``poses`` contract, with the plan's walls (room outlines, else the wireframe seen from above)."""
+    from placeloc.evaluation import pose_estimates
 
-def evaluate(ctx: Any) -> None:
-    from placeloc.evaluation import write_metrics
+    plan = ctx.artifact("build-dictionary")
+    if "plan" in plan:
+        walls = [np.column_stack([q, np.roll(q, -1, axis=0)]) for q in (plan["plan"][k][()] for k in sorted(plan["plan"].keys()))]
+        segments = np.concatenate(walls) if walls else np.zeros((0, 4))
+    else:
+        segments = plan["segments"][()][:, [0, 1, 3, 4]]
+    pose_estimates.write(ctx, names=names, x=x, y=y, heading_deg=heading, score=score, plan_segments=segments,
+                         label=str(ctx.params.mode))
 
-    gt_cfg = ctx.config["ground_truth"]
-    if gt_cfg["kind"] != "poses":
-        raise ConfigError(f"ground_truth.kind is {gt_cfg['kind']!r}; UMap is scored against poses: set ground_truth.kind: poses "
-                          "and ground_truth.path to a CSV with frame, x, y")
+
+# ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds
+
+def evaluate_extra(ctx: Any, ev: Any) -> None:
+    """UMap's own figures: the mode in metrics.json and, for panoramas, each panorama's
+    lines against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
-    names = read_strings(loc["names"])
-    gt = read_poses(gt_cfg["path"], what="ground-truth poses")
-    truth = gt.xy[gt.rows_for_names(names, what="query frames")]
-    est = np.stack([loc["x"][()], loc["y"][()]], axis=1)
-    err = np.hypot(*(est - truth).T)
-    rows = gt.rows_for_names(names, what="query frames")
-    yaw_err = yaw_errors(loc["heading_deg"][()], np.degrees(gt.heading[rows])) if gt.heading is not None else None
-    metrics = error_metrics(err)
-    metrics.update(recall_metrics(err, yaw_err))
-    metrics["mode"] = str(loc.attrs["mode"])
-    write_tree(ctx.out, {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})})
-    write_metrics(ctx.run_dir, metrics, ctx.out)
-    if ctx.config.get("plots", True):
-        plan = ctx.artifact("build-dictionary")
-        polys = [plan["plan"][k][()] for k in sorted(plan["plan"].keys())] if "plan" in plan else []
-        plot_error_cdf(ctx.run_dir / "error_cdf.png", err, metrics["mode"])
-        plot_estimates_on_plan(ctx.run_dir / "estimates_on_plan.png", truth, est, polys, plan["segments"][()], metrics["mode"],
-                               np.degrees(gt.heading[rows]) if gt.heading is not None else None, loc["heading_deg"][()])
-        ex = ctx.artifact("extract")
-        if str(ex.attrs["query_kind"]) == "panorama":
-            _panorama_pictures(ctx, ex, plan, loc, gt, rows, err)
+    ev.metrics["mode"] = str(loc.attrs["mode"])
+    ev.label = ev.metrics["mode"]
+    ex = ctx.artifact("extract")
+    if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
+        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.extra["poses"], ev.extra["rows"], ev.extra["err"])
 
 
 # pictures of the first panoramas only: one PNG each
@@ -462,7 +456,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
             true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
             at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
         # each render is in the frame of a camera at its own heading, as the query is in its own
-        plot_panorama_overlay(ctx.run_dir / f"panorama_{Path(names[k]).stem}.png", query, at_est, at_truth,
+        plot_panorama_overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), query, at_est, at_truth,
                               f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
 
 
@@ -489,8 +483,9 @@ METHOD = Method(
                                           "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
-        "evaluate": Stage(evaluate, keys=(), sections=("ground_truth", "plots")),
     },
+    result="poses",
+    evaluate_extra=evaluate_extra,
     required_images=("query",),
     checker=_check,
     citation="K. Takahashi, J. Takahashi, T. Kaneko and Y. Tobe, \"Improving pre-map indoor localization by comparing "

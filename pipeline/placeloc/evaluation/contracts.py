@@ -1,0 +1,265 @@
+"""Result contracts: what a method's localize stage writes, and everything after it.
+
+A method's localize writes exactly one contract into the group ``result`` of
+``localize.h5`` (attribute ``kind``): ``ranked`` (query x K reference candidates),
+``loops`` (per frame another frame that closes a loop, or none), ``poses`` (metric pose
+estimates) or ``map`` (mapped point coordinates). The contract, not the method, owns the
+up-front ground-truth check, the evaluate stage, ``placeloc show``, ``report.html``, the
+headline figures ``placeloc run`` prints and the ``metrics.json`` schema. A method adds its
+own figures through ``Method(result=..., evaluate_extra=hook)``: the hook receives the
+stage context and the contract's :class:`Evaluation` after scoring and may add metrics,
+PR curves and pictures. docs/architecture.md ("Result contracts") has the table.
+
+Each kind's module (:mod:`.ranked`, :mod:`.loops`, :mod:`.pose_estimates`, :mod:`.maps`)
+provides ``SCHEMA``, ``HEADLINE``, ``METRICS_DOC``, ``check_ground_truth(config, method)``,
+``evaluate(ctx, result) -> Evaluation``, ``finish(ctx, ev)`` (evaluate.h5 datasets,
+per-query CSV, its pictures) and ``show(run_dir, result, sample=, failures=)``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import h5py
+import numpy as np
+
+from placeloc.artifacts import read_strings
+
+KINDS = ("ranked", "loops", "poses", "map")
+# contract kind -> the module implementing it (kinds of result, never method names)
+_MODULES = {"ranked": "placeloc.evaluation.ranked", "loops": "placeloc.evaluation.loops",
+            "poses": "placeloc.evaluation.pose_estimates", "map": "placeloc.evaluation.maps"}
+GROUP = "result"
+
+
+class ContractError(ValueError):
+    """A result does not follow its contract (a bug in the method that wrote it, or an
+    artifact from an older placeloc); the message names the dataset."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One dataset of a contract: its element kind ('int', 'float', 'str', 'bool') and
+    shape as names of lengths (``("Q", "K")``); ``optional`` ones may be absent."""
+
+    dtype: str
+    shape: tuple[str, ...]
+    optional: bool = False
+
+
+@dataclass
+class Result:
+    """A contract read back: its kind, datasets (numpy arrays; names as lists of str) and attributes."""
+
+    kind: str
+    data: dict[str, Any]
+    attrs: dict[str, Any]
+
+    def __getitem__(self, key: str) -> Any:
+        return self.data[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.data.get(key, default)
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.data
+
+
+@dataclass
+class Evaluation:
+    """A scored contract, shared by the contract's evaluate, the method's hook and finish.
+
+    ``metrics`` becomes metrics.json (a hook may add keys); ``arrays`` are written into
+    evaluate.h5; ``pr_curves`` (label -> (recall, precision)) are drawn on one PR plot;
+    ``label`` names the method's curve in legends; ``scores`` holds the contract's own
+    per-item results (e.g. :class:`placeloc.evaluation.matching.MatchScores`)."""
+
+    kind: str
+    result: Result
+    metrics: dict[str, Any] = field(default_factory=dict)
+    arrays: dict[str, Any] = field(default_factory=dict)
+    pr_curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    label: str = ""
+    scores: Any = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    rescore: Callable[..., None] | None = None
+
+
+def contract(kind: str) -> Any:
+    """The module implementing contract ``kind``."""
+    if kind not in _MODULES:
+        raise ContractError(f"unknown result kind {kind!r}; known: {', '.join(KINDS)}")
+    return importlib.import_module(_MODULES[kind])
+
+
+def _check_dtype(name: str, arr: np.ndarray, dtype: str, kind: str) -> None:
+    ok = {"int": np.issubdtype(arr.dtype, np.integer), "float": np.issubdtype(arr.dtype, np.floating),
+          "bool": arr.dtype == bool, "str": arr.dtype.kind in "OUS"}[dtype]
+    if not ok:
+        raise ContractError(f"result {kind!r}: dataset {name!r} holds {arr.dtype}, the contract says {dtype}")
+
+
+def validate(kind: str, data: dict[str, Any]) -> None:
+    """Check every dataset of ``data`` against ``kind``'s schema: present, element kind,
+    and consistent lengths (the same letter is the same length everywhere)."""
+    schema: dict[str, Field] = contract(kind).SCHEMA
+    sizes: dict[str, int] = {}
+    for name, spec in schema.items():
+        if name not in data or data[name] is None:
+            if spec.optional:
+                continue
+            raise ContractError(f"result {kind!r}: dataset {name!r} is missing")
+        arr = np.asarray(data[name], dtype=object if spec.dtype == "str" else None)
+        if arr.ndim != len(spec.shape):
+            raise ContractError(f"result {kind!r}: dataset {name!r} has {arr.ndim} dimensions, the contract says "
+                                f"{len(spec.shape)} ({' x '.join(spec.shape)})")
+        if spec.dtype != "str" or arr.size:
+            _check_dtype(name, arr, spec.dtype, kind)
+        for letter, n in zip(spec.shape, arr.shape):
+            if letter.isdigit():
+                continue
+            if sizes.setdefault(letter, n) != n:
+                raise ContractError(f"result {kind!r}: dataset {name!r} has {letter} = {n}, another dataset {sizes[letter]}")
+    unknown = set(data) - set(schema)
+    if unknown:
+        raise ContractError(f"result {kind!r}: datasets {sorted(unknown)} are not in the contract")
+
+
+def write_result(parent: h5py.Group, kind: str, data: dict[str, Any], attrs: dict[str, Any] | None = None) -> h5py.Group:
+    """Validate ``data`` and write it as ``parent/result`` with attribute ``kind``."""
+    validate(kind, data)
+    schema: dict[str, Field] = contract(kind).SCHEMA
+    g = parent.create_group(GROUP)
+    g.attrs["kind"] = kind
+    for k, v in (attrs or {}).items():
+        g.attrs[k] = v
+    for name, arr in data.items():
+        if arr is None:
+            continue
+        if schema[name].dtype == "str":
+            g.create_dataset(name, data=np.array([str(x) for x in arr], dtype=object), dtype=h5py.string_dtype())
+        else:
+            g.create_dataset(name, data=np.asarray(arr))
+    return g
+
+
+def result_kind(f: h5py.File) -> str | None:
+    """The contract kind a localize artifact holds (None: none)."""
+    g = f.get(GROUP)
+    return None if g is None else str(g.attrs.get("kind", ""))
+
+
+def read_result(f: h5py.File | str | Path) -> Result:
+    """The contract in a localize artifact (an open file or its path)."""
+    if not isinstance(f, h5py.File):
+        with h5py.File(f, "r") as fh:
+            return read_result(fh)
+    g = f.get(GROUP)
+    if g is None or "kind" not in g.attrs:
+        raise ContractError(f"{f.filename}: holds no result group; re-run localize (placeloc localize --force)")
+    kind = str(g.attrs["kind"])
+    schema: dict[str, Field] = contract(kind).SCHEMA
+    data: dict[str, Any] = {}
+    for name, spec in schema.items():
+        if name not in g:
+            if not spec.optional:
+                raise ContractError(f"{f.filename}: result {kind!r} lacks dataset {name!r}; re-run localize --force")
+            continue
+        data[name] = read_strings(g[name]) if spec.dtype == "str" else g[name][()]
+    attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in g.attrs.items()}
+    return Result(kind, data, attrs)
+
+
+def localize_result(run_dir: str | Path) -> Result | None:
+    """The contract of a run directory's localize.h5 (None when there is none yet)."""
+    path = Path(run_dir) / "localize.h5"
+    if not path.is_file():
+        return None
+    with h5py.File(path, "r") as f:
+        if result_kind(f) is None:
+            return None
+        return read_result(f)
+
+
+# ---------------------------------------------------------------------------------------
+# What a run sees of the contracts
+# ---------------------------------------------------------------------------------------
+def check_ground_truth(config: dict[str, Any]) -> None:
+    """The up-front ground-truth check, before any stage runs: the method's contract
+    builds its ground truth from the config and the image lists (a bad file or a missing
+    frame is one error naming the file and the fix)."""
+    from placeloc.methods import get_method
+
+    method = get_method(config["method"])
+    kind = method.result_kind(config)
+    if kind is not None:
+        contract(kind).check_ground_truth(config, method)
+
+
+def evaluate_stage(ctx: Any) -> None:
+    """The evaluate stage every contract shares: score the localize result, let the
+    method's hook add its figures, then write metrics.json, the per-query CSV, the
+    contract's pictures, the strips and report.html."""
+    from placeloc.evaluation import write_metrics
+
+    res = read_result(ctx.artifact("localize"))
+    mod = contract(res.kind)
+    ev: Evaluation = mod.evaluate(ctx, res)
+    if not ev.label:
+        ev.label = ctx.method.name
+    if ctx.method.evaluate_extra is not None:
+        ctx.method.evaluate_extra(ctx, ev)
+    for k, v in ev.arrays.items():
+        _write_array(ctx.out, k, v)
+    ctx.out.attrs["result_kind"] = res.kind
+    write_metrics(ctx.output_dir, ev.metrics, ctx.out)
+    plots = bool(ctx.config.get("plots", True))
+    mod.finish(ctx, ev, plots=plots)
+    if plots:
+        from placeloc.evaluation.report import write_report
+
+        # side outputs are staged in ctx.output_dir until the stage commits: read and write there
+        if mod.SHOW_AT_EVALUATE:
+            mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
+        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir)
+
+
+def _write_array(group: h5py.Group, name: str, value: Any) -> None:
+    if isinstance(value, dict):
+        sub = group.require_group(name)
+        for k, v in value.items():
+            _write_array(sub, k, v)
+    else:
+        group.create_dataset(name, data=np.asarray(value))
+
+
+def headline(run_dir: str | Path) -> list[tuple[str, Any]]:
+    """The headline figures of an evaluated run (name, value), in the contract's order,
+    from metrics.json; empty when there is none."""
+    run_dir = Path(run_dir)
+    path = run_dir / "metrics.json"
+    res_kind = None
+    lo = run_dir / "localize.h5"
+    if lo.is_file():
+        with h5py.File(lo, "r") as f:
+            res_kind = result_kind(f)
+    if not path.is_file() or res_kind is None:
+        return []
+    return headline_of(res_kind, json.loads(path.read_text()))
+
+
+def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:
+    """The headline figures (name, value) of ``metrics`` for a result of ``kind``."""
+    return [(k, metrics[k]) for k in contract(kind).headline(metrics) if k in metrics]
+
+
+def format_value(v: Any) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.4f}"
+    return str(v)

@@ -1,0 +1,248 @@
+"""The ``map`` contract: mapped coordinates of features (co-embedding and its baselines).
+
+``localize.h5/result``: ``feature_ids`` (M), ``coords`` (M x D), ``is_landmark`` (M: known
+positions the map was tied to), optional path read-out ``path_step_ids`` (T),
+``path_xy`` (T x 2), ``path_heading`` (T), ``path_label_steps`` (steps whose pose was
+given). Scored against a truth points CSV (``feature,x,y[,z]``; the method names the
+parameter holding it in ``Method(truth_keys={"points": ...})``): errors over the
+features that are not landmarks, after the method's own alignment.
+
+``metrics.json`` schema (``map``): ``map_rmse`` (the headline), ``map_median_error``,
+``map_max_error``, ``n_evaluated``, ``n_truth_unobserved``, ``landmark_rmse``,
+``n_features``, ``n_landmarks``; a method's hook adds its own (co-embedding: path errors);
+``headline``.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = False
+
+SCHEMA = {
+    "feature_ids": Field("int", ("M",)),
+    "coords": Field("float", ("M", "D")),
+    "is_landmark": Field("bool", ("M",)),
+    "path_step_ids": Field("int", ("T",), optional=True),
+    "path_xy": Field("float", ("T", "2"), optional=True),
+    "path_heading": Field("float", ("T",), optional=True),
+    "path_label_steps": Field("int", ("L",), optional=True),
+}
+
+METRICS_DOC = {
+    "map_rmse": "root mean square distance of the mapped features (not landmarks) from the truth, map units (headline)",
+    "map_median_error / map_max_error": "median and largest of those distances",
+    "n_evaluated": "features with a true position that were mapped",
+    "path_rmse": "(co-embedding) error of the path read out at the steps without a given pose",
+}
+
+
+def write(ctx: Any, *, feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray,
+          path: dict[str, np.ndarray] | None = None) -> None:
+    """Write the contract into ``ctx.out/result``; ``path``: step_ids, xy, heading, label_steps."""
+    path = path or {}
+    write_result(ctx.out, "map", {"feature_ids": np.asarray(feature_ids, np.int64), "coords": np.asarray(coords, np.float64),
+                                  "is_landmark": np.asarray(is_landmark, bool),
+                                  **{f"path_{k}": v for k, v in path.items() if v is not None}})
+
+
+def _truth_path(config: dict[str, Any], method: Any, role: str) -> str | None:
+    key = (method.truth_keys or {}).get(role)
+    return None if key is None else (config.get(method.name) or {}).get(key)
+
+
+def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A truth points CSV ``feature,x,y[,z]`` with a header: ids (n,) and coordinates (n, d)."""
+    from placeloc.evaluation.ground_truth import GroundTruthError
+
+    path = Path(path)
+    try:
+        with path.open(newline="") as fh:
+            header = next(csv.reader(fh), None)
+        if header is None or len(header) < 3:
+            raise GroundTruthError(f"truth points: {path} needs a header row feature,x,y[,z]")
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise GroundTruthError(f"truth points: {path} cannot be read as feature,x,y[,z] rows "
+                               f"({' '.join(str(exc).split())})") from None
+    if data.size == 0:
+        data = np.zeros((0, len(header)))
+    if not np.all(data[:, 0] == np.round(data[:, 0])):
+        raise GroundTruthError(f"truth points: {path}: the feature column must hold integer ids")
+    ids = data[:, 0].astype(np.int64)
+    if len(np.unique(ids)) != len(ids):
+        raise GroundTruthError(f"truth points: {path} lists a feature id twice")
+    return ids, data[:, 1:]
+
+
+def _rmse(err: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
+def check_ground_truth(config: dict[str, Any], method: Any) -> None:
+    """Before any stage: the truth points file parses."""
+    path = _truth_path(config, method, "points")
+    if path is not None and Path(path).is_file():
+        read_points(path)
+
+
+def map_errors(feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray, truth_ids: np.ndarray,
+               truth_xyz: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Errors over the non-landmark features that have a true position.
+
+    Returns (metrics, estimates, truths) with the evaluated rows in map order. Features with a
+    true position that were never observed cannot be mapped: they are counted, not hidden.
+    """
+    d = coords.shape[1]
+    have = np.isin(feature_ids, truth_ids) & ~is_landmark
+    order = {int(f): j for j, f in enumerate(truth_ids)}
+    rows = np.array([order[int(f)] for f in feature_ids[have]], dtype=np.int64)
+    est, truth = coords[have], truth_xyz[rows, :d]
+    err = np.linalg.norm(est - truth, axis=1)
+    out: dict = {"map_rmse": _rmse(err) if len(err) else None, "map_max_error": float(err.max()) if len(err) else None,
+                 "map_median_error": float(np.median(err)) if len(err) else None, "n_evaluated": int(len(err)),
+                 "n_truth_unobserved": int((~np.isin(truth_ids, feature_ids)).sum())}
+    lm_rows = np.array([order[int(f)] for f in feature_ids[is_landmark] if int(f) in order], dtype=np.int64)
+    if len(lm_rows) == int(is_landmark.sum()):
+        out["landmark_rmse"] = _rmse(np.linalg.norm(coords[is_landmark] - truth_xyz[lm_rows, :d], axis=1))
+    return out, est, truth
+
+
+
+
+def evaluate(ctx: Any, res: Result) -> Evaluation:
+    ids, coords, is_lm = res["feature_ids"], res["coords"], res["is_landmark"]
+    d = coords.shape[1]
+    m: dict[str, Any] = {"n_features": int(len(ids)), "n_landmarks": int(is_lm.sum()), "map_rmse": None,
+                         "map_max_error": None}
+    ev = Evaluation("map", res, metrics=m)
+    ev.extra.update(est=None, truth=None, landmarks=coords[is_lm], path_est=None, path_truth=None)
+    truth_path = _truth_path(ctx.config, ctx.method, "points")
+    if truth_path is not None:
+        from placeloc.evaluation.ground_truth import GroundTruthError
+
+        tid, txyz = read_points(truth_path)
+        if txyz.shape[1] < d:
+            raise GroundTruthError(f"truth file {truth_path} has {txyz.shape[1]} coordinates per row; the map is {d}-D")
+        found, est, truth = map_errors(ids, coords, is_lm, tid, txyz)
+        m.update(found)
+        ev.extra.update(est=est, truth=truth, eval_ids=ids[np.isin(ids, tid) & ~is_lm])
+    m["headline"] = ["map_rmse", "map_median_error", "map_max_error", "n_evaluated"]
+    return ev
+
+
+def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+    """per_query.csv (each evaluated feature: estimate, truth, error) and map.png."""
+    from placeloc.artifacts import atomic_open
+
+    x = ev.extra
+    if x["est"] is None:
+        return
+    with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
+        w = csv.writer(fh)
+        d = x["est"].shape[1]
+        w.writerow(["feature"] + [f"x{i}" for i in range(d)] + [f"true_x{i}" for i in range(d)] + ["error"])
+        for f, e, t in zip(x["eval_ids"], x["est"], x["truth"]):
+            w.writerow([int(f), *(f"{v:.6g}" for v in e), *(f"{v:.6g}" for v in t), f"{np.linalg.norm(e - t):.6g}"])
+    if plots:
+        draw(ctx.output("map.png"), ev)
+
+
+def draw(path: Path, ev: Evaluation) -> Path:
+    m, x = ev.metrics, ev.extra
+    title = (f"{ev.label}, top view: map RMSE {m['map_rmse']:.3g}, max {m['map_max_error']:.3g} map units\n"
+             f"({m['n_evaluated']} unknown features, {m['n_landmarks']} landmarks)")
+    return plot_map(path, x["est"], x["truth"], x["landmarks"], x["path_est"], x["path_truth"], title, units="map units")
+
+
+def headline(metrics: dict[str, Any]) -> list[str]:
+    return list(metrics.get("headline") or ["map_rmse"])
+
+
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
+    """The map against the truth (from per_query.csv when evaluate has run), else the map alone."""
+    from placeloc.evaluation.contracts import localize_result
+
+    run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    res = res or localize_result(run_dir)
+    coords, is_lm = res["coords"], res["is_landmark"]
+    est = truth = None
+    per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
+    if per_query.is_file():
+        rows = list(csv.DictReader(per_query.open(newline="")))
+        d = coords.shape[1]
+        if rows and f"true_x{d - 1}" in rows[0]:
+            est = np.array([[float(r[f"x{i}"]) for i in range(d)] for r in rows])
+            truth = np.array([[float(r[f"true_x{i}"]) for i in range(d)] for r in rows])
+    if est is None:
+        est = truth = coords[~is_lm]
+    path = out_dir / "map.png"
+    title = (f"map: {len(est)} features, {int(is_lm.sum())} landmarks" +
+             ("" if est is truth else f"; RMSE {np.sqrt(np.mean(np.sum((est - truth) ** 2, axis=1))):.3g} map units"))
+    path_xy = res.get("path_xy")
+    plot_map(path, est, truth, coords[is_lm], path_xy, None, title, units="map units")
+    return [path]
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
+    a failed save (a full disk) leaves no temporary file either."""
+    import os
+
+    import matplotlib.pyplot as plt
+
+    from placeloc.artifacts import TMP_MARK
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    try:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
+             path_truth: np.ndarray | None, title: str, units: str) -> Path:
+    """Top view of the map: a 3-D map is drawn from above (first and last axis: x and depth)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    ax0, ax1 = 0, truth.shape[1] - 1
+    names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
+    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    if path_truth is not None:
+        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.75", lw=0.8, label="true path")
+    if path_est is not None:
+        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.8, alpha=0.8, label="estimated path")
+    segs = np.stack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]], axis=1)
+    ax.add_collection(LineCollection(segs, colors="tab:green", lw=0.8, label="error (estimate to truth)"))
+    ax.scatter(truth[:, ax0], truth[:, ax1], s=14, facecolors="none", edgecolors="0.4", lw=0.7, label="true position")
+    ax.scatter(est[:, ax0], est[:, ax1], s=10, color="tab:blue", label="estimated position")
+    ax.scatter(landmarks[:, ax0], landmarks[:, ax1], s=40, marker="s", color="tab:red", label="landmark (known)")
+    pts = np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]]])
+    span = np.ptp(pts, axis=0) + 1e-12
+    # Equal scales unless that would squash the figure into a strip (a forward-looking camera: depth >> width).
+    to_scale = max(span) / min(span) < 3.0
+    if to_scale:
+        ax.set_aspect("equal")
+    ax.set_xlabel(f"{names[0]} ({units})")
+    ax.set_ylabel(f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"))
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
+    return _save(fig, path)

@@ -1,0 +1,300 @@
+"""The ``poses`` contract: a metric pose estimate per query image (UMap).
+
+``localize.h5/result``: ``names`` (Q) image file names, ``x``, ``y`` (Q) metres, optional
+``z``, ``heading_deg`` (Q, NaN: not estimated), ``score`` (Q, the method's score of the
+estimate), optional ``plan_segments`` (S x 4: x0, y0, x1, y1 in metres, the walls drawn
+under the estimates). Scored against a poses CSV (``ground_truth.kind: poses``; frame
+name, x, y[, heading]; :func:`placeloc.evaluation.poses.read_poses`), which must hold a
+row for every query image: checked before any stage runs.
+
+``metrics.json`` schema (``poses``): ``within_1m_30deg`` (the headline: share of frames
+within 1 m and 30 degrees, when the truth has headings), ``within_0_5m``, ``within_1m``,
+``within_2m``, ``median_error_m``, ``mean_error_m``, ``max_error_m``, ``n_frames``; with
+headings also ``median_yaw_error_deg``, ``yaw_within_10deg``, ``yaw_within_30deg``,
+``within_0_5m_30deg``, ``within_2m_30deg``; ``headline``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = False
+
+SCHEMA = {
+    "names": Field("str", ("Q",)),
+    "x": Field("float", ("Q",)),
+    "y": Field("float", ("Q",)),
+    "z": Field("float", ("Q",), optional=True),
+    "heading_deg": Field("float", ("Q",)),
+    "score": Field("float", ("Q",)),
+    "plan_segments": Field("float", ("S", "4"), optional=True),
+}
+
+METRICS_DOC = {
+    "within_1m_30deg": "share of frames within 1 m and 30 degrees of the truth (headline)",
+    "within_0_5m / within_1m / within_2m": "share of frames within that distance",
+    "median_error_m": "median position error in metres",
+}
+
+
+def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
+          z: np.ndarray | None = None, plan_segments: np.ndarray | None = None, label: str = "estimates") -> None:
+    """Write the contract into ``ctx.out/result``; ``label`` names the estimates in pictures."""
+    write_result(ctx.out, "poses", {
+        "names": list(names), "x": np.asarray(x, np.float64), "y": np.asarray(y, np.float64),
+        "z": None if z is None else np.asarray(z, np.float64), "heading_deg": np.asarray(heading_deg, np.float64),
+        "score": np.asarray(score, np.float64),
+        "plan_segments": None if plan_segments is None else np.asarray(plan_segments, np.float64).reshape(-1, 4)},
+        attrs={"label": label})
+
+
+# ---------------------------------------------------------------------------------------
+# ground truth
+# ---------------------------------------------------------------------------------------
+def _truth(section: dict[str, Any], names: Sequence[str]) -> tuple[Any, np.ndarray]:
+    """The poses file and the row of each query name in it (one error naming the file,
+    the missing frame and the fix)."""
+    from placeloc.evaluation.ground_truth import GroundTruthError
+    from placeloc.evaluation.poses import PoseError, read_poses
+
+    if section.get("kind") != "poses":
+        raise GroundTruthError(f"ground_truth.kind is {section.get('kind')!r}; pose estimates are scored against poses: "
+                               "set ground_truth.kind: poses and ground_truth.path to a CSV with frame, x, y[, heading]")
+    try:
+        gt = read_poses(section["path"], what="ground_truth.path")
+        return gt, gt.rows_for_names(list(names), what="query frames")
+    except PoseError as exc:
+        raise GroundTruthError(str(exc)) from None
+
+
+def check_ground_truth(config: dict[str, Any], method: Any) -> None:
+    """Before any stage: the poses file parses and holds a row for every query image."""
+    from placeloc.images import ImageError, list_images
+
+    section = config.get("ground_truth") or {}
+    if section.get("kind", "none") == "none":
+        return
+    names: list[str] = []
+    if config.get("query") and config["query"].get("images"):
+        try:
+            names = list(list_images(config["query"]["images"]).names)
+        except ImageError:
+            return  # the image check reports this one
+    _truth(section, names)
+
+
+# ---------------------------------------------------------------------------------------
+# metrics (plain arrays)
+# ---------------------------------------------------------------------------------------
+def error_metrics(err: np.ndarray) -> dict[str, Any]:
+    """Max, mean, median plan error (metres) and the share of frames within 0.5 m and 1 m."""
+    err = np.asarray(err, float)
+    return {"max_error_m": float(err.max()), "mean_error_m": float(err.mean()), "median_error_m": float(np.median(err)),
+            "within_0_5m": float(np.mean(err <= 0.5)), "within_1m": float(np.mean(err <= 1.0)), "n_frames": int(len(err))}
+
+
+def yaw_errors(est_deg: np.ndarray, truth_deg: np.ndarray) -> np.ndarray:
+    """Absolute heading differences in degrees, wrapped into [0, 180]."""
+    return np.abs((np.asarray(est_deg, float) - np.asarray(truth_deg, float) + 180.0) % 360.0 - 180.0)
+
+
+def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[str, Any]:
+    """Share of frames within 2 m, and when headings are known the median yaw error, the
+    share within 10 and 30 degrees, and within 0.5 m / 1 m / 2 m *and* 30 degrees."""
+    err_m = np.asarray(err_m, float)
+    out: dict[str, Any] = {"within_2m": float(np.mean(err_m <= 2.0))}
+    if yaw_err_deg is not None:
+        y = np.asarray(yaw_err_deg, float)
+        out.update({"median_yaw_error_deg": float(np.median(y)), "yaw_within_10deg": float(np.mean(y <= 10.0)),
+                    "yaw_within_30deg": float(np.mean(y <= 30.0)),
+                    "within_0_5m_30deg": float(np.mean((err_m <= 0.5) & (y <= 30.0))),
+                    "within_1m_30deg": float(np.mean((err_m <= 1.0) & (y <= 30.0))),
+                    "within_2m_30deg": float(np.mean((err_m <= 2.0) & (y <= 30.0)))})
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# evaluate, pictures
+# ---------------------------------------------------------------------------------------
+def evaluate(ctx: Any, res: Result) -> Evaluation:
+    from placeloc.errors import StageError
+
+    section = ctx.config["ground_truth"]
+    if section["kind"] == "none":
+        raise StageError("ground_truth.kind is none: evaluate needs the true poses (ground_truth.kind: poses); "
+                         "`placeloc show RUN_DIR` draws the estimates without it")
+    names = res["names"]
+    gt, rows = _truth(section, names)
+    truth = gt.xy[rows]
+    est = np.stack([res["x"], res["y"]], axis=1)
+    err = np.hypot(*(est - truth).T)
+    truth_heading = np.degrees(gt.heading[rows]) if gt.heading is not None else None
+    yaw_err = yaw_errors(res["heading_deg"], truth_heading) if truth_heading is not None else None
+    metrics = error_metrics(err)
+    metrics.update(recall_metrics(err, yaw_err))
+    metrics["headline"] = (["within_1m_30deg"] if yaw_err is not None else []) + [
+        "within_0_5m", "within_1m", "within_2m", "median_error_m"]
+    ev = Evaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")))
+    ev.arrays = {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})}
+    ev.extra.update(truth=truth, est=est, err=err, yaw_err=yaw_err, truth_heading=truth_heading, poses=gt, rows=rows)
+    return ev
+
+
+def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+    """per_query.csv (estimate, truth and error per frame), error_cdf.png and estimates_on_plan.png."""
+    import csv
+
+    from placeloc.artifacts import atomic_open
+
+    res, x = ev.result, ev.extra
+    with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "x", "y", "heading_deg", "true_x", "true_y", "true_heading_deg", "error_m", "yaw_error_deg",
+                    "score"])
+        for k, name in enumerate(res["names"]):
+            th = x["truth_heading"]
+            w.writerow([name, f"{res['x'][k]:.3f}", f"{res['y'][k]:.3f}", f"{res['heading_deg'][k]:.1f}",
+                        f"{x['truth'][k, 0]:.3f}", f"{x['truth'][k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
+                        f"{x['err'][k]:.3f}", "" if x["yaw_err"] is None else f"{x['yaw_err'][k]:.1f}", f"{res['score'][k]:.5f}"])
+    if not plots:
+        return
+    label = ev.label
+    plot_error_cdf(ctx.output("error_cdf.png"), x["err"], label)
+    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), x["truth"], x["est"], [], _segments6(res), label,
+                           x["truth_heading"], res["heading_deg"])
+
+
+def _segments6(res: Result) -> np.ndarray:
+    """plan_segments (x0, y0, x1, y1) in the (x0, y0, z0, x1, y1, z1) layout the plan plot reads."""
+    s = res.get("plan_segments")
+    if s is None or not len(s):
+        return np.zeros((0, 6))
+    z = np.zeros(len(s))
+    return np.column_stack([s[:, 0], s[:, 1], z, s[:, 2], s[:, 3], z])
+
+
+def headline(metrics: dict[str, Any]) -> list[str]:
+    return list(metrics.get("headline") or ["within_1m", "median_error_m"])
+
+
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
+    """The estimates on the plan: against the truth when evaluate has run (per_query.csv),
+    else the estimates alone."""
+    import csv
+
+    from placeloc.evaluation.contracts import localize_result
+
+    run_dir = Path(run_dir)
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    res = res or localize_result(run_dir)
+    est = np.stack([res["x"], res["y"]], axis=1)
+    truth = truth_heading = None
+    per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
+    if per_query.is_file():
+        with per_query.open(newline="") as fh:
+            rows = {r["frame"]: r for r in csv.DictReader(fh)}
+        if all(n in rows for n in res["names"]):
+            truth = np.array([[float(rows[n]["true_x"]), float(rows[n]["true_y"])] for n in res["names"]])
+            if all(rows[n]["true_heading_deg"] for n in res["names"]):
+                truth_heading = np.array([float(rows[n]["true_heading_deg"]) for n in res["names"]])
+    path = out_dir / "estimates_on_plan.png"
+    plot_estimates_on_plan(path, truth, est, [], _segments6(res), str(res.attrs.get("label", "estimates")), truth_heading,
+                           res["heading_deg"])
+    return [path]
+
+
+def _plt():  # noqa: ANN202
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
+    """Share of frames within each error, on a log axis with plain-number ticks, the 0.5 m
+    and 1 m marks labelled with their shares."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    e = np.sort(np.maximum(np.asarray(err, float), 0.01))
+    ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, color="tab:blue")
+    ax.set_xscale("log")
+    lo, hi = 0.01, max(2.0, float(e.max()) * 1.5)
+    ax.set_xlim(lo, hi)
+    ticks = [t for t in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100) if lo <= t <= hi]
+    ax.xaxis.set_major_locator(FixedLocator(ticks))
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_ylim(0, 1.02)
+    for mark, colour in ((0.5, "tab:green"), (1.0, "tab:orange")):
+        share = float(np.mean(np.asarray(err) <= mark))
+        ax.axvline(mark, color=colour, ls="--", lw=1.2)
+        ax.text(mark * 1.05, 0.05 if mark < 1 else 0.15, f"{share:.0%} within {mark:g} m", color=colour, fontsize=9)
+    ax.set_xlabel("position error [m] (log scale)")
+    ax.set_ylabel("share of frames")
+    ax.set_title(f"Cumulative position error, {mode} ({len(e)} frames)")
+    ax.grid(True, which="major", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
+                           mode: str, truth_heading_deg: np.ndarray | None = None,
+                           est_heading_deg: np.ndarray | None = None) -> None:
+    """The plan (room polygons, or the wireframe's floor lines), true and estimated
+    positions joined by error lines, headings as short arrows."""
+    plt = _plt()
+    truth = est if truth is None else truth  # estimates only (no ground truth): no error lines
+    pts = np.vstack([truth, est] + [p for p in polys]) if polys else np.vstack([truth, est, segments[:, [0, 1]]])
+    span = np.ptp(pts, axis=0) + 1.0
+    width = 11.0
+    height = float(np.clip(width * span[1] / span[0], 2.5, 9.0)) + 0.8
+    fig, ax = plt.subplots(figsize=(width, height))
+    if polys:
+        for poly in polys:
+            q = np.vstack([poly, poly[:1]])
+            ax.plot(q[:, 0], q[:, 1], "k-", lw=0.9)
+    else:
+        for s in segments:
+            ax.plot([s[0], s[3]], [s[1], s[4]], "k-", lw=0.4)
+    known = truth is not est
+    err = np.hypot(*(est - truth).T)
+    for t, s in zip(truth, est) if known else ():
+        ax.plot([t[0], s[0]], [t[1], s[1]], "-", color="0.5", lw=0.8)
+    if known:
+        ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=5, label="true position")
+    ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=6, mew=1.5, label=f"{mode} estimate")
+    arrow = 0.04 * float(max(span))
+    for xy, hd, colour in ((truth, truth_heading_deg, "tab:blue"), (est, est_heading_deg, "tab:red")):
+        if hd is None:
+            continue
+        r = np.radians(np.asarray(hd, float))
+        ax.quiver(xy[:, 0], xy[:, 1], arrow * np.cos(r), arrow * np.sin(r), color=colour, angles="xy", scale_units="xy",
+                  scale=1.0, width=0.003)
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize=8, framealpha=0.9)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if known:
+        ax.set_title(f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m (median error {np.median(err):.2f} m); "
+                     "grey lines join truth and estimate" + ("; arrows: heading" if est_heading_deg is not None else ""),
+                     fontsize=10)
+    else:
+        ax.set_title(f"{mode}: {len(est)} estimates (no ground truth)" + ("; arrows: heading" if est_heading_deg is not None
+                                                                           else ""), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+

@@ -1,0 +1,217 @@
+"""The ``ranked`` contract: per query, K reference candidates best first, with scores and
+a confidence of the best (SeqSLAM, retrieval).
+
+Scored against any image-matching ground truth (synchronous, csv, hdf5, poses + radius;
+:mod:`placeloc.evaluation.ground_truth`) by :func:`placeloc.evaluation.matching.score_matches`.
+
+``metrics.json`` schema (``ranked``):
+
+- ``recall_at_N`` (N from ``ground_truth.recall_at``): standard Recall@N, a query is right
+  when any of its N best candidates is a positive (neighbouring frames allowed), over all
+  queries; ``recall_at_N_with_positive``: over the queries that have a positive.
+- ``separated_recall_at_N``: only for a method whose candidates are kept at least
+  ``separation`` reference frames apart (the result's attribute; SeqSLAM: ``enhance_window
+  + 1``), so the N candidates are N distinct places; None beyond the candidates kept.
+- ``auc_pr``, ``recall_at_100_precision``, ``max_f1``: precision-recall over the
+  confidence of each query's best candidate, recall over all queries.
+- ``n_queries``, ``queries_with_ground_truth``, ``n_matched``, ``n_reference``,
+  ``localize_seconds``; ``headline``: the keys ``placeloc run`` prints.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+
+# evaluate draws show()'s pictures too (strips); False: finish() already drew them
+SHOW_AT_EVALUATE = True
+
+SCHEMA = {
+    "query_index": Field("int", ("Q",)),
+    "query_names": Field("str", ("Q",)),
+    "reference_index": Field("int", ("R",)),
+    "reference_names": Field("str", ("R",)),
+    "candidates": Field("int", ("Q", "K")),
+    "scores": Field("float", ("Q", "K")),
+    "confidence": Field("float", ("Q",)),
+    # optional: a plain (unseparated) ranking beside separated candidates
+    "plain_candidates": Field("int", ("Q", "P"), optional=True),
+    "plain_scores": Field("float", ("Q", "P"), optional=True),
+}
+
+METRICS_DOC = {
+    "recall_at_N": "standard Recall@N: any of the N best candidates is a positive, over all queries",
+    "recall_at_N_with_positive": "the same over the queries that have at least one positive",
+    "separated_recall_at_N": "Recall@N over candidates kept at least `separation` reference frames apart (N distinct places)",
+    "auc_pr": "area under precision-recall over the best candidate's confidence (recall over all queries)",
+    "recall_at_100_precision": "largest recall at which every accepted best match is right",
+    "max_f1": "best F1 over the confidence thresholds",
+}
+
+
+def write(ctx: Any, *, query_index: np.ndarray, query_names: Sequence[str], reference_index: np.ndarray,
+          reference_names: Sequence[str], candidates: np.ndarray, scores: np.ndarray, confidence: np.ndarray,
+          higher_is_better: bool, separation: int = 0, plain_candidates: np.ndarray | None = None,
+          plain_scores: np.ndarray | None = None) -> None:
+    """Write the contract into ``ctx.out/result`` and ``matches.csv`` (one row per query:
+    its best reference). ``candidates`` hold ORIGINAL reference indices (-1 = none)."""
+    write_result(ctx.out, "ranked", {
+        "query_index": np.asarray(query_index, np.int64), "query_names": list(query_names),
+        "reference_index": np.asarray(reference_index, np.int64), "reference_names": list(reference_names),
+        "candidates": np.asarray(candidates, np.int64), "scores": np.asarray(scores, np.float32),
+        "confidence": np.asarray(confidence, np.float32),
+        "plain_candidates": None if plain_candidates is None else np.asarray(plain_candidates, np.int64),
+        "plain_scores": None if plain_scores is None else np.asarray(plain_scores, np.float32)},
+        attrs={"higher_is_better": bool(higher_is_better), "separation": int(separation),
+               "n_reference_listed": int(ctx_listed(ctx, "reference", reference_index)),
+               "n_query_listed": int(ctx_listed(ctx, "query", query_index))})
+    write_matches_csv(ctx.output("matches.csv"), np.asarray(candidates)[:, 0], np.asarray(confidence),
+                      np.asarray(query_index), list(query_names), np.asarray(reference_index), list(reference_names))
+
+
+def ctx_listed(ctx: Any, role: str, index: np.ndarray) -> int:
+    """How many images the traverse lists (skipped ones included), so original indices stay valid."""
+    images = ctx.images.get(role)
+    if images is not None:
+        return len(images.paths)
+    return int(np.max(index)) + 1 if len(index) else 0
+
+
+def write_matches_csv(path: Path, best: np.ndarray, confidence: np.ndarray, query_index: np.ndarray,
+                      query_names: list[str], reference_index: np.ndarray, reference_names: list[str]) -> None:
+    """``matches.csv``: per query its best reference by original index and file name."""
+    import csv
+
+    from placeloc.artifacts import atomic_open
+
+    name_of = {int(i): n for i, n in zip(reference_index, reference_names)}
+    with atomic_open(path, newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "reference", "confidence", "query_image", "reference_image"])
+        for q, qn, r, c in zip(query_index, query_names, best, confidence):
+            if r < 0:
+                w.writerow([int(q), "", "", qn, ""])
+            else:
+                w.writerow([int(q), int(r), f"{c:.6f}", qn, name_of.get(int(r), "")])
+
+
+# ---------------------------------------------------------------------------------------
+# ground truth
+# ---------------------------------------------------------------------------------------
+def check_ground_truth(config: dict[str, Any], method: Any) -> None:
+    """Build the ground truth in full against the listed images: every problem (format,
+    columns, indices or names outside the traverses, matrix shape, missing positions) is
+    one error naming the file, row and fix."""
+    from placeloc.evaluation.ground_truth import GroundTruth
+    from placeloc.images import ImageError, list_images
+
+    section = config.get("ground_truth") or {}
+    if section.get("kind", "none") == "none":
+        return
+    try:
+        ref = list_images(config["reference"]["images"])
+        query = list_images(config["query"]["images"]) if config.get("query") else None
+    except (ImageError, TypeError, KeyError):
+        return  # the image check reports this one
+    GroundTruth.from_config(section, len(ref), len(query) if query else len(ref), ref_names=ref.names,
+                            query_names=query.names if query else None)
+
+
+def _full_names(ctx: Any, res: Result, role: str) -> list[str]:
+    """File names of every listed image of ``role``, indexed by original index."""
+    images = ctx.images.get(role)
+    if images is not None:
+        return list(images.names)
+    key = "reference" if role == "reference" else "query"
+    n = int(res.attrs.get(f"n_{key}_listed", 0))
+    names = [""] * max(n, int(np.max(res[f"{key}_index"])) + 1 if len(res[f"{key}_index"]) else 0)
+    for i, nm in zip(res[f"{key}_index"], res[f"{key}_names"]):
+        names[int(i)] = nm
+    return names
+
+
+# ---------------------------------------------------------------------------------------
+# evaluate
+# ---------------------------------------------------------------------------------------
+def evaluate(ctx: Any, res: Result) -> Evaluation:
+    from placeloc.errors import StageError
+    from placeloc.evaluation import matching
+    from placeloc.evaluation.ground_truth import GroundTruth
+
+    section = ctx.config["ground_truth"]
+    if section["kind"] == "none":
+        raise StageError("ground_truth.kind is none: evaluate needs ground truth (synchronous, csv, hdf5 or poses); "
+                         "`placeloc show RUN_DIR` draws the matches without it")
+    ref_names = _full_names(ctx, res, "reference")
+    q_names = _full_names(ctx, res, "query")
+    gt = GroundTruth.from_config(section, len(ref_names), len(q_names), ref_names=ref_names, query_names=q_names)
+    ns = tuple(sorted(set(int(n) for n in section["recall_at"])))
+    separation = int(res.attrs.get("separation", 0))
+    ev = Evaluation("ranked", res)
+    ev.extra.update(gt=gt, ns=ns, ref_names=ref_names, q_names=q_names, separation=separation)
+    identity = np.arange(len(ref_names), dtype=np.int64)
+    lo = ctx.artifact("localize")
+
+    def rescore(plain: np.ndarray | None = None, plain_scores: np.ndarray | None = None) -> None:
+        """Score (again) with a plain ranking (original indices) when the method has one."""
+        cand = res["candidates"]
+        if separation == 0:
+            plain, plain_scores = cand, res["scores"]
+        elif plain is None and "plain_candidates" in res:
+            plain, plain_scores = res["plain_candidates"], res["plain_scores"]
+        s = matching.score_matches(gt, res["query_index"], identity, separated=cand, confidence=res["confidence"],
+                                   ranked=plain, ranked_scores=plain_scores, ns=ns)
+        m = dict(s.metrics)
+        if separation == 0:
+            for n in ns:
+                m.pop(f"separated_recall_at_{n}", None)
+        m["n_reference"] = int(len(res["reference_index"]))
+        m["localize_seconds"] = float(lo.attrs.get("seconds", float("nan")))
+        m["headline"] = [f"recall_at_{n}" for n in ns] + ["auc_pr", "recall_at_100_precision"]
+        # the hook's keys survive a re-score
+        ev.metrics = {**m, **{k: v for k, v in ev.metrics.items() if k not in m}}
+        ev.scores = s
+
+    ev.rescore = rescore
+    rescore()
+    return ev
+
+
+def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+    """evaluate.h5's PR curve and correctness, per_query.csv, pr_curve.png and recall_at_n.png."""
+    from placeloc.evaluation import matching
+    from placeloc.evaluation import plots as P
+
+    s = ev.scores
+    pr_group = ctx.out.create_group("pr")
+    for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
+        pr_group.create_dataset(name, data=arr)
+    ctx.out.create_dataset("correct", data=s.best_correct)
+    matching.write_per_query_csv(ctx.output("per_query.csv"), s, ev.extra["q_names"], ev.extra["ref_names"])
+    if not plots:
+        return
+    n_q, ns = len(s.query), ev.extra["ns"]
+    P.plot_pr_curves({ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
+                     title=f"Precision-recall over the best match's confidence, {n_q} queries")
+    curves = {f"{ev.label}, standard": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
+    if ev.extra["separation"]:
+        curves[f"{ev.label}, separated by >= {ev.extra['separation']} frames"] = (
+            ns, [ev.metrics.get(f"separated_recall_at_{n}") for n in ns])
+    P.plot_recall_at_n(curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
+
+
+def headline(metrics: dict[str, Any]) -> list[str]:
+    return list(metrics.get("headline") or ["recall_at_1", "auc_pr", "recall_at_100_precision"])
+
+
+def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+         out_dir: Path | None = None) -> list[Path]:
+    """Strips query | best match | a true one (from per_query.csv, else from the result),
+    written into ``out_dir`` (default ``run_dir``)."""
+    from placeloc.evaluation.show import draw_strips
+
+    return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir)

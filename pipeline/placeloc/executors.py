@@ -1,0 +1,29 @@
+"""Build the executor a config's ``executor:`` section asks for.
+
+Kept apart from :mod:`placeloc.executor` (the base class, the in-process and the
+process-pool executors) and :mod:`placeloc.dask_executor` (which builds on that base), so
+neither of those two imports the other: this is the one module that knows both.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from placeloc.errors import ConfigError
+from placeloc.executor import Executor, InlineExecutor, LocalExecutor
+
+
+def make_executor(section: dict[str, Any]) -> Executor:
+    """``kind: local`` with one worker runs in this process; more workers, a process pool;
+    ``kind: dask``, a Dask client (the optional extra)."""
+    kind = section.get("kind", "local")
+    if kind == "dask":
+        try:
+            from placeloc.dask_executor import DaskExecutor  # optional extra
+        except ImportError as exc:
+            raise ConfigError(f"executor.kind: dask is not available ({exc}); "
+                              "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
+
+        return DaskExecutor(section)
+    workers = int(section.get("workers", 1))
+    return InlineExecutor() if workers <= 1 else LocalExecutor(workers)

@@ -1,0 +1,1 @@
+"""Single-image retrieval: each query's nearest reference images (the place-recognition baseline)."""

@@ -32,6 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numba import njit, prange
+from threadpoolctl import threadpool_limits
 
 from placeloc.geometry.floorplan import blocking_faces, wall_distance
 from placeloc.geometry.panorama import (  # noqa: F401  (re-exported: the map renderer and the query line image)
@@ -288,38 +289,44 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             ks = np.arange(s, min(n, s + PANORAMA_BATCH))
             yield from zip(ks, tables(ks))
 
-    for k, table in progress(scored()):
-        best[k], shift, score[k] = best_pose(table)
-        heading[k] = shift * 360.0 / w
-        cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                    min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
-        if not len(cands):
-            continue
-        # every candidate's current best (position, yaw, score); one render call per step for all of them
-        xy = poses[cands, :2].copy()
-        yaw = np.argmax(table[cands], axis=1) * 360.0 / w
-        sc = table[cands].max(axis=1)
-        floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
-        for step in steps:  # coarse to fine: the 8 neighbours at each step around each candidate's best so far
-            pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
-            owner = np.repeat(np.arange(len(cands)), len(NEIGHBOURS))
-            if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
-                ok = wall_distance(pts, walls) >= floor_d[owner]
-                pts, owner = pts[ok], owner[ok]
-            if not len(pts):
+    # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
+    # shared cores they cost 3-5x the CPU time of the search; bench-umap)
+    limiter = threadpool_limits(limits=1, user_api="blas")
+    try:
+        for k, table in progress(scored()):
+            best[k], shift, score[k] = best_pose(table)
+            heading[k] = shift * 360.0 / w
+            cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                        min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
+            if not len(cands):
                 continue
-            sub = local_tables(int(k), pts, float(poses[cands[0], 2]))
-            top, arg = sub.max(axis=1), sub.argmax(axis=1)
-            for j in range(len(cands)):
-                mine = np.flatnonzero(owner == j)
-                if len(mine) and top[mine].max() > sc[j]:
-                    i = mine[int(np.argmax(top[mine]))]
-                    xy[j], yaw[j], sc[j] = pts[i], arg[i] * 360.0 / w, top[i]
-        j = int(np.argmax(sc))
-        if sc[j] > score[k]:
-            # the grid row stays that of the candidate; the position is the refined one
-            best[k], heading[k], score[k] = cands[j], yaw[j], sc[j]
-            refined_xy[k] = xy[j]
+            # every candidate's current best (position, yaw, score); one render call per step for all of them
+            xy = poses[cands, :2].copy()
+            yaw = np.argmax(table[cands], axis=1) * 360.0 / w
+            sc = table[cands].max(axis=1)
+            floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
+            for step in steps:  # coarse to fine: the 8 neighbours at each step around each candidate's best so far
+                pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
+                owner = np.repeat(np.arange(len(cands)), len(NEIGHBOURS))
+                if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
+                    ok = wall_distance(pts, walls) >= floor_d[owner]
+                    pts, owner = pts[ok], owner[ok]
+                if not len(pts):
+                    continue
+                sub = local_tables(int(k), pts, float(poses[cands[0], 2]))
+                top, arg = sub.max(axis=1), sub.argmax(axis=1)
+                for j in range(len(cands)):
+                    mine = np.flatnonzero(owner == j)
+                    if len(mine) and top[mine].max() > sc[j]:
+                        i = mine[int(np.argmax(top[mine]))]
+                        xy[j], yaw[j], sc[j] = pts[i], arg[i] * 360.0 / w, top[i]
+            j = int(np.argmax(sc))
+            if sc[j] > score[k]:
+                # the grid row stays that of the candidate; the position is the refined one
+                best[k], heading[k], score[k] = cands[j], yaw[j], sc[j]
+                refined_xy[k] = xy[j]
+    finally:
+        limiter.restore_original_limits()
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]

@@ -1,8 +1,13 @@
-# UMap: synthetic corridor experiment and the 36k-view database benchmark.
-.PHONY: experiment-umap bench-umap
+# UMap: synthetic corridor experiment, the generated homes (defaults chosen on development
+# homes, reported on others) and the benchmarks (36k-view database, real-scale floor,
+# whole-panorama search against the search before it, per panorama).
+.PHONY: experiment-umap experiment-umap-homes bench-umap
 
 experiment-umap: $(STAMP)
 	$(PL) experiment umap
 
 bench-umap: $(STAMP)
 	$(BIN)/python bench/bench_umap.py
+
+experiment-umap-homes: $(STAMP)
+	$(PL) experiment umap-homes

@@ -1,7 +1,6 @@
 from __future__ import annotations
 
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -33,12 +32,3 @@ def tears_of_steel() -> Path:
         pytest.skip("../shared/data/tears-of-steel is absent")
     return root / "tears-of-steel"
 
-
-@pytest.fixture(autouse=True)
-def _announce_each_interrupt():
-    """The command line prints "interrupted; rerun to resume" once per process (a second
-    Ctrl-C must not print it again); the tests run many commands in one process."""
-    yield
-    cli = sys.modules.get("placeloc.cli")
-    if cli is not None and hasattr(cli, "_announced"):
-        cli._announced.clear()

@@ -135,3 +135,23 @@ def test_command_line_import(tmp_path):
     assert plan["camera_z"] == pytest.approx(1.5) and len(plan["doors"]) == 1 and len(plan["openings"]) == 1
     res = CliRunner().invoke(app, ["import", "zind", str(tmp_path / "missing.json"), str(tmp_path / "x")])
     assert res.exit_code != 0 and "missing.json" in res.output
+
+
+def test_a_generated_home_in_zind_format_localizes_with_the_defaults(tmp_path):
+    # A generated home written as zind_data.json; the config names only the method, the
+    # images, the model, the query kind and the ground truth: the grid (bounds, doorways,
+    # z = the camera height) and the score are the defaults.
+    from placeloc.config import load_config
+    from placeloc.runner import read_metrics, run_all
+    from placeloc.synth import generate
+
+    generate("home", tmp_path / "home", seed=5, panoramas=4, width=512)
+    import_zind(tmp_path / "home" / "zind_data.json", tmp_path / "imported")
+    cfg = load_config(data={"method": "umap", "query": {"images": str(tmp_path / "home" / "panoramas")},
+                            "umap": {"model": str(tmp_path / "home" / "zind_data.json"), "query_kind": "panorama"},
+                            "ground_truth": {"kind": "poses", "path": str(tmp_path / "imported" / "poses.csv")},
+                            "plots": False},
+                      base_dir=tmp_path)
+    run_all(cfg, tmp_path / "run", quiet=True)
+    m = read_metrics(tmp_path / "run")
+    assert m["within_1m_30deg"] >= 0.75, m

@@ -113,7 +113,8 @@ def apply_override(data: dict, item: str) -> None:
         value = safe_yaml(raw) if raw.strip() else None
     except yaml.YAMLError as exc:
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"--set {item!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
+        shown = item if len(item) <= 80 else f"{item[:60]}... ({len(item):,} characters)"
+        raise ConfigError(f"--set {shown!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
                           f"e.g. --set {key.strip()}=[1, 2] or --set {key.strip()}='text'") from exc
     node = data
     parts = key.strip().split(".")

@@ -24,7 +24,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from placeloc import params as P
-from placeloc.stage_names import STAGES  # noqa: F401 - re-exported: placeloc.methods.STAGES
+
+STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
+
 
 
 def _discover() -> dict[str, str]:
@@ -96,15 +98,13 @@ class Method:
         self.choices = P.choices(self.params)
         self.path_keys = P.path_keys(self.params)
         if self.result is not None and "evaluate" not in self.stages:
-            from placeloc.evaluation.contracts import KINDS
-            from placeloc.evaluation.evaluate import evaluate_stage
+            from placeloc.evaluation.contracts import contract, evaluate_stage
 
-            if self.result not in KINDS:
-                raise ValueError(f"{self.name}: unknown result contract {self.result!r}; known: {', '.join(KINDS)}")
-            # truth named by the method's own parameters (truth_keys) is in evaluate_keys;
-            # the shared ground_truth section is read only by the contracts that use it.
-            sections = ("plots",) if self.truth_keys else ("ground_truth", "plots")
-            self.stages = {**self.stages, "evaluate": Stage(evaluate_stage, keys=self.evaluate_keys, sections=sections)}
+            sections = set(contract(self.result).SECTIONS)
+            if self.result_without_query is not None:
+                sections |= set(contract(self.result_without_query).SECTIONS)
+            self.stages = {**self.stages, "evaluate": Stage(evaluate_stage, keys=self.evaluate_keys,
+                                                            sections=tuple(sorted(sections)))}
         known = set(self.defaults) | {k for k, _ in P._walk(self.params)}
         for name, stage in self.stages.items():
             if name not in STAGES:

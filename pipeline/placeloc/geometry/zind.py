@@ -203,3 +203,74 @@ def _write_floor(path: str | Path, out: Path, floor: str) -> dict[str, Any]:
             "internal walls": sum(len(r.get("internal", [])) for r in plan["rooms"]), "doors": len(plan["doors"]),
             "openings": len(plan["openings"]), "windows": len(plan["windows"]), "panoramas": len(panos),
             "primary": sum(p["primary"] for p in panos), "camera_z": plan["camera_z"]}
+
+
+def write_zind(plan: dict[str, Any], panoramas: list[dict[str, Any]], path: str | Path, *,
+               metres_per_coordinate: float = 0.01, image_dir: str = "panos") -> None:
+    """Write a multi-room floor plan and its panoramas ({frame, x, y, z, heading_deg}) as a
+    one-floor ``zind_data.json`` in the published format: the inverse of :func:`zind_home`
+    (a generated home in the form real tours come in). Each room is a complete room whose
+    primary panorama (the first panorama in it or nearest to it; a panorama without an
+    image at its centre for a room nobody photographed) carries the layout in its local
+    frame: vertices, internal polygons, doors (gaps narrower than 1.2 m), openings, windows
+    on the room's edges, heights relative to the camera in camera heights."""
+    from placeloc.geometry.polygons import on_edge as _on_edge
+    from placeloc.geometry.polygons import point_in_polygon
+
+    polys = [np.asarray(r["polygon"], float) for r in plan["rooms"]]
+    cam_z = float(plan.get("camera_z") or np.median([p["z"] for p in panoramas]))
+
+    def room_of(x: float, y: float) -> int:
+        inside = [i for i, poly in enumerate(polys) if point_in_polygon(np.array([[x, y]]), poly)[0]]
+        if inside:
+            return inside[0]
+        d = [min(np.hypot(*(np.array([x, y]) - q)) for q in np.linspace(poly, np.roll(poly, -1, 0), 20).reshape(-1, 2))
+             for poly in polys]
+        return int(np.argmin(d))
+
+    def tr_of(x: float, y: float, heading: float, z: float) -> dict[str, Any]:
+        # one local unit is the panorama's own camera height, as in the published data
+        return {"translation": [x / metres_per_coordinate, -y / metres_per_coordinate], "rotation": (-90.0 - heading) % 360.0,
+                "scale": z / metres_per_coordinate}
+
+    def to_local(pts: Any, tr: dict[str, Any]) -> list[list[float]]:
+        g = np.asarray(pts, float).reshape(-1, 2).copy()
+        g[:, 1] = -g[:, 1]
+        r = math.radians(tr["rotation"])
+        rot = np.array([[math.cos(r), math.sin(r)], [-math.sin(r), math.cos(r)]])
+        return (((g / metres_per_coordinate - tr["translation"]) / tr["scale"]) @ rot.T).round(6).tolist()
+
+    by_room: dict[int, list[dict[str, Any]]] = {i: [] for i in range(len(polys))}
+    for p in panoramas:
+        by_room[room_of(p["x"], p["y"])].append(p)
+    gaps = [("doors" if np.hypot(*(np.subtract(o["to"], o["from"]))) < 1.2 else "openings", o)
+            for o in (plan.get("doors") or []) + (plan.get("openings") or [])]
+    floor: dict[str, Any] = {}
+    for i, (room, poly) in enumerate(zip(plan["rooms"], polys)):
+        panos = by_room[i] or [{"frame": f"unphotographed_room_{i + 1:02d}.jpg", "x": float(poly[:, 0].mean()),
+                                "y": float(poly[:, 1].mean()), "z": cam_z, "heading_deg": 0.0}]
+        edges = list(zip(poly, np.roll(poly, -1, axis=0)))
+        zc = float(room.get("ceiling_z", plan["ceiling_z"]))
+        entries = {}
+        for j, p in enumerate(panos):
+            cz = float(p.get("z", cam_z))
+            tr = tr_of(p["x"], p["y"], p["heading_deg"], cz)
+            entry = {"label": room.get("name", f"room {i + 1}"), "is_primary": j == 0, "is_inside": True,
+                     "is_ceiling_flat": True, "ceiling_height": zc / cz, "camera_height": 1.0, "floor_number": 1,
+                     "image_path": f"{image_dir}/{p['frame']}", "floor_plan_transformation": tr}
+            if j == 0:
+                layout: dict[str, Any] = {"vertices": to_local(poly, tr), "doors": [], "openings": [], "windows": [],
+                                          "internal": [to_local(b, tr) for b in room.get("internal") or []]}
+                for kind, o in gaps:
+                    if any(_on_edge(np.asarray(o["from"], float), np.asarray(o["to"], float), a, b) for a, b in edges):
+                        layout[kind] += [*to_local([o["from"], o["to"]], tr), [-1.0, float(o["height"]) / cz - 1.0]]
+                for wdw in plan.get("windows") or []:
+                    if any(_on_edge(np.asarray(wdw["from"], float), np.asarray(wdw["to"], float), a, b) for a, b in edges):
+                        layout["windows"] += [*to_local([wdw["from"], wdw["to"]], tr),
+                                              [float(wdw["sill"]) / cz - 1.0, float(wdw["top"]) / cz - 1.0]]
+                entry["layout_complete"] = layout
+            entries[f"pano_{j + 1:02d}"] = entry
+        floor[f"complete_room_{i + 1:02d}"] = {f"partial_room_{i + 1:02d}": entries}
+    data = {"scale_meters_per_coordinate": {"floor_01": metres_per_coordinate}, "merger": {"floor_01": floor},
+            "redraw": {}, "floorplan_to_redraw_transformation": {}}
+    Path(path).write_text(json.dumps(data, indent=1))

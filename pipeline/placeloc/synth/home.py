@@ -17,6 +17,9 @@ Written under OUT:
 - ``panoramas/pano_000.png ...``: grey equirectangular panoramas (2:1) at random free-space
   poses, with random headings, sensor noise and blur;
 - ``poses.csv``: frame, x, y, z, heading_deg (ground truth);
+- ``zind_data.json``: the same home and poses in the Zillow Indoor Dataset's format (one
+  complete room per room, the layout in its primary panorama's frame: what
+  ``placeloc import zind`` and ``umap.model: zind_data.json`` read);
 - ``line_stats.json``: how much the panoramas' LSD lines and the map's lines agree at the
   true poses (share of detected line pixels on map lines, share of map line pixels
   detected), which :func:`generate` also returns and the CLI prints.
@@ -38,6 +41,7 @@ from numba import njit, prange
 from placeloc.geometry.floorplan import floor_plan_model, free_space_mask
 from placeloc.geometry.panorama import panorama_line_image, render_panoramas
 from placeloc.geometry.rays import ray_box, ray_segment
+from placeloc.geometry.zind import write_zind
 from placeloc.synth.texture import cell_hash, value_noise
 
 CEILING = 2.5
@@ -100,6 +104,8 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     clutter["boxes"].append([tx - 0.8, ty - 0.45, 0.72, tx + 0.8, ty + 0.45, 0.76, 0.35, 0.0])
     _fan(clutter, liv_w / 2 + rng.uniform(-0.4, 0.4), -south / 2 + rng.uniform(-0.4, 0.4))
     clutter["flat"].append([tx - 1.3, ty - 1.0, 0.0, tx + 1.3, ty + 1.0, 0.012, 0.4 + 0.15 * rng.random(), 0.0])   # a rug
+    ru = rng.uniform(0.5, length - 3.0)
+    clutter["flat"].append([ru, 0.35, 0.0, ru + 2.4, HALL_W - 0.35, 0.012, 0.3 + 0.2 * rng.random(), 0.0])  # a hall runner
     # kitchen cabinets: a counter run along the south wall and wall cabinets above it
     k0 = liv_w + 0.1
     clutter["boxes"].append([k0, -south, 0.0, length - 0.1, -south + 0.6, 0.9, 0.45, 0.6])
@@ -407,6 +413,7 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     height = width // 2
     sh = stats_width // 2
     on_map, found, below = [], [], []
+    written = []
     with open(out_dir / "poses.csv", "w", newline="") as fpz:
         w = csv.writer(fpz)
         w.writerow(["frame", "x", "y", "z", "heading_deg"])
@@ -414,12 +421,15 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             heading = float(rng.uniform(0, 360))
             zz = z + float(rng.uniform(-0.03, 0.03))
             img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
+            # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
+            img[int(height * (90 + 78) / 180):] *= 0.45
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)
             name = f"pano_{i:03d}.png"
             cv2.imwrite(str(out_dir / "panoramas" / name), img)
             w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}"])
+            written.append({"frame": name, "x": float(x), "y": float(y), "z": zz, "heading_deg": heading})
             q = panorama_line_image(img, width=stats_width, height=sh, face_px=width // 4, min_length=8.0)
             m = render_panoramas(model.segments, model.faces, np.array([[x, y, zz, heading]]), width=stats_width, height=sh,
                                  hidden=True)
@@ -428,6 +438,7 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             on_map.append(a)
             found.append(b)
             below.append(c)
+    write_zind(fp, written, out_dir / "zind_data.json", image_dir="panoramas")
     stats = {"detected_on_map": float(np.median(on_map)), "map_detected": float(np.median(found)),
              "off_map_below_60": float(np.median(below)),
              "detected_on_map_range": [float(np.min(on_map)), float(np.max(on_map))],

@@ -32,6 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numba import njit, prange
+from threadpoolctl import threadpool_limits
 
 from placeloc.geometry.floorplan import blocking_faces, wall_distance
 from placeloc.geometry.panorama import (  # noqa: F401  (re-exported: the map renderer and the query line image)
@@ -269,7 +270,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             return chamfer_table(database["spectra"], lines[ks], tau_px=pp.chamfer_tau_px, weights=weights)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
-    def local_table(k: int, pts: np.ndarray, z: float) -> np.ndarray:
+    def local_tables(k: int, pts: np.ndarray, z: float) -> np.ndarray:
+        """(L, W) scores of query k at plan points pts (rendered on the spot), every shift."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
@@ -287,27 +289,44 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             ks = np.arange(s, min(n, s + PANORAMA_BATCH))
             yield from zip(ks, tables(ks))
 
-    for k, table in progress(scored()):
-        best[k], shift, score[k] = best_pose(table)
-        heading[k] = shift * 360.0 / w
-        cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                    min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
-        for c in cands:
-            floor_d = min(wall_margin_m, float(wall_distance(poses[c:c + 1, :2], walls)[0])) if len(walls) else 0.0
-            xy, yaw, sc = poses[c, :2].copy(), float(np.argmax(table[c])) * 360.0 / w, float(table[c].max())
-            for step in steps:  # coarse to fine: the 8 neighbours at each step around the best so far
-                pts = xy + step * NEIGHBOURS
+    # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
+    # shared cores they cost 3-5x the CPU time of the search; bench-umap)
+    limiter = threadpool_limits(limits=1, user_api="blas")
+    try:
+        for k, table in progress(scored()):
+            best[k], shift, score[k] = best_pose(table)
+            heading[k] = shift * 360.0 / w
+            cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                        min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
+            if not len(cands):
+                continue
+            # every candidate's current best (position, yaw, score); one render call per step for all of them
+            xy = poses[cands, :2].copy()
+            yaw = np.argmax(table[cands], axis=1) * 360.0 / w
+            sc = table[cands].max(axis=1)
+            floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
+            for step in steps:  # coarse to fine: the 8 neighbours at each step around each candidate's best so far
+                pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
+                owner = np.repeat(np.arange(len(cands)), len(NEIGHBOURS))
                 if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
-                    pts = pts[wall_distance(pts, walls) >= floor_d]
+                    ok = wall_distance(pts, walls) >= floor_d[owner]
+                    pts, owner = pts[ok], owner[ok]
                 if not len(pts):
                     continue
-                i, sh, v = best_pose(local_table(int(k), pts, float(poses[c, 2])))
-                if v > sc:
-                    xy, yaw, sc = pts[i], sh * 360.0 / w, v
-            if sc > score[k]:
+                sub = local_tables(int(k), pts, float(poses[cands[0], 2]))
+                top, arg = sub.max(axis=1), sub.argmax(axis=1)
+                for j in range(len(cands)):
+                    mine = np.flatnonzero(owner == j)
+                    if len(mine) and top[mine].max() > sc[j]:
+                        i = mine[int(np.argmax(top[mine]))]
+                        xy[j], yaw[j], sc[j] = pts[i], arg[i] * 360.0 / w, top[i]
+            j = int(np.argmax(sc))
+            if sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
-                best[k], heading[k], score[k] = c, yaw, sc
-                refined_xy[k] = xy
+                best[k], heading[k], score[k] = cands[j], yaw[j], sc[j]
+                refined_xy[k] = xy[j]
+    finally:
+        limiter.restore_original_limits()
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]

@@ -31,4 +31,3 @@ def tears_of_steel() -> Path:
     if root is None or not (root / "tears-of-steel" / "markers.csv").is_file():
         pytest.skip("../shared/data/tears-of-steel is absent")
     return root / "tears-of-steel"
-

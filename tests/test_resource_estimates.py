@@ -90,3 +90,18 @@ def test_pirf_estimates(tmp_path):
         assert r["measured_disk"] <= r["estimate_disk"], r
         r["estimate_disk"] = r["measured_disk"]  # the cap is checked above; _check then tests memory
     _check(rows)
+
+
+def test_seqslam_whole_run_disk_with_plots(route, tmp_path):
+    """The disk a whole run writes, pictures and report.html included (what a user sees in
+    du -s RUN_DIR), against the sum of the stages' estimates."""
+    from placeloc.config import load_config
+    from placeloc.limits import estimate
+    from placeloc.methods import STAGES
+    from placeloc.runner import image_sets, run_all
+
+    cfg = load_config(route / "config.yaml", ["plots=true"])
+    run_all(cfg, tmp_path / "run", quiet=True)
+    written = sum(p.stat().st_size for p in (tmp_path / "run").rglob("*") if p.is_file())
+    estimated = sum(n.disk for n in estimate(cfg, image_sets(cfg), STAGES))
+    assert written <= estimated <= 2 * written, (written, estimated)

@@ -226,11 +226,16 @@ def seqslam_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequen
         # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
         # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;
         # the PNGs and report.html a few MB.
-        plots = 3 << 20 if config.get("plots", True) else 0
+        # The PNGs (the difference-matrix picture subsamples D to at most 800 x 800, two
+        # panels) and report.html, which embeds them again in base64: about 2.5 times their
+        # sum (the strips of samples and of failures about 160 kB each; measured 2.6 MiB in
+        # all for configs/demo.yaml, 81 queries, estimated 3.5 MiB).
+        plotting = bool(config.get("plots", True))
+        pictures = (600_000 + 2 * min(n_ref, 800) * min(n_query, 800)) * 5 // 2 if plotting else 0
         needs.append(Need(f"scoring {n_query} queries against {n_ref} references, {block} at a time",
                           "seqslam.block_size", stage="evaluate",
-                          memory=(20 * d_block if d_full else 2 * d_block) + 64 * top_k * n_query + 8 * plots,
-                          disk=800 * n_query + 2 * plots))
+                          memory=(20 * d_block if d_full else 2 * d_block) + 64 * top_k * n_query + (24 << 20 if plotting else 0),
+                          disk=800 * n_query + pictures))
     return [n for n in needs if n.stage in stages] + _decode_need(config, images, 8, "decoding", stages)
 
 

@@ -1,7 +1,9 @@
 """SeqSLAM speed and memory: placeloc's kernels and whole run against straightforward NumPy.
 
     python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails
+    python bench/bench_seqslam.py --flexible-block  # the flexible preset on one block at 36,000 refs
     python bench/bench_seqslam.py --large    # also a 36,000 x 36,000 run through the pipeline
+                                             # (localize with the trajectory and the flexible search)
 
 The problem is built from nordland-dev (the shared data folder, tiled with noise to 3576
 frames per traverse) when present, else from a generated route. Settings are
@@ -140,10 +142,11 @@ def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float
     return float(out[0]), float(out[1])
 
 
-def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store: bool = True) -> Path:
+def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store: bool = True,
+                 shape: str = "trajectory") -> Path:
     path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
                                 "plots": False, "seqslam": {"comparison": comparison, "store_difference": store,
-                                                            "search": P.search}}))
+                                                            "search": P.search, "sequence_shape": shape}}))
     return path
 
 
@@ -159,12 +162,37 @@ def whole_run(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, f
     return best
 
 
+def flexible_block(n_ref: int = 36000, block: int = 1024, ds: int = 120, anchors: int = 32) -> None:
+    """One localize block of the Nordland preset's flexible search at 36,000 references:
+    the block of D^ (block + ds query rows) and the search of ``anchors`` of its queries
+    (memory peaks within the first chunk; time scales with the anchors)."""
+    rng = np.random.default_rng(0)
+    et = rng.random((block + ds, n_ref), dtype=np.float32) + 4
+    for v_min in (0.5, 0.0):
+        t0 = time.perf_counter()
+        sequence_search(et, ds // 2, ds // 2 + anchors, ds, velocities(v_min, 2.0, 0.1), "centred", 10, 10, None, 0,
+                        shape="flexible", edges="shift")
+        dt = time.perf_counter() - t0
+        print(f"flexible, ds {ds}, v {v_min:g}-2.0, {anchors} queries x {n_ref} references: {dt:.1f} s "
+              f"(all {n_ref} queries: about {dt * n_ref / anchors / 60:.0f} min); peak RSS "
+              f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576:.2f} GB with the block of D^ "
+              f"({et.nbytes / 1e9:.2f} GB)", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3576)
     ap.add_argument("--large", action="store_true", help="also run 36,000 x 36,000 through the pipeline")
     ap.add_argument("--keep", type=Path, default=None, help="keep generated data here")
+    ap.add_argument("--flexible-block", action="store_true",
+                    help="only: memory and time of the Nordland preset's flexible search on one block of queries "
+                         "against 36,000 references (random D^), moving only and allowed to stand still")
+    ap.add_argument("--large-shapes", default="trajectory,flexible",
+                    help="sequence shapes whose localize the --large run measures (comma-separated)")
     args = ap.parse_args()
+    if args.flexible_block:
+        flexible_block()
+        return
     from placeloc.seqslam.l1 import n_threads
 
     print(f"cores: {os.cpu_count()}, kernel threads: {n_threads()}")
@@ -222,6 +250,13 @@ def main() -> None:
         t_naive_search = t_ns_part * n / len(qs)
         rows.append((f"sequence search (ds={P.ds}, {len(vels)} velocities)", t_search, t_naive_search,
                      f"naive timed on {len(qs)} queries, scaled; argmin agreement {agree:.3f}"))
+        # the flexible search (speed may change inside the window) beside it, same window and
+        # velocities; target: within 2x of the straight lines
+        t_flex, (best_flex, _) = timed(sequence_search, et, 0, n, P.ds, vels, P.search, w_, P.top_k, None, 0,
+                                       shape="flexible", edges=P.edges, repeat=2)
+        rows.append((f"flexible search (ds={P.ds}, {len(vels)} velocities)", t_flex, None,
+                     f"{t_flex / t_search:.2f}x the trajectory search (target <= 2x); argmin agreement with it "
+                     f"{float((best_flex[:, 0] == best[:, 0]).mean()):.3f}"))
         t_naive_whole = t_naive_extract + t_naive_sad + t_naive_enh + t_naive_search
         rows.append(("placeloc extract (own process)", stages["extract"][0], t_naive_extract,
                      f"CPU {stages['extract'][1]:.2f} s; naive: read + per-block loop"))
@@ -247,11 +282,13 @@ def main() -> None:
             ref_dir, q_dir = make_traverses(work / "data-large", big)
             cfg = write_config(work / "large.yaml", ref_dir, q_dir)
             t_ex, rss_ex = run_stage_subprocess(cfg, work / "run-large", "extract")
-            t_lo, rss_lo = run_stage_subprocess(cfg, work / "run-large", "localize")
-            size = (work / "run-large" / "localize.h5").stat().st_size / 1e9
-            print(f"\nSeqSLAM {big} x {big}: extract {t_ex:.1f} s (peak {rss_ex:.2f} GB), "
-                  f"localize {t_lo:.1f} s (peak {rss_lo:.2f} GB), localize.h5 {size:.1f} GB")
-            print(f"target: peak memory < 6 GB -> {'met' if max(rss_ex, rss_lo) < 6 else 'NOT met'}")
+            for shape in args.large_shapes.split(","):
+                cfg = write_config(work / "large.yaml", ref_dir, q_dir, shape=shape)
+                t_lo, rss_lo = run_stage_subprocess(cfg, work / "run-large", "localize")
+                size = (work / "run-large" / "localize.h5").stat().st_size / 1e9
+                print(f"\nSeqSLAM {big} x {big}, {shape} search: extract {t_ex:.1f} s (peak {rss_ex:.2f} GB), "
+                      f"localize {t_lo:.1f} s (peak {rss_lo:.2f} GB), localize.h5 {size:.1f} GB")
+                print(f"target: peak memory < 6 GB -> {'met' if max(rss_ex, rss_lo) < 6 else 'NOT met'}")
     finally:
         if args.keep is None:
             shutil.rmtree(work, ignore_errors=True)

@@ -1,5 +1,6 @@
 # SeqSLAM: the comparison experiment, the speed benchmark and the presets on real data.
-.PHONY: experiment-seqslam bench-seqslam bench-seqslam-large seqslam-nordland seqslam-corridor seqslam-route seqslam-presets
+.PHONY: experiment-seqslam bench-seqslam bench-seqslam-large seqslam-nordland seqslam-corridor seqslam-route seqslam-presets \
+	seqslam-speed seqslam-speed-tune
 
 experiment-seqslam: $(STAMP)
 	$(PL) experiment seqslam
@@ -23,3 +24,12 @@ seqslam-route: $(STAMP)
 # ... and the figures of docs/seqslam.md: chosen on one part, reported on the other.
 seqslam-presets: $(STAMP)
 	$(BIN)/python -m placeloc.experiments.seqslam --out runs/seqslam-presets
+
+# Query speed that changes (steady, varying 0.5-2.0x, stopping): settings chosen on
+# nordland-dev frames 1-600 (seeds 0-4), reported on 601-1200 (seeds 100-104) through
+# `placeloc run`; the table of docs/seqslam.md ("When the speed changes").
+seqslam-speed-tune: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam_speed tune --out runs/seqslam-speed
+
+seqslam-speed: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam_speed report --out runs/seqslam-speed

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from faults_table import record
 
 from placeloc.config import load_config
 from placeloc.images import ImageError, list_images, read_gray, read_rgb
@@ -28,7 +29,9 @@ def _cli(args: list[str], **env: str):
     root = logging.getLogger()
     saved = (root.handlers[:], root.level)
     try:
-        return CliRunner().invoke(app, args, env=env or None)
+        result = CliRunner().invoke(app, args, env=env or None)
+        record(result.exit_code, getattr(result, "stderr", "") or result.output)
+        return result
     finally:
         root.handlers[:], root.level = saved
 
@@ -228,15 +231,15 @@ def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, 
 def test_a_localize_that_fails_leaves_no_matches_csv(route, tmp_path, monkeypatch):
     """Ctrl-C right after localize wrote matches.csv (before its artifact was complete):
     no matches.csv appears, and the next run resumes from extract."""
-    import placeloc.seqslam.matches_csv as matches_csv
+    import placeloc.evaluation.ranked as ranked
 
-    real = matches_csv.write_matches_csv
+    real = ranked.write_matches_csv
 
-    def then_interrupt(path, **k):
-        real(path, **k)
+    def then_interrupt(path, *a, **k):
+        real(path, *a, **k)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(matches_csv, "write_matches_csv", then_interrupt)
+    monkeypatch.setattr(ranked, "write_matches_csv", then_interrupt)
     run = tmp_path / "R"
     res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
     assert res.exit_code == 130 and _err(res).strip() == "interrupted; rerun to resume"
@@ -341,6 +344,7 @@ def test_double_ctrl_c_during_a_pooled_stage_exits_at_once(tmp_path, gap):
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         pytest.fail("placeloc did not exit within 8 s of a double Ctrl-C")
+    record(proc.returncode, err)
     assert time.perf_counter() - t0 < 5
     assert proc.returncode == 130 and err.strip() == "interrupted; rerun to resume", err
     time.sleep(0.5)
@@ -446,6 +450,7 @@ def test_local_dask_cluster_leaves_no_scratch_space_in_tmpdir(tmp_path):
     pytest.importorskip("distributed")
     proc, tmpdir = _dask_run(tmp_path, 60)
     out, err = proc.communicate(timeout=120)
+    record(proc.returncode, err)
     assert proc.returncode == 0, err
     assert list(tmpdir.iterdir()) == [], list(tmpdir.iterdir())
 
@@ -474,6 +479,7 @@ def test_ctrl_c_under_a_local_dask_cluster_is_one_line(tmp_path):
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         pytest.fail("placeloc did not exit within 10 s of Ctrl-C under a local Dask cluster")
+    record(proc.returncode, err)
     assert proc.returncode == 130 and err.strip() == "interrupted; rerun to resume", err
     assert time.perf_counter() - t0 < 10
     time.sleep(0.5)
@@ -501,6 +507,7 @@ def test_a_pool_worker_killed_with_sigkill_is_an_environment_failure(tmp_path):
     assert workers
     os.kill(workers[0], signal.SIGKILL)
     out, err = proc.communicate(timeout=30)
+    record(proc.returncode, err)
     lines = _lines(err)
     assert proc.returncode == 3 and len(lines) == 1, err
     assert lines[0].startswith("error: a worker process was killed (out of memory?)") and "executor.workers (now 2)" in lines[0]
@@ -552,6 +559,7 @@ def test_100000_nested_brackets_are_a_one_line_config_error(route, tmp_path, whe
     res = _cli(args + ["--run-dir", str(tmp_path / "r")])
     lines = _lines(_err(res))
     assert res.exit_code == 2 and len(lines) == 1 and "nested too deeply" in lines[0], lines[:3]
+    assert len(lines[0]) < 1000  # the value is not echoed whole
     assert "RecursionError" not in _err(res)
 
 

@@ -128,7 +128,7 @@ def test_loop_closure_on_a_route_driven_twice(route, tmp_path):
         w.writerow(["query", "ref_first", "ref_last"])
         for q in range(160):
             if q >= 80:
-                w.writerow([q, q - 82, q - 78])
+                w.writerow([q, max(0, q - 82), q - 78])
     cfg = load_config(data={"method": "seqslam", "reference": {"images": str(both)}, "plots": False,
                             "ground_truth": {"kind": "csv", "path": str(gt)},
                             "seqslam": {"exclude_recent": 40}}, base_dir=tmp_path)

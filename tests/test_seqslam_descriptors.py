@@ -60,6 +60,25 @@ def test_cosine_descriptors_from_npy_and_a_folder_of_npy(tmp_path):
     assert (best[5:-5] == np.arange(5, 55)).all() and (best[:5] == -1).all()
     assert m["recall_at_1"] == pytest.approx(50 / 60)
     assert m["single_image_recall_at_1"] < 0.9  # the sequence is what makes it right
+    # one's own descriptors are named after their source, never after the image comparison they bypass
+    assert m["comparison"] == "descriptors ref.npy (cosine)"
+
+
+def test_own_descriptors_named_after_their_source_in_the_legend_and_title(tmp_path, monkeypatch):
+    from placeloc.evaluation import plots
+
+    root, ref, query = _planted(tmp_path)
+    np.save(root / "ref.npy", ref)
+    np.save(root / "q.npy", query)
+    seen: list[str] = []
+    monkeypatch.setattr(plots, "plot_pr_curves", lambda curves, path, title="": seen.extend(curves))
+    monkeypatch.setattr(plots, "plot_difference_matrices", lambda panels, path, **k: seen.append(k["title"]))
+    cfg = _config(root, root / "ref.npy", root / "q.npy", "l2")
+    cfg["plots"] = True
+    run_all(cfg, root / "run", quiet=True)
+    assert "SeqSLAM descriptors ref.npy (l2) ds=10" in seen
+    assert any(t.startswith("SeqSLAM descriptors ref.npy (l2): ds=10") for t in seen)
+    assert not any("sad" in t for t in seen)
 
 
 def test_l2_descriptors_from_hdf5_and_errors_name_the_file(tmp_path):

@@ -220,17 +220,41 @@ def seqslam_variants(tmp: Path) -> list[Variant]:
         _preset("demo.yaml", {}, {**base, "seqslam.descriptors_reference": str(tmp / "ref.npy"),
                                   "seqslam.descriptors_query": str(tmp / "query.npy"),
                                   "seqslam.descriptor_distance": "l2"}),
-        # loop closure within the reference traverse (no query): exclude_recent
-        _preset("demo.yaml", {}, {**base, "query": None, "ground_truth": {"kind": "synchronous", "tolerance": 2}}),
+        # loop mode (no query: the loops contract, exclude_recent) on the PIRF smoke video
+        _preset("seqslam-loops-smoke.yaml", {"../runs/data/omni-smoke": str(_omni_smoke(tmp))}, {"plots": True}),
+    ]
+
+
+def _omni_smoke(tmp: Path) -> Path:
+    """The 80-frame omnidirectional loop of configs/pirf-smoke.yaml's header, made once per test."""
+    from placeloc.synth.omni import generate
+
+    data = tmp / "omni-smoke"
+    if not (data / "mapping" / "poses.csv").is_file():
+        generate(data, seed=0, frames=80, test_frames=40, width=240, layout="small", step=0.3)
+    return data
+
+
+def retrieval_variants(tmp: Path) -> list[Variant]:
+    """configs/retrieval.yaml (the bundled route), brought descriptors with L2, each search."""
+    rng = np.random.default_rng(0)
+    n_ref = len(list((ROOT / "data-samples" / "route" / "reference").glob("*.png")))
+    n_query = len(list((ROOT / "data-samples" / "route" / "query").glob("*.png")))
+    np.save(tmp / "ref.npy", rng.standard_normal((n_ref, 16)).astype(np.float32))
+    np.save(tmp / "query.npy", rng.standard_normal((n_query, 16)).astype(np.float32))
+    return [
+        _preset("retrieval.yaml", {}),
+        _preset("retrieval.yaml", {}, {"plots": False, "retrieval.search": "faiss", "retrieval.distance": "l2",
+                                       "retrieval.descriptors_reference": str(tmp / "ref.npy"),
+                                       "retrieval.descriptors_query": str(tmp / "query.npy")}),
+        _preset("retrieval.yaml", {}, {"plots": False, "retrieval.search": "exact", "retrieval.top_k": 5}),
     ]
 
 
 def pirf_variants(tmp: Path) -> list[dict]:
-    """configs/pirf-smoke.yaml on its 80-frame generated loop, as its header makes it."""
-    from placeloc.synth.omni import generate
-
-    data = tmp / "omni-smoke"
-    generate(data, seed=0, frames=80, test_frames=40, width=240, layout="small", step=0.3)
+    """configs/pirf-smoke.yaml on its 80-frame generated loop, as its header makes it, and a
+    six-frame folder whose last frame is blank."""
+    data = _omni_smoke(tmp)
     moves = {"../runs/data/omni-smoke": str(data)}
     # blank_frames is read when a frame has no features: six frames, the last one blank
     blank = tmp / "blank"
@@ -329,6 +353,7 @@ def coembed_variants(tmp: Path) -> list[dict]:
 
 SMOKE: dict[str, Callable[[Path], list[Any]]] = {
     "seqslam": seqslam_variants, "pirf": pirf_variants, "umap": umap_variants, "coembed": coembed_variants,
+    "retrieval": retrieval_variants,
 }
 
 

@@ -178,10 +178,19 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+# Set by the global --verbose flag (placeloc --verbose run ...).
+_VERBOSE = False
+
+
 @app.callback()
 def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
-                                       help="Print the version and exit.")) -> None:
+                                       help="Print the version and exit."),
+          verbose: bool = typer.Option(False, "--verbose", "-v",
+                                       help="Also show the libraries' log lines (faiss, Dask, ...) and placeloc's "
+                                            "debug lines. Give it before the command: placeloc --verbose run ...")) -> None:
     """placeloc: where am I, from images alone."""
+    global _VERBOSE
+    _VERBOSE = verbose
 
 ConfigArg = typer.Argument(..., help="YAML config (see configs/); relative paths in it start at its folder.")
 RunDirOpt = typer.Option(None, "--run-dir", "-o", help="Run directory for artifacts (default: runs/<config name>).")
@@ -191,9 +200,30 @@ QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars, warnings
 WaitOpt = typer.Option(False, "--wait", help="If another run holds the run directory, wait for it instead of stopping.")
 
 
+class _SourceFormatter(logging.Formatter):
+    """``placeloc: message`` for our lines, ``faiss.loader: message`` for a library's."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        source = "placeloc" if record.name == "placeloc" or record.name.startswith("placeloc.") else record.name
+        return f"{source}: {record.getMessage()}" + (f"\n{self.formatException(record.exc_info)}" if record.exc_info else "")
+
+
 def _setup_logging(quiet: bool) -> None:
-    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO,
-                        format="placeloc: %(message)s", stream=sys.stderr, force=True)
+    """placeloc's progress lines at INFO (warnings only with --quiet). Libraries speak at
+    WARNING and above unless --verbose: faiss, for one, logs at INFO which CPU build it
+    loaded ("Could not load library with AVX512 support") on every run that uses it."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_SourceFormatter())
+    logging.basicConfig(level=logging.INFO if _VERBOSE else logging.WARNING, handlers=[handler], force=True)
+    ours = logging.DEBUG if _VERBOSE else logging.WARNING if quiet else logging.INFO
+    logging.getLogger("placeloc").setLevel(ours)
+
+
+def _say_written(folder: Path, names: tuple[str, ...], runs: str) -> None:
+    """The last lines of sweep and compare: where the table, figure and runs are."""
+    wrote = [n for n in names if (folder / n).is_file()]
+    typer.echo(f"wrote {', '.join(str(folder / n) for n in wrote)}")
+    typer.echo(f"runs: {folder}/ ({runs}; open one with placeloc show {folder}/RUN)")
 
 
 def _fail(exc: Exception) -> None:
@@ -350,6 +380,7 @@ def compare(config: Path = ConfigArg,
     out = run_dir or Path("runs") / f"{config.stem}-compare"
     table = compare_methods(cfg, out, [m.strip() for m in methods.split(",") if m.strip()], quiet=quiet)
     typer.echo(table.read_text())
+    _say_written(table.parent, ("table.md", "table.csv", "pr_curves.png"), "one run directory per comparison")
 
 
 @app.command()
@@ -496,3 +527,4 @@ def sweep(config: Path = ConfigArg,
     except (ConfigError, ImageError, StageError, FileNotFoundError, yaml.YAMLError) as exc:
         _fail(exc)
     typer.echo(table.read_text())
+    _say_written(table.parent, ("sweep.md", "sweep.csv", "sweep.png"), "one run directory per combination")

@@ -113,7 +113,8 @@ def apply_override(data: dict, item: str) -> None:
         value = safe_yaml(raw) if raw.strip() else None
     except yaml.YAMLError as exc:
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"--set {item!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
+        shown = item if len(item) <= 80 else f"{item[:60]}... ({len(item):,} characters)"
+        raise ConfigError(f"--set {shown!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
                           f"e.g. --set {key.strip()}=[1, 2] or --set {key.strip()}='text'") from exc
     node = data
     parts = key.strip().split(".")
@@ -179,7 +180,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
         raise ConfigError(problems[0])
     from placeloc.evaluation.contracts import check_ground_truth
 
-    check_ground_truth(config)  # the method's result contract checks its ground truth before any stage runs
+    check_ground_truth(config, method)  # the method's result contract checks its ground truth before any stage runs
     return config
 
 

@@ -38,3 +38,9 @@ class EnvironmentFailure(RuntimeError):
 class WorkerLostError(EnvironmentFailure):
     """A worker process died while it ran a work item (killed with SIGKILL: usually the
     out-of-memory killer)."""
+
+
+class ModelError(ValueError):
+    """A map model file (wireframe, floor plan, ZInD home) cannot be used; the message names
+    the file and the fix. Here, not in geometry.floorplan, so that the ZInD importer and the
+    floor-plan loader (which reads ZInD homes through it) need not import each other."""

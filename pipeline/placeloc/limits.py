@@ -36,9 +36,28 @@ class Need:
     key: str
     memory: int = 0  # bytes held at once by the processes doing the work
     disk: int = 0  # bytes written to the run directory
+    stage: str = ""  # the stage that needs it ("" for every stage asked about)
+
+
+# What a stage's process holds beyond what it had before the stage, whatever the data's
+# size: libraries loaded and code compiled while the stage runs (numba/llvmlite kernels,
+# OpenCV, faiss, matplotlib), per method and stage; measured with tests/resource_probe.py
+# (figures and command in docs/reliability.md), rounded up.
+BASE_MEMORY: dict[str, dict[str, int]] = {
+    "seqslam": {"extract": 32 << 20, "build-dictionary": 64 << 20, "index": 64 << 20, "localize": 130 << 20,
+                "evaluate": 100 << 20},
+    "umap": {"extract": 100 << 20, "build-dictionary": 64 << 20, "index": 100 << 20, "localize": 100 << 20,
+             "evaluate": 100 << 20},
+    "pirf": {"extract": 64 << 20, "build-dictionary": 32 << 20, "index": 64 << 20, "localize": 64 << 20,
+             "evaluate": 32 << 20},
+    "coembed": {"extract": 16 << 20, "build-dictionary": 16 << 20, "index": 16 << 20, "localize": 40 << 20,
+                "evaluate": 64 << 20},
+}
 
 
 def _mb(n: float) -> str:
+    if n >= 2**40:
+        return f"{n / 2**40:.1f} TiB"
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
@@ -160,38 +179,105 @@ def _decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel
     if not pixels:
         return []
     return [Need(f"{why} of the largest image {path} ({pixels / 1e6:.1f} megapixels) x {_workers(config)} worker(s)",
-                 "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * _workers(config))]
+                 "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * _workers(config),
+                 stage="extract")]
 
 
 def seqslam_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
+    from placeloc.seqslam.comparisons import feature_dtype
+
     p = config["seqslam"]
     w, h = p["thumbnail"]
+    pixels = int(w) * int(h)
+    fbytes = feature_dtype(p["comparison"], p.get("normalisation", "")).itemsize
     n = _count(images)
     per_task = min(int(p["images_per_task"]), max(1, n))
-    # A worker holds its chunk's uint8 thumbnails and float32 features (5 bytes a pixel);
-    # the artifact stores both (features uncompressed).
+    workers = _workers(config)
     needs = []
-    if "extract" in stages:
-        needs.append(Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {_workers(config)} worker(s)",
-                          "seqslam.thumbnail (or seqslam.images_per_task)",
-                          memory=5 * w * h * per_task * _workers(config), disk=5 * w * h * n))
-    if p.get("store_difference") and "reference" in images and "localize" in stages:
+    # extract: a worker holds its chunk's decoded frames, uint8 thumbnails and features;
+    # extract.h5 stores thumbnails and features uncompressed, in chunks of up to 1024
+    # rows that HDF5 allocates whole (so a traverse rounds up to the next chunk).
+    rows = 0
+    for s in images.values():
+        chunk = min(1024, max(1, len(s)))
+        rows += -(-len(s) // chunk) * chunk
+    needs.append(Need(f"SeqSLAM thumbnails {w}x{h} x {per_task} images per task x {workers} worker(s)",
+                      "seqslam.thumbnail (or seqslam.images_per_task)", stage="extract",
+                      memory=(1 + fbytes) * pixels * (n + per_task * workers),
+                      disk=(1 + fbytes) * pixels * rows + 64 * n + (1 << 18)))  # + names, index, HDF5's own
+    if "reference" in images:
         n_ref = len(images["reference"])
         n_query = len(images["query"]) if "query" in images else n_ref
-        # localize.h5 keeps the float32 difference matrix (written block by block).
-        needs.append(Need(f"the {n_ref} x {n_query} difference matrix", "seqslam.store_difference: false",
-                          disk=4 * n_ref * n_query))
-    return needs + _decode_need(config, images, 8, "decoding", stages)
+        block = min(int(p.get("block_size", 1024)), n_query)
+        d_block = 4 * n_ref * block
+        d_full = 4 * n_ref * n_query if p.get("store_difference") else 0
+        top_k = int(p.get("top_k", 10))
+        # localize: both traverses' features and about 8 float32 blocks of D at once (D,
+        # its enhanced copy, the sequence search's scores and their temporaries);
+        # localize.h5 keeps D (chunked: 5% over) when store_difference, matches.csv a row
+        # per query. Measured: 138, 214, 299 MB at 1500, 3000, 6000 frames a traverse.
+        needs.append(Need(f"the {n_ref} x {n_query} difference matrix, {block} query columns at a time",
+                          "seqslam.block_size (memory) or seqslam.store_difference: false (disk)", stage="localize",
+                          memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query,
+                          disk=d_full * 21 // 20 + 600 * n_query))
+        # evaluate: D read back a block at a time, with its enhanced copies, the masked
+        # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
+        # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;
+        # the PNGs and report.html a few MB.
+        plots = 3 << 20 if config.get("plots", True) else 0
+        needs.append(Need(f"scoring {n_query} queries against {n_ref} references, {block} at a time",
+                          "seqslam.block_size", stage="evaluate",
+                          memory=(20 * d_block if d_full else 2 * d_block) + 64 * top_k * n_query + 8 * plots,
+                          disk=800 * n_query + 2 * plots))
+    return [n for n in needs if n.stage in stages] + _decode_need(config, images, 8, "decoding", stages)
 
 
 def pirf_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
+    p = config.get("pirf") or {}
+    n = _count(images)
+    dims = 64 if str(p.get("features", "sift")).startswith("surf") else (61 if p.get("features") == "akaze" else 128)
+    per_feature = 4 * dims + 24  # float32 descriptor, position, scale, angle
+    # extract.h5 holds at most n_features descriptors a frame: an upper bound (frames with
+    # fewer features write less; measured 73 kB a frame on 480x240 synthetic frames).
+    n_features = int(p.get("n_features", 1000))
+    needs = [Need(f"PIRF features of {n} frames (at most {n_features} a frame)", "pirf.n_features", stage="extract",
+                  disk=n * n_features * per_feature)]
+    cap = n * int(p.get("n_pmax", 200)) * per_feature  # at most n_pmax PIRFs per window, a window per frame
+    # build-dictionary: the windows' PIRFs and the growing dictionary (measured 37 and 106 MB
+    # for 80 and 260 frames, against caps of 8.6 and 28 MB).
+    needs.append(Need("the PIRF dictionary (at most pirf.n_pmax PIRFs a window)", "pirf.n_pmax", stage="build-dictionary",
+                      memory=3 * cap, disk=cap))
+    needs.append(Need("the dictionary's ANN index", "pirf.ann", stage="index", memory=2 * cap, disk=cap))
     # SIFT/SURF on one frame: about 240 bytes of scale space per pixel (measured: one
     # 8000x8000 frame took 14.9 GB).
-    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
+    return [x for x in needs if x.stage in stages] + \
+        _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
+
+
+def _count_lines(path: Any) -> int:
+    """Rows of a text file (a fast count of newlines; 0 when it cannot be read)."""
+    try:
+        with open(path, "rb") as fh:
+            return sum(chunk.count(b"\n") for chunk in iter(lambda: fh.read(1 << 20), b""))
+    except (OSError, TypeError):
+        return 0
 
 
 def coembed_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
-    return _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
+    p = config["coembed"]
+    needs = []
+    if p.get("source", "csv") == "csv" and p.get("observations"):
+        n_obs = _count_lines(p["observations"])
+        # extract: the parsed observation table (about 110 bytes an observation, measured
+        # 84 MB for 964,000), stored compressed (measured 8 bytes an observation);
+        # localize: the sparse system and its factorisation (measured 193 MB for 964,000:
+        # 200 bytes an observation), the path and map CSVs.
+        needs.append(Need(f"{n_obs:,} observations ({p['observations']})", "the observation file's size", stage="extract",
+                          memory=110 * n_obs, disk=14 * n_obs + (1 << 19)))
+        needs.append(Need(f"the co-embedding system of {n_obs:,} observations", "the observation file's size",
+                          stage="localize", memory=200 * n_obs, disk=3 * n_obs + (1 << 18)))
+    return [x for x in needs if x.stage in stages] + \
+        _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
 
 
 def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
@@ -205,13 +291,33 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[
         if step <= 0 or stop < start:
             return []  # pose_grid reports these with its own message
         axes.append(math.floor((stop - start) / step + 1e-9) + 1)
-    poses = axes[0] * axes[1] * max(1, len(g["headings"]))
-    words = (int(p["camera"]["width"]) * int(p["camera"]["height"]) + 63) // 64 if "camera" in p else 300
-    # The grid is built with meshgrid and stacked: about 8 float64 values a pose at once;
-    # the database holds one bit per pixel per pose.
-    needs = [Need(f"UMap pose grid of {poses:,} poses (x {g['x']}, y {g['y']}, {len(g['headings'])} headings)",
-                  "umap.grid (a larger step or a smaller range)", memory=poses * 64, disk=poses * words * 8)]
-    return needs + _decode_need(config, images, 16, "decoding", stages)
+    panorama = p.get("query_kind") == "panorama"
+    positions = axes[0] * axes[1]
+    views = positions if panorama else positions * max(1, len(g["headings"]))
+    size = p.get("panorama" if panorama else "camera") or {}
+    w, h = int(size.get("width", 160)), int(size.get("height", 120))
+    words = (w * h + 63) // 64
+    db = views * words * 8  # one bit per pixel per view
+    pooled = 0 if panorama else views * (((w // 8) * (h // 8) + 63) // 64) * 8
+    block = min(int(p.get("block", 2048)), views)
+    what = f"UMap database of {views:,} views of {w}x{h} (x {g['x']}, y {g['y']}" + \
+        ("" if panorama else f", {len(g['headings'])} headings") + ")"
+    key = "umap.grid (a larger step or a smaller range) or the camera size"
+    # build-dictionary: the grid (poses, the free-space test) and what HDF5 and the
+    # renderer hold of the database as it is written: measured 80, 85 and 199 MB for 46,000
+    # and 182,000 views of 160x120 and 182,000 of 40x30, i.e. 40 MB + 204 bytes a view +
+    # 0.28 of the database (estimated: 256 bytes and 0.4), and with a pool each worker's
+    # block of uint8 views; writes the database, its pooled cells, the poses and the plan.
+    # index: per-view counts (and, for panoramas, a dilated copy of the database).
+    # localize: the whole database, the pooled cells, poses and per-view scores (about
+    # 160 bytes a view; measured 176 and 525 MB for 46,000 and 182,000 views of 160x120).
+    pool = block * w * h * _workers(config) if _workers(config) > 1 else 0
+    needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
+                  disk=db + pooled + 48 * views + (1 << 20)),
+             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views,
+                  disk=(db if panorama else 0) + 48 * views),
+             Need(what, key, stage="localize", memory=db + pooled + 160 * views, disk=1 << 20)]
+    return [n for n in needs if n.stage in stages] + _decode_need(config, images, 16, "decoding", stages)
 
 
 # ----------------------------------------------------------------- cross-key rules
@@ -278,9 +384,21 @@ ESTIMATORS: dict[str, Callable[[dict[str, Any], dict[str, Any], Sequence[str]], 
 
 
 def estimate(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
-    """What running ``stages`` (stage names) will need."""
+    """What running ``stages`` (stage names) will need: the method's rows, and the memory a
+    stage's process takes for its libraries (:data:`BASE_MEMORY`)."""
     fn = ESTIMATORS.get(config["method"])
-    return fn(config, images, stages) if fn else []
+    needs = fn(config, images, stages) if fn else []
+    for stage in stages:
+        base = BASE_MEMORY.get(config["method"], {}).get(stage, 0)
+        if base:
+            needs.append(Need("placeloc's libraries and compiled kernels while the stage runs", "nothing (a fixed need)",
+                              memory=base, stage=stage))
+    return needs
+
+
+def stage_memory(needs: Sequence[Need], stage: str) -> int:
+    """What one stage holds at once (its rows, the fixed need included)."""
+    return sum(n.memory for n in needs if n.stage == stage)
 
 
 def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Path, stages: Sequence[str]) -> list[Need]:
@@ -289,6 +407,8 @@ def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Pat
     mem = memory_limit()
     cap = env_megabytes("PLACELOC_MEMORY_LIMIT_MB")
     for need in needs:
+        if need.key == "nothing (a fixed need)":  # part of each stage's total, not a figure of its own
+            continue
         if need.memory > mem and cap is not None:
             raise ResourceError(f"{need.what} needs about {_mb(need.memory)} of memory, more than "
                                 f"PLACELOC_MEMORY_LIMIT_MB={os.environ['PLACELOC_MEMORY_LIMIT_MB'].strip()} allows "

@@ -98,12 +98,13 @@ class Method:
         self.choices = P.choices(self.params)
         self.path_keys = P.path_keys(self.params)
         if self.result is not None and "evaluate" not in self.stages:
-            from placeloc.evaluation.contracts import KINDS, evaluate_stage
+            from placeloc.evaluation.contracts import contract, evaluate_stage
 
-            if self.result not in KINDS:
-                raise ValueError(f"{self.name}: unknown result contract {self.result!r}; known: {', '.join(KINDS)}")
+            sections = set(contract(self.result).SECTIONS)
+            if self.result_without_query is not None:
+                sections |= set(contract(self.result_without_query).SECTIONS)
             self.stages = {**self.stages, "evaluate": Stage(evaluate_stage, keys=self.evaluate_keys,
-                                                            sections=("ground_truth", "plots"))}
+                                                            sections=tuple(sorted(sections)))}
         known = set(self.defaults) | {k for k, _ in P._walk(self.params)}
         for name, stage in self.stages.items():
             if name not in STAGES:

@@ -188,13 +188,10 @@ def localize_result(run_dir: str | Path) -> Result | None:
 # ---------------------------------------------------------------------------------------
 # What a run sees of the contracts
 # ---------------------------------------------------------------------------------------
-def check_ground_truth(config: dict[str, Any]) -> None:
-    """The up-front ground-truth check, before any stage runs: the method's contract
+def check_ground_truth(config: dict[str, Any], method: Any) -> None:
+    """The up-front ground-truth check, before any stage runs: ``method``'s contract
     builds its ground truth from the config and the image lists (a bad file or a missing
     frame is one error naming the file and the fix)."""
-    from placeloc.methods import get_method
-
-    method = get_method(config["method"])
     kind = method.result_kind(config)
     if kind is not None:
         contract(kind).check_ground_truth(config, method)
@@ -216,7 +213,7 @@ def evaluate_stage(ctx: Any) -> None:
     for k, v in ev.arrays.items():
         _write_array(ctx.out, k, v)
     ctx.out.attrs["result_kind"] = res.kind
-    write_metrics(ctx.output_dir, ev.metrics, ctx.out)
+    clean = write_metrics(ctx.output_dir, ev.metrics, ctx.out)
     plots = bool(ctx.config.get("plots", True))
     mod.finish(ctx, ev, plots=plots)
     if plots:
@@ -225,7 +222,7 @@ def evaluate_stage(ctx: Any) -> None:
         # side outputs are staged in ctx.output_dir until the stage commits: read and write there
         if mod.SHOW_AT_EVALUATE:
             mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
-        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir)
+        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
 
 
 def _write_array(group: h5py.Group, name: str, value: Any) -> None:
@@ -250,6 +247,15 @@ def headline(run_dir: str | Path) -> list[tuple[str, Any]]:
     if not path.is_file() or res_kind is None:
         return []
     return headline_of(res_kind, json.loads(path.read_text()))
+
+
+def report_parts(kind: str | None, metrics: dict[str, Any] | None) -> dict[str, Any]:
+    """What report.html shows of the contract: its kind, the headline figures and the
+    documented meaning of its metrics (keyword arguments of ``write_report``)."""
+    if kind is None:
+        return {}
+    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [],
+            "metrics_doc": getattr(contract(kind), "METRICS_DOC", {})}
 
 
 def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:

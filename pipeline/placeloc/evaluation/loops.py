@@ -49,6 +49,8 @@ from placeloc.evaluation.ground_truth import GroundTruthError
 
 log = logging.getLogger("placeloc")
 
+# common config sections the evaluate stage reads
+SECTIONS = ("ground_truth", "plots")
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = True
 
@@ -326,8 +328,9 @@ def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     if not plots:
         return
     P.plot_pr_curves({ev.label: (pr.recall, pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
-                     title=f"Loop closure precision-recall ({ev.metrics['frames_with_loop']} of {ev.metrics['n_frames']} "
-                           f"frames close a loop; pairs < {ev.metrics['exclude_recent']} frames apart never count)")
+                     title=f"Loop closure precision-recall\n({ev.metrics['frames_with_loop']} of {ev.metrics['n_frames']} "
+                           f"frames close a loop; pairs < {ev.metrics['exclude_recent']} frames apart never count)",
+                     xlabel="recall (share of the frames that close a loop, closed correctly)")
     if "seconds" in res and "map_size" in res and len(res["seconds"]):
         plot_time_per_frame(ctx.output("time_per_frame.png"), res["map_size"], res["seconds"], ev.label)
 

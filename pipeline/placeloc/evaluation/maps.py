@@ -23,6 +23,8 @@ import numpy as np
 
 from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
 
+# common config sections the evaluate stage reads (the truth is named by the method's own parameters)
+SECTIONS = ("plots",)
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = False
 
@@ -124,7 +126,8 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
                          "map_max_error": None}
     ev = Evaluation("map", res, metrics=m)
     ev.extra.update(est=None, truth=None, landmarks=coords[is_lm], path_est=None, path_truth=None)
-    truth_path = _truth_path(ctx.config, ctx.method, "points")
+    key = (ctx.method.truth_keys or {}).get("points")
+    truth_path = None if key is None else getattr(ctx.params, key)
     if truth_path is not None:
         from placeloc.evaluation.ground_truth import GroundTruthError
 

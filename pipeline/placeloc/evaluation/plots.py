@@ -42,7 +42,8 @@ def _auc(rec: np.ndarray, prec: np.ndarray) -> float:
     return float(np.sum(np.diff(r) * (p[1:] + p[:-1]) * 0.5))
 
 
-def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "Precision-recall") -> Path:
+def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "Precision-recall",
+                   xlabel: str = "recall (share of all queries matched correctly)") -> Path:
     """``curves``: label -> (recall, precision). Each curve has its own line style and a
     few markers, so curves lying on top of each other stay visible; the legend gives the
     AUC (trapezoids over recall, as :class:`placeloc.evaluation.metrics.PRCurve`)."""
@@ -58,7 +59,7 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
                 markevery=max(1, len(x) // 6), ms=5, alpha=0.9, label=f"{label}  (AUC {_auc(rec, prec):.3f})", zorder=10 - i)
     ax.set_xlim(-0.01, 1.01)
     ax.set_ylim(0, 1.03)
-    ax.set_xlabel("recall (share of all queries matched correctly)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("precision")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)

@@ -27,6 +27,8 @@ import numpy as np
 
 from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
 
+# common config sections the evaluate stage reads
+SECTIONS = ("ground_truth", "plots")
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = True
 

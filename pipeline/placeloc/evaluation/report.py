@@ -56,10 +56,13 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     after a run succeeds, so during a stage it may still describe the previous run)."""
     import h5py
 
-    from placeloc.methods import STAGES
+    def newest_first(p: Path) -> float:
+        try:
+            return -p.stat().st_mtime
+        except OSError:
+            return 0.0
 
-    for stage in reversed(STAGES):
-        path = run_dir / f"{stage}.h5"
+    for path in sorted(Path(run_dir).glob("*.h5"), key=newest_first):
         if path.is_file():
             try:
                 with h5py.File(path, "r") as f:
@@ -71,44 +74,25 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return {}
 
 
-def _result_kind(run_dir: Path) -> str | None:
-    from placeloc.evaluation.contracts import localize_result
-
-    try:
-        res = localize_result(run_dir)
-    except (OSError, ValueError):
-        return None
-    return None if res is None else res.kind
-
-
-def _headline_html(run_dir: Path, metrics: dict[str, Any]) -> str:
+def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
     """The headline figures first, as large numbers, with the contract they belong to."""
-    from placeloc.evaluation.contracts import format_value, headline_of
-
-    kind = _result_kind(run_dir)
-    figures = headline_of(kind, metrics) if kind and metrics else []
     if not figures:
         what = f"result: {kind}; " if kind else ""
         return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
-    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(format_value(v))}</div><div class='k'>{html.escape(k)}</div>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(_fmt(v))}</div><div class='k'>{html.escape(k)}</div>"
                     "</div>" for k, v in figures)
     return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
-def _metrics_doc(run_dir: Path) -> str:
-    from placeloc.evaluation.contracts import contract
-
-    kind = _result_kind(run_dir)
-    if kind is None:
-        return ""
-    doc = getattr(contract(kind), "METRICS_DOC", {})
-    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in doc.items())
-    return f"<ul class='muted'>{items}</ul>"
+def _metrics_doc(doc: dict[str, str] | None) -> str:
+    items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
+    return f"<ul class='muted'>{items}</ul>" if items else ""
 
 
 def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
-                 out_dir: str | Path | None = None) -> Path:
+                 out_dir: str | Path | None = None, result_kind: str | None = None,
+                 headline: list[tuple[str, Any]] | None = None, metrics_doc: dict[str, str] | None = None) -> Path:
     """Write ``report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
     ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
@@ -125,7 +109,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
              f"<style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
-    parts.append(_headline_html(run_dir, metrics))
+    parts.append(_headline_html(result_kind, headline or []))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):
@@ -142,7 +126,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2>" + _metrics_doc(run_dir) + _table(main, ("metric", "value")))
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc) + _table(main, ("metric", "value")))
     else:
         parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}

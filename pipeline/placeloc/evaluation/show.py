@@ -225,9 +225,10 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     ``placeloc show`` does. A file that comes out byte-identical keeps its old modification
     time, so that re-showing a run does not make the evaluate stage that wrote the same
     file look out of date."""
+    import json
     import os
 
-    from placeloc.evaluation.contracts import contract, localize_result
+    from placeloc.evaluation.contracts import contract, localize_result, report_parts
     from placeloc.evaluation.report import REPORT, write_report
 
     run_dir = Path(run_dir)
@@ -238,7 +239,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     names = [p.name for p in run_dir.glob("*.png")] + [REPORT]
     before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
     pictures = mod.show(run_dir, res, sample=sample, failures=failures)
-    report = write_report(run_dir)
+    metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else None
+    report = write_report(run_dir, **report_parts(res.kind, metrics))
     for name, (data, st) in before.items():
         p = run_dir / name
         if p.is_file() and p.read_bytes() == data:

@@ -61,9 +61,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-
-class ModelError(ValueError):
-    """The model file cannot be used; the message names the file and the fix."""
+from placeloc.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
+from placeloc.geometry.polygons import on_edge as _on_edge
+from placeloc.geometry.polygons import point_in_polygon
 
 
 @dataclass
@@ -121,17 +121,6 @@ def in_gaps(xy: np.ndarray, gaps: np.ndarray, depth_m: float = GAP_DEPTH_M) -> n
     return ok
 
 
-def point_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Even-odd rule, vectorized over points."""
-    x, y = xy[:, 0][:, None], xy[:, 1][:, None]
-    a = poly
-    b = np.roll(poly, -1, axis=0)
-    cond = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xc = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-    return (np.count_nonzero(cond & (x < xc), axis=1) % 2) == 1
-
-
 def load_model(path: str | Path, floor: str | None = None) -> Model:
     """The model in a wireframe (.yaml/.json/.obj), a floor plan (.yaml) or a Zillow Indoor
     Dataset ``zind_data.json`` (``floor`` picks one of its floors; see
@@ -147,7 +136,7 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
-        from placeloc.geometry.zind import zind_home  # zind imports this module
+        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
 
         return floor_plan_model(zind_home(path, floor)[0], str(path))
     if isinstance(data, dict) and ("outline" in data or "rooms" in data):
@@ -255,22 +244,6 @@ def _num(d: dict[str, Any], key: str, default: float | None, source: str, what: 
         return float(v)
     except (KeyError, TypeError, ValueError) as exc:
         raise ModelError(f"{source}: {what} needs a numeric {key} ({exc})") from exc
-
-
-def _on_edge(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float = 0.01) -> tuple[float, float] | None:
-    """Parameters along a -> b (metres) of the two ends of p-q when both lie on that edge."""
-    e = b - a
-    length = float(np.hypot(*e))
-    if length < 1e-9:
-        return None
-    out = []
-    for r in (p, q):
-        s = float((r - a) @ e) / length
-        off = abs(float(e[0] * (r - a)[1] - e[1] * (r - a)[0])) / length
-        if off > tol or s < -tol or s > length + tol:
-            return None
-        out.append(min(max(s, 0.0), length))
-    return min(out), max(out)
 
 
 def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from placeloc.geometry.floorplan import ModelError
+from placeloc.errors import ModelError
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -214,7 +214,8 @@ def write_zind(plan: dict[str, Any], panoramas: list[dict[str, Any]], path: str 
     image at its centre for a room nobody photographed) carries the layout in its local
     frame: vertices, internal polygons, doors (gaps narrower than 1.2 m), openings, windows
     on the room's edges, heights relative to the camera in camera heights."""
-    from placeloc.geometry.floorplan import _on_edge, point_in_polygon
+    from placeloc.geometry.polygons import on_edge as _on_edge
+    from placeloc.geometry.polygons import point_in_polygon
 
     polys = [np.asarray(r["polygon"], float) for r in plan["rooms"]]
     cam_z = float(plan.get("camera_z") or np.median([p["z"] for p in panoramas]))

@@ -22,4 +22,5 @@ class RetrievalParams(Params):
                         help="exact (numpy, blocks of queries), faiss (a flat faiss index) or auto: faiss from "
                              "faiss_from reference images on")
     faiss_from: int = param(20000, min=1, help="auto search: reference images from which faiss is used")
-    block_size: int = param(1024, min=1, help="queries per block of the exact search (memory, never the result)")
+    block_size: int = param(1024, min=1, affects_result=False,
+                            help="queries per block of the exact search (memory, never the result)")

@@ -30,10 +30,11 @@ def extract(ctx: Any) -> None:
     from placeloc.retrieval.neighbours import thumbnail_row
 
     p: RetrievalParams = ctx.params
+    descriptors = {"reference": p.descriptors_reference, "query": p.descriptors_query}
     for role, images in ctx.images.items():
         index: list[int] = []
-        if p.descriptors_reference is not None:
-            path = p.descriptors_reference if role == "reference" else p.descriptors_query
+        if descriptors[role] is not None:
+            path = descriptors[role]
             rows = load_descriptors(path, len(images.paths), role, key="retrieval.descriptors")
             index = list(range(len(rows)))
             source = f"descriptors {Path(path).name}"

@@ -8,7 +8,7 @@ from placeloc.params import Params, param
 from placeloc.seqslam.comparisons import COMPARISONS
 
 # Kept here (not imported from search.py) so reading the parameters never imports the search.
-SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid")
+SEQUENCE_SHAPES = ("trajectory", "cone", "hybrid", "flexible")
 
 
 @dataclass(frozen=True)
@@ -27,14 +27,17 @@ class SeqSLAMParams(Params):
     ocm_epsilon: float = param(5.0, min=0.0, help="OCM: |Sobel gradient| below this -> code 16 (ignored)")
     enhance_window: int = param(10, min=1, help="R_window: local contrast enhancement over +-R rows, and match separation")
     ds: int = param(10, min=1, help="sequence length (the window has ds + 1 query frames)")
-    v_min: float = param(0.8, min=0.0, min_exclusive=True, help="slowest trajectory slope (reference frames per query frame)")
+    v_min: float = param(0.8, min=0.0, help="slowest trajectory slope (reference frames per query frame); 0 lets a "
+                                            "flexible path stand still where the query does")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
     v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
                                       "recorded at different frame rates or speeds")
     sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,
                                 help="trajectory (straight lines, SeqSLAM), cone (best reference per frame inside the "
-                                     "velocity cone) or hybrid (cone proposes, trajectories rank); as in OpenSeqSLAM2")
+                                     "velocity cone) or hybrid (cone proposes, trajectories rank), as in OpenSeqSLAM2; "
+                                     "flexible (a path of straight segments whose speed may change between them within "
+                                     "v_min..v_max, at a cost: follows slow-downs, bursts and, with v_min 0, stops)")
     edges: str = param("skip", choices=("skip", "shift"),
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")

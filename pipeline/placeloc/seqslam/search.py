@@ -18,6 +18,7 @@ with the best score outside ``+-window`` rows of it (see :func:`sequence_search`
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -58,7 +59,7 @@ def enhancement_shift(window: int) -> float:
 
 def _row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
     """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
-    step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 16, 512))
+    step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 4 if n_cols > (1 << 17) else 16, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
 
 
@@ -166,6 +167,176 @@ def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj:
     return s
 
 
+# ---------------------------------------------------------------------------------------
+# flexible: a path whose speed may change inside the window (dynamic programming)
+# ---------------------------------------------------------------------------------------
+# Cost of a bend, per reference frame by which it moves the path over one segment:
+# changing speed by dv between two segments of L frames costs SPEED_CHANGE_COST * L * |dv|.
+# Enhanced values are z-scores, so this is in units of one frame's standard deviation.
+# Chosen on nordland-dev frames 1-600 only (docs/seqslam.md, `make seqslam-speed`).
+SPEED_CHANGE_COST = 1.0
+# Cost of standing still, per unit of the query's own change from one frame to the next
+# (:class:`StopModel`): a stopped path is cheap only where the query itself stands still.
+STOP_COST = 2.0
+# The change between two unrelated z-scored columns, E|X - Y| for independent standard
+# normals (2 / sqrt(pi)): a query frame that changes this much from the one before it is
+# wholly new evidence; one that repeats it, none.
+UNRELATED_CHANGE = 2.0 / math.sqrt(math.pi)
+
+
+def segment_length(vels: np.ndarray) -> int:
+    """Frames per straight segment of a flexible path: ``round(1 / v_step)``, the shortest
+    run over which two neighbouring speeds end a whole reference frame apart (a shorter
+    segment could not tell them apart); one segment per side for one speed. Standing
+    still does not count."""
+    v = np.unique(np.asarray(vels, np.float64))
+    v = v[v > 0]
+    if len(v) < 2:
+        return 1 << 30
+    return max(1, int(round(1.0 / float(np.diff(v).min()))))
+
+
+class StopModel:
+    """What standing still costs and earns, from the query alone (``et[q, r]``, enhanced);
+    used when the velocities include 0.
+
+    A query that stops repeats (nearly) the same frame, so its enhanced column repeats:
+    ``change[q] = mean_r |et[q, r] - et[q - 1, r]|`` is about 0 there and 0.6-0.8 between
+    moving Nordland frames. Two things follow:
+
+    - a path that stands still pays ``stop_cost * change`` for every frame it does so
+      (``running``: running sums of ``change``), so it stops only where the query does;
+    - a repeated frame is no new evidence: while standing still, a frame counts only by
+      its novelty ``w = min(1, change / UNRELATED_CHANGE)``, around its column's mean
+      (``quiet_fwd``/``quiet_back``: ``mean + w * (et - mean)``, novelty measured from the
+      frame before it in the path's direction). Otherwise a reference that resembles every
+      query (a "hub") would earn the same low value once per repeated frame and win the
+      search wherever the query pauses.
+
+    Every frame's novelty is measured against its neighbour inside the same window (the
+    one nearer the anchor), so a result never depends on how queries were cut into blocks.
+    """
+
+    def __init__(self, et: np.ndarray) -> None:
+        n = et.shape[0]
+        change = np.zeros(n)
+        step = max(1, (1 << 22) // max(1, et.shape[1]))
+        for i in range(1, n, step):
+            j = min(n, i + step)
+            change[i:j] = np.abs(et[i:j] - et[i - 1:j - 1]).mean(axis=1, dtype=np.float64)
+        self.running = np.cumsum(change)  # running[i] - running[f]: the query's change from frame f to i
+        novelty = np.minimum(1.0, change / UNRELATED_CHANGE).astype(np.float32)[:, None]
+        mean = et.mean(axis=1, dtype=np.float64).astype(np.float32)[:, None]
+        self.quiet_fwd = mean + novelty * (et - mean)  # frame q after frame q - 1
+        nb = np.empty_like(novelty)
+        nb[:-1], nb[-1:] = novelty[1:], 1.0
+        self.quiet_back = mean + nb * (et - mean)  # frame q before frame q + 1
+
+
+def _l1_envelope(g: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
+    """In place, ``g[v] <- min_v' g[v'] + cost * |v - v'|`` over the first axis (velocities
+    sorted ascending): two passes, as a distance transform, instead of all pairs."""
+    tmp = np.empty_like(g[0])
+    for i in range(1, len(vels)):
+        np.add(g[i - 1], np.float32(cost * (vels[i] - vels[i - 1])), out=tmp)
+        np.minimum(g[i], tmp, out=g[i])
+    for i in range(len(vels) - 2, -1, -1):
+        np.add(g[i + 1], np.float32(cost * (vels[i + 1] - vels[i])), out=tmp)
+        np.minimum(g[i], tmp, out=g[i])
+    return g
+
+
+def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, vels: np.ndarray, bend_cost: float,
+                direction: int, stops: StopModel | None, stop_cost: float,
+                on_first: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray | None:
+    """Best path over ``n_frames`` query frames from the anchor ``(T, r)`` onwards
+    (``direction`` +1: later queries, higher references; -1: earlier and lower), per first
+    velocity: ``g[v, T - a, r]``. The path is a chain of straight segments of ``seg``
+    frames (the last one shorter), each with its own velocity, each starting where the
+    previous one's line ends (``round(v * seg)`` further); a change of velocity between
+    segments costs ``bend_cost * |dv|``. Solved from the far end inwards (Viterbi over
+    segments) for a chunk of anchors at once; inf where the path would leave the matrix.
+    With ``stops`` (velocities that include 0), frames and standing still are scored as
+    :class:`StopModel` says.
+    With ``on_first``, the first segment's array of each velocity goes to
+    ``on_first(v_index, array)`` (which may overwrite it) instead of being returned."""
+    a, b = rows
+    n, nr = b - a, et.shape[1]
+    nv = len(vels)
+    n_seg = -(-n_frames // seg)
+    lengths = [seg] * (n_seg - 1) + [n_frames - (n_seg - 1) * seg]
+    offs = trajectory_offsets(vels, np.arange(max(lengths) + 1, dtype=np.int64))  # round(v t), t >= 0
+    quiet = et if stops is None else stops.quiet_fwd if direction > 0 else stops.quiet_back
+    h = None
+    g: np.ndarray | None = None
+    for j in range(n_seg - 1, -1, -1):  # the outermost segment first
+        start, length = j * seg, lengths[j]
+        stream = j == 0 and on_first is not None
+        g = np.empty((1 if stream else nv, n, nr), np.float32)
+        for vi in range(nv):
+            out = g[0 if stream else vi]
+            o = offs[vi]
+            src = quiet
+            end = int(o[length]) if h is not None else int(o[length - 1])  # furthest reference step used
+            if end >= nr:
+                out[:] = INVALID
+            else:
+                lo, hi = (0, nr - end) if direction > 0 else (end, nr)
+                part = out[:, lo:hi]
+                f = a + direction * start
+                np.copyto(part, (et if j == 0 else src)[f:f + n, lo:hi])  # the anchor counts in full
+                for t in range(1, length):
+                    f, sh = a + direction * (start + t), direction * int(o[t])
+                    part += src[f:f + n, lo + sh:hi + sh]
+                if h is not None:
+                    sh = direction * end
+                    part += h[vi, :, lo + sh:hi + sh]
+                if stops is not None and vels[vi] == 0 and stop_cost > 0:
+                    m = length if h is not None else length - 1  # frame-to-frame steps it stands through
+                    f = a + direction * start
+                    run = stops.running
+                    c = run[f + m:f + m + n] - run[f:f + n] if direction > 0 else run[f:f + n] - run[f - m:f - m + n]
+                    part += (stop_cost * c).astype(np.float32)[:, None]
+                out[:, hi:] = INVALID
+                out[:, :lo] = INVALID
+            if stream:
+                on_first(vi, out)
+        if j > 0:
+            h = _l1_envelope(g, vels, bend_cost)
+    return None if on_first is not None else g
+
+
+def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
+                     speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
+                     stops: StopModel | None = None) -> np.ndarray:
+    """``s[q, r]``: the cheapest path through ``(T, r)`` over the window ``T + t_off``
+    whose speed may change every :func:`segment_length` frames, within the velocity bounds
+    ``vels``, at ``speed_change_cost`` per frame of bend. With 0 among ``vels`` it may also
+    stand still where the query does (:class:`StopModel`, ``stop_cost``); otherwise every
+    frame counts as it is. The window's two halves meet at the anchor:
+    backward from it (per velocity, relaxed by the cost of a change), then forward from
+    it, one velocity at a time, with a change of speed at the anchor costed like any other."""
+    a, b = rows
+    seg = segment_length(vels)
+    vels = np.unique(np.asarray(vels, np.float64))
+    if vels[0] > 0:
+        stops = None
+    elif stops is None:
+        stops = StopModel(et)
+    bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
+    after, before = int(t_off[-1]), int(-t_off[0])
+    back = _chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost))
+    _l1_envelope(back, vels, bend)
+    s = np.full((b - a, et.shape[1]), INVALID, np.float32)
+
+    def take(vi: int, fwd: np.ndarray) -> None:
+        fwd += back[vi]
+        np.minimum(s, fwd, out=s)
+
+    _chain_side(et, rows, after + 1, seg, vels, bend, +1, stops, float(stop_cost), on_first=take)
+    s -= et[a:b]  # the anchor frame was counted by both halves
+    return s
+
 def _around(centres: np.ndarray, window: int, nr: int) -> np.ndarray:
     """Column indices ``centre - window .. centre + window`` per row, clipped to the matrix
     (a clipped index repeats the edge column, which lies inside the window anyway)."""
@@ -196,10 +367,12 @@ def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray, shape: str, window: int,
-            k: int, limit: np.ndarray) -> np.ndarray:
+            k: int, limit: np.ndarray, vels: np.ndarray | None = None, flexible: dict | None = None) -> np.ndarray:
     """Sequence scores of queries ``rows`` for one set of offsets; references ``>= limit``
-    (per query) are excluded."""
-    if shape == "trajectory":
+    (per query) are excluded. ``flexible``: keyword arguments of :func:`_flexible_scores`."""
+    if shape == "flexible":
+        s = _flexible_scores(et, rows, t_off, vels, **(flexible or {}))
+    elif shape == "trajectory":
         s = _trajectory_scores(et, rows, t_off, traj)
     elif shape == "cone":
         s = _cone_scores(et, rows, t_off, traj)
@@ -239,6 +412,8 @@ def sequence_search(
     *,
     shape: str,
     edges: str,
+    speed_change_cost: float = SPEED_CHANGE_COST,
+    stop_cost: float = STOP_COST,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
 
@@ -247,6 +422,11 @@ def sequence_search(
     (at each query frame the best reference anywhere between the slowest and the fastest
     line: tolerates speed changes inside the window) or ``hybrid`` (the cone proposes the
     ``k`` best regions, straight lines rank the references inside them).
+
+    ``flexible`` (a path whose speed may change every few frames within the velocity
+    bounds, at ``speed_change_cost`` per frame of bend, and that may stand still where the
+    query does, at ``stop_cost``: follows slow-downs, stops and bursts; see
+    :func:`_flexible_scores`).
 
     ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
     (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
@@ -276,6 +456,10 @@ def sequence_search(
     et = np.ascontiguousarray(et, dtype=np.float32)
     ncols, nt = et.shape[0], len(t_off)
     window, k = int(window), int(k)
+    flexible = None
+    if shape == "flexible":
+        flexible = {"speed_change_cost": float(speed_change_cost), "stop_cost": float(stop_cost),
+                    "stops": StopModel(et) if float(np.min(vels)) == 0 else None}
     # Queries whose whole window lies inside the matrix share the offsets: scored in
     # chunks of rows, one thread per core. The few near the ends are skipped or, with
     # edges: shift, scored one by one with the ds + 1 frames nearest them.
@@ -285,16 +469,18 @@ def sequence_search(
 
     def run(lo: int, hi: int) -> None:
         a, b = inner[0] + lo, inner[0] + hi
-        s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo])
+        s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo], vels, flexible)
         best[a - q_lo:b - q_lo], scores[a - q_lo:b - q_lo] = _top_k(s, window, k)
 
-    run_threaded(run, _row_chunks(inner[1] - inner[0], et.shape[1]))
+    # the flexible search holds two score arrays per velocity for a chunk of rows
+    per_row = et.shape[1] * (2 * (len(vels) + 1) if shape == "flexible" else 1)
+    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row))
     if edges == "shift" and nt <= ncols:
         for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
             sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))
             t2 = t_off + sh
             s = _scores(et, (T, T + 1), t2, trajectory_offsets(vels, t2), shape, window, k,
-                        exclude_after[T - q_lo:T - q_lo + 1])
+                        exclude_after[T - q_lo:T - q_lo + 1], vels, flexible)
             best[T - q_lo], scores[T - q_lo] = (x[0] for x in _top_k(s, window, k))
     return best, scores
 

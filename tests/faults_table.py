@@ -1,0 +1,77 @@
+"""``make faults``: run the fault tests on their own and print one row per case.
+
+Columns: the case (test id), its outcome, the exit code and the last stderr line of the
+last ``placeloc`` command the case ran (what a user would have seen), and the seconds the
+case took. Cases record their command's outcome with ``record(rc, stderr)`` (see
+tests/test_faults*.py); a case that ran no command shows "-".
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+LAST: list[tuple[int, str]] = []
+
+
+def record(rc: int | None, stderr: str) -> None:
+    """Called by a case after each placeloc command it ran."""
+    lines = [ln.strip() for ln in (stderr or "").splitlines() if ln.strip()]
+    LAST.append((rc if rc is not None else -1, lines[-1] if lines else ""))
+
+
+def _last() -> list[tuple[int, str]]:
+    """The cases import this file as the module ``faults_table``; ``make faults`` runs it as
+    ``__main__``: read the list the cases wrote to."""
+    module = sys.modules.get("faults_table")
+    return module.LAST if module is not None else LAST
+
+
+class _Table:
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, str, str, float, str]] = []
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(self, item, nextitem):
+        _last().clear()
+        t0 = time.perf_counter()
+        outcome = {"value": "passed"}
+        item._faults_outcome = outcome
+        yield
+        seconds = time.perf_counter() - t0
+        rc, line = _last()[-1] if _last() else ("-", "")
+        self.rows.append((item.nodeid.split("::", 1)[-1], outcome["value"], str(rc), seconds, line))
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_makereport(self, item, call):
+        rep = (yield).get_result()
+        if rep.failed:
+            item._faults_outcome["value"] = "FAILED"
+        elif rep.skipped:
+            item._faults_outcome["value"] = "skipped"
+
+    def print_table(self) -> None:
+        width = min(70, max(len(r[0]) for r in self.rows)) if self.rows else 10
+        print(f"\n{'case':<{width}}  {'outcome':<7}  {'rc':>3}  {'seconds':>7}  last line")
+        for case, outcome, rc, seconds, line in self.rows:
+            flag = "!" if seconds > 10 else " "
+            print(f"{case[:width]:<{width}}  {outcome:<7}  {rc:>3}  {seconds:6.1f}{flag}  {line[:110]}")
+        slow = sum(1 for r in self.rows if r[3] > 10)
+        print(f"{len(self.rows)} cases, {sum(r[1] == 'FAILED' for r in self.rows)} failed, "
+              f"{slow} took over 10 s in all (set-up included; each bounded wait is asserted by its case)")
+
+
+def main() -> int:
+    here = Path(__file__).resolve().parent
+    table = _Table()
+    args = ["-q", "-p", "no:cacheprovider", str(here / "test_faults.py"), str(here / "test_faults_round2.py"), *sys.argv[1:]]
+    rc = pytest.main(args, plugins=[table])
+    table.print_table()
+    return int(rc)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

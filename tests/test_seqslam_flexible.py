@@ -1,0 +1,213 @@
+"""Known answers for the flexible sequence search: a path whose speed may change inside the window."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from placeloc.seqslam.matching import sequence_match
+from placeloc.seqslam.search import (
+    UNRELATED_CHANGE,
+    _flexible_scores,
+    query_offsets,
+    segment_length,
+    sequence_search,
+    trajectory_offsets,
+    velocities,
+)
+
+
+def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float, stop: float) -> np.ndarray:
+    """Every chain of segment speeds written out, for every reference: the cheapest path
+    through (T, r) (the definition the dynamic programme must reproduce). With 0 among the
+    speeds, every frame but the anchor counts around its column's mean by its novelty (its
+    change from the frame before it on the path, over that of two unrelated columns), and
+    a segment that stands still pays ``stop`` per unit of the query's change meanwhile."""
+    nr = et.shape[1]
+    seg = segment_length(vels)
+    speeds = np.unique(vels)
+    stops = speeds[0] == 0  # standing still: frames count by their novelty
+    before, after = -int(t_off[0]), int(t_off[-1])
+
+    def change(f: int, g: int) -> float:
+        return float(np.abs(et[f].astype(np.float64) - et[g]).mean())
+
+    def chains(n_frames: int, d: int) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]]:
+        """(first speed, reference offsets, frames, still?, cost) of every chain on one side."""
+        n_seg = -(-n_frames // seg)
+        out = []
+        for vs in itertools.product(speeds, repeat=n_seg):
+            pos, still, p = [], [], 0
+            for j, v in enumerate(vs):
+                o = trajectory_offsets(np.array([v]), np.arange(seg + 1))[0]
+                pos += [p + int(o[t]) for t in range(min(seg, n_frames - j * seg))]
+                still += [v == 0] * min(seg, n_frames - j * seg)
+                p += int(o[seg])
+            frames = T + d * np.arange(n_frames)
+            c = sum(abs(vs[j] - vs[j + 1]) for j in range(n_seg - 1)) * cost * seg
+            # standing from each still frame to the next frame on the path (the next
+            # segment's first frame included: it starts where a still segment ends)
+            c += sum(stop * change(frames[t], frames[t + 1]) for t in range(n_frames - 1) if still[t])
+            out.append((vs[0], d * np.array(pos), frames, np.array(still), c))
+        return out
+
+    def values(frames: np.ndarray, refs: np.ndarray, still: np.ndarray) -> np.ndarray:
+        """Sum over the path of each frame's value, (n_ref,) for refs (n_ref, n_frames)."""
+        total = np.zeros(len(refs))
+        for t, f in enumerate(frames):
+            x = et[f, np.clip(refs[:, t], 0, nr - 1)].astype(np.float64)
+            if stops and t > 0:
+                w = min(1.0, change(f, frames[t - 1]) / UNRELATED_CHANGE)
+                m = float(et[f].astype(np.float64).mean())
+                x = m + w * (x - m)
+            total += x
+        return total
+
+    s = np.full(nr, np.inf)
+    r = np.arange(nr)[:, None]
+    fwd_chains, back_chains = chains(after + 1, +1), chains(before + 1, -1)
+    fwd_vals = [values(fr, r + p, st) for _, p, fr, st, _ in fwd_chains]
+    back_vals = [values(fr, r + p, st) for _, p, fr, st, _ in back_chains]
+    for (v1, p1, _, _, c1), x1 in zip(fwd_chains, fwd_vals):
+        for (v2, p2, _, _, c2), x2 in zip(back_chains, back_vals):
+            ok = ((r + p1).max(axis=1) < nr) & ((r + p2).min(axis=1) >= 0)
+            total = x1 + x2 - et[T] + c1 + c2 + cost * seg * abs(v1 - v2)
+            s = np.where(ok, np.minimum(s, total), s)
+    return s
+
+
+@pytest.mark.parametrize("search,ds,v_min", [("centred", 8, 0.0), ("causal", 5, 0.0), ("centred", 5, 0.0),
+                                             ("centred", 8, 0.5)])
+def test_dynamic_programme_equals_every_chain_written_out(search, ds, v_min):
+    rng = np.random.default_rng(0)
+    et = rng.random((14, 20)).astype(np.float32)
+    et[5] = et[4]  # the query stands still for a frame
+    vels = velocities(v_min, 1.5, 0.5)  # segments of 2 frames; with v_min 0 standing still
+    t_off = query_offsets(ds, search)
+    rows = (-int(t_off[0]), 14 - int(t_off[-1]))
+    s = _flexible_scores(et, rows, t_off, vels, 0.3, 0.7)
+    for T in range(*rows):
+        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3, 0.7), rtol=1e-5)
+
+
+def _planted(speeds: np.ndarray, n_ref: int, seed: int, gone: np.ndarray | None = None,
+             snr: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """D (query-major) with the path a query moving at ``speeds`` traces planted in it:
+    zeros in uniform 0.6-1.0 noise, or (``snr``) Gaussian noise lowered by ``snr`` standard
+    deviations on the path, as enhanced real differences look. A query that has not moved
+    since its last frame sees that frame again (its column repeats). Queries in ``gone``
+    (a detour) see nothing of the reference."""
+    rng = np.random.default_rng(seed)
+    path = 20 + np.floor(np.concatenate([[0.0], np.cumsum(speeds[:-1])]) + 0.5).astype(np.int64)
+    seen = np.flatnonzero(np.ones(len(speeds), bool) if gone is None else ~gone)
+    if snr is None:
+        et = rng.uniform(0.6, 1.0, (len(speeds), n_ref)).astype(np.float32)
+        et[seen, path[seen]] = 0.0
+    else:
+        et = (rng.normal(0, 1, (len(speeds), n_ref)) + 4).astype(np.float32)
+        et[seen, path[seen]] -= snr
+    for q in range(1, len(speeds)):
+        if path[q] == path[q - 1] and (gone is None or gone[q] == gone[q - 1]):
+            et[q] = et[q - 1]
+    return et, path
+
+
+def _search(et: np.ndarray, shape: str, vels: np.ndarray, ds: int = 20) -> np.ndarray:
+    best, _ = sequence_search(et, 0, len(et), ds, vels, "centred", 5, 2, None, 0, shape=shape, edges="shift")
+    return best[:, 0]
+
+
+# speed steps, a stop of 50 frames, a 0.5x and a 2x stretch: all inside one route
+SPEEDS = np.concatenate([np.full(60, 1.0), np.full(50, 2.0), np.zeros(50), np.full(80, 0.5), np.full(60, 1.5),
+                         np.full(60, 1.0)])
+
+
+def test_flexible_follows_speed_steps_a_stop_and_half_and_double_speed():
+    et, path = _planted(SPEEDS, 420, seed=1)
+    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
+    # every query, through the steps and the stop, lands within one frame of its place
+    # (fractional speeds are rounded along the segment, so one frame is the resolution)
+    assert np.abs(flexible - path).max() <= 1
+    assert (flexible == path).mean() > 0.95
+
+
+def test_flexible_beats_straight_lines_when_the_path_is_faint():
+    # the path 1.5 standard deviations below the noise and a speed that changes every 30
+    # frames, under a 61-frame window: a straight line collects the evidence of one
+    # stretch, a bending path that of the whole window
+    speeds = np.repeat([1.0, 2.0, 0.5, 1.5, 0.7, 1.8, 1.0, 0.5, 2.0, 1.2, 0.6, 1.6], 30)
+    et, path = _planted(speeds, int(speeds.sum()) + 60, seed=2, snr=1.5)
+    flexible = _search(et, "flexible", velocities(0.5, 2.0, 0.1), ds=60)
+    line = _search(et, "trajectory", velocities(0.5, 2.0, 0.1), ds=60)
+    assert (np.abs(flexible - path) <= 2).mean() >= 0.93
+    assert (np.abs(line - path) <= 2).mean() <= 0.80
+
+
+def test_flexible_stands_still_through_a_stop_only_when_zero_speed_is_allowed():
+    speeds = np.concatenate([np.full(40, 1.0), np.zeros(50), np.full(40, 1.0)])
+    et, path = _planted(speeds, 200, seed=2)
+    assert np.abs(_search(et, "flexible", velocities(0.0, 1.5, 0.1)) - path).max() <= 1
+    moving = _search(et, "flexible", velocities(0.5, 1.5, 0.1))
+    assert (np.abs(moving - path) > 2).sum() >= 10  # cannot stop: drifts during the stop
+
+
+def test_flexible_rejoins_after_a_detour_that_leaves_the_reference():
+    # 15 query frames off the route, coming back to where it left (a loop round a block)
+    speeds = np.concatenate([np.full(80, 1.0), np.zeros(15), np.full(80, 1.0)])
+    gone = np.zeros(len(speeds), bool)
+    gone[81:95] = True
+    et, path = _planted(speeds, 220, seed=3, gone=gone)
+    on_route = ~gone
+    flexible = _search(et, "flexible", velocities(0.0, 2.0, 0.1))
+    # every query on the route, those whose window spans the detour included
+    assert np.abs(flexible - path)[on_route].max() <= 1
+
+
+def test_steady_speed_scores_as_the_straight_line_does():
+    # at one constant speed the best flexible path is the straight line: same matches, same scores
+    et, path = _planted(np.full(150, 1.0), 200, seed=4)
+    vels = velocities(0.8, 1.2, 0.1)
+    kw = dict(window=5, k=2, exclude_recent=None, query_index0=0, edges="skip")
+    fb, fs = sequence_search(et, 0, 150, 20, vels, "centred", shape="flexible", **kw)
+    tb, ts = sequence_search(et, 0, 150, 20, vels, "centred", shape="trajectory", **kw)
+    inside = np.arange(10, 140)
+    np.testing.assert_array_equal(fb[inside, 0], path[inside])
+    np.testing.assert_array_equal(tb[inside, 0], path[inside])
+    assert (fs[inside, 0] == 0).all() and (ts[inside, 0] == 0).all()
+    assert (fb[:10] == -1).all()  # edges skipped as for every shape
+
+
+def test_flexible_chunks_and_edges_agree_with_one_query_at_a_time():
+    rng = np.random.default_rng(5)
+    et = rng.random((70, 90)).astype(np.float32)
+    vels = velocities(0.0, 2.0, 0.25)
+    t_off = query_offsets(12, "centred")
+    best, scores = sequence_search(et, 0, 70, 12, vels, "centred", 3, 3, None, 0, shape="flexible", edges="shift")
+    for T in (0, 3, 6, 30, 63, 69):
+        sh = 0
+        if T + t_off[0] < 0:
+            sh = -(T + int(t_off[0]))
+        elif T + t_off[-1] > 69:
+            sh = 69 - (T + int(t_off[-1]))
+        s = _flexible_scores(et, (T, T + 1), t_off + sh, vels, 0.5)[0]
+        assert best[T, 0] == int(np.argmin(s))
+        assert scores[T, 0] == pytest.approx(float(s.min()), rel=1e-5)
+
+
+@pytest.mark.parametrize("v_min", [0.0, 0.5])
+def test_block_size_never_changes_a_flexible_result(v_min):
+    # the stop model measures each frame's novelty inside its own window, so cutting the
+    # queries into blocks (localize, evaluate) gives the same matches and scores
+    rng = np.random.default_rng(6)
+    ref = rng.integers(0, 256, (120, 32), dtype=np.uint8)
+    places = np.repeat(np.arange(10, 110, 2), 2)[:90]  # half speed: every frame twice
+    query = np.clip(ref[places].astype(int) + rng.integers(-40, 41, (len(places), 32)), 0, 255).astype(np.uint8)
+    common = dict(comparison="sad", enhance_window=4, ds=16, v_min=v_min, v_max=1.5, v_step=0.25, v_auto=False,
+                  search="centred", sequence_shape="flexible", edges="shift", top_k=3, exclude_recent=None)
+    one = sequence_match(ref, query, block_size=1000, **common)
+    cut = sequence_match(ref, query, block_size=20, **common)
+    np.testing.assert_array_equal(one.candidates, cut.candidates)
+    np.testing.assert_array_equal(one.scores, cut.scores)
+    assert (np.abs(one.candidates[:, 0] - places) <= 2).mean() > 0.9

@@ -24,9 +24,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from placeloc import params as P
-
-STAGES = ("extract", "build-dictionary", "index", "localize", "evaluate")
-
+from placeloc.stage_names import STAGES  # noqa: F401 - the one list, re-exported as placeloc.methods.STAGES
 
 
 def _discover() -> dict[str, str]:

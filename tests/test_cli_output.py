@@ -63,3 +63,24 @@ def test_sweep_and_compare_say_where_they_wrote(route: Path, tmp_path: Path, res
     wrote = [str(tmp_path / "cmp" / n) for n in ("table.md", "table.csv", "pr_curves.png")]
     assert lines[-2] == "wrote " + ", ".join(w for w in wrote if Path(w).is_file())
     assert (tmp_path / "cmp" / "table.md").is_file() and lines[-1].startswith(f"runs: {tmp_path / 'cmp'}/")
+
+
+def test_params_lists_every_setting_with_default_range_and_help():
+    """The help of each setting comes from its param(...) declaration, the one home."""
+    from placeloc import params as P
+    from placeloc.common_params import CommonParams
+    from placeloc.pirf.params import PirfParams
+
+    out = CliRunner().invoke(cli.app, ["params"]).output.splitlines()
+    keys = [line.split()[0] for line in out if line and not line.startswith(" ") and not line.startswith("Each")]
+    assert keys == [k for k, *_ in P.describe(CommonParams)]
+    i = keys.index("ground_truth.radius")
+    radius = [line for line in out if line.startswith("ground_truth.radius")][0]
+    assert radius.split() == ["ground_truth.radius", "25.0", "(>", "0)"]
+    assert "metres within which" in out[out.index(radius) + 1] and i >= 0
+    res = CliRunner().invoke(cli.app, ["params", "pirf"])
+    assert res.exit_code == 0 and res.output.count("\npirf.") + res.output.startswith("pirf.") == len(P.describe(PirfParams))
+    recall = [line.split() for line in res.output.splitlines() if line.startswith("pirf.index_recall ")]
+    assert recall == [["pirf.index_recall", "0.97", "(>=", "0.0,", "<=", "1.0)"]]
+    res = CliRunner().invoke(cli.app, ["params", "nope"])
+    assert res.exit_code == 2 and "'nope' is not a method" in (res.stderr if hasattr(res, "stderr") else res.output)

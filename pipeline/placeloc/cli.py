@@ -303,6 +303,26 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[st
     _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True, wait=wait)
 
 
+@app.command("params")
+def params_(method: str = typer.Argument("", help="A method (seqslam, pirf, umap, coembed, retrieval, ...); "
+                                                   "left out: the sections every config shares.")) -> None:
+    """List every setting with its default, allowed values and meaning (from the parameter dataclasses)."""
+    from placeloc import params as P
+    from placeloc.common_params import CommonParams
+    from placeloc.config import ConfigError
+    from placeloc.methods import METHOD_NAMES, get_method
+
+    if method and method not in METHOD_NAMES:
+        raise ConfigError(f"params: {method!r} is not a method; choose one of {', '.join(METHOD_NAMES)}")
+    rows = P.describe(get_method(method).params, f"{method}.") if method else P.describe(CommonParams)
+    width = max(len(k) for k, *_ in rows)
+    for key, default, allowed, text in rows:
+        shown = "null" if default is None else str(default).lower() if isinstance(default, bool) else str(default)
+        typer.echo(f"{key:<{width}}  {shown}" + (f"  ({allowed})" if allowed else "") + (f"\n{'':<{width}}    {text}" if text else ""))
+    if not method:
+        typer.echo(f"\nEach method's own section: placeloc params METHOD ({', '.join(METHOD_NAMES)}).")
+
+
 @app.command()
 def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by placeloc.")) -> None:
     """Explain an artifact: its stage, provenance (config, inputs, version) and contents."""

@@ -209,7 +209,8 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
         if key not in schema:
             where = prefix.rstrip(".") or "the top level"
             known = ", ".join(sorted(schema))
-            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; known keys: {known}")
+            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; known keys: {known} "
+                              "(placeloc params [METHOD] lists each with its default and meaning)")
     for key, default in schema.items():
         dotted = f"{prefix}{key}"
         if key not in data:

@@ -214,12 +214,14 @@ def seqslam_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequen
         top_k = int(p.get("top_k", 10))
         # localize: both traverses' features and about 8 float32 blocks of D at once (D,
         # its enhanced copy, the sequence search's scores and their temporaries);
-        # localize.h5 keeps D (chunked: 5% over) when store_difference, its result arrays
-        # and matches.csv about 1 kB a query. Measured: 138, 214, 299 MB at 1500, 3000, 6000 frames a traverse.
+        # localize.h5 keeps D (chunked: 5% over) when store_difference, matches.csv a row
+        # per query, and the ranked result contract a second copy of the candidates (int64)
+        # and scores (float32) with both traverses' names and indices.
+        # Measured: 138, 214, 299 MB at 1500, 3000, 6000 frames a traverse.
         needs.append(Need(f"the {n_ref} x {n_query} difference matrix, {block} query columns at a time",
                           "seqslam.block_size (memory) or seqslam.store_difference: false (disk)", stage="localize",
                           memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query,
-                          disk=d_full * 21 // 20 + 1000 * n_query + (1 << 18)))
+                          disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + (1 << 18)))  # + HDF5's own
         # evaluate: D read back a block at a time, with its enhanced copies, the masked
         # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
         # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;

@@ -146,6 +146,26 @@ def path_keys(cls: type) -> tuple[str, ...]:
     return tuple(k for k, f in _walk(cls) if f.metadata.get("path"))
 
 
+def describe(cls: type, prefix: str = "") -> list[tuple[str, Any, str, str]]:
+    """(dotted key, default, allowed values or range, help) for every parameter of ``cls``:
+    what ``placeloc params`` prints."""
+    rows = []
+    for key, f in _walk(cls):
+        m = f.metadata
+        default = list(f.default) if isinstance(f.default, tuple) else f.default
+        allowed = ""
+        if m.get("choices"):
+            allowed = " | ".join(map(str, m["choices"]))
+        elif m.get("min") is not None or m.get("max") is not None:
+            lo, hi = m.get("min"), m.get("max")
+            low = f"{'>' if m.get('min_exclusive') else '>='} {lo}" if lo is not None else ""
+            allowed = ", ".join(x for x in (low, f"<= {hi}" if hi is not None else "") if x)
+        if m.get("path"):
+            allowed = "path" + (f"; {allowed}" if allowed else "")
+        rows.append((f"{prefix}{key}", default, allowed, m.get("help", "")))
+    return rows
+
+
 def work_layout_keys(cls: type) -> tuple[str, ...]:
     """Dotted keys declared ``affects_result=False`` (they cut the work, not the result)."""
     return tuple(k for k, f in _walk(cls) if f.metadata.get("affects_result") is False)

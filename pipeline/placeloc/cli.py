@@ -83,6 +83,11 @@ def _os_error_line(exc: OSError) -> str:
 
 
 def _one_line(exc: BaseException) -> str:
+    from concurrent.futures.process import BrokenProcessPool
+
+    if isinstance(exc, BrokenProcessPool):
+        return ("a worker process was killed (out of memory?); lower executor.workers or the method's size parameters, "
+                "free memory, then rerun to resume (finished stages are kept)")
     if isinstance(exc, MemoryError):
         text = " ".join(str(exc).split())
         return (f"out of memory{': ' + text if text else ''}; reduce the data or the size parameters, "
@@ -111,7 +116,9 @@ def classify(exc: BaseException) -> str:
 
     if isinstance(exc, WorkItemError):
         return classify(exc.original)
-    if isinstance(exc, (EnvironmentFailure, MemoryError)):
+    from concurrent.futures.process import BrokenProcessPool
+
+    if isinstance(exc, (EnvironmentFailure, MemoryError, BrokenProcessPool)):
         return "environment"
     if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)):
         return "user"

@@ -269,9 +269,15 @@ class LocalExecutor(Executor):
         else:
             def submit(item: Any) -> Any:
                 return self._pool.submit(fn, item)
+        from concurrent.futures.process import BrokenProcessPool
+
         try:
             yield from ordered_window(items, submit, 2 * self.workers,
                                       lambda item, fut: self._result(fn, item, fut, describe))
+        except BrokenProcessPool:
+            # A worker died while the next item was being submitted (the pool refuses new
+            # work from then on): the same environment failure as seen on a result.
+            raise worker_lost(fn, "one of its work items", self.workers) from None
         finally:
             if tmp is not None:
                 shutil.rmtree(tmp, ignore_errors=True)

@@ -221,7 +221,7 @@ def seqslam_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequen
         needs.append(Need(f"the {n_ref} x {n_query} difference matrix, {block} query columns at a time",
                           "seqslam.block_size (memory) or seqslam.store_difference: false (disk)", stage="localize",
                           memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query,
-                          disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref))
+                          disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + (1 << 18)))  # + HDF5's own
         # evaluate: D read back a block at a time, with its enhanced copies, the masked
         # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
         # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;

@@ -105,3 +105,33 @@ def test_seqslam_whole_run_disk_with_plots(route, tmp_path):
     written = sum(p.stat().st_size for p in (tmp_path / "run").rglob("*") if p.is_file())
     estimated = sum(n.disk for n in estimate(cfg, image_sets(cfg), STAGES))
     assert written <= estimated <= 2 * written, (written, estimated)
+
+
+def test_umap_panorama_estimates_with_the_grid_from_the_model(tmp_path):
+    """Panoramas with the default grid (the plan's bounds at grid.step_m): the estimate counts
+    the positions inside the plan and the chamfer index's row spectra, which localize reads
+    whole. At 0.12 m the plan holds about 2,100 positions, the size of a real home's grid."""
+    import csv
+
+    import cv2
+    import numpy as np
+    import yaml
+    from test_umap_panorama import PLAN, _grey_panorama
+
+    (tmp_path / "plan.yaml").write_text(yaml.safe_dump(PLAN))
+    (tmp_path / "q").mkdir()
+    rng = np.random.default_rng(2)
+    with open(tmp_path / "poses.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "z", "heading_deg"])
+        for k, pose in enumerate([(1.2, 1.1, 1.4, 30.0), (4.9, 2.6, 1.4, 200.0)]):
+            cv2.imwrite(str(tmp_path / "q" / f"p{k}.png"), _grey_panorama(pose, rng))
+            w.writerow([f"p{k}.png", *pose])
+    cfg = {"method": "umap", "query": {"images": str(tmp_path / "q")},
+           "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
+           "umap": {"model": str(tmp_path / "plan.yaml"), "query_kind": "panorama", "grid": {"step_m": 0.12, "z": 1.4},
+                    "panorama": {"refine_candidates": 0}},
+           "plots": False}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    _prepare(tmp_path / "c.yaml", tmp_path / "run", [])
+    _check(probe(tmp_path / "c.yaml", tmp_path / "run", [], ["index", "localize"]))

@@ -287,19 +287,45 @@ def coembed_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequen
         _decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
 
 
+def _plan_grid_size(p: dict[str, Any], step: float) -> tuple[int, int, float] | None:
+    """(x points, y points, share inside the plan) of the grid over ``umap.model``'s plan
+    bounds at ``step`` (None when the model cannot be read)."""
+    import numpy as np
+
+    from placeloc.geometry.floorplan import load_model, model_bounds
+
+    try:
+        model = load_model(p["model"], p.get("floor"))
+        lo, hi = model_bounds(model)
+    except Exception:  # noqa: BLE001 - any unreadable model: its own check names the problem
+        return None
+    nx, ny = (math.floor(float(hi[k] - lo[k]) / step + 1e-9) + 1 for k in (0, 1))
+    # the share inside, on a grid of at most 200 x 200 over the same box
+    sx, sy = np.linspace(lo[0], hi[0], min(nx, 200)), np.linspace(lo[1], hi[1], min(ny, 200))
+    xy = np.stack(np.meshgrid(sx, sy, indexing="ij"), -1).reshape(-1, 2)
+    return nx, ny, float(np.mean(model.inside(xy)))
+
+
 def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
     p = config["umap"]
     g = p["grid"]
     axes = []
+    inside_share = 1.0
     for name in ("x", "y"):
-        if g.get(name) is None:  # the grid covers the model's plan at grid.step_m: a home's few thousand positions
-            return _decode_need(config, images, 16, "decoding", stages)
+        if g.get(name) is None:
+            # the grid covers the model's plan at grid.step_m: its bounding box at that step,
+            # of which the positions inside the plan are kept (doorways add a few: +10 %)
+            plan = _plan_grid_size(p, float(g.get("step_m") or 0.25))
+            if plan is None:  # the model's own check reports an unreadable model
+                return _decode_need(config, images, 16, "decoding", stages)
+            axes, inside_share = [plan[0], plan[1]], (min(1.0, 1.1 * plan[2]) if g.get("inside_only", True) else 1.0)
+            break
         start, stop, step = (float(v) for v in g[name])
         if step <= 0 or stop < start:
             return []  # pose_grid reports these with its own message
         axes.append(math.floor((stop - start) / step + 1e-9) + 1)
     panorama = p.get("query_kind") == "panorama"
-    positions = axes[0] * axes[1]
+    positions = max(1, math.ceil(axes[0] * axes[1] * inside_share))
     views = positions if panorama else positions * max(1, len(g["headings"]))
     size = p.get("panorama" if panorama else "camera") or {}
     w, h = int(size.get("width", 160)), int(size.get("height", 120))
@@ -307,7 +333,12 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[
     db = views * words * 8  # one bit per pixel per view
     pooled = 0 if panorama else views * (((w // 8) * (h // 8) + 63) // 64) * 8
     block = min(int(p.get("block", 2048)), views)
-    what = f"UMap database of {views:,} views of {w}x{h} (x {g['x']}, y {g['y']}" + \
+    # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
+    # frequencies x 2h rows of complex64, written 1024 positions at a time (that block and
+    # its FFT temporaries: measured 257 and 441 MB for blocks of 770 and 1024 positions of
+    # 144 x 72, about 4-5 blocks of spectra) and read whole by localize
+    spectra = views * (w // 2 + 1) * 2 * h * 8 if panorama and (p.get("panorama") or {}).get("score", "chamfer") == "chamfer" else 0
+    what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
         ("" if panorama else f", {len(g['headings'])} headings") + ")"
     key = "umap.grid (a larger step or a smaller range) or the camera size"
     # build-dictionary: the grid (poses, the free-space test) and what HDF5 and the
@@ -321,9 +352,9 @@ def umap_needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[
     pool = block * w * h * _workers(config) if _workers(config) > 1 else 0
     needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
                   disk=db + pooled + 48 * views + (1 << 20)),
-             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views,
-                  disk=(db if panorama else 0) + 48 * views),
-             Need(what, key, stage="localize", memory=db + pooled + 160 * views, disk=1 << 20)]
+             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views + 11 * min(spectra, 1024 * (w // 2 + 1) * 2 * h * 8) // 2,
+                  disk=(db if panorama else 0) + 48 * views + spectra),
+             Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
     return [n for n in needs if n.stage in stages] + _decode_need(config, images, 16, "decoding", stages)
 
 

@@ -325,7 +325,7 @@ def seam_frame_check(out_dir: Path, settings: list[tuple[float, float]], frames:
         say("pirf-dictionary", quiet, f"{data.name}: in-band features with a twin {c['feature_twins_band_pct']:.1f} % "
                                       f"(outside {c['feature_twins_out_pct']:.1f} %), ghost pairs {c['ghost_pairs']}")
     with open(out / "seam_frames.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), restval="")
         w.writeheader()
         w.writerows(rows)
     lines = [f"# Seam ghosting within frames (seed {seed}, {frames} frames each, no mapping)", "",
@@ -434,7 +434,8 @@ def _fmt(e: dict[str, Any], c: str, nd: int = 1) -> str:
 def _write(out: Path, rows: list[dict[str, Any]], table: list[dict[str, Any]], props: tuple[Property, ...]) -> None:
     for path, rr in ((out / "runs.csv", rows), (out / "table.csv", table)):
         with open(path, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rr[0]))
+            # the seam setting's rows carry its seam counts, the others' leave them empty
+            w = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rr for k in r)), restval="")
             w.writeheader()
             w.writerows(rr)
     units = {p.name: p for p in props}

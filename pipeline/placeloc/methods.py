@@ -74,6 +74,10 @@ class Method:
     checker: Callable[[dict], None] | None = None
     # Published source, by authors, title, venue and year (shown by `placeloc inspect`).
     citation: str = ""
+    # What the stages need of memory and disk, checked before any stage runs: a module with
+    # needs(config, images, stages), BASE_MEMORY and optionally config_rules(config) and
+    # input_rules(config, images) (see placeloc.limits and e.g. placeloc.seqslam.resources).
+    resources: Any = None
     # The result contract its localize writes (placeloc.evaluation.contracts: ranked, loops,
     # poses, map). The contract supplies the evaluate stage (unless the method defines one),
     # the up-front ground-truth check, `placeloc show` and the report.

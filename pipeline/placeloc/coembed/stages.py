@@ -19,6 +19,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from placeloc.coembed import resources as coembed_resources
 from placeloc.coembed.observations import (
     ObservationError,
     from_triplets,
@@ -243,6 +244,7 @@ def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
 EXTRACT_KEYS = ("source", "observations", "images", "image_values", "aruco_dictionary", "sift_features", "sift_ratio",
                 "sift_min_track", "sift_id_offset", "landmarks", "landmark_ids", "landmark_count", "intrinsics", "dim")
 METHOD = Method(
+    resources=coembed_resources,
     name="coembed",
     params=CoembedParams,
     stages={

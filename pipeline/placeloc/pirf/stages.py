@@ -30,6 +30,7 @@ from placeloc.config import ConfigError
 from placeloc.evaluation.poses import PoseError
 from placeloc.images import ImageError, list_images, read_gray
 from placeloc.methods import Method, Stage
+from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
 from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
@@ -406,6 +407,7 @@ def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndar
 
 
 METHOD = Method(
+    resources=pirf_resources,
     name="pirf",
     params=PirfParams,
     stages={

@@ -32,6 +32,7 @@ from placeloc.artifacts import read_strings
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.images import ImageError
 from placeloc.methods import Method, Stage
+from placeloc.seqslam import resources as seqslam_resources
 from placeloc.seqslam.features import extract_chunk
 from placeloc.seqslam.params import SeqSLAMParams
 
@@ -288,6 +289,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
 
 
 METHOD = Method(
+    resources=seqslam_resources,
     name="seqslam",
     params=SeqSLAMParams,
     stages={

@@ -27,6 +27,7 @@ from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.images import ImageError, read_gray
 from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
+from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.lines import check_query_size, line_image
 from placeloc.umap.panorama import (
@@ -467,6 +468,7 @@ LOCALIZE_CA_KEYS = tuple(f"ca.{k}" for k in (
     "fallback_step_m", "laser_tol_m", "use_laser"))
 
 METHOD = Method(
+    resources=umap_resources,
     name="umap",
     params=UMapParams,
     stages={

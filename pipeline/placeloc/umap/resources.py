@@ -1,0 +1,89 @@
+"""UMap: what its stages need of memory and disk, checked before any stage runs
+(:mod:`placeloc.limits` asks the method through ``Method(resources=...)``).
+
+``BASE_MEMORY``: what a stage's process holds beyond what it had before the stage,
+whatever the data's size (libraries loaded and kernels compiled while it runs), measured
+with tests/resource_probe.py (figures and command in docs/reliability.md), rounded up.
+"""
+
+from __future__ import annotations
+
+import math  # noqa: F401 - used by some estimators
+from typing import Any, Sequence
+
+import numpy as np
+
+from placeloc.limits import Need, count_images, decode_need  # noqa: F401
+from placeloc.limits import workers as n_workers  # noqa: F401
+
+BASE_MEMORY: dict[str, int] = {"extract": 100 << 20, "build-dictionary": 64 << 20, "index": 100 << 20, "localize": 100 << 20,
+             "evaluate": 100 << 20}
+
+
+def _plan_grid_size(p: dict[str, Any], step: float) -> tuple[int, int, float] | None:
+    """(x points, y points, share inside the plan) of the grid over ``umap.model``'s plan
+    bounds at ``step`` (None when the model cannot be read)."""
+    from placeloc.geometry.floorplan import load_model, model_bounds
+
+    try:
+        model = load_model(p["model"], p.get("floor"))
+        lo, hi = model_bounds(model)
+    except Exception:  # noqa: BLE001 - any unreadable model: its own check names the problem
+        return None
+    nx, ny = (math.floor(float(hi[k] - lo[k]) / step + 1e-9) + 1 for k in (0, 1))
+    # the share inside, on a grid of at most 200 x 200 over the same box
+    sx, sy = np.linspace(lo[0], hi[0], min(nx, 200)), np.linspace(lo[1], hi[1], min(ny, 200))
+    xy = np.stack(np.meshgrid(sx, sy, indexing="ij"), -1).reshape(-1, 2)
+    return nx, ny, float(np.mean(model.inside(xy)))
+
+
+def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:
+    p = config["umap"]
+    g = p["grid"]
+    axes = []
+    inside_share = 1.0
+    for name in ("x", "y"):
+        if g.get(name) is None:
+            # the grid covers the model's plan at grid.step_m: its bounding box at that step,
+            # of which the positions inside the plan are kept (doorways add a few: +10 %)
+            plan = _plan_grid_size(p, float(g.get("step_m") or 0.25))
+            if plan is None:  # the model's own check reports an unreadable model
+                return decode_need(config, images, 16, "decoding", stages)
+            axes, inside_share = [plan[0], plan[1]], (min(1.0, 1.1 * plan[2]) if g.get("inside_only", True) else 1.0)
+            break
+        start, stop, step = (float(v) for v in g[name])
+        if step <= 0 or stop < start:
+            return []  # pose_grid reports these with its own message
+        axes.append(math.floor((stop - start) / step + 1e-9) + 1)
+    panorama = p.get("query_kind") == "panorama"
+    positions = max(1, math.ceil(axes[0] * axes[1] * inside_share))
+    views = positions if panorama else positions * max(1, len(g["headings"]))
+    size = p.get("panorama" if panorama else "camera") or {}
+    w, h = int(size.get("width", 160)), int(size.get("height", 120))
+    words = (w * h + 63) // 64
+    db = views * words * 8  # one bit per pixel per view
+    pooled = 0 if panorama else views * (((w // 8) * (h // 8) + 63) // 64) * 8
+    block = min(int(p.get("block", 2048)), views)
+    # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
+    # frequencies x 2h rows of complex64, written 1024 positions at a time (that block and
+    # its FFT temporaries: measured 257 and 441 MB for blocks of 770 and 1024 positions of
+    # 144 x 72, about 4-5 blocks of spectra) and read whole by localize
+    spectra = views * (w // 2 + 1) * 2 * h * 8 if panorama and (p.get("panorama") or {}).get("score", "chamfer") == "chamfer" else 0
+    what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
+        ("" if panorama else f", {len(g['headings'])} headings") + ")"
+    key = "umap.grid (a larger step or a smaller range) or the camera size"
+    # build-dictionary: the grid (poses, the free-space test) and what HDF5 and the
+    # renderer hold of the database as it is written: measured 80, 85 and 199 MB for 46,000
+    # and 182,000 views of 160x120 and 182,000 of 40x30, i.e. 40 MB + 204 bytes a view +
+    # 0.28 of the database (estimated: 256 bytes and 0.4), and with a pool each worker's
+    # block of uint8 views; writes the database, its pooled cells, the poses and the plan.
+    # index: per-view counts (and, for panoramas, a dilated copy of the database).
+    # localize: the whole database, the pooled cells, poses and per-view scores (about
+    # 160 bytes a view; measured 176 and 525 MB for 46,000 and 182,000 views of 160x120).
+    pool = block * w * h * n_workers(config) if n_workers(config) > 1 else 0
+    needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
+                  disk=db + pooled + 48 * views + (1 << 20)),
+             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views + 11 * min(spectra, 1024 * (w // 2 + 1) * 2 * h * 8) // 2,
+                  disk=(db if panorama else 0) + 48 * views + spectra),
+             Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
+    return [n for n in needs if n.stage in stages] + decode_need(config, images, 16, "decoding", stages)

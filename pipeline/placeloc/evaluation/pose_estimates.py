@@ -285,7 +285,8 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         ax.quiver(xy[:, 0], xy[:, 1], arrow * np.cos(r), arrow * np.sin(r), color=colour, angles="xy", scale_units="xy",
                   scale=1.0, width=0.003)
     ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize=8, framealpha=0.9)
+    # beside the plan, never over an estimate
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.9, borderaxespad=0.0)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if known:

@@ -171,8 +171,11 @@ def decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel:
 
 def _resources(config: dict[str, Any]) -> Any:
     """The method's resources module (``placeloc.<method>.resources``; None when it has none):
-    ``needs(config, images, stages)``, ``BASE_MEMORY`` (stage -> bytes its libraries take)
-    and optionally ``config_rules(config)`` and ``input_rules(config, images)``."""
+    ``needs(config, images, stages)``; ``BASE_MEMORY`` (stage -> what the stage's process
+    holds beyond what it had before, whatever the data's size: libraries loaded and kernels
+    compiled while it runs, measured with tests/resource_probe.py, figures in
+    docs/reliability.md, rounded up); optionally ``config_rules(config)`` and
+    ``input_rules(config, images)``."""
     from placeloc.methods import get_method
 
     return get_method(config["method"]).resources

@@ -1,21 +1,18 @@
-"""PIRF-nav2: what its stages need of memory and disk, checked before any stage runs
-(:mod:`placeloc.limits` asks the method through ``Method(resources=...)``).
-
-``BASE_MEMORY``: what a stage's process holds beyond what it had before the stage,
-whatever the data's size (libraries loaded and kernels compiled while it runs), measured
-with tests/resource_probe.py (figures and command in docs/reliability.md), rounded up.
-"""
+"""PIRF-nav2's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
 
 from __future__ import annotations
 
-import math  # noqa: F401 - used by some estimators
 from typing import Any, Sequence
 
-from placeloc.limits import Need, count_images, decode_need  # noqa: F401
-from placeloc.limits import workers as n_workers  # noqa: F401
+from placeloc.limits import Need, count_images, decode_need
 
-BASE_MEMORY: dict[str, int] = {"extract": 64 << 20, "build-dictionary": 32 << 20, "index": 64 << 20, "localize": 64 << 20,
-             "evaluate": 32 << 20}
+BASE_MEMORY: dict[str, int] = {
+    "extract": 64 << 20,
+    "build-dictionary": 32 << 20,
+    "index": 64 << 20,
+    "localize": 64 << 20,
+    "evaluate": 32 << 20,
+}
 
 
 def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str]) -> list[Need]:

@@ -1,23 +1,22 @@
-"""UMap: what its stages need of memory and disk, checked before any stage runs
-(:mod:`placeloc.limits` asks the method through ``Method(resources=...)``).
-
-``BASE_MEMORY``: what a stage's process holds beyond what it had before the stage,
-whatever the data's size (libraries loaded and kernels compiled while it runs), measured
-with tests/resource_probe.py (figures and command in docs/reliability.md), rounded up.
-"""
+"""UMap's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
 
 from __future__ import annotations
 
-import math  # noqa: F401 - used by some estimators
+import math
 from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.limits import Need, count_images, decode_need  # noqa: F401
-from placeloc.limits import workers as n_workers  # noqa: F401
+from placeloc.limits import Need, decode_need
+from placeloc.limits import workers as n_workers
 
-BASE_MEMORY: dict[str, int] = {"extract": 100 << 20, "build-dictionary": 64 << 20, "index": 100 << 20, "localize": 100 << 20,
-             "evaluate": 100 << 20}
+BASE_MEMORY: dict[str, int] = {
+    "extract": 100 << 20,
+    "build-dictionary": 64 << 20,
+    "index": 100 << 20,
+    "localize": 100 << 20,
+    "evaluate": 100 << 20,
+}
 
 
 def _plan_grid_size(p: dict[str, Any], step: float) -> tuple[int, int, float] | None:

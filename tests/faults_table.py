@@ -23,6 +23,31 @@ def record(rc: int | None, stderr: str) -> None:
     LAST.append((rc if rc is not None else -1, lines[-1] if lines else ""))
 
 
+def stderr_of(result) -> str:
+    """What a CliRunner result printed on stderr (its whole output where it keeps one stream)."""
+    return getattr(result, "stderr", "") or result.output
+
+
+def run_cli(args: list[str], **env: str):
+    """Run ``placeloc ARGS`` in this process (typer's CliRunner) with ``env`` set, record
+    its outcome for the table, and give the result."""
+    import logging
+
+    from typer.testing import CliRunner
+
+    from placeloc.cli import app
+
+    root = logging.getLogger()
+    saved = (root.handlers[:], root.level)
+    try:
+        result = CliRunner().invoke(app, args, env=env or None)
+        record(result.exit_code, stderr_of(result))
+        return result
+    finally:
+        # the CLI points logging at CliRunner's stream, which is closed afterwards
+        root.handlers[:], root.level = saved
+
+
 def _last() -> list[tuple[int, str]]:
     """The cases import this file as the module ``faults_table``; ``make faults`` runs it as
     ``__main__``: read the list the cases wrote to."""

@@ -22,7 +22,8 @@ import h5py
 import numpy as np
 import pytest
 from faults_table import record
-from typer.testing import CliRunner
+from faults_table import run_cli as _cli
+from faults_table import stderr_of as _err
 
 from placeloc.artifacts import DiskFullError, atomic_h5, atomic_open
 from placeloc.config import ConfigError, load_config
@@ -37,26 +38,6 @@ PLACELOC = [sys.executable, "-m", "placeloc.cli"]
 
 def _mtimes(run_dir: Path) -> dict[str, int]:
     return {p.name: p.stat().st_mtime_ns for p in run_dir.glob("*.h5")}
-
-
-def _cli(args: list[str], **env: str):
-    import logging
-
-    from placeloc.cli import app
-
-    root = logging.getLogger()
-    saved = (root.handlers[:], root.level)
-    try:
-        result = CliRunner().invoke(app, args, env=env or None)
-        record(result.exit_code, getattr(result, "stderr", "") or result.output)
-        return result
-    finally:
-        # the CLI points logging at CliRunner's stream, which is closed afterwards
-        root.handlers[:], root.level = saved
-
-
-def _err(result) -> str:
-    return getattr(result, "stderr", "") or result.output
 
 
 # ----------------------------------------------------------------- 1. full disk

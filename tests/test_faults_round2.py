@@ -11,33 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from faults_table import record
+from faults_table import run_cli as _cli
+from faults_table import stderr_of as _err
 
 from placeloc.config import load_config
 from placeloc.images import ImageError, list_images, read_gray, read_rgb
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACELOC = [sys.executable, "-m", "placeloc.cli"]
-
-
-def _cli(args: list[str], **env: str):
-    import logging
-
-    from typer.testing import CliRunner
-
-    from placeloc.cli import app
-
-    root = logging.getLogger()
-    saved = (root.handlers[:], root.level)
-    try:
-        result = CliRunner().invoke(app, args, env=env or None)
-        record(result.exit_code, getattr(result, "stderr", "") or result.output)
-        return result
-    finally:
-        root.handlers[:], root.level = saved
-
-
-def _err(result) -> str:
-    return getattr(result, "stderr", "") or result.output
 
 
 def _lines(text: str) -> list[str]:

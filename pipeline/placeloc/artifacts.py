@@ -261,7 +261,7 @@ def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -
     """Open a text file for writing under a temporary name in the same folder; rename it to
     ``path`` only when the block finishes, so readers never see half a CSV or JSON file."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    tmp = tmp_path_for(path)
     try:
         with tmp.open(mode, newline=newline) as fh:
             yield fh

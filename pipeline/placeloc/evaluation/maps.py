@@ -196,26 +196,6 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     return [path]
 
 
-def _save(fig: Any, path: Path) -> Path:
-    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
-    a failed save (a full disk) leaves no temporary file either."""
-    import os
-
-    import matplotlib.pyplot as plt
-
-    from placeloc.artifacts import TMP_MARK
-
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
-    try:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
-        tmp.replace(path)
-    finally:
-        plt.close(fig)
-        tmp.unlink(missing_ok=True)
-    return path
-
-
 def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
              path_truth: np.ndarray | None, title: str, units: str) -> Path:
     """Top view of the map: a 3-D map is drawn from above (first and last axis: x and depth)."""
@@ -248,4 +228,6 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
-    return _save(fig, path)
+    from placeloc.evaluation.plots import _save
+
+    return _save(fig, path, dpi=120)

@@ -12,17 +12,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def _save(fig: plt.Figure, path: Path, dpi: int = 110) -> Path:
     """Save under a temporary name and rename, so a killed run never leaves half a PNG;
     a failed save (a full disk) leaves no temporary file either."""
-    import os
-
-    from placeloc.artifacts import TMP_MARK
+    from placeloc.artifacts import tmp_path_for
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
+    tmp = tmp_path_for(path)
     try:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
         tmp.replace(path)
     finally:
         plt.close(fig)

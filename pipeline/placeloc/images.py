@@ -234,16 +234,24 @@ def decode_image(path: str | Path) -> np.ndarray:
     return upright(img, exif_orientation(data))
 
 
+def _decode_8bit(path: str | Path) -> np.ndarray:
+    """:func:`decode_image`, scaled to 8 bits (16-bit by its high byte, float by its range)."""
+    import cv2
+
+    img = decode_image(path)
+    if img.dtype == np.uint16:
+        return (img >> 8).astype(np.uint8)
+    if img.dtype != np.uint8:
+        return cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return img
+
+
 def read_gray(path: str | Path) -> np.ndarray:
     """Read an image as 8-bit greyscale, upright (EXIF orientation applied); colour is
     converted, 16-bit is scaled down."""
     import cv2
 
-    img = decode_image(path)
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    img = _decode_8bit(path)
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
         img = cv2.cvtColor(img, code)
@@ -254,11 +262,7 @@ def read_rgb(path: str | Path) -> np.ndarray:
     """Read an image as 8-bit RGB, upright (for figures)."""
     import cv2
 
-    img = decode_image(path)
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    img = _decode_8bit(path)
     if img.ndim == 2:
         return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
     return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)

@@ -27,7 +27,7 @@ from typing import Any, Callable
 import h5py
 import numpy as np
 
-from placeloc.artifacts import read_strings
+from placeloc.artifacts import read_strings, write_tree
 
 KINDS = ("ranked", "loops", "poses", "map")
 # contract kind -> the module implementing it (kinds of result, never method names)
@@ -174,6 +174,15 @@ def read_result(f: h5py.File | str | Path) -> Result:
     return Result(kind, data, attrs)
 
 
+def names_by_index(index: np.ndarray, names: list[str], n_listed: int) -> list[str]:
+    """File names by original index (position in the folder's listing) from a contract's
+    indices and names; images the contract does not hold (skipped) get ""."""
+    out = [""] * max(int(n_listed), int(np.max(index)) + 1 if len(index) else 0)
+    for i, nm in zip(index, names):
+        out[int(i)] = nm
+    return out
+
+
 def localize_result(run_dir: str | Path) -> Result | None:
     """The contract of a run directory's localize.h5 (None when there is none yet)."""
     path = Path(run_dir) / "localize.h5"
@@ -210,8 +219,7 @@ def evaluate_stage(ctx: Any) -> None:
         ev.label = ctx.method.name
     if ctx.method.evaluate_extra is not None:
         ctx.method.evaluate_extra(ctx, ev)
-    for k, v in ev.arrays.items():
-        _write_array(ctx.out, k, v)
+    write_tree(ctx.out, ev.arrays)
     ctx.out.attrs["result_kind"] = res.kind
     clean = write_metrics(ctx.output_dir, ev.metrics, ctx.out)
     plots = bool(ctx.config.get("plots", True))
@@ -223,15 +231,6 @@ def evaluate_stage(ctx: Any) -> None:
         if mod.SHOW_AT_EVALUATE:
             mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
         write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
-
-
-def _write_array(group: h5py.Group, name: str, value: Any) -> None:
-    if isinstance(value, dict):
-        sub = group.require_group(name)
-        for k, v in value.items():
-            _write_array(sub, k, v)
-    else:
-        group.create_dataset(name, data=np.asarray(value))
 
 
 def headline(run_dir: str | Path) -> list[tuple[str, Any]]:

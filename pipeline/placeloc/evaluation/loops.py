@@ -44,7 +44,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+from placeloc.evaluation.contracts import Evaluation, Field, Result, names_by_index, write_result
 from placeloc.evaluation.ground_truth import GroundTruthError
 
 log = logging.getLogger("placeloc")
@@ -253,7 +253,7 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
                          "`placeloc show RUN_DIR` draws the loop closures without it")
     images = ctx.images.get("reference")
     n = len(images.paths) if images is not None else int(res.attrs.get("n_listed", len(res["frame_index"])))
-    names = list(images.names) if images is not None else _names(res, n)
+    names = list(images.names) if images is not None else names_by_index(res["frame_index"], res["frame_names"], n)
     truth = loop_truth(section, names)
     exclude, tol = int(section["exclude_recent"]), int(section.get("tolerance") or 0)
     frames, match, conf = res["frame_index"], res["match"], np.asarray(res["confidence"], np.float64)
@@ -288,13 +288,6 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
                     match_local=np.array([pos.get(int(j), -1) if c else -1 for j, c in zip(match, candidate)], np.int64))
     ev.scores = pr
     return ev
-
-
-def _names(res: Result, n: int) -> list[str]:
-    names = [""] * n
-    for i, nm in zip(res["frame_index"], res["frame_names"]):
-        names[int(i)] = nm
-    return names
 
 
 def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+from placeloc.evaluation.contracts import Evaluation, Field, Result, names_by_index, write_result
 
 # common config sections the evaluate stage reads
 SECTIONS = ("ground_truth", "plots")
@@ -129,11 +129,7 @@ def _full_names(ctx: Any, res: Result, role: str) -> list[str]:
     if images is not None:
         return list(images.names)
     key = "reference" if role == "reference" else "query"
-    n = int(res.attrs.get(f"n_{key}_listed", 0))
-    names = [""] * max(n, int(np.max(res[f"{key}_index"])) + 1 if len(res[f"{key}_index"]) else 0)
-    for i, nm in zip(res[f"{key}_index"], res[f"{key}_names"]):
-        names[int(i)] = nm
-    return names
+    return names_by_index(res[f"{key}_index"], res[f"{key}_names"], int(res.attrs.get(f"n_{key}_listed", 0)))
 
 
 # ---------------------------------------------------------------------------------------

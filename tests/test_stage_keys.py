@@ -202,13 +202,19 @@ def _preset(name: str, moves: dict[str, str], overrides: dict[str, Any] | None =
 Variant = "dict | tuple[dict, str]"  # a config, or a config and the last stage to run
 
 
-def seqslam_variants(tmp: Path) -> list[Variant]:
-    """configs/demo.yaml (the bundled route) and variants reaching the other branches."""
+def _route_descriptors(tmp: Path) -> None:
+    """tmp/ref.npy and tmp/query.npy: 16 random numbers for each image of the bundled route
+    (what a user's own descriptors look like to the stages)."""
     rng = np.random.default_rng(0)
     n_ref = len(list((ROOT / "data-samples" / "route" / "reference").glob("*.png")))
     n_query = len(list((ROOT / "data-samples" / "route" / "query").glob("*.png")))
     np.save(tmp / "ref.npy", rng.standard_normal((n_ref, 16)).astype(np.float32))
     np.save(tmp / "query.npy", rng.standard_normal((n_query, 16)).astype(np.float32))
+
+
+def seqslam_variants(tmp: Path) -> list[Variant]:
+    """configs/demo.yaml (the bundled route) and variants reaching the other branches."""
+    _route_descriptors(tmp)
     base = {"plots": False}
     return [
         _preset("demo.yaml", {}, {"plots": True}),
@@ -237,11 +243,7 @@ def _omni_smoke(tmp: Path) -> Path:
 
 def retrieval_variants(tmp: Path) -> list[Variant]:
     """configs/retrieval.yaml (the bundled route), brought descriptors with L2, each search."""
-    rng = np.random.default_rng(0)
-    n_ref = len(list((ROOT / "data-samples" / "route" / "reference").glob("*.png")))
-    n_query = len(list((ROOT / "data-samples" / "route" / "query").glob("*.png")))
-    np.save(tmp / "ref.npy", rng.standard_normal((n_ref, 16)).astype(np.float32))
-    np.save(tmp / "query.npy", rng.standard_normal((n_query, 16)).astype(np.float32))
+    _route_descriptors(tmp)
     return [
         _preset("retrieval.yaml", {}),
         _preset("retrieval.yaml", {}, {"plots": False, "retrieval.search": "faiss", "retrieval.distance": "l2",

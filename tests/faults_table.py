@@ -8,6 +8,7 @@ tests/test_faults*.py); a case that ran no command shows "-".
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -46,6 +47,45 @@ def run_cli(args: list[str], **env: str):
     finally:
         # the CLI points logging at CliRunner's stream, which is closed afterwards
         root.handlers[:], root.level = saved
+
+
+def child_pids(pid: int) -> list[int]:
+    """Every descendant process of ``pid`` (empty once it is gone)."""
+    import psutil
+
+    try:
+        return [c.pid for c in psutil.Process(pid).children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return []
+
+
+def start_pooled_run(tmp_path: Path, frames: int = 600):
+    """``placeloc run`` of a generated route on a process pool of 2, in a session of its own
+    (so a signal to its group reaches it as a terminal's Ctrl-C does) with TMPDIR in
+    tmp_path; returned (process, TMPDIR) 0.3 s after both workers started, still extracting."""
+    import subprocess
+    import time
+
+    import psutil
+
+    from placeloc.synth.route import generate
+
+    generate(tmp_path / "data", seed=2, frames=frames)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    cmd = [sys.executable, "-m", "placeloc.cli", "run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+                      "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
+    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        with __import__("contextlib").suppress(psutil.Error):
+            if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in child_pids(proc.pid)) >= 2:
+                break
+        time.sleep(0.1)
+    time.sleep(0.3)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    return proc, tmpdir
 
 
 def _last() -> list[tuple[int, str]]:

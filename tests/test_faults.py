@@ -21,7 +21,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from faults_table import record
+from faults_table import record, start_pooled_run
 from faults_table import run_cli as _cli
 from faults_table import stderr_of as _err
 
@@ -158,30 +158,9 @@ def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp
 
 @pytest.mark.parametrize("sig,rc", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
-    import psutil
-
-    from placeloc.synth.route import generate
-
-    # Long enough that the pool is still extracting when the signal comes (the whole run
-    # takes several seconds; the signal follows the workers' start by 0.3 s).
-    generate(tmp_path / "data", seed=2, frames=600)
-    tmpdir = tmp_path / "tmp"
-    tmpdir.mkdir()
-    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
-                      "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
-    # A session of its own, so the signal goes to the whole group as a terminal's Ctrl-C does.
-    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and proc.poll() is None:
-        try:
-            if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in _children(proc.pid)) >= 2:
-                break
-        except psutil.Error:  # a child that just exited (zombie or gone)
-            pass
-        time.sleep(0.1)
-    time.sleep(0.3)
-    assert proc.poll() is None, "the run finished before it could be interrupted"
+    # Long enough (600 frames) that the pool is still extracting when the signal comes (the
+    # whole run takes several seconds; the signal follows the workers' start by 0.3 s).
+    proc, tmpdir = start_pooled_run(tmp_path)
     os.killpg(proc.pid, sig) if sig == signal.SIGINT else proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)
     record(proc.returncode, err)

@@ -10,8 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from faults_table import child_pids as _children
 from faults_table import record
 from faults_table import run_cli as _cli
+from faults_table import start_pooled_run as _start_pooled_run
 from faults_table import stderr_of as _err
 
 from placeloc.config import load_config
@@ -267,41 +269,6 @@ def test_stale_staging_folder_of_a_killed_run_is_removed(route, tmp_path):
 
 
 # ----------------------------------------------------------------- 3. nothing hangs
-
-def _children(pid: int) -> list[int]:
-    import psutil
-
-    try:
-        return [c.pid for c in psutil.Process(pid).children(recursive=True)]
-    except psutil.NoSuchProcess:
-        return []
-
-
-def _start_pooled_run(tmp_path: Path, frames: int = 600):
-    import subprocess
-    import time
-
-    import psutil
-
-    from placeloc.synth.route import generate
-
-    generate(tmp_path / "data", seed=2, frames=frames)
-    tmpdir = tmp_path / "tmp"
-    tmpdir.mkdir()
-    cmd = PLACELOC + ["run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
-                      "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
-    proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and proc.poll() is None:
-        with __import__("contextlib").suppress(psutil.Error):
-            if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in _children(proc.pid)) >= 2:
-                break
-        time.sleep(0.1)
-    time.sleep(0.3)
-    assert proc.poll() is None, "the run finished before it could be interrupted"
-    return proc, tmpdir
-
 
 @pytest.mark.parametrize("gap", [0.15, 0.02])
 def test_double_ctrl_c_during_a_pooled_stage_exits_at_once(tmp_path, gap):

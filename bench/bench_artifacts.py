@@ -4,7 +4,7 @@
 
 Writes the same 56 MB artifact (a chunked, compressed uint8 table appended in blocks, as
 SeqSLAM's extract does, and one float32 matrix) with plain ``h5py.File(path, "w")`` (the
-sec2 driver) and with :func:`placeloc.artifacts.atomic_h5`, which writes through a Python
+sec2 driver) and with :func:`placeloc.core.artifacts.atomic_h5`, which writes through a Python
 file object so that a full disk never reaches HDF5 as a failed deferred write. Prints the
 median wall and CPU time of each and their ratio.
 """
@@ -22,7 +22,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from placeloc.artifacts import atomic_h5
+from placeloc.core.artifacts import atomic_h5
 
 
 def _work(f: h5py.File, table: np.ndarray, matrix: np.ndarray) -> None:

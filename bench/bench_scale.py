@@ -53,8 +53,8 @@ def make_traverse(out: Path, frames: int, width: int, height: int, seed: int = 0
 
 def child(folder: str, section: str, run_dir: str) -> None:
     """One configuration: run extract, print seconds and this (writing) process's peak RSS as JSON."""
-    from placeloc.config import load_config
-    from placeloc.runner import run_stage
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_stage
 
     cfg = load_config(data={"method": "seqslam", "reference": {"images": folder}, "plots": False,
                             "seqslam": {"comparison": "sad", "thumbnail": [64, 32]},

@@ -35,8 +35,8 @@ sys.path.insert(0, str(ROOT))
 
 import dataclasses  # noqa: E402
 
+from placeloc.core.images import list_images, read_gray  # noqa: E402
 from placeloc.experiments import shared_data_dir  # noqa: E402
-from placeloc.images import list_images, read_gray  # noqa: E402
 from placeloc.seqslam.comparisons import difference_block, prepare_many  # noqa: E402
 from placeloc.seqslam.params import SeqSLAMParams  # noqa: E402
 from placeloc.seqslam.search import enhance_t, query_offsets, sequence_search, trajectory_offsets, velocities  # noqa: E402
@@ -134,8 +134,8 @@ def run_cli(args: list[str]) -> tuple[float, float]:
 
 def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float, float]:
     """Run a placeloc stage in a child process; return (seconds, peak RSS of the child in GB)."""
-    code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from placeloc.config import load_config; "
-            f"from placeloc.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
+    code = (f"import resource,sys,time; sys.path.insert(0, {str(ROOT)!r}); from placeloc.core.config import load_config; "
+            f"from placeloc.core.runner import run_stage; c = load_config({str(config)!r}); t = time.perf_counter(); "
             f"run_stage(c, {str(run_dir)!r}, {stage!r}, quiet=True, force=True); dt = time.perf_counter() - t; "
             "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1048576)")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()

@@ -1,8 +1,8 @@
-"""Measure what a stage really needs, to hold the size estimates of placeloc.limits to account.
+"""Measure what a stage really needs, to hold the size estimates of placeloc.core.limits to account.
 
 ``python tests/resource_probe.py CONFIG RUN_DIR STAGE [--set k=v ...]`` runs the stages
 before STAGE (unmeasured), then STAGE alone in a fresh process and prints one JSON line:
-the estimate (memory and disk, from placeloc.limits.estimate for that stage alone) and the
+the estimate (memory and disk, from placeloc.core.limits.estimate for that stage alone) and the
 measurement: the growth of the peak resident memory over the memory held just before the
 stage (imports and the parent artifacts' metadata excluded), and the bytes the stage added
 to the run directory (its artifact and side outputs).
@@ -48,10 +48,10 @@ def _dir_files(run: Path) -> dict[str, tuple[int, int]]:
 
 
 def measure(config: str, run_dir: str, stage: str, sets: list[str]) -> dict:
-    from placeloc.config import load_config
-    from placeloc.limits import estimate
-    from placeloc.methods import get_method
-    from placeloc.runner import image_sets, run_stage
+    from placeloc.core.config import load_config
+    from placeloc.core.limits import estimate
+    from placeloc.core.methods import get_method
+    from placeloc.core.runner import image_sets, run_stage
 
     cfg = load_config(config, sets)
     get_method(cfg["method"])  # import the method's modules before the baseline
@@ -77,7 +77,7 @@ def measure(config: str, run_dir: str, stage: str, sets: list[str]) -> dict:
 def probe(config: str | Path, run_dir: str | Path, sets: list[str] | None = None, stages: list[str] | None = None,
           env: dict[str, str] | None = None) -> list[dict]:
     """Measure every stage (or ``stages``) of a run, each in a fresh process, in order."""
-    from placeloc.methods import STAGES
+    from placeloc.core.methods import STAGES
 
     rows = []
     for stage in stages or STAGES:

@@ -67,8 +67,8 @@ def test_sweep_and_compare_say_where_they_wrote(route: Path, tmp_path: Path, res
 
 def test_params_lists_every_setting_with_default_range_and_help():
     """The help of each setting comes from its param(...) declaration, the one home."""
-    from placeloc import params as P
-    from placeloc.common_params import CommonParams
+    from placeloc.core import params as P
+    from placeloc.core.common_params import CommonParams
     from placeloc.pirf.params import PirfParams
 
     out = CliRunner().invoke(cli.app, ["params"]).output.splitlines()

@@ -13,9 +13,9 @@ from placeloc.coembed.landmarks import farthest_point_landmarks
 from placeloc.coembed.observations import read_observations_csv, read_points_csv
 from placeloc.coembed.pinhole import calibrated_map
 from placeloc.coembed.solver import coembed_map
-from placeloc.config import ConfigError, load_config
+from placeloc.core.config import ConfigError, load_config
+from placeloc.core.runner import run_all
 from placeloc.experiments.coembed import _OncePerCause
-from placeloc.runner import run_all
 from placeloc.synth import generate
 
 

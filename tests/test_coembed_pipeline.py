@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from placeloc.coembed.observations import ObservationError
-from placeloc.config import ConfigError, load_config
-from placeloc.runner import run_all, run_stage
+from placeloc.core.config import ConfigError, load_config
+from placeloc.core.runner import run_all, run_stage
 from placeloc.synth import generate
 
 

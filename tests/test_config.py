@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from placeloc.config import ConfigError, load_config
+from placeloc.core.config import ConfigError, load_config
 
 
 def _write(tmp_path, data):
@@ -59,7 +59,7 @@ def test_missing_config_file(tmp_path):
 
 
 def test_declared_ranges_are_checked_with_the_key_and_the_limit(tmp_path):
-    from placeloc.config import ConfigError, load_config
+    from placeloc.core.config import ConfigError, load_config
 
     base = {"method": "seqslam", "reference": {"images": str(tmp_path)}}
     with pytest.raises(ConfigError, match=r"seqslam.ds: 0 is out of range; it must be >= 1"):
@@ -73,8 +73,8 @@ def test_declared_ranges_are_checked_with_the_key_and_the_limit(tmp_path):
 
 
 def test_parameter_objects_are_built_from_the_config_with_nested_sections(tmp_path):
-    from placeloc.methods import get_method
-    from placeloc.params import defaults
+    from placeloc.core.methods import get_method
+    from placeloc.core.params import defaults
     from placeloc.umap.params import UMapParams
 
     d = defaults(UMapParams)
@@ -89,7 +89,7 @@ def test_null_is_accepted_where_the_parameter_declares_it(route):
     as given) must pass, a string must not; a plain float key still refuses null."""
     import pytest
 
-    from placeloc.config import ConfigError, load_config
+    from placeloc.core.config import ConfigError, load_config
 
     def cfg(**pirf):
         return load_config(data={"method": "pirf", "reference": {"images": str(route / "reference")}, "pirf": pirf})

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import run_all
 from placeloc.evaluation import show as show_mod
 from placeloc.evaluation.contracts import ContractError, contract, headline, read_result, validate
-from placeloc.runner import run_all
 
 ROOT = Path(__file__).resolve().parents[1]
 

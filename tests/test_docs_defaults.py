@@ -21,9 +21,9 @@ from typing import Any
 import pytest
 import yaml
 
-from placeloc import params as P
-from placeloc.common_params import CommonParams
-from placeloc.methods import METHOD_NAMES, get_method
+from placeloc.core import params as P
+from placeloc.core.common_params import CommonParams
+from placeloc.core.methods import METHOD_NAMES, get_method
 
 ROOT = Path(__file__).resolve().parent.parent
 # doc -> the method whose keys it names bare (None: keys are written with their section)

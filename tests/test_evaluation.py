@@ -9,11 +9,11 @@ import json
 import numpy as np
 import pytest
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import run_stage
 from placeloc.evaluation.ground_truth import GroundTruth
 from placeloc.evaluation.matching import score_matches
 from placeloc.evaluation.metrics import drop_soft, first_correct_rank, recall_at_n
-from placeloc.runner import run_stage
 
 
 def test_recall_at_n_and_denominators_by_hand():
@@ -116,8 +116,8 @@ def test_show_without_ground_truth_and_report(route, tmp_path):
 
     # evaluate (with plots) draws strips and the report itself; showing again must not
     # make evaluate look out of date (its side outputs come out byte-identical)
+    from placeloc.core.runner import side_outputs_intact
     from placeloc.evaluation.show import show_run
-    from placeloc.runner import side_outputs_intact
 
     run_stage(load_config(route / "config.yaml", ["seqslam.comparison=sad"]), run, "evaluate", quiet=True)
     html = (run / "report.html").read_text()
@@ -163,7 +163,7 @@ def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
 
 def test_recall_at_n_list_comes_from_the_config(route, tmp_path):
     """ground_truth.recall_at sets the N of Recall@N; the per-query ranks agree with it."""
-    from placeloc.config import ConfigError
+    from placeloc.core.config import ConfigError
 
     with pytest.raises(ConfigError, match=r"ground_truth.recall_at: \[0, 3\] is out of range; it must be >= 1"):
         load_config(route / "config.yaml", ["ground_truth.recall_at=[0, 3]"])

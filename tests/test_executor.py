@@ -9,10 +9,10 @@ import h5py
 import numpy as np
 import pytest
 
-from placeloc.config import load_config
-from placeloc.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item
-from placeloc.executors import make_executor
-from placeloc.runner import run_stage
+from placeloc.core.config import load_config
+from placeloc.core.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item
+from placeloc.core.executors import make_executor
+from placeloc.core.runner import run_stage
 
 # Every dataset extract and localize write; compared bit for bit between executors.
 ARRAYS = {
@@ -95,7 +95,7 @@ def test_dask_missing_gives_a_clear_error(monkeypatch):
             raise ImportError(f"No module named '{name.split('.')[0]}'")
         return real_import(name, *args, **kwargs)
 
-    monkeypatch.delitem(__import__("sys").modules, "placeloc.dask_executor", raising=False)
+    monkeypatch.delitem(__import__("sys").modules, "placeloc.core.dask_executor", raising=False)
     monkeypatch.setattr(builtins, "__import__", no_dask)
     with pytest.raises(ValueError, match=r"pip install 'placeloc\[dask\]'"):
         make_executor({"kind": "dask", "workers": 2, "scheduler": "local-cluster", "retries": 2})

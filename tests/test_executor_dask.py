@@ -11,10 +11,10 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from placeloc import runner  # noqa: E402
-from placeloc.config import load_config  # noqa: E402
-from placeloc.dask_executor import DaskExecutor  # noqa: E402
-from placeloc.executor import WorkItemError  # noqa: E402
+from placeloc.core import runner  # noqa: E402
+from placeloc.core.config import load_config  # noqa: E402
+from placeloc.core.dask_executor import DaskExecutor  # noqa: E402
+from placeloc.core.executor import WorkItemError  # noqa: E402
 from tests.test_executor import assert_identical, run_seqslam  # noqa: E402
 
 

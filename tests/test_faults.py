@@ -25,12 +25,12 @@ from faults_table import record, start_pooled_run
 from faults_table import run_cli as _cli
 from faults_table import stderr_of as _err
 
-from placeloc.artifacts import DiskFullError, atomic_h5, atomic_open
-from placeloc.config import ConfigError, load_config
-from placeloc.images import ImageError, ImageSet, read_gray
-from placeloc.limits import ResourceError, check_resources, image_size
-from placeloc.methods import STAGES
-from placeloc.runner import RunDirError, image_sets, lock_run_dir, run_all, run_stage
+from placeloc.core.artifacts import DiskFullError, atomic_h5, atomic_open
+from placeloc.core.config import ConfigError, load_config
+from placeloc.core.images import ImageError, ImageSet, read_gray
+from placeloc.core.limits import ResourceError, check_resources, image_size
+from placeloc.core.methods import STAGES
+from placeloc.core.runner import RunDirError, image_sets, lock_run_dir, run_all, run_stage
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACELOC = [sys.executable, "-m", "placeloc.cli"]
@@ -82,7 +82,7 @@ def test_full_disk_during_a_real_run_is_one_line_rc2(route, tiny_fs):
     filler = tiny_fs / "filler"
     filler.write_bytes(b"\0" * 700_000)
     run = tiny_fs / "run"
-    script = ("import sys, placeloc.runner as r; r.check_resources = lambda *a: []; from placeloc.cli import main; "
+    script = ("import sys, placeloc.core.runner as r; r.check_resources = lambda *a: []; from placeloc.cli import main; "
               f"sys.argv = ['placeloc', 'run', {str(route / 'config.yaml')!r}, '--run-dir', {str(run)!r}, '-q']; main()")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
@@ -407,12 +407,12 @@ def test_latin1_config_and_unreachable_scheduler(route, tmp_path):
 
 
 def test_bug_shows_traceback_and_ctrl_c_is_one_line(route, tmp_path, monkeypatch):
-    import placeloc.runner
+    import placeloc.core.runner
 
     def boom(*a, **k):
         raise TypeError("an internal mistake")
 
-    monkeypatch.setattr(placeloc.runner, "run_stage", boom)
+    monkeypatch.setattr(placeloc.core.runner, "run_stage", boom)
     res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r")])
     out = _err(res)
     assert res.exit_code == 1 and "Traceback" in out and "TypeError: an internal mistake" in out
@@ -421,7 +421,7 @@ def test_bug_shows_traceback_and_ctrl_c_is_one_line(route, tmp_path, monkeypatch
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(placeloc.runner, "run_stage", interrupted)
+    monkeypatch.setattr(placeloc.core.runner, "run_stage", interrupted)
     res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r")])
     assert res.exit_code == 130 and _err(res).strip() == "interrupted; rerun to resume"
 
@@ -431,9 +431,9 @@ def test_error_classes_are_user_errors():
 
     from placeloc.cli import classify
     from placeloc.coembed.solver import CoembedError
+    from placeloc.core.executor import WorkItemError
     from placeloc.evaluation.ground_truth import GroundTruthError
     from placeloc.evaluation.poses import PoseError
-    from placeloc.executor import WorkItemError
 
     for exc in (GroundTruthError("x"), PoseError("x"), CoembedError("x"), PermissionError(13, "denied", "f.png"),
                 IsADirectoryError(21, "is a dir"), cv2.error("bad"), ResourceError("x"),
@@ -442,7 +442,7 @@ def test_error_classes_are_user_errors():
         assert classify(exc) == "user", exc
     for exc in (TypeError("x"), AttributeError("x"), IndexError("x"), WorkItemError("local", len, "item", ZeroDivisionError())):
         assert classify(exc) == "bug", exc
-    from placeloc.errors import WorkerLostError
+    from placeloc.core.errors import WorkerLostError
 
     for exc in (MemoryError(), WorkerLostError("x"), WorkItemError("local", len, "item", MemoryError())):
         assert classify(exc) == "environment", exc
@@ -496,7 +496,7 @@ def re_escape(text: str) -> str:
 
 
 def test_keys_whose_default_is_none_have_a_declared_type(route):
-    from placeloc.params import declared_types
+    from placeloc.core.params import declared_types
     from placeloc.umap.params import UMapParams
 
     types = declared_types(UMapParams)
@@ -515,7 +515,7 @@ def test_keys_whose_default_is_none_have_a_declared_type(route):
 
 def test_permission_denied_image_is_not_called_corrupt(route, monkeypatch):
     img = sorted((route / "query").glob("*.png"))[0]
-    import placeloc.images
+    import placeloc.core.images
 
     real_open = open
 
@@ -524,7 +524,7 @@ def test_permission_denied_image_is_not_called_corrupt(route, monkeypatch):
             raise PermissionError(13, "Permission denied", str(path))
         return real_open(path, *a, **k)
 
-    monkeypatch.setattr(placeloc.images, "open", denied, raising=False)
+    monkeypatch.setattr(placeloc.core.images, "open", denied, raising=False)
     with pytest.raises(ImageError, match="permission denied; make it readable"):
         read_gray(img)
     garbage = route / "query" / "zz.png"
@@ -558,7 +558,7 @@ def test_an_interrupt_swallowed_by_a_finaliser_is_raised_again_silently():
     """Python swallows an exception raised inside a finaliser (printing "Exception ignored");
     a Ctrl-C that lands there must still stop the run, without that text."""
     code = (
-        "from placeloc import interrupts\n"
+        "from placeloc.core import interrupts\n"
         "interrupts.install()\n"
         "class Finalised:\n"
         "    def __del__(self):\n"

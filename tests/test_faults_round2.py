@@ -16,8 +16,8 @@ from faults_table import run_cli as _cli
 from faults_table import start_pooled_run as _start_pooled_run
 from faults_table import stderr_of as _err
 
-from placeloc.config import load_config
-from placeloc.images import ImageError, list_images, read_gray, read_rgb
+from placeloc.core.config import load_config
+from placeloc.core.images import ImageError, list_images, read_gray, read_rgb
 
 ROOT = Path(__file__).resolve().parent.parent
 PLACELOC = [sys.executable, "-m", "placeloc.cli"]
@@ -92,7 +92,7 @@ def test_seqslam_on_exif_rotated_queries_matches_the_plain_run(route, tmp_path):
     Recall@1 as the same frames stored upright."""
     import cv2
 
-    from placeloc.runner import read_metrics, run_all
+    from placeloc.core.runner import read_metrics, run_all
 
     results = {}
     for kind in ("plain", "rotated"):
@@ -120,7 +120,7 @@ def _truncated_jpeg(path: Path) -> None:
 
 
 def test_truncated_jpeg_is_an_error_and_skipped_with_on_error_skip(route, tmp_path):
-    from placeloc.runner import run_stage
+    from placeloc.core.runner import run_stage
 
     bad = route / "query" / "zz_truncated.jpg"
     _truncated_jpeg(bad)
@@ -240,7 +240,7 @@ def test_forced_rerun_that_fails_keeps_the_previous_complete_set(route, tmp_path
 
     run = tmp_path / "R"
     cfg = load_config(route / "config.yaml")
-    from placeloc.runner import run_all, run_stage
+    from placeloc.core.runner import run_all, run_stage
 
     run_all(cfg, run, quiet=True)
     before = {n: (run / n).read_bytes() for n in EVALUATE_OUTPUTS + ("evaluate.h5",)}
@@ -258,7 +258,7 @@ def test_forced_rerun_that_fails_keeps_the_previous_complete_set(route, tmp_path
 
 
 def test_stale_staging_folder_of_a_killed_run_is_removed(route, tmp_path):
-    from placeloc.runner import run_all
+    from placeloc.core.runner import run_all
 
     run = tmp_path / "R"
     stale = run / ".evaluate.outputs.tmp-999999999"
@@ -469,8 +469,8 @@ def test_killed_dask_worker_is_an_environment_failure():
     pytest.importorskip("distributed")
     from distributed.scheduler import KilledWorker
 
-    from placeloc.dask_executor import DaskExecutor
-    from placeloc.errors import WorkerLostError
+    from placeloc.core.dask_executor import DaskExecutor
+    from placeloc.core.errors import WorkerLostError
 
     class Dead:
         def result(self):
@@ -489,7 +489,7 @@ def test_killed_dask_worker_is_an_environment_failure():
 
 
 def test_describe_item_never_dumps_an_array():
-    from placeloc.executor import describe_item
+    from placeloc.core.executor import describe_item
 
     text = describe_item((np.zeros((1000, 64)), {"a": np.ones(10)}, "settings"))
     assert "array(1000, 64) float64" in text and "0." not in text and len(text) <= 160
@@ -539,7 +539,7 @@ def test_a_negative_ground_truth_range_end_is_refused_like_a_negative_index(rout
 
 
 def test_an_empty_list_parameter_is_refused_at_config_check(route):
-    from placeloc.config import ConfigError
+    from placeloc.core.config import ConfigError
 
     data = {"method": "coembed", "coembed": {"observations": str(route / "x.csv")}}
     with pytest.raises(ConfigError, match=r"coembed.alpha_grid: \[\] has 0 item\(s\); it needs at least 1"):

@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from placeloc.config import ConfigError, load_config
+from placeloc.core.config import ConfigError, load_config
 from placeloc.evaluation.ground_truth import GroundTruth, GroundTruthError
 from placeloc.evaluation.poses import latlon_to_utm, positions_from_names, read_poses, utm_zone_number
 
@@ -266,8 +266,8 @@ def test_a_pairs_csv_is_exact_unless_a_tolerance_is_set(route, tmp_path):
 
 def test_shared_settings_have_one_home():
     """Config defaults, the ground truth's and the metrics' defaults all come from CommonParams."""
-    from placeloc import params as P
-    from placeloc.common_params import CommonParams, GroundTruthParams
+    from placeloc.core import params as P
+    from placeloc.core.common_params import CommonParams, GroundTruthParams
     from placeloc.evaluation import ground_truth, metrics
 
     gt = P.defaults(CommonParams)["ground_truth"]

@@ -12,11 +12,11 @@ import h5py
 import numpy as np
 import pytest
 
-from placeloc.artifacts import atomic_h5, describe, read_stamp
-from placeloc.config import load_config
-from placeloc.images import ImageError, list_images, natural_key
-from placeloc.methods import Stage
-from placeloc.runner import run_all, run_stage
+from placeloc.core.artifacts import atomic_h5, describe, read_stamp
+from placeloc.core.config import load_config
+from placeloc.core.images import ImageError, list_images, natural_key
+from placeloc.core.methods import Stage
+from placeloc.core.runner import run_all, run_stage
 from placeloc.seqslam import stages as seqslam_stages
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -178,9 +178,9 @@ def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
     """Files named by a method's path keys are fingerprinted like images."""
     from dataclasses import dataclass
 
-    from placeloc.methods import Method
-    from placeloc.params import Params, param
-    from placeloc.runner import stage_inputs
+    from placeloc.core.methods import Method
+    from placeloc.core.params import Params, param
+    from placeloc.core.runner import stage_inputs
 
     @dataclass(frozen=True)
     class ToyParams(Params):
@@ -198,7 +198,7 @@ def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
 
 
 def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
 
     target = tmp_path / "matches.csv"
     target.write_text("old\n")

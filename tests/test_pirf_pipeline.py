@@ -11,11 +11,11 @@ import h5py
 import numpy as np
 import pytest
 
-from placeloc.config import ConfigError, load_config
+from placeloc.core.config import ConfigError, load_config
+from placeloc.core.images import ImageError
+from placeloc.core.runner import run_all, run_stage
 from placeloc.evaluation.poses import read_poses
-from placeloc.images import ImageError
 from placeloc.pirf.stages import check_feature_type
-from placeloc.runner import run_all, run_stage
 from placeloc.synth.omni import generate
 
 

@@ -1,4 +1,4 @@
-"""The size estimates of placeloc.limits against what the stages really take.
+"""The size estimates of placeloc.core.limits against what the stages really take.
 
 For each method, the stages whose needs grow with the data run once on data large enough
 that their own allocations stand out, each in a fresh process (tests/resource_probe.py):
@@ -34,8 +34,8 @@ def _check(rows: list[dict]) -> None:
 
 
 def _prepare(config: Path, run: Path, sets: list[str]) -> None:
-    from placeloc.config import load_config
-    from placeloc.runner import run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_all
 
     run_all(load_config(config, sets), run, quiet=True)
 
@@ -95,10 +95,10 @@ def test_pirf_estimates(tmp_path):
 def test_seqslam_whole_run_disk_with_plots(route, tmp_path):
     """The disk a whole run writes, pictures and report.html included (what a user sees in
     du -s RUN_DIR), against the sum of the stages' estimates."""
-    from placeloc.config import load_config
-    from placeloc.limits import estimate
-    from placeloc.methods import STAGES
-    from placeloc.runner import image_sets, run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.limits import estimate
+    from placeloc.core.methods import STAGES
+    from placeloc.core.runner import image_sets, run_all
 
     cfg = load_config(route / "config.yaml", ["plots=true"])
     run_all(cfg, tmp_path / "run", quiet=True)

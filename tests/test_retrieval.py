@@ -46,8 +46,8 @@ def test_pipeline_on_descriptors_with_a_known_answer(tmp_path):
     is the share of queries whose ground truth names perm[j] (all but the 5 given a wrong one)."""
     import cv2
 
-    from placeloc.config import load_config
-    from placeloc.runner import run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_all
 
     rng = np.random.default_rng(0)
     n_ref, n_q = 40, 30

@@ -10,8 +10,8 @@ import h5py
 import numpy as np
 import pytest
 
-from placeloc.config import load_config
-from placeloc.runner import run_all, run_stage
+from placeloc.core.config import load_config
+from placeloc.core.runner import run_all, run_stage
 from placeloc.seqslam.descriptors import DescriptorError, load_descriptors
 
 

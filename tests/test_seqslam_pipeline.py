@@ -7,8 +7,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from placeloc.config import load_config
-from placeloc.runner import run_stage
+from placeloc.core.config import load_config
+from placeloc.core.runner import run_stage
 
 
 def _mtimes(run_dir: Path) -> dict[str, int]:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import read_metrics, run_all
 from placeloc.experiments import shared_data_dir
-from placeloc.runner import read_metrics, run_all
 
 DATA = shared_data_dir()
 pytestmark = pytest.mark.shared_data

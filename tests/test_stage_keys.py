@@ -33,10 +33,10 @@ import numpy as np
 import pytest
 import yaml
 
-from placeloc import methods as M
-from placeloc import params as P
-from placeloc.config import load_config
-from placeloc.methods import BASE_SECTIONS, STAGES, Method, Stage
+from placeloc.core import methods as M
+from placeloc.core import params as P
+from placeloc.core.config import load_config
+from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, Stage
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -126,7 +126,7 @@ def recording_method(method: Method, reads: Reads) -> Method:
 
 def run_recorded(config: dict, run_dir: Path, method: Method, reads: Reads, monkeypatch: pytest.MonkeyPatch,
                  last: str = STAGES[-1]) -> None:
-    from placeloc import runner
+    from placeloc.core import runner
     from placeloc.evaluation import report
 
     recorder = recording_method(method, reads)
@@ -396,7 +396,7 @@ def test_every_stage_declares_exactly_the_keys_it_reads(name: str, tmp_path: Pat
 def test_a_planted_omission_is_caught(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Drop ``top_k`` from SeqSLAM's localize declaration (in a copy): the check names it,
     and the copy indeed leaves localize "up to date" when top_k changes."""
-    from placeloc import runner
+    from placeloc.core import runner
 
     real = M.get_method("seqslam")
     localize = real.stages["localize"]

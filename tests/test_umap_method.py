@@ -143,7 +143,7 @@ def _tiny_corridor(tmp_path, size=(160, 120)):
 
 
 def _config(tmp_path, **umap):
-    from placeloc.config import load_config
+    from placeloc.core.config import load_config
 
     data = {"method": "umap", "query": {"images": str(tmp_path / "q")},
             "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
@@ -155,7 +155,7 @@ def _config(tmp_path, **umap):
 
 
 def test_tiny_corridor_right_pose_wins(tmp_path):
-    from placeloc.runner import run_all
+    from placeloc.core.runner import run_all
 
     _tiny_corridor(tmp_path)
     cfg = _config(tmp_path)
@@ -179,9 +179,9 @@ def test_tiny_corridor_right_pose_wins(tmp_path):
 
 
 def test_bad_inputs(tmp_path):
-    from placeloc.config import ConfigError
-    from placeloc.images import ImageError
-    from placeloc.runner import run_stage
+    from placeloc.core.config import ConfigError
+    from placeloc.core.images import ImageError
+    from placeloc.core.runner import run_stage
 
     _tiny_corridor(tmp_path)
     # a grid that misses the model names both
@@ -205,7 +205,7 @@ def test_bad_inputs(tmp_path):
 
 def test_localize_only_key_does_not_rerun_extract_or_render(tmp_path):
     # ca.tie_tol is read by localize only: extract, the database and the index stay as they are.
-    from placeloc.runner import run_all
+    from placeloc.core.runner import run_all
 
     _tiny_corridor(tmp_path)
     run = tmp_path / "run"
@@ -224,9 +224,9 @@ def test_localize_only_key_does_not_rerun_extract_or_render(tmp_path):
 def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
     import json
 
-    from placeloc.artifacts import read_strings
-    from placeloc.images import ImageError
-    from placeloc.runner import run_all, run_stage
+    from placeloc.core.artifacts import read_strings
+    from placeloc.core.images import ImageError
+    from placeloc.core.runner import run_all, run_stage
 
     _tiny_corridor(tmp_path)
     (tmp_path / "q" / "f3b.png").write_bytes(b"not an image")
@@ -248,7 +248,7 @@ def test_on_error_skip_leaves_out_a_broken_query_image(tmp_path):
 def test_poses_file_lacking_a_query_frame_is_refused_before_any_stage(tmp_path):
     """The poses contract checks its ground truth when the config is loaded: a query image
     without a pose is one error naming the file and the frame, and no stage has run."""
-    from placeloc.config import ConfigError
+    from placeloc.core.config import ConfigError
 
     _tiny_corridor(tmp_path)
     cv2.imwrite(str(tmp_path / "q" / "f8.png"), cv2.imread(str(tmp_path / "q" / "f0.png")))

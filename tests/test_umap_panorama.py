@@ -92,8 +92,8 @@ def test_panorama_line_image_lies_on_the_map_lines():
 def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
     import yaml
 
-    from placeloc.config import load_config
-    from placeloc.runner import run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_all
 
     (tmp_path / "plan.yaml").write_text(yaml.safe_dump(PLAN))
     (tmp_path / "q").mkdir()

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from placeloc.params import defaults
+from placeloc.core.params import defaults
 from placeloc.synth.corridor import building
 from placeloc.umap import ca
 from placeloc.umap.bits import pack, popcount_rows

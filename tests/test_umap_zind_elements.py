@@ -141,8 +141,8 @@ def test_a_generated_home_in_zind_format_localizes_with_the_defaults(tmp_path):
     # A generated home written as zind_data.json; the config names only the method, the
     # images, the model, the query kind and the ground truth: the grid (bounds, doorways,
     # z = the camera height) and the score are the defaults.
-    from placeloc.config import load_config
-    from placeloc.runner import read_metrics, run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import read_metrics, run_all
     from placeloc.synth import generate
 
     generate("home", tmp_path / "home", seed=5, panoramas=4, width=512)

@@ -15,10 +15,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from placeloc.artifacts import describe
-from placeloc.config import load_config
-from placeloc.methods import STAGES
-from placeloc.runner import read_metrics, run_stage
+from placeloc.core.artifacts import describe
+from placeloc.core.config import load_config
+from placeloc.core.methods import STAGES
+from placeloc.core.runner import read_metrics, run_stage
 
 __all__ = ["STAGES", "describe", "load_config", "read_metrics", "run"]
 

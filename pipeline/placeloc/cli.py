@@ -18,8 +18,8 @@ from typing import Any, List
 import typer
 from typer.core import TyperGroup
 
-from placeloc.interrupts import Terminated, raise_if_interrupted
-from placeloc.interrupts import install as install_signal_handlers
+from placeloc.core.interrupts import Terminated, raise_if_interrupted
+from placeloc.core.interrupts import install as install_signal_handlers
 
 try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
     from typer._click import ClickException
@@ -99,7 +99,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def classify(exc: BaseException) -> str:
-    """The one classification of failures (see placeloc.errors):
+    """The one classification of failures (see placeloc.core.errors):
 
     - ``user``: the input, the config or the files are wrong; placeloc's own errors (every
       exception type defined in placeloc, a ValueError placeloc raised with its message),
@@ -111,8 +111,8 @@ def classify(exc: BaseException) -> str:
     A work item's failure is judged by the exception it wraps."""
     import yaml
 
-    from placeloc.errors import EnvironmentFailure
-    from placeloc.executor import WorkItemError
+    from placeloc.core.errors import EnvironmentFailure
+    from placeloc.core.executor import WorkItemError
 
     if isinstance(exc, WorkItemError):
         return classify(exc.original)
@@ -240,8 +240,8 @@ def _fail(exc: Exception) -> None:
 
 def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | None, force: bool,
            quiet: bool, all_stages: bool = False, wait: bool = False) -> None:
-    from placeloc.config import load_config
-    from placeloc.runner import run_stage
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_stage
 
     _setup_logging(quiet)
     # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
@@ -314,10 +314,10 @@ def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[st
 def params_(method: str = typer.Argument("", help="A method (seqslam, pirf, umap, coembed, retrieval, ...); "
                                                    "left out: the sections every config shares.")) -> None:
     """List every setting with its default, allowed values and meaning (from the parameter dataclasses)."""
-    from placeloc import params as P
-    from placeloc.common_params import CommonParams
-    from placeloc.config import ConfigError
-    from placeloc.methods import METHOD_NAMES, get_method
+    from placeloc.core import params as P
+    from placeloc.core.common_params import CommonParams
+    from placeloc.core.config import ConfigError
+    from placeloc.core.methods import METHOD_NAMES, get_method
 
     if method and method not in METHOD_NAMES:
         raise ConfigError(f"params: {method!r} is not a method; choose one of {', '.join(METHOD_NAMES)}")
@@ -333,7 +333,7 @@ def params_(method: str = typer.Argument("", help="A method (seqslam, pirf, umap
 @app.command()
 def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by placeloc.")) -> None:
     """Explain an artifact: its stage, provenance (config, inputs, version) and contents."""
-    from placeloc.artifacts import describe
+    from placeloc.core.artifacts import describe
 
     try:
         typer.echo(describe(file))
@@ -396,7 +396,7 @@ def compare(config: Path = ConfigArg,
             methods: str = typer.Option("sad,histeq,zncc,abs_zncc,isc,isc_ext,ocm,ocm_ext", help="Comma-separated SeqSLAM comparisons."),
             run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt, quiet: bool = QuietOpt) -> None:
     """Run several SeqSLAM image comparisons on one data set; write a table and one PR plot."""
-    from placeloc.config import ConfigError, load_config
+    from placeloc.core.config import ConfigError, load_config
     from placeloc.experiments.compare import compare_methods
 
     _setup_logging(quiet)
@@ -417,7 +417,7 @@ def experiment(name: str = typer.Argument(..., help="Experiment: one of the modu
                quick: bool = typer.Option(False, help="Smaller variant for smoke runs."),
                quiet: bool = QuietOpt) -> None:
     """Reproduce a paper's experiment; writes its runs, tables and summary.json."""
-    from placeloc.config import ConfigError
+    from placeloc.core.config import ConfigError
     from placeloc.experiments import EXPERIMENTS, run_experiment
 
     _setup_logging(quiet)
@@ -433,7 +433,7 @@ def main() -> None:
     try:
         app()
     except SystemExit as exc:
-        from placeloc.interrupts import received
+        from placeloc.core.interrupts import received
 
         if received() is not None:
             _exit_now(exc.code if isinstance(exc.code, int) else 130)
@@ -457,7 +457,7 @@ def _second_signal(signum: int) -> None:
     import signal
     import tempfile
 
-    from placeloc.executor import SHARED_PREFIX
+    from placeloc.core.executor import SHARED_PREFIX
 
     _announce_interrupt()
     for folder in Path(tempfile.gettempdir()).glob(f"{SHARED_PREFIX}{os.getpid()}-*"):
@@ -537,10 +537,10 @@ def sweep(config: Path = ConfigArg,
     """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
     import yaml
 
-    from placeloc.config import ConfigError, apply_override
-    from placeloc.errors import StageError
+    from placeloc.core.config import ConfigError, apply_override
+    from placeloc.core.errors import StageError
+    from placeloc.core.images import ImageError
     from placeloc.experiments.sweep import parse_grid, run_sweep
-    from placeloc.images import ImageError
 
     _setup_logging(quiet)
     try:

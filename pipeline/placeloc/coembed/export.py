@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 
 
 def write_map_csv(path: Path, feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray) -> Path:

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from placeloc.images import read_gray
+from placeloc.core.images import read_gray
 
 
 class ExtractError(ValueError):

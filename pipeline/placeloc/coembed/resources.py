@@ -1,10 +1,10 @@
-"""Co-embedding's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
+"""Co-embedding's memory and disk needs per stage (the contract with :mod:`placeloc.core.limits`)."""
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-from placeloc.limits import Need, decode_need
+from placeloc.core.limits import Need, decode_need
 
 BASE_MEMORY: dict[str, int] = {
     "extract": 16 << 20,

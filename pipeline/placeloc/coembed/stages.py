@@ -30,8 +30,8 @@ from placeloc.coembed.observations import (
     write_observations,
 )
 from placeloc.coembed.params import CoembedParams
-from placeloc.config import ConfigError
-from placeloc.methods import Method, Stage
+from placeloc.core.config import ConfigError
+from placeloc.core.methods import Method, Stage
 
 log = logging.getLogger("placeloc")
 
@@ -66,7 +66,7 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
         obs = read_observations_csv(p.observations)
     else:
         from placeloc.coembed.extract import observations_from_images
-        from placeloc.images import list_images
+        from placeloc.core.images import list_images
 
         paths = list_images(p.images).paths
         s, f, v = observations_from_images(

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 
 
 def _clean(value: Any) -> Any:

@@ -27,7 +27,7 @@ from typing import Any, Callable
 import h5py
 import numpy as np
 
-from placeloc.artifacts import read_strings, write_tree
+from placeloc.core.artifacts import read_strings, write_tree
 
 KINDS = ("ranked", "loops", "poses", "map")
 # contract kind -> the module implementing it (kinds of result, never method names)

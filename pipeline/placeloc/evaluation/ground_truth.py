@@ -46,10 +46,10 @@ from typing import Any, Sequence
 import h5py
 import numpy as np
 
-from placeloc.common_params import GroundTruthParams
-from placeloc.errors import ConfigError
+from placeloc.core.common_params import GroundTruthParams
+from placeloc.core.errors import ConfigError
 
-# The shared defaults (one home: placeloc.common_params), for callers that pass no config section.
+# The shared defaults (one home: placeloc.core.common_params), for callers that pass no config section.
 DEFAULT_RADIUS_M: float = GroundTruthParams().radius
 DEFAULT_TOLERANCE: int = GroundTruthParams().tolerance
 TRUE_WORDS = {"1", "true", "yes", "y", "soft"}

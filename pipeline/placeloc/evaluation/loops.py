@@ -203,7 +203,7 @@ def loop_truth(section: dict[str, Any], names: Sequence[str]) -> Any:
 
 def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     """Read the loop-closure ground truth against the listed frames before any stage runs."""
-    from placeloc.images import ImageError, list_images
+    from placeloc.core.images import ImageError, list_images
 
     section = config.get("ground_truth") or {}
     if section.get("kind", "none") == "none" or not config.get("reference"):
@@ -243,7 +243,7 @@ def score_loops(truth: Any, frames: np.ndarray, match: np.ndarray, *, exclude_re
 
 
 def evaluate(ctx: Any, res: Result) -> Evaluation:
-    from placeloc.errors import StageError
+    from placeloc.core.errors import StageError
     from placeloc.evaluation.metrics import pr_curve, tail_mean
 
     section = ctx.config["ground_truth"]
@@ -295,7 +295,7 @@ def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     pr_curve.png and, with times, time_per_frame.png."""
     import csv
 
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
     from placeloc.evaluation import plots as P
 
     res, x = ev.result, ev.extra

@@ -143,7 +143,7 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
 
 def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     """per_query.csv (each evaluated feature: estimate, truth, error) and map.png."""
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
 
     x = ev.extra
     if x["est"] is None:

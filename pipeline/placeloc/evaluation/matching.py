@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 from placeloc.evaluation.ground_truth import GroundTruth
 from placeloc.evaluation.metrics import DEFAULT_RECALL_N, PRCurve, drop_soft, first_correct_rank, pr_curve, recall_at_n
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from placeloc.common_params import GroundTruthParams
+from placeloc.core.common_params import GroundTruthParams
 
 
 @dataclass
@@ -105,7 +105,7 @@ def summarise_ratios(ratio: np.ndarray) -> tuple[float, int]:
 # ---------------------------------------------------------------------------------------
 # Ranked candidates against ground truth: standard Recall@N, soft ground truth, denominators
 # ---------------------------------------------------------------------------------------
-# The shared default (one home: ground_truth.recall_at in placeloc.common_params).
+# The shared default (one home: ground_truth.recall_at in placeloc.core.common_params).
 DEFAULT_RECALL_N: tuple[int, ...] = GroundTruthParams().recall_at
 
 

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 def _save(fig: plt.Figure, path: Path, dpi: int = 110) -> Path:
     """Save under a temporary name and rename, so a killed run never leaves half a PNG;
     a failed save (a full disk) leaves no temporary file either."""
-    from placeloc.artifacts import tmp_path_for
+    from placeloc.core.artifacts import tmp_path_for
 
     path = Path(path)
     tmp = tmp_path_for(path)

@@ -77,7 +77,7 @@ def _truth(section: dict[str, Any], names: Sequence[str]) -> tuple[Any, np.ndarr
 
 def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     """Before any stage: the poses file parses and holds a row for every query image."""
-    from placeloc.images import ImageError, list_images
+    from placeloc.core.images import ImageError, list_images
 
     section = config.get("ground_truth") or {}
     if section.get("kind", "none") == "none":
@@ -125,7 +125,7 @@ def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[st
 # evaluate, pictures
 # ---------------------------------------------------------------------------------------
 def evaluate(ctx: Any, res: Result) -> Evaluation:
-    from placeloc.errors import StageError
+    from placeloc.core.errors import StageError
 
     section = ctx.config["ground_truth"]
     if section["kind"] == "none":
@@ -152,7 +152,7 @@ def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     """per_query.csv (estimate, truth and error per frame), error_cdf.png and estimates_on_plan.png."""
     import csv
 
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
 
     res, x = ev.result, ev.extra
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:

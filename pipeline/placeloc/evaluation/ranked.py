@@ -88,7 +88,7 @@ def write_matches_csv(path: Path, best: np.ndarray, confidence: np.ndarray, quer
     """``matches.csv``: per query its best reference by original index and file name."""
     import csv
 
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
 
     name_of = {int(i): n for i, n in zip(reference_index, reference_names)}
     with atomic_open(path, newline="") as fh:
@@ -108,8 +108,8 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     """Build the ground truth in full against the listed images: every problem (format,
     columns, indices or names outside the traverses, matrix shape, missing positions) is
     one error naming the file, row and fix."""
+    from placeloc.core.images import ImageError, list_images
     from placeloc.evaluation.ground_truth import GroundTruth
-    from placeloc.images import ImageError, list_images
 
     section = config.get("ground_truth") or {}
     if section.get("kind", "none") == "none":
@@ -136,7 +136,7 @@ def _full_names(ctx: Any, res: Result, role: str) -> list[str]:
 # evaluate
 # ---------------------------------------------------------------------------------------
 def evaluate(ctx: Any, res: Result) -> Evaluation:
-    from placeloc.errors import StageError
+    from placeloc.core.errors import StageError
     from placeloc.evaluation import matching
     from placeloc.evaluation.ground_truth import GroundTruth
 

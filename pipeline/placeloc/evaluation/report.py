@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 
 REPORT = "report.html"
 # Pictures first that say most; any other PNG follows in name order.

@@ -75,8 +75,8 @@ def _num(text: str) -> float:
 
 
 def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, Path], dict[str, Path]]:
+    from placeloc.core.images import ImageError, list_images
     from placeloc.evaluation.report import run_config
-    from placeloc.images import ImageError, list_images
 
     cfg = run_config(run_dir)
     if not cfg:
@@ -97,7 +97,7 @@ def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, P
 
 
 def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
-    from placeloc.images import ImageError, read_rgb
+    from placeloc.core.images import ImageError, read_rgb
 
     if path is None:
         return np.full((*shape, 3), 235, np.uint8)

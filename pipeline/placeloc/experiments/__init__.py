@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 
 
 def _discover() -> dict[str, str]:

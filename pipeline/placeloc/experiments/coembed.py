@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import run_all
 from placeloc.experiments import shared_data_dir, write_summary
-from placeloc.runner import run_all
 from placeloc.synth import generate
 
 log = logging.getLogger("placeloc")

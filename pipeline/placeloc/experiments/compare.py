@@ -9,7 +9,7 @@ from typing import Any
 
 import h5py
 
-from placeloc.runner import read_metrics, run_all
+from placeloc.core.runner import read_metrics, run_all
 from placeloc.seqslam.comparisons import COMPARISONS
 
 TABLE_COLUMNS = (

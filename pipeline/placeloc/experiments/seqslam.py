@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import read_metrics, run_all
 from placeloc.experiments import shared_data_dir, write_summary
 from placeloc.experiments.compare import compare_methods, markdown_table
-from placeloc.runner import read_metrics, run_all
 from placeloc.seqslam.comparisons import COMPARISONS
 from placeloc.synth.route import generate
 
@@ -76,7 +76,7 @@ CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 
 def _subset(src: Path, dst: Path, lo: int, hi: int) -> Path:
     """Links to images lo..hi-1 (natural order) of ``src`` in ``dst``."""
-    from placeloc.images import list_images
+    from placeloc.core.images import list_images
 
     dst.mkdir(parents=True, exist_ok=True)
     for p in list_images(src).paths[lo:hi]:

@@ -83,7 +83,7 @@ def query_positions(family: str, n_frames: int, seed: int) -> np.ndarray:
 # choosing settings: the enhanced difference matrix once per part, queries as its columns
 # ---------------------------------------------------------------------------------------
 def _preset() -> dict[str, Any]:
-    from placeloc.config import load_config
+    from placeloc.core.config import load_config
 
     return dict(load_config(CONFIGS / "nordland.yaml")["seqslam"])
 
@@ -92,7 +92,7 @@ def enhanced_part(lo: int, hi: int) -> np.ndarray:
     """Enhanced differences ``E[winter frame, summer frame]`` of frames lo..hi-1 with the
     Nordland preset's image comparison. Enhancement works per query column over reference
     rows, so a resampled query's matrix is this one's rows in the query's order."""
-    from placeloc.images import list_images
+    from placeloc.core.images import list_images
     from placeloc.seqslam.comparisons import difference_block
     from placeloc.seqslam.features import image_features
     from placeloc.seqslam.search import enhance
@@ -193,7 +193,7 @@ def tune(out: Path) -> Path:
 def write_query(out: Path, lo: int, hi: int, pos: np.ndarray) -> tuple[Path, Path, Path]:
     """Folders of links (summer frames lo..hi-1; the resampled winter query) and the
     file-name ranges ground truth."""
-    from placeloc.images import list_images
+    from placeloc.core.images import list_images
 
     nd = shared_data_dir() / "nordland-dev"
     summer = list_images(nd / "summer").paths[lo:hi]
@@ -239,8 +239,8 @@ def report(out: Path, quiet: bool = True) -> Path:
     query, and seeds 100-104 of the varying and stopping families, each a ``placeloc run``
     of ``configs/nordland.yaml`` with the search's keys overridden. Writes ``report.md``
     and ``summary.json``."""
-    from placeloc.config import load_config
-    from placeloc.runner import read_metrics, run_all
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import read_metrics, run_all
 
     lo, hi = 600, 1200
     summary: dict[str, dict] = {}

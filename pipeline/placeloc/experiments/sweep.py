@@ -18,8 +18,8 @@ import h5py
 import numpy as np
 import yaml
 
-from placeloc.artifacts import atomic_open
-from placeloc.config import ConfigError, apply_override, validate
+from placeloc.core.artifacts import atomic_open
+from placeloc.core.config import ConfigError, apply_override, validate
 
 log = logging.getLogger("placeloc")
 TABLE_KEYS = ("recall_at_1", "recall_at_5", "recall_at_10", "recall_at_20",

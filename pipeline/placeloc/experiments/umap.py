@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import read_metrics, run_all
 from placeloc.evaluation.poses import read_poses
 from placeloc.experiments import write_summary
-from placeloc.runner import read_metrics, run_all
 from placeloc.synth import generate
 from placeloc.synth.home import REAL_HOME_STATS
 from placeloc.umap import ca as ca_mod

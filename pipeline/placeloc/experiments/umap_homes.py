@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.config import load_config
+from placeloc.core.config import load_config
+from placeloc.core.runner import read_metrics, run_all
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap import home_table
-from placeloc.runner import read_metrics, run_all
 from placeloc.synth import generate
 
 log = logging.getLogger("placeloc")

@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from placeloc.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
+from placeloc.core.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from placeloc.errors import ModelError
+from placeloc.core.errors import ModelError
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from placeloc.images import ImageError, akaze_detector, read_gray
+from placeloc.core.images import ImageError, akaze_detector, read_gray
 
 FEATURE_TYPES = ("sift", "akaze", "orb", "surf")
 

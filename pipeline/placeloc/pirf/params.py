@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from placeloc.params import Params, param
+from placeloc.core.params import Params, param
 from placeloc.pirf.ann import BACKENDS
 from placeloc.pirf.features import FEATURE_TYPES
 

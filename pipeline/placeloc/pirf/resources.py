@@ -1,10 +1,10 @@
-"""PIRF-nav2's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
+"""PIRF-nav2's memory and disk needs per stage (the contract with :mod:`placeloc.core.limits`)."""
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-from placeloc.limits import Need, count_images, decode_need
+from placeloc.core.limits import Need, count_images, decode_need
 
 BASE_MEMORY: dict[str, int] = {
     "extract": 64 << 20,

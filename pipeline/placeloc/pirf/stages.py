@@ -25,11 +25,11 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.artifacts import write_tree
-from placeloc.config import ConfigError
+from placeloc.core.artifacts import write_tree
+from placeloc.core.config import ConfigError
+from placeloc.core.images import ImageError, list_images, read_gray
+from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.poses import PoseError
-from placeloc.images import ImageError, list_images, read_gray
-from placeloc.methods import Method, Stage
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from placeloc.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open
 
 
 def _num(v: float) -> str:

@@ -11,13 +11,13 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.images import ImageError, read_gray
-from placeloc.methods import Method, Stage
+from placeloc.core.images import ImageError, read_gray
+from placeloc.core.methods import Method, Stage
 from placeloc.retrieval.params import RetrievalParams
 
 
 def _check(config: dict) -> None:
-    from placeloc.errors import ConfigError
+    from placeloc.core.errors import ConfigError
 
     p = config["retrieval"]
     if (p["descriptors_reference"] is None) != (p["descriptors_query"] is None):
@@ -26,7 +26,7 @@ def _check(config: dict) -> None:
 
 def extract(ctx: Any) -> None:
     """One row per image: a thumbnail, or the brought descriptor."""
-    from placeloc.descriptors import load_descriptors
+    from placeloc.core.descriptors import load_descriptors
     from placeloc.retrieval.neighbours import thumbnail_row
 
     p: RetrievalParams = ctx.params
@@ -61,7 +61,7 @@ def extract(ctx: Any) -> None:
 
 
 def localize(ctx: Any) -> None:
-    from placeloc.artifacts import read_strings
+    from placeloc.core.artifacts import read_strings
     from placeloc.evaluation import ranked
     from placeloc.retrieval.neighbours import nearest
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.images import ImageError, read_gray
+from placeloc.core.images import ImageError, read_gray
 from placeloc.seqslam.comparisons import feature_dtype, prepare_many, thumbnail
 
 

@@ -246,7 +246,7 @@ def _load(path: Path) -> bytes | None:
 def _store(path: Path, data: bytes) -> None:
     """Write a cache file (checksum, then the machine code) atomically; a cache that cannot
     be written is skipped."""
-    from placeloc.artifacts import atomic_open
+    from placeloc.core.artifacts import atomic_open
 
     with contextlib.suppress(OSError):
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from placeloc.params import Params, param
+from placeloc.core.params import Params, param
 from placeloc.seqslam.comparisons import COMPARISONS
 
 # Kept here (not imported from search.py) so reading the parameters never imports the search.

@@ -1,11 +1,11 @@
-"""SeqSLAM's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
+"""SeqSLAM's memory and disk needs per stage (the contract with :mod:`placeloc.core.limits`)."""
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-from placeloc.limits import Need, count_images, decode_need
-from placeloc.limits import workers as n_workers
+from placeloc.core.limits import Need, count_images, decode_need
+from placeloc.core.limits import workers as n_workers
 
 BASE_MEMORY: dict[str, int] = {
     "extract": 32 << 20,

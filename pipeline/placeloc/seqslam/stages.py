@@ -28,10 +28,10 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.artifacts import read_strings
+from placeloc.core.artifacts import read_strings
+from placeloc.core.images import ImageError
+from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
-from placeloc.images import ImageError
-from placeloc.methods import Method, Stage
 from placeloc.seqslam import resources as seqslam_resources
 from placeloc.seqslam.features import extract_chunk
 from placeloc.seqslam.params import SeqSLAMParams
@@ -40,7 +40,7 @@ log = logging.getLogger("placeloc")
 
 
 def _check(config: dict) -> None:
-    from placeloc.config import ConfigError
+    from placeloc.core.config import ConfigError
 
     p = config["seqslam"]
     if p["v_max"] < p["v_min"]:

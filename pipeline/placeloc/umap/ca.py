@@ -8,7 +8,7 @@ import math
 import cv2
 import numpy as np
 
-from placeloc.images import akaze_detector, read_gray
+from placeloc.core.images import akaze_detector, read_gray
 
 
 def akaze(gray: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:

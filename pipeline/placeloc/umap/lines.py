@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from placeloc.core.images import ImageError
 from placeloc.geometry import Camera
 from placeloc.geometry.panorama import detect_segments
-from placeloc.images import ImageError
 
 
 def line_image(gray: np.ndarray, cam: Camera, *, min_length: float, thickness: int) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from placeloc.params import Params, param, section
+from placeloc.core.params import Params, param, section
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""UMap's memory and disk needs per stage (the contract with :mod:`placeloc.limits`)."""
+"""UMap's memory and disk needs per stage (the contract with :mod:`placeloc.core.limits`)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.limits import Need, decode_need
-from placeloc.limits import workers as n_workers
+from placeloc.core.limits import Need, decode_need
+from placeloc.core.limits import workers as n_workers
 
 BASE_MEMORY: dict[str, int] = {
     "extract": 100 << 20,

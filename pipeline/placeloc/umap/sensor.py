@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from placeloc.images import ImageError
+from placeloc.core.images import ImageError
 
 
 def read_sensor_csv(path: str | Path, names: list[str]) -> dict[str, tuple[float, float]]:

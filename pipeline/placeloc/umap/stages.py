@@ -20,12 +20,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from placeloc.artifacts import atomic_open, read_strings, write_tree
-from placeloc.config import ConfigError
+from placeloc.core.artifacts import atomic_open, read_strings, write_tree
+from placeloc.core.config import ConfigError
+from placeloc.core.images import ImageError, read_gray
+from placeloc.core.methods import Method, Stage
 from placeloc.geometry import Camera, equirect_to_pinhole
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
-from placeloc.images import ImageError, read_gray
-from placeloc.methods import Method, Stage
 from placeloc.umap import ca as ca_mod
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
@@ -74,7 +74,7 @@ def _check(config: dict[str, Any]) -> None:
 
 
 def _stage_error(exc: Exception) -> Exception:
-    from placeloc.errors import StageError
+    from placeloc.core.errors import StageError
 
     return StageError(str(exc))
 

@@ -1,6 +1,6 @@
 """Map independent work items over a pool of workers, results back in order.
 
-The runner builds one with :func:`placeloc.executors.make_executor` from the
+The runner builds one with :func:`placeloc.core.executors.make_executor` from the
 ``executor:`` config section, and stages call ``executor.map(fn, items)``. ``fn`` must be a module-level function (picklable by
 reference) and its results small enough to send back; the calling process alone writes
 artifacts. ``workers: 1`` runs in-process, which is also what tests use by default.
@@ -49,7 +49,7 @@ class WorkItemError(RuntimeError):
 def worker_lost(fn: Callable, description: str, workers: int) -> Exception:
     """The one-line error for a worker process that died under a work item (SIGKILL, most
     often from the out-of-memory killer): an environment failure, not a bug."""
-    from placeloc.errors import WorkerLostError
+    from placeloc.core.errors import WorkerLostError
 
     return WorkerLostError(f"a worker process was killed (out of memory?) while running {getattr(fn, '__name__', fn)} on "
                            f"{description}; lower executor.workers (now {workers}) or the method's size parameters, "
@@ -167,7 +167,7 @@ def _shared_dir_owner(path: Path) -> int | None:
 def remove_stale_shared(tmp_root: str | Path | None = None) -> list[Path]:
     """Delete shared-array folders (``/tmp/placeloc-shared-<pid>-*``) whose process is gone:
     what a killed run left behind."""
-    from placeloc.artifacts import pid_alive  # h5py is not needed in pool workers
+    from placeloc.core.artifacts import pid_alive  # h5py is not needed in pool workers
 
     removed = []
     root = Path(tmp_root or tempfile.gettempdir())
@@ -195,7 +195,7 @@ def _pack_shared(shared: Any, folder: Path) -> Any:
             try:
                 np.save(path, value, allow_pickle=False)
             except OSError as exc:
-                from placeloc.artifacts import disk_full_error, is_disk_full
+                from placeloc.core.artifacts import disk_full_error, is_disk_full
 
                 if is_disk_full(exc):
                     raise disk_full_error(path, value.nbytes) from None
@@ -296,7 +296,7 @@ class LocalExecutor(Executor):
         if self._pool is None:
             return
         pool, self._pool = self._pool, None
-        from placeloc.interrupts import received
+        from placeloc.core.interrupts import received
 
         if received() is None:
             pool.shutdown(cancel_futures=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from placeloc.images import natural_key
+from placeloc.core.images import natural_key
 
 DISTANCES = ("cosine", "l2")
 

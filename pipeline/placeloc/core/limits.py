@@ -176,7 +176,7 @@ def _resources(config: dict[str, Any]) -> Any:
     compiled while it runs, measured with tests/resource_probe.py, figures in
     docs/reliability.md, rounded up); optionally ``config_rules(config)`` and
     ``input_rules(config, images)``."""
-    from placeloc.methods import get_method
+    from placeloc.core.methods import get_method
 
     return get_method(config["method"]).resources
 
@@ -192,7 +192,7 @@ def check_inputs(config: dict[str, Any], images: dict[str, Any]) -> None:
     fn = getattr(_resources(config), "input_rules", None)
     problems = fn(config, images) if fn and images else []
     if problems:
-        from placeloc.errors import ConfigError
+        from placeloc.core.errors import ConfigError
 
         raise ConfigError("; ".join(problems))
 
@@ -233,7 +233,7 @@ def check_resources(config: dict[str, Any], images: dict[str, Any], run_dir: Pat
     disk = sum(n.disk for n in needs)
     free = disk_free(run_dir)
     if disk > free:
-        from placeloc.artifacts import mount_point
+        from placeloc.core.artifacts import mount_point
 
         biggest = max(needs, key=lambda n: n.disk)
         cap = env_megabytes("PLACELOC_DISK_LIMIT_MB")

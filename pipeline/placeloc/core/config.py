@@ -1,9 +1,9 @@
 """YAML run configuration: load, override with ``--set``, validate, resolve paths, hash.
 
 A config is a plain nested dict. Its schema is the union of the shared sections
-(:class:`placeloc.common_params.CommonParams`) and the chosen method's parameter dataclass (see :mod:`placeloc.params`): every key has exactly
-one default there, the type of that default is the type a user value must have, and a
-declared range or list of choices is checked. Values whose default is ``None`` must have
+(:class:`placeloc.core.common_params.CommonParams`) and the chosen method's parameter
+dataclass (see :mod:`placeloc.core.params`): every key has exactly one default there, the type
+of that default is the type a user value must have, and a declared range or list of choices is checked. Values whose default is ``None`` must have
 the type their dataclass field declares (``float | None`` takes a number or null). Relative
 paths resolve against the folder of the config file, so a config can be moved together
 with its data.
@@ -24,9 +24,9 @@ from typing import Any
 
 import yaml
 
-from placeloc import params as P
-from placeloc.common_params import CommonParams
-from placeloc.errors import ConfigError  # noqa: F401 - re-exported: placeloc.config.ConfigError
+from placeloc.core import params as P
+from placeloc.core.common_params import CommonParams
+from placeloc.core.errors import ConfigError  # noqa: F401 - re-exported: placeloc.core.config.ConfigError
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
@@ -129,7 +129,7 @@ def apply_override(data: dict, item: str) -> None:
 
 def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     """Check ``data`` against the schema of its method and return the completed config."""
-    from placeloc.methods import METHOD_NAMES, get_method
+    from placeloc.core.methods import METHOD_NAMES, get_method
 
     method_name = data.get("method")
     if method_name is None:
@@ -173,7 +173,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
         raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
     method.check(config)
-    from placeloc.limits import config_problems
+    from placeloc.core.limits import config_problems
 
     problems = config_problems(config)
     if problems:

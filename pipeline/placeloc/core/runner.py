@@ -21,7 +21,7 @@ from typing import Any, Iterable, Iterator
 import h5py
 
 from placeloc import __version__
-from placeloc.artifacts import (
+from placeloc.core.artifacts import (
     TMP_MARK,
     DiskFullError,
     atomic_h5,
@@ -34,14 +34,14 @@ from placeloc.artifacts import (
     read_write_id,
     remove_stale_tmp,
 )
-from placeloc.config import config_hash, to_yaml
-from placeloc.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.runner
-from placeloc.executor import Executor, remove_stale_shared
-from placeloc.executors import make_executor
-from placeloc.images import IMAGE_EXTENSIONS, ImageSet, list_images
-from placeloc.interrupts import raise_if_interrupted
-from placeloc.limits import check_inputs, check_resources
-from placeloc.methods import BASE_SECTIONS, STAGES, Method, get_method
+from placeloc.core.config import config_hash, to_yaml
+from placeloc.core.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.core.runner
+from placeloc.core.executor import Executor, remove_stale_shared
+from placeloc.core.executors import make_executor
+from placeloc.core.images import IMAGE_EXTENSIONS, ImageSet, list_images
+from placeloc.core.interrupts import raise_if_interrupted
+from placeloc.core.limits import check_inputs, check_resources
+from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
 
 try:
     import fcntl
@@ -73,7 +73,7 @@ class StageContext:
     images: dict[str, ImageSet] = field(default_factory=dict)
     _open: list[h5py.File] = field(default_factory=list)
 
-    # The method's parameter object (see placeloc.params), built once per run.
+    # The method's parameter object (see placeloc.core.params), built once per run.
     params: Any = None
     # Where side outputs are written while the stage runs (a hidden folder in the run
     # directory); the runner moves them into the run directory together with the artifact,

@@ -1,7 +1,7 @@
 """Build the executor a config's ``executor:`` section asks for.
 
-Kept apart from :mod:`placeloc.executor` (the base class, the in-process and the
-process-pool executors) and :mod:`placeloc.dask_executor` (which builds on that base), so
+Kept apart from :mod:`placeloc.core.executor` (the base class, the in-process and the
+process-pool executors) and :mod:`placeloc.core.dask_executor` (which builds on that base), so
 neither of those two imports the other: this is the one module that knows both.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from placeloc.errors import ConfigError
-from placeloc.executor import Executor, InlineExecutor, LocalExecutor
+from placeloc.core.errors import ConfigError
+from placeloc.core.executor import Executor, InlineExecutor, LocalExecutor
 
 
 def make_executor(section: dict[str, Any]) -> Executor:
@@ -19,7 +19,7 @@ def make_executor(section: dict[str, Any]) -> Executor:
     kind = section.get("kind", "local")
     if kind == "dask":
         try:
-            from placeloc.dask_executor import DaskExecutor  # optional extra
+            from placeloc.core.dask_executor import DaskExecutor  # optional extra
         except ImportError as exc:
             raise ConfigError(f"executor.kind: dask is not available ({exc}); "
                               "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc

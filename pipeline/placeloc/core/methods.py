@@ -4,11 +4,11 @@ A method lives in its own subpackage (``pipeline/placeloc/<name>/``, imported as
 ``placeloc.<name>``) whose ``stages.py`` exposes ``METHOD``, a :class:`Method`:
 
 - ``params``: the method's parameter dataclass (``<name>/params.py``, see
-  :mod:`placeloc.params`): the one home of every default, type, range and help text;
+  :mod:`placeloc.core.params`): the one home of every default, type, range and help text;
 - ``stages``: stage name -> :class:`Stage`, the function plus exactly the parameters and
   common config sections its result depends on.
 
-Stage functions receive a :class:`placeloc.runner.StageContext`, read their inputs through
+Stage functions receive a :class:`placeloc.core.runner.StageContext`, read their inputs through
 it, call the method's numerical modules with explicit keyword arguments taken from
 ``ctx.params`` and write arrays into ``ctx.out`` (an open HDF5 group) and side outputs
 (CSV, JSON, PNG) through ``ctx.output(name)``. They never open another stage's artifact
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from placeloc import params as P
-from placeloc.stage_names import STAGES  # noqa: F401 - the one list, re-exported as placeloc.methods.STAGES
+from placeloc.core import params as P
+from placeloc.core.stage_names import STAGES  # noqa: F401 - the one list, re-exported as placeloc.core.methods.STAGES
 
 
 def _discover() -> dict[str, str]:
@@ -32,7 +32,7 @@ def _discover() -> dict[str, str]:
     ``stages.py`` is a method (found by listing the package folder, nothing imported), so
     adding a method registers nothing by hand. Imported lazily, so one method's
     dependencies never load another's."""
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parent.parent  # the package placeloc/, above core/
     return {d.name: f"placeloc.{d.name}.stages" for d in sorted(root.iterdir())
             if d.is_dir() and (d / "stages.py").is_file() and (d / "__init__.py").is_file()}
 
@@ -76,7 +76,7 @@ class Method:
     citation: str = ""
     # What the stages need of memory and disk, checked before any stage runs: a module with
     # needs(config, images, stages), BASE_MEMORY and optionally config_rules(config) and
-    # input_rules(config, images) (see placeloc.limits and e.g. placeloc.seqslam.resources).
+    # input_rules(config, images) (see placeloc.core.limits and e.g. placeloc.seqslam.resources).
     resources: Any = None
     # The result contract its localize writes (placeloc.evaluation.contracts: ranked, loops,
     # poses, map). The contract supplies the evaluate stage (unless the method defines one),

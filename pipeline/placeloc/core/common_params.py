@@ -1,13 +1,13 @@
 """The config sections every method shares: the one home of their defaults, ranges and help.
 
-They are parameter dataclasses like the methods' (:mod:`placeloc.params`); the config
+They are parameter dataclasses like the methods' (:mod:`placeloc.core.params`); the config
 layer derives the YAML defaults, choices, ranges, path keys and types from
 :class:`CommonParams` exactly as it does from a method's class, and the rest of the code
 reads the validated config as a nested dict with these keys (``config["ground_truth"]
 ["radius"]``). Code that needs a shared default outside a config (a library function's
 keyword default, a test) reads it from here, e.g. ``GroundTruthParams().radius``.
 
-This module imports nothing of placeloc but :mod:`placeloc.params`, so any layer can read
+This module imports nothing of placeloc but :mod:`placeloc.core.params`, so any layer can read
 it without an import cycle.
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from placeloc.params import Params, param, section
+from placeloc.core.params import Params, param, section
 
 GROUND_TRUTH_KINDS = ("none", "synchronous", "csv", "hdf5", "poses", "matrix")
 

@@ -27,8 +27,8 @@ from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
 
-from placeloc.config import ConfigError
-from placeloc.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
+from placeloc.core.config import ConfigError
+from placeloc.core.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
 
 log = logging.getLogger("placeloc")
 
@@ -96,7 +96,7 @@ def dask_temp_dir() -> Path:
     """A folder of this run for the workers' scratch space (spilled data, locks), removed
     when the executor closes; named like the shared-array folders so that the next run
     removes it if this one is killed."""
-    from placeloc.executor import SHARED_PREFIX
+    from placeloc.core.executor import SHARED_PREFIX
 
     return Path(tempfile.mkdtemp(prefix=f"{SHARED_PREFIX}{os.getpid()}-dask-"))
 
@@ -188,7 +188,7 @@ class DaskExecutor(Executor):
             return fut.result()
         except Exception as exc:  # the task's own exception, or KilledWorker after repeated worker deaths
             if type(exc).__name__ == "KilledWorker":
-                from placeloc.executor import worker_lost
+                from placeloc.core.executor import worker_lost
 
                 raise worker_lost(fn, describe(item), self.workers) from None
             raise WorkItemError(self.kind, fn, describe(item), exc, self.retries) from exc
@@ -196,7 +196,7 @@ class DaskExecutor(Executor):
             fut.release()  # drop the result from the cluster as soon as we hold it
 
     def close(self) -> None:
-        from placeloc.interrupts import received
+        from placeloc.core.interrupts import received
 
         if received() is not None and self._cluster is not None:
             # Interrupted: a graceful close waits on the workers, which may be mid-task or
@@ -235,7 +235,7 @@ def _wait_interruptibly(fut: Any) -> None:
     """Wait for a future in short naps. Ctrl-C may be delivered to one of Dask's threads:
     Python then runs its handler in the main thread at the next bytecode, and Dask's own
     ``result()`` only looks up every 10 s."""
-    from placeloc.interrupts import raise_if_interrupted
+    from placeloc.core.interrupts import raise_if_interrupted
 
     nap = 0.001
     while not fut.done():
@@ -248,7 +248,7 @@ def _wait_interruptibly(fut: Any) -> None:
 def _quiet_dask_shutdown() -> Iterator[None]:
     """After Ctrl-C, Dask's shutdown reports the tasks it cancelled and the connections it
     closed as errors: silence them (placeloc has said "interrupted" once)."""
-    from placeloc.interrupts import received
+    from placeloc.core.interrupts import received
 
     if received() is None:
         yield

@@ -126,3 +126,24 @@ def test_index_maps_and_chunk_size():
     assert list(local_to_original(index, np.array([0, 2, -1, 4]))) == [0, 3, -1, 7]
     assert list(original_to_local(index, np.array([3, 2, 7, -1, 9]))) == [2, -1, 4, -1, -1]
     assert images_per_task(10, 1) == 3 and images_per_task(100_000, 2) == 64 and images_per_task(1, 16) == 1
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_exif_orientation_is_read_with_and_without_an_exif_block(tmp_path, suffix):
+    """The reader's fast path (no EXIF block: Pillow is not asked) must not lose a rotation."""
+    from PIL import Image
+
+    from placeloc.core.images import exif_orientation, read_gray
+
+    up = np.zeros((20, 40), np.uint8)
+    up[:5, :] = 255                                   # bright top rows, upright
+    stored = np.ascontiguousarray(np.rot90(up, 1))    # as a sensor turned 90 deg stores it (Orientation 6)
+    plain, rotated = tmp_path / f"plain{suffix}", tmp_path / f"rotated{suffix}"
+    Image.fromarray(up).save(plain, quality=100) if suffix == ".jpg" else Image.fromarray(up).save(plain)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(stored).save(rotated, exif=exif.tobytes(), **({"quality": 100} if suffix == ".jpg" else {}))
+    assert exif_orientation(plain.read_bytes()) == 1 and exif_orientation(rotated.read_bytes()) == 6
+    for path in (plain, rotated):
+        img = read_gray(path)
+        assert img.shape == (20, 40) and img[:5].mean() > 200 and img[10:].mean() < 50

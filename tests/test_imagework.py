@@ -147,3 +147,23 @@ def test_exif_orientation_is_read_with_and_without_an_exif_block(tmp_path, suffi
     for path in (plain, rotated):
         img = read_gray(path)
         assert img.shape == (20, 40) and img[:5].mean() > 200 and img[10:].mean() < 50
+
+
+def test_common_sections_reach_a_stage_as_typed_parameters(tmp_path):
+    """ctx.common is built from the validated config, with common_params.py's defaults for
+    what the config leaves out (no query: its images are None)."""
+    from pathlib import Path
+
+    from placeloc.core.common_params import CommonParams, ExecutorParams, GroundTruthParams
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import common_params
+
+    demo = Path(__file__).resolve().parent.parent / "configs" / "demo.yaml"
+    cfg = load_config(demo, ["executor.workers=3", "ground_truth.tolerance=4", "plots=false"])
+    common = common_params(cfg)
+    assert isinstance(common, CommonParams) and isinstance(common.executor, ExecutorParams)
+    assert common.executor.workers == 3 and common.executor.kind == "local" and common.plots is False
+    assert common.ground_truth.tolerance == 4 and common.ground_truth.radius == GroundTruthParams().radius
+    assert common.reference.images == cfg["reference"]["images"] and common.reference.on_error == "stop"
+    no_query = load_config(data={"method": "seqslam", "reference": {"images": cfg["reference"]["images"]}})
+    assert common_params(no_query).query.images is None

@@ -110,6 +110,9 @@ def test_corrupt_image_names_the_chunk_and_image(route, tmp_path, cluster):
 def test_shared_is_broadcast_once_and_released(cluster):
     ex = DaskExecutor(ExecutorParams(kind="dask", workers=2, scheduler=cluster.scheduler_address, retries=0))
     try:
+        # a worker killed by an earlier test may still be restarting: broadcast reaches the
+        # workers present, so wait for both (an event, not a time)
+        ex.client.wait_for_workers(2, timeout=60)
         big = np.arange(200_000, dtype=np.float64)
         got, holders = [], None
         for value in ex.map(_sum_with, range(20), shared=big):

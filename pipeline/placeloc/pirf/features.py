@@ -7,8 +7,6 @@ L2 distance equals the Hamming distance.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 
@@ -54,17 +52,12 @@ def extract_frame(item: tuple[str, str, int]) -> tuple[np.ndarray, np.ndarray, n
     return detect(img, kind, n_features)
 
 
-def extract_frame_or_error(item: tuple[str, str, int, bool]) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]] | str:
-    """Like :func:`extract_frame`; with ``skip`` (the item's last field, from ``on_error: skip``)
-    an unreadable image gives its error message instead of raising."""
-    path, kind, n_features, skip = item
-    try:
-        img = read_gray(path)
-    except ImageError as exc:
-        if not skip:
-            raise
-        return str(exc)
-    return detect(img, kind, n_features)
+def frame_arrays(image: np.ndarray, *, kind: str, n_features: int) -> dict[str, np.ndarray]:
+    """The engine's per-image function (:mod:`placeloc.core.imagework`): one greyscale
+    frame -> its keypoints ``xy`` (n, 2), ``response`` (n) and float32 ``descriptors``
+    (n, d), all ragged."""
+    xy, resp, d, _shape = detect(image, kind, n_features)
+    return {"xy": xy, "response": resp, "descriptors": d}
 
 
 def detect(img: np.ndarray, kind: str, n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
@@ -77,12 +70,3 @@ def detect(img: np.ndarray, kind: str, n_features: int) -> tuple[np.ndarray, np.
         keep = np.argsort(-resp)[:n_features]
         xy, resp, d = xy[keep], resp[keep], d[keep]
     return xy, resp, d, (int(img.shape[0]), int(img.shape[1]))
-
-
-def check_sizes(shapes: list[tuple[int, int]], paths: list[Path]) -> None:
-    """All frames of a video must share one size (features are compared across frames)."""
-    first = shapes[0]
-    for s, p in zip(shapes, paths):
-        if s != first:
-            raise ImageError(f"{p}: size {s[1]}x{s[0]} differs from the first frame's {first[1]}x{first[0]} ({paths[0]}); "
-                             "resize the video so every frame has one size")

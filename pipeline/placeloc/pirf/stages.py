@@ -20,7 +20,7 @@ ann.py (indexes), metrics.py, truth.py (poses per frame), tables.py (CSV) and pl
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
@@ -28,12 +28,13 @@ import numpy as np
 from placeloc.core.artifacts import write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.images import ImageError, list_images, read_gray
+from placeloc.core.imagework import ImageResult, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
+from placeloc.pirf.features import extract_frame, frame_arrays
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
 from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_count, tail_mean
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
@@ -76,48 +77,30 @@ def _check(config: dict) -> None:
 
 # -- extract --------------------------------------------------------------------------
 def stage_extract(ctx: Any) -> None:
+    """Every frame's features through the engine (:mod:`placeloc.core.imagework`; frames of
+    one size), chained frame by frame into PIRFs by one :class:`PirfTracker` per traverse."""
     p = ctx.params
     ctx.out.attrs["features"] = p.features
-    for role, images in ctx.images.items():
+    work = ImageWork(fn=frame_arrays, settings={"kind": p.features, "n_features": p.n_features},
+                     ragged=("xy", "response", "descriptors"), same_size=True)
+
+    def chain(role: str) -> Callable[[ImageResult], dict[str, np.ndarray]]:
         tracker = PirfTracker(ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max,
                               n_pmin=p.n_pmin, n_pmax=p.n_pmax)
-        items = [(str(q), p.features, p.n_features, images.on_error == "skip") for q in images.paths]
-        pirfs: list[np.ndarray] = []
-        windows, n_feat, index, shapes, skipped = [], [], [], [], []
-        frames = ctx.progress(ctx.executor.map(extract_frame_or_error, items), total=len(items), desc=f"extract {role}")
-        for i, res in enumerate(frames):
-            if isinstance(res, str):
-                skipped.append(res)
-                log.warning("skipped: %s", res)
-                continue
-            _xy, resp, d, shape = res
-            shapes.append(shape)
-            if shape != shapes[0]:
-                check_sizes(shapes, [images.paths[k] for k in index + [i]])
+
+        def step(frame: ImageResult) -> dict[str, np.ndarray]:
+            d = frame.arrays["descriptors"]
             if len(d) == 0 and p.blank_frames == "stop":
-                raise ImageError(f"{images.paths[i]}: no {p.features} features found (blank or featureless frame); "
+                raise ImageError(f"{frame.path}: no {p.features} features found (blank or featureless frame); "
                                  "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
-            pirf, w = tracker.push(d, resp)
-            pirfs.append(pirf)
-            windows.append(w)
-            n_feat.append(len(d))
-            index.append(i)
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        dim = pirfs[-1].shape[1]
-        counts = np.array([len(x) for x in pirfs], np.int64)
-        allp = np.concatenate(pirfs) if counts.sum() else np.zeros((0, dim), np.float32)
-        g = ctx.out.create_group(role)
-        g.attrs["height"], g.attrs["width"] = shapes[0]
-        g.attrs["dim"] = dim
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(items)
-        g.create_dataset("pirfs", data=allp, chunks=(min(max(len(allp), 1), 16384), dim), maxshape=(None, dim))
-        write_tree(g, {"offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-                       "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
-                       "index": np.array(index, np.int64)})
-        g.create_dataset("names", data=np.array([images.paths[k].name for k in index], dtype=object), dtype=h5py.string_dtype())
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
+            pirf, w = tracker.push(d, frame.arrays["response"])
+            return {"pirfs": pirf, "window": np.int32(w), "n_features": np.int32(len(d))}
+        return step
+
+    for role, table in extract_images(ctx, work, fold=chain, ragged=("pirfs",)).items():
+        g = ctx.out[role]
+        g.attrs["height"], g.attrs["width"] = table.first_shape
+        g.attrs["dim"] = g["pirfs"].shape[1]
 
 
 def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:

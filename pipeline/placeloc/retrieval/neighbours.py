@@ -17,6 +17,12 @@ def thumbnail_row(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return t / n if n > 0 else t
 
 
+def thumbnail_arrays(image: np.ndarray, *, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The engine's per-image function (:mod:`placeloc.core.imagework`): one grey image ->
+    its ``features`` row (:func:`thumbnail_row`)."""
+    return {"features": thumbnail_row(image, size)}
+
+
 def prepare(rows: np.ndarray, distance: str) -> np.ndarray:
     """Rows as the distance works on them: unit length for cosine."""
     rows = np.ascontiguousarray(rows, np.float32)
@@ -35,7 +41,7 @@ def nearest(reference: np.ndarray, query: np.ndarray, *, k: int, distance: str, 
     ref, qry = prepare(reference, distance), prepare(query, distance)
     kk = min(int(k), len(ref))
     if use_faiss:
-        from placeloc.pirf.ann import import_faiss
+        from placeloc.core.faiss_loader import import_faiss
 
         faiss = import_faiss()
         index = faiss.IndexFlatIP(ref.shape[1]) if distance == "cosine" else faiss.IndexFlatL2(ref.shape[1])

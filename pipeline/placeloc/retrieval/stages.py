@@ -11,7 +11,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.core.images import ImageError, read_gray
+from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
 from placeloc.retrieval.params import RetrievalParams
 
@@ -25,36 +25,26 @@ def _check(config: dict) -> None:
 
 
 def extract(ctx: Any) -> None:
-    """One row per image: a thumbnail, or the brought descriptor."""
+    """One row per image: a thumbnail (through the engine, :mod:`placeloc.core.imagework`),
+    or the brought descriptor."""
     from placeloc.core.descriptors import load_descriptors
-    from placeloc.retrieval.neighbours import thumbnail_row
+    from placeloc.retrieval.neighbours import thumbnail_arrays
 
     p: RetrievalParams = ctx.params
     descriptors = {"reference": p.descriptors_reference, "query": p.descriptors_query}
+    work = ImageWork(fn=thumbnail_arrays, settings={"size": (int(p.thumbnail[0]), int(p.thumbnail[1]))})
     for role, images in ctx.images.items():
-        index: list[int] = []
+        g = ctx.out.create_group(role)
         if descriptors[role] is not None:
             path = descriptors[role]
             rows = load_descriptors(path, len(images.paths), role, key="retrieval.descriptors")
-            index = list(range(len(rows)))
+            g.create_dataset("features", data=np.asarray(rows, np.float32))
+            g.create_dataset("index", data=np.arange(len(rows), dtype=np.int64))
+            g.create_dataset("names", data=np.array(images.names, dtype=object), dtype=h5py.string_dtype())
             source = f"descriptors {Path(path).name}"
         else:
-            kept = []
-            for i, path in enumerate(ctx.progress(images.paths, total=len(images.paths), desc=f"thumbnails {role}")):
-                try:
-                    kept.append(thumbnail_row(read_gray(path), p.thumbnail))
-                    index.append(i)
-                except ImageError:
-                    if images.on_error != "skip":
-                        raise
-            if not kept:
-                raise ImageError(f"{images.source}: no image could be read; check the folder")
-            rows, source = np.stack(kept), f"thumbnails {p.thumbnail[0]}x{p.thumbnail[1]}"
-        g = ctx.out.create_group(role)
-        g.create_dataset("features", data=np.asarray(rows, np.float32))
-        g.create_dataset("index", data=np.asarray(index, np.int64))
-        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
-                         dtype=h5py.string_dtype())
+            write_images(g, ImageStream(ctx, images, work, desc=f"thumbnails {role}"))
+            source = f"thumbnails {p.thumbnail[0]}x{p.thumbnail[1]}"
         g.attrs["source"] = source
         if role == "reference":  # what the rows are, named after their source in every figure
             ctx.out.attrs["features"] = source

@@ -29,11 +29,11 @@ import h5py
 import numpy as np
 
 from placeloc.core.artifacts import read_strings
-from placeloc.core.images import ImageError
+from placeloc.core.imagework import extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.seqslam import resources as seqslam_resources
-from placeloc.seqslam.features import extract_chunk
+from placeloc.seqslam.features import feature_work
 from placeloc.seqslam.params import SeqSLAMParams
 
 log = logging.getLogger("placeloc")
@@ -57,52 +57,16 @@ def _check(config: dict) -> None:
 # extract
 # ---------------------------------------------------------------------------------------
 def extract(ctx: Any) -> None:
-    """Features of every image, appended chunk by chunk to resizable datasets, so the
-    writing process holds one chunk at a time however long the traverse is."""
+    """Features of every image through the engine (:mod:`placeloc.core.imagework`): the
+    ``thumbnails`` and the comparison's ``features``, one row per kept image."""
     p: SeqSLAMParams = ctx.params
     if p.descriptors_reference is not None:
         _extract_descriptors(ctx)
         return
     ctx.out.attrs["comparison"] = p.comparison
-    chunk = int(p.images_per_task)
-    w, h = p.thumbnail
-    settings = {"thumbnail_size": (int(w), int(h)), "comparison": p.comparison, "patch": int(p.patch),
-                "normalisation": p.normalisation, "gaussian_sigma": float(p.gaussian_sigma),
-                "ocm_epsilon": float(p.ocm_epsilon)}
-    for role, images in ctx.images.items():
-        paths = [str(x) for x in images.paths]
-        jobs = [(paths[i:i + chunk], settings, images.on_error) for i in range(0, len(paths), chunk)]
-        g = ctx.out.create_group(role)
-        # Uncompressed: small grey thumbnails of real images shrink little under gzip, and
-        # compressing them was a tenth of extract's time.
-        thumbs = g.create_dataset("thumbnails", shape=(0, h, w), maxshape=(None, h, w), dtype=np.uint8,
-                                  chunks=(min(1024, max(1, len(paths))), h, w))
-        features = None
-        index: list[int] = []
-        skipped: list[str] = []
-        bar = ctx.progress(ctx.executor.map(extract_chunk, jobs), total=len(jobs), desc=f"extract {role}")
-        for c, (f, t, ok, errors) in enumerate(bar):
-            skipped.extend(errors)
-            if not ok:
-                continue
-            if features is None:
-                features = g.create_dataset("features", shape=(0, f.shape[1]), maxshape=(None, f.shape[1]), dtype=f.dtype,
-                                            chunks=(min(1024, max(1, len(paths))), f.shape[1]))
-            n0 = len(index)
-            index.extend(c * chunk + i for i in ok)
-            for dset, arr in ((features, f), (thumbs, t)):
-                dset.resize(len(index), axis=0)
-                dset[n0:] = arr
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
-                         dtype=h5py.string_dtype())
-        g.create_dataset("index", data=np.asarray(index, np.int64))
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(paths)
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
-        for msg in skipped:
-            log.warning("skipped: %s", msg)
+    extract_images(ctx, feature_work(thumbnail_size=p.thumbnail, comparison=p.comparison, patch=p.patch,
+                                     normalisation=p.normalisation, gaussian_sigma=p.gaussian_sigma,
+                                     ocm_epsilon=p.ocm_epsilon, images_per_task=int(p.images_per_task)))
 
 
 def _extract_descriptors(ctx: Any) -> None:
@@ -154,7 +118,11 @@ def localize(ctx: Any) -> None:
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
                        exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
-                       map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
+                       # Blocks run in this process: the difference kernel, the enhancement and the
+                       # search are threaded over every usable core already, and a pool worker would
+                       # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
+                       # 3576 references) while its threads compete with ours (docs/architecture.md).
+                       map_blocks=None, on_difference=store if d_ds is not None else None,
                        progress=ctx.progress)
     out = ctx.out
     out.create_dataset("candidates", data=m.candidates)

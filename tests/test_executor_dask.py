@@ -72,8 +72,9 @@ def test_killing_a_worker_mid_stage_still_completes(route, tmp_path, inline, clu
     monkeypatch.setattr(runner, "make_executor", KillingDaskExecutor)
     out = run_seqslam(route, tmp_path / "killed", dask_args(cluster))
     assert_identical(inline, out)
-    # one kill per map: extract reference, extract query, localize blocks
-    assert len(KillingDaskExecutor.killed) == 3
+    # one kill per map: extract reference, extract query (localize runs its difference
+    # blocks in-process, on threaded kernels: it maps nothing)
+    assert len(KillingDaskExecutor.killed) == 2
     with distributed.Client(cluster) as client:
         client.wait_for_workers(2, timeout=30)
         alive = set(client.run(os.getpid).values())

@@ -42,6 +42,7 @@ from placeloc.core.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.core.interrupts import raise_if_interrupted
 from placeloc.core.limits import check_inputs, check_resources
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
+from placeloc.core.safe_io import UnsafeInputError, open_run_file
 
 try:
     import fcntl
@@ -397,9 +398,8 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
     if fcntl is None:
         yield
         return
-    lock_path = run_dir / ".lock"
     try:
-        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_run_file(run_dir, ".lock", os.O_RDWR | os.O_CREAT)  # a link at .lock is refused, not followed
     except OSError as exc:  # read-only file system, or a folder (or .lock) we may not write
         raise _unwritable(run_dir, exc) from None
     try:
@@ -426,11 +426,17 @@ class _BestEffortFileHandler(logging.FileHandler):
     def handleError(self, record: logging.LogRecord) -> None:
         pass
 
+    def _open(self) -> Any:
+        # through the run-folder guard: a symbolic link or FIFO at log.txt is refused, not followed
+        path = Path(self.baseFilename)
+        fd = open_run_file(path.parent, path.name, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+        return os.fdopen(fd, "a", encoding=self.encoding, errors=self.errors)
+
 
 @contextlib.contextmanager
 def run_log(run_dir: Path) -> Iterator[None]:
     """Append this run's log lines (with times) to RUN_DIR/log.txt."""
-    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8")  # opened now: a bad log.txt stops the run
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     handler.setLevel(logging.INFO)
     old_level = log.level
@@ -449,7 +455,8 @@ def run_log(run_dir: Path) -> Iterator[None]:
 
 
 def _log_to_file_only(run_dir: Path, line: str) -> None:
-    with contextlib.suppress(OSError), (run_dir / "log.txt").open("a", encoding="utf-8") as fh:
+    with contextlib.suppress(OSError, UnsafeInputError), \
+            os.fdopen(open_run_file(run_dir, "log.txt", os.O_WRONLY | os.O_APPEND | os.O_CREAT), "a", encoding="utf-8") as fh:
         fh.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {line}\n")
 
 

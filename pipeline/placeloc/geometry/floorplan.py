@@ -62,6 +62,7 @@ import numpy as np
 import yaml
 
 from placeloc.core.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
+from placeloc.core.safe_io import load_yaml, read_input_text
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
 
@@ -128,11 +129,11 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
-    text = path.read_text()
+    text = read_input_text(path, "model file")
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+        data = json.loads(text) if path.suffix.lower() == ".json" else load_yaml(text, str(path))
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:

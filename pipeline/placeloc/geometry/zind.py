@@ -39,7 +39,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.core.errors import ModelError
+from placeloc.core.safe_io import name_inside
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -182,7 +184,9 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
     if floor is None:
         _, calibrated = floors_of(path)
         if len(calibrated) > 1:
-            return {f: _write_floor(path, out / f, f) for f in calibrated}
+            # a floor's key comes from the JSON: it names a folder only as one plain name inside OUT
+            folders = {f: name_inside(out, f, f"{path}: floor key") for f in calibrated}
+            return {f: _write_floor(path, folders[f], f) for f in calibrated}
         if not calibrated:
             _pick_floor(str(path), floors_of(path)[0], {}, None)  # raises with the reason
         floor = calibrated[0]
@@ -192,8 +196,10 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
 def _write_floor(path: str | Path, out: Path, floor: str) -> dict[str, Any]:
     plan, panos = zind_home(path, floor)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "floor_plan.yaml").write_text(yaml.safe_dump(plan, sort_keys=False))
-    with open(out / "poses.csv", "w", newline="") as f:
+    # written under a temporary name and renamed: a link at either name is replaced, not written through
+    with atomic_open(out / "floor_plan.yaml") as f:
+        f.write(yaml.safe_dump(plan, sort_keys=False))
+    with atomic_open(out / "poses.csv", newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "z", "heading_deg", "primary"])
         for p in panos:

@@ -132,8 +132,9 @@ class _Table:
 def main() -> int:
     here = Path(__file__).resolve().parent
     table = _Table()
-    rounds = ("test_faults.py", "test_faults_round2.py", "test_faults_round3_io.py")
-    args = ["-q", "-p", "no:cacheprovider", *(str(here / name) for name in rounds if (here / name).is_file()), *sys.argv[1:]]
+    # every round's file: tests/test_faults.py, test_faults_round2.py, test_faults_round3_*.py
+    rounds = sorted(str(p) for p in here.glob("test_faults*.py"))
+    args = ["-q", "-p", "no:cacheprovider", *rounds, *sys.argv[1:]]
     rc = pytest.main(args, plugins=[table])
     table.print_table()
     return int(rc)

@@ -493,3 +493,26 @@ def test_show_takes_the_config_from_the_stamps_not_the_newest_file(small_run):
     assert result.exit_code == 0, result.output
     html = (run / "report.html").read_text()
     assert f"<td>ds</td><td class='num'>{new}</td>" in html
+
+
+@pytest.mark.parametrize("what", ["fifo", "dev_zero_link"])
+def test_image_that_is_a_fifo_or_device_is_refused_not_read(tmp_path, what):
+    from placeloc.core.images import ImageError, read_gray
+
+    path = tmp_path / "frame.png"
+    if what == "fifo":
+        os.mkfifo(path)
+    else:
+        path.symlink_to("/dev/zero")
+    with pytest.raises(ImageError, match="not a regular file"):
+        read_gray(path)
+
+
+def test_show_reads_per_query_csv_through_the_run_folder_guard(small_run, tmp_path):
+    """A per_query.csv that is a link to a file outside the run is not read as the run's."""
+    run, _ = small_run
+    outside = tmp_path / "outside.csv"
+    shutil.move(str(run / "per_query.csv"), outside)
+    (run / "per_query.csv").symlink_to(outside)
+    result = _cli(["show", str(run), "-q"])
+    assert result.exit_code == 2 and "symbolic link" in _err(result).splitlines()[-1]

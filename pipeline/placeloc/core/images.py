@@ -254,8 +254,24 @@ def os_error_message(path: str | Path, exc: OSError) -> str:
 
 
 def _read_bytes(path: str | Path) -> bytes:
+    """The file's bytes: a regular file (a FIFO or device put in place of an image is
+    refused, not read until it ends) no larger than the memory there is."""
+    import stat
+
+    from placeloc.core.safe_io import memory_budget
+
     try:
-        with open(path, "rb") as fh:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer
+        with open(os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)), "rb", buffering=0) as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ImageError(f"{path}: is not a regular file (a FIFO or device?); replace it with an image file, "
+                                 "or set on_error: skip beside images:")
+            budget = memory_budget() // 4
+            if st.st_size > budget:
+                raise ImageError(f"{path}: is {st.st_size / 2**20:.0f} MB, more than a quarter of the memory available "
+                                 f"({budget * 4 / 2**20:.0f} MB); resize the images")
+            os.set_blocking(fh.fileno(), True)
             return fh.read()
     except OSError as exc:
         raise ImageError(os_error_message(path, exc)) from exc

@@ -360,17 +360,17 @@ def load_arrays(path: str | Path, what: str, max_bytes: int, kind: str | None = 
                 fh.seek(0)
                 return {"array": np.load(fh, allow_pickle=False)}
         if suffix == ".npz":
-            out = {}
+            checked = []
             with zipfile.ZipFile(p) as zf:
                 for info in zf.infolist():
                     if not info.filename.endswith(".npy"):
-                        continue
+                        continue  # not an array: never decompressed (a zip bomb would expand here)
                     with zf.open(info) as member:
                         shape, dtype = _npy_header(member)
                     check_array_bytes(shape, dtype, p, info.filename[:-4], max_bytes)
-                with np.load(p, allow_pickle=False) as z:
-                    out = {k: z[k] for k in z.files}
-            return out
+                    checked.append(info.filename[:-4])
+            with np.load(p, allow_pickle=False) as z:
+                return {k: z[k] for k in checked}
         if suffix == ".mat":
             from scipy.io import loadmat, whosmat
 
@@ -378,13 +378,13 @@ def load_arrays(path: str | Path, what: str, max_bytes: int, kind: str | None = 
                 listed = whosmat(str(p))
             except NotImplementedError:  # v7.3: HDF5
                 with open_h5_input(p, what) as f:
-                    return {k: np.asarray(h5_dataset(f[k], max_bytes)).T for k in f if _is_dataset(f[k])}
+                    return {k: np.asarray(h5_dataset(f[k], max_bytes)).T for k in f if _is_dataset(f.get(k))}
             for name, shape, cls in listed:
                 check_array_bytes(tuple(shape), np.dtype(_MAT_TYPES.get(cls, np.float64)), p, name, max_bytes)
             return {k: v for k, v in loadmat(str(p)).items() if not k.startswith("__")}
         if suffix in (".h5", ".hdf5"):
             with open_h5_input(p, what) as f:
-                return {k: h5_dataset(f[k], max_bytes) for k in f if _is_dataset(f[k])}
+                return {k: h5_dataset(f[k], max_bytes) for k in f if _is_dataset(f.get(k))}
     except UnsafeInputError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError) as exc:

@@ -254,9 +254,29 @@ def test_kernel_cache_others_can_write_is_not_used(tmp_path, fault):
         folder.symlink_to(real)
     proc = _kernel_in_fresh_process(tmp_path)
     assert proc.stdout.strip() == "OK", proc.stderr
-    assert "compiled-kernel cache not used" in proc.stderr
+    assert "not used" in proc.stderr and "kernels" in proc.stderr
     if fault != "linked_folder":
         assert {p.name: p.read_bytes() for p in folder.iterdir()} == before  # nothing written there either
+
+
+@pytest.mark.parametrize("state", ["fresh", "group_writable"])
+def test_numba_cache_is_pointed_at_a_private_folder(tmp_path, state):
+    """numba loads cached machine code and pickled indexes unchecked: `import placeloc` points
+    NUMBA_CACHE_DIR at a private folder (not __pycache__ beside the sources), and never at
+    one others can write."""
+    if state == "group_writable":
+        (tmp_path / "placeloc" / "numba").mkdir(parents=True)
+        (tmp_path / "placeloc" / "numba").chmod(0o777)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    proc = subprocess.run([sys.executable, "-c", "import os, placeloc; print(os.environ['NUMBA_CACHE_DIR'])"],
+                          capture_output=True, text=True, timeout=60, env={**env, "XDG_CACHE_HOME": str(tmp_path)})
+    folder = Path(proc.stdout.strip())
+    assert folder.is_dir() and folder.stat().st_mode & 0o077 == 0 and folder.stat().st_uid == os.geteuid()
+    if state == "fresh":
+        assert folder == tmp_path / "placeloc" / "numba"
+    else:
+        assert folder != tmp_path / "placeloc" / "numba" and "not used" in proc.stderr
+        shutil.rmtree(folder)
 
 
 # ============================================================ 3. every parser bounded before it allocates
@@ -516,3 +536,33 @@ def test_show_reads_per_query_csv_through_the_run_folder_guard(small_run, tmp_pa
     (run / "per_query.csv").symlink_to(outside)
     result = _cli(["show", str(run), "-q"])
     assert result.exit_code == 2 and "symbolic link" in _err(result).splitlines()[-1]
+
+
+@pytest.mark.parametrize("writer", ["text", "hdf5"])
+def test_link_planted_at_the_temporary_name_is_not_written_through(tmp_path, writer):
+    """The temporary name of an atomic write is predictable (.NAME.tmp-PID): a link planted
+    there is replaced, the target keeps its bytes, the file appears where it belongs."""
+    from placeloc.core.artifacts import atomic_h5, atomic_open, tmp_path_for
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    target = tmp_path / ("metrics.json" if writer == "text" else "extract.h5")
+    tmp_path_for(target).symlink_to(victim)
+    if writer == "text":
+        with atomic_open(target) as fh:
+            fh.write('{"recall_at_1": 1.0}')
+        assert json.loads(target.read_text()) == {"recall_at_1": 1.0}
+    else:
+        with atomic_h5(target, attrs={"stamp": "s"}) as f:
+            f["x"] = np.arange(3)
+        with h5py.File(target, "r") as f:
+            assert f["x"][()].tolist() == [0, 1, 2]
+    assert victim.read_text() == "precious\n" and not target.is_symlink()
+
+
+def test_run_config_yaml_linked_to_dev_zero_is_refused_at_once(small_run):
+    run, config = small_run
+    (run / "config.yaml").unlink()
+    (run / "config.yaml").symlink_to("/dev/zero")
+    proc = _placeloc("run", str(config), "--run-dir", str(run), "-q", timeout=60)
+    assert proc.returncode == 2 and "symbolic link" in _one_error_line(proc.stderr)

@@ -43,6 +43,16 @@ def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
 
 
+def create_tmp(path: Path) -> int:
+    """Create the temporary file ``path`` afresh and return its descriptor: whatever is at
+    that (predictable) name is removed first, and the file is created exclusively without
+    following a link, so a link planted there cannot send the write elsewhere."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+    return os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+                   0o666)
+
+
 def is_disk_full(exc: BaseException | None, depth: int = 0) -> bool:
     """True for ENOSPC/EDQUOT, also when HDF5 reports it only in its message text or the
     error was wrapped by another exception."""
@@ -97,7 +107,7 @@ class _GuardedFile(io.RawIOBase):
     def __init__(self, path: Path) -> None:
         super().__init__()
         self.path = path
-        self._fh = open(path, "w+b", buffering=0)  # noqa: SIM115 (closed in close())
+        self._fh = open(create_tmp(path), "w+b", buffering=0)  # noqa: SIM115 (closed in close())
         self._pos = 0
         self._pages: dict[int, bytearray] = {}
         self.full: OSError | None = None
@@ -263,7 +273,8 @@ def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -
     path = Path(path)
     tmp = tmp_path_for(path)
     try:
-        with tmp.open(mode, newline=newline) as fh:
+        encoding = None if "b" in mode else "utf-8"
+        with open(create_tmp(tmp), mode, newline=newline, encoding=encoding) as fh:
             yield fh
         os.replace(tmp, path)
     except BaseException as exc:

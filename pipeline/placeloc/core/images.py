@@ -253,6 +253,10 @@ def os_error_message(path: str | Path, exc: OSError) -> str:
     return f"{path}: cannot be read ({exc.strerror or exc}); check the disk or the file, {fix}"
 
 
+def _open_nonblocking(path: str, flags: int) -> int:
+    return os.open(path, flags | getattr(os, "O_NONBLOCK", 0))
+
+
 def _read_bytes(path: str | Path) -> bytes:
     """The file's bytes: a regular file (a FIFO or device put in place of an image is
     refused, not read until it ends) no larger than the memory there is."""
@@ -262,7 +266,7 @@ def _read_bytes(path: str | Path) -> bytes:
 
     try:
         # O_NONBLOCK: opening a FIFO must not wait for a writer
-        with open(os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)), "rb", buffering=0) as fh:
+        with open(path, "rb", buffering=0, opener=_open_nonblocking) as fh:
             st = os.fstat(fh.fileno())
             if not stat.S_ISREG(st.st_mode):
                 raise ImageError(f"{path}: is not a regular file (a FIFO or device?); replace it with an image file, "

@@ -34,7 +34,7 @@ from placeloc.core.artifacts import (
     read_write_id,
     remove_stale_tmp,
 )
-from placeloc.core.config import config_hash, to_yaml
+from placeloc.core.config import MAX_CONFIG_BYTES, config_hash, to_yaml
 from placeloc.core.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.core.runner
 from placeloc.core.executor import Executor, remove_stale_shared
 from placeloc.core.executors import make_executor
@@ -42,7 +42,7 @@ from placeloc.core.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.core.interrupts import raise_if_interrupted
 from placeloc.core.limits import check_inputs, check_resources
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
-from placeloc.core.safe_io import UnsafeInputError, open_run_file
+from placeloc.core.safe_io import UnsafeInputError, open_run_file, read_run_file
 
 try:
     import fcntl
@@ -328,12 +328,13 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
     if not rd.is_dir():
         return
     cfg = rd / "config.yaml"
-    if cfg.is_file():
+    if cfg.is_file() or cfg.is_symlink():
+        # through the run-folder guard: a link (to /dev/zero, to a huge file) is refused, not read
         try:
-            head = cfg.open("r", errors="replace").readline()
+            text = read_run_file(rd, "config.yaml", MAX_CONFIG_BYTES + len(CONFIG_HEADER)).decode("utf-8", "replace")
         except OSError:
-            head = ""
-        if head != CONFIG_HEADER and not _written_by_older_placeloc(cfg):
+            text = ""
+        if not text.startswith(CONFIG_HEADER) and not _written_by_older_placeloc(cfg, text):
             raise RunDirError(f"{cfg} was not written by placeloc; refusing to overwrite it: "
                               "choose another --run-dir (a run directory holds only placeloc's outputs)")
     elif not any(rd.glob("*.h5")):
@@ -370,13 +371,9 @@ def _unwritable(run_dir: Path, exc: OSError) -> RunDirError:
                        "stage is up to date; make it writable (chmod u+w) or choose another --run-dir")
 
 
-def _written_by_older_placeloc(cfg: Path) -> bool:
-    """Run directories from before the header: config.yaml is ours when an artifact beside
-    it carries the same config text."""
-    try:
-        text = cfg.read_text(errors="replace")
-    except OSError:
-        return False
+def _written_by_older_placeloc(cfg: Path, text: str) -> bool:
+    """Run directories from before the header: config.yaml (``text``) is ours when an
+    artifact beside it carries the same config text."""
     for artifact in cfg.parent.glob("*.h5"):
         try:
             with h5py.File(artifact, "r") as f:

@@ -194,7 +194,9 @@ def module_source(kernel: str, avx2: bool) -> str:
 
 def cache_dir() -> Path:
     """Where compiled kernels are kept: ``$XDG_CACHE_HOME/placeloc/kernels`` (``~/.cache``)."""
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "placeloc" / "kernels"
+    from placeloc.core.caches import cache_root
+
+    return cache_root() / "kernels"
 
 
 @functools.lru_cache(maxsize=4)
@@ -244,55 +246,25 @@ _MAX_OBJECT_BYTES = 16 << 20
 _SECRET_NAME = ".key"
 
 
-def _private(st: os.stat_result) -> bool:
-    """Owned by this user and writable by no one else."""
-    return st.st_uid == os.geteuid() and not st.st_mode & 0o022
-
-
-@functools.lru_cache(maxsize=1)
-def _warn_once(why: str) -> None:
-    import logging
-
-    logging.getLogger("placeloc").warning("compiled-kernel cache not used: %s; the kernels are compiled in memory "
-                                          "(about 0.3 s per process)", why)
-
-
 def trusted_cache() -> Path | None:
-    """The kernel cache folder, created private (0700 whatever the umask) when missing;
-    None, with one warning, when it or ``placeloc/`` above it is a link, is not owned by
-    this user or is writable by group or others: machine code is loaded only from a place
-    no one else can write."""
-    folder = cache_dir()
-    with contextlib.suppress(OSError):
-        os.makedirs(folder.parent.parent, 0o700, exist_ok=True)  # $XDG_CACHE_HOME itself (~/.cache)
-    for level in (folder.parent, folder):
-        try:
-            os.mkdir(level, 0o700)
-            os.chmod(level, 0o700)  # mkdir's mode is masked by the umask; the cache is private
-        except FileExistsError:
-            pass
-        except OSError:  # a read-only home, no such parent: compile in memory, say nothing
-            return None
-        try:
-            st = os.lstat(level)
-        except OSError:
-            return None
-        if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode) or not _private(st):
-            _warn_once(f"{level} is a link, not a folder, not yours or writable by others (chmod 700 {level}, or "
-                       "remove it)")
-            return None
-    return folder
+    """The kernel cache folder (``$XDG_CACHE_HOME/placeloc/kernels``), or None when no one
+    but this user may write it (:func:`placeloc.core.caches.private_cache_dir`)."""
+    from placeloc.core.caches import private_cache_dir
+
+    return private_cache_dir(cache_dir().name)
 
 
 def _read_private(folder: Path, name: str, limit: int) -> bytes | None:
     """A private regular file of the cache (no link followed), at most ``limit`` bytes."""
+    from placeloc.core.caches import is_private
+
     try:
         fd = os.open(folder / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
         return None
     with os.fdopen(fd, "rb") as fh:
         st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or not _private(st) or st.st_size > limit:
+        if not stat.S_ISREG(st.st_mode) or not is_private(st) or st.st_size > limit:
             return None
         return fh.read(limit + 1)
 

@@ -566,3 +566,17 @@ def test_run_config_yaml_linked_to_dev_zero_is_refused_at_once(small_run):
     (run / "config.yaml").symlink_to("/dev/zero")
     proc = _placeloc("run", str(config), "--run-dir", str(run), "-q", timeout=60)
     assert proc.returncode == 2 and "symbolic link" in _one_error_line(proc.stderr)
+
+
+def test_inspect_names_foreign_storage_and_refuses_a_fifo(tmp_path):
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.eye(2)
+    linked = tmp_path / "linked.h5"
+    with h5py.File(linked, "w") as f:
+        f["gt"] = h5py.ExternalLink(str(other), "x")
+    result = _cli(["inspect", str(linked)])
+    assert result.exit_code == 0 and "/gt is an external link to" in result.output
+    os.mkfifo(tmp_path / "pipe.h5")
+    proc = _placeloc("inspect", str(tmp_path / "pipe.h5"), timeout=30)
+    assert proc.returncode == 2 and "FIFO" in _one_error_line(proc.stderr)

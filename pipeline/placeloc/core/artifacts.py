@@ -381,8 +381,11 @@ def describe(path: str | Path) -> str:
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a folder, not an artifact: give one of its .h5 files, e.g. {path / 'extract.h5'}")
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"{path} does not exist")
+    from placeloc.core.safe_io import foreign_storage, input_file
+
+    input_file(path, "placeloc inspect")  # a FIFO or device is refused, not opened (is_hdf5 would wait on a FIFO)
     if not h5py.is_hdf5(path):
         raise ValueError(f"{path} is not an HDF5 file (not a placeloc artifact); give a RUN_DIR/<stage>.h5 file")
     lines: list[str] = []
@@ -414,6 +417,10 @@ def describe(path: str | Path) -> str:
                 lines.append(f"{pad}  @{k} = {_short(v)}")
 
         f.visititems(visit)
+        foreign = foreign_storage(f)
+        if foreign:
+            lines.append("  data stored outside this file (placeloc refuses such a file as input):")
+            lines.extend(f"    {line}" for line in foreign)
         if "config_yaml" in a:
             lines.append("  config:")
             lines.extend("    " + ln for ln in str(a["config_yaml"]).splitlines())

@@ -66,6 +66,9 @@ from placeloc.core.safe_io import load_yaml, read_input_text
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
 
+# A wireframe of many thousand segments is a few MB of YAML; aliases and depth stay refused.
+MAX_MODEL_BYTES = 64 << 20
+
 
 @dataclass
 class Model:
@@ -133,7 +136,7 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else load_yaml(text, str(path))
+        data = json.loads(text) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:

@@ -580,3 +580,18 @@ def test_inspect_names_foreign_storage_and_refuses_a_fifo(tmp_path):
     os.mkfifo(tmp_path / "pipe.h5")
     proc = _placeloc("inspect", str(tmp_path / "pipe.h5"), timeout=30)
     assert proc.returncode == 2 and "FIFO" in _one_error_line(proc.stderr)
+
+
+@pytest.mark.parametrize("where", ["zind", "model"])
+def test_deeply_nested_json_is_one_line(tmp_path, where):
+    path = tmp_path / ("zind_data.json" if where == "zind" else "wire.json")
+    path.write_text("[" * 100_000)
+    if where == "zind":
+        proc = _placeloc("import", "zind", str(path), str(tmp_path / "out"), timeout=60)
+        assert proc.returncode == 2 and "nested too deeply" in _one_error_line(proc.stderr)
+    else:
+        from placeloc.core.errors import ModelError
+        from placeloc.geometry.floorplan import load_model
+
+        with pytest.raises(ModelError, match="nested too deeply"):
+            load_model(path)

@@ -15,7 +15,9 @@ folder, goes through (docs/reliability.md, "Paths", "Sizes").
   any data is read, so a result never silently depends on a file no fingerprint covers.
 - :func:`load_arrays`: ``.npy``/``.npz``/``.mat``/``.h5`` arrays whose shape and type are
   read from the header and checked against a byte budget before anything is allocated.
-- :func:`load_yaml` (in :mod:`placeloc.core.config`) is the one YAML parser.
+- :func:`load_yaml` is the one YAML parser (aliases refused, depth and size capped).
+
+Code caches have their own guard, :mod:`placeloc.core.caches`.
 
 Every refusal is an :class:`UnsafeInputError` (a ``ValueError`` raised by placeloc: one
 line, exit code 2) naming the file and the fix.
@@ -133,6 +135,17 @@ def memory_budget() -> int:
     if math.isfinite(value) and 0 <= value < 2**40:
         return int(value * 2**20)
     return mem_available()
+
+
+def load_json(text: str, what: str) -> Any:
+    """``json.loads`` that words nesting deeper than Python's stack as one line (a
+    ``ValueError``, like a syntax error) instead of a RecursionError."""
+    import json
+
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise UnsafeInputError(f"{what}: nested too deeply (thousands of levels of [ or {{); close the brackets") from None
 
 
 # ----------------------------------------------------------------- names from data

@@ -276,6 +276,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
         raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
     mod = contract(res.kind)
     staging = run_dir / f".show{TMP_MARK}{os.getpid()}"
+    if staging.is_symlink():  # a predictable name: whatever was planted there goes
+        staging.unlink()
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(mode=0o700)
     try:
@@ -324,7 +326,9 @@ def _place(run_dir: Path, staging: Path, recorded: dict[str, str]) -> dict[str, 
             placed[new.name] = target  # what the stage wrote already: leave it (and its time) alone
             continue
         if intact:
-            target = run_dir / SHOW_DIR / new.name
+            from placeloc.core.safe_io import name_inside
+
+            target = name_inside(run_dir, SHOW_DIR, "show's folder") / new.name  # a link out of the run is refused
             target.parent.mkdir(exist_ok=True)
         os.replace(new, target)  # a link at the target is replaced, never written through
         placed[new.name] = target

@@ -53,7 +53,6 @@ hide anything from a camera inside the storey, so they need no faces.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,7 +61,7 @@ import numpy as np
 import yaml
 
 from placeloc.core.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
-from placeloc.core.safe_io import load_yaml, read_input_text
+from placeloc.core.safe_io import load_json, load_yaml, read_input_text
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
 
@@ -136,8 +135,8 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
+    except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
         from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input

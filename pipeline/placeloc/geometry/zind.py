@@ -41,7 +41,7 @@ import yaml
 
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.errors import ModelError
-from placeloc.core.safe_io import name_inside
+from placeloc.core.safe_io import load_json, name_inside, read_input_text
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -72,10 +72,10 @@ def floors_of(path: str | Path) -> tuple[list[str], list[str]]:
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
+        data = load_json(read_input_text(path, "ZInD file"), str(path))
         if not isinstance(data["merger"], dict) or not isinstance(data["scale_meters_per_coordinate"], dict):
             raise TypeError("merger and scale_meters_per_coordinate must be mappings")
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError) as exc:  # ValueError: JSON syntax, depth, not a file
         raise ModelError(f"{path}: not a ZInD zind_data.json with 'merger' and 'scale_meters_per_coordinate' ({exc})") from exc
     return data
 

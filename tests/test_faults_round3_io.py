@@ -595,3 +595,28 @@ def test_deeply_nested_json_is_one_line(tmp_path, where):
 
         with pytest.raises(ModelError, match="nested too deeply"):
             load_model(path)
+
+
+@pytest.mark.parametrize("plant", ["link", "external_link"])
+def test_planted_artifact_is_never_up_to_date(small_run, tmp_path, plant):
+    """localize.h5 replaced by a link to a copy elsewhere, or given a dataset that is an
+    external link: the stage re-runs and writes a plain artifact in place."""
+    run, config = small_run
+    from placeloc.core.artifacts import read_stamp
+
+    stamp = read_stamp(run / "localize.h5")
+    if plant == "link":
+        copy = tmp_path / "elsewhere.h5"
+        shutil.move(str(run / "localize.h5"), copy)
+        (run / "localize.h5").symlink_to(copy)
+    else:
+        other = tmp_path / "other.h5"
+        with h5py.File(other, "w") as f:
+            f["x"] = np.zeros(3)
+        with h5py.File(run / "localize.h5", "r+") as f:
+            f["planted"] = h5py.ExternalLink(str(other), "x")
+    assert read_stamp(run / "localize.h5") is None
+    proc = _placeloc("run", str(config), "--run-dir", str(run))
+    assert proc.returncode == 0, proc.stderr
+    assert "localize: running" in proc.stderr
+    assert not (run / "localize.h5").is_symlink() and read_stamp(run / "localize.h5") == stamp

@@ -342,13 +342,20 @@ def provenance_attrs(stage: str, method: str, version: str, config_yaml: str, co
 
 
 def read_stamp(path: Path) -> str | None:
-    """The stamp of a complete artifact, or None if it is missing or unreadable."""
-    if not path.is_file():
+    """The stamp of a complete artifact, or None if it is missing or unreadable, or is not
+    what placeloc writes: a symbolic link (placeloc renames its artifacts into place, so a
+    link was put there by someone else), or a file with data stored in other files. Such an
+    artifact is never up to date: its stage re-runs and replaces it."""
+    from placeloc.core.safe_io import UnsafeInputError, foreign_storage
+
+    if path.is_symlink() or not path.is_file():
         return None
     try:
         with h5py.File(path, "r") as f:
+            if foreign_storage(f):
+                return None
             stamp = f.attrs.get("stamp")
-    except OSError:
+    except (OSError, UnsafeInputError):
         return None
     return str(stamp) if stamp is not None else None
 

@@ -389,18 +389,15 @@ def _tiff_header(width: int, height: int) -> bytes:
     return out + struct.pack("<I", 0) + strip
 
 
-def test_huge_tiff_is_sized_from_its_header_and_refused_before_decoding(route, tmp_path):
+def test_huge_tiff_is_sized_from_its_header_and_refused_before_decoding(route, tmp_path, monkeypatch):
     from placeloc.core.images import ImageError, decode_image, image_size
 
     big = tmp_path / "big.tif"
     big.write_bytes(_tiff_header(30000, 30000))
     assert image_size(big) == (30000, 30000)
-    os.environ["PLACELOC_MEMORY_LIMIT_MB"] = "2048"
-    try:
-        with pytest.raises(ImageError, match="30000 x 30000"):
-            decode_image(big)
-    finally:
-        del os.environ["PLACELOC_MEMORY_LIMIT_MB"]
+    monkeypatch.setenv("PLACELOC_MEMORY_LIMIT_MB", "2048")
+    with pytest.raises(ImageError, match="30000 x 30000"):
+        decode_image(big)
     frames = tmp_path / "frames"
     shutil.copytree(route / "reference", frames)
     shutil.copy(big, frames / "zzz_big.tif")

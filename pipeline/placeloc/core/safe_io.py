@@ -31,10 +31,12 @@ import os
 import stat
 import zipfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
-import numpy as np
 import yaml
+
+if TYPE_CHECKING:  # numpy is imported where arrays are read: loading a config needs none of it
+    import numpy as np
 
 # A text input (CSV, YAML, JSON) larger than this is not a hand-written or exported table
 # of a few hundred thousand rows: refuse it before reading.
@@ -329,6 +331,8 @@ def open_h5_input(path: str | Path, what: str) -> Iterator[Any]:
 
 def check_array_bytes(shape: tuple[int, ...], dtype: np.dtype, path: str | Path, name: str, max_bytes: int) -> None:
     """Refuse an array whose header says it needs more than ``max_bytes`` (or holds objects)."""
+    import numpy as np
+
     dtype = np.dtype(dtype)
     if dtype.hasobject:
         raise UnsafeInputError(f"{path}: {name!r} holds Python objects ({dtype}); store numbers")
@@ -346,6 +350,8 @@ def h5_dataset(ds: Any, max_bytes: int) -> np.ndarray:
 
 
 def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
+    import numpy as np
+
     fmt = np.lib.format
     version = fmt.read_magic(fh)
     if version == (1, 0):
@@ -362,6 +368,8 @@ def load_arrays(path: str | Path, what: str, max_bytes: int, kind: str | None = 
     file (``kind``, e.g. ``".h5"``, overrides the file's suffix), each checked from its
     header against ``max_bytes`` before it is read. MATLAB v7.3 files are HDF5 (arrays
     transposed back)."""
+    import numpy as np
+
     p = Path(path)
     suffix = kind or p.suffix.lower()
     input_file(p, what)
@@ -393,7 +401,7 @@ def load_arrays(path: str | Path, what: str, max_bytes: int, kind: str | None = 
                 with open_h5_input(p, what) as f:
                     return {k: np.asarray(h5_dataset(f[k], max_bytes)).T for k in f if _is_dataset(f.get(k))}
             for name, shape, cls in listed:
-                check_array_bytes(tuple(shape), np.dtype(_MAT_TYPES.get(cls, np.float64)), p, name, max_bytes)
+                check_array_bytes(tuple(shape), np.dtype(_MAT_TYPES.get(cls, "float64")), p, name, max_bytes)
             return {k: v for k, v in loadmat(str(p)).items() if not k.startswith("__")}
         if suffix in (".h5", ".hdf5"):
             with open_h5_input(p, what) as f:
@@ -407,8 +415,8 @@ def load_arrays(path: str | Path, what: str, max_bytes: int, kind: str | None = 
 
 # MATLAB classes (scipy.io.whosmat) -> the type loadmat gives; others (double, sparse, cell,
 # struct) are counted at 8 bytes per element.
-_MAT_TYPES = {"single": np.float32, "int8": np.int8, "uint8": np.uint8, "logical": np.uint8, "int16": np.int16,
-              "uint16": np.uint16, "char": np.uint16, "int32": np.int32, "uint32": np.uint32}
+_MAT_TYPES = {"single": "float32", "int8": "int8", "uint8": "uint8", "logical": "uint8", "int16": "int16",
+              "uint16": "uint16", "char": "uint16", "int32": "int32", "uint32": "uint32"}
 
 
 def _is_dataset(obj: Any) -> bool:

@@ -268,15 +268,17 @@ def test_numba_cache_is_pointed_at_a_private_folder(tmp_path, state):
         (tmp_path / "placeloc" / "numba").mkdir(parents=True)
         (tmp_path / "placeloc" / "numba").chmod(0o777)
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    proc = subprocess.run([sys.executable, "-c", "import os, placeloc; print(os.environ['NUMBA_CACHE_DIR'])"],
-                          capture_output=True, text=True, timeout=60, env={**env, "XDG_CACHE_HOME": str(tmp_path)})
-    folder = Path(proc.stdout.strip())
-    assert folder.is_dir() and folder.stat().st_mode & 0o077 == 0 and folder.stat().st_uid == os.geteuid()
+    code = ("import os, placeloc; d = os.environ['NUMBA_CACHE_DIR']; st = os.stat(d); "
+            "print(d, st.st_mode & 0o777, st.st_uid == os.geteuid())")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          env={**env, "XDG_CACHE_HOME": str(tmp_path)})
+    folder, mode, mine = proc.stdout.split()
+    assert int(mode) & 0o077 == 0 and mine == "True", proc.stdout  # private while the process runs
     if state == "fresh":
-        assert folder == tmp_path / "placeloc" / "numba"
+        assert Path(folder) == tmp_path / "placeloc" / "numba"
     else:
-        assert folder != tmp_path / "placeloc" / "numba" and "not used" in proc.stderr
-        shutil.rmtree(folder)
+        assert Path(folder) != tmp_path / "placeloc" / "numba" and "not used" in proc.stderr
+        assert not Path(folder).exists()  # the temporary folder went with the process
 
 
 # ============================================================ 3. every parser bounded before it allocates

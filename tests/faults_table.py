@@ -132,7 +132,9 @@ class _Table:
 def main() -> int:
     here = Path(__file__).resolve().parent
     table = _Table()
-    args = ["-q", "-p", "no:cacheprovider", str(here / "test_faults.py"), str(here / "test_faults_round2.py"), *sys.argv[1:]]
+    # every round's file: tests/test_faults.py, test_faults_round2.py, test_faults_round3_*.py
+    rounds = sorted(str(p) for p in here.glob("test_faults*.py"))
+    args = ["-q", "-p", "no:cacheprovider", *rounds, *sys.argv[1:]]
     rc = pytest.main(args, plugins=[table])
     table.print_table()
     return int(rc)

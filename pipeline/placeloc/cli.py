@@ -353,6 +353,7 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
     """Generate a synthetic data set with known ground truth."""
     import yaml
 
+    from placeloc.core.config import load_yaml
     from placeloc.synth import generate
 
     params = {}
@@ -360,7 +361,10 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
         if "=" not in item:
             _fail(ValueError(f"--set {item!r}: expected name=value"))
         k, v = item.split("=", 1)
-        params[k.strip()] = yaml.safe_load(v)
+        try:
+            params[k.strip()] = load_yaml(v, f"--set {k.strip()} value")
+        except yaml.YAMLError as exc:
+            _fail(ValueError(f"--set {item[:80]!r}: the value is not valid YAML ({' '.join(str(exc).split())[:200]})"))
     try:
         summary = generate(kind, out, seed=seed, **params)
     except (KeyError, TypeError) as exc:  # an unknown kind or generator parameter
@@ -495,8 +499,6 @@ def _exit_now(code: int) -> None:
     os._exit(code)
 
 
-if __name__ == "__main__":
-    main()
 
 
 # ---------------------------------------------------------------------------------------
@@ -537,7 +539,7 @@ def sweep(config: Path = ConfigArg,
     """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
     import yaml
 
-    from placeloc.core.config import ConfigError, apply_override
+    from placeloc.core.config import ConfigError, apply_override, read_yaml_file
     from placeloc.core.errors import StageError
     from placeloc.core.images import ImageError
     from placeloc.experiments.sweep import parse_grid, run_sweep
@@ -546,7 +548,7 @@ def sweep(config: Path = ConfigArg,
     try:
         if not config.is_file():
             raise ConfigError(f"config file {config} does not exist")
-        raw = yaml.safe_load(config.read_text()) or {}
+        raw = read_yaml_file(config) or {}
         for item in set or []:
             apply_override(raw, item)
         table = run_sweep(raw, config.resolve().parent, parse_grid(grid), out or Path("runs") / f"{config.stem}-sweep",
@@ -555,3 +557,7 @@ def sweep(config: Path = ConfigArg,
         _fail(exc)
     typer.echo(table.read_text())
     _say_written(table.parent, ("sweep.md", "sweep.csv", "sweep.png"), "one run directory per combination")
+
+
+if __name__ == "__main__":  # last: every command above is defined by now
+    main()

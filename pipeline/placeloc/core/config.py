@@ -27,31 +27,13 @@ import yaml
 from placeloc.core import params as P
 from placeloc.core.common_params import CommonParams
 from placeloc.core.errors import ConfigError  # noqa: F401 - re-exported: placeloc.core.config.ConfigError
+from placeloc.core.safe_io import MAX_YAML_DEPTH, load_yaml  # noqa: F401 - re-exported: the one YAML parser
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
-
-
-class _NoAliasLoader(yaml.SafeLoader):
-    """SafeLoader that refuses YAML aliases, so a tiny file cannot expand without bound."""
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            raise yaml.composer.ComposerError(
-                None, None, f"found alias *{event.anchor}: aliases are not allowed in placeloc configs "
-                "(write the value out instead)", event.start_mark)
-        return super().compose_node(parent, index)
-
-
 def safe_yaml(text: str) -> Any:
-    """Parse YAML text with the safe, alias-free loader."""
-    try:
-        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
-    except RecursionError:
-        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
-        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
-                             "of keys and values: close the brackets") from None
+    """Parse YAML text with :func:`placeloc.core.safe_io.load_yaml` (the older name)."""
+    return load_yaml(text, max_bytes=MAX_CONFIG_BYTES)
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:
@@ -60,12 +42,12 @@ def read_yaml_file(path: Path, what: str = "config file") -> Any:
         raise ConfigError(f"{what} {path} is a folder, not a YAML file: give the path of a .yaml file, e.g. configs/demo.yaml")
     if not path.exists():
         raise ConfigError(f"{what} {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
+    from placeloc.core.safe_io import UnsafeInputError, read_input_bytes
+
     try:
-        size = path.stat().st_size
-        if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{what} {path} is {size / 1e6:.1f} MB; the limit is {MAX_CONFIG_BYTES / 1e6:.0f} MB "
-                              "(a config holds settings, not data: put data in files and name them)")
-        raw = path.read_bytes()
+        raw = read_input_bytes(path, what, MAX_CONFIG_BYTES)
+    except UnsafeInputError as exc:
+        raise ConfigError(f"{exc} (a config holds settings, not data: put data in files and name them)") from None
     except PermissionError as exc:
         raise ConfigError(f"{what} {path}: permission denied; make it readable (chmod u+r) or copy it") from exc
     try:
@@ -74,7 +56,7 @@ def read_yaml_file(path: Path, what: str = "config file") -> Any:
         raise ConfigError(f"{what} {path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
                           "save it as UTF-8") from exc
     try:
-        return safe_yaml(text)
+        return load_yaml(text, f"{what} {path}")
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from exc
 # Sections a user may leave out entirely (their absence means something).

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from placeloc.core.images import natural_key
+from placeloc.core.safe_io import UnsafeInputError, h5_dataset, load_arrays, open_h5_input
 
 DISTANCES = ("cosine", "l2")
 
@@ -28,39 +29,34 @@ class DescriptorError(ValueError):
     """A descriptor file that cannot be used; the message names the file and the fix."""
 
 
-def _from_hdf5(path: Path) -> np.ndarray:
+# A descriptor has at most this many dimensions (NetVLAD's unreduced 32,768 included), at
+# 8 bytes each: the budget an input's header is checked against before it is read.
+MAX_DIMENSIONS = 65536
+
+
+def _from_hdf5(path: Path, what: str, max_bytes: int) -> np.ndarray:
     import h5py
 
-    with h5py.File(path, "r") as f:
+    with open_h5_input(path, what) as f:
         if "descriptors" in f and isinstance(f["descriptors"], h5py.Dataset):
-            return f["descriptors"][()]
+            return h5_dataset(f["descriptors"], max_bytes)
         found: list[str] = []
         f.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) and obj.ndim == 2 else None)
         if len(found) != 1:
             raise DescriptorError(f"{path}: expected a dataset named 'descriptors' or exactly one 2-D dataset, found "
                                   f"{found or 'none'}; name the matrix 'descriptors'")
-        return f[found[0]][()]
+        return h5_dataset(f[found[0]], max_bytes)
 
 
 def load_descriptors(path: str | Path, n_images: int, role: str, key: str = "seqslam.descriptors") -> np.ndarray:
     """The (n_images, d) float32 descriptor matrix of one traverse, checked against its image count."""
     p = Path(path)
-    if p.is_dir():
-        files = sorted(p.glob("*.npy"), key=lambda x: natural_key(x.name))
-        if not files:
-            raise DescriptorError(f"{p}: no .npy files in this folder; give one .npy per image or an (n, d) matrix file")
-        rows = [np.load(f, allow_pickle=False).ravel() for f in files]
-        if len({r.shape for r in rows}) != 1:
-            raise DescriptorError(f"{p}: the .npy files hold vectors of different lengths; every image needs the same d")
-        mat = np.stack(rows)
-    elif p.suffix == ".npy":
-        mat = np.load(p, allow_pickle=False)
-    elif p.suffix in (".h5", ".hdf5"):
-        mat = _from_hdf5(p)
-    elif not p.exists():
-        raise DescriptorError(f"{p} does not exist; fix {key}_{role} (relative paths start at the config's folder)")
-    else:
-        raise DescriptorError(f"{p}: unknown descriptor format; use .npy, .h5/.hdf5 or a folder of .npy files")
+    what = f"{key}_{role}"
+    budget = max(n_images, 1) * MAX_DIMENSIONS * 8
+    try:
+        mat = _read(p, what, budget, key, role)
+    except UnsafeInputError as exc:
+        raise DescriptorError(str(exc)) from None
     if mat.ndim != 2:
         raise DescriptorError(f"{p}: descriptors must be a 2-D (images x dimensions) matrix, got shape {mat.shape}")
     if len(mat) != n_images:
@@ -70,6 +66,26 @@ def load_descriptors(path: str | Path, n_images: int, role: str, key: str = "seq
     if not np.isfinite(mat).all():
         raise DescriptorError(f"{p}: descriptors contain NaN or infinity")
     return mat
+
+
+def _read(p: Path, what: str, budget: int, key: str, role: str) -> np.ndarray:
+    """The matrix of a .npy or HDF5 file, or of a folder of per-image .npy files, each array
+    checked from its header against ``budget`` bytes before it is read."""
+    if p.is_dir():
+        files = sorted(p.glob("*.npy"), key=lambda x: natural_key(x.name))
+        if not files:
+            raise DescriptorError(f"{p}: no .npy files in this folder; give one .npy per image or an (n, d) matrix file")
+        rows = [load_arrays(f, what, MAX_DIMENSIONS * 8)["array"].ravel() for f in files]
+        if len({r.shape for r in rows}) != 1:
+            raise DescriptorError(f"{p}: the .npy files hold vectors of different lengths; every image needs the same d")
+        return np.stack(rows)
+    if p.suffix == ".npy":
+        return load_arrays(p, what, budget)["array"]
+    if p.suffix in (".h5", ".hdf5"):
+        return _from_hdf5(p, what, budget)
+    if not p.exists():
+        raise DescriptorError(f"{p} does not exist; fix {key}_{role} (relative paths start at the config's folder)")
+    raise DescriptorError(f"{p}: unknown descriptor format; use .npy, .h5/.hdf5 or a folder of .npy files")
 
 
 def prepare_descriptors(mat: np.ndarray, distance: str) -> np.ndarray:

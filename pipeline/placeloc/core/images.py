@@ -5,11 +5,13 @@ from __future__ import annotations
 import errno
 import glob
 import hashlib
+import io
 import os
 import re
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -117,6 +119,113 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped)
 
 
+# ----------------------------------------------------------------- headers
+
+# Bytes a decode may hold per pixel: OpenCV's unchanged read (up to 4 channels of 16 bits),
+# then the 8-bit, upright and grey/RGB copies made from it.
+DECODE_BYTES_PER_PIXEL = 16
+
+
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) from the header of a PNG, JPEG, BMP, PNM, TIFF, WebP or GIF file;
+    None when the format is none of those or the header is damaged (the decoder then
+    reports the file). Nothing is decoded."""
+    # A raw descriptor and one 32-byte read: a buffered file object costs several times the
+    # system calls, and every image of a traverse is checked before extract.
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        head = os.read(fd, 32)
+        size = _simple_size(head)
+        if size is not None:
+            return size
+        if head[:2] == b"\xff\xd8" or _pillow_format(head):
+            with open(fd, "rb", closefd=False) as fh:
+                return _jpeg_size(fh) if head[:2] == b"\xff\xd8" else _pillow_size(fh, head)
+    except (OSError, ValueError, struct.error):
+        return None
+    finally:
+        os.close(fd)
+    return None
+
+
+def image_size_of(data: bytes) -> tuple[int, int] | None:
+    """:func:`image_size` of an encoded image already in memory."""
+    try:
+        size = _simple_size(data[:32])
+        if size is not None:
+            return size
+        if data[:2] == b"\xff\xd8":
+            return _jpeg_size(io.BytesIO(data))
+        if _pillow_format(data[:32]):
+            return _pillow_size(io.BytesIO(data), data[:32])
+    except (OSError, ValueError, struct.error):
+        return None
+    return None
+
+
+def _simple_size(head: bytes) -> tuple[int, int] | None:
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    if head[:2] == b"BM" and len(head) >= 26:
+        w, h = struct.unpack("<ii", head[18:26])
+        return abs(w), abs(h)
+    if head[:2] in (b"P5", b"P6", b"P2", b"P3"):
+        fields = head[2:].split()
+        return (int(fields[0]), int(fields[1])) if len(fields) >= 2 else None
+    return None
+
+
+def _pillow_format(head: bytes) -> str | None:
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        return "TIFF"
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "WEBP"
+    if head[:6] in (b"GIF87a", b"GIF89a"):
+        return "GIF"
+    return None
+
+
+def _pillow_size(fh: Any, head: bytes) -> tuple[int, int] | None:
+    """Pillow's own header parser for the format (its plugin class, which reads the header
+    and none of the pixels; Image.open would also apply its decompression-bomb check, which
+    is placeloc's to make, against the memory there is)."""
+    import warnings
+
+    from PIL import GifImagePlugin, TiffImagePlugin, WebPImagePlugin
+
+    plugin = {"TIFF": TiffImagePlugin.TiffImageFile, "WEBP": WebPImagePlugin.WebPImageFile,
+              "GIF": GifImagePlugin.GifImageFile}[_pillow_format(head) or ""]
+    fh.seek(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            im = plugin(fh)
+        except Exception:  # a damaged header: the decoder reports the file
+            return None
+    return int(im.size[0]), int(im.size[1])
+
+
+def _jpeg_size(fh: Any) -> tuple[int, int] | None:
+    fh.seek(2)
+    for _ in range(10000):
+        marker = fh.read(2)
+        if len(marker) < 2 or marker[0] != 0xFF:
+            return None
+        kind = marker[1]
+        if kind in (0xD8, 0x01) or 0xD0 <= kind <= 0xD7:
+            continue
+        length = struct.unpack(">H", fh.read(2))[0]
+        # SOF0..SOF15 carry the frame size, except DHT (C4), JPG (C8) and DAC (CC).
+        if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
+            _, h, w = struct.unpack(">BHH", fh.read(5))
+            return w, h
+        fh.seek(length - 2, 1)
+    return None
+
+
 def _unreadable(path: str | Path) -> ImageError:
     """The reason cv2.imread returned nothing: missing, a folder, no permission, or bad bytes."""
     p = Path(path)
@@ -144,9 +253,29 @@ def os_error_message(path: str | Path, exc: OSError) -> str:
     return f"{path}: cannot be read ({exc.strerror or exc}); check the disk or the file, {fix}"
 
 
+def _open_nonblocking(path: str, flags: int) -> int:
+    return os.open(path, flags | getattr(os, "O_NONBLOCK", 0))
+
+
 def _read_bytes(path: str | Path) -> bytes:
+    """The file's bytes: a regular file (a FIFO or device put in place of an image is
+    refused, not read until it ends) no larger than the memory there is."""
+    import stat
+
+    from placeloc.core.safe_io import memory_budget
+
     try:
-        with open(path, "rb") as fh:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer
+        with open(path, "rb", buffering=0, opener=_open_nonblocking) as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ImageError(f"{path}: is not a regular file (a FIFO or device?); replace it with an image file, "
+                                 "or set on_error: skip beside images:")
+            budget = memory_budget() // 4
+            if st.st_size > budget:
+                raise ImageError(f"{path}: is {st.st_size / 2**20:.0f} MB, more than a quarter of the memory available "
+                                 f"({budget * 4 / 2**20:.0f} MB); resize the images")
+            os.set_blocking(fh.fileno(), True)
             return fh.read()
     except OSError as exc:
         raise ImageError(os_error_message(path, exc)) from exc
@@ -224,6 +353,15 @@ def decode_image(path: str | Path) -> np.ndarray:
     if data[:2] == b"\xff\xd8" and not jpeg_is_complete(data):
         raise ImageError(f"{path}: truncated JPEG (its data ends before the end-of-image marker: a copy or download "
                          "that did not finish); replace it, or set on_error: skip beside images:")
+    size = image_size_of(data)
+    if size is not None:  # the header's size against the memory there is, before any pixel is decoded
+        from placeloc.core.safe_io import memory_budget
+
+        need, budget = size[0] * size[1] * DECODE_BYTES_PER_PIXEL, memory_budget()
+        if need > budget:
+            raise ImageError(f"{path}: its header says {size[0]} x {size[1]} pixels; decoding it needs about "
+                             f"{need / 2**30:.1f} GiB, more than the {budget / 2**30:.1f} GiB available (MemAvailable or "
+                             "PLACELOC_MEMORY_LIMIT_MB); resize the images")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:

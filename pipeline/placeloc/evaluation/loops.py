@@ -38,12 +38,14 @@ own threshold (None without one), ``n_frames``, ``frames_with_loop``, ``n_candid
 
 from __future__ import annotations
 
+import io
 import logging
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text
 from placeloc.evaluation.contracts import Evaluation, Field, Result, names_by_index, write_result
 from placeloc.evaluation.ground_truth import GroundTruthError
 
@@ -96,26 +98,21 @@ def read_matrix(path: str | Path, n_frames: int) -> np.ndarray:
     path = Path(path)
     suffix = path.suffix.lower()
     arrays: dict[str, np.ndarray] = {}
+    # the matrix is n_frames x n_frames: no array of the file may need more than that at 8
+    # bytes an element, checked from its header before it is read
+    budget = max(n_frames * n_frames * 8, 1 << 16)
     try:
-        if suffix == ".npy":
-            arrays = {"matrix": np.load(path, allow_pickle=False)}
-        elif suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        elif suffix == ".mat":
-            arrays = _read_mat(path)
+        if suffix in (".npy", ".npz", ".mat", ".h5", ".hdf5"):
+            arrays = load_arrays(path, "ground_truth.path", budget)
+            if "array" in arrays and suffix == ".npy":
+                arrays = {"matrix": arrays.pop("array")}
         elif suffix in (".txt", ".csv"):
             arrays = {"matrix": _read_text_matrix(path)}
-        elif suffix in (".h5", ".hdf5"):
-            import h5py
-
-            with h5py.File(path, "r") as f:
-                arrays = {k: f[k][()] for k in f if isinstance(f[k], h5py.Dataset)}
         else:
             raise GroundTruthError(f"ground_truth.path: {path} is not a loop-closure matrix file; give .npy, .npz, .mat, "
                                    ".txt, .csv or .h5")
-    except FileNotFoundError:
-        raise GroundTruthError(f"ground_truth.path: {path} does not exist; fix the path") from None
+    except UnsafeInputError as exc:
+        raise GroundTruthError(str(exc)) from None
     except (OSError, ValueError) as exc:
         raise GroundTruthError(f"ground_truth.path: {path} cannot be read as a {suffix} matrix "
                                f"({' '.join(str(exc).split())})") from None
@@ -148,22 +145,10 @@ def read_matrix(path: str | Path, n_frames: int) -> np.ndarray:
     return np.tril(m, -1) | np.tril(m.T, -1)
 
 
-def _read_mat(path: Path) -> dict[str, np.ndarray]:
-    try:
-        from scipy.io import loadmat
-
-        return {k: v for k, v in loadmat(path).items() if not k.startswith("__")}
-    except NotImplementedError:  # MATLAB v7.3 files are HDF5; MATLAB stores arrays transposed there
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            return {k: np.asarray(f[k][()]).T for k in f if isinstance(f[k], h5py.Dataset)}
-
-
 def _read_text_matrix(path: Path) -> np.ndarray:
-    text = path.read_text(encoding="utf-8-sig")
+    text = read_input_text(path, "ground_truth.path")
     delimiter = "," if "," in text.split("\n", 1)[0] else None
-    return np.loadtxt(path, delimiter=delimiter, ndmin=2, encoding="utf-8-sig")
+    return np.loadtxt(io.StringIO(text), delimiter=delimiter, ndmin=2)
 
 
 def loop_truth(section: dict[str, Any], names: Sequence[str]) -> Any:

@@ -53,7 +53,6 @@ hide anything from a camera inside the storey, so they need no faces.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,8 +61,12 @@ import numpy as np
 import yaml
 
 from placeloc.core.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
+from placeloc.core.safe_io import load_json, load_yaml, read_input_text
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
+
+# A wireframe of many thousand segments is a few MB of YAML; aliases and depth stay refused.
+MAX_MODEL_BYTES = 64 << 20
 
 
 @dataclass
@@ -128,12 +131,12 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
-    text = path.read_text()
+    text = read_input_text(path, "model file")
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
+    except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
         from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input

@@ -39,7 +39,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.core.errors import ModelError
+from placeloc.core.safe_io import load_json, name_inside, read_input_text
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -70,10 +72,10 @@ def floors_of(path: str | Path) -> tuple[list[str], list[str]]:
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
+        data = load_json(read_input_text(path, "ZInD file"), str(path))
         if not isinstance(data["merger"], dict) or not isinstance(data["scale_meters_per_coordinate"], dict):
             raise TypeError("merger and scale_meters_per_coordinate must be mappings")
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError) as exc:  # ValueError: JSON syntax, depth, not a file
         raise ModelError(f"{path}: not a ZInD zind_data.json with 'merger' and 'scale_meters_per_coordinate' ({exc})") from exc
     return data
 
@@ -182,7 +184,9 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
     if floor is None:
         _, calibrated = floors_of(path)
         if len(calibrated) > 1:
-            return {f: _write_floor(path, out / f, f) for f in calibrated}
+            # a floor's key comes from the JSON: it names a folder only as one plain name inside OUT
+            folders = {f: name_inside(out, f, f"{path}: floor key") for f in calibrated}
+            return {f: _write_floor(path, folders[f], f) for f in calibrated}
         if not calibrated:
             _pick_floor(str(path), floors_of(path)[0], {}, None)  # raises with the reason
         floor = calibrated[0]
@@ -192,8 +196,10 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
 def _write_floor(path: str | Path, out: Path, floor: str) -> dict[str, Any]:
     plan, panos = zind_home(path, floor)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "floor_plan.yaml").write_text(yaml.safe_dump(plan, sort_keys=False))
-    with open(out / "poses.csv", "w", newline="") as f:
+    # written under a temporary name and renamed: a link at either name is replaced, not written through
+    with atomic_open(out / "floor_plan.yaml") as f:
+        f.write(yaml.safe_dump(plan, sort_keys=False))
+    with atomic_open(out / "poses.csv", newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "z", "heading_deg", "primary"])
         for p in panos:

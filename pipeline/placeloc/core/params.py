@@ -126,6 +126,28 @@ def declared_types(cls: type, prefix: str = "") -> dict[str, tuple[type, ...]]:
     return out
 
 
+def declared_item_types(cls: type, prefix: str = "") -> dict[str, type]:
+    """Dotted key -> the type every item must have, for keys whose default is ``None`` and
+    whose annotation is a list or tuple of one number type (``tuple[float, float, float] |
+    None`` -> ``float``): a string or a bool among the items is refused like a bad scalar."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, type] = {}
+    for f in _fields(cls):
+        if _is_section(f):
+            out.update(declared_item_types(_section_type(cls, f), f"{prefix}{f.name}."))
+            continue
+        if f.default is not None:
+            continue
+        hint = hints.get(f.name, Any)
+        args = typing.get_args(hint) if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union else (hint,)
+        for a in args:
+            if typing.get_origin(a) in (list, tuple):
+                items = {t for t in typing.get_args(a) if t is not Ellipsis}
+                if len(items) == 1 and next(iter(items)) in (int, float):
+                    out[f"{prefix}{f.name}"] = next(iter(items))
+    return out
+
+
 def nullable_keys(cls: type, prefix: str = "") -> tuple[str, ...]:
     """Dotted keys whose annotation admits ``None`` (``float | None``): null is a value
     they take (e.g. "not set: use the default rule") even when their default is a number."""

@@ -134,6 +134,55 @@ def classify(exc: BaseException) -> str:
     return "bug"
 
 
+def _stdout_failed(exc: BaseException) -> bool:
+    """True when ``exc`` is an OSError raised while writing the standard output (a
+    ``typer.echo``/``click.echo`` or ``print`` frame, or the flush after the command): the
+    reader of a pipe went away (``| head -1``) or the file it goes to is full (``> /dev/full``)."""
+    if not isinstance(exc, OSError):
+        return False
+    tb = exc.__traceback__
+    while tb is not None:
+        code = tb.tb_frame.f_code
+        module = tb.tb_frame.f_globals.get("__name__", "")
+        if code.co_name in ("echo", "secho") and module.split(".")[0] in ("click", "typer") or code.co_name == "_flush_stdout":
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def _stdout_failure(exc: OSError) -> None:
+    """The standard output failed. A closed pipe is what ``| head`` does on purpose: leave
+    quietly with rc 0 (the reader took what it wanted), pointing stdout at /dev/null so the
+    interpreter's own flush at exit does not fail again. Anything else (a full disk behind
+    ``> FILE``, an I/O error) is the environment: one line saying where, rc 3."""
+    import errno
+
+    _discard_stdout()
+    if exc.errno == errno.EPIPE:
+        raise typer.Exit(0)
+    name = errno.errorcode.get(exc.errno or -1, "")
+    what = {"ENOSPC": "is full (no space left on the device it is redirected to)",
+            "EDQUOT": "is over its disk quota"}.get(name, f"cannot be written ({exc.strerror or exc})")
+    typer.secho(f"error: the standard output {what}; free space there or redirect the output elsewhere",
+                fg="red", err=True)
+    raise typer.Exit(3)
+
+
+def _discard_stdout() -> None:
+    """Point the standard output at /dev/null (what is still buffered is dropped)."""
+    with contextlib.suppress(Exception):
+        fd = sys.stdout.fileno()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
+
+
+def _flush_stdout() -> None:
+    """Flush the standard output inside the error boundary (a failure is classified there,
+    not printed by the interpreter at exit)."""
+    sys.stdout.flush()
+
+
 class ErrorBoundaryGroup(TyperGroup):
     """The one error boundary: every command, including ones added later, runs inside it.
 
@@ -147,6 +196,7 @@ class ErrorBoundaryGroup(TyperGroup):
         _announced.clear()  # one "interrupted" line per command, also when commands run in one process (tests, API)
         try:
             result = super().invoke(ctx)
+            _flush_stdout()
             raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
             return result
         except (typer.Exit, typer.Abort, ClickException):
@@ -155,6 +205,8 @@ class ErrorBoundaryGroup(TyperGroup):
             _announce_interrupt()
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
+            if _stdout_failed(exc):
+                return _stdout_failure(exc)
             kind = classify(exc)
             if kind in ("user", "environment"):
                 typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
@@ -187,6 +239,9 @@ def _version(value: bool) -> None:
 
 # Set by the global --verbose flag (placeloc --verbose run ...).
 _VERBOSE = False
+# True in the `placeloc` process itself (main()), not when the app runs inside another
+# program (tests, the API): only then may a command change the process's environment.
+_STANDALONE = False
 
 
 @app.callback()
@@ -211,6 +266,11 @@ class _SourceFormatter(logging.Formatter):
     """``placeloc: message`` for our lines, ``faiss.loader: message`` for a library's."""
 
     def format(self, record: logging.LogRecord) -> str:
+        if record.name == "py.warnings":
+            # "FILE:LINE: Category: text\n  source line" -> "warning: Category: text", one line
+            first = record.getMessage().splitlines()[0] if record.getMessage() else ""
+            parts = first.split(": ", 1)
+            return f"warning: {parts[1] if len(parts) == 2 and ':' in parts[0] else first}"
         source = "placeloc" if record.name == "placeloc" or record.name.startswith("placeloc.") else record.name
         return f"{source}: {record.getMessage()}" + (f"\n{self.formatException(record.exc_info)}" if record.exc_info else "")
 
@@ -224,6 +284,17 @@ def _setup_logging(quiet: bool) -> None:
     logging.basicConfig(level=logging.INFO if _VERBOSE else logging.WARNING, handlers=[handler], force=True)
     ours = logging.DEBUG if _VERBOSE else logging.WARNING if quiet else logging.INFO
     logging.getLogger("placeloc").setLevel(ours)
+    # Python warnings of the libraries (PIL's DecompressionBombWarning, numpy's RuntimeWarning,
+    # ...) go through logging as one line each ("py.warnings: ..."); --quiet silences them,
+    # here and, through PYTHONWARNINGS, in the worker processes this command starts.
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.ERROR if quiet and not _VERBOSE else logging.WARNING)
+    if quiet and not _VERBOSE:
+        import warnings
+
+        warnings.simplefilter("ignore")
+        if _STANDALONE:
+            os.environ["PYTHONWARNINGS"] = "ignore"
 
 
 def _say_written(folder: Path, names: tuple[str, ...], runs: str) -> None:
@@ -351,16 +422,9 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
           seed: int = typer.Option(0, help="Random seed."),
           set: List[str] | None = typer.Option(None, "--set", "-s", help="Generator parameter, e.g. --set frames=200.")) -> None:
     """Generate a synthetic data set with known ground truth."""
-    import yaml
+    from placeloc.synth import generate, parse_settings
 
-    from placeloc.synth import generate
-
-    params = {}
-    for item in set or []:
-        if "=" not in item:
-            _fail(ValueError(f"--set {item!r}: expected name=value"))
-        k, v = item.split("=", 1)
-        params[k.strip()] = yaml.safe_load(v)
+    params = parse_settings(kind, list(set or []))
     try:
         summary = generate(kind, out, seed=seed, **params)
     except (KeyError, TypeError) as exc:  # an unknown kind or generator parameter
@@ -429,6 +493,8 @@ def experiment(name: str = typer.Argument(..., help="Experiment: one of the modu
 
 
 def main() -> None:
+    global _STANDALONE
+    _STANDALONE = True
     install_signal_handlers(on_repeat=_second_signal)
     try:
         app()
@@ -437,7 +503,25 @@ def main() -> None:
 
         if received() is not None:
             _exit_now(exc.code if isinstance(exc.code, int) else 130)
+        try:
+            sys.stdout.flush()
+        except OSError as flush_error:
+            _outside_boundary(flush_error)
         raise
+    except OSError as exc:
+        # What Click prints itself (--help, usage errors) runs outside the boundary: a closed
+        # pipe or a full output there must not end in the interpreter's traceback.
+        if not _stdout_failed(exc):
+            raise
+        _outside_boundary(exc)
+
+
+def _outside_boundary(exc: OSError) -> None:
+    """:func:`_stdout_failure` for a write Click made before or after the command ran."""
+    try:
+        _stdout_failure(exc)
+    except typer.Exit as leave:
+        raise SystemExit(leave.exit_code) from None
 
 
 _announced: list[bool] = []

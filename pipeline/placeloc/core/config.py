@@ -236,10 +236,10 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
         _check_finite(dotted, value, default)
         if default is None and types and dotted in types:
             out[key] = _check_declared(dotted, value, types[dotted])
-            if item_types and dotted in item_types and isinstance(out[key], list):
-                out[key] = [_check_type(f"{dotted}[{i}]", v, item_types[dotted](0)) for i, v in enumerate(out[key])]
         else:
             out[key] = _check_type(dotted, value, default)
+        if item_types and dotted in item_types and isinstance(out[key], list):
+            out[key] = [_check_type(f"{dotted}[{i}]", v, item_types[dotted](0)) for i, v in enumerate(out[key])]
         if dotted in choices and out[key] not in choices[dotted]:
             raise ConfigError(f"{dotted}: {out[key]!r} is not allowed; choose one of {', '.join(map(str, choices[dotted]))}")
     return out

@@ -127,16 +127,15 @@ def declared_types(cls: type, prefix: str = "") -> dict[str, tuple[type, ...]]:
 
 
 def declared_item_types(cls: type, prefix: str = "") -> dict[str, type]:
-    """Dotted key -> the type every item must have, for keys whose default is ``None`` and
-    whose annotation is a list or tuple of one number type (``tuple[float, float, float] |
-    None`` -> ``float``): a string or a bool among the items is refused like a bad scalar."""
+    """Dotted key -> the type every item must have, for keys whose annotation is a list or
+    tuple of one number type (``tuple[float, float, float] | None`` -> ``float``,
+    ``tuple[int, ...]`` -> ``int``): a string or a bool among the items is refused like a
+    bad scalar, also where the default (null, an empty list) shows no item to compare with."""
     hints = typing.get_type_hints(cls)
     out: dict[str, type] = {}
     for f in _fields(cls):
         if _is_section(f):
             out.update(declared_item_types(_section_type(cls, f), f"{prefix}{f.name}."))
-            continue
-        if f.default is not None:
             continue
         hint = hints.get(f.name, Any)
         args = typing.get_args(hint) if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union else (hint,)

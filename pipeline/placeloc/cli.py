@@ -94,8 +94,42 @@ def _one_line(exc: BaseException) -> str:
                 "or executor.workers, or free memory")
     if isinstance(exc, OSError):
         return _os_error_line(exc)
+    if _non_utf8_name(exc):
+        return (f"'{_shown(exc.object)}' is not valid UTF-8 text (a file or folder name in another encoding); rename it "
+                "in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME)")
     text = " ".join(str(exc).split())
     return text or type(exc).__name__
+
+
+def _non_utf8_name(exc: BaseException) -> bool:
+    """A name that came from the file system or the command line in another encoding: Python
+    holds its bytes as lone surrogates, and writing it as UTF-8 (a log, a report, an HDF5
+    string) fails. The user's file name, not a bug."""
+    return (isinstance(exc, UnicodeEncodeError) and exc.reason == "surrogates not allowed"
+            and isinstance(exc.object, str))
+
+
+def _shown(text: str) -> str:
+    """Text with the bytes that are not UTF-8 shown as \\xNN."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def _check_utf8_path(path: Path | None, what: str) -> None:
+    """Refuse, before any work, a path argument that is not valid UTF-8 (the run would fail
+    when it first writes the name into its log, report or artifacts)."""
+    from placeloc.core.errors import ConfigError
+
+    if path is not None and not _is_utf8(str(path)):
+        raise ConfigError(f"{what} '{_shown(str(path))}' is not valid UTF-8 text (a name in another encoding); rename "
+                          "it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME) or choose another path")
+
+
+def _is_utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def classify(exc: BaseException) -> str:
@@ -120,7 +154,7 @@ def classify(exc: BaseException) -> str:
 
     if isinstance(exc, (EnvironmentFailure, MemoryError, BrokenProcessPool)):
         return "environment"
-    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)):
+    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)) or _non_utf8_name(exc):
         return "user"
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and isinstance(exc, cv2.error):
@@ -315,6 +349,7 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
     from placeloc.core.runner import run_stage
 
     _setup_logging(quiet)
+    _check_utf8_path(run_dir, "--run-dir")
     # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
     cfg = load_config(config, sets)
     out = run_dir or Path("runs") / config.stem

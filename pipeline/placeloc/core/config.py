@@ -110,6 +110,7 @@ def apply_override(data: dict, item: str) -> None:
     if "=" not in item:
         raise ConfigError(f"--set {item!r}: expected key.path=value, e.g. --set seqslam.ds=20")
     key, raw = item.split("=", 1)
+    _check_finite(f"--set {key.strip()}", raw, None)  # text that is not UTF-8, named before YAML's own words for it
     try:
         value = safe_yaml(raw) if raw.strip() else None
     except yaml.YAMLError as exc:
@@ -264,9 +265,31 @@ def _non_finite(value: Any) -> float | int | None:
     return None
 
 
+def _not_utf8(value: Any) -> str | None:
+    """The first string in a value that is not valid UTF-8 (a ``--set`` argument or a path
+    with bytes the locale could not decode reaches Python as lone surrogates), else None."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return value
+        return None
+    items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+    for item in items:
+        bad = _not_utf8(item)
+        if bad is not None:
+            return bad
+    return None
+
+
 def _check_finite(key: str, value: Any, default: Any) -> None:
-    """Refuse NaN and infinities (``.nan``, ``.inf``, ``-.inf`` in YAML), and integers no
-    array index holds, in any value."""
+    """Refuse NaN and infinities (``.nan``, ``.inf``, ``-.inf`` in YAML), integers no array
+    index holds, and text that is not valid UTF-8, in any value."""
+    text = _not_utf8(value)
+    if text is not None:
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise ConfigError(f"{key}: '{shown}' is not valid UTF-8 text; rename the file or folder in UTF-8 "
+                          "(e.g. convmv -f latin1 -t utf8 --notest NAME) and give the new name")
     bad = _non_finite(value)
     if bad is None:
         return

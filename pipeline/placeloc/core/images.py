@@ -100,6 +100,12 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     p = Path(spec)
     skipped: list[str] = []
 
+    def refuse(message: str) -> bool:
+        if on_error == "skip":
+            skipped.append(message)
+            return False
+        raise ImageError(message)
+
     def usable(path: Path, entry: os.DirEntry | None = None) -> bool:
         """A regular file (or a link to one). A link loop is an error naming the link, or
         skipped (and recorded in the artifact) with on_error: skip."""
@@ -120,6 +126,10 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
         """Listed as an image; when not, say why in ``not_read`` (an image placeloc does not
         read) or ``others`` (not an image)."""
         if path.suffix.lower() in IMAGE_EXTENSIONS:
+            if not _utf8(path.name):
+                return refuse(f"{path.parent}/{shown_name(path.name)}: the file name is not valid UTF-8 text (its "
+                              "bytes are shown escaped); rename it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest "
+                              "FILE), or set on_error: skip beside images:")
             return usable(path, entry)
         reason = _why_not_read(path, entry)
         if reason is None:
@@ -147,6 +157,22 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
         _warn_once(spec, not_read)
     return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped,
                     not_read=not_read, others=sorted(others, key=natural_key))
+
+
+def _utf8(name: str) -> bool:
+    """True when a file name decoded from the file system is valid UTF-8 (Python keeps the
+    bytes of a name that is not as lone surrogates, which no text file, HDF5 string or
+    report can hold)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_name(name: str) -> str:
+    """A file name as printable text: bytes that are not UTF-8 appear as \\xNN."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def _why_not_read(path: Path, entry: os.DirEntry | None) -> str | None:

@@ -196,7 +196,8 @@ class _Table:
 def main() -> int:
     here = Path(__file__).resolve().parent
     table = _Table()
-    args = ["-q", "-p", "no:cacheprovider", str(here / "test_faults.py"), str(here / "test_faults_round2.py"), *sys.argv[1:]]
+    args = ["-q", "-p", "no:cacheprovider", str(here / "test_faults.py"), str(here / "test_faults_round2.py"),
+            str(here / "test_faults_round3_input.py"), *sys.argv[1:]]
     rc = pytest.main(args, plugins=[table])
     table.print_table()
     return int(rc)

@@ -115,6 +115,7 @@ def test_environment_megabytes_are_parsed_by_one_function(route, tmp_path, monke
     ("frames=true", "synth route: frames must be an integer, got True (bool)"),
     ("step=.inf", "synth route: step must be a number, got inf (float)"),
     ("framez=10", "synth route: unknown setting 'framez'; known: frames, width"),
+    ("width=-5", "synth route: width must be >= 1, got -5; e.g. --set width=128"),
 ])
 def test_synth_set_values_are_typed_like_config_values(tmp_path, setting, shown):
     res = _cli(["synth", "route", str(tmp_path / "out"), "--set", setting])
@@ -129,6 +130,24 @@ def test_synth_set_still_takes_good_values(tmp_path):
     res = _cli(["synth", "route", str(tmp_path / "out"), "--set", "frames=12"])
     assert res.exit_code == 0, _err(res)
     assert len(list((tmp_path / "out" / "reference").glob("*.png"))) == 12
+
+
+def test_an_empty_recall_at_list_is_refused_at_config_check(route):
+    with pytest.raises(ConfigError, match=r"ground_truth.recall_at: \[\] has 0 item\(s\); it needs at least 1"):
+        load_config(route / "config.yaml", ["ground_truth.recall_at=[]"])
+
+
+def test_show_options_are_checked_and_show_runs_as_a_module(route, tmp_path):
+    """`python -m placeloc.cli show` ran main() before show was registered ("No such
+    command"); a bad --recall-at was Python's int() message."""
+    run = tmp_path / "r"
+    assert _cli(["run", str(route / "config.yaml"), "--run-dir", str(run), "-q", "--set", "plots=false"]).exit_code == 0
+    proc = _popen(["show", str(run), "--recall-at", "1,x"])
+    lines = _lines(proc.stderr)
+    assert proc.returncode == 2 and lines == ["error: --recall-at '1,x': give whole numbers from 1, separated by commas, "
+                                              "e.g. --recall-at 1,5,10"], proc.stderr
+    proc = _popen(["show", str(run), "--recall-at", "1,5", "-q"])
+    assert proc.returncode == 0 and "recall@5:" in proc.stdout, proc.stderr
 
 
 # --- floor plans and ZInD imports: one validator

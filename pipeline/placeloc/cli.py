@@ -614,21 +614,19 @@ def _exit_now(code: int) -> None:
     os._exit(code)
 
 
-if __name__ == "__main__":
-    main()
-
 
 # ---------------------------------------------------------------------------------------
 # Looking at results and sweeping parameters (evaluation layer)
 # ---------------------------------------------------------------------------------------
 @app.command()
 def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
-         sample: int = typer.Option(8, help="Queries spread over the traverse to draw."),
-         failures: int = typer.Option(8, help="Most confident wrong matches to draw (needs ground truth)."),
+         sample: int = typer.Option(8, min=0, help="Queries spread over the traverse to draw."),
+         failures: int = typer.Option(8, min=0, help="Most confident wrong matches to draw (needs ground truth)."),
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
     """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
+    from placeloc.core.errors import ConfigError
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
@@ -639,7 +637,9 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
         for path in pictures:
             typer.echo(f"picture: {path}")
         if recall_at:
-            ns = [int(n) for n in recall_at.split(",") if n.strip()]
+            ns = [int(n) for n in recall_at.split(",") if n.strip().isdigit() and int(n) >= 1]
+            if len(ns) != len([n for n in recall_at.split(",") if n.strip()]):
+                raise ConfigError(f"--recall-at {recall_at!r}: give whole numbers from 1, separated by commas, e.g. --recall-at 1,5,10")
             for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
                 fmt = lambda v: "n/a" if v is None else f"{v:.4f}"  # noqa: E731
                 typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
@@ -674,3 +674,9 @@ def sweep(config: Path = ConfigArg,
         _fail(exc)
     typer.echo(table.read_text())
     _say_written(table.parent, ("sweep.md", "sweep.csv", "sweep.png"), "one run directory per combination")
+
+
+# Last, after every command is registered: `python -m placeloc.cli show` ran main() before
+# show and sweep (defined below the first such block) existed.
+if __name__ == "__main__":
+    main()

@@ -81,6 +81,12 @@ def parse_settings(kind: str, items: list[str]) -> dict[str, Any]:
             kinds = " or ".join(_WORDS.get(t, t.__name__) for t in allowed) or "a value"
             raise ConfigError(f"synth {kind}: {name} must be {kinds}, got {value!r} ({type(value).__name__}); "
                               f"e.g. --set {name}={default if default is not None else '...'}")
+        # An integer setting is a count or a size: one whose default is positive needs at
+        # least 1 (0 frames, a width of -5), one whose default is 0 (dwell) at least 0.
+        least = 1 if isinstance(default, int) and default > 0 else 0
+        if isinstance(value, int) and not isinstance(value, bool) and int in allowed and isinstance(default, int) \
+                and not isinstance(default, bool) and value < least:
+            raise ConfigError(f"synth {kind}: {name} must be >= {least}, got {value}; e.g. --set {name}={default}")
         out[name] = float(value) if float in allowed and int not in allowed and isinstance(value, int) else value
     return out
 

@@ -323,7 +323,8 @@ def _check_declared(key: str, value: Any, allowed: tuple[type, ...]) -> Any:
 
 def _check_type(key: str, value: Any, default: Any) -> Any:
     def fail(kind: str) -> ConfigError:
-        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}); e.g. {key}: {default!r}")
+        hint = P.text_number_hint(value) if kind in ("an integer", "a number") else ""
+        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}){hint}; e.g. {key}: {default!r}")
 
     if default is None or value is None and not isinstance(default, (bool, int, float, list)):
         return value

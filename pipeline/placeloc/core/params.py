@@ -235,3 +235,17 @@ def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list
                 problems.append(f"{prefix}{key}: {node!r} is out of range; it must be {rng}")
                 break
     return problems
+
+
+def text_number_hint(value: Any) -> str:
+    """For text where a number belongs that reads as one: why it is text. YAML 1.1 (PyYAML)
+    reads ``1e12`` and ``1.0e12`` as strings (a float needs a dot and a signed exponent,
+    ``1.0e+12``), and a quoted ``'10'`` is a string."""
+    if not isinstance(value, str):
+        return ""
+    try:
+        float(value)
+    except ValueError:
+        return ""
+    signed = ", and exponents with a dot and a sign: 1.0e+12" if "e" in value.lower() else ""
+    return f" (YAML read it as text: write the number without quotes{signed})"

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from placeloc.core.errors import ModelError
+from placeloc.core.params import text_number_hint
 
 
 def number(value: Any, source: str, what: str, *, positive: bool = False) -> float:
@@ -25,7 +26,8 @@ def number(value: Any, source: str, what: str, *, positive: bool = False) -> flo
     naming ``what``. A bool or a string is not a number here, as in a config."""
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if not ok:
-        raise ModelError(f"{source}: {what} = {value!r} is not a finite number; write it as a number (metres)")
+        raise ModelError(f"{source}: {what} = {value!r} is not a finite number{text_number_hint(value)}; write it as a "
+                         "number (metres)")
     if positive and value <= 0:
         raise ModelError(f"{source}: {what} = {value!r} must be above 0")
     return float(value)

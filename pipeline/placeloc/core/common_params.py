@@ -48,7 +48,7 @@ class GroundTruthParams(Params):
     # 25 m is the VPR-Bench / Berton et al. VPR-methods-evaluation convention for street-level data.
     radius: float = param(25.0, min=0, min_exclusive=True,
                           help="poses: metres within which a reference (or loop closure) is correct")
-    recall_at: tuple[int, ...] = param([1, 5, 10, 20], min=1, help="the N of Recall@N in metrics.json and the "
+    recall_at: tuple[int, ...] = param([1, 5, 10, 20], min=1, min_len=1, help="the N of Recall@N in metrics.json and the "
                                                                    "Recall@N curve")
     # The evaluation kit of the public loop-closure sets (City Centre, New College, Lip6) uses
     # frame rate x 40 s; 50 frames matches SeqSLAM's own loop-mode exclusion by default.

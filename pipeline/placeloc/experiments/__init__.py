@@ -59,12 +59,22 @@ def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
 
 
 def shared_data_dir() -> Path | None:
-    """``../shared/data`` beside the checkout (or $PLACELOC_SHARED_DATA), if present."""
+    """The shared data folder: $PLACELOC_SHARED_DATA when set, else ``../shared/data`` beside
+    the checkout (or beside the working folder) if present, else None. A variable that is
+    set but names no folder is an error naming it: falling back in silence would run the
+    experiments on other data (or skip them) while the user believes their folder is used."""
+    from placeloc.core.errors import ConfigError
+
     env = os.environ.get("PLACELOC_SHARED_DATA")
-    candidates = [Path(env)] if env else []
+    if env is not None and env.strip():
+        given = Path(env).expanduser()
+        if not given.is_dir():
+            what = "is a file, not a folder" if given.exists() else "does not exist"
+            raise ConfigError(f"PLACELOC_SHARED_DATA={env!r} {what}; point it at the shared data folder (the one "
+                              "holding corridor/, nordland-dev/, tears-of-steel/) or unset it (unset PLACELOC_SHARED_DATA)")
+        return given
     here = Path(__file__).resolve().parents[3]  # the checkout: pipeline/placeloc/experiments/ -> ./
-    candidates += [here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"]
-    for c in candidates:
+    for c in (here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"):
         if c.is_dir():
             return c
     return None

@@ -17,11 +17,13 @@ from placeloc.retrieval.params import RetrievalParams
 
 
 def _check(config: dict) -> None:
+    from placeloc.core.descriptors import check_descriptor_pair
     from placeloc.core.errors import ConfigError
 
     p = config["retrieval"]
     if (p["descriptors_reference"] is None) != (p["descriptors_query"] is None):
         raise ConfigError("retrieval: give both descriptors_reference and descriptors_query, or neither (thumbnails)")
+    check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "retrieval.descriptors")
 
 
 def extract(ctx: Any) -> None:

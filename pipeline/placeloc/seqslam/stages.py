@@ -41,6 +41,7 @@ log = logging.getLogger("placeloc")
 
 def _check(config: dict) -> None:
     from placeloc.core.config import ConfigError
+    from placeloc.core.descriptors import check_descriptor_pair
 
     p = config["seqslam"]
     if p["v_max"] < p["v_min"]:
@@ -51,6 +52,7 @@ def _check(config: dict) -> None:
     if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
         raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
                           "images need descriptors too")
+    check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "seqslam.descriptors")
 
 
 # ---------------------------------------------------------------------------------------

@@ -124,3 +124,20 @@ def test_real_video_with_a_tunnel_runs_through(tmp_path: Path, caplog: pytest.Lo
     assert "frames of 64 x 32 give few features" in text
     with h5py.File(tmp_path / "run" / "extract.h5") as f:
         assert int((f["reference/n_features"][()] == 0).sum()) == 15
+
+
+def test_unmet_index_target_says_the_sample_was_too_small(caplog: pytest.LogCaptureFixture) -> None:
+    """On a two-frame video the query sample agrees perfectly on 25 matches, too few for the
+    95 % bound to reach 0.97: the warning gives the counts instead of a bare contradiction."""
+    from placeloc.pirf.params import PirfParams
+    from placeloc.pirf.stages import _warn_if_unmet
+    from placeloc.pirf.tuning import lower_bound
+
+    assert lower_bound(1.0, 25) < 0.97 <= lower_bound(1.0, 400)
+    tuned = {"target_met": False, "value": 1024, "mt_recall": 1.0, "mt_jaccard": 1.0, "mt_matched": 25,
+             "nn_recall": 1.0, "nn_count": 50}
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        _warn_if_unmet(tuned, PirfParams(), "localize", "the query sample")
+    assert ("localize: no faiss-hnsw setting up to 1024 shows m_t recall 0.97 / Jaccard 0.95 with 95 % confidence on "
+            "the query sample (it gives 1.000 / 1.000 on 25 ratio-test matches, nearest-neighbour recall 1.000 on 50 "
+            "neighbours)") in caplog.text

@@ -97,7 +97,7 @@ def blank_frames_note(role: str, names: list[str], n_features: np.ndarray, kind:
         return None
     listed = ", ".join(names[k] for k in blank[:shown]) + (f" and {len(blank) - shown} more" if len(blank) > shown else "")
     return (f"{role}: {len(blank)} of {len(n_features)} frames have no {kind} features (blank or featureless: {listed}); "
-            "kept as frames without PIRFs, they close no loop (pirf.blank_frames: stop refuses them instead)")
+            "kept as frames without PIRFs, which match nothing (pirf.blank_frames: stop refuses them instead)")
 
 
 def few_features_note(role: str, n_features: np.ndarray, n_pirfs: np.ndarray, windows: np.ndarray, *, shape: tuple[int, int],

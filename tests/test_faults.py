@@ -465,6 +465,7 @@ def test_error_classes_are_user_errors():
     ("executor.workers=0", "executor.workers: 0 is out of range; it must be >= 1"),
     ("ground_truth.tolerance=-2", "ground_truth.tolerance: -2 is out of range"),
     ("ground_truth.radius=0", "ground_truth.radius: 0.0 is out of range; it must be > 0"),
+    ("ground_truth.exclude_recent=-1", "ground_truth.exclude_recent: -1 is out of range; it must be >= 0"),
     ("seqslam.v_min=2.0", "seqslam.v_min (2.0) is larger than seqslam.v_max (1.2)"),
     ("reference.images=[1, 2]", "reference.images must be a string or null"),
     ("query.fingerprint=md5", "query.fingerprint: 'md5' is not allowed; choose one of stat, content"),
@@ -479,7 +480,7 @@ def test_common_ranges_types_and_cross_key_rules(route, override, expect):
     ("pirf", "tau=-0.1", "pirf.tau"), ("pirf", "kdtree_trees=0", "pirf.kdtree_trees"), ("pirf", "hnsw_m=0", "pirf.hnsw_m"),
     ("umap", "query_thickness_px=0", "umap.query_thickness_px"),
     ("seqslam", "images_per_task=0", "seqslam.images_per_task"), ("seqslam", "gaussian_sigma=-1", "seqslam.gaussian_sigma"),
-    ("seqslam", "ocm_epsilon=-1", "seqslam.ocm_epsilon"), ("seqslam", "exclude_recent=-1", "seqslam.exclude_recent"),
+    ("seqslam", "ocm_epsilon=-1", "seqslam.ocm_epsilon"),
     ("seqslam", "patch=40", "seqslam.patch (40) is larger than the thumbnail (64x32)"),
 ])
 def test_parameters_that_cannot_work_are_refused(route, method, override, key):

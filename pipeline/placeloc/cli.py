@@ -20,6 +20,7 @@ from typer.core import TyperGroup
 
 from placeloc.core.interrupts import Terminated, raise_if_interrupted
 from placeloc.core.interrupts import install as install_signal_handlers
+from placeloc.core.methods import METHOD_NAMES
 
 try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
     from typer._click import ClickException
@@ -253,8 +254,9 @@ class ErrorBoundaryGroup(TyperGroup):
 
 app = typer.Typer(
     cls=ErrorBoundaryGroup,
-    help="placeloc: where am I, from images alone. Staged, resumable localization pipelines "
-    "(SeqSLAM, PIRF-nav2, UMap, co-embedding) over image folders, with HDF5 artifacts.",
+    help="placeloc: where am I, from images alone. Staged, resumable localization pipelines over image folders, "
+    f"with HDF5 artifacts. Methods (a config's `method:`): {', '.join(METHOD_NAMES)}; `placeloc params METHOD` lists "
+    "one's settings.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

@@ -29,6 +29,7 @@ from placeloc.core import params as P
 from placeloc.core.common_params import CommonParams
 from placeloc.core.errors import ConfigError  # noqa: F401 - re-exported: placeloc.core.config.ConfigError
 from placeloc.core.safe_io import MAX_YAML_DEPTH, load_yaml  # noqa: F401 - re-exported: the one YAML parser
+from placeloc.core.shared_data import SHARED_PREFIX, resolve_shared
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
@@ -352,6 +353,9 @@ def _resolve_path(config: dict, dotted: str, base_dir: Path) -> None:
     if node is None or node.get(leaf) is None:
         return
     value = str(node[leaf])
+    if value.startswith(SHARED_PREFIX):
+        node[leaf] = str(resolve_shared(value, dotted))
+        return
     p = Path(value).expanduser()
     node[leaf] = str(p if p.is_absolute() else (base_dir / p).resolve())
 

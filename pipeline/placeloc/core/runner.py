@@ -190,7 +190,7 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     sections = declared.sections if declared is not None else ()
     section = config.get(method.name, {})
     method_part = {k: _lookup(section, k) for k in keys}
-    common = {k: config.get(k) for k in BASE_SECTIONS + tuple(sections)}
+    common = {k: _lookup(config, k) for k in BASE_SECTIONS + tuple(sections)}  # a section, or one key of it (dotted)
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
     if stage == STAGES[0]:
         for role, s in images.items():

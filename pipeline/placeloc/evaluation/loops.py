@@ -228,6 +228,7 @@ def score_loops(truth: Any, frames: np.ndarray, match: np.ndarray, *, exclude_re
 
 
 def evaluate(ctx: Any, res: Result) -> Evaluation:
+    from placeloc.core.common_params import LOOP_EXCLUSION_FRAMES, loop_exclusion
     from placeloc.core.errors import StageError
     from placeloc.evaluation.metrics import pr_curve, tail_mean
 
@@ -240,7 +241,10 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
     n = len(images.paths) if images is not None else int(res.attrs.get("n_listed", len(res["frame_index"])))
     names = list(images.names) if images is not None else names_by_index(res["frame_index"], res["frame_names"], n)
     truth = loop_truth(section, names)
-    exclude, tol = int(section["exclude_recent"]), int(section.get("tolerance") or 0)
+    exclude, exclude_rule = loop_exclusion(section["exclude_recent"], n)
+    (log.info if section["exclude_recent"] is not None or exclude == LOOP_EXCLUSION_FRAMES else log.warning)(
+        "loop closures: pairs fewer than %d frames apart never count: %s", exclude, exclude_rule)
+    tol = int(section.get("tolerance") or 0)
     frames, match, conf = res["frame_index"], res["match"], np.asarray(res["confidence"], np.float64)
     candidate, correct, has_loop, example = score_loops(truth, frames, match, exclude_recent=exclude, tolerance=tol)
     n_loop = int(has_loop.sum())
@@ -256,7 +260,7 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
         m["threshold"] = float(threshold)
     m.update({"n_frames": int(len(frames)), "frames_with_loop": n_loop, "n_candidates": int(candidate.sum()),
               "n_accepted": int((candidate & (conf >= float(threshold))).sum()) if threshold is not None else int(candidate.sum()),
-              "exclude_recent": exclude, "tolerance": tol,
+              "exclude_recent": exclude, "exclude_recent_rule": exclude_rule, "tolerance": tol,
               "seconds_per_frame": None, "seconds_per_frame_end": None, "map_size_end": None})
     if "seconds" in res and len(res["seconds"]):
         sec = np.asarray(res["seconds"], np.float64)

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 from placeloc.core.artifacts import atomic_open
+from placeloc.core.shared_data import shared_data_dir  # noqa: F401 - the one lookup, re-exported for experiments
 
 
 def _discover() -> dict[str, str]:
@@ -58,23 +58,3 @@ def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
     return path
 
 
-def shared_data_dir() -> Path | None:
-    """The shared data folder: $PLACELOC_SHARED_DATA when set, else ``../shared/data`` beside
-    the checkout (or beside the working folder) if present, else None. A variable that is
-    set but names no folder is an error naming it: falling back in silence would run the
-    experiments on other data (or skip them) while the user believes their folder is used."""
-    from placeloc.core.errors import ConfigError
-
-    env = os.environ.get("PLACELOC_SHARED_DATA")
-    if env is not None and env.strip():
-        given = Path(env).expanduser()
-        if not given.is_dir():
-            what = "is a file, not a folder" if given.exists() else "does not exist"
-            raise ConfigError(f"PLACELOC_SHARED_DATA={env!r} {what}; point it at the shared data folder (the one "
-                              "holding corridor/, nordland-dev/, tears-of-steel/) or unset it (unset PLACELOC_SHARED_DATA)")
-        return given
-    here = Path(__file__).resolve().parents[3]  # the checkout: pipeline/placeloc/experiments/ -> ./
-    for c in (here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"):
-        if c.is_dir():
-            return c
-    return None

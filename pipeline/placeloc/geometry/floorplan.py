@@ -149,8 +149,9 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     if isinstance(data, list):
         data = {"segments": data}
     if not isinstance(data, dict) or "segments" not in data:
-        raise ModelError(f"{path}: expected a list of segments [x0, y0, z0, x1, y1, z1], a mapping with 'segments', "
-                         "or a floor plan with 'outline'")
+        raise ModelError(f"{path}: expected a floor plan with 'rooms:' (a list of {{name, polygon: [[x, y], ...], "
+                         "ceiling_z}}, as in docs/umap.md) or one 'outline:', or a wireframe: a list of segments "
+                         "[x0, y0, z0, x1, y1, z1] or a mapping with 'segments'")
     segs = _rows(data["segments"], 6, path, "segments", "[x0, y0, z0, x1, y1, z1]")
     faces = _rows(data.get("faces") or [], 6, path, "faces", "[x0, y0, x1, y1, z0, z1]")
     camera_z = data.get("camera_z")

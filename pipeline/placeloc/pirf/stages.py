@@ -27,6 +27,7 @@ import numpy as np
 
 from placeloc.core.artifacts import write_tree
 from placeloc.core.config import ConfigError
+from placeloc.core.errors import StageError
 from placeloc.core.images import ImageError, list_images, read_gray
 from placeloc.core.imagework import ImageResult, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
@@ -34,7 +35,7 @@ from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import extract_frame, frame_arrays
+from placeloc.pirf.features import blank_frames_note, extract_frame, few_features_note, frame_arrays
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
 from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_count, tail_mean
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
@@ -57,11 +58,20 @@ def _check(config: dict) -> None:
         raise ConfigError(f"pirf: need w_size_default <= w_size_max, got {p['w_size_default']} and {p['w_size_max']}")
     gt = config["ground_truth"]
     if gt["kind"] not in ("none", "poses", "matrix", "csv"):
-        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius) or a "
-                          f"loop-closure matrix, not {gt['kind']!r}; set ground_truth.kind: poses with ground_truth.path = the "
-                          "reference poses CSV (and pirf.query_poses for the query's), or kind: matrix")
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius), a "
+                          f"loop-closure matrix or a CSV of pairs, not {gt['kind']!r}; set ground_truth.kind: poses with "
+                          "ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's), kind: matrix "
+                          "or kind: csv")
     if p["query_poses"] is not None and gt["kind"] != "poses":
         raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
+    # A PIRF is a feature matched from one frame into the next: one frame gives none.
+    for role in ("reference", "query"):
+        section = config.get(role) or {}
+        if section.get("images"):
+            n = len(list_images(section["images"], section.get("on_error", "stop")))
+            if n < 2:
+                raise ConfigError(f"{role}.images: {section['images']} holds {n} image; PIRF-nav2 matches features from "
+                                  "frame to frame and needs a video of at least 2 frames")
     # Every image needs a pose: check the counts now, not after mapping.
     for role, path in (("reference", gt["path"] if gt["kind"] == "poses" else None), ("query", p["query_poses"])):
         section = config.get(role) or {}
@@ -101,6 +111,10 @@ def stage_extract(ctx: Any) -> None:
         g = ctx.out[role]
         g.attrs["height"], g.attrs["width"] = table.first_shape
         g.attrs["dim"] = g["pirfs"].shape[1]
+        blank = blank_frames_note(role, list(table.names), g["n_features"][()], p.features)
+        if blank:
+            log.warning("%s", blank)
+        g.attrs["blank_frames_note"] = blank or ""
 
 
 def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
@@ -118,6 +132,13 @@ def stage_build(ctx: Any) -> None:
     p = ctx.params
     ex = ctx.artifact("extract")
     pirfs, off = _pirfs(ex, "reference")
+    g = ex["reference"]
+    few = few_features_note("reference", g["n_features"][()], np.diff(off), g["window"][()],
+                            shape=(int(g.attrs["height"]), int(g.attrs["width"])), kind=str(ex.attrs["features"]),
+                            n_pmin=p.n_pmin, tau=p.tau)
+    if few:
+        log.warning("%s", few)
+    ctx.out.attrs["few_features_note"] = few or ""
     bar = lambda it: ctx.progress(it, total=len(off) - 1, desc=f"map ({p.update})")  # noqa: E731
     res = map_video(pirfs, off, ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=p.map_search,
                     hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
@@ -135,7 +156,7 @@ def stage_build(ctx: Any) -> None:
     ctx.out.attrs["map_search"] = p.map_search
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
-    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
+    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]), maxshape=(None, d.shape[1]))
     ctx.out.attrs["verify_frames"] = p.verify_frames
     cand = {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]}
     write_tree(ctx.out, {**res, "loop_closures": {k: v[keep] for k, v in cand.items()},
@@ -171,7 +192,18 @@ def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_fr
 # -- index ----------------------------------------------------------------------------
 def stage_index(ctx: Any) -> None:
     p = ctx.params
+    if "query" not in ctx.artifact("extract"):
+        # Loop closure alone: the map finds its own closures while it grows; the index of
+        # the finished dictionary serves only a query traverse's m_t.
+        ctx.out.attrs["backend"] = "none"
+        ctx.out.attrs["note"] = "no query traverse configured: no index built (loop closure needs none)"
+        return
     d = ctx.artifact("build-dictionary")["dictionary"][()]
+    if len(d) < 2:
+        ex = ctx.artifact("extract")["reference"]
+        raise StageError(f"{ex.attrs['source']}: the map holds {len(d)} dictionary entries, too few to localize a query "
+                         f"against ({int((ex['n_features'][()] == 0).sum())} of {len(ex['n_features'])} frames have no "
+                         f"features); map a longer or more textured video")
     seed = int(ctx.config["seed"])
     idx = AnnIndex(p.index, d, index_settings(p), seed)
     tuned = None
@@ -190,9 +222,12 @@ def stage_index(ctx: Any) -> None:
 
 def _warn_if_unmet(tuned: dict[str, Any], p: PirfParams, stage: str, sample: str) -> None:
     if not tuned["target_met"]:
-        log.warning("%s: no %s setting up to %s reaches m_t recall %s / Jaccard %s on %s (it gives %.3f / %.3f); "
+        # The targets must hold with 95 % confidence (placeloc.pirf.tuning.meets): a small
+        # sample can agree perfectly and still not show it.
+        log.warning("%s: no %s setting up to %s shows m_t recall %s / Jaccard %s with 95 %% confidence on %s (it "
+                    "gives %.3f / %.3f on %d ratio-test matches, nearest-neighbour recall %.3f on %d neighbours); "
                     "using it anyway", stage, p.index, tuned["value"], p.index_recall, p.index_jaccard, sample,
-                    tuned["mt_recall"], tuned["mt_jaccard"])
+                    tuned["mt_recall"], tuned["mt_jaccard"], tuned["mt_matched"], tuned["nn_recall"], tuned["nn_count"])
 
 
 def _write_tuning(g: Any, tuned: dict[str, Any]) -> None:
@@ -285,7 +320,8 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
-                         "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
+                         "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f)),
+                         "frames_without_features": int((ex["reference/n_features"][()] == 0).sum())}
     m.update(_mapping_cost(build))
     correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
     if correct is not None:
@@ -310,7 +346,8 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     for k in ("accuracy_gap0", "accuracy_gap1", "accuracy_gap2", "jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
               "mt_seconds_bf", "mt_seconds_ann", "mt_total_seconds_bf", "mt_total_seconds_ann"):
         m[k] = None
-    tunings = {"index_tuned": ctx.artifact("index")["index"].attrs}
+    index_h5 = ctx.artifact("index")
+    tunings = {"index_tuned": index_h5["index"].attrs} if "index" in index_h5 else {}
     if "query_tuning" in loc:
         tunings["index_query_tuned"] = loc["query_tuning"].attrs
     for prefix, tuned in tunings.items():

@@ -42,7 +42,6 @@ class SeqSLAMParams(Params):
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")
     search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
-    exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
     top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")
     images_per_task: int = param(256, min=1, affects_result=False, help="images per extraction task (bigger amortises process/Dask overhead)")
     block_size: int = param(1024, min=1, affects_result=False, help="query columns per difference-matrix block (bounds memory)")

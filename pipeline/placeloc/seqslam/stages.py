@@ -92,6 +92,16 @@ def _extract_descriptors(ctx: Any) -> None:
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
+def _loop_exclusion(ctx: Any) -> int:
+    """ground_truth.exclude_recent for this traverse (adapted to its length when not set),
+    as the loops contract scores it: a frame never matches the frames just before it."""
+    from placeloc.core.common_params import loop_exclusion
+
+    images = ctx.images.get("reference")
+    n = len(images.paths) if images is not None else len(ctx.artifact("extract")["reference/index"])
+    return loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], n)[0]
+
+
 def localize(ctx: Any) -> None:
     """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
     ``loops`` contract (no query: each frame against the earlier ones)."""
@@ -119,7 +129,7 @@ def localize(ctx: Any) -> None:
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
-                       exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
+                       exclude_recent=_loop_exclusion(ctx) if loop_closure else None, block_size=int(p.block_size),
                        # Blocks run in this process: the difference kernel, the enhancement and the
                        # search are threaded over every usable core already, and a pool worker would
                        # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
@@ -267,7 +277,8 @@ METHOD = Method(
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
-                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
+                                          "search", "sequence_shape", "edges", "top_k", "store_difference"),
+                          sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",
     result_without_query="loops",

@@ -98,12 +98,15 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
 
 def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, matches: np.ndarray | None = None,
                              correct: np.ndarray | None = None, gt_lo: np.ndarray | None = None,
-                             gt_hi: np.ndarray | None = None, stride: tuple[int, int] = (1, 1), title: str = "") -> Path:
+                             gt_hi: np.ndarray | None = None, gt_points: tuple[np.ndarray, np.ndarray] | None = None,
+                             stride: tuple[int, int] = (1, 1), title: str = "") -> Path:
     """Difference matrices side by side (e.g. raw and enhanced), each with a colour bar:
     rows = reference, columns = query, darker = more alike. Under the matches (green =
     correct, red = wrong, orange = no ground truth) the ground-truth band is outlined in
-    cyan, so that it stays visible where a match hides it. ``stride`` = (reference,
-    query) subsampling already applied; axes are in original frame numbers."""
+    cyan, so that it stays visible where a match hides it; a truth that is no band (a
+    loop-closure matrix: several revisits per frame) is drawn as cyan points
+    ``gt_points`` = (query, reference). The legend lists only what is drawn. ``stride`` =
+    (reference, query) subsampling already applied; axes are in original frame numbers."""
     n = len(panels)
     fig, axes = plt.subplots(1, n, figsize=(6.6 * n, 5.6), squeeze=False, layout="constrained")
     sr, sq = stride
@@ -115,7 +118,9 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
                        extent=(-0.5 * sq, (nq - 0.5) * sq, (nr - 0.5) * sr, -0.5 * sr))
         cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
         cb.set_label(f"{name} (lower = more alike)", fontsize=8)
-        if gt_lo is not None and gt_hi is not None:
+        if gt_points is not None and len(gt_points[0]):
+            ax.scatter(gt_points[0], gt_points[1], s=2, c="cyan", alpha=0.5, lw=0, zorder=2, label="ground truth (a true pair)")
+        if gt_lo is not None and gt_hi is not None and (gt_hi >= gt_lo).any():
             q = np.arange(len(gt_lo))
             ok = gt_hi >= gt_lo
             ax.fill_between(q[ok], gt_lo[ok] - 0.5, gt_hi[ok] + 0.5, color="cyan", alpha=0.18, lw=0, zorder=2)

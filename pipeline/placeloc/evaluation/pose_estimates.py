@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+from placeloc.evaluation.contracts import Field, PoseEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads
 SECTIONS = ("ground_truth", "plots")
@@ -42,7 +42,10 @@ METRICS_DOC = {
     "within_1m_30deg": "share of frames within 1 m and 30 degrees of the truth (headline)",
     "within_0_5m / within_1m / within_2m": "share of frames within that distance",
     "median_error_m": "median position error in metres",
+    "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per frame",
 }
+# counts (kept apart from the scores in metrics.json)
+COUNTS = ("n_frames",)
 
 
 def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
@@ -124,15 +127,21 @@ def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[st
 # ---------------------------------------------------------------------------------------
 # evaluate, pictures
 # ---------------------------------------------------------------------------------------
-def evaluate(ctx: Any, res: Result) -> Evaluation:
+def evaluate(ctx: Any, res: Result) -> PoseEvaluation:
+    """Read the true poses of the result's frames and :func:`score` the result."""
     from placeloc.core.errors import StageError
 
     section = ctx.config["ground_truth"]
     if section["kind"] == "none":
         raise StageError("ground_truth.kind is none: evaluate needs the true poses (ground_truth.kind: poses); "
                          "`placeloc show RUN_DIR` draws the estimates without it")
-    names = res["names"]
-    gt, rows = _truth(section, names)
+    gt, rows = _truth(section, res["names"])
+    return score(res, gt, rows)
+
+
+def score(res: Result, gt: Any, rows: np.ndarray) -> PoseEvaluation:
+    """Score a ``poses`` result against the true poses ``gt`` (row ``rows[k]`` for frame k):
+    position errors in metres and, with true headings, yaw errors in degrees."""
     truth = gt.xy[rows]
     est = np.stack([res["x"], res["y"]], axis=1)
     err = np.hypot(*(est - truth).T)
@@ -141,35 +150,35 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
     metrics = error_metrics(err)
     metrics.update(recall_metrics(err, yaw_err))
     metrics["headline"] = (["within_1m_30deg"] if yaw_err is not None else []) + [
-        "within_0_5m", "within_1m", "within_2m", "median_error_m"]
-    ev = Evaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")))
+        "within_0_5m", "within_1m", "within_2m", "median_error_m", "seconds_per_frame"]
+    ev = PoseEvaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")), truth=truth, est=est,
+                        err=err, yaw_err=yaw_err, truth_heading=truth_heading, poses=gt, rows=rows)
     ev.arrays = {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})}
-    ev.extra.update(truth=truth, est=est, err=err, yaw_err=yaw_err, truth_heading=truth_heading, poses=gt, rows=rows)
     return ev
 
 
-def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
     """per_query.csv (estimate, truth and error per frame), error_cdf.png and estimates_on_plan.png."""
     import csv
 
     from placeloc.core.artifacts import atomic_open
 
-    res, x = ev.result, ev.extra
+    res = ev.result
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "x", "y", "heading_deg", "true_x", "true_y", "true_heading_deg", "error_m", "yaw_error_deg",
                     "score"])
         for k, name in enumerate(res["names"]):
-            th = x["truth_heading"]
+            th = ev.truth_heading
             w.writerow([name, f"{res['x'][k]:.3f}", f"{res['y'][k]:.3f}", f"{res['heading_deg'][k]:.1f}",
-                        f"{x['truth'][k, 0]:.3f}", f"{x['truth'][k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
-                        f"{x['err'][k]:.3f}", "" if x["yaw_err"] is None else f"{x['yaw_err'][k]:.1f}", f"{res['score'][k]:.5f}"])
+                        f"{ev.truth[k, 0]:.3f}", f"{ev.truth[k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
+                        f"{ev.err[k]:.3f}", "" if ev.yaw_err is None else f"{ev.yaw_err[k]:.1f}", f"{res['score'][k]:.5f}"])
     if not plots:
         return
     label = ev.label
-    plot_error_cdf(ctx.output("error_cdf.png"), x["err"], label)
-    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), x["truth"], x["est"], [], _segments6(res), label,
-                           x["truth_heading"], res["heading_deg"])
+    plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
+    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
+                           ev.truth_heading, res["heading_deg"])
 
 
 def _segments6(res: Result) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 
 from placeloc.core.images import ImageError, read_gray
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import RankedEvaluation
 from placeloc.retrieval.params import RetrievalParams
 
 
@@ -79,7 +80,7 @@ def localize(ctx: Any) -> None:
                  scores=score, confidence=score[:, 0] if higher else -score[:, 0], higher_is_better=higher)
 
 
-def evaluate_extra(ctx: Any, ev: Any) -> None:
+def evaluate_extra(ctx: Any, ev: RankedEvaluation) -> None:
     """Name the curve after what was compared (thumbnails or the descriptors' file)."""
     ev.label = f"retrieval, {ctx.artifact('extract').attrs['features']} ({ctx.params.distance})"
     ev.metrics["features"] = ev.label

@@ -388,8 +388,22 @@ def report_parts(kind: str | None, metrics: dict[str, Any] | None) -> dict[str, 
     documented meaning of its metrics (keyword arguments of ``write_report``)."""
     if kind is None:
         return {}
-    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [],
-            "metrics_doc": getattr(contract(kind), "METRICS_DOC", {})}
+    doc = getattr(contract(kind), "METRICS_DOC", {})
+    if metrics:  # explain only the figures this run reports (retrieval has no separated recall)
+        doc = {k: v for k, v in doc.items() if _reported(k, metrics)}
+    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [], "metrics_doc": doc}
+
+
+def _reported(doc_key: str, metrics: dict[str, Any]) -> bool:
+    """Whether a documented key ("recall_at_N", "within_0_5m / within_1m", ...) names a key
+    of ``metrics`` (N standing for any number)."""
+    import re
+
+    for name in doc_key.split(" / "):
+        pattern = re.escape(name.strip()).replace("_N", "_[0-9]+")
+        if any(re.fullmatch(pattern, k) for k in metrics):
+            return True
+    return False
 
 
 def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:

@@ -85,6 +85,19 @@ def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
+def _method_truth(method: str, cfg: dict[str, Any]) -> str:
+    """The truth a method reads from its own section (``Method(truth_keys=...)``, e.g.
+    co-embedding's ``coembed.truth`` and ``coembed.poses``), as "section.key=path" items."""
+    try:
+        from placeloc.core.methods import get_method
+
+        keys = get_method(method).truth_keys or {}
+    except KeyError:  # an unknown method: the config table says so already
+        return ""
+    section = cfg.get(method) or {}
+    return ", ".join(f"{method}.{k}={section[k]}" for k in dict.fromkeys(keys.values()) if section.get(k))
+
+
 def _metrics_doc(doc: dict[str, str] | None) -> str:
     items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
     return f"<ul class='muted'>{items}</ul>" if items else ""
@@ -118,11 +131,19 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     # only the ground-truth settings its kind reads
     used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius"),
             "matrix": ("path", "tolerance", "exclude_recent")}
-    summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
-        f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
+    own_truth = _method_truth(method, cfg)
+    if gt.get("kind", "none") == "none" and own_truth:
+        summary.append(("ground truth", own_truth))
+    else:
+        summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
+            f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
     if isinstance(cfg.get(method), dict):
-        parts.append(_table(_flatten(cfg[method]), (f"{method} parameter", "value")))
+        # a value the method chose at run time (e.g. co-embedding's alpha from alpha_select) beside the config's
+        rows = [(k, f"{_fmt(v)} in the config; {_fmt(metrics[k])} used (metrics.json)"
+                 if k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
+                for k, v in _flatten(cfg[method])]
+        parts.append(_table(rows, (f"{method} parameter", "value")))
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]

@@ -268,14 +268,18 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
         gt = ev.gt
         for c0 in range(0, n_q, block):
             c1 = min(n_q, c0 + block)
-            band_lo[c0:c1], band_hi[c0:c1] = gt.band(ref_index, q_index[c0:c1])
+            # query-major, so that each query's references are contiguous for the band's argmax
+            g_t = gt.correct(q_index[c0:c1, None], ref_index[None, :])
+            anyp = g_t.any(axis=1)
+            band_lo[c0:c1] = np.where(anyp, np.argmax(g_t, axis=1), 1)
+            band_hi[c0:c1] = np.where(anyp, n_ref - 1 - np.argmax(g_t[:, ::-1], axis=1), 0)
             if not stored:
                 continue
-            g = gt.block_idx(ref_index, q_index[c0:c1])
+            wrong = ~g_t
             for key, (mc, mw) in mins.items():
-                mat = lo_art[key][:, c0:c1]
-                np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
-                np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
+                mat_t = lo_art[key][:, c0:c1].T
+                np.minimum(mc, mat_t.min(axis=0, where=g_t, initial=np.inf), out=mc)
+                np.minimum(mw, mat_t.min(axis=0, where=wrong, initial=np.inf), out=mw)
         single = lo_art["single_best"][()]
         single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
                                           confidence=lo_art["single_confidence"][()], ns=(1,))

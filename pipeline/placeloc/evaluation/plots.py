@@ -123,7 +123,8 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
         cb.set_label(f"{name} (lower = more alike)", fontsize=8)
         if gt_points is not None and len(gt_points[0]):
-            ax.scatter(gt_points[0], gt_points[1], s=2, c="cyan", alpha=0.5, lw=0, zorder=2, label="ground truth (a true pair)")
+            ax.scatter(gt_points[0], gt_points[1], s=7, c="cyan", marker="s", alpha=0.8, lw=0, zorder=2,
+                       label="ground truth (a true pair that counts)")
         if gt_lo is not None and gt_hi is not None and (gt_hi >= gt_lo).any():
             q = np.arange(len(gt_lo))
             ok = gt_hi >= gt_lo
@@ -142,7 +143,8 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         ax.set_xlabel("query frame")
         ax.set_ylabel("reference frame")
         ax.set_title(name, fontsize=9)
-        ax.legend(fontsize=7, loc="upper right", markerscale=2, framealpha=0.85)
+        # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
+        ax.legend(fontsize=7, loc="lower left", markerscale=2, framealpha=0.85)
     if title:
         fig.suptitle(title, fontsize=10)
     return _save(fig, path, photo=True)

@@ -312,10 +312,15 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
 
 
 def _loop_truth_points(ev: Any, ref_index: np.ndarray, most: int = 20000) -> tuple[np.ndarray, np.ndarray]:
-    """Loop closures: the true pairs (frame, earlier frame) as positions in the frame list, at
-    most ``most`` of them (evenly thinned), for the picture: a loop-closure truth holds
-    several revisits per frame, no single band."""
+    """Loop closures: the true pairs (frame, earlier frame) that count (at least
+    ``exclude_recent`` frames apart) as positions in the frame list, at most ``most`` of them
+    (evenly thinned), for the picture: a loop-closure truth holds several revisits per
+    frame, no single band."""
+    from scipy import sparse
+
     truth = ev.truth.tocoo()
+    scored = truth.row - truth.col >= int(ev.metrics["exclude_recent"])
+    truth = sparse.coo_matrix((truth.data[scored], (truth.row[scored], truth.col[scored])), shape=truth.shape)
     pos = np.full(int(ref_index.max(initial=0)) + 1, -1, np.int64)
     pos[ref_index] = np.arange(len(ref_index))
     ok = (truth.row < len(pos)) & (truth.col < len(pos))

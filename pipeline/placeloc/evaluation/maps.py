@@ -228,9 +228,9 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     if path_truth is not None:
-        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.75", lw=0.8, label="true path")
+        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.25", lw=1.3, label="true path", zorder=3)
     if path_est is not None:
-        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.8, alpha=0.8, label="estimated path")
+        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.7, alpha=0.7, label="estimated path", zorder=2)
     segs = np.stack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]], axis=1)
     ax.add_collection(LineCollection(segs, colors="tab:green", lw=0.8, label="error (estimate to truth)"))
     ax.scatter(truth[:, ax0], truth[:, ax1], s=14, facecolors="none", edgecolors="0.4", lw=0.7, label="true position")

@@ -263,7 +263,7 @@ def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
 # a plan longer than this many times its width is cut into pieces drawn one above the other
 PLAN_PIECE_RATIO = 3.5
 # heading arrows: this long on the page whatever the plan's size, so they never hide an error line
-ARROW_INCHES = 0.16
+ARROW_INCHES = 0.12
 
 
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
@@ -273,12 +273,19 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     positions joined by error lines, headings as short arrows of a fixed length on the page
     (drawn under the dots). A long plan (a corridor) is cut into up to four pieces along its
     length, stacked (or side by side when it runs up the page), each to scale, so that it
-    fills the figure instead of a thin strip in white space."""
+    fills the figure instead of a thin strip in white space; the view covers the part of the
+    plan the frames visit."""
     plt = _plt()
     truth = est if truth is None else truth  # estimates only (no ground truth): no error lines
     known = truth is not est
-    pts = np.vstack([truth, est] + [p for p in polys]) if polys else np.vstack([truth, est, segments[:, [0, 1]], segments[:, [3, 4]]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    frames = np.vstack([truth, est])
+    plan = np.vstack(polys) if polys else np.vstack([segments[:, [0, 1]], segments[:, [3, 4]]])
+    # the frames' extent (the part of the plan they visit) with a margin, and the plan's walls there
+    lo, hi = frames.min(axis=0), frames.max(axis=0)
+    margin = np.maximum(0.05 * (hi - lo), 2.0)
+    near = np.all((plan >= lo - margin) & (plan <= hi + margin), axis=1)
+    if near.any():
+        lo, hi = np.minimum(lo, plan[near].min(axis=0)), np.maximum(hi, plan[near].max(axis=0))
     pad = 0.02 * (hi - lo) + 0.4  # per axis: a corridor keeps its width
     lo, hi = lo - pad, hi + pad
     span = hi - lo
@@ -308,7 +315,7 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                 continue
             r = np.radians(np.asarray(hd, float))
             ax.quiver(xy[:, 0], xy[:, 1], np.cos(r), np.sin(r), color=colour, angles="xy", scale_units="inches",
-                      scale=1.0 / ARROW_INCHES, width=0.0025, alpha=0.55, zorder=3)
+                      scale=1.0 / ARROW_INCHES, width=0.002, alpha=0.5, zorder=3)
         if known:
             ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=4.5, zorder=4, label="true position")
         ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=5.5, mew=1.4, zorder=5, label=f"{mode} estimate")

@@ -12,11 +12,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False) -> Path:
+def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False, tight: bool = True) -> Path:
     """Save under a temporary name and rename, so a killed run never leaves half a PNG;
     a failed save (a full disk) leaves no temporary file either. ``photo``: pictures of
     images or matrices, which zlib hardly shrinks: the fastest compression (level 1 took a
-    fifth of level 6's time on the strips, for files about a tenth larger)."""
+    fifth of level 6's time on the strips, for files about a tenth larger). ``tight``:
+    crop to the drawn content (a second layout pass; a figure laid out by ``layout=
+    "constrained"`` or placed by hand needs none)."""
     from placeloc.core.artifacts import tmp_path_for
 
     path = Path(path)
@@ -24,7 +26,7 @@ def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False) -> P
     try:
         fmt = path.suffix.lstrip(".") or "png"
         extra = {"pil_kwargs": {"compress_level": 1}} if photo and fmt == "png" else {}
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=fmt, **extra)
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight" if tight else None, format=fmt, **extra)
         tmp.replace(path)
     finally:
         plt.close(fig)
@@ -147,7 +149,7 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         ax.legend(fontsize=7, loc="lower left", markerscale=2, framealpha=0.85)
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path, photo=True)
+    return _save(fig, path, photo=True, tight=False)
 
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],

@@ -357,9 +357,11 @@ def frames_of(ev: Evaluation) -> int:
 
 def ordered(metrics: dict[str, Any], counts: Sequence[str]) -> dict[str, Any]:
     """metrics.json's order: the headline, the other figures, the time, then the counts and
-    settings (the kind's ``COUNTS`` and every ``n_*``), then ``headline`` itself."""
+    settings (the kind's ``COUNTS``, every ``n_*``, and the words: the comparison, solver,
+    mode... a method names), then ``headline`` itself."""
     head = [k for k in metrics.get("headline", []) if k in metrics]
-    tail = [k for k in metrics if (k in counts or k.startswith("n_")) and k not in head]
+    tail = [k for k in metrics if (k in counts or k.startswith("n_") or isinstance(metrics[k], (str, bool)))
+            and k not in head and k != "headline"]
     timing = [k for k in ("seconds_per_frame", "stage_seconds") if k in metrics]
     rest = [k for k in metrics if k not in head and k not in tail and k not in timing and k != "headline"]
     out = {k: metrics[k] for k in [*head, *rest, *timing, *tail]}

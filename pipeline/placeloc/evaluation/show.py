@@ -144,17 +144,8 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
 
     with_gt = any(rows[i].correct is not None for i in picks)
     cols = 3 if with_gt else 2
-    first = _read(query.get(rows[picks[0]].query_image), (48, 96))
-    ph = PANEL_HEIGHT_PX
-    pw = int(np.clip(round(ph * first.shape[1] / max(1, first.shape[0])), ph * 3 // 4, ph * 4))
-    label_h, gap = 26, 10
-    cell_w, cell_h = pw + gap, ph + label_h + gap
-    canvas = np.full((len(picks) * cell_h, cols * cell_w, 3), 255, np.uint8)
-    colours = {"black": (0, 0, 0), "grey": (128, 128, 128), "limegreen": (50, 205, 50), "red": (220, 0, 0),
-               "royalblue": (65, 105, 225)}
-    texts: list[tuple[float, float, str, str]] = []  # x, y (canvas pixels), text, colour
-    verdicts: list[tuple[float, float, str, str]] = []
-    for k, i in enumerate(picks):
+    strip: list[list[tuple[np.ndarray, str, str]]] = []  # per row: (image, label, frame colour) per panel
+    for i in picks:
         r = rows[i]
         q_img = _read(query.get(r.query_image), (48, 96))
         shape = q_img.shape[:2]
@@ -165,6 +156,19 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),
                            f"true {r.positive_image or '(no positive)'}", "royalblue"))
+        strip.append(panels)
+    first = strip[0][0][0]
+    ph = PANEL_HEIGHT_PX
+    pw = int(np.clip(round(ph * first.shape[1] / max(1, first.shape[0])), ph * 3 // 4, ph * 4))
+    label_h, gap = 26, 10
+    cell_w, cell_h = pw + gap, ph + label_h + gap
+    canvas = np.full((len(picks) * cell_h, cols * cell_w, 3), 255, np.uint8)
+    colours = {"black": (0, 0, 0), "grey": (128, 128, 128), "limegreen": (50, 205, 50), "red": (220, 0, 0),
+               "royalblue": (65, 105, 225)}
+    texts: list[tuple[float, float, str, str]] = []  # x, y (canvas pixels), text, colour
+    verdicts: list[tuple[float, float, str, str]] = []
+    for k, (i, panels) in enumerate(zip(picks, strip)):
+        r = rows[i]
         y0 = k * cell_h + label_h
         for c, (img, label, colour) in enumerate(panels):
             x0 = c * cell_w + gap // 2

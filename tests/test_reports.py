@@ -100,3 +100,13 @@ def test_demo_names_the_unmatched_queries_of_the_causal_search():
          "recall_at_5": 71 / 81, "auc_pr": 71 / 81, "recall_at_100_precision": 71 / 81, "single_image_recall_at_1": 1.0}
     text = explain(m, list(range(10)))
     assert "queries 0-9 get no match" in text and "within ds/2 of an end" not in text
+
+
+def test_metrics_name_the_truth_a_method_reads_from_its_own_section():
+    from types import SimpleNamespace
+
+    method = SimpleNamespace(name="coembed", truth_keys={"points": "truth", "poses": "poses"})
+    both = SimpleNamespace(truth="features.csv", poses="poses.csv")
+    assert contracts.method_truth(method, both) == "coembed.truth=features.csv, coembed.poses=poses.csv"
+    assert contracts.method_truth(method, SimpleNamespace(truth="f.csv", poses=None)) == "coembed.truth=f.csv"
+    assert contracts.method_truth(SimpleNamespace(name="seqslam", truth_keys={}), both) == ""

@@ -330,6 +330,9 @@ def evaluate_stage(ctx: Any) -> None:
         ev.label = ctx.method.name
     if ctx.method.evaluate_extra is not None:
         ctx.method.evaluate_extra(ctx, ev)
+    own_truth = method_truth(ctx.method, ctx.params)
+    if own_truth:
+        ev.metrics["scored_against"] = own_truth
     add_timing(ev.metrics, stage_seconds(ctx.run_dir, [s for s in STAGES if s in ctx.method.stages]), frames_of(ev))
     write_tree(ctx.out, ev.arrays)
     ctx.out.attrs["result_kind"] = res.kind
@@ -343,6 +346,14 @@ def evaluate_stage(ctx: Any) -> None:
         if mod.SHOW_AT_EVALUATE:
             mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
         write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
+
+
+def method_truth(method: Any, params: Any) -> str:
+    """The truth a method reads from its own section (``Method(truth_keys=...)``, e.g.
+    co-embedding's ``coembed.truth`` and ``coembed.poses``) as "section.key=path" items, so
+    that metrics.json and the report name what was scored against; "" for none."""
+    keys = dict.fromkeys((getattr(method, "truth_keys", None) or {}).values())
+    return ", ".join(f"{method.name}.{k}={getattr(params, k)}" for k in keys if getattr(params, k, None) is not None)
 
 
 def frames_of(ev: Evaluation) -> int:

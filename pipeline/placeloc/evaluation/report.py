@@ -85,19 +85,6 @@ def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
-def _method_truth(method: str, cfg: dict[str, Any]) -> str:
-    """The truth a method reads from its own section (``Method(truth_keys=...)``, e.g.
-    co-embedding's ``coembed.truth`` and ``coembed.poses``), as "section.key=path" items."""
-    try:
-        from placeloc.core.methods import get_method
-
-        keys = get_method(method).truth_keys or {}
-    except KeyError:  # an unknown method: the config table says so already
-        return ""
-    section = cfg.get(method) or {}
-    return ", ".join(f"{method}.{k}={section[k]}" for k in dict.fromkeys(keys.values()) if section.get(k))
-
-
 def _metrics_doc(doc: dict[str, str] | None) -> str:
     items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
     return f"<ul class='muted'>{items}</ul>" if items else ""
@@ -131,8 +118,9 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     # only the ground-truth settings its kind reads
     used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius"),
             "matrix": ("path", "tolerance", "exclude_recent")}
-    own_truth = _method_truth(method, cfg)
-    if gt.get("kind", "none") == "none" and own_truth:
+    # a method that reads its truth from its own section (co-embedding's coembed.truth) says so in metrics.json
+    own_truth = metrics.get("scored_against")
+    if gt.get("kind", "none") == "none" and isinstance(own_truth, str) and own_truth:
         summary.append(("ground truth", own_truth))
     else:
         summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [

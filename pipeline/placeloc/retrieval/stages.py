@@ -14,6 +14,7 @@ import numpy as np
 
 from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
 from placeloc.retrieval.params import RetrievalParams
 
 
@@ -111,7 +112,7 @@ def _localize_loops(ctx: Any, ex: Any) -> None:
                 seconds=np.full(len(rows), seconds))
 
 
-def evaluate_extra(ctx: Any, ev: Any) -> None:
+def evaluate_extra(ctx: Any, ev: RankedEvaluation | LoopEvaluation) -> None:
     """Name the curve after what was compared (thumbnails or the descriptors' file)."""
     ev.label = f"retrieval, {ctx.artifact('extract').attrs['features']} ({ctx.params.distance})"
     ev.metrics["features"] = ev.label

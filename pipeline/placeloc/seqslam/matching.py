@@ -46,6 +46,13 @@ def auto_velocity_scale(n_reference: int, n_query: int) -> float:
     return n_reference / max(1, n_query)
 
 
+def search_velocities(v_min: float, v_max: float, v_step: float, v_auto: bool, n_reference: int,
+                      n_query: int) -> np.ndarray:
+    """The velocities the sequence search tries (scaled by :func:`auto_velocity_scale` with ``v_auto``)."""
+    vels = velocities(v_min, v_max, v_step)
+    return np.round(vels * auto_velocity_scale(n_reference, n_query), 9) if v_auto else vels
+
+
 def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
     for job in jobs:
         yield fn(job, shared)
@@ -70,6 +77,7 @@ def sequence_match(
     block_size: int,
     map_blocks: MapBlocks | None = None,
     on_difference: Callable[[int, int, np.ndarray], None] | None = None,
+    on_enhanced: Callable[[int, int, int, np.ndarray], None] | None = None,
     progress: Callable[..., Iterable] | None = None,
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
@@ -77,13 +85,13 @@ def sequence_match(
     ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
     many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
-    raw difference columns ``c0:c1`` as they are computed.
+    raw difference columns ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, lo, et)``
+    the enhanced block, query-major, its row 0 being query ``lo`` (the columns a sequence
+    window needs on either side included), for what the caller keeps of it.
     """
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    vels = velocities(v_min, v_max, v_step)
-    if v_auto:
-        vels = np.round(vels * auto_velocity_scale(len(ref), n_q), 9)
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
     candidates = np.full((n_q, k), -1, np.int64)
@@ -110,6 +118,8 @@ def sequence_match(
         single_best[c0:c1], single_conf[c0:c1] = sb, ss
         et = enhance_t(dt, window)
         del dt, d
+        if on_enhanced is not None:
+            on_enhanced(c0, c1, lo, et)
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
                                shape=sequence_shape, edges=edges)
         candidates[c0:c1], scores[c0:c1] = b, s

@@ -24,6 +24,7 @@ from placeloc.core.artifacts import atomic_open, read_strings, write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import PoseEvaluation
 from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.umap import resources as umap_resources
@@ -370,7 +371,7 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
 
 # ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds
 
-def evaluate_extra(ctx: Any, ev: Any) -> None:
+def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
     """UMap's own figures: the mode in metrics.json and, for panoramas, each panorama's
     lines against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
@@ -378,7 +379,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     ev.label = ev.metrics["mode"]
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
-        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.extra["poses"], ev.extra["rows"], ev.extra["err"])
+        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)
 
 
 # pictures of the first panoramas only: one PNG each

@@ -46,6 +46,23 @@ def auto_velocity_scale(n_reference: int, n_query: int) -> float:
     return n_reference / max(1, n_query)
 
 
+def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
+    """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
+    columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
+    traverse end, at least the ``before + after + 1`` frames nearest it, which a shifted
+    window (``edges: shift``) uses there. Without those, a last block shorter than a
+    window could not shift its queries' windows and left them unmatched (1056 queries
+    with block_size 1024 and ds 120 left 32), so ``block_size`` changed results."""
+    n_window = before + after + 1
+    spans = []
+    for c0 in range(0, n_q, block):
+        c1 = min(n_q, c0 + block)
+        lo = max(0, min(c0 - before, n_q - n_window))
+        hi = min(n_q, max(c1 + after, n_window))
+        spans.append((c0, c1, lo, hi))
+    return spans
+
+
 def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
     for job in jobs:
         yield fn(job, shared)
@@ -91,7 +108,7 @@ def sequence_match(
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
 
-    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
+    spans = block_spans(n_q, block, before, after)
     # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
     # enhancement, search and writing stay here, in order.
     jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from placeloc.seqslam.matching import block_spans, sequence_match
+from placeloc.seqslam.search import sequence_search, velocities
 
 
 def _route(n_ref: int, places: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -52,3 +53,65 @@ def test_block_size_never_changes_a_result(shape, edges, search):
         np.testing.assert_array_equal(one.scores, cut.scores)
     matched = one.candidates[:, 0] >= 0
     assert matched.all() if edges == "shift" else matched.sum() == 66 - 30
+
+
+# ---------------------------------------------------------------------------------------
+# each motion planted in a synthetic matrix: the flexible path with the Nordland preset's
+# speeds (-1.0..4.0 in steps of 0.1: backwards, standing, crawling, bursting) and costs
+# ---------------------------------------------------------------------------------------
+PRESET_SPEEDS = velocities(-1.0, 4.0, 0.1)
+
+
+def _planted(speeds: np.ndarray, seed: int, snr: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Enhanced-like query-major matrix (Gaussian noise around 4) with the path a query
+    moving at ``speeds`` (negative: backwards) traces lowered by ``snr`` standard
+    deviations, its neighbours by half that; a query that has not moved since its last frame sees that frame again
+    (its column repeats), as a stopped camera does."""
+    rng = np.random.default_rng(seed)
+    x = np.concatenate([[0.0], np.cumsum(speeds[:-1])])
+    path = 30 + np.floor(x + 0.5).astype(np.int64)
+    n_ref = int(path.max()) + 40
+    et = (rng.normal(0, 1, (len(speeds), n_ref)) + 4).astype(np.float32)
+    q = np.arange(len(speeds))
+    et[q, path] -= snr
+    et[q, path - 1] -= snr / 2  # neighbouring frames look alike: the valley is three frames wide
+    et[q, path + 1] -= snr / 2
+    for q in range(1, len(speeds)):
+        if path[q] == path[q - 1]:
+            et[q] = et[q - 1]
+    return et, path
+
+
+def _follow(et: np.ndarray) -> np.ndarray:
+    best, _ = sequence_search(et, 0, len(et), 80, PRESET_SPEEDS, "centred", 5, 2, None, 0, shape="flexible",
+                              edges="shift")
+    return best[:, 0]
+
+
+@pytest.mark.parametrize("motion,speeds", [
+    ("a 30-frame stop", np.concatenate([np.ones(70), np.zeros(30), np.ones(70)])),
+    ("an 80-frame crawl at 0.3x", np.concatenate([np.ones(60), np.full(80, 0.3), np.ones(60)])),
+    ("a 40-frame burst at 3x", np.concatenate([np.ones(60), np.full(40, 3.0), np.ones(60)])),
+    ("50 frames driven backwards", np.concatenate([np.ones(90), np.full(50, -1.0), np.ones(90)])),
+    ("60 frames backing out at half speed", np.concatenate([np.ones(90), np.full(60, -0.5), np.ones(90)])),
+])
+def test_flexible_path_follows_each_motion_to_within_a_frame(motion, speeds):
+    # an 81-frame window spans each motion with frames of the route on both sides. A
+    # path bends only between 10-frame segments counted from the anchor, so a query a few
+    # frames from a change of motion, or inside a stop (whose repeated frames carry no
+    # evidence of place: only the path's continuity does), may land up to 3 frames off
+    et, path = _planted(speeds, seed=len(speeds))
+    err = np.abs(_follow(et) - path)
+    assert err.max() <= 3, motion
+    assert (err <= 1).mean() >= 0.95, motion
+
+
+def test_straight_lines_and_the_old_speed_range_lose_the_reversal_and_the_burst():
+    # the same planted motions with speeds 0.5-2.0 (the previous preset): the reversal and
+    # the burst lie outside, and the queries inside them are lost
+    for speeds, stretch in ((np.concatenate([np.ones(90), np.full(50, -1.0), np.ones(90)]), slice(100, 130)),
+                            (np.concatenate([np.ones(60), np.full(40, 3.0), np.ones(60)]), slice(65, 95))):
+        et, path = _planted(speeds, seed=len(speeds))
+        best, _ = sequence_search(et, 0, len(et), 40, velocities(0.5, 2.0, 0.1), "centred", 5, 2, None, 0,
+                                  shape="flexible", edges="shift")
+        assert (np.abs(best[stretch, 0] - path[stretch]) > 1).mean() > 0.5

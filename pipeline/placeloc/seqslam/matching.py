@@ -15,7 +15,17 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from placeloc.seqslam.comparisons import difference_block
-from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, single_image_best, velocities
+from placeloc.seqslam.search import (
+    REVERSE_COST,
+    SPEED_CHANGE_COST,
+    STOP_COST,
+    confidence,
+    enhance_t,
+    query_offsets,
+    sequence_search,
+    single_image_best,
+    velocities,
+)
 
 # (fn, jobs, shared, describe) -> results in job order; the executor's map has this shape.
 MapBlocks = Callable[..., Iterator[Any]]
@@ -83,6 +93,9 @@ def sequence_match(
     sequence_shape: str,
     edges: str,
     top_k: int,
+    speed_change_cost: float = SPEED_CHANGE_COST,
+    stop_cost: float = STOP_COST,
+    reverse_cost: float = REVERSE_COST,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
@@ -91,7 +104,9 @@ def sequence_match(
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
-    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
+    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
+    ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`). ``exclude_recent``
+    is for loop closure (``query is ref``): references within that
     many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
     raw difference columns ``c0:c1`` as they are computed.
@@ -128,6 +143,7 @@ def sequence_match(
         et = enhance_t(dt, window)
         del dt, d
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
-                               shape=sequence_shape, edges=edges)
+                               shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
+                               stop_cost=stop_cost, reverse_cost=reverse_cost)
         candidates[c0:c1], scores[c0:c1] = b, s
     return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

@@ -27,8 +27,9 @@ class SeqSLAMParams(Params):
     ocm_epsilon: float = param(5.0, min=0.0, help="OCM: |Sobel gradient| below this -> code 16 (ignored)")
     enhance_window: int = param(10, min=1, help="R_window: local contrast enhancement over +-R rows, and match separation")
     ds: int = param(10, min=1, help="sequence length (the window has ds + 1 query frames)")
-    v_min: float = param(0.8, min=0.0, help="slowest trajectory slope (reference frames per query frame); 0 lets a "
-                                            "flexible path stand still where the query does")
+    v_min: float = param(0.8, min=-10.0, help="slowest trajectory slope (reference frames per query frame); 0 lets a "
+                                              "flexible path stand still where the query does, a negative value lets "
+                                              "it drive backwards")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
     v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
@@ -38,6 +39,11 @@ class SeqSLAMParams(Params):
                                      "velocity cone) or hybrid (cone proposes, trajectories rank), as in OpenSeqSLAM2; "
                                      "flexible (a path of straight segments whose speed may change between them within "
                                      "v_min..v_max, at a cost: follows slow-downs, bursts and, with v_min 0, stops)")
+    speed_change_cost: float = param(1.0, min=0.0, help="flexible: cost of a change of speed, per reference frame by "
+                                                         "which it bends the path over one segment (enhanced z-score units)")
+    stop_cost: float = param(2.0, min=0.0, help="flexible, speeds including 0: cost of standing still, per unit of the "
+                                                "query's own change from frame to frame (about 0 where the query stops)")
+    reverse_cost: float = param(0.5, min=0.0, help="flexible, negative speeds: cost of driving backwards, per frame")
     edges: str = param("skip", choices=("skip", "shift"),
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")

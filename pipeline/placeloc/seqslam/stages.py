@@ -153,6 +153,8 @@ def localize(ctx: Any) -> None:
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
+                       speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                       reverse_cost=float(p.reverse_cost),
                        exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
                        map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
                        progress=ctx.progress)
@@ -297,7 +299,8 @@ METHOD = Method(
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
-                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
+                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference",
+                                          "speed_change_cost", "stop_cost", "reverse_cost")),
     },
     result="ranked",
     result_without_query="loops",

@@ -56,10 +56,11 @@ def test_block_size_never_changes_a_result(shape, edges, search):
 
 
 # ---------------------------------------------------------------------------------------
-# each motion planted in a synthetic matrix: the flexible path with the Nordland preset's
-# speeds (-1.0..4.0 in steps of 0.1: backwards, standing, crawling, bursting) and costs
+# each motion planted in a synthetic matrix: the flexible path over every speed it may
+# take (backwards to -1.0, standing, crawling, bursting to 4.0, in steps of 0.1) and the
+# default costs
 # ---------------------------------------------------------------------------------------
-PRESET_SPEEDS = velocities(-1.0, 4.0, 0.1)
+PRESET_SPEEDS = velocities(0.0, 4.0, 0.1, v_reverse=1.0)
 
 
 def _planted(speeds: np.ndarray, seed: int, snr: float = 3.0) -> tuple[np.ndarray, np.ndarray]:

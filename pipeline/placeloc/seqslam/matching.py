@@ -96,6 +96,7 @@ def sequence_match(
     speed_change_cost: float = SPEED_CHANGE_COST,
     stop_cost: float = STOP_COST,
     reverse_cost: float = REVERSE_COST,
+    v_reverse: float = 0.0,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
@@ -113,7 +114,7 @@ def sequence_match(
     """
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    vels = velocities(v_min, v_max, v_step)
+    vels = velocities(v_min, v_max, v_step, v_reverse)
     if v_auto:
         vels = np.round(vels * auto_velocity_scale(len(ref), n_q), 9)
     t_off = query_offsets(int(ds), search)

@@ -27,11 +27,12 @@ class SeqSLAMParams(Params):
     ocm_epsilon: float = param(5.0, min=0.0, help="OCM: |Sobel gradient| below this -> code 16 (ignored)")
     enhance_window: int = param(10, min=1, help="R_window: local contrast enhancement over +-R rows, and match separation")
     ds: int = param(10, min=1, help="sequence length (the window has ds + 1 query frames)")
-    v_min: float = param(0.8, min=-10.0, help="slowest trajectory slope (reference frames per query frame); 0 lets a "
-                                              "flexible path stand still where the query does, a negative value lets "
-                                              "it drive backwards")
+    v_min: float = param(0.8, min=0.0, help="slowest trajectory slope (reference frames per query frame); 0 lets a "
+                                            "flexible path stand still where the query does")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
+    v_reverse: float = param(0.0, min=0.0, help="flexible: fastest speed backwards (the forward speeds from v_min "
+                                                "mirrored down to -v_reverse); 0: never drives backwards")
     v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
                                       "recorded at different frame rates or speeds")
     sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,

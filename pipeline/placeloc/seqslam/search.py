@@ -29,9 +29,19 @@ from placeloc.seqslam.params import SeqSLAMParams
 INVALID = np.float32(np.inf)
 
 
-def velocities(v_min: float, v_max: float, v_step: float) -> np.ndarray:
+def velocities(v_min: float, v_max: float, v_step: float, v_reverse: float = 0.0) -> np.ndarray:
+    """Speeds ``v_min..v_max`` in steps of ``v_step`` (reference frames per query frame),
+    ascending; with ``v_reverse`` > 0 also the backward speeds ``-v_reverse..-v_min`` (from
+    ``-v_step`` when ``v_min`` is 0), the forward ones mirrored: a path may back out as
+    slowly as it may crawl forwards."""
     n = int(math.floor((v_max - v_min) / v_step + 1e-9)) + 1
-    return np.round(v_min + v_step * np.arange(n), 9)
+    forward = np.round(v_min + v_step * np.arange(n), 9)
+    if v_reverse <= 0:
+        return forward
+    slowest = max(float(v_min), float(v_step))
+    n_back = int(math.floor((v_reverse - slowest) / v_step + 1e-9)) + 1
+    backward = -np.round(slowest + v_step * np.arange(max(0, n_back)), 9)
+    return np.concatenate([backward[::-1], forward])
 
 
 def query_offsets(ds: int, search: str) -> np.ndarray:

@@ -154,7 +154,7 @@ def localize(ctx: Any) -> None:
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
                        speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
-                       reverse_cost=float(p.reverse_cost),
+                       reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
                        exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
                        map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
                        progress=ctx.progress)
@@ -300,7 +300,7 @@ METHOD = Method(
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
                                           "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference",
-                                          "speed_change_cost", "stop_cost", "reverse_cost")),
+                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse")),
     },
     result="ranked",
     result_without_query="loops",

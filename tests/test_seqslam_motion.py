@@ -116,3 +116,25 @@ def test_straight_lines_and_the_old_speed_range_lose_the_reversal_and_the_burst(
         best, _ = sequence_search(et, 0, len(et), 40, velocities(0.5, 2.0, 0.1), "centred", 5, 2, None, 0,
                                   shape="flexible", edges="shift")
         assert (np.abs(best[stretch, 0] - path[stretch]) > 1).mean() > 0.5
+
+
+def test_backward_speeds_mirror_the_forward_ones():
+    np.testing.assert_allclose(velocities(0.3, 0.6, 0.1, v_reverse=0.5), [-0.5, -0.4, -0.3, 0.3, 0.4, 0.5, 0.6])
+    np.testing.assert_allclose(velocities(0.0, 0.2, 0.1, v_reverse=0.2), [-0.2, -0.1, 0.0, 0.1, 0.2])  # 0 once
+    np.testing.assert_allclose(velocities(0.8, 1.2, 0.1), [0.8, 0.9, 1.0, 1.1, 1.2])  # v_reverse 0: forward only
+
+
+def test_localize_passes_the_path_settings_through():
+    # a reversal that only a path allowed to back out follows: sequence_match (what
+    # localize calls) with v_reverse set finds it, without it does not
+    places = np.concatenate([np.arange(20, 80), np.arange(79, 49, -1), np.arange(50, 110)])
+    ref, query = _route(130, places, seed=9)
+    common = dict(comparison="sad", enhance_window=3, ds=30, v_min=0.5, v_max=1.5, v_step=0.1, v_auto=False,
+                  search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
+                  block_size=1024)
+    back = sequence_match(ref, query, v_reverse=1.0, reverse_cost=0.1, **common)
+    ahead = sequence_match(ref, query, **common)
+    backing = slice(65, 85)  # queries whose window is mostly the backward stretch
+    assert (np.abs(back.candidates[backing, 0] - places[backing]) <= 1).all()
+    assert (np.abs(ahead.candidates[backing, 0] - places[backing]) > 1).sum() >= 5
+    assert back.velocities.min() == -1.0 and ahead.velocities.min() == 0.5

@@ -139,7 +139,7 @@ def localize(ctx: Any) -> None:
     plot_e = np.zeros_like(plot_d)
     k_plain = max(int(p.top_k), PLAIN_RANKING_K)
     plain = None if loop_closure else (np.full((n_q, k_plain), -1, np.int64), np.full((n_q, k_plain), np.inf, np.float32))
-    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q)
+    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q, float(p.v_reverse))
 
     def sampled(c0: int, c1: int) -> tuple[slice, np.ndarray]:
         """The picture's columns among queries c0..c1-1: where they go, and where they are in the block."""
@@ -162,11 +162,14 @@ def localize(ctx: Any) -> None:
         if plain is not None:
             plain[0][c0:c1], plain[1][c0:c1] = sequence_search(
                 et, c0 - lo, c1 - lo, int(p.ds), vels, p.search, 0, k_plain, None, lo, shape=p.sequence_shape,
-                edges=p.edges)
+                edges=p.edges, speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                reverse_cost=float(p.reverse_cost))
 
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
+                       speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                       reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
                        exclude_recent=_loop_exclusion(ctx) if loop_closure else None, block_size=int(p.block_size),
                        # Blocks run in this process: the difference kernel, the enhancement and the
                        # search are threaded over every usable core already, and a pool worker would
@@ -322,7 +325,8 @@ METHOD = Method(
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
-                                          "search", "sequence_shape", "edges", "top_k", "store_difference"),
+                                          "search", "sequence_shape", "edges", "top_k", "store_difference",
+                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse"),
                           sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",

@@ -424,10 +424,11 @@ METHOD = Method(
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.polar_deg", "panorama.polar_weight", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
+                                          "panorama.refine_beam", "panorama.refine_step_m", "panorama.refine_yaw_cols",
+                                          "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
     },

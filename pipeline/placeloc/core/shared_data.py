@@ -43,7 +43,7 @@ def resolve_shared(value: str, key: str) -> Path:
     rel = value[len(SHARED_PREFIX):].lstrip("/")
     try:
         root = shared_data_dir()
-    except ConfigError as exc:  # the variable is set but names no folder
+    except ConfigError as exc:  # the variable names no folder: say which key needed it
         raise ConfigError(f"{key}: {value} names the shared data folder, but {exc}") from None
     if root is None:
         where = "PLACELOC_SHARED_DATA is not set and no ../shared/data lies beside the checkout or the working folder"

@@ -15,6 +15,7 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -32,6 +33,7 @@ from placeloc.coembed.observations import (
 from placeloc.coembed.params import CoembedParams
 from placeloc.core.config import ConfigError
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import MapEvaluation
 
 log = logging.getLogger("placeloc")
 
@@ -210,7 +212,7 @@ def localize(ctx) -> None:  # noqa: ANN001
     write_map_csv(ctx.output("map.csv"), obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
 
 
-def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
+def evaluate_extra(ctx: Any, ev: MapEvaluation) -> None:
     """Co-embedding's own figures beside the map contract's: the solver's settings and cost,
     the landmark warnings, and the path read out from the map against the true poses."""
     from placeloc.coembed.metrics import path_errors
@@ -227,7 +229,7 @@ def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
             v = loc["map"].attrs[k]
             m[k] = v.item() if hasattr(v, "item") else v
     m["landmark_warnings"] = json.loads(art["landmarks"].attrs.get("warnings", "[]"))
-    ev.extra["landmarks"] = art["landmarks/coords"][()]
+    ev.landmarks = art["landmarks/coords"][()]
     if "path" in loc and p.poses is not None:
         steps, xy, heading = poses_by_step(p.poses)
         path_est = loc["path/xy"][()]
@@ -235,8 +237,10 @@ def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
                                         loc["path/label_steps"][()], steps, xy, heading)
         m.update(found)
         if path_truth is not None:
-            ev.extra.update(path_est=path_est, path_truth=path_truth)
-            m["headline"] = list(m["headline"]) + ["path_rmse"]
+            ev.path_est, ev.path_truth = path_est, path_truth
+            # kept in evaluate.h5 so that `placeloc show` draws the true path too
+            ev.arrays.update(path_est_xy=path_est, path_truth_xy=path_truth)
+            m["headline"] = [k for k in m["headline"] if k != "seconds_per_frame"] + ["path_rmse", "seconds_per_frame"]
     name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
     if p.solver == "coembed" and p.camera_model != "linear":
         name += f" ({p.camera_model} camera)"

@@ -12,6 +12,9 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
+import io
+import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,12 +44,11 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
     per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
-        with per_query.open(newline="") as fh:
-            for r in csv.DictReader(fh):
-                if only_matched and not r["best_image"]:
-                    continue
-                rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
-                                r["positive_image"]))
+        for r in csv.DictReader(_run_text(run_dir, "per_query.csv")):
+            if only_matched and not r["best_image"]:
+                continue
+            rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
+                            r["positive_image"]))
         return rows
     from placeloc.evaluation.contracts import localize_result
 
@@ -65,6 +67,18 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
             continue
         rows.append(Row(qn, name_of.get(int(j), "") if j >= 0 else "", float(c), None, ""))
     return rows
+
+
+# per_query.csv holds one short row per query: 1 GB is millions of queries past any run.
+MAX_TABLE_BYTES = 1 << 30
+
+
+def _run_text(run_dir: Path, name: str) -> io.StringIO:
+    """A CSV of the run folder through the run-folder guard (no link followed, a regular
+    file, bounded), ready for csv.reader."""
+    from placeloc.core.safe_io import read_run_file
+
+    return io.StringIO(read_run_file(run_dir, name, MAX_TABLE_BYTES).decode("utf-8", "replace"), newline="")
 
 
 def _num(text: str) -> float:
@@ -103,9 +117,26 @@ def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
         return np.full((*shape, 3), 235, np.uint8)
 
     try:
-        return read_rgb(path)  # upright (EXIF orientation), as the stages saw it
+        img = read_rgb(path)  # upright (EXIF orientation), as the stages saw it
     except ImageError:
         return np.full((*shape, 3), 200, np.uint8)
+    return shrink(img)
+
+
+# A strip's panel is about 3 inches at the figure's resolution: more pixels add nothing but
+# memory (matplotlib keeps float copies of every image it draws).
+PANEL_PIXELS = 480
+
+
+def shrink(img: np.ndarray, longest: int = PANEL_PIXELS) -> np.ndarray:
+    """``img`` scaled down (area averaging) so its longer side is at most ``longest``."""
+    import cv2
+
+    h, w = img.shape[:2]
+    scale = longest / max(h, w)
+    if scale >= 1:
+        return img
+    return cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
 
 
 def pick_sample(n: int, count: int) -> list[int]:
@@ -122,19 +153,30 @@ def pick_failures(rows: list[Row], count: int) -> list[int]:
     return wrong[:count]
 
 
+# the strips' panels: this many pixels high (the width keeps the first query's aspect)
+PANEL_HEIGHT_PX = 110
+_STRIP_DPI = 110
+
+
 def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], query: dict[str, Path], path: Path,
                       title: str) -> Path | None:
     """One row per picked query: query | best match | a true positive, the match framed
-    green (right), red (wrong) or grey (no ground truth)."""
+    green (right), red (wrong) or grey (no ground truth).
+
+    The panels are composed into one image (each scaled to the same size) and drawn on one
+    axes with the labels as text: one picture's cost whatever the number of rows, where an
+    axes per panel made the strips most of evaluate's time."""
     if not picks:
         path.unlink(missing_ok=True)
         return None
+    import cv2
+
     from placeloc.evaluation.plots import _save, plt
 
     with_gt = any(rows[i].correct is not None for i in picks)
     cols = 3 if with_gt else 2
-    fig, axes = plt.subplots(len(picks), cols, figsize=(3.2 * cols, 1.9 * len(picks) + 0.5), squeeze=False)
-    for row_axes, i in zip(axes, picks):
+    strip: list[list[tuple[np.ndarray, str, str]]] = []  # per row: (image, label, frame colour) per panel
+    for i in picks:
         r = rows[i]
         q_img = _read(query.get(r.query_image), (48, 96))
         shape = q_img.shape[:2]
@@ -145,24 +187,47 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),
                            f"true {r.positive_image or '(no positive)'}", "royalblue"))
-        for ax, (img, label, colour) in zip(row_axes, panels):
-            ax.imshow(img, interpolation="nearest")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            for spine in ax.spines.values():
-                spine.set_edgecolor(colour)
-                spine.set_linewidth(4 if colour in ("limegreen", "red") else 1.5)
-            ax.set_title(label, fontsize=7.5, color="black" if colour in ("black", "royalblue", "grey") else colour)
+        strip.append(panels)
+    first = strip[0][0][0]
+    ph = PANEL_HEIGHT_PX
+    pw = int(np.clip(round(ph * first.shape[1] / max(1, first.shape[0])), ph * 3 // 4, ph * 4))
+    label_h, gap = 26, 10
+    cell_w, cell_h = pw + gap, ph + label_h + gap
+    canvas = np.full((len(picks) * cell_h, cols * cell_w, 3), 255, np.uint8)
+    colours = {"black": (0, 0, 0), "grey": (128, 128, 128), "limegreen": (50, 205, 50), "red": (220, 0, 0),
+               "royalblue": (65, 105, 225)}
+    texts: list[tuple[float, float, str, str]] = []  # x, y (canvas pixels), text, colour
+    verdicts: list[tuple[float, float, str, str]] = []
+    for k, (i, panels) in enumerate(zip(picks, strip)):
+        r = rows[i]
+        y0 = k * cell_h + label_h
+        for c, (img, label, colour) in enumerate(panels):
+            x0 = c * cell_w + gap // 2
+            width = 4 if colour in ("limegreen", "red") else 1
+            canvas[y0 - width:y0 + ph + width, x0 - min(width, x0):x0 + pw + width] = colours[colour]
+            canvas[y0:y0 + ph, x0:x0 + pw] = cv2.resize(np.ascontiguousarray(img[..., :3]), (pw, ph),
+                                                        interpolation=cv2.INTER_AREA)
+            texts.append((x0, y0 - 6, label, "black" if colour in ("black", "royalblue", "grey") else colour))
         if not r.best_image:
-            row_axes[1].text(0.5, 0.5, "no match", transform=row_axes[1].transAxes, ha="center", va="center", fontsize=10)
+            texts.append((cell_w + gap // 2 + pw / 2, y0 + ph / 2, "no match", "black"))
         if r.correct is not None:
-            verdict = "RIGHT" if r.correct else ("WRONG" if r.best_image else "MISSED")
-            row_axes[1].text(0.02, 0.95, verdict, transform=row_axes[1].transAxes, fontsize=9,
-                             fontweight="bold", va="top", color="white",
-                             bbox={"facecolor": "green" if r.correct else "red", "alpha": 0.85, "pad": 1.5})
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return _save(fig, path)
+            verdicts.append((cell_w + gap // 2 + 6, y0 + 6, "RIGHT" if r.correct else ("WRONG" if r.best_image else "MISSED"),
+                             "green" if r.correct else "red"))
+    h, w = canvas.shape[:2]
+    title_in = 0.45
+    fig = plt.figure(figsize=(w / _STRIP_DPI, h / _STRIP_DPI + title_in))
+    ax = fig.add_axes((0, 0, 1, h / (h + title_in * _STRIP_DPI)))
+    ax.imshow(canvas, interpolation="nearest")
+    ax.set_axis_off()
+    for x, y, text, colour in texts:
+        centred = text == "no match"
+        ax.text(x, y, text, fontsize=7.5, color=colour, ha="center" if centred else "left",
+                va="center" if centred else "bottom", clip_on=False)
+    for x, y, text, colour in verdicts:
+        ax.text(x, y, text, fontsize=9, fontweight="bold", color="white", ha="left", va="top",
+                bbox={"facecolor": colour, "alpha": 0.85, "pad": 1.5, "edgecolor": "none"})
+    fig.suptitle(title, fontsize=10, y=1 - 0.1 * title_in / (h / _STRIP_DPI + title_in))
+    return _save(fig, path, dpi=_STRIP_DPI, photo=True)
 
 
 def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows: list[Row] | None = None,
@@ -204,10 +269,9 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     path = Path(run_dir) / "per_query.csv"
     if not path.is_file():
         raise ShowError(f"{path} is missing: Recall@N needs ground truth; run `placeloc evaluate` first")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
-        rows = list(reader)
+    reader = csv.DictReader(_run_text(Path(run_dir), "per_query.csv"))
+    k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
+    rows = list(reader)
     first = np.array([int(r["first_correct_rank"]) for r in rows])
     has = np.array([r["has_positive"] == "1" for r in rows])
     out: dict[int, tuple[float | None, float | None]] = {}
@@ -220,29 +284,86 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     return out
 
 
+SHOW_DIR = "show"
+
+
 def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tuple[list[Path], Path]:
     """The contract's pictures (strips, plan, map) and report.html for a run directory, as
-    ``placeloc show`` does. A file that comes out byte-identical keeps its old modification
-    time, so that re-showing a run does not make the evaluate stage that wrote the same
-    file look out of date."""
-    import json
-    import os
+    ``placeloc show`` does.
 
+    ``show`` is read-only for the pipeline: it never changes a file a stage recorded as its
+    side output (a stage whose recorded file changed re-runs). Everything is drawn into a
+    temporary folder first; then each file goes to the run folder when no stage records
+    that name (or the recorded file is already gone or changed), is dropped when it is
+    byte-identical to the recorded one, and otherwise goes to ``RUN/show/``. Only the stages
+    of the run's chain of stamps count (:func:`placeloc.evaluation.report.stamped_configs`)."""
+    import shutil
+
+    from placeloc.core.artifacts import TMP_MARK
+    from placeloc.core.safe_io import read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
-    from placeloc.evaluation.report import REPORT, write_report
+    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, write_report
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
     if res is None:
         raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
     mod = contract(res.kind)
-    names = [p.name for p in run_dir.glob("*.png")] + [REPORT]
-    before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
-    pictures = mod.show(run_dir, res, sample=sample, failures=failures)
-    metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else None
-    report = write_report(run_dir, **report_parts(res.kind, metrics))
-    for name, (data, st) in before.items():
-        p = run_dir / name
-        if p.is_file() and p.read_bytes() == data:
-            os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
-    return pictures, report
+    staging = run_dir / f".show{TMP_MARK}{os.getpid()}"
+    if staging.is_symlink():  # a predictable name: whatever was planted there goes
+        staging.unlink()
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(mode=0o700)
+    try:
+        drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
+        metrics = None
+        if (run_dir / "metrics.json").is_file():
+            metrics = json.loads(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
+        write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
+        placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    pictures = [placed[p.name] for p in drawn if p.name in placed]
+    return pictures, placed[REPORT]
+
+
+def recorded_side_outputs(run_dir: Path) -> dict[str, str]:
+    """name -> fingerprint of every side output recorded by the artifacts of the run's
+    chain of stamps (an artifact left from an older run re-runs anyway: its files are not
+    kept from show)."""
+    from placeloc.evaluation.report import artifact_attrs, stamped_configs
+
+    out: dict[str, str] = {}
+    for stage, _, _ in stamped_configs(run_dir):
+        attrs = artifact_attrs(run_dir, f"{stage}.h5", ("side_outputs",)) or {}
+        try:
+            out.update(json.loads(str(attrs.get("side_outputs") or "{}")))
+        except ValueError:
+            continue
+    return out
+
+
+def _fingerprint(path: Path) -> str:
+    """As the runner fingerprints a side output: size and modification time."""
+    st = path.stat()
+    return f"{st.st_size}:{st.st_mtime_ns}"
+
+
+def _place(run_dir: Path, staging: Path, recorded: dict[str, str]) -> dict[str, Path]:
+    """Move what show drew out of ``staging`` (see :func:`show_run`); name -> final path."""
+    placed: dict[str, Path] = {}
+    for new in sorted(staging.iterdir()):
+        target = run_dir / new.name
+        intact = (new.name in recorded and target.is_file() and not target.is_symlink()
+                  and _fingerprint(target) == recorded[new.name])
+        if intact and target.read_bytes() == new.read_bytes():
+            placed[new.name] = target  # what the stage wrote already: leave it (and its time) alone
+            continue
+        if intact:
+            from placeloc.core.safe_io import name_inside
+
+            target = name_inside(run_dir, SHOW_DIR, "show's folder") / new.name  # a link out of the run is refused
+            target.parent.mkdir(exist_ok=True)
+        os.replace(new, target)  # a link at the target is replaced, never written through
+        placed[new.name] = target
+    return placed

@@ -24,6 +24,7 @@ from placeloc.core.artifacts import atomic_open, read_strings, write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import PoseEvaluation
 from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.umap import resources as umap_resources
@@ -370,7 +371,7 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
 
 # ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds
 
-def evaluate_extra(ctx: Any, ev: Any) -> None:
+def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
     """UMap's own figures: the mode in metrics.json and, for panoramas, each panorama's
     lines against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
@@ -378,7 +379,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     ev.label = ev.metrics["mode"]
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
-        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.extra["poses"], ev.extra["rows"], ev.extra["err"])
+        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)
 
 
 # pictures of the first panoramas only: one PNG each
@@ -423,10 +424,11 @@ METHOD = Method(
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.polar_deg", "panorama.polar_weight", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
+                                          "panorama.refine_beam", "panorama.refine_step_m", "panorama.refine_yaw_cols",
+                                          "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
     },

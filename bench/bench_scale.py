@@ -1,4 +1,4 @@
-"""Extraction throughput on a synthetic 20,000-image traverse: inline, 2 local workers, 2-worker Dask LocalCluster.
+"""Extraction throughput on a synthetic 20,000-image traverse: local workers 1, 2, 4, ..., nproc, and a 2-worker Dask LocalCluster.
 
     python bench/bench_scale.py                 # 20,000 images, 64x32 PNGs in a temp folder
     python bench/bench_scale.py --frames 2000   # quicker
@@ -27,9 +27,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-CONFIGS = [  # label, executor section
-    ("local, 1 worker (inline)", {"kind": "local", "workers": 1}),
-    ("local, 2 workers", {"kind": "local", "workers": 2}),
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from scaling import worker_counts  # noqa: E402
+
+CONFIGS = [  # label, executor section: the scaling table over local workers, then Dask
+    *((f"local, {w} worker{'s' if w > 1 else ' (inline)'}", {"kind": "local", "workers": w}) for w in worker_counts()),
     ("dask LocalCluster, 2 workers", {"kind": "dask", "workers": 2, "scheduler": "local-cluster"}),
 ]
 
@@ -87,7 +89,7 @@ def main() -> None:
         configs = CONFIGS
     except ImportError:
         print("dask[distributed] is not installed (pip install 'placeloc[dask]'): the Dask row is left out")
-        configs = CONFIGS[:2]
+        configs = CONFIGS[:-1]
     tmp = Path(tempfile.mkdtemp(prefix="placeloc-bench-scale-"))
     try:
         t0 = time.perf_counter()

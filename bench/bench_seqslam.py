@@ -1,6 +1,7 @@
 """SeqSLAM speed and memory: placeloc's kernels and whole run against straightforward NumPy.
 
-    python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails
+    python bench/bench_seqslam.py            # 3576 x 3576, 64x32 thumbnails, and the scaling table
+    python bench/bench_seqslam.py --workers 1,2   # the scaling table over these worker counts
     python bench/bench_seqslam.py --flexible-block  # the flexible preset on one block at 36,000 refs
     python bench/bench_seqslam.py --large    # also a 36,000 x 36,000 run through the pipeline
                                              # (localize with the trajectory and the flexible search)
@@ -150,13 +151,14 @@ def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store:
     return path
 
 
-def whole_run(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, float]]:
+def whole_run(cfg: Path, run_dir: Path, repeat: int, workers: int | None = None) -> dict[str, tuple[float, float]]:
     """``placeloc extract`` and ``placeloc localize``, each its own process; best of ``repeat``
     after one run that fills the compiled-kernel cache (a user pays that once per install)."""
     best: dict[str, tuple[float, float]] = {}
     for i in range(repeat + 1):
         for stage in ("extract", "localize"):
-            wall, cpu = run_cli([stage, str(cfg), "-o", str(run_dir), "-q", "-f"])
+            extra = ["--set", f"executor.workers={workers}"] if workers else []
+            wall, cpu = run_cli([stage, str(cfg), "-o", str(run_dir), "-q", "-f", *extra])
             if i > 0 and (stage not in best or wall < best[stage][0]):
                 best[stage] = (wall, cpu)
     return best
@@ -187,6 +189,7 @@ def main() -> None:
     ap.add_argument("--flexible-block", action="store_true",
                     help="only: memory and time of the Nordland preset's flexible search on one block of queries "
                          "against 36,000 references (random D^), moving only and allowed to stand still")
+    ap.add_argument("--workers", default=None, help="worker counts of the scaling table (default 1, 2, 4, ..., nproc)")
     ap.add_argument("--large-shapes", default="trajectory,flexible",
                     help="sequence shapes whose localize the --large run measures (comma-separated)")
     args = ap.parse_args()
@@ -275,6 +278,19 @@ def main() -> None:
               "(a load above the core count means the figures include waiting for other processes)")
         print(f"target: whole run <= 3.3 s -> {'met' if t_whole <= 3.3 else 'NOT met'} ({t_whole:.2f} s wall, "
               f"{cpu_whole:.2f} s CPU)")
+
+        # -- scaling: the same two processes over worker counts
+        from scaling import markdown, scaling_table, worker_counts
+
+        counts = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
+
+        def measure(w: int) -> dict[str, float]:
+            best = whole_run(cfg, work / "run", repeat=1, workers=w)
+            return {f"{stage} (process wall)": wall for stage, (wall, _cpu) in best.items()} | \
+                {"extract + localize": sum(wall for wall, _ in best.values())}
+
+        print()
+        print(markdown(scaling_table(measure, counts, warm_up=False), f"SeqSLAM {n} x {n}, executor.workers"))
 
         if args.large:
             big = 36000

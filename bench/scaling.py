@@ -67,15 +67,19 @@ def scaling_table(measure: Callable[[int], dict[str, float]], workers: list[int]
     return table
 
 
-def markdown(table: dict[str, dict[int, float]], title: str, note: str = "") -> str:
+def markdown(table: dict[str, dict[int, float]], title: str, note: str = "", unit: str = "worker") -> str:
     """The table as markdown: one row per measured thing, one column per worker count, and
-    the speed-up of the largest count over one worker."""
+    the speed-up of the largest count over one worker (a row named "... GB/s" holds rates:
+    its speed-up is inverted accordingly)."""
     counts = sorted({w for cells in table.values() for w in cells})
-    head = f"| {title} | " + " | ".join(f"{w} worker{'s' if w > 1 else ''}" for w in counts) + \
+    head = f"| {title} | " + " | ".join(f"{w} {unit}{'s' if w > 1 else ''}" for w in counts) + \
         f" | speed-up {counts[-1]} vs {counts[0]} |"
     lines = [head, "|---" * (len(counts) + 2) + "|"]
     for row, cells in table.items():
-        values = " | ".join(f"{cells[w]:.2f} s" if w in cells else "" for w in counts)
+        rate = row.endswith("GB/s")
+        values = " | ".join((f"{cells[w]:.1f}" if rate else f"{cells[w]:.2f} s") if w in cells else "" for w in counts)
+        if rate:
+            cells = {w: 1.0 / v for w, v in cells.items() if v > 0}
         ratio = cells[counts[0]] / cells[counts[-1]] if counts[0] in cells and counts[-1] in cells else float("nan")
         lines.append(f"| {row} | {values} | {ratio:.2f}x |")
     load = os.getloadavg()
@@ -113,25 +117,76 @@ def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: 
     return scaling_table(measure, workers, repeat)
 
 
+def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[str, dict[int, float]]:
+    """SeqSLAM localize's three kernels on the benchmark's own feature rows, this process
+    restricted to the first k usable cores (its threads follow the CPU affinity): the
+    speed-up shows which kernels scale with cores, and the enhancement's bytes moved per
+    second whether it is bound by memory bandwidth rather than by the cores."""
+    import numpy as np
+
+    from placeloc.seqslam.comparisons import difference_block
+    from placeloc.seqslam.params import SeqSLAMParams
+    from placeloc.seqslam.search import enhance_t, sequence_search, velocities
+
+    p = SeqSLAMParams()
+    with h5py.File(features, "r") as f:
+        ref, query = f["reference/features"][()], f["query/features"][()]
+    vels = velocities(p.v_min, p.v_max, p.v_step)
+    everyone = sorted(os.sched_getaffinity(0))
+    table: dict[str, dict[int, float]] = {}
+    try:
+        for k in cores:
+            os.sched_setaffinity(0, everyone[:k])
+            best: dict[str, float] = {}
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                d = difference_block(ref, query, "sad")
+                t1 = time.perf_counter()
+                et = enhance_t(np.ascontiguousarray(d.T), int(p.enhance_window))
+                t2 = time.perf_counter()
+                sequence_search(et, 0, len(query), int(p.ds), vels, "centred", int(p.enhance_window), int(p.top_k), None, 0,
+                                shape=p.sequence_shape, edges=p.edges)
+                t3 = time.perf_counter()
+                for row, t in (("difference (L1 kernel)", t1 - t0), ("enhancement", t2 - t1), ("sequence search", t3 - t2)):
+                    best[row] = min(best.get(row, float("inf")), t)
+            for row, t in best.items():
+                table.setdefault(row, {})[k] = t
+            # the enhancement reads D^T and writes D^ once each (float32), plus its window sums
+            table.setdefault("enhancement GB/s", {})[k] = 2 * d.nbytes / best["enhancement"] / 1e9
+            print(f"  {k} cores: " + ", ".join(f"{r} {t:.3f} s" for r, t in best.items()), flush=True)
+    finally:
+        os.sched_setaffinity(0, everyone)
+    return table
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
     ap.add_argument("--workers", default=None, help="comma-separated worker counts (default 1, 2, 4, ..., nproc)")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--stages", default="extract,localize,evaluate")
+    ap.add_argument("--no-kernels", action="store_true", help="leave out the per-kernel table over cores")
     ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
     args = ap.parse_args()
     workers = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
     out = args.out or (Path(os.environ["OUT"]) / "scaling.md" if os.environ.get("OUT") else None)
     work = Path(tempfile.mkdtemp(prefix="placeloc-scaling-"))
     t0 = time.perf_counter()
+    kernels = None
     try:
         table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")))
+        if not args.no_kernels and hasattr(os, "sched_setaffinity"):
+            cores = [c for c in workers if c <= usable_cores()]
+            kernels = kernel_scaling(work / "run" / "extract.h5", cores)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     text = markdown(table, f"SeqSLAM benchmark settings, {args.n} x {args.n}",
                     note=f"Best of {args.repeat} after a warm-up; `python bench/scaling.py --n {args.n} "
                          f"--workers {','.join(map(str, workers))}` took {time.perf_counter() - t0:.0f} s.")
+    if kernels:
+        text += "\n\n" + markdown(kernels, "localize kernels, one process", unit="core",
+                                   note="This process pinned to the first k cores (sched_setaffinity); its kernel "
+                                        "threads follow.")
     print()
     print(text)
     if out is not None:

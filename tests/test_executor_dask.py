@@ -72,8 +72,8 @@ def test_killing_a_worker_mid_stage_still_completes(route, tmp_path, inline, clu
     monkeypatch.setattr(runner, "make_executor", KillingDaskExecutor)
     out = run_seqslam(route, tmp_path / "killed", dask_args(cluster))
     assert_identical(inline, out)
-    # one kill per map: extract reference, extract query (localize runs its difference
-    # blocks in-process, on threaded kernels: it maps nothing)
+    # one kill per map: extract reference, extract query (localize's blocks run in this
+    # process, on its threads: docs/architecture.md, "Scaling with cores")
     assert len(KillingDaskExecutor.killed) == 2
     with distributed.Client(cluster) as client:
         client.wait_for_workers(2, timeout=300)  # a hang guard: a loaded machine starts workers slowly
@@ -110,6 +110,9 @@ def test_corrupt_image_names_the_chunk_and_image(route, tmp_path, cluster):
 def test_shared_is_broadcast_once_and_released(cluster):
     ex = DaskExecutor(ExecutorParams(kind="dask", workers=2, scheduler=cluster.scheduler_address, retries=0))
     try:
+        # a worker killed by an earlier test may still be restarting: broadcast reaches the
+        # workers present, so wait for both (an event, not a time)
+        ex.client.wait_for_workers(2, timeout=60)
         big = np.arange(200_000, dtype=np.float64)
         got, holders = [], None
         for value in ex.map(_sum_with, range(20), shared=big):

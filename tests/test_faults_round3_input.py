@@ -426,6 +426,16 @@ def test_a_full_stdout_is_named_not_the_run_dir(args):
 def test_quiet_silences_library_warnings(route, tmp_path, quiet):
     """Pillow's DecompressionBombWarning (made to fire on the 96 x 48 frames by lowering its
     limit below their 4608 pixels): -q prints nothing of it; without -q it is one line."""
+    from PIL import Image
+
+    # The reader asks Pillow for a frame's orientation only when the file has an EXIF block
+    # (core/images.py): give one frame one (Orientation 1, upright), so Pillow opens it.
+    first = sorted((route / "reference").glob("*.png"))[0]
+    exif = Image.Exif()
+    exif[0x0112] = 1
+    with Image.open(first) as im:
+        im.load()
+        im.save(first, exif=exif.tobytes())
     code = ("import sys, PIL.Image; PIL.Image.MAX_IMAGE_PIXELS = 3000; sys.argv[0] = 'placeloc'; "
             "from placeloc.cli import main; main()")
     args = ["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "--set", "plots=false"] + (["-q"] if quiet else [])

@@ -126,3 +126,44 @@ def test_index_maps_and_chunk_size():
     assert list(local_to_original(index, np.array([0, 2, -1, 4]))) == [0, 3, -1, 7]
     assert list(original_to_local(index, np.array([3, 2, 7, -1, 9]))) == [2, -1, 4, -1, -1]
     assert images_per_task(10, 1) == 3 and images_per_task(100_000, 2) == 64 and images_per_task(1, 16) == 1
+
+
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_exif_orientation_is_read_with_and_without_an_exif_block(tmp_path, suffix):
+    """The reader's fast path (no EXIF block: Pillow is not asked) must not lose a rotation."""
+    from PIL import Image
+
+    from placeloc.core.images import exif_orientation, read_gray
+
+    up = np.zeros((20, 40), np.uint8)
+    up[:5, :] = 255                                   # bright top rows, upright
+    stored = np.ascontiguousarray(np.rot90(up, 1))    # as a sensor turned 90 deg stores it (Orientation 6)
+    plain, rotated = tmp_path / f"plain{suffix}", tmp_path / f"rotated{suffix}"
+    Image.fromarray(up).save(plain, quality=100) if suffix == ".jpg" else Image.fromarray(up).save(plain)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(stored).save(rotated, exif=exif.tobytes(), **({"quality": 100} if suffix == ".jpg" else {}))
+    assert exif_orientation(plain.read_bytes()) == 1 and exif_orientation(rotated.read_bytes()) == 6
+    for path in (plain, rotated):
+        img = read_gray(path)
+        assert img.shape == (20, 40) and img[:5].mean() > 200 and img[10:].mean() < 50
+
+
+def test_common_sections_reach_a_stage_as_typed_parameters(tmp_path):
+    """ctx.common is built from the validated config, with common_params.py's defaults for
+    what the config leaves out (no query: its images are None)."""
+    from pathlib import Path
+
+    from placeloc.core.common_params import CommonParams, ExecutorParams, GroundTruthParams
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import common_params
+
+    demo = Path(__file__).resolve().parent.parent / "configs" / "demo.yaml"
+    cfg = load_config(demo, ["executor.workers=3", "ground_truth.tolerance=4", "plots=false"])
+    common = common_params(cfg)
+    assert isinstance(common, CommonParams) and isinstance(common.executor, ExecutorParams)
+    assert common.executor.workers == 3 and common.executor.kind == "local" and common.plots is False
+    assert common.ground_truth.tolerance == 4 and common.ground_truth.radius == GroundTruthParams().radius
+    assert common.reference.images == cfg["reference"]["images"] and common.reference.on_error == "stop"
+    no_query = load_config(data={"method": "seqslam", "reference": {"images": cfg["reference"]["images"]}})
+    assert common_params(no_query).query.images is None

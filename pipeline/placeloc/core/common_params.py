@@ -85,7 +85,11 @@ class ExecutorParams(Params):
     """``executor``: where the parallel work items run (docs/dask.md)."""
 
     kind: str = param("local", choices=("local", "dask"), help="local (processes on this machine) or dask")
-    workers: int = param(1, min=1, help="parallel workers")
+    # 1 (this process) is the default: its threads already use every usable core for the image
+    # reading and the SeqSLAM kernels, and a process pool's start-up (1-2.5 s measured on 2
+    # loaded cores) is more than a 3576-frame extract (docs/architecture.md, "Scaling").
+    workers: int = param(1, min=1, help="worker processes; 1: this process, with threads on every usable core "
+                                        "(CPU affinity); more: a process pool sharing those cores")
     scheduler: str = param("local-cluster", help="dask: local-cluster, or the address of a running scheduler "
                                                  "(tcp://host:8786)")
     retries: int = param(2, min=0, help="dask: retries of a failed work item")

@@ -121,6 +121,17 @@ def _describe_one(path: str, work: ImageWork) -> tuple[tuple[int, int], Arrays] 
         return exc
 
 
+_THREAD_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _thread_pool(threads: int) -> ThreadPoolExecutor:
+    """One pool of ``threads`` threads per process, kept for every chunk: starting threads
+    anew for each chunk cost more than describing a chunk of small images on a loaded machine."""
+    if threads not in _THREAD_POOLS:
+        _THREAD_POOLS[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="placeloc-images")
+    return _THREAD_POOLS[threads]
+
+
 def describe_chunk(task: tuple[list[str], ImageWork, bool, int]) -> ChunkResult:
     """The executor's work item: ``(paths, work, skip, threads)`` -> a :class:`ChunkResult`.
 
@@ -135,8 +146,7 @@ def describe_chunk(task: tuple[list[str], ImageWork, bool, int]) -> ChunkResult:
     if threads == 1:
         results = part(0)
     else:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            results = [r for chunk in pool.map(part, range(threads)) for r in chunk]
+        results = [r for chunk in _thread_pool(threads).map(part, range(threads)) for r in chunk]
     kept, shapes, per_image, errors = [], [], [], []
     for i, res in enumerate(results):
         if isinstance(res, ImageError):

@@ -30,7 +30,7 @@ import numpy as np
 
 from placeloc.core.artifacts import read_strings
 from placeloc.core.common_params import GroundTruthParams
-from placeloc.core.imagework import extract_images
+from placeloc.core.imagework import extract_images, local_to_original
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.seqslam import resources as seqslam_resources
@@ -192,7 +192,7 @@ def localize(ctx: Any) -> None:
     out.attrs["velocities"] = m.velocities
     ref_index = ex["reference/index"][()]
     q_group = ex["reference" if loop_closure else "query"]
-    original = np.where(m.candidates >= 0, ref_index[np.clip(m.candidates, 0, None)], -1)
+    original = local_to_original(ref_index, m.candidates)
     if loop_closure:
         from placeloc.evaluation import loops
 

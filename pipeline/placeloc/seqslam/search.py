@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from placeloc.seqslam.l1 import run_threaded
+from placeloc.seqslam.l1 import n_threads, run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 from placeloc.seqslam.params import SeqSLAMParams
 
@@ -58,6 +58,12 @@ def trajectory_offsets(vels: np.ndarray, t_offsets: np.ndarray) -> np.ndarray:
     x = vels[:, None] * t_offsets[None, :].astype(np.float64)
     return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
 
+
+# The flexible search is many small NumPy operations per chunk of queries: the GIL, not the
+# cores, bounds it. On a 16-core machine (bench/scaling.py, the Nordland preset at 3576 x
+# 3576, localize pinned with taskset) it took 15.3 s on 1 core, 7.9-9.2 s on 2, 9.5-10.3 s
+# on 4 or 8 and 15.7-16.6 s on 16: more threads than two only contend.
+FLEXIBLE_THREADS = 2
 
 def enhancement_shift(window: int) -> float:
     """A z-score over n <= 2R+1 samples is >= -sqrt(n-1); adding sqrt(2R) makes D^ >= 0.
@@ -493,7 +499,8 @@ def sequence_search(
 
     # the flexible search holds two score arrays per velocity for a chunk of rows
     per_row = et.shape[1] * (2 * (len(vels) + 1) if shape == "flexible" else 1)
-    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row))
+    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row),
+                 threads=min(n_threads(), FLEXIBLE_THREADS) if shape == "flexible" else None)
     if edges == "shift" and nt <= ncols:
         for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
             sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))

@@ -26,6 +26,7 @@ line, exit code 2) naming the file and the fix.
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import stat
@@ -223,6 +224,17 @@ def read_run_file(run_dir: str | Path, name: str, max_bytes: int) -> bytes:
         raise UnsafeInputError(f"{Path(run_dir) / name} grew past {max_bytes / 2**20:.0f} MB while being read; "
                                "remove it and re-run")
     return data
+
+
+# A run folder's tables (per_query.csv: one short row per query) stay far below this.
+MAX_RUN_TABLE_BYTES = 1 << 30
+
+
+def read_run_table(run_dir: str | Path, name: str) -> io.StringIO:
+    """A CSV of the run folder (``per_query.csv``, ...) through :func:`read_run_file`,
+    ready for ``csv.reader``/``csv.DictReader``."""
+    data = read_run_file(run_dir, name, MAX_RUN_TABLE_BYTES)
+    return io.StringIO(data.decode("utf-8", "replace"), newline="")
 
 
 # ----------------------------------------------------------------- input files

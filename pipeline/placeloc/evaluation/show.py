@@ -12,13 +12,14 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
-import io
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from placeloc.core.safe_io import read_run_table
 
 SAMPLE_PNG = "strips_sample.png"
 FAILURES_PNG = "strips_failures.png"
@@ -44,7 +45,7 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
     per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
-        for r in csv.DictReader(_run_text(run_dir, "per_query.csv")):
+        for r in csv.DictReader(read_run_table(run_dir, "per_query.csv")):
             if only_matched and not r["best_image"]:
                 continue
             rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
@@ -67,18 +68,6 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
             continue
         rows.append(Row(qn, name_of.get(int(j), "") if j >= 0 else "", float(c), None, ""))
     return rows
-
-
-# per_query.csv holds one short row per query: 1 GB is millions of queries past any run.
-MAX_TABLE_BYTES = 1 << 30
-
-
-def _run_text(run_dir: Path, name: str) -> io.StringIO:
-    """A CSV of the run folder through the run-folder guard (no link followed, a regular
-    file, bounded), ready for csv.reader."""
-    from placeloc.core.safe_io import read_run_file
-
-    return io.StringIO(read_run_file(run_dir, name, MAX_TABLE_BYTES).decode("utf-8", "replace"), newline="")
 
 
 def _num(text: str) -> float:
@@ -235,7 +224,7 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     path = Path(run_dir) / "per_query.csv"
     if not path.is_file():
         raise ShowError(f"{path} is missing: Recall@N needs ground truth; run `placeloc evaluate` first")
-    reader = csv.DictReader(_run_text(Path(run_dir), "per_query.csv"))
+    reader = csv.DictReader(read_run_table(run_dir, "per_query.csv"))
     k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
     rows = list(reader)
     first = np.array([int(r["first_correct_rank"]) for r in rows])

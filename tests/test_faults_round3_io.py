@@ -619,3 +619,14 @@ def test_planted_artifact_is_never_up_to_date(small_run, tmp_path, plant):
     assert proc.returncode == 0, proc.stderr
     assert "localize: running" in proc.stderr
     assert not (run / "localize.h5").is_symlink() and read_stamp(run / "localize.h5") == stamp
+
+
+def test_mat_matrix_is_checked_from_its_header(tmp_path):
+    """MATLAB v5 files: scipy.io.whosmat's shapes are checked before loadmat reads them."""
+    from scipy.io import savemat
+
+    path = tmp_path / "gt.mat"
+    savemat(path, {"GT": np.zeros((300, 300))})
+    with pytest.raises(UnsafeInputError, match="300 x 300 float64"):
+        load_arrays(path, "ground_truth.path", max_bytes=100 * 100 * 8)
+    assert load_arrays(path, "ground_truth.path", max_bytes=300 * 300 * 8)["GT"].shape == (300, 300)

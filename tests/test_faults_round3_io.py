@@ -630,3 +630,31 @@ def test_mat_matrix_is_checked_from_its_header(tmp_path):
     with pytest.raises(UnsafeInputError, match="300 x 300 float64"):
         load_arrays(path, "ground_truth.path", max_bytes=100 * 100 * 8)
     assert load_arrays(path, "ground_truth.path", max_bytes=300 * 300 * 8)["GT"].shape == (300, 300)
+
+
+def test_show_waits_for_a_run_in_progress(small_run):
+    """show reads what a running stage is replacing: it waits for the run's lock (an event:
+    its "waiting for placeloc pid" line), then draws."""
+    import select
+
+    from placeloc.core.runner import lock_run_dir
+
+    run, _ = small_run
+    (run / "report.html").unlink()
+    with lock_run_dir(run):
+        proc = subprocess.Popen([*PLACELOC, "show", str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            line = ""
+            while "waiting for placeloc pid" not in line:
+                ready, _, _ = select.select([proc.stderr], [], [], 120)
+                assert ready, "show neither waited nor finished within 120 s"
+                line = proc.stderr.readline()
+                assert line or proc.poll() is None, "show finished while the run held the lock"
+            assert not (run / "report.html").exists()
+        except BaseException:
+            proc.kill()
+            raise
+    out, err = proc.communicate(timeout=120)
+    record(proc.returncode, err)
+    assert proc.returncode == 0, err
+    assert (run / "report.html").is_file()

@@ -658,3 +658,15 @@ def test_show_waits_for_a_run_in_progress(small_run):
     record(proc.returncode, err)
     assert proc.returncode == 0, err
     assert (run / "report.html").is_file()
+
+
+@pytest.mark.parametrize("value", ["1" * 5000, "!!timestamp 9999999-01-01"])
+def test_yaml_value_a_safe_tag_cannot_build_is_one_line(route, tmp_path, value):
+    """A 5000-digit integer (past Python's int-string limit) or a malformed timestamp: the
+    one loader words it, in a file and in --set alike."""
+    config = tmp_path / "c.yaml"
+    config.write_text(f"method: seqslam\nseqslam:\n  ds: {value}\n")
+    for args in (["run", str(config)], ["run", str(route / "config.yaml"), "--set", f"seqslam.ds={value}"]):
+        result = _cli([*args, "--run-dir", str(tmp_path / "run")])
+        assert result.exit_code == 2, result.output
+        assert "a value cannot be read" in _err(result).splitlines()[-1]

@@ -110,6 +110,11 @@ def load_yaml(text: str, what: str = "YAML", max_bytes: int = MAX_YAML_BYTES) ->
                              f"{max_bytes / 1e6:.0f} MB (settings, not data: put data in files and name them)")
     try:
         return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 (a SafeLoader subclass)
+    except (ValueError, TypeError, AttributeError, OverflowError) as exc:
+        # a safe tag's constructor meeting a value it cannot build: an integer of thousands of
+        # digits (Python's int limit), a malformed !!timestamp, ...
+        raise yaml.YAMLError(f"{what}: a value cannot be read ({' '.join(str(exc).split())[:160]}); "
+                             "write a plain number or string") from None
     except RecursionError:  # a deep flow collection inside one scalar token; the depth cap catches the rest
         raise yaml.YAMLError(f"{what}: nested too deeply (hundreds of levels of [ or {{); close the brackets") from None
 

@@ -670,3 +670,12 @@ def test_yaml_value_a_safe_tag_cannot_build_is_one_line(route, tmp_path, value):
         result = _cli([*args, "--run-dir", str(tmp_path / "run")])
         assert result.exit_code == 2, result.output
         assert "a value cannot be read" in _err(result).splitlines()[-1]
+
+
+@pytest.mark.parametrize("content", ["[" * 100_000, "[1, 2]"])
+def test_damaged_metrics_json_is_one_line_in_show(small_run, content):
+    run, _ = small_run
+    (run / "metrics.json").write_text(content)
+    result = _cli(["show", str(run), "-q"])
+    assert result.exit_code == 2, result.output
+    assert "metrics.json" in _err(result).splitlines()[-1]

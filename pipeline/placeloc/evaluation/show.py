@@ -12,7 +12,6 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -255,7 +254,7 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     import shutil
 
     from placeloc.core.artifacts import TMP_MARK
-    from placeloc.core.safe_io import read_run_file
+    from placeloc.core.safe_io import load_json, read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
     from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, write_report
 
@@ -273,7 +272,10 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
         drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
         metrics = None
         if (run_dir / "metrics.json").is_file():
-            metrics = json.loads(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
+            metrics = load_json(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8", "replace"),
+                                str(run_dir / "metrics.json"))
+            if not isinstance(metrics, dict):
+                raise ShowError(f"{run_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
         write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
         placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
     finally:
@@ -286,14 +288,15 @@ def recorded_side_outputs(run_dir: Path) -> dict[str, str]:
     """name -> fingerprint of every side output recorded by the artifacts of the run's
     chain of stamps (an artifact left from an older run re-runs anyway: its files are not
     kept from show)."""
+    from placeloc.core.safe_io import load_json
     from placeloc.evaluation.report import artifact_attrs, stamped_configs
 
     out: dict[str, str] = {}
     for stage, _, _ in stamped_configs(run_dir):
         attrs = artifact_attrs(run_dir, f"{stage}.h5", ("side_outputs",)) or {}
         try:
-            out.update(json.loads(str(attrs.get("side_outputs") or "{}")))
-        except ValueError:
+            out.update(load_json(str(attrs.get("side_outputs") or "{}"), f"{stage}.h5 side outputs"))
+        except (ValueError, TypeError):
             continue
     return out
 

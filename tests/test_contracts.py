@@ -125,7 +125,8 @@ def test_strips_draw_the_images_the_per_query_csv_names(run, monkeypatch):
     real = show_mod._read
     monkeypatch.setattr(show_mod, "_read", lambda path, shape: (drawn.append(Path(path).name if path else ""), real(path, shape))[1])
     contract(kind).show(run_dir, read_result(run_dir / "localize.h5"), sample=4, failures=0)
-    rows = [r for r in csv.DictReader((run_dir / "per_query.csv").open()) if kind == "ranked" or r["best_image"]]
+    # loops: only the loop closures the method accepted (what n_accepted counts), never those below its threshold
+    rows = [r for r in csv.DictReader((run_dir / "per_query.csv").open()) if kind == "ranked" or r["accepted"] == "1"]
     picks = show_mod.pick_sample(len(rows), 4)
     want = [x for i in picks for x in (rows[i]["query_image"], rows[i]["best_image"], rows[i]["positive_image"])]
     assert drawn == want

@@ -54,12 +54,19 @@ def test_standard_and_separated_rankings_differ_as_defined():
     """Plain ranking [5, 6, 1]: neighbours allowed; separated [5, 1]: distinct places."""
     gt = GroundTruth(10, 1, intervals=(np.array([0]), np.array([1]), np.array([1])))
     s = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1),
-                      ranked=np.array([[5, 6, 1]]), ns=(1, 2, 3))
+                      ranked=np.array([[5, 6, 1]]), ns=(1, 2, 3, 5), separated_differs=True)
     assert [s.metrics[f"recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 0.0, 1.0]
-    # only 2 separated candidates were kept: recall at 3 is unknown, not silently the value at 2
-    assert [s.metrics[f"separated_recall_at_{n}"] for n in (1, 2, 3)] == [0.0, 1.0, None]
+    # N = 5 is beyond the 3 plain candidates: not written, never silently the value at 3
+    assert "recall_at_5" not in s.metrics
+    # separated at N = 1 is recall_at_1 by definition (not written); only 2 separated candidates
+    # were kept, so N = 3 is unknown and not written either
+    assert s.metrics["separated_recall_at_2"] == 1.0
+    assert not {"separated_recall_at_1", "separated_recall_at_3"} & set(s.metrics)
+    # every query has a positive: the _with_positive variant would repeat recall_at_N
+    assert not [k for k in s.metrics if k.endswith("_with_positive")]
     none = score_matches(gt, np.array([0]), np.arange(10), separated=np.array([[5, 1]]), confidence=np.ones(1))
-    assert none.metrics["recall_at_1"] == 0.0 and none.metrics["recall_at_5"] is None
+    assert none.metrics["recall_at_1"] == 0.0 and "recall_at_5" not in none.metrics
+    assert not [k for k in none.metrics if k.startswith("separated_")]
 
 
 def _positions_csv(route, path):

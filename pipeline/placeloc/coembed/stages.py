@@ -15,6 +15,7 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -32,6 +33,7 @@ from placeloc.coembed.observations import (
 from placeloc.coembed.params import CoembedParams
 from placeloc.core.config import ConfigError
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import MapEvaluation
 
 log = logging.getLogger("placeloc")
 
@@ -67,13 +69,15 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
     else:
         from placeloc.coembed.extract import observations_from_images
         from placeloc.core.images import list_images
+        from placeloc.core.imagework import ImageStream
 
-        paths = list_images(p.images).paths
+        images = list_images(p.images)
+        paths = images.paths
         s, f, v = observations_from_images(
-            paths, source=p.source, image_values=p.image_values, aruco_dictionary=p.aruco_dictionary,
+            len(paths), source=p.source, image_values=p.image_values, aruco_dictionary=p.aruco_dictionary,
             sift_features=p.sift_features, sift_ratio=p.sift_ratio, sift_min_track=p.sift_min_track,
             sift_id_offset=p.sift_id_offset,
-            mapper=lambda fn, items: ctx.progress(ctx.executor.map(fn, items), total=len(items)))
+            describe=lambda work: (frame.arrays for frame in ImageStream(ctx, images, work, desc=f"extract {work.fn.__name__}")))
         obs = from_triplets(s, f, v)
         ctx.out.create_dataset("frames", data=np.array([q.name for q in paths], dtype=object), dtype=h5py.string_dtype())
     if p.intrinsics is not None:
@@ -208,7 +212,7 @@ def localize(ctx) -> None:  # noqa: ANN001
     write_map_csv(ctx.output("map.csv"), obs.feature_ids, coords, np.isin(obs.feature_ids, lid))
 
 
-def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
+def evaluate_extra(ctx: Any, ev: MapEvaluation) -> None:
     """Co-embedding's own figures beside the map contract's: the solver's settings and cost,
     the landmark warnings, and the path read out from the map against the true poses."""
     from placeloc.coembed.metrics import path_errors
@@ -225,7 +229,7 @@ def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
             v = loc["map"].attrs[k]
             m[k] = v.item() if hasattr(v, "item") else v
     m["landmark_warnings"] = json.loads(art["landmarks"].attrs.get("warnings", "[]"))
-    ev.extra["landmarks"] = art["landmarks/coords"][()]
+    ev.landmarks = art["landmarks/coords"][()]
     if "path" in loc and p.poses is not None:
         steps, xy, heading = poses_by_step(p.poses)
         path_est = loc["path/xy"][()]
@@ -233,8 +237,10 @@ def evaluate_extra(ctx, ev) -> None:  # noqa: ANN001
                                         loc["path/label_steps"][()], steps, xy, heading)
         m.update(found)
         if path_truth is not None:
-            ev.extra.update(path_est=path_est, path_truth=path_truth)
-            m["headline"] = list(m["headline"]) + ["path_rmse"]
+            ev.path_est, ev.path_truth = path_est, path_truth
+            # kept in evaluate.h5 so that `placeloc show` draws the true path too
+            ev.arrays.update(path_est_xy=path_est, path_truth_xy=path_truth)
+            m["headline"] = [k for k in m["headline"] if k != "seconds_per_frame"] + ["path_rmse", "seconds_per_frame"]
     name = {"coembed": "co-embedding", "isomap": "Isomap", "pcamd": "PCAMD (Wiberg)"}[p.solver]
     if p.solver == "coembed" and p.camera_model != "linear":
         name += f" ({p.camera_model} camera)"

@@ -48,6 +48,54 @@ def _from_hdf5(path: Path, what: str, max_bytes: int) -> np.ndarray:
         return h5_dataset(f[found[0]], max_bytes)
 
 
+def _load_npy(path: Path, mmap: bool = False) -> np.ndarray:
+    """np.load without pickle, every failure a DescriptorError naming the file."""
+    try:
+        return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
+    except (ValueError, OSError, EOFError) as exc:  # object arrays, a damaged header, a truncated file
+        raise DescriptorError(f"{path}: not a numeric .npy matrix ({' '.join(str(exc).split())[:160]}); save it with "
+                              "np.save(path, matrix.astype(np.float32))") from exc
+
+
+def descriptor_shape(path: str | Path) -> tuple[int, ...] | None:
+    """The shape of a descriptor source from its headers (no data read): (rows, d) for a
+    matrix file or a folder of vectors; None when the source cannot be told (missing, or a
+    form :func:`load_descriptors` will refuse with its own message)."""
+    import h5py
+
+    p = Path(path)
+    if p.is_dir():
+        files = sorted(p.glob("*.npy"), key=lambda x: natural_key(x.name))
+        return (len(files), int(_load_npy(files[0], mmap=True).size)) if files else None
+    if p.suffix == ".npy" and p.is_file():
+        return tuple(_load_npy(p, mmap=True).shape)
+    if p.suffix in (".h5", ".hdf5") and p.is_file():
+        try:
+            with h5py.File(p, "r") as f:
+                if "descriptors" in f and isinstance(f["descriptors"], h5py.Dataset):
+                    return tuple(f["descriptors"].shape)
+                found: list[tuple[int, ...]] = []
+                f.visititems(lambda _n, obj: found.append(obj.shape) if isinstance(obj, h5py.Dataset) and obj.ndim == 2 else None)
+                return found[0] if len(found) == 1 else None
+        except OSError:
+            return None  # not HDF5: load_descriptors names it
+    return None
+
+
+def check_descriptor_pair(reference: str | Path | None, query: str | Path | None, key: str) -> None:
+    """Refuse, before any stage runs, reference and query descriptors of different
+    dimensions (two models, or one model at two sizes): their distances mean nothing, and
+    the matrix product would fail deep inside a stage."""
+    if reference is None or query is None:
+        return
+    shapes = {role: descriptor_shape(path) for role, path in (("reference", reference), ("query", query))}
+    dims = {role: shape[1] for role, shape in shapes.items() if shape is not None and len(shape) == 2}
+    if len(dims) == 2 and dims["reference"] != dims["query"]:
+        raise DescriptorError(f"{key}_query: {Path(query).name} holds {dims['query']}-dimensional descriptors but "
+                              f"{key}_reference ({Path(reference).name}) holds {dims['reference']}-dimensional ones; "
+                              "compute both traverses' descriptors with the same model and settings")
+
+
 def load_descriptors(path: str | Path, n_images: int, role: str, key: str = "seqslam.descriptors") -> np.ndarray:
     """The (n_images, d) float32 descriptor matrix of one traverse, checked against its image count."""
     p = Path(path)
@@ -62,6 +110,10 @@ def load_descriptors(path: str | Path, n_images: int, role: str, key: str = "seq
     if len(mat) != n_images:
         raise DescriptorError(f"{p}: {len(mat)} descriptor rows for {n_images} {role} images; one row per image, in the "
                               "folder's order")
+    if not (np.issubdtype(mat.dtype, np.integer) or np.issubdtype(mat.dtype, np.floating)) or mat.dtype == bool:
+        raise DescriptorError(f"{p}: descriptors must be real numbers, got {mat.dtype} values; save a float32 matrix")
+    if mat.shape[1] == 0:
+        raise DescriptorError(f"{p}: descriptors of dimension 0 (shape {mat.shape}); one non-empty vector per image")
     mat = mat.astype(np.float32)
     if not np.isfinite(mat).all():
         raise DescriptorError(f"{p}: descriptors contain NaN or infinity")

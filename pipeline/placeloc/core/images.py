@@ -19,6 +19,15 @@ if TYPE_CHECKING:
     import cv2
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+# Image formats placeloc does not read, though a camera, a browser or OpenCV may: their
+# headers are not checked before decoding (the memory estimate needs the size up front), and
+# animated or lossy-web formats are not frames of a traverse. A folder that holds one is
+# listed without it, and a warning names it (synchronous ground truth refuses the folder).
+OTHER_IMAGE_EXTENSIONS = (".webp", ".gif", ".avif", ".heic", ".heif", ".jp2", ".j2k", ".jpx", ".jxl", ".exr", ".hdr",
+                          ".pic", ".pfm", ".pbm", ".pnm", ".pxm", ".sr", ".ras", ".jpe", ".jfif", ".dib", ".ico",
+                          ".svg", ".psd", ".dng", ".cr2", ".nef", ".arw", ".raw")
+# The first bytes of image files, to spot an image under another name ("frame7.png~", "frame8").
+_IMAGE_SIGNATURES = (b"\x89PNG", b"\xff\xd8\xff", b"GIF8", b"BM", b"II*\x00", b"MM\x00*", b"P5", b"P6")
 
 
 class ImageError(RuntimeError):
@@ -41,6 +50,11 @@ class ImageSet:
     paths: list[Path]
     on_error: str = "stop"
     skipped: list[str] = field(default_factory=list)
+    # Files in the folder (or matched by the glob) that are not listed, with the reason:
+    # (name, reason) for images of a format placeloc does not read and files that look like
+    # images under another name; other files (CSV, notes) are in ``others``.
+    not_read: list[tuple[str, str]] = field(default_factory=list)
+    others: list[str] = field(default_factory=list)
     # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
     # "content": a BLAKE2b hash of every file's bytes (reads every image once per run).
     fingerprint_mode: str = "stat"
@@ -88,6 +102,12 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     p = Path(spec)
     skipped: list[str] = []
 
+    def refuse(message: str) -> bool:
+        if on_error == "skip":
+            skipped.append(message)
+            return False
+        raise ImageError(message)
+
     def usable(path: Path, entry: os.DirEntry | None = None) -> bool:
         """A regular file (or a link to one). A link loop is an error naming the link, or
         skipped (and recorded in the artifact) with on_error: skip."""
@@ -101,22 +121,123 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
             return False
         raise ImageError(message)
 
+    not_read: list[tuple[str, str]] = []
+    others: list[str] = []
+
+    def listed(path: Path, entry: os.DirEntry | None = None) -> bool:
+        """Listed as an image; when not, say why in ``not_read`` (an image placeloc does not
+        read) or ``others`` (not an image)."""
+        if path.suffix.lower() in IMAGE_EXTENSIONS:
+            if not _utf8(path.name):
+                return refuse(f"{path.parent}/{shown_name(path.name)}: the file name is not valid UTF-8 text (its "
+                              "bytes are shown escaped); rename it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest "
+                              "FILE), or set on_error: skip beside images:")
+            return usable(path, entry)
+        reason = _why_not_read(path, entry)
+        if reason is None:
+            others.append(path.name)
+        else:
+            not_read.append((path.name, reason))
+        return False
+
     if p.is_dir():
         try:
             with os.scandir(p) as entries:
-                names = [e.name for e in entries
-                         if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and usable(p / e.name, e)]
+                names = [e.name for e in entries if listed(p / e.name, e)]
         except PermissionError as exc:
             raise ImageError(f"{spec}: the image folder cannot be listed (permission denied); "
                              "make it readable (chmod a+rx)") from exc
         files = [p / n for n in sorted(names, key=natural_key)]
     else:
-        files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS and usable(Path(q))),
-                       key=lambda q: natural_key(q.name))
+        files = sorted((Path(q) for q in glob.glob(spec) if listed(Path(q))), key=lambda q: natural_key(q.name))
+    not_read.sort(key=lambda item: natural_key(item[0]))
     if not files:
-        raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
+        shown = f" (not read: {_first_names(not_read)})" if not_read else ""
+        raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}){shown}; "
                          "point reference.images / query.images at a folder of images")
-    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped)
+    if not_read:
+        _warn_once(spec, not_read)
+    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped,
+                    not_read=not_read, others=sorted(others, key=natural_key))
+
+
+def _utf8(name: str) -> bool:
+    """True when a file name decoded from the file system is valid UTF-8 (Python keeps the
+    bytes of a name that is not as lone surrogates, which no text file, HDF5 string or
+    report can hold)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_name(name: str) -> str:
+    """A file name as printable text: bytes that are not UTF-8 appear as \\xNN."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def _why_not_read(path: Path, entry: os.DirEntry | None) -> str | None:
+    """Why a file that is not listed would matter: an image of another format, or a file that
+    starts like an image under a name without an image extension; None for other files."""
+    ext = path.suffix.lower()
+    if ext in OTHER_IMAGE_EXTENSIONS:
+        return (f"{ext[1:].upper()} is not a format placeloc reads ({', '.join(e[1:] for e in IMAGE_EXTENSIONS)}); "
+                "convert it (e.g. to PNG) or move it out")
+    try:
+        if entry is not None and not entry.is_file():
+            return None  # a folder or a special file: not an image
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError:
+        return None  # the listing only names files; an unreadable non-image is not ours to judge
+    if head.startswith(_IMAGE_SIGNATURES) or (head[:4] == b"RIFF" and head[8:12] == b"WEBP") or head[4:8] == b"ftyp":
+        return "its bytes are an image but its name has no image extension; rename it (e.g. .png) or move it out"
+    return None
+
+
+def _first_names(items: list[tuple[str, str]], n: int = 3) -> str:
+    shown = ", ".join(name for name, _ in items[:n])
+    return shown + (f" and {len(items) - n} more" if len(items) > n else "")
+
+
+# One warning per folder and process: the runner and the ground-truth check list a folder more than once.
+_WARNED: set[tuple[str, tuple[str, ...]]] = set()
+
+
+def _warn_once(spec: str, not_read: list[tuple[str, str]]) -> None:
+    import logging
+
+    key = (spec, tuple(name for name, _ in not_read))
+    if key in _WARNED:
+        return
+    _WARNED.add(key)
+    logging.getLogger("placeloc.images").warning(
+        "%s: %d file(s) not read: %s (%s)", spec, len(not_read), _first_names(not_read), not_read[0][1])
+
+
+def check_position_pairing(reference: ImageSet, query: ImageSet, why: str = "ground_truth.kind: synchronous") -> None:
+    """Refuse two listings that pair by position (query i is reference i) when something
+    shifts the positions: different counts, a file of either folder not listed (an image of a
+    format placeloc does not read, an unreadable entry skipped while listing), or folders
+    that share file names but list them in different places. The message names the first
+    mismatch; pairing the wrong files in silence turns a right answer into a wrong score."""
+    for role, images in (("reference", reference), ("query", query)):
+        if images.not_read:
+            name, reason = images.not_read[0]
+            raise ImageError(f"{role}.images: {name} is not read ({reason}); with {why} every later image would pair "
+                             f"with the wrong one: convert or remove it (from both folders, to keep the pairs)")
+        if images.skipped:
+            raise ImageError(f"{role}.images: {images.skipped[0]} (skipped while listing); with {why} every later image "
+                             "would pair with the wrong one: fix or remove it (from both folders, to keep the pairs)")
+    r, q = reference.names, query.names
+    shared = bool(set(r) & set(q))
+    first = next((i for i, (a, b) in enumerate(zip(r, q)) if a != b), None) if shared else None
+    if len(r) != len(q) or first is not None:
+        where = (f"; the first difference is at position {first}: reference {r[first]} beside query {q[first]}"
+                 if first is not None else "")
+        raise ImageError(f"{why} pairs query i with reference i, but the reference lists {len(r)} images and the query "
+                         f"{len(q)}{where}; give both folders the same frames (or use ground_truth.kind: csv or poses)")
 
 
 # ----------------------------------------------------------------- headers

@@ -48,8 +48,15 @@ def _mb(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
+# The largest size limit taken from the environment: 2**40 MB (an exbibyte), far beyond any
+# machine; a larger figure is a typo (1e308), and turned into bytes it overflows.
+ENV_MEGABYTES_MAX = 2**40
+
+
 def env_megabytes(name: str) -> int | None:
-    """A size limit in MB from the environment variable ``name`` (None when unset)."""
+    """A size limit in MB from the environment variable ``name`` (None when unset or empty).
+    The one parser of placeloc's numeric environment variables: a value that is not a
+    finite number from 0 to :data:`ENV_MEGABYTES_MAX` is refused naming the variable."""
     env = os.environ.get(name, "").strip()
     if not env:
         return None
@@ -60,6 +67,9 @@ def env_megabytes(name: str) -> int | None:
     if not math.isfinite(value) or value < 0:
         raise ResourceError(f"{name}={env!r} is not a number of megabytes; set it to e.g. {name}=4096, or unset it "
                             f"(unset {name})")
+    if value > ENV_MEGABYTES_MAX:
+        raise ResourceError(f"{name}={env!r} is more megabytes than any machine has (at most {ENV_MEGABYTES_MAX}); "
+                            f"set it to e.g. {name}=4096, or unset it (unset {name})")
     return int(value * 2**20)
 
 

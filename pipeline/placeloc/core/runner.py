@@ -34,6 +34,7 @@ from placeloc.core.artifacts import (
     read_write_id,
     remove_stale_tmp,
 )
+from placeloc.core.common_params import CommonParams
 from placeloc.core.config import MAX_CONFIG_BYTES, config_hash, to_yaml
 from placeloc.core.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.core.runner
 from placeloc.core.executor import Executor, remove_stale_shared
@@ -42,6 +43,7 @@ from placeloc.core.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.core.interrupts import raise_if_interrupted
 from placeloc.core.limits import check_inputs, check_resources
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
+from placeloc.core.params import from_section
 from placeloc.core.safe_io import UnsafeInputError, open_run_file, read_run_file
 
 try:
@@ -76,6 +78,9 @@ class StageContext:
 
     # The method's parameter object (see placeloc.core.params), built once per run.
     params: Any = None
+    # The common sections (reference, query, ground_truth, executor, plots, seed) as the
+    # typed parameter object of placeloc.core.common_params: ctx.common.ground_truth.radius.
+    common: CommonParams | None = None
     # Where side outputs are written while the stage runs (a hidden folder in the run
     # directory); the runner moves them into the run directory together with the artifact,
     # and only when the stage succeeded. None: straight into the run directory.
@@ -138,6 +143,11 @@ class StageContext:
         self._open.clear()
 
 
+def common_params(config: dict[str, Any]) -> CommonParams:
+    """The common sections of a validated config as their typed parameter object."""
+    return from_section(CommonParams, {k: v for k, v in config.items() if v is not None})
+
+
 def normalise_stage(name: str) -> str:
     if name not in STAGES:
         raise StageError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}")
@@ -180,7 +190,7 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     sections = declared.sections if declared is not None else ()
     section = config.get(method.name, {})
     method_part = {k: _lookup(section, k) for k in keys}
-    common = {k: config.get(k) for k in BASE_SECTIONS + tuple(sections)}
+    common = {k: _lookup(config, k) for k in BASE_SECTIONS + tuple(sections)}  # a section, or one key of it (dotted)
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
     if stage == STAGES[0]:
         for role, s in images.items():
@@ -267,7 +277,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
                 check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
-                executor = make_executor(config["executor"])
+                executor = make_executor(common_params(config).executor)
             _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
             parent_stamp = _parent_token(stamp, path)
@@ -484,7 +494,7 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
             staging.mkdir()
             ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
                                executor=executor, quiet=quiet, images=images, params=method.build_params(config),
-                               staging=staging)
+                               common=common_params(config), staging=staging)
             before = _run_files(run_dir)
             _run_stage_fn(fn, ctx, run_dir, name)
             f.attrs["seconds"] = time.perf_counter() - t0

@@ -6,14 +6,17 @@ A method's localize writes exactly one contract into the group ``result`` of
 estimates) or ``map`` (mapped point coordinates). The contract, not the method, owns the
 up-front ground-truth check, the evaluate stage, ``placeloc show``, ``report.html``, the
 headline figures ``placeloc run`` prints and the ``metrics.json`` schema. A method adds its
-own figures through ``Method(result=..., evaluate_extra=hook)``: the hook receives the
-stage context and the contract's :class:`Evaluation` after scoring and may add metrics,
-PR curves and pictures. docs/architecture.md ("Result contracts") has the table.
+own figures through ``Method(result=..., evaluate_extra=hook)`` (an :class:`EvaluateHook`):
+the hook receives the stage context and the kind's typed evaluation
+(:class:`RankedEvaluation`, :class:`LoopEvaluation`, :class:`PoseEvaluation`,
+:class:`MapEvaluation`) after scoring and may add metrics, PR curves and pictures from what
+localize wrote; it never re-runs the method. docs/architecture.md ("Result contracts") has
+the table.
 
 Each kind's module (:mod:`.ranked`, :mod:`.loops`, :mod:`.pose_estimates`, :mod:`.maps`)
-provides ``SCHEMA``, ``HEADLINE``, ``METRICS_DOC``, ``check_ground_truth(config, method)``,
-``evaluate(ctx, result) -> Evaluation``, ``finish(ctx, ev)`` (evaluate.h5 datasets,
-per-query CSV, its pictures) and ``show(run_dir, result, sample=, failures=)``.
+follows :class:`Contract`: a pure ``score(...)`` (arrays and ground truth in, the typed
+evaluation out) and ``evaluate(ctx, result)`` that reads the ground truth and calls it;
+``finish`` and :func:`evaluate_stage` persist what was scored.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import importlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Protocol, Sequence
 
 import h5py
 import numpy as np
@@ -75,8 +78,8 @@ class Evaluation:
 
     ``metrics`` becomes metrics.json (a hook may add keys); ``arrays`` are written into
     evaluate.h5; ``pr_curves`` (label -> (recall, precision)) are drawn on one PR plot;
-    ``label`` names the method's curve in legends; ``scores`` holds the contract's own
-    per-item results (e.g. :class:`placeloc.evaluation.matching.MatchScores`)."""
+    ``label`` names the method's curve in legends. Each kind adds its typed per-item
+    results in a subclass."""
 
     kind: str
     result: Result
@@ -84,12 +87,97 @@ class Evaluation:
     arrays: dict[str, Any] = field(default_factory=dict)
     pr_curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     label: str = ""
+
+
+@dataclass
+class RankedEvaluation(Evaluation):
+    """``ranked``: the ground truth, the Recall@N list, the file names by original index, the
+    candidates' separation and the per-query scores (:class:`placeloc.evaluation.matching.MatchScores`)."""
+
+    gt: Any = None
+    ns: tuple[int, ...] = (1,)
+    ref_names: list[str] = field(default_factory=list)
+    q_names: list[str] = field(default_factory=list)
+    separation: int = 0
     scores: Any = None
-    extra: dict[str, Any] = field(default_factory=dict)
-    rescore: Callable[..., None] | None = None
 
 
-def contract(kind: str) -> Any:
+@dataclass
+class LoopEvaluation(Evaluation):
+    """``loops``: per frame of the result, whether its match is a candidate (old enough),
+    accepted (a candidate at or above the method's threshold), right, whether the frame has
+    a loop at all, one true earlier frame (-1: none), the match as a position in the frame
+    list (-1: none); the PR curve, the truth matrix with its tolerance, the names by
+    original index."""
+
+    names: list[str] = field(default_factory=list)
+    candidate: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    correct: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    has_loop: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    example: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    match_local: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    accepted: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    pr: Any = None
+    truth: Any = None  # scipy CSR, lower triangular: row i holds the earlier frames that close a loop with i
+    tolerance: int = 0
+
+
+@dataclass
+class PoseEvaluation(Evaluation):
+    """``poses``: per frame the true and estimated position, the error (m), the yaw error and
+    true heading (deg; None without headings), the poses read and each frame's row in them."""
+
+    truth: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    est: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    err: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    yaw_err: np.ndarray | None = None
+    truth_heading: np.ndarray | None = None
+    poses: Any = None
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
+@dataclass
+class MapEvaluation(Evaluation):
+    """``map``: the evaluated features' estimates and truths (None without a truth file), their
+    ids, the landmarks, and a path read out from the map with its truth (drawn when given)."""
+
+    est: np.ndarray | None = None
+    truth: np.ndarray | None = None
+    eval_ids: np.ndarray | None = None
+    landmarks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    path_est: np.ndarray | None = None
+    path_truth: np.ndarray | None = None
+
+
+class EvaluateHook(Protocol):
+    """A method's ``evaluate_extra``: adds its own figures to the kind's typed evaluation
+    (metrics, arrays, PR curves, label, pictures into ``ctx.output``), reading only what its
+    stages wrote."""
+
+    def __call__(self, ctx: Any, ev: Any) -> None: ...
+
+
+class Contract(Protocol):
+    """What each kind's module provides (the four are checked against it in tests)."""
+
+    SCHEMA: dict[str, Field]
+    SECTIONS: tuple[str, ...]
+    SHOW_AT_EVALUATE: bool
+    METRICS_DOC: dict[str, str]
+
+    def check_ground_truth(self, config: dict[str, Any], method: Any) -> None: ...
+
+    def evaluate(self, ctx: Any, res: Result) -> Evaluation: ...
+
+    def finish(self, ctx: Any, ev: Any, plots: bool = True) -> None: ...
+
+    def headline(self, metrics: dict[str, Any]) -> list[str]: ...
+
+    def show(self, run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
+             out_dir: Path | None = None) -> list[Path]: ...
+
+
+def contract(kind: str) -> Contract:
     """The module implementing contract ``kind``."""
     if kind not in _MODULES:
         raise ContractError(f"unknown result kind {kind!r}; known: {', '.join(KINDS)}")
@@ -206,10 +294,33 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
         contract(kind).check_ground_truth(config, method)
 
 
+def stage_seconds(run_dir: Path, stages: Sequence[str]) -> dict[str, float]:
+    """Wall seconds each stage before evaluate took (its artifact's ``seconds``; a stage
+    the method passes through took none)."""
+    out: dict[str, float] = {}
+    for stage in stages:
+        path = Path(run_dir) / f"{stage}.h5"
+        if stage == "evaluate" or not path.is_file():
+            continue
+        with h5py.File(path, "r") as f:
+            if "seconds" in f.attrs:
+                out[stage] = float(f.attrs["seconds"])
+    return out
+
+
+def add_timing(metrics: dict[str, Any], seconds: dict[str, float], frames: int) -> None:
+    """The one timing key every contract reports: ``seconds_per_frame``, every stage before
+    evaluate (extraction included) over the frames localized (queries, loop-closure frames,
+    pose frames, mapped steps), with the stages' own seconds under ``stage_seconds``."""
+    metrics["seconds_per_frame"] = sum(seconds.values()) / frames if frames > 0 and seconds else None
+    metrics["stage_seconds"] = {k: round(v, 4) for k, v in seconds.items()}
+
+
 def evaluate_stage(ctx: Any) -> None:
     """The evaluate stage every contract shares: score the localize result, let the
     method's hook add its figures, then write metrics.json, the per-query CSV, the
     contract's pictures, the strips and report.html."""
+    from placeloc.core.stage_names import STAGES
     from placeloc.evaluation import write_metrics
 
     res = read_result(ctx.artifact("localize"))
@@ -219,9 +330,13 @@ def evaluate_stage(ctx: Any) -> None:
         ev.label = ctx.method.name
     if ctx.method.evaluate_extra is not None:
         ctx.method.evaluate_extra(ctx, ev)
+    own_truth = method_truth(ctx.method, ctx.params)
+    if own_truth:
+        ev.metrics["scored_against"] = own_truth
+    add_timing(ev.metrics, stage_seconds(ctx.run_dir, [s for s in STAGES if s in ctx.method.stages]), frames_of(ev))
     write_tree(ctx.out, ev.arrays)
     ctx.out.attrs["result_kind"] = res.kind
-    clean = write_metrics(ctx.output_dir, ev.metrics, ctx.out)
+    clean = write_metrics(ctx.output_dir, ordered(ev.metrics, getattr(mod, "COUNTS", ())), ctx.out)
     plots = bool(ctx.config.get("plots", True))
     mod.finish(ctx, ev, plots=plots)
     if plots:
@@ -231,6 +346,39 @@ def evaluate_stage(ctx: Any) -> None:
         if mod.SHOW_AT_EVALUATE:
             mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
         write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
+
+
+def method_truth(method: Any, params: Any) -> str:
+    """The truth a method reads from its own section (``Method(truth_keys=...)``, e.g.
+    co-embedding's ``coembed.truth`` and ``coembed.poses``) as "section.key=path" items, so
+    that metrics.json and the report name what was scored against; "" for none."""
+    keys = dict.fromkeys((getattr(method, "truth_keys", None) or {}).values())
+    return ", ".join(f"{method.name}.{k}={getattr(params, k)}" for k in keys if getattr(params, k, None) is not None)
+
+
+def frames_of(ev: Evaluation) -> int:
+    """The frames a result localized: its queries (ranked), frames (loops, poses) or mapped
+    steps (map; the method's ``n_steps`` when it reports one, else the features)."""
+    m = ev.metrics
+    for key in ("n_queries", "n_frames", "n_steps", "n_features"):
+        if isinstance(m.get(key), int):
+            return int(m[key])
+    return 0
+
+
+def ordered(metrics: dict[str, Any], counts: Sequence[str]) -> dict[str, Any]:
+    """metrics.json's order: the headline, the other figures, the time, then the counts and
+    settings (the kind's ``COUNTS``, every ``n_*``, and the words: the comparison, solver,
+    mode... a method names), then ``headline`` itself."""
+    head = [k for k in metrics.get("headline", []) if k in metrics]
+    tail = [k for k in metrics if (k in counts or k.startswith("n_") or isinstance(metrics[k], (str, bool)))
+            and k not in head and k != "headline"]
+    timing = [k for k in ("seconds_per_frame", "stage_seconds") if k in metrics]
+    rest = [k for k in metrics if k not in head and k not in tail and k not in timing and k != "headline"]
+    out = {k: metrics[k] for k in [*head, *rest, *timing, *tail]}
+    if "headline" in metrics:
+        out["headline"] = metrics["headline"]
+    return out
 
 
 def headline(run_dir: str | Path) -> list[tuple[str, Any]]:
@@ -253,8 +401,22 @@ def report_parts(kind: str | None, metrics: dict[str, Any] | None) -> dict[str, 
     documented meaning of its metrics (keyword arguments of ``write_report``)."""
     if kind is None:
         return {}
-    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [],
-            "metrics_doc": getattr(contract(kind), "METRICS_DOC", {})}
+    doc = getattr(contract(kind), "METRICS_DOC", {})
+    if metrics:  # explain only the figures this run reports (retrieval has no separated recall)
+        doc = {k: v for k, v in doc.items() if _reported(k, metrics)}
+    return {"result_kind": kind, "headline": headline_of(kind, metrics) if metrics else [], "metrics_doc": doc}
+
+
+def _reported(doc_key: str, metrics: dict[str, Any]) -> bool:
+    """Whether a documented key ("recall_at_N", "within_0_5m / within_1m", ...) names a key
+    of ``metrics`` (N standing for any number)."""
+    import re
+
+    for name in doc_key.split(" / "):
+        pattern = re.escape(name.strip()).replace("_N", "_[0-9]+")
+        if any(re.fullmatch(pattern, k) for k in metrics):
+            return True
+    return False
 
 
 def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:

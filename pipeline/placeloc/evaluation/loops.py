@@ -31,9 +31,11 @@ the accepted frames, recall = TP / (frames whose row has any one).
 ``metrics.json`` schema (``loops``): ``recall_at_100_precision`` (MR, the headline),
 ``auc_pr``, ``max_f1``, ``precision_at_threshold`` / ``recall_at_threshold`` at the method's
 own threshold (None without one), ``n_frames``, ``frames_with_loop``, ``n_candidates``,
-``n_accepted``, ``exclude_recent``, ``tolerance``, ``seconds_per_frame`` and
-``seconds_per_frame_end`` (mean over the last tenth, where the map is largest) with
-``map_size_end``; ``headline``.
+``n_accepted`` (and ``n_accepted_right``), ``exclude_recent``, ``tolerance``,
+``seconds_per_frame`` (every stage before evaluate, extraction included, over the frames),
+``loop_seconds_per_frame`` and ``loop_seconds_per_frame_end`` (the method's own per-frame
+record; the mean over the last tenth, where the map is largest) with ``map_size_end``;
+``headline``.
 """
 
 from __future__ import annotations
@@ -45,8 +47,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text
-from placeloc.evaluation.contracts import Evaluation, Field, Result, names_by_index, write_result
+from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text, read_run_table
+from placeloc.evaluation.contracts import Field, LoopEvaluation, Result, names_by_index, write_result
 from placeloc.evaluation.ground_truth import GroundTruthError
 
 log = logging.getLogger("placeloc")
@@ -70,8 +72,14 @@ METRICS_DOC = {
     "auc_pr": "area under precision-recall over the confidence",
     "precision_at_threshold": "precision of the loop closures the method itself accepts",
     "recall_at_threshold": "recall of the loop closures the method itself accepts",
-    "seconds_per_frame": "mean time per frame (seconds_per_frame_end: over the last tenth, largest map)",
+    "max_f1": "best F1 over the confidence thresholds",
+    "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per frame",
+    "loop_seconds_per_frame": "the method's own time per frame from its per-frame record (no extraction); "
+                              "loop_seconds_per_frame_end: over the last tenth, where the map is largest",
 }
+# counts and settings (kept apart from the scores in metrics.json)
+COUNTS = ("n_frames", "frames_with_loop", "n_candidates", "n_accepted", "n_accepted_right", "exclude_recent", "tolerance",
+          "map_size_end", "threshold")
 MATRIX_NAMES = ("truth", "gt", "GT", "GThard", "gt_hard", "ground_truth")
 
 
@@ -227,9 +235,10 @@ def score_loops(truth: Any, frames: np.ndarray, match: np.ndarray, *, exclude_re
     return candidate, correct, has_loop, example
 
 
-def evaluate(ctx: Any, res: Result) -> Evaluation:
+def evaluate(ctx: Any, res: Result) -> LoopEvaluation:
+    """Read the loop-closure ground truth against the listed frames and :func:`score` the result."""
+    from placeloc.core.common_params import LOOP_EXCLUSION_FRAMES, loop_exclusion
     from placeloc.core.errors import StageError
-    from placeloc.evaluation.metrics import pr_curve, tail_mean
 
     section = ctx.config["ground_truth"]
     if section["kind"] == "none":
@@ -240,42 +249,53 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
     n = len(images.paths) if images is not None else int(res.attrs.get("n_listed", len(res["frame_index"])))
     names = list(images.names) if images is not None else names_by_index(res["frame_index"], res["frame_names"], n)
     truth = loop_truth(section, names)
-    exclude, tol = int(section["exclude_recent"]), int(section.get("tolerance") or 0)
-    frames, match, conf = res["frame_index"], res["match"], np.asarray(res["confidence"], np.float64)
-    candidate, correct, has_loop, example = score_loops(truth, frames, match, exclude_recent=exclude, tolerance=tol)
-    n_loop = int(has_loop.sum())
-    pr = pr_curve(conf, correct, n_queries=max(n_loop, 1), has_match=candidate)
-    m: dict[str, Any] = {"recall_at_100_precision": pr.recall_at_100_precision if n_loop else None,
-                         "auc_pr": pr.auc if n_loop else None, "max_f1": pr.max_f1 if n_loop else None,
-                         "precision_at_threshold": None, "recall_at_threshold": None}
-    threshold = res.attrs.get("threshold")
-    if threshold is not None:
-        acc = candidate & (conf >= float(threshold))
-        m["precision_at_threshold"] = float(correct[acc].mean()) if acc.any() else None
-        m["recall_at_threshold"] = float((correct & acc).sum() / n_loop) if n_loop else None
-        m["threshold"] = float(threshold)
-    m.update({"n_frames": int(len(frames)), "frames_with_loop": n_loop, "n_candidates": int(candidate.sum()),
-              "n_accepted": int((candidate & (conf >= float(threshold))).sum()) if threshold is not None else int(candidate.sum()),
-              "exclude_recent": exclude, "tolerance": tol,
-              "seconds_per_frame": None, "seconds_per_frame_end": None, "map_size_end": None})
-    if "seconds" in res and len(res["seconds"]):
-        sec = np.asarray(res["seconds"], np.float64)
-        m["seconds_per_frame"], m["seconds_per_frame_end"] = float(sec.mean()), tail_mean(sec, 0.1)
-        if "map_size" in res:
-            m["map_size_end"] = int(res["map_size"][-1])
-    m["localize_seconds"] = float(ctx.artifact("localize").attrs.get("seconds", float("nan")))
-    m["headline"] = ["recall_at_100_precision", "auc_pr", "precision_at_threshold", "recall_at_threshold",
-                     "frames_with_loop", "seconds_per_frame"]
-    ev = Evaluation("loops", res, metrics=m)
-    pos = {int(f): k for k, f in enumerate(frames)}
-    ev.extra.update(names=names, candidate=candidate, correct=correct, has_loop=has_loop, example=example, pr=pr,
-                    # the match as a position in the frame list (for pictures drawn over method arrays)
-                    match_local=np.array([pos.get(int(j), -1) if c else -1 for j, c in zip(match, candidate)], np.int64))
-    ev.scores = pr
+    exclude, exclude_rule = loop_exclusion(section["exclude_recent"], n)
+    (log.info if section["exclude_recent"] is not None or exclude == LOOP_EXCLUSION_FRAMES else log.warning)(
+        "loop closures: pairs fewer than %d frames apart never count: %s", exclude, exclude_rule)
+    ev = score(res, truth, names=names, exclude_recent=exclude, tolerance=int(section.get("tolerance") or 0))
+    ev.metrics["exclude_recent_rule"] = exclude_rule
     return ev
 
 
-def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+def score(res: Result, truth: Any, *, names: list[str], exclude_recent: int, tolerance: int) -> LoopEvaluation:
+    """Score a ``loops`` result against ``truth`` (sparse, lower triangular; arrays in,
+    metrics out): MR, AUC, max F1 over the confidence, and precision and recall at the
+    method's own threshold when it has one."""
+    from placeloc.evaluation.metrics import pr_curve, tail_mean
+
+    frames, match, conf = res["frame_index"], res["match"], np.asarray(res["confidence"], np.float64)
+    candidate, correct, has_loop, example = score_loops(truth, frames, match, exclude_recent=exclude_recent,
+                                                        tolerance=tolerance)
+    n_loop = int(has_loop.sum())
+    pr = pr_curve(conf, correct, n_queries=max(n_loop, 1), has_match=candidate)
+    m: dict[str, Any] = {"recall_at_100_precision": pr.recall_at_100_precision if n_loop else None,
+                         "auc_pr": pr.auc if n_loop else None, "max_f1": pr.max_f1 if n_loop else None}
+    threshold = res.attrs.get("threshold")
+    accepted = candidate & (conf >= float(threshold)) if threshold is not None else candidate
+    if threshold is not None:
+        m["precision_at_threshold"] = float(correct[accepted].mean()) if accepted.any() else None
+        m["recall_at_threshold"] = float((correct & accepted).sum() / n_loop) if n_loop else None
+        m["threshold"] = float(threshold)
+    m.update({"n_frames": int(len(frames)), "frames_with_loop": n_loop, "n_candidates": int(candidate.sum()),
+              "n_accepted": int(accepted.sum()), "n_accepted_right": int((correct & accepted).sum()),
+              "exclude_recent": exclude_recent, "tolerance": tolerance})
+    if "seconds" in res and len(res["seconds"]):
+        sec = np.asarray(res["seconds"], np.float64)
+        m["loop_seconds_per_frame"], m["loop_seconds_per_frame_end"] = float(sec.mean()), tail_mean(sec, 0.1)
+        if "map_size" in res:
+            m["map_size_end"] = int(res["map_size"][-1])
+    # without a threshold of its own the method's figures are the curve's: no n/a in the headline
+    m["headline"] = ["recall_at_100_precision", "auc_pr"] + (
+        ["precision_at_threshold", "recall_at_threshold"] if threshold is not None else ["max_f1"]) + ["seconds_per_frame"]
+    pos = {int(f): k for k, f in enumerate(frames)}
+    return LoopEvaluation("loops", res, metrics=m, names=names, candidate=candidate, correct=correct, has_loop=has_loop,
+                          example=example, pr=pr, truth=truth, tolerance=tolerance, accepted=accepted,
+                          # the match as a position in the frame list (for pictures drawn over method arrays)
+                          match_local=np.array([pos.get(int(j), -1) if c else -1 for j, c in zip(match, candidate)],
+                                               np.int64))
+
+
+def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
     """evaluate.h5's PR curve and per-frame correctness, per_query.csv (one row per frame),
     pr_curve.png and, with times, time_per_frame.png."""
     import csv
@@ -283,31 +303,29 @@ def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     from placeloc.core.artifacts import atomic_open
     from placeloc.evaluation import plots as P
 
-    res, x = ev.result, ev.extra
-    pr = x["pr"]
+    res, pr = ev.result, ev.pr
     g = ctx.out.create_group("pr")
     for name, arr in (("threshold", pr.thresholds), ("precision", pr.precision), ("recall", pr.recall)):
         g.create_dataset(name, data=arr)
-    ctx.out.create_dataset("correct", data=x["correct"])
-    ctx.out.create_dataset("has_loop", data=x["has_loop"])
-    names = x["names"]
-    threshold = res.attrs.get("threshold")
+    ctx.out.create_dataset("correct", data=ev.correct)
+    ctx.out.create_dataset("has_loop", data=ev.has_loop)
+    names = ev.names
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["query", "query_image", "has_positive", "positive_reference", "positive_image", "best_reference",
                     "best_image", "confidence", "candidate", "accepted", "correct"])
         for k, i in enumerate(res["frame_index"]):
-            j, e = int(res["match"][k]), int(x["example"][k])
-            cand = bool(x["candidate"][k])
-            acc = cand and (threshold is None or res["confidence"][k] >= threshold)
-            w.writerow([int(i), names[i], int(x["has_loop"][k]), e if e >= 0 else "", names[e] if e >= 0 else "",
-                        j if cand else "", names[j] if cand else "", f"{res['confidence'][k]:.6f}", int(cand), int(acc),
-                        int(x["correct"][k])])
+            j, e = int(res["match"][k]), int(ev.example[k])
+            cand = bool(ev.candidate[k])
+            w.writerow([int(i), names[i], int(ev.has_loop[k]), e if e >= 0 else "", names[e] if e >= 0 else "",
+                        j if cand else "", names[j] if cand else "", f"{res['confidence'][k]:.6f}", int(cand),
+                        int(ev.accepted[k]), int(ev.correct[k])])
     if not plots:
         return
+    m = ev.metrics
     P.plot_pr_curves({ev.label: (pr.recall, pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
-                     title=f"Loop closure precision-recall\n({ev.metrics['frames_with_loop']} of {ev.metrics['n_frames']} "
-                           f"frames close a loop; pairs < {ev.metrics['exclude_recent']} frames apart never count)",
+                     title=f"Loop closure precision-recall\n({m['frames_with_loop']} of {m['n_frames']} "
+                           f"frames close a loop; pairs < {m['exclude_recent']} frames apart never count)",
                      xlabel="recall (share of the frames that close a loop, closed correctly)")
     if "seconds" in res and "map_size" in res and len(res["seconds"]):
         plot_time_per_frame(ctx.output("time_per_frame.png"), res["map_size"], res["seconds"], ev.label)
@@ -338,5 +356,32 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
 
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
-    rows = read_rows(out_dir if (out_dir / "per_query.csv").is_file() else run_dir, only_matched=True)
+    source = out_dir if (out_dir / "per_query.csv").is_file() else run_dir
+    rows = accepted_rows(source / "per_query.csv") if (source / "per_query.csv").is_file() else None
+    if rows is None:
+        rows = read_rows(run_dir, only_matched=True)
+        threshold = (res or _result(run_dir)).attrs.get("threshold")
+        if threshold is not None:  # only the loop closures the method accepts
+            rows = [r for r in rows if r.confidence >= float(threshold)]
+    # "loop closures" also tells draw_strips that the matched frames are in the same traverse
     return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir)
+
+
+def accepted_rows(per_query: Path) -> list[Any]:
+    """The loop closures the method accepted (``accepted`` 1 in per_query.csv: old enough and
+    at or above its threshold) as strip rows, judged: the strips count what ``n_accepted``
+    and ``n_accepted_right`` count."""
+    import csv
+
+    from placeloc.evaluation.show import Row
+
+    return [Row(r["query_image"], r["best_image"], float(r["confidence"]), r["correct"] == "1", r["positive_image"])
+            for r in csv.DictReader(read_run_table(per_query.parent, per_query.name)) if r["accepted"] == "1"]
+
+
+def _result(run_dir: Path) -> Result:
+    from placeloc.evaluation.contracts import localize_result
+
+    res = localize_result(run_dir)
+    assert res is not None  # show() is reached only for a run with a loops result
+    return res

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from placeloc.core.safe_io import read_input_text, read_run_table
-from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+from placeloc.evaluation.contracts import Field, MapEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads (the truth is named by the method's own parameters)
 SECTIONS = ("plots",)
@@ -41,11 +41,14 @@ SCHEMA = {
 }
 
 METRICS_DOC = {
-    "map_rmse": "root mean square distance of the mapped features (not landmarks) from the truth, map units (headline)",
+    "map_rmse": "root mean square distance of the mapped features (not landmarks) from the truth, in the truth file's units (headline)",
     "map_median_error / map_max_error": "median and largest of those distances",
     "n_evaluated": "features with a true position that were mapped",
     "path_rmse": "(co-embedding) error of the path read out at the steps without a given pose",
+    "seconds_per_frame": "wall seconds of every stage before evaluate per observation step (co-embedding: n_steps)",
 }
+# counts (kept apart from the scores in metrics.json)
+COUNTS = ("n_evaluated", "n_truth_unobserved", "n_features", "n_landmarks", "n_steps")
 
 
 def write(ctx: Any, *, feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndarray,
@@ -121,50 +124,59 @@ def map_errors(feature_ids: np.ndarray, coords: np.ndarray, is_landmark: np.ndar
 
 
 
-def evaluate(ctx: Any, res: Result) -> Evaluation:
-    ids, coords, is_lm = res["feature_ids"], res["coords"], res["is_landmark"]
-    d = coords.shape[1]
-    m: dict[str, Any] = {"n_features": int(len(ids)), "n_landmarks": int(is_lm.sum()), "map_rmse": None,
-                         "map_max_error": None}
-    ev = Evaluation("map", res, metrics=m)
-    ev.extra.update(est=None, truth=None, landmarks=coords[is_lm], path_est=None, path_truth=None)
+def evaluate(ctx: Any, res: Result) -> MapEvaluation:
+    """Read the truth points the method names (``truth_keys["points"]``) and :func:`score` the map."""
     key = (ctx.method.truth_keys or {}).get("points")
     truth_path = None if key is None else getattr(ctx.params, key)
-    if truth_path is not None:
+    if truth_path is None:
+        return score(res, None, None)
+    tid, txyz = read_points(truth_path)
+    if txyz.shape[1] < res["coords"].shape[1]:
         from placeloc.evaluation.ground_truth import GroundTruthError
 
-        tid, txyz = read_points(truth_path)
-        if txyz.shape[1] < d:
-            raise GroundTruthError(f"truth file {truth_path} has {txyz.shape[1]} coordinates per row; the map is {d}-D")
-        found, est, truth = map_errors(ids, coords, is_lm, tid, txyz)
+        raise GroundTruthError(f"truth file {truth_path} has {txyz.shape[1]} coordinates per row; the map is "
+                               f"{res['coords'].shape[1]}-D")
+    return score(res, tid, txyz)
+
+
+def score(res: Result, truth_ids: np.ndarray | None, truth_xyz: np.ndarray | None) -> MapEvaluation:
+    """Score a ``map`` result against true feature positions (none: the counts only); errors
+    in the truth's units (the map is aligned to the truth)."""
+    ids, coords, is_lm = res["feature_ids"], res["coords"], res["is_landmark"]
+    m: dict[str, Any] = {"n_features": int(len(ids)), "n_landmarks": int(is_lm.sum()), "map_rmse": None,
+                         "map_max_error": None}
+    ev = MapEvaluation("map", res, metrics=m, landmarks=coords[is_lm])
+    if truth_ids is not None and truth_xyz is not None:
+        found, est, truth = map_errors(ids, coords, is_lm, truth_ids, truth_xyz)
         m.update(found)
-        ev.extra.update(est=est, truth=truth, eval_ids=ids[np.isin(ids, tid) & ~is_lm])
-    m["headline"] = ["map_rmse", "map_median_error", "map_max_error", "n_evaluated"]
+        ev.est, ev.truth, ev.eval_ids = est, truth, ids[np.isin(ids, truth_ids) & ~is_lm]
+    m["headline"] = ["map_rmse", "map_median_error", "map_max_error", "seconds_per_frame"]
     return ev
 
 
-def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+def finish(ctx: Any, ev: MapEvaluation, plots: bool = True) -> None:
     """per_query.csv (each evaluated feature: estimate, truth, error) and map.png."""
     from placeloc.core.artifacts import atomic_open
 
-    x = ev.extra
-    if x["est"] is None:
+    if ev.est is None or ev.truth is None or ev.eval_ids is None:
         return
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
         w = csv.writer(fh)
-        d = x["est"].shape[1]
+        d = ev.est.shape[1]
         w.writerow(["feature"] + [f"x{i}" for i in range(d)] + [f"true_x{i}" for i in range(d)] + ["error"])
-        for f, e, t in zip(x["eval_ids"], x["est"], x["truth"]):
+        for f, e, t in zip(ev.eval_ids, ev.est, ev.truth):
             w.writerow([int(f), *(f"{v:.6g}" for v in e), *(f"{v:.6g}" for v in t), f"{np.linalg.norm(e - t):.6g}"])
     if plots:
         draw(ctx.output("map.png"), ev)
 
 
-def draw(path: Path, ev: Evaluation) -> Path:
-    m, x = ev.metrics, ev.extra
-    title = (f"{ev.label}, top view: map RMSE {m['map_rmse']:.3g}, max {m['map_max_error']:.3g} map units\n"
+def draw(path: Path, ev: MapEvaluation) -> Path:
+    m = ev.metrics
+    path_part = f"; path RMSE {m['path_rmse']:.3g}" if m.get("path_rmse") is not None else ""
+    title = (f"{ev.label}, top view: map RMSE {m['map_rmse']:.3g}, max {m['map_max_error']:.3g}{path_part} (truth units)\n"
              f"({m['n_evaluated']} unknown features, {m['n_landmarks']} landmarks)")
-    return plot_map(path, x["est"], x["truth"], x["landmarks"], x["path_est"], x["path_truth"], title, units="map units")
+    assert ev.est is not None and ev.truth is not None
+    return plot_map(path, ev.est, ev.truth, ev.landmarks, ev.path_est, ev.path_truth, title, units="truth units")
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:
@@ -192,9 +204,16 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
         est = truth = coords[~is_lm]
     path = out_dir / "map.png"
     title = (f"map: {len(est)} features, {int(is_lm.sum())} landmarks" +
-             ("" if est is truth else f"; RMSE {np.sqrt(np.mean(np.sum((est - truth) ** 2, axis=1))):.3g} map units"))
-    path_xy = res.get("path_xy")
-    plot_map(path, est, truth, coords[is_lm], path_xy, None, title, units="map units")
+             ("" if est is truth else f"; RMSE {np.sqrt(np.mean(np.sum((est - truth) ** 2, axis=1))):.3g} (truth units)"))
+    path_xy, path_truth = res.get("path_xy"), None
+    evaluated = run_dir / "evaluate.h5"
+    if evaluated.is_file() and est is not truth:  # the path against its truth, as evaluate drew it
+        import h5py
+
+        with h5py.File(evaluated, "r") as f:
+            if "path_truth_xy" in f and "path_est_xy" in f:
+                path_xy, path_truth = f["path_est_xy"][()], f["path_truth_xy"][()]
+    plot_map(path, est, truth, coords[is_lm], path_xy, path_truth, title, units="map units" if est is truth else "truth units")
     return [path]
 
 
@@ -211,9 +230,9 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     if path_truth is not None:
-        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.75", lw=0.8, label="true path")
+        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.25", lw=1.3, label="true path", zorder=3)
     if path_est is not None:
-        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.8, alpha=0.8, label="estimated path")
+        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.7, alpha=0.7, label="estimated path", zorder=2)
     segs = np.stack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]], axis=1)
     ax.add_collection(LineCollection(segs, colors="tab:green", lw=0.8, label="error (estimate to truth)"))
     ax.scatter(truth[:, ax0], truth[:, ax1], s=14, facecolors="none", edgecolors="0.4", lw=0.7, label="true position")

@@ -9,11 +9,12 @@ Conventions (the keys of ``metrics.json``, the ``ranked`` contract's schema):
   queries (a query without any positive is a miss).
 - ``recall_at_N_with_positive``: the same over the queries that have at least one
   positive (``queries_with_ground_truth`` of them), the denominator most benchmarks use
-  since their every query has one.
-- ``separated_recall_at_N``: as the standard one but over candidates kept at least a
-  method-specific distance apart (SeqSLAM: ``enhance_window + 1`` reference frames), so
-  the N candidates are N distinct places. The best candidate is the same in both
-  rankings, so ``separated_recall_at_1`` equals ``recall_at_1``.
+  since their every query has one; written only when some query has none (else it is
+  ``recall_at_N``).
+- ``separated_recall_at_N`` (N >= 2): as the standard one but over candidates kept at
+  least a method-specific distance apart (SeqSLAM: ``enhance_window + 1`` reference
+  frames), so the N candidates are N distinct places. The best candidate is the same in
+  both rankings, so at N = 1 it is ``recall_at_1`` and is not written.
 - Precision-recall (``auc_pr``, ``recall_at_100_precision``, ``max_f1``): one match per
   query (the best candidate) accepted when its confidence is at least a threshold;
   recall over all queries (see :mod:`placeloc.evaluation.metrics`).
@@ -68,12 +69,16 @@ def _to_orig(cand: np.ndarray, ref_index: np.ndarray) -> np.ndarray:
 
 def score_matches(gt: GroundTruth, query_index: np.ndarray, ref_index: np.ndarray, *, separated: np.ndarray,
                   confidence: np.ndarray, ranked: np.ndarray | None = None, ranked_scores: np.ndarray | None = None,
-                  ns: Sequence[int] = DEFAULT_RECALL_N) -> MatchScores:
+                  ns: Sequence[int] = DEFAULT_RECALL_N, separated_differs: bool = False) -> MatchScores:
     """Score one run. ``separated`` (n, K2) and ``ranked`` (n, K) hold candidate positions
     in the method's (possibly filtered) reference list, best first, -1 = none;
     ``ref_index``/``query_index`` map list positions to original indices. Without a
     plain ``ranked`` list only N = 1 of the standard recall is known (the best candidate
-    is the same in both rankings) and the others are reported as None."""
+    is the same in both rankings). A key is written only where its value is known and
+    distinct: ``recall_at_N`` for N up to the plain candidates kept,
+    ``recall_at_N_with_positive`` when some query has no positive, and
+    ``separated_recall_at_N`` (``separated_differs``: the method keeps its candidates
+    apart) for 2 <= N <= the separated candidates kept."""
     q = np.asarray(query_index, np.int64)
     ref_index = np.asarray(ref_index, np.int64)
     ns = tuple(int(n) for n in ns)
@@ -95,16 +100,19 @@ def score_matches(gt: GroundTruth, query_index: np.ndarray, ref_index: np.ndarra
     sep_r = recall_at_n(sep_ok, ns)
     std_all = recall_at_n(rk_ok, ns)
     std_pos = recall_at_n(rk_ok, ns, has_positive=has_pos)
+    every_query_has_one = bool(has_pos.all())
     for n in ns:
-        known = plain_known or n == 1
-        m[f"recall_at_{n}"] = std_all[n] if known else None
-        m[f"recall_at_{n}_with_positive"] = std_pos[n] if known else None
-    for n in ns:  # unknown (None) beyond the candidates the method kept (SeqSLAM: top_k)
-        m[f"separated_recall_at_{n}"] = sep_r[n] if n <= sep.shape[1] else None
+        if n == 1 or (plain_known and n <= rk.shape[1]):
+            m[f"recall_at_{n}"] = std_all[n]
+            if not every_query_has_one:
+                m[f"recall_at_{n}_with_positive"] = std_pos[n]
+    if separated_differs:  # N = 1 is recall_at_1 (the best candidate is the same in both rankings)
+        for n in ns:
+            if 2 <= n <= sep.shape[1]:
+                m[f"separated_recall_at_{n}"] = sep_r[n]
     m.update({"auc_pr": pr.auc, "recall_at_100_precision": pr.recall_at_100_precision, "max_f1": pr.max_f1,
               "n_queries": int(len(q)), "queries_with_ground_truth": int(has_pos.sum()),
-              "n_matched": int((sep[:, 0] >= 0).sum()),
-              "recall_denominator": "recall_at_N: all queries; recall_at_N_with_positive: queries with at least one positive"})
+              "n_matched": int((sep[:, 0] >= 0).sum())})
     return MatchScores(query=q, ranked=rk, ranked_scores=rs, ranked_correct=rk_ok, separated=sep,
                        separated_correct=sep_ok, confidence=conf, has_positive=has_pos, example_positive=example,
                        pr=pr, ns=ns, metrics=m)

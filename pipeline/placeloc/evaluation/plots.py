@@ -12,15 +12,21 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def _save(fig: plt.Figure, path: Path, dpi: int = 110) -> Path:
+def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False, tight: bool = True) -> Path:
     """Save under a temporary name and rename, so a killed run never leaves half a PNG;
-    a failed save (a full disk) leaves no temporary file either."""
+    a failed save (a full disk) leaves no temporary file either. ``photo``: pictures of
+    images or matrices, which zlib hardly shrinks: the fastest compression (level 1 took a
+    fifth of level 6's time on the strips, for files about a tenth larger). ``tight``:
+    crop to the drawn content (a second layout pass; a figure laid out by ``layout=
+    "constrained"`` or placed by hand needs none)."""
     from placeloc.core.artifacts import tmp_path_for
 
     path = Path(path)
     tmp = tmp_path_for(path)
     try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        fmt = path.suffix.lstrip(".") or "png"
+        extra = {"pil_kwargs": {"compress_level": 1}} if photo and fmt == "png" else {}
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight" if tight else None, format=fmt, **extra)
         tmp.replace(path)
     finally:
         plt.close(fig)
@@ -98,12 +104,15 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
 
 def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, matches: np.ndarray | None = None,
                              correct: np.ndarray | None = None, gt_lo: np.ndarray | None = None,
-                             gt_hi: np.ndarray | None = None, stride: tuple[int, int] = (1, 1), title: str = "") -> Path:
+                             gt_hi: np.ndarray | None = None, gt_points: tuple[np.ndarray, np.ndarray] | None = None,
+                             stride: tuple[int, int] = (1, 1), title: str = "") -> Path:
     """Difference matrices side by side (e.g. raw and enhanced), each with a colour bar:
     rows = reference, columns = query, darker = more alike. Under the matches (green =
     correct, red = wrong, orange = no ground truth) the ground-truth band is outlined in
-    cyan, so that it stays visible where a match hides it. ``stride`` = (reference,
-    query) subsampling already applied; axes are in original frame numbers."""
+    cyan, so that it stays visible where a match hides it; a truth that is no band (a
+    loop-closure matrix: several revisits per frame) is drawn as cyan points
+    ``gt_points`` = (query, reference). The legend lists only what is drawn. ``stride`` =
+    (reference, query) subsampling already applied; axes are in original frame numbers."""
     n = len(panels)
     fig, axes = plt.subplots(1, n, figsize=(6.6 * n, 5.6), squeeze=False, layout="constrained")
     sr, sq = stride
@@ -115,7 +124,10 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
                        extent=(-0.5 * sq, (nq - 0.5) * sq, (nr - 0.5) * sr, -0.5 * sr))
         cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
         cb.set_label(f"{name} (lower = more alike)", fontsize=8)
-        if gt_lo is not None and gt_hi is not None:
+        if gt_points is not None and len(gt_points[0]):
+            ax.scatter(gt_points[0], gt_points[1], s=7, c="cyan", marker="s", alpha=0.8, lw=0, zorder=2,
+                       label="ground truth (a true pair that counts)")
+        if gt_lo is not None and gt_hi is not None and (gt_hi >= gt_lo).any():
             q = np.arange(len(gt_lo))
             ok = gt_hi >= gt_lo
             ax.fill_between(q[ok], gt_lo[ok] - 0.5, gt_hi[ok] + 0.5, color="cyan", alpha=0.18, lw=0, zorder=2)
@@ -133,10 +145,11 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         ax.set_xlabel("query frame")
         ax.set_ylabel("reference frame")
         ax.set_title(name, fontsize=9)
-        ax.legend(fontsize=7, loc="upper right", markerscale=2, framealpha=0.85)
+        # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
+        ax.legend(fontsize=7, loc="lower left", markerscale=2, framealpha=0.85)
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return _save(fig, path, photo=True, tight=False)
 
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from placeloc.core.safe_io import read_run_table
-from placeloc.evaluation.contracts import Evaluation, Field, Result, write_result
+from placeloc.evaluation.contracts import Field, PoseEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads
 SECTIONS = ("ground_truth", "plots")
@@ -43,7 +43,10 @@ METRICS_DOC = {
     "within_1m_30deg": "share of frames within 1 m and 30 degrees of the truth (headline)",
     "within_0_5m / within_1m / within_2m": "share of frames within that distance",
     "median_error_m": "median position error in metres",
+    "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per frame",
 }
+# counts (kept apart from the scores in metrics.json)
+COUNTS = ("n_frames",)
 
 
 def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
@@ -125,15 +128,21 @@ def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[st
 # ---------------------------------------------------------------------------------------
 # evaluate, pictures
 # ---------------------------------------------------------------------------------------
-def evaluate(ctx: Any, res: Result) -> Evaluation:
+def evaluate(ctx: Any, res: Result) -> PoseEvaluation:
+    """Read the true poses of the result's frames and :func:`score` the result."""
     from placeloc.core.errors import StageError
 
     section = ctx.config["ground_truth"]
     if section["kind"] == "none":
         raise StageError("ground_truth.kind is none: evaluate needs the true poses (ground_truth.kind: poses); "
                          "`placeloc show RUN_DIR` draws the estimates without it")
-    names = res["names"]
-    gt, rows = _truth(section, names)
+    gt, rows = _truth(section, res["names"])
+    return score(res, gt, rows)
+
+
+def score(res: Result, gt: Any, rows: np.ndarray) -> PoseEvaluation:
+    """Score a ``poses`` result against the true poses ``gt`` (row ``rows[k]`` for frame k):
+    position errors in metres and, with true headings, yaw errors in degrees."""
     truth = gt.xy[rows]
     est = np.stack([res["x"], res["y"]], axis=1)
     err = np.hypot(*(est - truth).T)
@@ -142,35 +151,35 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
     metrics = error_metrics(err)
     metrics.update(recall_metrics(err, yaw_err))
     metrics["headline"] = (["within_1m_30deg"] if yaw_err is not None else []) + [
-        "within_0_5m", "within_1m", "within_2m", "median_error_m"]
-    ev = Evaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")))
+        "within_0_5m", "within_1m", "within_2m", "median_error_m", "seconds_per_frame"]
+    ev = PoseEvaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")), truth=truth, est=est,
+                        err=err, yaw_err=yaw_err, truth_heading=truth_heading, poses=gt, rows=rows)
     ev.arrays = {"error_m": err, "truth_xy": truth, **({"yaw_error_deg": yaw_err} if yaw_err is not None else {})}
-    ev.extra.update(truth=truth, est=est, err=err, yaw_err=yaw_err, truth_heading=truth_heading, poses=gt, rows=rows)
     return ev
 
 
-def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
     """per_query.csv (estimate, truth and error per frame), error_cdf.png and estimates_on_plan.png."""
     import csv
 
     from placeloc.core.artifacts import atomic_open
 
-    res, x = ev.result, ev.extra
+    res = ev.result
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "x", "y", "heading_deg", "true_x", "true_y", "true_heading_deg", "error_m", "yaw_error_deg",
                     "score"])
         for k, name in enumerate(res["names"]):
-            th = x["truth_heading"]
+            th = ev.truth_heading
             w.writerow([name, f"{res['x'][k]:.3f}", f"{res['y'][k]:.3f}", f"{res['heading_deg'][k]:.1f}",
-                        f"{x['truth'][k, 0]:.3f}", f"{x['truth'][k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
-                        f"{x['err'][k]:.3f}", "" if x["yaw_err"] is None else f"{x['yaw_err'][k]:.1f}", f"{res['score'][k]:.5f}"])
+                        f"{ev.truth[k, 0]:.3f}", f"{ev.truth[k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
+                        f"{ev.err[k]:.3f}", "" if ev.yaw_err is None else f"{ev.yaw_err[k]:.1f}", f"{res['score'][k]:.5f}"])
     if not plots:
         return
     label = ev.label
-    plot_error_cdf(ctx.output("error_cdf.png"), x["err"], label)
-    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), x["truth"], x["est"], [], _segments6(res), label,
-                           x["truth_heading"], res["heading_deg"])
+    plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
+    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
+                           ev.truth_heading, res["heading_deg"])
 
 
 def _segments6(res: Result) -> np.ndarray:
@@ -251,53 +260,87 @@ def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
     plt.close(fig)
 
 
+# a plan longer than this many times its width is cut into pieces drawn one above the other
+PLAN_PIECE_RATIO = 3.5
+# heading arrows: this long on the page whatever the plan's size, so they never hide an error line
+ARROW_INCHES = 0.12
+
+
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
                            mode: str, truth_heading_deg: np.ndarray | None = None,
                            est_heading_deg: np.ndarray | None = None) -> None:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
-    positions joined by error lines, headings as short arrows."""
+    positions joined by error lines, headings as short arrows of a fixed length on the page
+    (drawn under the dots). A long plan (a corridor) is cut into up to four pieces along its
+    length, stacked (or side by side when it runs up the page), each to scale, so that it
+    fills the figure instead of a thin strip in white space; the view covers the part of the
+    plan the frames visit."""
     plt = _plt()
     truth = est if truth is None else truth  # estimates only (no ground truth): no error lines
-    pts = np.vstack([truth, est] + [p for p in polys]) if polys else np.vstack([truth, est, segments[:, [0, 1]]])
-    span = np.ptp(pts, axis=0) + 1.0
-    width = 11.0
-    height = float(np.clip(width * span[1] / span[0], 2.5, 9.0)) + 0.8
-    fig, ax = plt.subplots(figsize=(width, height))
-    if polys:
-        for poly in polys:
-            q = np.vstack([poly, poly[:1]])
-            ax.plot(q[:, 0], q[:, 1], "k-", lw=0.9)
-    else:
-        for s in segments:
-            ax.plot([s[0], s[3]], [s[1], s[4]], "k-", lw=0.4)
     known = truth is not est
-    err = np.hypot(*(est - truth).T)
-    for t, s in zip(truth, est) if known else ():
-        ax.plot([t[0], s[0]], [t[1], s[1]], "-", color="0.5", lw=0.8)
-    if known:
-        ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=5, label="true position")
-    ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=6, mew=1.5, label=f"{mode} estimate")
-    arrow = 0.04 * float(max(span))
-    for xy, hd, colour in ((truth, truth_heading_deg, "tab:blue"), (est, est_heading_deg, "tab:red")):
-        if hd is None:
-            continue
-        r = np.radians(np.asarray(hd, float))
-        ax.quiver(xy[:, 0], xy[:, 1], arrow * np.cos(r), arrow * np.sin(r), color=colour, angles="xy", scale_units="xy",
-                  scale=1.0, width=0.003)
-    ax.set_aspect("equal")
-    # beside the plan, never over an estimate
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.9, borderaxespad=0.0)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    if known:
-        ax.set_title(f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m (median error {np.median(err):.2f} m); "
-                     "grey lines join truth and estimate" + ("; arrows: heading" if est_heading_deg is not None else ""),
-                     fontsize=10)
+    frames = np.vstack([truth, est])
+    plan = np.vstack(polys) if polys else np.vstack([segments[:, [0, 1]], segments[:, [3, 4]]])
+    # the frames' extent (the part of the plan they visit) with a margin, and the plan's walls there
+    lo, hi = frames.min(axis=0), frames.max(axis=0)
+    margin = np.maximum(0.05 * (hi - lo), 2.0)
+    near = np.all((plan >= lo - margin) & (plan <= hi + margin), axis=1)
+    if near.any():
+        lo, hi = np.minimum(lo, plan[near].min(axis=0)), np.maximum(hi, plan[near].max(axis=0))
+    pad = 0.02 * (hi - lo) + 0.4  # per axis: a corridor keeps its width
+    lo, hi = lo - pad, hi + pad
+    span = hi - lo
+    along = 0 if span[0] >= span[1] else 1  # the plan's long axis
+    pieces = int(np.clip(np.ceil(span[along] / span[1 - along] / PLAN_PIECE_RATIO), 1, 4))
+    piece = span[along] / pieces
+    width = 11.0
+    if along == 0:
+        panel_h = float(np.clip(0.9 * width * span[1] / piece, 1.0, 9.0 / pieces))
+        fig, axes = plt.subplots(pieces, 1, figsize=(width, pieces * panel_h + 1.0), squeeze=False)
     else:
-        ax.set_title(f"{mode}: {len(est)} estimates (no ground truth)" + ("; arrows: heading" if est_heading_deg is not None
-                                                                           else ""), fontsize=10)
-    fig.tight_layout()
+        panel_w = float(np.clip(9.0 * span[0] / piece, 1.2, width / pieces))
+        fig, axes = plt.subplots(1, pieces, figsize=(pieces * panel_w + 2.5, 9.5), squeeze=False)
+    err = np.hypot(*(est - truth).T)
+    for k, ax in enumerate(axes.ravel()):
+        if polys:
+            for poly in polys:
+                q = np.vstack([poly, poly[:1]])
+                ax.plot(q[:, 0], q[:, 1], "k-", lw=0.9)
+        else:
+            for sgm in segments:
+                ax.plot([sgm[0], sgm[3]], [sgm[1], sgm[4]], "k-", lw=0.4)
+        for t, e in zip(truth, est) if known else ():
+            ax.plot([t[0], e[0]], [t[1], e[1]], "-", color="0.45", lw=0.9, zorder=2)
+        for xy, hd, colour in ((truth, truth_heading_deg, "tab:blue"), (est, est_heading_deg, "tab:red")):
+            if hd is None:
+                continue
+            r = np.radians(np.asarray(hd, float))
+            ax.quiver(xy[:, 0], xy[:, 1], np.cos(r), np.sin(r), color=colour, angles="xy", scale_units="inches",
+                      scale=1.0 / ARROW_INCHES, width=0.002, alpha=0.5, zorder=3)
+        if known:
+            ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=4.5, zorder=4, label="true position")
+        ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=5.5, mew=1.4, zorder=5, label=f"{mode} estimate")
+        a0, a1 = lo[along] + k * piece, lo[along] + (k + 1) * piece
+        lims = ((a0, a1), (lo[1], hi[1])) if along == 0 else ((lo[0], hi[0]), (a0, a1))
+        ax.set_xlim(*lims[0])
+        ax.set_ylim(*lims[1])
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]", fontsize=8)
+        ax.set_ylabel("y [m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    handles, labels = axes.ravel()[0].get_legend_handles_labels()
+    if known:
+        handles.append(plt.Line2D([], [], color="0.45", lw=0.9))
+        labels.append("error (truth to estimate)")
+    if truth_heading_deg is not None or est_heading_deg is not None:
+        handles.append(plt.Line2D([], [], color="0.3", lw=0, marker=r"$\rightarrow$", ms=10))
+        labels.append("heading")
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
+    if known:
+        fig.suptitle(f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m (median error {np.median(err):.2f} m)"
+                     f"{cut}", fontsize=10)
+    else:
+        fig.suptitle(f"{mode}: {len(est)} estimates (no ground truth){cut}", fontsize=10)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.97))
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-

@@ -6,16 +6,18 @@ Scored against any image-matching ground truth (synchronous, csv, hdf5, poses + 
 
 ``metrics.json`` schema (``ranked``):
 
-- ``recall_at_N`` (N from ``ground_truth.recall_at``): standard Recall@N, a query is right
-  when any of its N best candidates is a positive (neighbouring frames allowed), over all
-  queries; ``recall_at_N_with_positive``: over the queries that have a positive.
-- ``separated_recall_at_N``: only for a method whose candidates are kept at least
+- ``recall_at_N`` (N from ``ground_truth.recall_at``, up to the K candidates kept): standard
+  Recall@N, a query is right when any of its N best candidates is a positive
+  (neighbouring frames allowed), over all queries; ``recall_at_N_with_positive``: over the
+  queries that have a positive, only when some query has none (else it is the same number).
+- ``separated_recall_at_N`` (N >= 2): only for a method whose candidates are kept at least
   ``separation`` reference frames apart (the result's attribute; SeqSLAM: ``enhance_window
-  + 1``), so the N candidates are N distinct places; None beyond the candidates kept.
+  + 1``), so the N candidates are N distinct places (at N = 1 it is ``recall_at_1``).
 - ``auc_pr``, ``recall_at_100_precision``, ``max_f1``: precision-recall over the
   confidence of each query's best candidate, recall over all queries.
-- ``n_queries``, ``queries_with_ground_truth``, ``n_matched``, ``n_reference``,
-  ``localize_seconds``; ``headline``: the keys ``placeloc run`` prints.
+- ``seconds_per_frame`` (every stage before evaluate over the queries), ``stage_seconds``;
+  counts ``n_queries``, ``queries_with_ground_truth``, ``n_matched``, ``n_reference``;
+  ``headline``: the keys ``placeloc run`` prints.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.evaluation.contracts import Evaluation, Field, Result, names_by_index, write_result
+from placeloc.evaluation.contracts import Field, RankedEvaluation, Result, names_by_index, write_result
 
 # common config sections the evaluate stage reads
 SECTIONS = ("ground_truth", "plots")
@@ -45,10 +47,14 @@ SCHEMA = {
     "plain_scores": Field("float", ("Q", "P"), optional=True),
 }
 
+# counts and settings (kept apart from the scores in metrics.json)
+COUNTS = ("n_queries", "queries_with_ground_truth", "n_matched", "n_reference")
+
 METRICS_DOC = {
-    "recall_at_N": "standard Recall@N: any of the N best candidates is a positive, over all queries",
-    "recall_at_N_with_positive": "the same over the queries that have at least one positive",
+    "recall_at_N": "standard Recall@N: any of the N best candidates (plain ranking) is a positive, over all queries",
+    "recall_at_N_with_positive": "the same over the queries that have at least one positive (only when some have none)",
     "separated_recall_at_N": "Recall@N over candidates kept at least `separation` reference frames apart (N distinct places)",
+    "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per query",
     "auc_pr": "area under precision-recall over the best candidate's confidence (recall over all queries)",
     "recall_at_100_precision": "largest recall at which every accepted best match is right",
     "max_f1": "best F1 over the confidence thresholds",
@@ -108,7 +114,7 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     """Build the ground truth in full against the listed images: every problem (format,
     columns, indices or names outside the traverses, matrix shape, missing positions) is
     one error naming the file, row and fix."""
-    from placeloc.core.images import ImageError, list_images
+    from placeloc.core.images import ImageError, check_position_pairing, list_images
     from placeloc.evaluation.ground_truth import GroundTruth
 
     section = config.get("ground_truth") or {}
@@ -119,6 +125,8 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
         query = list_images(config["query"]["images"]) if config.get("query") else None
     except (ImageError, TypeError, KeyError):
         return  # the image check reports this one
+    if section["kind"] == "synchronous" and query is not None:
+        check_position_pairing(ref, query)
     GroundTruth.from_config(section, len(ref), len(query) if query else len(ref), ref_names=ref.names,
                             query_names=query.names if query else None)
 
@@ -135,9 +143,9 @@ def _full_names(ctx: Any, res: Result, role: str) -> list[str]:
 # ---------------------------------------------------------------------------------------
 # evaluate
 # ---------------------------------------------------------------------------------------
-def evaluate(ctx: Any, res: Result) -> Evaluation:
+def evaluate(ctx: Any, res: Result) -> RankedEvaluation:
+    """Read the ground truth against the listed images and :func:`score` the result."""
     from placeloc.core.errors import StageError
-    from placeloc.evaluation import matching
     from placeloc.evaluation.ground_truth import GroundTruth
 
     section = ctx.config["ground_truth"]
@@ -147,39 +155,34 @@ def evaluate(ctx: Any, res: Result) -> Evaluation:
     ref_names = _full_names(ctx, res, "reference")
     q_names = _full_names(ctx, res, "query")
     gt = GroundTruth.from_config(section, len(ref_names), len(q_names), ref_names=ref_names, query_names=q_names)
-    ns = tuple(sorted(set(int(n) for n in section["recall_at"])))
+    return score(res, gt, ns=tuple(int(n) for n in section["recall_at"]), ref_names=ref_names, q_names=q_names)
+
+
+def score(res: Result, gt: Any, *, ns: Sequence[int], ref_names: list[str], q_names: list[str]) -> RankedEvaluation:
+    """Score a ``ranked`` result against ``gt`` (arrays in, metrics out): Recall@N over the
+    plain ranking (the result's ``plain_candidates`` when its candidates are separated),
+    the separated Recall@N where it can differ, and precision-recall over the confidence."""
+    from placeloc.evaluation import matching
+
+    ns = tuple(sorted(set(int(n) for n in ns)))
     separation = int(res.attrs.get("separation", 0))
-    ev = Evaluation("ranked", res)
-    ev.extra.update(gt=gt, ns=ns, ref_names=ref_names, q_names=q_names, separation=separation)
+    cand = res["candidates"]
+    if separation == 0:
+        plain, plain_scores = cand, res["scores"]
+    else:
+        plain, plain_scores = res.get("plain_candidates"), res.get("plain_scores")
     identity = np.arange(len(ref_names), dtype=np.int64)
-    lo = ctx.artifact("localize")
-
-    def rescore(plain: np.ndarray | None = None, plain_scores: np.ndarray | None = None) -> None:
-        """Score (again) with a plain ranking (original indices) when the method has one."""
-        cand = res["candidates"]
-        if separation == 0:
-            plain, plain_scores = cand, res["scores"]
-        elif plain is None and "plain_candidates" in res:
-            plain, plain_scores = res["plain_candidates"], res["plain_scores"]
-        s = matching.score_matches(gt, res["query_index"], identity, separated=cand, confidence=res["confidence"],
-                                   ranked=plain, ranked_scores=plain_scores, ns=ns)
-        m = dict(s.metrics)
-        if separation == 0:
-            for n in ns:
-                m.pop(f"separated_recall_at_{n}", None)
-        m["n_reference"] = int(len(res["reference_index"]))
-        m["localize_seconds"] = float(lo.attrs.get("seconds", float("nan")))
-        m["headline"] = [f"recall_at_{n}" for n in ns] + ["auc_pr", "recall_at_100_precision"]
-        # the hook's keys survive a re-score
-        ev.metrics = {**m, **{k: v for k, v in ev.metrics.items() if k not in m}}
-        ev.scores = s
-
-    ev.rescore = rescore
-    rescore()
-    return ev
+    s = matching.score_matches(gt, res["query_index"], identity, separated=cand, confidence=res["confidence"],
+                               ranked=plain, ranked_scores=plain_scores, ns=ns, separated_differs=separation > 0)
+    m = dict(s.metrics)
+    m["n_reference"] = int(len(res["reference_index"]))
+    m["headline"] = [f"recall_at_{n}" for n in ns if f"recall_at_{n}" in m] + ["auc_pr", "recall_at_100_precision",
+                                                                               "seconds_per_frame"]
+    return RankedEvaluation("ranked", res, metrics=m, gt=gt, ns=tuple(n for n in ns if f"recall_at_{n}" in m),
+                            ref_names=ref_names, q_names=q_names, separation=separation, scores=s)
 
 
-def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
+def finish(ctx: Any, ev: RankedEvaluation, plots: bool = True) -> None:
     """evaluate.h5's PR curve and correctness, per_query.csv, pr_curve.png and recall_at_n.png."""
     from placeloc.evaluation import matching
     from placeloc.evaluation import plots as P
@@ -189,16 +192,17 @@ def finish(ctx: Any, ev: Evaluation, plots: bool = True) -> None:
     for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
         pr_group.create_dataset(name, data=arr)
     ctx.out.create_dataset("correct", data=s.best_correct)
-    matching.write_per_query_csv(ctx.output("per_query.csv"), s, ev.extra["q_names"], ev.extra["ref_names"])
+    matching.write_per_query_csv(ctx.output("per_query.csv"), s, ev.q_names, ev.ref_names)
     if not plots:
         return
-    n_q, ns = len(s.query), ev.extra["ns"]
+    n_q, ns = len(s.query), ev.ns
     P.plot_pr_curves({ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
                      title=f"Precision-recall over the best match's confidence, {n_q} queries")
-    curves = {f"{ev.label}, standard": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
-    if ev.extra["separation"]:
-        curves[f"{ev.label}, separated by >= {ev.extra['separation']} frames"] = (
-            ns, [ev.metrics.get(f"separated_recall_at_{n}") for n in ns])
+    curves = {f"{ev.label}, standard (plain ranking)": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
+    if ev.separation:
+        sep_ns = [n for n in ns if n == 1 or f"separated_recall_at_{n}" in ev.metrics]
+        curves[f"{ev.label}, candidates >= {ev.separation} frames apart"] = (
+            sep_ns, [ev.metrics["recall_at_1"] if n == 1 else ev.metrics[f"separated_recall_at_{n}"] for n in sep_ns])
     P.plot_recall_at_n(curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
 
 

@@ -193,11 +193,20 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     # only the ground-truth settings its kind reads
     used = {"synchronous": ("tolerance",), "csv": ("path", "tolerance"), "hdf5": ("path",), "poses": ("path", "radius"),
             "matrix": ("path", "tolerance", "exclude_recent")}
-    summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
-        f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
+    # a method that reads its truth from its own section (co-embedding's coembed.truth) says so in metrics.json
+    own_truth = metrics.get("scored_against")
+    if gt.get("kind", "none") == "none" and isinstance(own_truth, str) and own_truth:
+        summary.append(("ground truth", own_truth))
+    else:
+        summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
+            f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
     if isinstance(cfg.get(method), dict):
-        parts.append(_table(_flatten(cfg[method]), (f"{method} parameter", "value")))
+        # a value the method chose at run time (e.g. co-embedding's alpha from alpha_select) beside the config's
+        rows = [(k, f"{_fmt(v)} in the config; {_fmt(metrics[k])} used (metrics.json)"
+                 if k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
+                for k, v in _flatten(cfg[method])]
+        parts.append(_table(rows, (f"{method} parameter", "value")))
     parts.append("</div>")
     if metrics:
         main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]

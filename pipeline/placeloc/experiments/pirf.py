@@ -188,9 +188,11 @@ def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str
     import matplotlib.pyplot as plt
 
     p, i = runs[f"omni-plain-{DEFAULT_INDEX}"], runs[f"omni-improved-{DEFAULT_INDEX}"]
-    t2 = [{"update": u, "dictionary_size": m["dictionary_size"], "loop_closures": m["loop_closures"],
+    from placeloc.pirf.results import loop_closure_count
+
+    t2 = [{"update": u, "dictionary_size": m["dictionary_size"], "loop_closures": loop_closure_count(m),
            "loop_closures_correct": m["loop_closures_correct"], "loop_closure_precision": m["loop_closure_precision"],
-           "map_seconds_per_frame": m["map_seconds_per_frame"]}
+           "map_seconds_per_frame": m["loop_seconds_per_frame"]}
           for u, m in (("plain", p), ("improved", i), *((f"{u} (HNSW mapping)", runs.get(f"omni-{u}-hnsw-mapping")) for u in ("plain", "improved")))
           if m is not None]
     t4 = [{"update": u, "bf": m["accuracy_gap0_bf"], "ann": m["accuracy_gap0"], "bf_gap2": m["accuracy_gap2_bf"], "ann_gap2": m["accuracy_gap2"]}

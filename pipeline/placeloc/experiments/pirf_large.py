@@ -33,7 +33,7 @@ from placeloc.api import read_metrics, run
 from placeloc.experiments import pirf as experiment
 from placeloc.experiments import say, write_summary
 from placeloc.pirf.metrics import PAPER_RADIUS_M, loop_closure_correct
-from placeloc.pirf.results import read_frame_names, read_index_info, read_loop_closures, stage_seconds
+from placeloc.pirf.results import loop_closure_count, read_frame_names, read_index_info, read_loop_closures, stage_seconds
 from placeloc.pirf.truth import read_frame_xy
 
 LARGE = {"frames": 8000, "test_frames": 400}
@@ -136,10 +136,10 @@ def write_tables(out: Path, runs: dict[str, dict[str, Any]], steps: list[dict[st
             continue
         lines.append(f"| {update} | {map_search} | {m['dictionary_size']} | {m.get('loop_closure_candidates', '-')} "
                      f"| {_f(m.get('loop_closure_precision_as_matched'), 4)} | {_f(m.get('loop_closure_precision_direction_corrected'), 4)} "
-                     f"| {m['loop_closures']} | {m['loop_closures_correct']} | {_f(m['loop_closure_precision'], 4)} "
-                     f"| {_ms(m['map_seconds_per_frame'])} / {_ms(m.get('map_cpu_seconds_per_frame'))} "
-                     f"| {_ms(m['map_seconds_per_frame_end'])} / {_ms(m.get('map_cpu_seconds_per_frame_end'))} "
-                     f"| {_f(m['map_frames_per_second_end'], 1)} | {m['map_end_dictionary_from']} |")
+                     f"| {loop_closure_count(m)} | {m['loop_closures_correct']} | {_f(m['loop_closure_precision'], 4)} "
+                     f"| {_ms(m['loop_seconds_per_frame'])} / {_ms(m.get('map_cpu_seconds_per_frame'))} "
+                     f"| {_ms(m['loop_seconds_per_frame_end'])} / {_ms(m.get('map_cpu_seconds_per_frame_end'))} "
+                     f"| {_f(1.0 / m['loop_seconds_per_frame_end'], 1)} | {m['map_end_dictionary_from']} |")
     lines += ["", "## Table 3: the self-tuned index against brute force (query run, m_t)", "",
               "Two tunings, each on a sample grown until 400 of its entries pass the ratio test, with the rule m_t "
               "(recall and Jaccard lower bounds) or nn (neighbour recall, when too few matches): the index stage's on "

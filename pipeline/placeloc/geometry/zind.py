@@ -42,6 +42,7 @@ import yaml
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.errors import ModelError
 from placeloc.core.safe_io import load_json, name_inside, read_input_text
+from placeloc.geometry.plan_check import check_plan, number, point
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -114,7 +115,7 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
     data = _read(path)
     merger, scales = data["merger"], data["scale_meters_per_coordinate"]
     floor = _pick_floor(source, sorted(merger), scales, floor)
-    metres = float(scales[floor])
+    metres = number(scales[floor], source, f"scale_meters_per_coordinate[{floor!r}]", positive=True)
     rooms: list[dict[str, Any]] = []
     doors: list[dict[str, Any]] = []
     openings: list[dict[str, Any]] = []
@@ -138,8 +139,11 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                 where = f"{floor}/{cr_name}/{pr_name}/{pano_name}"
                 try:
                     tr = pano["floor_plan_transformation"]
-                    units = float(tr["scale"]) * metres          # metres per local unit (camera height = 1)
-                    cam_h = float(pano.get("camera_height", 1.0))
+                    # scale, rotation, translation and heights: finite, and the lengths above 0
+                    units = number(tr["scale"], source, f"{where} floor_plan_transformation.scale", positive=True) * metres
+                    number(tr["rotation"], source, f"{where} floor_plan_transformation.rotation")
+                    point(tr["translation"], source, f"{where} floor_plan_transformation.translation")
+                    cam_h = number(pano.get("camera_height", 1.0), source, f"{where} camera_height", positive=True)
                     centre = _to_world(np.zeros((1, 2)), tr, metres)[0]
                     primary = bool(pano.get("is_primary", False))
                     panoramas.append({"frame": Path(pano["image_path"]).name, "image_path": pano["image_path"],
@@ -152,8 +156,9 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                     if not layout:
                         continue
                     poly = _to_world(np.asarray(layout["vertices"], float), tr, metres)
+                    ceiling = number(pano["ceiling_height"], source, f"{where} ceiling_height", positive=True)
                     room = {"name": f"{cr_name} ({pano.get('label', '')})".strip(), "polygon": poly.round(4).tolist(),
-                            "floor_z": 0.0, "ceiling_z": round(float(pano["ceiling_height"]) * units, 4)}
+                            "floor_z": 0.0, "ceiling_z": round(ceiling * units, 4)}
                     internal = [_to_world(np.asarray(v, float), tr, metres).round(4).tolist()
                                 for v in (layout.get("internal") or []) if len(v) >= 3]
                     if internal:
@@ -165,6 +170,8 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                     for a, b, bottom, top in wall_items(layout.get("windows"), f"{where} windows", tr, cam_h, units):
                         windows.append({"from": a, "to": b, "sill": bottom, "top": top})
                     room_done = True
+                except ModelError:
+                    raise
                 except (KeyError, TypeError, ValueError, IndexError) as exc:
                     raise ModelError(f"{source}: {where}: malformed panorama entry ({exc!r})") from exc
     if not rooms:
@@ -172,6 +179,7 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
     plan = {"floor_z": 0.0, "ceiling_z": max(r["ceiling_z"] for r in rooms),
             "camera_z": round(float(np.median([p["z"] for p in panoramas])), 4), "rooms": rooms,
             "doors": doors, "openings": openings, "windows": windows}
+    check_plan(plan, source)  # the plan the importer writes is one the loader accepts: finite, simple, with an area
     return plan, panoramas
 
 

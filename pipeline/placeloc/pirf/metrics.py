@@ -3,11 +3,14 @@
 - :func:`set_agreement`: Jaccard, precision and recall of approximate node vectors against
   exact ones (the paper's Table 3 compares m_ANN with m_BF this way);
 - :func:`loop_closure_correct`: a loop closure is correct when the two frames stand within
-  ``radius`` metres (the paper: :data:`PAPER_RADIUS_M`);
+  ``radius`` metres (the paper: :data:`PAPER_RADIUS_M`); :func:`loop_closure_correct_in_truth`
+  the same judged by a loop-closure matrix (or CSV) as the ``loops`` contract reads it;
 - :func:`accuracy_at_gap`: localization accuracy with a gap tolerance in nodes (Figs. 6-7).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +45,29 @@ def loop_closure_correct(xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, 
     if len(frames) == 0:
         return np.zeros(0, bool)
     return np.linalg.norm(xy[frames, :2] - xy[nodes, :2], axis=1) <= radius
+
+
+def loop_closure_correct_in_truth(truth: Any, frames: np.ndarray, matches: np.ndarray, tolerance: int) -> np.ndarray:
+    """Per loop closure (frame i matched to frame j, original indices): whether the truth
+    matrix (scipy CSR, row i = the earlier frames that close a loop with i) has a one in
+    row i within ``tolerance`` frames of j. What ``ground_truth.kind: matrix`` or ``csv``
+    judges with; positions judge with :func:`loop_closure_correct`."""
+    out = np.zeros(len(frames), bool)
+    for k, (i, j) in enumerate(zip(np.asarray(frames).tolist(), np.asarray(matches).tolist())):
+        row = truth.indices[truth.indptr[i]:truth.indptr[i + 1]]
+        out[k] = bool(len(row)) and bool((np.abs(row - j) <= tolerance).any())
+    return out
+
+
+def nearest_true_earlier(truth: Any, frames: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """Per loop closure: the true earlier frame (original index) nearest its match, -1 when
+    the truth has none for that frame."""
+    out = np.full(len(frames), -1, np.int64)
+    for k, (i, j) in enumerate(zip(np.asarray(frames).tolist(), np.asarray(matches).tolist())):
+        row = truth.indices[truth.indptr[i]:truth.indptr[i + 1]]
+        if len(row):
+            out[k] = int(row[np.argmin(np.abs(row - j))])
+    return out
 
 
 def accuracy_at_gap(best: np.ndarray, q_xy: np.ndarray, r_xy: np.ndarray, radius: float, gap: int) -> float:

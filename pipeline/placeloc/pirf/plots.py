@@ -41,6 +41,37 @@ def plot_loop_closures(path: Path, r_xy: np.ndarray, frames: np.ndarray, nodes: 
     plt.close(fig)
 
 
+def plot_loop_closure_pairs(path: Path, frames: np.ndarray, nodes: np.ndarray, correct: np.ndarray, truth_i: np.ndarray,
+                            truth_j: np.ndarray, n_frames: int, tolerance: int, local: np.ndarray) -> None:
+    """Loop closures judged by a matrix or CSV truth (no positions to draw a path with): each
+    closure as (frame, matched earlier frame), green when the truth has a one there within
+    ``tolerance`` frames, red otherwise, over the truth's pairs in grey. ``truth_i/j`` are
+    original indices, ``local`` maps them to positions in the frame list."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 6.0))
+    ok = (truth_i < len(local)) & (truth_j < len(local))
+    ti, tj = local[truth_i[ok]], local[truth_j[ok]]
+    keep = (ti >= 0) & (tj >= 0)
+    if keep.any():
+        ax.plot(ti[keep], tj[keep], ",", color="0.6", alpha=0.6)
+        ax.plot([], [], "s", color="0.6", ms=4, label=f"true pair (frame, earlier frame): {int(keep.sum())}")
+    good, bad = correct, ~correct
+    ax.plot(frames[good], nodes[good], "o", color="tab:green", ms=4, label=f"correct loop closure ({int(good.sum())})")
+    ax.plot(frames[bad], nodes[bad], "x", color="tab:red", ms=6, mew=1.5, label=f"wrong loop closure ({int(bad.sum())})")
+    ax.set_xlim(-0.5, n_frames - 0.5)
+    ax.set_ylim(-0.5, n_frames - 0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("frame that closed the loop")
+    ax.set_ylabel("earlier frame it matched")
+    prec = f"{correct.mean():.3f}" if len(correct) else "none to judge"
+    ax.set_title(f"PIRF-nav2 loop closures: {len(frames)}, precision {prec}\n(correct = a one in the truth matrix within "
+                 f"{tolerance} frames)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, borderaxespad=0)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+
+
 def plot_accuracy_gap(path: Path, ann: list[float], bf: list[float] | None, backend: str, radius: float) -> None:
     """Localization accuracy against gap tolerance (Figs. 6-7), ANN beside brute force."""
     plt = _plt()

@@ -69,3 +69,10 @@ def read_loop_closures(run_dir: str | Path, candidates: bool = False) -> dict[st
             raise ValueError(f"{Path(run_dir) / 'build-dictionary.h5'} has no {group}: it was built before the geometric check "
                              "existed; re-run build-dictionary")
         return {k: f[f"{group}/{k}"][()] for k in f[group]}
+
+
+def loop_closure_count(metrics: dict[str, Any]) -> int:
+    """PIRF-nav2's own loop closures from a run's metrics.json: ``loop_closures`` where they
+    differ from the contract's ``n_accepted`` (ground_truth.exclude_recent dropped some of
+    them), else ``n_accepted`` (metrics.json does not repeat a count)."""
+    return int(metrics.get("loop_closures", metrics["n_accepted"]))

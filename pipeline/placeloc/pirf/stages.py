@@ -20,24 +20,36 @@ ann.py (indexes), metrics.py, truth.py (poses per frame), tables.py (CSV) and pl
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
 
 from placeloc.core.artifacts import write_tree
 from placeloc.core.config import ConfigError
+from placeloc.core.errors import StageError
 from placeloc.core.images import ImageError, list_images, read_gray
+from placeloc.core.imagework import ImageResult, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
+from placeloc.evaluation.contracts import LoopEvaluation
 from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
+from placeloc.pirf.features import blank_frames_note, extract_frame, few_features_note, frame_arrays
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
-from placeloc.pirf.metrics import accuracy_at_gap, loop_closure_correct, nearest_earlier, set_agreement, tail_count, tail_mean
+from placeloc.pirf.metrics import (
+    accuracy_at_gap,
+    loop_closure_correct,
+    loop_closure_correct_in_truth,
+    nearest_earlier,
+    nearest_true_earlier,
+    set_agreement,
+    tail_count,
+    tail_mean,
+)
 from placeloc.pirf.params import INDEX_KEYS, PirfParams, index_settings
-from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closures
+from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closure_pairs, plot_loop_closures
 from placeloc.pirf.tables import write_localization, write_loop_closures
 from placeloc.pirf.truth import read_frame_xy
 from placeloc.pirf.tuning import SEARCH_GRID, build_tuned, tune_on_queries
@@ -56,11 +68,20 @@ def _check(config: dict) -> None:
         raise ConfigError(f"pirf: need w_size_default <= w_size_max, got {p['w_size_default']} and {p['w_size_max']}")
     gt = config["ground_truth"]
     if gt["kind"] not in ("none", "poses", "matrix", "csv"):
-        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius) or a "
-                          f"loop-closure matrix, not {gt['kind']!r}; set ground_truth.kind: poses with ground_truth.path = the "
-                          "reference poses CSV (and pirf.query_poses for the query's), or kind: matrix")
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius), a "
+                          f"loop-closure matrix or a CSV of pairs, not {gt['kind']!r}; set ground_truth.kind: poses with "
+                          "ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's), kind: matrix "
+                          "or kind: csv")
     if p["query_poses"] is not None and gt["kind"] != "poses":
         raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
+    # A PIRF is a feature matched from one frame into the next: one frame gives none.
+    for role in ("reference", "query"):
+        section = config.get(role) or {}
+        if section.get("images"):
+            n = len(list_images(section["images"], section.get("on_error", "stop")))
+            if n < 2:
+                raise ConfigError(f"{role}.images: {section['images']} holds {n} image; PIRF-nav2 matches features from "
+                                  "frame to frame and needs a video of at least 2 frames")
     # Every image needs a pose: check the counts now, not after mapping.
     for role, path in (("reference", gt["path"] if gt["kind"] == "poses" else None), ("query", p["query_poses"])):
         section = config.get(role) or {}
@@ -76,48 +97,34 @@ def _check(config: dict) -> None:
 
 # -- extract --------------------------------------------------------------------------
 def stage_extract(ctx: Any) -> None:
+    """Every frame's features through the engine (:mod:`placeloc.core.imagework`; frames of
+    one size), chained frame by frame into PIRFs by one :class:`PirfTracker` per traverse."""
     p = ctx.params
     ctx.out.attrs["features"] = p.features
-    for role, images in ctx.images.items():
+    work = ImageWork(fn=frame_arrays, settings={"kind": p.features, "n_features": p.n_features},
+                     ragged=("xy", "response", "descriptors"), same_size=True)
+
+    def chain(role: str) -> Callable[[ImageResult], dict[str, np.ndarray]]:
         tracker = PirfTracker(ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max,
                               n_pmin=p.n_pmin, n_pmax=p.n_pmax)
-        items = [(str(q), p.features, p.n_features, images.on_error == "skip") for q in images.paths]
-        pirfs: list[np.ndarray] = []
-        windows, n_feat, index, shapes, skipped = [], [], [], [], []
-        frames = ctx.progress(ctx.executor.map(extract_frame_or_error, items), total=len(items), desc=f"extract {role}")
-        for i, res in enumerate(frames):
-            if isinstance(res, str):
-                skipped.append(res)
-                log.warning("skipped: %s", res)
-                continue
-            _xy, resp, d, shape = res
-            shapes.append(shape)
-            if shape != shapes[0]:
-                check_sizes(shapes, [images.paths[k] for k in index + [i]])
+
+        def step(frame: ImageResult) -> dict[str, np.ndarray]:
+            d = frame.arrays["descriptors"]
             if len(d) == 0 and p.blank_frames == "stop":
-                raise ImageError(f"{images.paths[i]}: no {p.features} features found (blank or featureless frame); "
+                raise ImageError(f"{frame.path}: no {p.features} features found (blank or featureless frame); "
                                  "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
-            pirf, w = tracker.push(d, resp)
-            pirfs.append(pirf)
-            windows.append(w)
-            n_feat.append(len(d))
-            index.append(i)
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        dim = pirfs[-1].shape[1]
-        counts = np.array([len(x) for x in pirfs], np.int64)
-        allp = np.concatenate(pirfs) if counts.sum() else np.zeros((0, dim), np.float32)
-        g = ctx.out.create_group(role)
-        g.attrs["height"], g.attrs["width"] = shapes[0]
-        g.attrs["dim"] = dim
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(items)
-        g.create_dataset("pirfs", data=allp, chunks=(min(max(len(allp), 1), 16384), dim), maxshape=(None, dim))
-        write_tree(g, {"offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-                       "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
-                       "index": np.array(index, np.int64)})
-        g.create_dataset("names", data=np.array([images.paths[k].name for k in index], dtype=object), dtype=h5py.string_dtype())
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
+            pirf, w = tracker.push(d, frame.arrays["response"])
+            return {"pirfs": pirf, "window": np.int32(w), "n_features": np.int32(len(d))}
+        return step
+
+    for role, table in extract_images(ctx, work, fold=chain, ragged=("pirfs",)).items():
+        g = ctx.out[role]
+        g.attrs["height"], g.attrs["width"] = table.first_shape
+        g.attrs["dim"] = g["pirfs"].shape[1]
+        blank = blank_frames_note(role, list(table.names), g["n_features"][()], p.features)
+        if blank:
+            log.warning("%s", blank)
+        g.attrs["blank_frames_note"] = blank or ""
 
 
 def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
@@ -135,6 +142,13 @@ def stage_build(ctx: Any) -> None:
     p = ctx.params
     ex = ctx.artifact("extract")
     pirfs, off = _pirfs(ex, "reference")
+    g = ex["reference"]
+    few = few_features_note("reference", g["n_features"][()], np.diff(off), g["window"][()],
+                            shape=(int(g.attrs["height"]), int(g.attrs["width"])), kind=str(ex.attrs["features"]),
+                            n_pmin=p.n_pmin, tau=p.tau)
+    if few:
+        log.warning("%s", few)
+    ctx.out.attrs["few_features_note"] = few or ""
     bar = lambda it: ctx.progress(it, total=len(off) - 1, desc=f"map ({p.update})")  # noqa: E731
     res = map_video(pirfs, off, ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=p.map_search,
                     hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
@@ -152,7 +166,7 @@ def stage_build(ctx: Any) -> None:
     ctx.out.attrs["map_search"] = p.map_search
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
-    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
+    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]), maxshape=(None, d.shape[1]))
     ctx.out.attrs["verify_frames"] = p.verify_frames
     cand = {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]}
     write_tree(ctx.out, {**res, "loop_closures": {k: v[keep] for k, v in cand.items()},
@@ -188,7 +202,18 @@ def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_fr
 # -- index ----------------------------------------------------------------------------
 def stage_index(ctx: Any) -> None:
     p = ctx.params
+    if "query" not in ctx.artifact("extract"):
+        # Loop closure alone: the map finds its own closures while it grows; the index of
+        # the finished dictionary serves only a query traverse's m_t.
+        ctx.out.attrs["backend"] = "none"
+        ctx.out.attrs["note"] = "no query traverse configured: no index built (loop closure needs none)"
+        return
     d = ctx.artifact("build-dictionary")["dictionary"][()]
+    if len(d) < 2:
+        ex = ctx.artifact("extract")["reference"]
+        raise StageError(f"{ex.attrs['source']}: the map holds {len(d)} dictionary entries, too few to localize a query "
+                         f"against ({int((ex['n_features'][()] == 0).sum())} of {len(ex['n_features'])} frames have no "
+                         f"features); map a longer or more textured video")
     seed = int(ctx.config["seed"])
     idx = AnnIndex(p.index, d, index_settings(p), seed)
     tuned = None
@@ -207,9 +232,12 @@ def stage_index(ctx: Any) -> None:
 
 def _warn_if_unmet(tuned: dict[str, Any], p: PirfParams, stage: str, sample: str) -> None:
     if not tuned["target_met"]:
-        log.warning("%s: no %s setting up to %s reaches m_t recall %s / Jaccard %s on %s (it gives %.3f / %.3f); "
+        # The targets must hold with 95 % confidence (placeloc.pirf.tuning.meets): a small
+        # sample can agree perfectly and still not show it.
+        log.warning("%s: no %s setting up to %s shows m_t recall %s / Jaccard %s with 95 %% confidence on %s (it "
+                    "gives %.3f / %.3f on %d ratio-test matches, nearest-neighbour recall %.3f on %d neighbours); "
                     "using it anyway", stage, p.index, tuned["value"], p.index_recall, p.index_jaccard, sample,
-                    tuned["mt_recall"], tuned["mt_jaccard"])
+                    tuned["mt_recall"], tuned["mt_jaccard"], tuned["mt_matched"], tuned["nn_recall"], tuned["nn_count"])
 
 
 def _write_tuning(g: Any, tuned: dict[str, Any]) -> None:
@@ -288,9 +316,10 @@ def _xy(f: h5py.File, role: str, path: str | None, what: str) -> np.ndarray | No
         raise ConfigError(str(exc)) from None
 
 
-def evaluate_extra(ctx: Any, ev: Any) -> None:
-    """PIRF-nav2's own figures beside the loops contract's: loop-closure precision within
-    the radius (as matched, direction-corrected, after the geometric check), the mapping
+def evaluate_extra(ctx: Any, ev: LoopEvaluation) -> None:
+    """PIRF-nav2's own figures beside the loops contract's: loop-closure precision of its own
+    closures (as matched, direction-corrected, after the geometric check), judged within the
+    radius with positions or by the contract's loop-closure matrix or CSV, the mapping
     cost, the ANN index against brute force, and the query traverse's localization
     accuracy at node gaps 0-2 (the paper's Figs. 6-7)."""
     p = ctx.params
@@ -298,13 +327,27 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     ex, build, loc = ctx.artifact("extract"), ctx.artifact("build-dictionary"), ctx.artifact("localize")
     radius = float(gt["radius"])
     r_xy = _xy(ex, "reference", gt["path"] if gt["kind"] == "poses" else None, "ground_truth.path")
+    r_names, r_index, _ = _frames(ex, "reference")
     m_contract = ev.metrics
     q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
     m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
-                         "frames": int(len(build["best_node"])), "loop_closures": int(len(lc_f))}
+                         "frames_without_features": int((ex["reference/n_features"][()] == 0).sum())}
+    # PIRF's own closures (its eps rule) are the contract's accepted ones unless ground_truth.exclude_recent
+    # drops some: then both counts are kept, each named for what it counts
+    if int(len(lc_f)) != m_contract.get("n_accepted"):
+        m["loop_closures"] = int(len(lc_f))
     m.update(_mapping_cost(build))
-    correct = loop_closure_correct(r_xy, lc_f, lc_n, radius) if r_xy is not None else None
+
+    def judge(frames: np.ndarray, nodes: np.ndarray) -> np.ndarray | None:
+        """Per closure (positions in the frame list): right within the radius (positions) or by the truth matrix."""
+        if r_xy is not None:
+            return loop_closure_correct(r_xy, frames, nodes, radius)
+        if ev.truth is not None:
+            return loop_closure_correct_in_truth(ev.truth, r_index[frames], r_index[nodes], ev.tolerance)
+        return None
+
+    correct = judge(lc_f, lc_n)
     if correct is not None:
         m["loop_closures_correct"] = int(correct.sum())
         m["loop_closure_precision"] = float(correct.mean()) if len(correct) else float("nan")
@@ -314,12 +357,13 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
         group = "closure_candidates" if "closure_candidates" in build else "loop_closures"
         c_f, matched, c_n = (build[f"{group}/{k}"][()] for k in ("frame", "matched_node", "node"))
         fixed = correct_for_travel_direction(c_f, matched, ex["reference/window"][()], span=p.eps)
-        checks = {name: loop_closure_correct(r_xy, c_f, nodes, radius)
+        checks = {name: judge(c_f, nodes)
                   for name, nodes in (("as_matched", matched), ("direction_corrected", fixed), ("candidates", c_n))}
         for name, ok in checks.items():
+            assert ok is not None
             m[f"loop_closure_precision_{name}"] = float(ok.mean()) if len(ok) else float("nan")
         m["loop_closure_candidates"] = int(len(c_f))
-        m["loop_closure_candidates_correct"] = int(checks["candidates"].sum())
+        m["loop_closure_candidates_correct"] = int(np.sum(checks["candidates"]))
     else:
         m["loop_closures_correct"] = m["loop_closure_precision"] = None
     backend = str(loc.attrs.get("backend", "none"))
@@ -327,7 +371,8 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     for k in ("accuracy_gap0", "accuracy_gap1", "accuracy_gap2", "jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
               "mt_seconds_bf", "mt_seconds_ann", "mt_total_seconds_bf", "mt_total_seconds_ann"):
         m[k] = None
-    tunings = {"index_tuned": ctx.artifact("index")["index"].attrs}
+    index_h5 = ctx.artifact("index")
+    tunings = {"index_tuned": index_h5["index"].attrs} if "index" in index_h5 else {}
     if "query_tuning" in loc:
         tunings["index_query_tuned"] = loc["query_tuning"].attrs
     for prefix, tuned in tunings.items():
@@ -336,8 +381,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
             if f"tuned_{k}" in tuned:
                 v = tuned[f"tuned_{k}"]
                 m[f"{prefix}_{k}"] = v.item() if hasattr(v, "item") else v
-    r_names = _frames(ex, "reference")[0]
-    write_loop_closures(ctx.output("loop_closures.csv"), lc_f, lc_n, lc_s, r_names, r_xy, radius)
+    write_loop_closures(ctx.output("loop_closures.csv"), lc_f, lc_n, lc_s, r_names, r_xy, radius, correct)
     if backend in loc:
         a = loc[backend]
         m["mt_seconds_ann"] = float(np.mean(a["mt_seconds"][()]))
@@ -361,21 +405,31 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     m_contract.update(m)
     metrics = m_contract
     ev.label = f"PIRF-nav2 ({p.update})"
-    if ctx.config.get("plots", True) and r_xy is not None:
-        plot_loop_closures(ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
-        _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius)
+    if ctx.config.get("plots", True) and correct is not None:
+        if r_xy is not None:
+            plot_loop_closures(ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
+        else:
+            truth = ev.truth.tocoo()
+            plot_loop_closure_pairs(ctx.output("loop_closures.png"), lc_f, lc_n, correct, truth.row, truth.col,
+                                    len(r_names), ev.tolerance, _local(r_index))
+        _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius, ev)
         if metrics.get("accuracy_gap0") is not None:
             bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
             plot_accuracy_gap(ctx.output("accuracy_gap.png"), [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
 
 
+def _local(index: np.ndarray) -> np.ndarray:
+    """Original index -> position in the frame list (-1: not kept)."""
+    pos = np.full(int(index.max(initial=-1)) + 1, -1, np.int64)
+    pos[index] = np.arange(len(index))
+    return pos
+
+
 def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
-    """Mapping seconds per frame, wall and CPU, over the run and over its last ``tail``
-    (where the dictionary is largest), with the dictionary size where that tail starts."""
-    wall = build["map_seconds"][()]
-    out = {"map_seconds_per_frame": float(np.mean(wall)) if len(wall) else float("nan"),
-           "map_seconds_per_frame_end": tail_mean(wall, tail)}
-    out["map_frames_per_second_end"] = 1.0 / out["map_seconds_per_frame_end"] if len(wall) else float("nan")
+    """Mapping CPU seconds per frame over the run and over its last ``tail`` (where the
+    dictionary is largest), with the dictionary size where that tail starts."""
+    # the wall time per frame is the contract's loop_seconds_per_frame(_end) (the same record): not repeated here
+    out: dict[str, float] = {}
     if "map_cpu_seconds" in build:  # older maps recorded wall time only
         cpu = build["map_cpu_seconds"][()]
         out["map_cpu_seconds_per_frame"] = float(np.mean(cpu)) if len(cpu) else float("nan")
@@ -385,25 +439,39 @@ def _mapping_cost(build: h5py.File, tail: float = 0.1) -> dict[str, float]:
     return out
 
 
-def _wrong_strips(ctx: Any, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, radius: float, most: int = 12) -> None:
+def _wrong_strips(ctx: Any, r_xy: np.ndarray | None, frames: np.ndarray, nodes: np.ndarray, radius: float,
+                  ev: LoopEvaluation, most: int = 12) -> None:
     """wrong_loop_closures.png: a picture of each wrong loop closure (up to ``most``), beside
-    the earlier frame that truly stands nearest."""
+    the earlier frame that truly stands nearest (positions) or the true earlier frame
+    nearest the match (a loop-closure matrix or CSV)."""
     path = ctx.output("wrong_loop_closures.png")
     images = ctx.images.get("reference")
     if not len(frames) or images is None:
         path.unlink(missing_ok=True)
         return
     pick = np.linspace(0, len(frames) - 1, min(most, len(frames))).round().astype(int)
-    near = nearest_earlier(r_xy, frames[pick], ctx.params.eps)
     ex = ctx.artifact("extract")
+    names, index, _ = _frames(ex, "reference")
+    if r_xy is not None:
+        near = nearest_earlier(r_xy, frames[pick], ctx.params.eps)
+    else:
+        pos = _local(index)
+        true = nearest_true_earlier(ev.truth, index[frames[pick]], index[nodes[pick]])
+        near = np.where(true >= 0, pos[np.clip(true, 0, len(pos) - 1)], -1)
     by_name = {q.name: q for q in images.paths}
-    names = _frames(ex, "reference")[0]
     imgs, titles = [], []
     for t, c, k in zip(frames[pick], nodes[pick], near):
-        d_c, d_k = (float(np.linalg.norm(r_xy[t] - r_xy[j])) for j in (c, k))
-        imgs.append(tuple(read_gray(by_name[names[j]]) for j in (t, c, k)))
-        titles.append((f"frame {t} (closed the loop)", f"matched node {c}: {d_c:.2f} m away", f"nearest earlier frame {k}: {d_k:.2f} m"))
-    plot_closure_strips(path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = within {radius:g} m)")
+        blank = np.full_like(read_gray(by_name[names[t]]), 235)
+        imgs.append(tuple(read_gray(by_name[names[j]]) if j >= 0 else blank for j in (t, c, k)))
+        if r_xy is not None:
+            d_c, d_k = (float(np.linalg.norm(r_xy[t] - r_xy[j])) for j in (c, k))
+            titles.append((f"frame {t} (closed the loop)", f"matched node {c}: {d_c:.2f} m away",
+                           f"nearest earlier frame {k}: {d_k:.2f} m"))
+        else:
+            titles.append((f"frame {t} (closed the loop)", f"matched node {c}: no loop in the truth",
+                           f"true earlier frame {k}" if k >= 0 else "(the truth has no earlier frame)"))
+    rule = f"within {radius:g} m" if r_xy is not None else f"the truth matrix, tolerance {ev.tolerance} frames"
+    plot_closure_strips(path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = {rule})")
 
 
 METHOD = Method(

@@ -2,7 +2,8 @@
 
 - ``loop_closures.csv``: one row per loop closure found while mapping: the frame that
   closed the loop, the earlier node it matched, the score (eq. 9) and, with ground truth,
-  the distance between the two and whether it is within the radius;
+  the distance between the two (positions) and whether it is right (within the radius, or
+  by the loop-closure matrix or CSV);
 - ``localization.csv``: one row per query frame and index backend: the best node, its
   reference image, the score and, with ground truth, the estimated and true position.
 """
@@ -23,13 +24,15 @@ def _num(v: float) -> str:
 
 
 def write_loop_closures(path: Path, frames: np.ndarray, nodes: np.ndarray, scores: np.ndarray, names: Sequence[str],
-                        r_xy: np.ndarray | None, radius: float) -> None:
+                        r_xy: np.ndarray | None, radius: float, correct: np.ndarray | None = None) -> None:
+    """``correct``: per closure, as judged (within ``radius`` with positions, or by a
+    loop-closure matrix or CSV, which give no distance: that column stays empty)."""
     with atomic_open(path, newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(["frame", "image", "node", "node_image", "score", "distance_m", "correct"])
-        for f, c, s in zip(frames, nodes, scores):
+        for k, (f, c, s) in enumerate(zip(frames, nodes, scores)):
             dist = float(np.linalg.norm(r_xy[f] - r_xy[c])) if r_xy is not None else float("nan")
-            ok = "" if r_xy is None else int(dist <= radius)
+            ok = "" if correct is None else int(correct[k])
             w.writerow([int(f), names[f], int(c), names[c], f"{s:.6g}", _num(dist), ok])
 
 

@@ -15,7 +15,17 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from placeloc.seqslam.comparisons import difference_block
-from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, single_image_best, velocities
+from placeloc.seqslam.search import (
+    REVERSE_COST,
+    SPEED_CHANGE_COST,
+    STOP_COST,
+    confidence,
+    enhance_t,
+    query_offsets,
+    sequence_search,
+    single_image_best,
+    velocities,
+)
 
 # (fn, jobs, shared, describe) -> results in job order; the executor's map has this shape.
 MapBlocks = Callable[..., Iterator[Any]]
@@ -46,6 +56,30 @@ def auto_velocity_scale(n_reference: int, n_query: int) -> float:
     return n_reference / max(1, n_query)
 
 
+def search_velocities(v_min: float, v_max: float, v_step: float, v_auto: bool, n_reference: int,
+                      n_query: int, v_reverse: float = 0.0) -> np.ndarray:
+    """The velocities the sequence search tries (scaled by :func:`auto_velocity_scale` with ``v_auto``)."""
+    vels = velocities(v_min, v_max, v_step, v_reverse)
+    return np.round(vels * auto_velocity_scale(n_reference, n_query), 9) if v_auto else vels
+
+
+def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
+    """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
+    columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
+    traverse end, at least the ``before + after + 1`` frames nearest it, which a shifted
+    window (``edges: shift``) uses there. Without those, a last block shorter than a
+    window could not shift its queries' windows and left them unmatched (1056 queries
+    with block_size 1024 and ds 120 left 32), so ``block_size`` changed results."""
+    n_window = before + after + 1
+    spans = []
+    for c0 in range(0, n_q, block):
+        c1 = min(n_q, c0 + block)
+        lo = max(0, min(c0 - before, n_q - n_window))
+        hi = min(n_q, max(c1 + after, n_window))
+        spans.append((c0, c1, lo, hi))
+    return spans
+
+
 def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
     for job in jobs:
         yield fn(job, shared)
@@ -66,24 +100,31 @@ def sequence_match(
     sequence_shape: str,
     edges: str,
     top_k: int,
+    speed_change_cost: float = SPEED_CHANGE_COST,
+    stop_cost: float = STOP_COST,
+    reverse_cost: float = REVERSE_COST,
+    v_reverse: float = 0.0,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
     on_difference: Callable[[int, int, np.ndarray], None] | None = None,
+    on_enhanced: Callable[[int, int, int, np.ndarray], None] | None = None,
     progress: Callable[..., Iterable] | None = None,
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
-    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
+    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
+    ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`). ``exclude_recent``
+    is for loop closure (``query is ref``): references within that
     many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
-    raw difference columns ``c0:c1`` as they are computed.
+    raw difference columns ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, lo, et)``
+    the enhanced block, query-major, its row 0 being query ``lo`` (the columns a sequence
+    window needs on either side included), for what the caller keeps of it.
     """
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    vels = velocities(v_min, v_max, v_step)
-    if v_auto:
-        vels = np.round(vels * auto_velocity_scale(len(ref), n_q), 9)
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q, v_reverse)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
     candidates = np.full((n_q, k), -1, np.int64)
@@ -91,7 +132,7 @@ def sequence_match(
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
 
-    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
+    spans = block_spans(n_q, block, before, after)
     # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
     # enhancement, search and writing stay here, in order.
     jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)
@@ -110,7 +151,10 @@ def sequence_match(
         single_best[c0:c1], single_conf[c0:c1] = sb, ss
         et = enhance_t(dt, window)
         del dt, d
+        if on_enhanced is not None:
+            on_enhanced(c0, c1, lo, et)
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
-                               shape=sequence_shape, edges=edges)
+                               shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
+                               stop_cost=stop_cost, reverse_cost=reverse_cost)
         candidates[c0:c1], scores[c0:c1] = b, s
     return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

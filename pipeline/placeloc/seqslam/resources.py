@@ -43,18 +43,24 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
         n_query = len(images["query"]) if "query" in images else n_ref
         block = min(int(p.get("block_size", 1024)), n_query)
         d_block = 4 * n_ref * block
-        d_full = 4 * n_ref * n_query if p.get("store_difference") else 0
+        # D and its enhanced copy D^ (evaluate reads both for the dissimilarity ratio, never recomputing D^)
+        d_full = 2 * 4 * n_ref * n_query if p.get("store_difference") else 0
         top_k = int(p.get("top_k", 10))
+        # what localize keeps for evaluate beside D: the plain ranking (int64 + float32, twice: the
+        # method's own arrays and the contract's copy) and the picture's two subsamples (at most 800 x 800)
+        plain = 2 * 12 * max(top_k, 20) * n_query if "query" in images else 0
+        picture = 2 * 4 * min(n_ref, 800) * min(n_query, 800)
         # localize: both traverses' features and about 8 float32 blocks of D at once (D,
         # its enhanced copy, the sequence search's scores and their temporaries);
-        # localize.h5 keeps D (chunked: 5% over) when store_difference, matches.csv a row
+        # localize.h5 keeps D and D^ (chunked: 5% over) when store_difference, matches.csv a row
         # per query, and the ranked result contract a second copy of the candidates (int64)
         # and scores (float32) with both traverses' names and indices.
         # Measured: 138, 214, 299 MB at 1500, 3000, 6000 frames a traverse.
         needs.append(Need(f"the {n_ref} x {n_query} difference matrix, {block} query columns at a time",
                           "seqslam.block_size (memory) or seqslam.store_difference: false (disk)", stage="localize",
-                          memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query,
-                          disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + (1 << 18)))  # + HDF5's own
+                          memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query + plain + picture,
+                          disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + plain + picture
+                          + (1 << 18)))  # + HDF5's own
         # evaluate: D read back a block at a time, with its enhanced copies, the masked
         # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
         # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;

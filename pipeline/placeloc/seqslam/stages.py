@@ -29,18 +29,25 @@ import h5py
 import numpy as np
 
 from placeloc.core.artifacts import read_strings
-from placeloc.core.images import ImageError
+from placeloc.core.common_params import GroundTruthParams
+from placeloc.core.imagework import extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.seqslam import resources as seqslam_resources
-from placeloc.seqslam.features import extract_chunk
+from placeloc.seqslam.features import feature_work
 from placeloc.seqslam.params import SeqSLAMParams
 
 log = logging.getLogger("placeloc")
 
+# the difference-matrix picture: at most this many references and queries (every stride-th)
+PLOT_SIDE = 800
+# the plain ranking's length: at least the largest default N of Recall@N (ground_truth.recall_at)
+PLAIN_RANKING_K = max(GroundTruthParams().recall_at)
+
 
 def _check(config: dict) -> None:
     from placeloc.core.config import ConfigError
+    from placeloc.core.descriptors import check_descriptor_pair
 
     p = config["seqslam"]
     if p["v_max"] < p["v_min"]:
@@ -51,58 +58,23 @@ def _check(config: dict) -> None:
     if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
         raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
                           "images need descriptors too")
+    check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "seqslam.descriptors")
 
 
 # ---------------------------------------------------------------------------------------
 # extract
 # ---------------------------------------------------------------------------------------
 def extract(ctx: Any) -> None:
-    """Features of every image, appended chunk by chunk to resizable datasets, so the
-    writing process holds one chunk at a time however long the traverse is."""
+    """Features of every image through the engine (:mod:`placeloc.core.imagework`): the
+    ``thumbnails`` and the comparison's ``features``, one row per kept image."""
     p: SeqSLAMParams = ctx.params
     if p.descriptors_reference is not None:
         _extract_descriptors(ctx)
         return
     ctx.out.attrs["comparison"] = p.comparison
-    chunk = int(p.images_per_task)
-    w, h = p.thumbnail
-    settings = {"thumbnail_size": (int(w), int(h)), "comparison": p.comparison, "patch": int(p.patch),
-                "normalisation": p.normalisation, "gaussian_sigma": float(p.gaussian_sigma),
-                "ocm_epsilon": float(p.ocm_epsilon)}
-    for role, images in ctx.images.items():
-        paths = [str(x) for x in images.paths]
-        jobs = [(paths[i:i + chunk], settings, images.on_error) for i in range(0, len(paths), chunk)]
-        g = ctx.out.create_group(role)
-        # Uncompressed: small grey thumbnails of real images shrink little under gzip, and
-        # compressing them was a tenth of extract's time.
-        thumbs = g.create_dataset("thumbnails", shape=(0, h, w), maxshape=(None, h, w), dtype=np.uint8,
-                                  chunks=(min(1024, max(1, len(paths))), h, w))
-        features = None
-        index: list[int] = []
-        skipped: list[str] = []
-        bar = ctx.progress(ctx.executor.map(extract_chunk, jobs), total=len(jobs), desc=f"extract {role}")
-        for c, (f, t, ok, errors) in enumerate(bar):
-            skipped.extend(errors)
-            if not ok:
-                continue
-            if features is None:
-                features = g.create_dataset("features", shape=(0, f.shape[1]), maxshape=(None, f.shape[1]), dtype=f.dtype,
-                                            chunks=(min(1024, max(1, len(paths))), f.shape[1]))
-            n0 = len(index)
-            index.extend(c * chunk + i for i in ok)
-            for dset, arr in ((features, f), (thumbs, t)):
-                dset.resize(len(index), axis=0)
-                dset[n0:] = arr
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
-                         dtype=h5py.string_dtype())
-        g.create_dataset("index", data=np.asarray(index, np.int64))
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(paths)
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
-        for msg in skipped:
-            log.warning("skipped: %s", msg)
+    extract_images(ctx, feature_work(thumbnail_size=p.thumbnail, comparison=p.comparison, patch=p.patch,
+                                     normalisation=p.normalisation, gaussian_sigma=p.gaussian_sigma,
+                                     ocm_epsilon=p.ocm_epsilon, images_per_task=int(p.images_per_task)))
 
 
 def _extract_descriptors(ctx: Any) -> None:
@@ -126,10 +98,21 @@ def _extract_descriptors(ctx: Any) -> None:
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
+def _loop_exclusion(ctx: Any) -> int:
+    """ground_truth.exclude_recent for this traverse (adapted to its length when not set),
+    as the loops contract scores it: a frame never matches the frames just before it."""
+    from placeloc.core.common_params import loop_exclusion
+
+    images = ctx.images.get("reference")
+    n = len(images.paths) if images is not None else len(ctx.artifact("extract")["reference/index"])
+    return loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], n)[0]
+
+
 def localize(ctx: Any) -> None:
     """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
     ``loops`` contract (no query: each frame against the earlier ones)."""
-    from placeloc.seqslam.matching import sequence_match
+    from placeloc.seqslam.matching import search_velocities, sequence_match
+    from placeloc.seqslam.search import sequence_search
 
     p: SeqSLAMParams = ctx.params
     ex = ctx.artifact("extract")
@@ -140,22 +123,65 @@ def localize(ctx: Any) -> None:
     # what extract prepared the rows for: an image comparison, or a distance between brought descriptors
     comparison = str(ex.attrs.get("comparison", p.comparison))
 
-    d_ds = None
+    # What evaluate needs is kept here, as the blocks pass, so evaluate never re-runs a kernel:
+    # D and D^ (store_difference), subsamples of both for the picture, and (a query
+    # traverse) the plain ranking, neighbouring references allowed, for the standard Recall@N.
+    d_ds = e_ds = None
     if p.store_difference:
-        d_ds = ctx.out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32,
-                                      chunks=(min(n_ref, 512), min(n_q, 256)))
+        chunks = (min(n_ref, 512), min(n_q, 256))
+        d_ds = ctx.out.create_dataset("difference", shape=(n_ref, n_q), dtype=np.float32, chunks=chunks)
         d_ds.attrs["convention"] = "rows = reference, columns = query, lower = more alike"
         d_ds.attrs["comparison"] = comparison
+        e_ds = ctx.out.create_dataset("enhanced", shape=(n_ref, n_q), dtype=np.float32, chunks=chunks)
+        e_ds.attrs["convention"] = f"D after contrast enhancement (enhance_window {int(p.enhance_window)}), as D"
+    sr, sq = max(1, -(-n_ref // PLOT_SIDE)), max(1, -(-n_q // PLOT_SIDE))
+    plot_d = np.zeros((len(range(0, n_ref, sr)), len(range(0, n_q, sq))), np.float32)
+    plot_e = np.zeros_like(plot_d)
+    k_plain = max(int(p.top_k), PLAIN_RANKING_K)
+    plain = None if loop_closure else (np.full((n_q, k_plain), -1, np.int64), np.full((n_q, k_plain), np.inf, np.float32))
+    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q, float(p.v_reverse))
+
+    def sampled(c0: int, c1: int) -> tuple[slice, np.ndarray]:
+        """The picture's columns among queries c0..c1-1: where they go, and where they are in the block."""
+        first = -(-c0 // sq)
+        cols = np.arange(first * sq, c1, sq)
+        return slice(first, first + len(cols)), cols - c0
 
     def store(c0: int, c1: int, d: np.ndarray) -> None:
-        d_ds[:, c0:c1] = d
+        if d_ds is not None:
+            d_ds[:, c0:c1] = d
+        where, cols = sampled(c0, c1)
+        plot_d[:, where] = d[::sr][:, cols]
+
+    def keep_enhanced(c0: int, c1: int, lo: int, et: np.ndarray) -> None:
+        e = et[c0 - lo:c1 - lo]  # query-major
+        if e_ds is not None:
+            e_ds[:, c0:c1] = e.T
+        where, cols = sampled(c0, c1)
+        plot_e[:, where] = e[cols][:, ::sr].T
+        if plain is not None:
+            plain[0][c0:c1], plain[1][c0:c1] = sequence_search(
+                et, c0 - lo, c1 - lo, int(p.ds), vels, p.search, 0, k_plain, None, lo, shape=p.sequence_shape,
+                edges=p.edges, speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                reverse_cost=float(p.reverse_cost))
 
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
-                       exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
-                       map_blocks=ctx.executor.map, on_difference=store if d_ds is not None else None,
+                       speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                       reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
+                       exclude_recent=_loop_exclusion(ctx) if loop_closure else None, block_size=int(p.block_size),
+                       # Blocks run in this process: the difference kernel, the enhancement and the
+                       # search are threaded over every usable core already, and a pool worker would
+                       # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
+                       # 3576 references) while its threads compete with ours (docs/architecture.md).
+                       map_blocks=None, on_difference=store, on_enhanced=keep_enhanced,
                        progress=ctx.progress)
+    pic = ctx.out.create_group("plot")
+    pic.attrs["stride"] = (sr, sq)
+    pic.attrs["convention"] = "D and D^ at every stride-th reference (rows) and query (columns)"
+    pic.create_dataset("difference", data=plot_d)
+    pic.create_dataset("enhanced", data=plot_e)
     out = ctx.out
     out.create_dataset("candidates", data=m.candidates)
     out.create_dataset("scores", data=m.scores)
@@ -175,9 +201,12 @@ def localize(ctx: Any) -> None:
         return
     from placeloc.evaluation import ranked
 
+    assert plain is not None
     ranked.write(ctx, query_index=q_group["index"][()], query_names=read_strings(q_group["names"]), reference_index=ref_index,
                  reference_names=read_strings(ex["reference/names"]), candidates=original, scores=m.scores,
-                 confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1)
+                 confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1,
+                 plain_candidates=np.where(plain[0] >= 0, ref_index[np.clip(plain[0], 0, None)], -1),
+                 plain_scores=np.where(np.isfinite(plain[1]), plain[1], np.nan))
 
 
 # ---------------------------------------------------------------------------------------
@@ -194,98 +223,97 @@ def comparison_label(p: SeqSLAMParams) -> str:
 
 
 def evaluate_extra(ctx: Any, ev: Any) -> None:
-    """SeqSLAM's own figures beside the contract's: the standard (unseparated) sequence
-    ranking for Recall@N, the paper's dissimilarity ratio before/after enhancement, the
-    single-image baseline, and the difference matrices (conventions in
-    :mod:`placeloc.evaluation.matching`)."""
+    """SeqSLAM's own figures beside the contract's, from what localize wrote (no kernel runs
+    again): the paper's dissimilarity ratio before/after enhancement (a pass over the stored
+    D and D^), the single-image baseline, and the difference matrices' picture (localize's
+    subsamples) with the ground-truth band (conventions in :mod:`placeloc.evaluation.matching`)."""
     from placeloc.evaluation import matching, plots
-    from placeloc.seqslam.search import enhance, enhance_t, query_offsets, sequence_search
+    from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
 
     p = ctx.params
     ex, lo_art = ctx.artifact("extract"), ctx.artifact("localize")
     loop_closure = bool(lo_art.attrs["loop_closure"])
     ref_index = ex["reference/index"][()]
-    q_group = ex["reference" if loop_closure else "query"]
-    q_index = q_group["index"][()]
-    gt = ev.extra.get("gt")  # image-matching ground truth (ranked); loop closures have their own
+    q_index = ex["reference" if loop_closure else "query"]["index"][()]
     n_q, n_ref = len(q_index), len(ref_index)
-    ns = ev.extra.get("ns", (1,))
     window, ds, block = int(p.enhance_window), int(p.ds), max(1, int(p.block_size))
     comparison = comparison_label(p)
-
-    # One streaming pass over D (when stored): the plain (unseparated) sequence ranking for
-    # the standard Recall@N, the paper's dissimilarity ratio before/after enhancement, the
-    # ground-truth band and subsampled copies of D and D^ for the plot.
-    ranked = ranked_scores = None
-    mins = {"raw": [np.full(n_ref, np.inf) for _ in range(2)], "enh": [np.full(n_ref, np.inf) for _ in range(2)]}
-    band = (np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64))
-    sr, sq = max(1, n_ref // 800), max(1, n_q // 800)
-    plot_raw: list[np.ndarray] = []
-    plot_enh: list[np.ndarray] = []
-    if "difference" in lo_art:
-        d_ds = lo_art["difference"]
-        t_off = query_offsets(ds, p.search)
-        before, after = int(-t_off.min()), int(t_off.max())
-        k_plain = max(ns)
-        ranked = np.full((n_q, k_plain), -1, np.int64)
-        ranked_scores = np.full((n_q, k_plain), np.inf, np.float32)
-        for c0 in ctx.progress(range(0, n_q, block), total=(n_q + block - 1) // block, desc="evaluate blocks"):
-            c1 = min(n_q, c0 + block)
-            lo, hi = max(0, c0 - before), min(n_q, c1 + after)
-            d = d_ds[:, lo:hi]
-            if not loop_closure:
-                et = enhance_t(np.ascontiguousarray(d.T), window)
-                ranked[c0:c1], ranked_scores[c0:c1] = sequence_search(
-                    et, c0 - lo, c1 - lo, ds, lo_art.attrs["velocities"], p.search, 0, k_plain,
-                    None, lo, shape=p.sequence_shape, edges=p.edges)
-            d = d[:, c0 - lo:c1 - lo]
-            e = enhance(d, window)
-            if gt is not None:
-                g = gt.block_idx(ref_index, q_index[c0:c1])
-                band[0][c0:c1], band[1][c0:c1] = gt.band(ref_index, q_index[c0:c1])
-                for key, mat in (("raw", d), ("enh", e)):
-                    mc, mw = mins[key]
-                    np.minimum(mc, np.where(g, mat, np.inf).min(axis=1), out=mc)
-                    np.minimum(mw, np.where(g, np.inf, mat).min(axis=1), out=mw)
-            sel = np.arange(c0, c1)
-            sel = sel[sel % sq == 0] - c0
-            plot_raw.append(d[::sr][:, sel])
-            plot_enh.append(e[::sr][:, sel])
-    label = f"SeqSLAM {comparison} ds={ds}"
-    ev.label = label
+    ev.label = f"SeqSLAM {comparison} ds={ds}"
     metrics = ev.metrics
-    if ev.kind == "ranked":
-        if ranked is not None:
-            ev.rescore(plain=np.where(ranked >= 0, ref_index[np.clip(ranked, 0, None)], -1),
-                       plain_scores=np.where(np.isfinite(ranked_scores), ranked_scores, np.nan))
-            metrics = ev.metrics
+    metrics.update({"comparison": comparison, "ds": ds, "search": p.search})
+
+    # the band of true references per query (drawn under the matches), and per reference the
+    # smallest difference to a right and to a wrong query, raw and enhanced (the ratio)
+    band_lo, band_hi = np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64)
+    mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key in ("difference", "enhanced")}
+    stored = "difference" in lo_art and "enhanced" in lo_art
+    if isinstance(ev, RankedEvaluation):
+        gt = ev.gt
+        for c0 in range(0, n_q, block):
+            c1 = min(n_q, c0 + block)
+            # query-major, so that each query's references are contiguous for the band's argmax
+            g_t = gt.correct(q_index[c0:c1, None], ref_index[None, :])
+            anyp = g_t.any(axis=1)
+            band_lo[c0:c1] = np.where(anyp, np.argmax(g_t, axis=1), 1)
+            band_hi[c0:c1] = np.where(anyp, n_ref - 1 - np.argmax(g_t[:, ::-1], axis=1), 0)
+            if not stored:
+                continue
+            wrong = ~g_t
+            for key, (mc, mw) in mins.items():
+                mat_t = lo_art[key][:, c0:c1].T
+                np.minimum(mc, mat_t.min(axis=0, where=g_t, initial=np.inf), out=mc)
+                np.minimum(mw, mat_t.min(axis=0, where=wrong, initial=np.inf), out=mw)
         single = lo_art["single_best"][()]
         single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
                                           confidence=lo_art["single_confidence"][()], ns=(1,))
         metrics.update({"single_image_recall_at_1": single_s.metrics["recall_at_1"],
                         "single_image_auc_pr": single_s.metrics["auc_pr"]})
-        metrics["headline"] = list(metrics["headline"]) + ["single_image_recall_at_1"]
+        metrics["headline"] = [k for k in metrics["headline"] if k != "seconds_per_frame"] + [
+            "single_image_recall_at_1", "seconds_per_frame"]
         ev.pr_curves["single image (no sequence)"] = (single_s.pr.recall, single_s.pr.precision)
         best, best_ok = ev.scores.best, ev.scores.best_correct
+        if stored:
+            for key, suffix in (("difference", ""), ("enhanced", "_enhanced")):
+                ratio = dissimilarity_ratios(*mins[key])
+                metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
+                ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
     else:
-        best, best_ok = ev.extra["match_local"], ev.extra["correct"]
-    metrics.update({"dissimilarity_mean": None, "dissimilarity_count_ge1": None,
-                    "dissimilarity_mean_enhanced": None, "dissimilarity_count_ge1_enhanced": None,
-                    "comparison": comparison, "ds": ds, "search": p.search})
-    if plot_raw and not loop_closure:
-        for key, suffix in (("raw", ""), ("enh", "_enhanced")):
-            ratio = dissimilarity_ratios(*mins[key])
-            metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
-            ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
-    if ctx.config.get("plots", True) and plot_raw:
-        head = metrics.get("recall_at_1", metrics.get("recall_at_100_precision"))
-        what = "recall@1" if "recall_at_1" in metrics else "recall at 100% precision"
-        head_text = "n/a" if head is None else f"{head:.3f}"
+        assert isinstance(ev, LoopEvaluation)
+        best, best_ok = ev.match_local, ev.correct
+    if ctx.config.get("plots", True) and "plot" in lo_art:
+        head_key = "recall_at_1" if "recall_at_1" in metrics else "recall_at_100_precision"
+        head = metrics.get(head_key)
+        what = "recall@1" if head_key == "recall_at_1" else "recall at 100% precision"
+        pic = lo_art["plot"]
+        sr, sq = (int(x) for x in pic.attrs["stride"])
         plots.plot_difference_matrices(
-            {"D (raw)": np.concatenate(plot_raw, axis=1), f"D^ (enhanced, R_window={window})": np.concatenate(plot_enh, axis=1)},
-            ctx.output("difference_matrix.png"), matches=best, correct=best_ok, gt_lo=band[0], gt_hi=band[1],
-            stride=(sr, sq), title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, "
-                                   f"search={p.search}, R_window={window}; {what} {head_text}")
+            {"D (raw)": pic["difference"][()], f"D^ (enhanced, R_window={window})": pic["enhanced"][()]},
+            ctx.output("difference_matrix.png"), matches=best, correct=best_ok, gt_lo=band_lo, gt_hi=band_hi,
+            gt_points=_loop_truth_points(ev, ref_index) if isinstance(ev, LoopEvaluation) else None, stride=(sr, sq),
+            title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, search={p.search}, "
+                  f"R_window={window}; {what} {'none' if head is None else f'{head:.3f}'}")
+
+
+def _loop_truth_points(ev: Any, ref_index: np.ndarray, most: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    """Loop closures: the true pairs (frame, earlier frame) that count (at least
+    ``exclude_recent`` frames apart) as positions in the frame list, at most ``most`` of them
+    (evenly thinned), for the picture: a loop-closure truth holds several revisits per
+    frame, no single band."""
+    from scipy import sparse
+
+    truth = ev.truth.tocoo()
+    scored = truth.row - truth.col >= int(ev.metrics["exclude_recent"])
+    truth = sparse.coo_matrix((truth.data[scored], (truth.row[scored], truth.col[scored])), shape=truth.shape)
+    pos = np.full(int(ref_index.max(initial=0)) + 1, -1, np.int64)
+    pos[ref_index] = np.arange(len(ref_index))
+    ok = (truth.row < len(pos)) & (truth.col < len(pos))
+    q, r = pos[truth.row[ok]], pos[truth.col[ok]]
+    keep = (q >= 0) & (r >= 0)
+    q, r = q[keep], r[keep]
+    if len(q) > most:
+        pick = np.linspace(0, len(q) - 1, most).round().astype(np.int64)
+        q, r = q[pick], r[pick]
+    return q, r
 
 
 METHOD = Method(
@@ -297,13 +325,14 @@ METHOD = Method(
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
-                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
+                                          "search", "sequence_shape", "edges", "top_k", "store_difference",
+                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse"),
+                          sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",
     result_without_query="loops",
     evaluate_extra=evaluate_extra,
-    evaluate_keys=("comparison", "ds", "search", "enhance_window", "sequence_shape", "edges", "descriptors_reference",
-                   "descriptor_distance"),
+    evaluate_keys=("comparison", "ds", "search", "enhance_window", "descriptors_reference", "descriptor_distance"),
     checker=_check,
     citation="M. Milford and G. Wyeth, \"SeqSLAM: Visual route-based navigation for sunny summer days and stormy winter "
              "nights\", ICRA 2012; with the illumination-robust comparisons (ZNCC, ISC, OCM) studied for it",

@@ -1,0 +1,112 @@
+"""metrics.json and the reports built from it: the contracts' pure scoring, one timing key,
+counts apart from scores, and texts that name what the run did (hand-computed answers)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import sparse
+
+from placeloc.evaluation import contracts, loops
+from placeloc.evaluation.contracts import Result
+from placeloc.pirf.metrics import loop_closure_correct_in_truth, nearest_true_earlier
+from placeloc.seqslam.demo import explain, spans, why_unmatched
+
+
+def _loops_result(match: list[int], confidence: list[float], threshold: float | None) -> Result:
+    n = len(match)
+    attrs = {} if threshold is None else {"threshold": threshold}
+    return Result("loops", {"frame_index": np.arange(n), "frame_names": [f"f{i}.png" for i in range(n)],
+                            "match": np.array(match), "confidence": np.array(confidence, np.float32)}, attrs)
+
+
+def _truth(n: int, pairs: list[tuple[int, int]]) -> sparse.csr_matrix:
+    i, j = zip(*pairs)
+    return sparse.csr_matrix((np.ones(len(i), bool), (i, j)), shape=(n, n))
+
+
+def test_loops_headline_has_no_empty_card_without_a_threshold():
+    """Frames 4 and 5 close a loop with 0 and 1; frame 4 matches 0 (right), frame 5 matches 3
+    (wrong; 5 - 3 = 2 frames apart, old enough for exclude_recent 2)."""
+    truth = _truth(6, [(4, 0), (5, 1)])
+    res = _loops_result([-1, -1, -1, -1, 0, 3], [0, 0, 0, 0, 0.9, 0.5], threshold=None)
+    ev = loops.score(res, truth, names=[f"f{i}.png" for i in range(6)], exclude_recent=2, tolerance=0)
+    m = ev.metrics
+    assert m["headline"] == ["recall_at_100_precision", "auc_pr", "max_f1", "seconds_per_frame"]
+    assert "precision_at_threshold" not in m
+    # the right one first (confidence 0.9): recall 1/2 at precision 1 (F1 2/3); then 1/2 at precision 1/2
+    assert m["recall_at_100_precision"] == 0.5 and m["max_f1"] == pytest.approx(2 / 3)
+    assert (m["n_candidates"], m["n_accepted"], m["n_accepted_right"]) == (2, 2, 1)
+
+
+def test_loops_accepted_counts_only_what_the_threshold_lets_through():
+    truth = _truth(6, [(4, 0), (5, 1)])
+    res = _loops_result([-1, -1, -1, -1, 0, 1], [0, 0, 0, 0, 0.9, 0.001], threshold=0.003)
+    ev = loops.score(res, truth, names=[f"f{i}.png" for i in range(6)], exclude_recent=2, tolerance=0)
+    m = ev.metrics
+    # frame 5's right match lies below tau: a candidate, never an accepted loop closure
+    assert (m["n_candidates"], m["n_accepted"], m["n_accepted_right"]) == (2, 1, 1)
+    assert m["precision_at_threshold"] == 1.0 and m["recall_at_threshold"] == 0.5
+    assert ev.accepted.tolist() == [False, False, False, False, True, False]
+
+
+def test_one_timing_key_counts_every_stage_before_evaluate():
+    m: dict = {"n_frames": 4}
+    contracts.add_timing(m, {"extract": 1.0, "build-dictionary": 0.5, "localize": 0.5}, 4)
+    assert m["seconds_per_frame"] == 0.5 and m["stage_seconds"]["extract"] == 1.0
+    m2: dict = {}
+    contracts.add_timing(m2, {}, 0)
+    assert m2["seconds_per_frame"] is None
+
+
+def test_metrics_json_puts_the_headline_first_and_the_counts_last():
+    m = {"n_queries": 3, "comparison": "sad", "max_f1": 0.5, "recall_at_1": 1.0, "queries_with_ground_truth": 3,
+         "seconds_per_frame": 0.1, "headline": ["recall_at_1", "seconds_per_frame"]}
+    out = contracts.ordered(m, ("queries_with_ground_truth",))
+    assert list(out) == ["recall_at_1", "seconds_per_frame", "max_f1", "n_queries", "comparison",
+                         "queries_with_ground_truth", "headline"]
+
+
+def test_the_report_explains_only_the_figures_the_run_reports():
+    retrieval_like = {"recall_at_1": 1.0, "recall_at_5": 1.0, "auc_pr": 1.0, "seconds_per_frame": 0.1}
+    doc = contracts.report_parts("ranked", retrieval_like)["metrics_doc"]
+    assert "recall_at_N" in doc and "separated_recall_at_N" not in doc and "recall_at_N_with_positive" not in doc
+    seqslam_like = {**retrieval_like, "separated_recall_at_5": 1.0}
+    assert "separated_recall_at_N" in contracts.report_parts("ranked", seqslam_like)["metrics_doc"]
+
+
+def test_every_contract_module_follows_the_protocol():
+    for kind in contracts.KINDS:
+        mod = contracts.contract(kind)
+        for name in ("SCHEMA", "SECTIONS", "SHOW_AT_EVALUATE", "METRICS_DOC", "COUNTS", "check_ground_truth", "evaluate",
+                     "score", "finish", "headline", "show"):
+            assert hasattr(mod, name), f"{kind}: {name}"
+        assert "seconds_per_frame" in mod.METRICS_DOC
+
+
+def test_pirf_closures_judged_by_a_loop_matrix_with_tolerance():
+    truth = _truth(10, [(8, 2), (8, 3), (9, 5)])
+    ok = loop_closure_correct_in_truth(truth, np.array([8, 8, 9, 7]), np.array([3, 5, 6, 1]), tolerance=1)
+    # 8->3 is a one; 8->5 is 2 away from 3; 9->6 is 1 from 5; frame 7 has no loop
+    assert ok.tolist() == [True, False, True, False]
+    assert nearest_true_earlier(truth, np.array([8, 9, 7]), np.array([6, 0, 0])).tolist() == [3, 5, -1]
+
+
+def test_demo_names_the_unmatched_queries_of_the_causal_search():
+    assert spans([0, 1, 2, 7, 80]) == "0-2, 7, 80"
+    assert why_unmatched("causal", 10, list(range(10))).startswith("queries 0-9 get no match: the causal search")
+    assert "ds/2 = 5" in why_unmatched("centred", 10, [0, 1, 2, 3, 4, 76, 77, 78, 79, 80])
+    m = {"n_queries": 81, "n_matched": 71, "comparison": "abs_zncc", "ds": 10, "search": "causal", "recall_at_1": 71 / 81,
+         "recall_at_5": 71 / 81, "auc_pr": 71 / 81, "recall_at_100_precision": 71 / 81, "single_image_recall_at_1": 1.0}
+    text = explain(m, list(range(10)))
+    assert "queries 0-9 get no match" in text and "within ds/2 of an end" not in text
+
+
+def test_metrics_name_the_truth_a_method_reads_from_its_own_section():
+    from types import SimpleNamespace
+
+    method = SimpleNamespace(name="coembed", truth_keys={"points": "truth", "poses": "poses"})
+    both = SimpleNamespace(truth="features.csv", poses="poses.csv")
+    assert contracts.method_truth(method, both) == "coembed.truth=features.csv, coembed.poses=poses.csv"
+    assert contracts.method_truth(method, SimpleNamespace(truth="f.csv", poses=None)) == "coembed.truth=f.csv"
+    assert contracts.method_truth(SimpleNamespace(name="seqslam", truth_keys={}), both) == ""

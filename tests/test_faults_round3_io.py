@@ -512,6 +512,7 @@ def test_show_takes_the_config_from_the_stamps_not_the_newest_file(small_run):
     assert result.exit_code == 0, result.output
     html = (run / "report.html").read_text()
     assert f"<td>ds</td><td class='num'>{new}</td>" in html
+    assert "No metrics.json" in html  # the old evaluate's metrics describe the old settings: left out
 
 
 @pytest.mark.parametrize("what", ["fifo", "dev_zero_link"])

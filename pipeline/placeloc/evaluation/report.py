@@ -121,6 +121,11 @@ def _parse_config(text: Any, where: Path) -> dict[str, Any] | None:
     return cfg if isinstance(cfg, dict) else None
 
 
+def evaluate_is_current(run_dir: Path) -> bool:
+    """True when evaluate.h5 belongs to the run folder's chain of stamps."""
+    return any(stage == "evaluate" for stage, _, _ in stamped_configs(Path(run_dir)))
+
+
 def run_config(run_dir: Path) -> dict[str, Any]:
     """The config of the last artifact of the run folder's chain of stamps
     (:func:`stamped_configs`); config.yaml is written only after a run succeeds, and a
@@ -173,7 +178,10 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
-    metrics_dir = next((d for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
+    # the run folder's metrics.json counts only while evaluate is in the chain of stamps: left
+    # from an earlier run (its parent re-run since), it describes other settings
+    metrics_dir = out_dir if (out_dir / "metrics.json").is_file() else (
+        run_dir if (run_dir / "metrics.json").is_file() and evaluate_is_current(run_dir) else None)
     if metrics_dir is not None:
         metrics = load_json(read_run_file(metrics_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8", "replace"),
                             str(metrics_dir / "metrics.json"))

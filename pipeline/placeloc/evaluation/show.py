@@ -12,6 +12,7 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ import numpy as np
 
 from placeloc.core.safe_io import read_run_table
 
+log = logging.getLogger("placeloc")
 SAMPLE_PNG = "strips_sample.png"
 FAILURES_PNG = "strips_failures.png"
 
@@ -290,7 +292,7 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     from placeloc.core.artifacts import TMP_MARK
     from placeloc.core.safe_io import load_json, read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
-    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, write_report
+    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, evaluate_is_current, write_report
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
@@ -305,7 +307,10 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     try:
         drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
         metrics = None
-        if (run_dir / "metrics.json").is_file():
+        if (run_dir / "metrics.json").is_file() and not evaluate_is_current(run_dir):
+            log.warning("%s: evaluate.h5 is from an earlier run (a stage before it re-ran since): its metrics are left "
+                        "out of the report; run `placeloc evaluate` to judge the new result", run_dir)
+        elif (run_dir / "metrics.json").is_file():
             metrics = load_json(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8", "replace"),
                                 str(run_dir / "metrics.json"))
             if not isinstance(metrics, dict):

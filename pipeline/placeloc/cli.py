@@ -659,13 +659,16 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
          quiet: bool = QuietOpt) -> None:
     """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
     from placeloc.core.errors import ConfigError
+    from placeloc.core.runner import lock_run_dir
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
     if not run_dir.is_dir():
         _fail(FileNotFoundError(f"{run_dir} is not a folder; give a run directory, e.g. runs/demo"))
     try:
-        pictures, report = show_run(run_dir, sample=sample, failures=failures)
+        # a run in progress is waited for: show reads what its stages are replacing
+        with lock_run_dir(run_dir, wait=True):
+            pictures, report = show_run(run_dir, sample=sample, failures=failures)
         for path in pictures:
             typer.echo(f"picture: {path}")
         if recall_at:

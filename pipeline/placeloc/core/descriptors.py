@@ -66,19 +66,21 @@ def descriptor_shape(path: str | Path) -> tuple[int, ...] | None:
     p = Path(path)
     if p.is_dir():
         files = sorted(p.glob("*.npy"), key=lambda x: natural_key(x.name))
-        return (len(files), int(_load_npy(files[0], mmap=True).size)) if files else None
+        if not files or not files[0].is_file():  # a FIFO named .npy would block np.load's open
+            return None
+        return (len(files), int(_load_npy(files[0], mmap=True).size))
     if p.suffix == ".npy" and p.is_file():
         return tuple(_load_npy(p, mmap=True).shape)
     if p.suffix in (".h5", ".hdf5") and p.is_file():
         try:
-            with h5py.File(p, "r") as f:
+            with open_h5_input(p, "descriptors") as f:  # an external link is not followed to read a shape
                 if "descriptors" in f and isinstance(f["descriptors"], h5py.Dataset):
                     return tuple(f["descriptors"].shape)
                 found: list[tuple[int, ...]] = []
                 f.visititems(lambda _n, obj: found.append(obj.shape) if isinstance(obj, h5py.Dataset) and obj.ndim == 2 else None)
                 return found[0] if len(found) == 1 else None
-        except OSError:
-            return None  # not HDF5: load_descriptors names it
+        except (OSError, UnsafeInputError):
+            return None  # not HDF5, or data in another file: load_descriptors names it
     return None
 
 

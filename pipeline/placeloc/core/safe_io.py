@@ -26,6 +26,7 @@ line, exit code 2) naming the file and the fix.
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import stat
@@ -109,6 +110,11 @@ def load_yaml(text: str, what: str = "YAML", max_bytes: int = MAX_YAML_BYTES) ->
                              f"{max_bytes / 1e6:.0f} MB (settings, not data: put data in files and name them)")
     try:
         return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 (a SafeLoader subclass)
+    except (ValueError, TypeError, AttributeError, OverflowError) as exc:
+        # a safe tag's constructor meeting a value it cannot build: an integer of thousands of
+        # digits (Python's int limit), a malformed !!timestamp, ...
+        raise yaml.YAMLError(f"{what}: a value cannot be read ({' '.join(str(exc).split())[:160]}); "
+                             "write a plain number or string") from None
     except RecursionError:  # a deep flow collection inside one scalar token; the depth cap catches the rest
         raise yaml.YAMLError(f"{what}: nested too deeply (hundreds of levels of [ or {{); close the brackets") from None
 
@@ -223,6 +229,17 @@ def read_run_file(run_dir: str | Path, name: str, max_bytes: int) -> bytes:
         raise UnsafeInputError(f"{Path(run_dir) / name} grew past {max_bytes / 2**20:.0f} MB while being read; "
                                "remove it and re-run")
     return data
+
+
+# A run folder's tables (per_query.csv: one short row per query) stay far below this.
+MAX_RUN_TABLE_BYTES = 1 << 30
+
+
+def read_run_table(run_dir: str | Path, name: str) -> io.StringIO:
+    """A CSV of the run folder (``per_query.csv``, ...) through :func:`read_run_file`,
+    ready for ``csv.reader``/``csv.DictReader``."""
+    data = read_run_file(run_dir, name, MAX_RUN_TABLE_BYTES)
+    return io.StringIO(data.decode("utf-8", "replace"), newline="")
 
 
 # ----------------------------------------------------------------- input files

@@ -47,7 +47,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text
+from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text, read_run_table
 from placeloc.evaluation.contracts import Field, LoopEvaluation, Result, names_by_index, write_result
 from placeloc.evaluation.ground_truth import GroundTruthError
 
@@ -375,9 +375,8 @@ def accepted_rows(per_query: Path) -> list[Any]:
 
     from placeloc.evaluation.show import Row
 
-    with per_query.open(newline="") as fh:
-        return [Row(r["query_image"], r["best_image"], float(r["confidence"]), r["correct"] == "1", r["positive_image"])
-                for r in csv.DictReader(fh) if r["accepted"] == "1"]
+    return [Row(r["query_image"], r["best_image"], float(r["confidence"]), r["correct"] == "1", r["positive_image"])
+            for r in csv.DictReader(read_run_table(per_query.parent, per_query.name)) if r["accepted"] == "1"]
 
 
 def _result(run_dir: Path) -> Result:

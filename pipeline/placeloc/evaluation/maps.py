@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.core.safe_io import read_input_text
+from placeloc.core.safe_io import read_input_text, read_run_table
 from placeloc.evaluation.contracts import Field, MapEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads (the truth is named by the method's own parameters)
@@ -195,7 +195,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     est = truth = None
     per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
     if per_query.is_file():
-        rows = list(csv.DictReader(per_query.open(newline="")))
+        rows = list(csv.DictReader(read_run_table(per_query.parent, per_query.name)))  # no link followed
         d = coords.shape[1]
         if rows and f"true_x{d - 1}" in rows[0]:
             est = np.array([[float(r[f"x{i}"]) for i in range(d)] for r in rows])

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from placeloc.core.safe_io import read_run_table
 from placeloc.evaluation.contracts import Field, PoseEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads
@@ -209,8 +210,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     truth = truth_heading = None
     per_query = next((d / "per_query.csv" for d in (out_dir, run_dir) if (d / "per_query.csv").is_file()), out_dir / "x")
     if per_query.is_file():
-        with per_query.open(newline="") as fh:
-            rows = {r["frame"]: r for r in csv.DictReader(fh)}
+        rows = {r["frame"]: r for r in csv.DictReader(read_run_table(per_query.parent, per_query.name))}  # no link followed
         if all(n in rows for n in res["names"]):
             truth = np.array([[float(rows[n]["true_x"]), float(rows[n]["true_y"])] for n in res["names"]])
             if all(rows[n]["true_heading_deg"] for n in res["names"]):

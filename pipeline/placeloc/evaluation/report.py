@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import logging
 import os
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import Any
 import yaml
 
 from placeloc.core.artifacts import atomic_open
-from placeloc.core.safe_io import read_run_file
+from placeloc.core.safe_io import load_json, read_run_file
 
 log = logging.getLogger("placeloc")
 
@@ -74,8 +73,8 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
             break
         stamp, parent = str(attrs.get("stamp") or ""), None
         try:
-            parent = json.loads(str(attrs.get("inputs") or "{}")).get("parent")
-        except ValueError:
+            parent = load_json(str(attrs.get("inputs") or "{}"), f"{stage}.h5 inputs").get("parent")
+        except (ValueError, AttributeError):  # not JSON, too deep, not a mapping
             break
         if not stamp or (chain and parent != chain[-1][1]):
             break
@@ -120,6 +119,11 @@ def _parse_config(text: Any, where: Path) -> dict[str, Any] | None:
     except yaml.YAMLError:
         return None
     return cfg if isinstance(cfg, dict) else None
+
+
+def evaluate_is_current(run_dir: Path) -> bool:
+    """True when evaluate.h5 belongs to the run folder's chain of stamps."""
+    return any(stage == "evaluate" for stage, _, _ in stamped_configs(Path(run_dir)))
 
 
 def run_config(run_dir: Path) -> dict[str, Any]:
@@ -174,9 +178,15 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
-    metrics_dir = next((d for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
+    # the run folder's metrics.json counts only while evaluate is in the chain of stamps: left
+    # from an earlier run (its parent re-run since), it describes other settings
+    metrics_dir = out_dir if (out_dir / "metrics.json").is_file() else (
+        run_dir if (run_dir / "metrics.json").is_file() and evaluate_is_current(run_dir) else None)
     if metrics_dir is not None:
-        metrics = json.loads(read_run_file(metrics_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
+        metrics = load_json(read_run_file(metrics_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8", "replace"),
+                            str(metrics_dir / "metrics.json"))
+        if not isinstance(metrics, dict):
+            raise ValueError(f"{metrics_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
     method = cfg.get("method", "?")
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title or run_dir.name)}</title>"
              f"<style>{CSS}</style></head><body>",

@@ -12,14 +12,16 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
-import io
-import json
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from placeloc.core.safe_io import read_run_table
+
+log = logging.getLogger("placeloc")
 SAMPLE_PNG = "strips_sample.png"
 FAILURES_PNG = "strips_failures.png"
 
@@ -44,7 +46,7 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
     per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
-        for r in csv.DictReader(_run_text(run_dir, "per_query.csv")):
+        for r in csv.DictReader(read_run_table(run_dir, "per_query.csv")):
             if only_matched and not r["best_image"]:
                 continue
             rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
@@ -67,18 +69,6 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
             continue
         rows.append(Row(qn, name_of.get(int(j), "") if j >= 0 else "", float(c), None, ""))
     return rows
-
-
-# per_query.csv holds one short row per query: 1 GB is millions of queries past any run.
-MAX_TABLE_BYTES = 1 << 30
-
-
-def _run_text(run_dir: Path, name: str) -> io.StringIO:
-    """A CSV of the run folder through the run-folder guard (no link followed, a regular
-    file, bounded), ready for csv.reader."""
-    from placeloc.core.safe_io import read_run_file
-
-    return io.StringIO(read_run_file(run_dir, name, MAX_TABLE_BYTES).decode("utf-8", "replace"), newline="")
 
 
 def _num(text: str) -> float:
@@ -269,7 +259,7 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     path = Path(run_dir) / "per_query.csv"
     if not path.is_file():
         raise ShowError(f"{path} is missing: Recall@N needs ground truth; run `placeloc evaluate` first")
-    reader = csv.DictReader(_run_text(Path(run_dir), "per_query.csv"))
+    reader = csv.DictReader(read_run_table(run_dir, "per_query.csv"))
     k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
     rows = list(reader)
     first = np.array([int(r["first_correct_rank"]) for r in rows])
@@ -300,9 +290,9 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     import shutil
 
     from placeloc.core.artifacts import TMP_MARK
-    from placeloc.core.safe_io import read_run_file
+    from placeloc.core.safe_io import load_json, read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
-    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, write_report
+    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, evaluate_is_current, write_report
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
@@ -317,8 +307,14 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     try:
         drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
         metrics = None
-        if (run_dir / "metrics.json").is_file():
-            metrics = json.loads(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
+        if (run_dir / "metrics.json").is_file() and not evaluate_is_current(run_dir):
+            log.warning("%s: evaluate.h5 is from an earlier run (a stage before it re-ran since): its metrics are left "
+                        "out of the report; run `placeloc evaluate` to judge the new result", run_dir)
+        elif (run_dir / "metrics.json").is_file():
+            metrics = load_json(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8", "replace"),
+                                str(run_dir / "metrics.json"))
+            if not isinstance(metrics, dict):
+                raise ShowError(f"{run_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
         write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
         placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
     finally:
@@ -331,14 +327,15 @@ def recorded_side_outputs(run_dir: Path) -> dict[str, str]:
     """name -> fingerprint of every side output recorded by the artifacts of the run's
     chain of stamps (an artifact left from an older run re-runs anyway: its files are not
     kept from show)."""
+    from placeloc.core.safe_io import load_json
     from placeloc.evaluation.report import artifact_attrs, stamped_configs
 
     out: dict[str, str] = {}
     for stage, _, _ in stamped_configs(run_dir):
         attrs = artifact_attrs(run_dir, f"{stage}.h5", ("side_outputs",)) or {}
         try:
-            out.update(json.loads(str(attrs.get("side_outputs") or "{}")))
-        except ValueError:
+            out.update(load_json(str(attrs.get("side_outputs") or "{}"), f"{stage}.h5 side outputs"))
+        except (ValueError, TypeError):
             continue
     return out
 

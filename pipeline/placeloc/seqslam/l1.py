@@ -3,8 +3,8 @@
 The uint8 kernel is SeqSLAM's hot loop (3576 x 3576 x 2048 byte differences for the
 benchmark). Both kernels are a few lines of LLVM IR compiled for this CPU by llvmlite
 (numba's code generator, used here without numba) the first time a difference block is
-computed: about 0.3 s for both, after which the machine code is cached on disk (in a private
-folder, with a digest keyed by a per-user secret) and loads in 12 ms.
+computed: about 0.1 s for both on a quiet machine, after which the machine code is cached on disk (in a private
+folder, with a digest keyed by a per-user secret) and loads in 4 ms.
 numba itself cost every ``localize`` process about 0.7 s before its first kernel ran (its
 import, then the registries its first call loads, which import ``scipy.linalg``): a fifth
 of the whole benchmark run.
@@ -203,8 +203,8 @@ def cache_dir() -> Path:
 def kernel(name: str, avx2: bool | None = None) -> Any:
     """The compiled kernel ``name`` (``l1_u8`` or ``l1_f32``) as a ctypes function, once per
     process. ``avx2`` None: as the CPU allows. The machine code is cached on disk, keyed by
-    the IR, the CPU and llvmlite's version (compiling both kernels takes about 0.3 s,
-    loading them 12 ms), only in a cache no one else can write (:func:`trusted_cache`);
+    the IR, the CPU and llvmlite's version (compiling both kernels takes about 0.1 s,
+    loading them 4 ms, bench/bench_kernel_cache.py), only in a cache no one else can write (:func:`trusted_cache`);
     without one it is compiled every time."""
     import llvmlite
     import llvmlite.binding as llvm

@@ -28,8 +28,19 @@ def run(config: dict[str, Any] | str | Path, run_dir: str | Path, stages: str | 
     """Bring a run directory up to date and return the last stage's artifact path.
 
     ``config`` is a validated config (from :func:`load_config`) or the path of a YAML file;
-    ``stages`` names the last stage to run (default ``"evaluate"``: all of them). Stages
-    already up to date are skipped; ``force`` re-runs every stage up to ``stages``.
+    ``stages`` names the last stage to run (default: all of them, or up to localize when
+    there is no ground truth to score against, see :func:`last_stage`). Stages already up
+    to date are skipped; ``force`` re-runs every stage up to ``stages``.
     """
     cfg = load_config(config) if isinstance(config, (str, Path)) else config
-    return run_stage(cfg, run_dir, stages or STAGES[-1], quiet=quiet, force_all=force)
+    return run_stage(cfg, run_dir, stages or last_stage(cfg), quiet=quiet, force_all=force)
+
+
+def last_stage(config: dict[str, Any]) -> str:
+    """The last stage a whole run brings up to date: evaluate, or localize when the config
+    gives no ground truth for the method's result (nothing to score; ``placeloc show``
+    draws the matches)."""
+    from placeloc.core.methods import get_method
+    from placeloc.evaluation.contracts import truth_given
+
+    return STAGES[-1] if truth_given(config, get_method(config["method"])) else "localize"

@@ -355,9 +355,16 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
     # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
     cfg = load_config(config, sets)
     out = run_dir or Path("runs") / config.stem
+    if all_stages:
+        from placeloc.api import last_stage
+
+        stage = last_stage(cfg)
     path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages,
                      wait=wait)
     typer.echo(f"{stage}: {path}")
+    if all_stages and stage != "evaluate":
+        typer.echo(f"evaluate: skipped, no ground truth to score against (ground_truth.kind: none); the answers are in "
+                   f"{out}; `placeloc show {out}` draws them")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
         from placeloc.evaluation.contracts import format_value, headline
 

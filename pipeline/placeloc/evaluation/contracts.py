@@ -294,6 +294,17 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
         contract(kind).check_ground_truth(config, method)
 
 
+def truth_given(config: dict[str, Any], method: Any) -> bool:
+    """Whether evaluate has something to score ``method``'s result against. The map
+    contract reports the map's own figures without a truth file; every other contract
+    needs ``ground_truth`` (a user's own video or traverse usually has none: `placeloc run`
+    then stops after localize instead of failing at evaluate)."""
+    kind = method.result_kind(config)
+    if kind is None or kind == "map":
+        return True
+    return (config.get("ground_truth") or {}).get("kind", "none") != "none"
+
+
 def stage_seconds(run_dir: Path, stages: Sequence[str]) -> dict[str, float]:
     """Wall seconds each stage before evaluate took (its artifact's ``seconds``; a stage
     the method passes through took none)."""

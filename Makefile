@@ -25,6 +25,7 @@ help:
 	@echo "make experiment-pirf-dictionary  PIRF plain vs improved dictionary as slow motion and sideways revisits grow (~75 min)"
 	@echo "make bench-pirf         PIRF m_t: ANN backends vs brute force at 500,000 entries"
 	@echo "make bench-scale        extraction throughput: inline, process pool, Dask LocalCluster"
+	@echo "make bench-scaling      per-stage SeqSLAM table over workers 1, 2, 4, 8, 16 (3576 x 3576; OUT=dir writes scaling.md)"
 	@echo "make faults             the fault tests alone, one table row per case (outcome, rc, seconds, last line)"
 
 $(STAMP): pyproject.toml

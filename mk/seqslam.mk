@@ -1,6 +1,7 @@
 # SeqSLAM: the comparison experiment, the speed benchmark and the presets on real data.
 .PHONY: experiment-seqslam bench-seqslam bench-seqslam-large seqslam-nordland seqslam-corridor seqslam-route seqslam-presets \
-	seqslam-speed seqslam-speed-tune
+	seqslam-speed seqslam-speed-tune seqslam-motion seqslam-motion-tune seqslam-motion-quick bench-seqslam-full \
+	bench-seqslam-preset-ratio
 
 experiment-seqslam: $(STAMP)
 	$(PL) experiment seqslam
@@ -33,3 +34,24 @@ seqslam-speed-tune: $(STAMP)
 
 seqslam-speed: $(STAMP)
 	$(BIN)/python -m placeloc.experiments.seqslam_speed report --out runs/seqslam-speed
+
+# A query that stops, crawls, bursts past 2x and reverses (docs/seqslam.md, "A query that
+# stops, crawls, bursts and reverses"): the path model chosen on nordland-dev frames 1-600
+# (seeds 0-2), reported on 601-1200 (seeds 100-104); --quick for CI (300 frames, 2 seeds).
+seqslam-motion-tune: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam_motion tune --out runs/seqslam-motion
+
+seqslam-motion: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam_motion report --out runs/seqslam-motion
+
+seqslam-motion-quick: $(STAMP)
+	$(BIN)/python -m placeloc.experiments.seqslam_motion report --quick --out runs/seqslam-motion-quick
+
+# The Nordland preset's localize at the whole route's size (35,768 x 35,768; run it on a
+# quiet machine: about 10-30 minutes), and its cost against straight trajectories at the
+# same window and speeds (3576 x 3576, alternating, one run).
+bench-seqslam-full: $(STAMP)
+	$(BIN)/python bench/bench_seqslam_full.py --frames 35768 --only preset
+
+bench-seqslam-preset-ratio: $(STAMP)
+	$(BIN)/python bench/bench_seqslam_full.py --frames 3576

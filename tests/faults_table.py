@@ -59,31 +59,95 @@ def child_pids(pid: int) -> list[int]:
         return []
 
 
-def start_pooled_run(tmp_path: Path, frames: int = 600):
+# How long a case waits for an event before it calls the wait a hang. Only a guard against
+# a hang: no case depends on an event coming sooner than this (a loaded machine is slow, not wrong).
+HANG_S = 300
+
+
+def wait_for(happened, what: str, limit_s: float = HANG_S) -> None:
+    """Wait until ``happened()`` is true (polled every 50 ms); a failure names ``what``
+    only if it has not happened after ``limit_s``, which is there to catch a hang."""
+    end = time.monotonic() + limit_s
+    while not happened():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what} did not happen within {limit_s:.0f} s (a hang?)")
+        time.sleep(0.05)
+
+
+def ignores_sigint(pid: int) -> bool:
+    """True when the process ignores SIGINT (bit 2 of SigIgn in /proc/PID/status): a worker
+    that has reached the point where Ctrl-C no longer reaches it."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigIgn:"):
+                return bool(int(line.split()[1], 16) & (1 << (2 - 1)))
+    except OSError:
+        return False
+    return False
+
+
+def workers_of(pid: int) -> list[int]:
+    """The worker processes (spawned Python children, not the resource tracker) of ``pid``."""
+    import psutil
+
+    out = []
+    for child in child_pids(pid):
+        try:
+            cmd = " ".join(psutil.Process(child).cmdline())
+        except psutil.Error:
+            continue
+        if "spawn_main" in cmd and "resource_tracker" not in cmd:
+            out.append(child)
+    return out
+
+
+def wait_gone(pids: list[int], limit_s: float = HANG_S) -> list[int]:
+    """Wait until every process in ``pids`` has exited (zombies count as gone); returns the
+    ones still alive after ``limit_s`` (a guard against a hang, not a speed requirement)."""
+    import psutil
+
+    def alive() -> list[int]:
+        out = []
+        for pid in pids:
+            try:
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    out.append(pid)
+            except psutil.NoSuchProcess:
+                pass
+        return out
+
+    end = time.monotonic() + limit_s
+    while alive() and time.monotonic() < end:
+        time.sleep(0.05)
+    return alive()
+
+
+def start_pooled_run(tmp_path: Path, frames: int = 600, run_dir: Path | None = None):
     """``placeloc run`` of a generated route on a process pool of 2, in a session of its own
     (so a signal to its group reaches it as a terminal's Ctrl-C does) with TMPDIR in
-    tmp_path; returned (process, TMPDIR) 0.3 s after both workers started, still extracting."""
+    tmp_path; returned (process, TMPDIR) once extract has begun (its staging folder exists)
+    and both workers ignore Ctrl-C: events, not a time, so a loaded machine only waits longer."""
     import subprocess
-    import time
-
-    import psutil
 
     from placeloc.synth.route import generate
 
     generate(tmp_path / "data", seed=2, frames=frames)
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
-    cmd = [sys.executable, "-m", "placeloc.cli", "run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
+    run = run_dir or tmp_path / "run"
+    cmd = [sys.executable, "-m", "placeloc.cli", "run", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(run), "-q",
                       "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
     proc = subprocess.Popen(cmd, env={**os.environ, "TMPDIR": str(tmpdir)}, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and proc.poll() is None:
-        with __import__("contextlib").suppress(psutil.Error):
-            if sum("spawn_main" in " ".join(psutil.Process(p).cmdline()) for p in child_pids(proc.pid)) >= 2:
-                break
-        time.sleep(0.1)
-    time.sleep(0.3)
+
+    def extracting() -> bool:
+        if proc.poll() is not None:
+            return True
+        workers = workers_of(proc.pid)
+        return (len(workers) >= 2 and all(ignores_sigint(w) for w in workers)
+                and bool(list(run.glob(".extract.outputs.tmp-*"))))
+
+    wait_for(extracting, "the pooled run reaching extract with both workers started")
     assert proc.poll() is None, "the run finished before it could be interrupted"
     return proc, tmpdir
 
@@ -132,7 +196,9 @@ class _Table:
 def main() -> int:
     here = Path(__file__).resolve().parent
     table = _Table()
-    args = ["-q", "-p", "no:cacheprovider", str(here / "test_faults.py"), str(here / "test_faults_round2.py"), *sys.argv[1:]]
+    # every round's file: tests/test_faults.py, test_faults_round2.py, test_faults_round3_*.py
+    rounds = sorted(str(p) for p in here.glob("test_faults*.py"))
+    args = ["-q", "-p", "no:cacheprovider", *rounds, *sys.argv[1:]]
     rc = pytest.main(args, plugins=[table])
     table.print_table()
     return int(rc)

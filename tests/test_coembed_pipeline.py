@@ -154,7 +154,8 @@ def test_aruco_extraction_gives_marker_ids_and_horizontal_centres(tmp_path):
 
 
 def test_sift_tracks_follow_a_shifting_texture(tmp_path):
-    from placeloc.coembed.extract import detect_sift, sift_tracks
+    from placeloc.coembed.extract import sift_arrays, sift_tracks
+    from placeloc.core.images import read_gray
 
     rng = np.random.default_rng(0)
     big = cv2.GaussianBlur((rng.random((300, 600)) * 255).astype(np.uint8), (0, 0), 2.0)
@@ -164,7 +165,7 @@ def test_sift_tracks_follow_a_shifting_texture(tmp_path):
         p = tmp_path / f"f{t}.png"
         cv2.imwrite(str(p), big[:, 8 * t: 8 * t + 400])   # the camera pans: content moves 8 px left per frame
         paths.append(str(p))
-    per_frame = [detect_sift((p, 500)) for p in paths]
+    per_frame = [tuple(sift_arrays(read_gray(p), n_features=500).values()) for p in paths]
     frames, tracks, xy = sift_tracks(per_frame, ratio=0.7, min_track=5, id_offset=0)
     assert len(np.unique(tracks)) >= 20
     for k in np.unique(tracks):

@@ -28,7 +28,8 @@ from placeloc.core.methods import METHOD_NAMES, get_method
 ROOT = Path(__file__).resolve().parent.parent
 # doc -> the method whose keys it names bare (None: keys are written with their section)
 DOCS = {"docs/seqslam.md": "seqslam", "docs/pirf.md": "pirf", "docs/umap.md": "umap", "docs/coembed.md": "coembed",
-        "docs/evaluation.md": None, "docs/dask.md": None, "docs/reliability.md": None, "README.md": None}
+        "docs/evaluation.md": None, "docs/dask.md": None, "docs/reliability.md": None, "README.md": None,
+        "docs/loop-closure.md": None, "docs/retrieval.md": "retrieval"}
 
 
 def _flat(d: dict, prefix: str = "") -> dict[str, Any]:

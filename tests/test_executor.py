@@ -9,6 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
+from placeloc.core.common_params import ExecutorParams
 from placeloc.core.config import load_config
 from placeloc.core.executor import InlineExecutor, LocalExecutor, WorkItemError, describe_item
 from placeloc.core.executors import make_executor
@@ -83,7 +84,7 @@ def test_failures_name_the_item():
 def test_corrupt_image_in_a_worker_names_the_image(route, tmp_path):
     (route / "query" / "frame5.png").write_bytes(b"not a png")
     cfg = load_config(route / "config.yaml", ["plots=false", "executor.workers=2", "seqslam.images_per_task=64"])
-    with pytest.raises(WorkItemError, match=r"extract_chunk failed on chunk of 64 item\(s\) .*frame0.png .. .*frame63.png.*frame5.png"):
+    with pytest.raises(WorkItemError, match=r"describe_chunk failed on chunk of 64 item\(s\) .*frame0.png .. .*frame63.png.*frame5.png"):
         run_stage(cfg, tmp_path / "run", "extract", quiet=True)
 
 
@@ -98,6 +99,6 @@ def test_dask_missing_gives_a_clear_error(monkeypatch):
     monkeypatch.delitem(__import__("sys").modules, "placeloc.core.dask_executor", raising=False)
     monkeypatch.setattr(builtins, "__import__", no_dask)
     with pytest.raises(ValueError, match=r"pip install 'placeloc\[dask\]'"):
-        make_executor({"kind": "dask", "workers": 2, "scheduler": "local-cluster", "retries": 2})
+        make_executor(ExecutorParams(kind="dask", workers=2, scheduler="local-cluster", retries=2))
     # the local executor still works without it
-    assert isinstance(make_executor({"kind": "local", "workers": 1}), InlineExecutor)
+    assert isinstance(make_executor(ExecutorParams(kind="local", workers=1)), InlineExecutor)

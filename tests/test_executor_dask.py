@@ -12,6 +12,7 @@ import pytest
 distributed = pytest.importorskip("distributed")
 
 from placeloc.core import runner  # noqa: E402
+from placeloc.core.common_params import ExecutorParams  # noqa: E402
 from placeloc.core.config import load_config  # noqa: E402
 from placeloc.core.dask_executor import DaskExecutor  # noqa: E402
 from placeloc.core.executor import WorkItemError  # noqa: E402
@@ -71,17 +72,18 @@ def test_killing_a_worker_mid_stage_still_completes(route, tmp_path, inline, clu
     monkeypatch.setattr(runner, "make_executor", KillingDaskExecutor)
     out = run_seqslam(route, tmp_path / "killed", dask_args(cluster))
     assert_identical(inline, out)
-    # one kill per map: extract reference, extract query, localize blocks
-    assert len(KillingDaskExecutor.killed) == 3
+    # one kill per map: extract reference, extract query (localize runs its difference
+    # blocks in-process, on threaded kernels: it maps nothing)
+    assert len(KillingDaskExecutor.killed) == 2
     with distributed.Client(cluster) as client:
-        client.wait_for_workers(2, timeout=30)
+        client.wait_for_workers(2, timeout=300)  # a hang guard: a loaded machine starts workers slowly
         alive = set(client.run(os.getpid).values())
     assert not alive & set(KillingDaskExecutor.killed)
 
 
 def test_a_task_that_always_fails_stops_with_the_item_named(cluster, tmp_path):
     log = tmp_path / "attempts.txt"
-    ex = DaskExecutor({"kind": "dask", "workers": 2, "scheduler": cluster.scheduler_address, "retries": 2})
+    ex = DaskExecutor(ExecutorParams(kind="dask", workers=2, scheduler=cluster.scheduler_address, retries=2))
     try:
         jobs = [(i, str(log)) for i in range(4)]
         message = r"dask executor: count_and_fail_job failed on block 0 after 2 retries: RuntimeError: this task always fails"
@@ -106,7 +108,7 @@ def test_corrupt_image_names_the_chunk_and_image(route, tmp_path, cluster):
 
 
 def test_shared_is_broadcast_once_and_released(cluster):
-    ex = DaskExecutor({"kind": "dask", "workers": 2, "scheduler": cluster.scheduler_address, "retries": 0})
+    ex = DaskExecutor(ExecutorParams(kind="dask", workers=2, scheduler=cluster.scheduler_address, retries=0))
     try:
         big = np.arange(200_000, dtype=np.float64)
         got, holders = [], None
@@ -117,7 +119,7 @@ def test_shared_is_broadcast_once_and_released(cluster):
         assert got == [float(big.sum() + i) for i in range(20)]
         assert len(holders) == 1 and len(next(iter(holders.values()))) == 2
         # released when the map ends (asynchronously on the scheduler)
-        deadline = time.time() + 10
+        deadline = time.time() + 300  # a hang guard, not a speed requirement
         while holders.keys() & ex.client.who_has().keys() and time.time() < deadline:
             time.sleep(0.1)
         assert not holders.keys() & ex.client.who_has().keys()
@@ -148,7 +150,7 @@ class CancellingDaskExecutor(DaskExecutor):
 
 def test_a_cancelled_task_is_submitted_again_with_its_shared_input(cluster):
     CancellingDaskExecutor.cancelled = 0
-    ex = CancellingDaskExecutor({"kind": "dask", "workers": 2, "scheduler": cluster.scheduler_address, "retries": 0})
+    ex = CancellingDaskExecutor(ExecutorParams(kind="dask", workers=2, scheduler=cluster.scheduler_address, retries=0))
     try:
         out = list(ex.map(add_shared, range(6), shared=np.arange(4)))
     finally:

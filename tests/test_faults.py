@@ -7,6 +7,7 @@ CLI error boundary, parameters that cannot work and misleading messages.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import signal
@@ -14,14 +15,13 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 import zlib
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from faults_table import record, start_pooled_run
+from faults_table import HANG_S, record, start_pooled_run, wait_for, wait_gone, workers_of
 from faults_table import run_cli as _cli
 from faults_table import stderr_of as _err
 
@@ -84,7 +84,7 @@ def test_full_disk_during_a_real_run_is_one_line_rc2(route, tiny_fs):
     run = tiny_fs / "run"
     script = ("import sys, placeloc.core.runner as r; r.check_resources = lambda *a: []; from placeloc.cli import main; "
               f"sys.argv = ['placeloc', 'run', {str(route / 'config.yaml')!r}, '--run-dir', {str(run)!r}, '-q']; main()")
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=HANG_S)
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, proc.stderr
@@ -116,7 +116,6 @@ def _children(pid: int) -> list[int]:
 
 
 def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp_path):
-    import psutil
 
     from placeloc.synth.route import generate
 
@@ -130,28 +129,19 @@ def test_killed_run_takes_its_workers_along_and_next_run_cleans_shared_files(tmp
     cmd = PLACELOC + ["localize", str(tmp_path / "data" / "config.yaml"), "--run-dir", str(tmp_path / "run"), "-q",
                       "--set", "executor.workers=2", "--set", "seqslam.images_per_task=2", "--set", "plots=false"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    workers: list[int] = []
-    deadline = time.time() + 60
-    while time.time() < deadline and proc.poll() is None:
-        workers = [p for p in _children(proc.pid)
-                   if "spawn_main" in " ".join(psutil.Process(p).cmdline()) and "resource_tracker" not in " ".join(psutil.Process(p).cmdline())]
-        if len(workers) >= 2:
-            break
-        time.sleep(0.1)
-    assert len(workers) >= 2, "the pool never started (the run finished too fast?)"
+    # Killed at any moment after both workers exist, they must die: before their initializer
+    # they find the parent gone when they read their first task, after it the parent-death
+    # signal and the watchdog take them. So the case waits for that event only.
+    wait_for(lambda: proc.poll() is not None or len(workers_of(proc.pid)) >= 2, "the pool's two workers starting")
+    assert proc.poll() is None, "the pool never started (the run finished too fast?)"
     everything = _children(proc.pid)
-    time.sleep(1.0)  # let the workers pass their initializer
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    deadline = time.time() + 5
-    while time.time() < deadline and any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE
-                                         for p in everything):
-        time.sleep(0.1)
-    alive = [p for p in everything if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    alive = wait_gone(everything)
     assert alive == [], f"processes outlived their killed parent: {alive}"
 
     # the next run removes the shared folders of dead runs (ours and the stale one) and its own
-    again = subprocess.run(cmd[:-6] + ["--set", "plots=false"], env=env, capture_output=True, text=True, timeout=120)
+    again = subprocess.run(cmd[:-6] + ["--set", "plots=false"], env=env, capture_output=True, text=True, timeout=HANG_S)
     assert again.returncode == 0, again.stderr
     assert list(tmpdir.glob("placeloc-shared-*")) == []
 
@@ -162,7 +152,7 @@ def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
     # whole run takes several seconds; the signal follows the workers' start by 0.3 s).
     proc, tmpdir = start_pooled_run(tmp_path)
     os.killpg(proc.pid, sig) if sig == signal.SIGINT else proc.send_signal(sig)
-    out, err = proc.communicate(timeout=60)
+    out, err = proc.communicate(timeout=HANG_S)
     record(proc.returncode, err)
     assert proc.returncode == rc, err
     assert err.strip() == "interrupted; rerun to resume", err
@@ -245,21 +235,35 @@ def test_second_run_on_a_locked_run_dir_stops_or_waits(route, tmp_path):
     with lock_run_dir(run):
         with pytest.raises(RunDirError, match=rf"in use by another placeloc run \(pid {os.getpid()}\).*--wait"):
             run_stage(cfg, run, "extract", quiet=True)
-    released = threading.Event()
+    # --wait: the second run says it waits, and the holder lets go only after that line (an
+    # event, so the case proves the wait however slow the machine is).
+    held, waiting = threading.Event(), threading.Event()
+    order: list[str] = []
+
+    class _Waiting(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.getMessage().startswith("waiting for placeloc pid"):
+                waiting.set()
 
     def hold() -> None:
         with lock_run_dir(run):
-            released.wait(5)
-            time.sleep(0.3)
+            held.set()
+            waiting.wait(HANG_S)
+            order.append("released")
 
-    t = threading.Thread(target=hold)
-    t.start()
-    time.sleep(0.2)
-    t0 = time.perf_counter()
-    released.set()
-    run_stage(cfg, run, "extract", quiet=True, wait=True)
+    handler = _Waiting()
+    logging.getLogger("placeloc").addHandler(handler)
+    try:
+        t = threading.Thread(target=hold)
+        t.start()
+        held.wait(HANG_S)
+        run_stage(cfg, run, "extract", quiet=True, wait=True)
+        order.append("ran")
+    finally:
+        waiting.set()
+        logging.getLogger("placeloc").removeHandler(handler)
     t.join()
-    assert time.perf_counter() - t0 >= 0.25 and (run / "extract.h5").is_file()
+    assert order == ["released", "ran"] and (run / "extract.h5").is_file()
 
 
 def test_refuses_image_folder_and_foreign_config_yaml(route, tmp_path):
@@ -310,10 +314,9 @@ def test_yaml_alias_bomb_is_refused_fast(tmp_path):
     bomb.append("seqslam: {comparison: *i}")
     path = tmp_path / "bomb.yaml"
     path.write_text("\n".join(bomb) + "\n")
-    t0 = time.perf_counter()
-    with pytest.raises(ConfigError, match="aliases are not allowed"):
+    # refused at the first alias, before anything expands (the message says so): no timing needed
+    with pytest.raises(ConfigError, match="found alias \\*a: aliases are not allowed"):
         load_config(path)
-    assert time.perf_counter() - t0 < 1.0
 
 
 def _png_header(path: Path, width: int, height: int) -> None:
@@ -332,11 +335,10 @@ def test_huge_frame_is_refused_from_its_header(tmp_path, monkeypatch):
     _png_header(frames / "f3.png", 8000, 8000)
     assert image_size(frames / "f3.png") == (8000, 8000)
     images = {"reference": ImageSet(str(frames), sorted(frames.iterdir()))}
-    t0 = time.perf_counter()
+    # the files hold headers only: the size can only have come from the header, never a decode
     with pytest.raises(ResourceError, match=r"f3.png \(64.0 megapixels\).*needs about 14.3 GiB of memory, "
                        r"more than PLACELOC_MEMORY_LIMIT_MB=4096 allows \(4.0 GiB\)"):
         check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES)
-    assert time.perf_counter() - t0 < 1.0
     # stages after extract decode no image: their estimate does not read image headers
     later = check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES[1:])
     assert not any("megapixels" in n.what for n in later)
@@ -399,11 +401,10 @@ def test_latin1_config_and_unreachable_scheduler(route, tmp_path):
     res = _cli(["run", str(cfg)])
     assert res.exit_code == 2 and "not UTF-8 text (byte 0xe9 at offset 21); save it as UTF-8" in _err(res)
     pytest.importorskip("distributed")
-    t0 = time.perf_counter()
+    # placeloc's own check answered (its message), not Dask's 300 s connect timeout
     res = _cli(["extract", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r"), "-q",
                 "--set", "executor.kind=dask", "--set", "executor.scheduler=tcp://127.0.0.1:9"])
     assert res.exit_code == 2 and "cannot reach a Dask scheduler at tcp://127.0.0.1:9" in _err(res)
-    assert time.perf_counter() - t0 < 20
 
 
 def test_bug_shows_traceback_and_ctrl_c_is_one_line(route, tmp_path, monkeypatch):
@@ -464,6 +465,7 @@ def test_error_classes_are_user_errors():
     ("executor.workers=0", "executor.workers: 0 is out of range; it must be >= 1"),
     ("ground_truth.tolerance=-2", "ground_truth.tolerance: -2 is out of range"),
     ("ground_truth.radius=0", "ground_truth.radius: 0.0 is out of range; it must be > 0"),
+    ("ground_truth.exclude_recent=-1", "ground_truth.exclude_recent: -1 is out of range; it must be >= 0"),
     ("seqslam.v_min=2.0", "seqslam.v_min (2.0) is larger than seqslam.v_max (1.2)"),
     ("reference.images=[1, 2]", "reference.images must be a string or null"),
     ("query.fingerprint=md5", "query.fingerprint: 'md5' is not allowed; choose one of stat, content"),
@@ -478,7 +480,7 @@ def test_common_ranges_types_and_cross_key_rules(route, override, expect):
     ("pirf", "tau=-0.1", "pirf.tau"), ("pirf", "kdtree_trees=0", "pirf.kdtree_trees"), ("pirf", "hnsw_m=0", "pirf.hnsw_m"),
     ("umap", "query_thickness_px=0", "umap.query_thickness_px"),
     ("seqslam", "images_per_task=0", "seqslam.images_per_task"), ("seqslam", "gaussian_sigma=-1", "seqslam.gaussian_sigma"),
-    ("seqslam", "ocm_epsilon=-1", "seqslam.ocm_epsilon"), ("seqslam", "exclude_recent=-1", "seqslam.exclude_recent"),
+    ("seqslam", "ocm_epsilon=-1", "seqslam.ocm_epsilon"),
     ("seqslam", "patch=40", "seqslam.patch (40) is larger than the thumbnail (64x32)"),
 ])
 def test_parameters_that_cannot_work_are_refused(route, method, override, key):
@@ -570,6 +572,6 @@ def test_an_interrupt_swallowed_by_a_finaliser_is_raised_again_silently():
         "except KeyboardInterrupt:\n"
         "    print('raised again')\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=HANG_S)
     assert proc.stdout.split("\n")[:2] == ["swallowed, run goes on", "raised again"]
     assert proc.stderr == ""

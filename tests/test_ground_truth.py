@@ -272,7 +272,7 @@ def test_shared_settings_have_one_home():
 
     gt = P.defaults(CommonParams)["ground_truth"]
     assert gt == {"kind": "none", "tolerance": 0, "path": None, "radius": 25.0, "recall_at": [1, 5, 10, 20],
-                  "exclude_recent": 50}
+                  "exclude_recent": None}
     assert ground_truth.DEFAULT_RADIUS_M == GroundTruthParams().radius
     assert ground_truth.DEFAULT_TOLERANCE == GroundTruthParams().tolerance
     assert list(metrics.DEFAULT_RECALL_N) == gt["recall_at"]

@@ -181,3 +181,75 @@ def test_a_planted_cycle_is_found(tmp_path: Path) -> None:
     assert graph["demo.sub.inner"] == set()              # TYPE_CHECKING imports do not count
     assert cycles(graph) == [["demo.a", "demo.b"]]
     assert _a_path(graph, ["demo.a", "demo.b"]) == "demo.a -> demo.b -> demo.a"
+
+
+# ----------------------------------------------------------------------------- layers
+# Methods are the subpackages with a stages.py (as placeloc.core.methods discovers them).
+METHODS = tuple(sorted(d.name for d in PACKAGE.iterdir() if (d / "stages.py").is_file() and (d / "__init__.py").is_file()))
+EXECUTORS = ("placeloc.core.executor", "placeloc.core.dask_executor", "placeloc.core.executors")
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module ``start`` imports, directly or through others."""
+    seen: set[str] = set()
+    todo = [start]
+    while todo:
+        for target in graph[todo.pop()]:
+            if target not in seen:
+                seen.add(target)
+                todo.append(target)
+    return seen
+
+
+def layer_violations(graph: dict[str, set[str]], methods: tuple[str, ...]) -> list[str]:
+    """Edges that break the layer rules: evaluation imports no method, no method imports
+    another, the executors reach no config."""
+    bad = []
+    for module, targets in sorted(graph.items()):
+        layer = _layer(module)
+        for target in sorted(targets):
+            other = _layer(target)
+            if layer == "evaluation" and other in methods:
+                bad.append(f"evaluation imports a method: {module} -> {target}")
+            if layer in methods and other in methods and other != layer:
+                bad.append(f"a method imports another: {module} -> {target}")
+    for module in EXECUTORS:
+        if module in graph and "placeloc.core.config" in reachable(graph, module):
+            bad.append(f"an executor reaches the config layer: {module} -> ... -> placeloc.core.config")
+    return bad
+
+
+def test_layers_stay_apart() -> None:
+    graph = import_graph()
+    assert {"seqslam", "pirf", "retrieval"} <= set(METHODS)
+    assert all(m in graph for m in EXECUTORS)
+    violations = layer_violations(graph, METHODS)
+    assert not violations, "\n".join(violations)
+
+
+def test_a_planted_layer_violation_is_found(tmp_path: Path) -> None:
+    pkg = tmp_path / "placeloc"
+    for sub in ("core", "evaluation", "alpha", "beta"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "core" / "config.py").write_text("")
+    (pkg / "core" / "errors.py").write_text("")
+    (pkg / "core" / "executor.py").write_text("from placeloc.core import errors\n")
+    (pkg / "core" / "executors.py").write_text("def make():\n    from placeloc.core.middle import x\n")
+    (pkg / "core" / "middle.py").write_text("from placeloc.core.config import y\n")
+    (pkg / "alpha" / "stages.py").write_text("from placeloc.beta.numerics import f\n")
+    (pkg / "beta" / "stages.py").write_text("")
+    (pkg / "beta" / "numerics.py").write_text("")
+    (pkg / "evaluation" / "ranked.py").write_text("import placeloc.alpha.stages\n")
+    found = layer_violations(import_graph(pkg), ("alpha", "beta"))
+    assert found == ["a method imports another: placeloc.alpha.stages -> placeloc.beta",
+                     "a method imports another: placeloc.alpha.stages -> placeloc.beta.numerics",
+                     "evaluation imports a method: placeloc.evaluation.ranked -> placeloc.alpha",
+                     "evaluation imports a method: placeloc.evaluation.ranked -> placeloc.alpha.stages",
+                     "an executor reaches the config layer: placeloc.core.executors -> ... -> placeloc.core.config"]

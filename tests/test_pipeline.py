@@ -130,8 +130,7 @@ def test_loop_closure_on_a_route_driven_twice(route, tmp_path):
             if q >= 80:
                 w.writerow([q, max(0, q - 82), q - 78])
     cfg = load_config(data={"method": "seqslam", "reference": {"images": str(both)}, "plots": False,
-                            "ground_truth": {"kind": "csv", "path": str(gt)},
-                            "seqslam": {"exclude_recent": 40}}, base_dir=tmp_path)
+                            "ground_truth": {"kind": "csv", "path": str(gt), "exclude_recent": 40}}, base_dir=tmp_path)
     run_all(cfg, tmp_path / "lc", quiet=True)
     with h5py.File(tmp_path / "lc" / "localize.h5") as f:
         best = f["candidates"][:, 0]
@@ -141,9 +140,9 @@ def test_loop_closure_on_a_route_driven_twice(route, tmp_path):
     assert (best[q >= 95] == q[q >= 95] - 80).all()
     matched = best >= 0
     assert (best[matched] <= q[matched] - 40).all()
-    # scored as loop closures: 80 frames close a loop (exclusion 50 frames, the default)
+    # scored as loop closures with the same exclusion: 80 frames close a loop
     m = json.loads((tmp_path / "lc" / "metrics.json").read_text())
-    assert m["frames_with_loop"] == 80 and m["n_frames"] == 160
+    assert m["frames_with_loop"] == 80 and m["n_frames"] == 160 and m["exclude_recent"] == 40
     assert m["recall_at_100_precision"] >= 65 / 80
 
 

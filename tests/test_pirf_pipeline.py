@@ -89,16 +89,16 @@ def test_frames_of_different_sizes_are_refused(omni: Path, tmp_path: Path) -> No
         run_stage(cfg, tmp_path / "run", "extract", quiet=True)
 
 
-def test_blank_frame_is_refused_with_a_fix(omni: Path, tmp_path: Path) -> None:
+def test_blank_frame_is_kept_by_default_and_refused_with_stop(omni: Path, tmp_path: Path) -> None:
     d = tmp_path / "blank"
     d.mkdir()
     for k, p in enumerate(sorted((omni / "mapping").glob("*.png"))[:4]):
         img = cv2.imread(str(p))
         cv2.imwrite(str(d / f"f{k}.png"), img if k != 2 else np.zeros_like(img))
-    cfg = load_config(data={"method": "pirf", "reference": {"images": str(d)}})
+    cfg = load_config(data={"method": "pirf", "reference": {"images": str(d)}, "pirf": {"blank_frames": "stop"}})
     with pytest.raises(ImageError, match=r"f2\.png: no sift features.*blank_frames: empty"):
         run_stage(cfg, tmp_path / "run", "extract", quiet=True)
-    cfg = load_config(data={"method": "pirf", "reference": {"images": str(d)}, "pirf": {"blank_frames": "empty"}})
+    cfg = load_config(data={"method": "pirf", "reference": {"images": str(d)}})
     run_stage(cfg, tmp_path / "run", "extract", quiet=True)
     with h5py.File(tmp_path / "run" / "extract.h5") as f:
         assert f["reference/n_features"][2] == 0 and np.diff(f["reference/offsets"][()])[2] == 0

@@ -19,16 +19,18 @@ from placeloc.seqslam.search import (
 )
 
 
-def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float, stop: float) -> np.ndarray:
+def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray, cost: float, stop: float,
+                    reverse: float = 0.0) -> np.ndarray:
     """Every chain of segment speeds written out, for every reference: the cheapest path
     through (T, r) (the definition the dynamic programme must reproduce). With 0 among the
     speeds, every frame but the anchor counts around its column's mean by its novelty (its
     change from the frame before it on the path, over that of two unrelated columns), and
-    a segment that stands still pays ``stop`` per unit of the query's change meanwhile."""
+    a segment that stands still pays ``stop`` per unit of the query's change meanwhile; one
+    that drives backwards (a negative speed) pays ``reverse`` per frame-to-frame step."""
     nr = et.shape[1]
     seg = segment_length(vels)
     speeds = np.unique(vels)
-    stops = speeds[0] == 0  # standing still: frames count by their novelty
+    stops = (speeds == 0).any()  # standing still: frames count by their novelty
     before, after = -int(t_off[0]), int(t_off[-1])
 
     def change(f: int, g: int) -> float:
@@ -39,17 +41,19 @@ def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray,
         n_seg = -(-n_frames // seg)
         out = []
         for vs in itertools.product(speeds, repeat=n_seg):
-            pos, still, p = [], [], 0
+            pos, still, back, p = [], [], [], 0
             for j, v in enumerate(vs):
                 o = trajectory_offsets(np.array([v]), np.arange(seg + 1))[0]
                 pos += [p + int(o[t]) for t in range(min(seg, n_frames - j * seg))]
                 still += [v == 0] * min(seg, n_frames - j * seg)
+                back += [v < 0] * min(seg, n_frames - j * seg)
                 p += int(o[seg])
             frames = T + d * np.arange(n_frames)
             c = sum(abs(vs[j] - vs[j + 1]) for j in range(n_seg - 1)) * cost * seg
             # standing from each still frame to the next frame on the path (the next
             # segment's first frame included: it starts where a still segment ends)
             c += sum(stop * change(frames[t], frames[t + 1]) for t in range(n_frames - 1) if still[t])
+            c += reverse * sum(1 for t in range(n_frames - 1) if back[t])
             out.append((vs[0], d * np.array(pos), frames, np.array(still), c))
         return out
 
@@ -72,14 +76,15 @@ def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray,
     back_vals = [values(fr, r + p, st) for _, p, fr, st, _ in back_chains]
     for (v1, p1, _, _, c1), x1 in zip(fwd_chains, fwd_vals):
         for (v2, p2, _, _, c2), x2 in zip(back_chains, back_vals):
-            ok = ((r + p1).max(axis=1) < nr) & ((r + p2).min(axis=1) >= 0)
+            inside = np.concatenate([r + p1, r + p2], axis=1)
+            ok = (inside.min(axis=1) >= 0) & (inside.max(axis=1) < nr)
             total = x1 + x2 - et[T] + c1 + c2 + cost * seg * abs(v1 - v2)
             s = np.where(ok, np.minimum(s, total), s)
     return s
 
 
 @pytest.mark.parametrize("search,ds,v_min", [("centred", 8, 0.0), ("causal", 5, 0.0), ("centred", 5, 0.0),
-                                             ("centred", 8, 0.5)])
+                                             ("centred", 8, 0.5), ("centred", 6, -1.0), ("causal", 5, -0.5)])
 def test_dynamic_programme_equals_every_chain_written_out(search, ds, v_min):
     rng = np.random.default_rng(0)
     et = rng.random((14, 20)).astype(np.float32)
@@ -87,9 +92,9 @@ def test_dynamic_programme_equals_every_chain_written_out(search, ds, v_min):
     vels = velocities(v_min, 1.5, 0.5)  # segments of 2 frames; with v_min 0 standing still
     t_off = query_offsets(ds, search)
     rows = (-int(t_off[0]), 14 - int(t_off[-1]))
-    s = _flexible_scores(et, rows, t_off, vels, 0.3, 0.7)
+    s = _flexible_scores(et, rows, t_off, vels, 0.3, 0.7, reverse_cost=0.4)
     for T in range(*rows):
-        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3, 0.7), rtol=1e-5)
+        np.testing.assert_allclose(s[T - rows[0]], _brute_flexible(et, T, t_off, vels, 0.3, 0.7, 0.4), rtol=1e-5)
 
 
 def _planted(speeds: np.ndarray, n_ref: int, seed: int, gone: np.ndarray | None = None,

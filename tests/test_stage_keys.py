@@ -15,7 +15,8 @@ config that record every attribute and section it reads, and compares:
 
 What counts as a read: attribute access on ``ctx.params`` (nested sections as
 ``ca.tie_tol``; reading a section object alone does not count, its fields do) and
-``ctx.config[...]`` / ``ctx.config.get(...)`` of a top-level section, anywhere below
+``ctx.config[...]`` / ``ctx.config.get(...)`` of a top-level section (of one key of it,
+``ground_truth.exclude_recent``, when only that key is read), anywhere below
 the stage function in this process. Work items sent to other processes get the plain
 parameter object, so the smoke runs use one worker. ``method``, ``seed``, ``reference``
 and ``query`` are every stage's inputs already; ``executor`` changes where work runs;
@@ -84,19 +85,46 @@ def _identity(x: Any) -> Any:
 
 
 class _RecordingConfig(dict):
-    """The validated config, noting every top-level section read by key."""
+    """The validated config, noting every top-level section read by key; a section that is
+    a mapping notes ``section.key`` for each key read from it, and the whole section when it
+    is iterated or copied (so a stage may declare one key of a common section, dotted)."""
 
-    def __init__(self, data: dict, reads: set[str]) -> None:
+    def __init__(self, data: dict, reads: set[str], prefix: str = "") -> None:
         super().__init__(data)
         self.reads = reads
+        self.prefix = prefix
+
+    def _wrap(self, key: str, value: Any) -> Any:
+        if isinstance(value, dict) and not self.prefix:
+            return _RecordingConfig(value, self.reads, f"{key}.")
+        self.reads.add(self.prefix + key)
+        return value
 
     def __getitem__(self, key: str) -> Any:
-        self.reads.add(key)
-        return super().__getitem__(key)
+        return self._wrap(key, super().__getitem__(key))
 
     def get(self, key: str, default: Any = None) -> Any:
-        self.reads.add(key)
-        return super().get(key, default)
+        return self._wrap(key, super().get(key, default))
+
+    def _whole(self) -> None:
+        if self.prefix:
+            self.reads.add(self.prefix[:-1])
+
+    def __iter__(self) -> Any:
+        self._whole()
+        return super().__iter__()
+
+    def items(self) -> Any:
+        self._whole()
+        return super().items()
+
+    def values(self) -> Any:
+        self._whole()
+        return super().values()
+
+    def keys(self) -> Any:
+        self._whole()
+        return super().keys()
 
 
 yaml.add_representer(_RecordingConfig, yaml.SafeDumper.represent_dict, Dumper=yaml.SafeDumper)
@@ -135,7 +163,8 @@ def run_recorded(config: dict, run_dir: Path, method: Method, reads: Reads, monk
     # result): what it reads is not counted.
     write_report = report.write_report
     monkeypatch.setattr(report, "write_report",
-                        lambda *a, config=None, **k: write_report(*a, config=None if config is None else dict(config), **k))
+                        lambda *a, config=None, **k: write_report(*a, config=None if config is None else dict(dict.items(config)),
+                                                                  **k))
     try:
         runner.run_stage(config, run_dir, last, quiet=True)
     finally:
@@ -168,13 +197,18 @@ def problems(method: Method, reads: Reads) -> list[str]:
         for key in stage.keys:
             if not any(r == key or r.startswith(key + ".") for r in reads.keys[name]):
                 out.append(f"{method.name}.{name}: declares {key!r} but never reads it")
-        for sec in sorted(reads.sections[name] - ALWAYS_READABLE):
-            if sec == method.name:
-                out.append(f"{method.name}.{name}: reads ctx.config[{sec!r}]; read ctx.params instead")
-            elif sec not in stage.sections and sec not in earlier_sections:
+        for sec in sorted(reads.sections[name]):
+            top = sec.split(".")[0]
+            if top in ALWAYS_READABLE:
+                continue
+            if top == method.name:
+                out.append(f"{method.name}.{name}: reads ctx.config[{top!r}]; read ctx.params instead")
+            elif not _covers(stage.sections, sec) and not _covers(earlier_sections, sec):
                 out.append(f"{method.name}.{name}: reads section {sec!r}, not declared in its Stage(sections=...)")
         for sec in stage.sections:
-            if sec not in reads.sections[name]:
+            # a declared section (or one key of it, dotted) is read by any read below it, or
+            # by a read of its whole section
+            if not any(_covers((sec,), r) or sec.startswith(r + ".") for r in reads.sections[name]):
                 out.append(f"{method.name}.{name}: declares section {sec!r} but never reads it")
         earlier_keys += stage.keys
         earlier_sections += stage.sections
@@ -250,6 +284,9 @@ def retrieval_variants(tmp: Path) -> list[Variant]:
                                        "retrieval.descriptors_reference": str(tmp / "ref.npy"),
                                        "retrieval.descriptors_query": str(tmp / "query.npy")}),
         _preset("retrieval.yaml", {}, {"plots": False, "retrieval.search": "exact", "retrieval.top_k": 5}),
+        # loop mode (no query: each frame against the earlier ones, ground_truth.exclude_recent)
+        (_preset("retrieval.yaml", {}, {"plots": False, "query.images": None, "ground_truth.kind": "none",
+                                        "ground_truth.path": None, "ground_truth.exclude_recent": 20}), "localize"),
     ]
 
 
@@ -425,6 +462,15 @@ def test_a_declared_key_never_read_is_caught(tmp_path: Path, monkeypatch: pytest
     reads = Reads()
     run_recorded(_preset("demo.yaml", {}, {"plots": False}), tmp_path / "run", planted, reads, monkeypatch)
     assert "seqslam.localize: declares 'thumbnail' but never reads it" in problems(planted, reads)
+
+
+def test_the_config_recorder_sees_one_key_of_a_section() -> None:
+    reads: set[str] = set()
+    config = _RecordingConfig({"ground_truth": {"kind": "csv", "exclude_recent": 5}, "plots": False}, reads)
+    assert config["ground_truth"]["exclude_recent"] == 5 and config.get("plots") is False
+    assert reads == {"ground_truth.exclude_recent", "plots"}
+    dict(config["ground_truth"].items())
+    assert "ground_truth" in reads
 
 
 def test_the_recorder_sees_nested_sections_and_pickles_plain() -> None:

@@ -53,9 +53,10 @@ def test_yaw_scores_find_the_planted_view_and_shift():
     s = iou_yaw_scores(words, popcount_rows(words), query)
     assert s.shape == (5, 40)
     assert best_pose(s) == (3, 7, pytest.approx(1.0))
-    c = chamfer_yaw_scores(words, closeness(db_imgs, 2.0), query, tau_px=2.0)
-    i, k, v = best_pose(c)
-    assert (i, k) == (3, 7) and v == pytest.approx(1.0)
+    for chance in ("none", "area", "yaw"):
+        c = chamfer_yaw_scores(words, closeness(db_imgs, 2.0), query, tau_px=2.0, chance=chance)
+        i, k, v = best_pose(c)
+        assert (i, k) == (3, 7) and v == pytest.approx(1.0)
 
 
 def test_closeness_wraps_around_the_seam():
@@ -161,24 +162,137 @@ def test_chamfer_spectra_equal_the_pixel_loop_and_weights_drop_rows():
     db = (rng.random((12, H, W)) < 0.03).astype(np.uint8)
     qs = (rng.random((3, H, W)) < 0.03).astype(np.uint8)
     ones = np.ones(H, np.float32)
-    fast = chamfer_table(chamfer_spectra(db, tau_px=3.0, weights=ones), qs, tau_px=3.0, weights=ones)
-    slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0) for q in qs])
-    assert np.abs(fast - slow).max() < 1e-5
+    spectra = chamfer_spectra(db, tau_px=3.0, weights=ones)
+    for chance in ("none", "area", "yaw"):
+        fast = chamfer_table(spectra, qs, tau_px=3.0, weights=ones, chance=chance)
+        slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0, chance=chance) for q in qs])
+        assert np.abs(fast - slow).max() < 1e-5
     # weight 0 beyond 60 degrees: the same as the plain score on images whose polar rows are
     # empty (closeness does not reach across: tau 1 px and the rows next to them cleared too)
     wts = row_weights(H, polar_deg=60.0, polar_weight=0.0)
     assert wts[0] == 0 and wts[H // 2] == 1 and (wts == 0).sum() == 2 * round(H * 30 / 180)
     keep = np.convolve(wts, np.ones(3), "same") == 3
     cleared_db, cleared_q = db * keep[None, :, None], qs * keep[None, :, None]
-    weighted = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=wts), qs * keep[None, :, None], tau_px=1.0,
-                             weights=wts)
-    plain = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=ones), cleared_q, tau_px=1.0, weights=ones)
-    assert np.abs(weighted - plain).max() < 1e-5
+    for chance in ("none", "yaw"):  # (area: the image's area shrinks with the weights, so only these two agree)
+        weighted = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=wts), qs * keep[None, :, None], tau_px=1.0,
+                                 weights=wts, chance=chance)
+        plain = chamfer_table(chamfer_spectra(cleared_db, tau_px=1.0, weights=ones), cleared_q, tau_px=1.0, weights=ones,
+                              chance=chance)
+        assert np.abs(weighted - plain).max() < 1e-5
+
+
+def test_chance_levels_by_hand():
+    # one map row of 10 columns, tau 2: map lines at columns 0 and 5 -> closeness 1, .5, 0, 0, .5, 1, .5, 0, 0, .5
+    # (wrapping), i.e. it averages 0.4 over the image; the query has one line pixel at column 1
+    from placeloc.umap.panorama import chamfer_yaw_scores, closeness
+
+    db = np.zeros((1, 1, 10), np.uint8)
+    db[0, 0, [0, 5]] = 1
+    q = np.zeros((1, 10), np.uint8)
+    q[0, 1] = 1
+    close_db = closeness(db, 2.0)
+    assert close_db.mean() == pytest.approx(0.4)
+    none = chamfer_yaw_scores(pack(db), close_db, q, tau_px=2.0, chance="none")
+    area = chamfer_yaw_scores(pack(db), close_db, q, tau_px=2.0, chance="area")
+    # shift 1 (query column c is map column c - 1): precision 1 (the query's pixel on the map's
+    # column 0), recall: map columns 0 and 5 seen at query columns 1 and 6, closeness 1 and 0
+    assert none[0, 1] == pytest.approx(0.5 * (0.5 + 1.0))
+    # area: precision (1 - 0.4) / (1 - 0.4) = 1; recall's chance is the query's closeness
+    # mean (1 + .5 + .5) / 10 = 0.2: (0.5 - 0.2) / 0.8
+    assert area[0, 1] == pytest.approx(0.5 * ((0.5 - 0.2) / 0.8 + 1.0))
+    # shift 3: the query's pixel on map column 8 (closeness 0), map columns 0 and 5 at query
+    # columns 3 and 8 (closeness 0): both halves below chance
+    assert area[0, 3] == pytest.approx(0.5 * ((0.0 - 0.2) / 0.8 + (0.0 - 0.4) / 0.6))
+    yaw = chamfer_yaw_scores(pack(db), close_db, q, tau_px=2.0, chance="yaw")
+    assert yaw.mean() == pytest.approx(0.0, abs=1e-9)   # corrected for its own mean over the shifts
+
+
+def test_chance_correction_does_not_reward_a_busy_view():
+    # The failure the plain score has on real homes: a sparse query (a few true lines plus
+    # clutter) against its own sparse view and a busy view (the same lines plus many more:
+    # a hall junction). Clutter lands near the busy view's extra lines by chance, so the
+    # plain score's precision half prefers it; corrected for the area the busy view's
+    # closeness covers, the true view wins.
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table
+
+    rng = np.random.default_rng(7)
+    h, w = 24, 96
+    sparse = np.zeros((h, w), np.uint8)
+    sparse[12, 10:40] = 1                         # two true lines (a white room: little to see)
+    sparse[4, 50:90] = 1
+    busy = sparse.copy()
+    busy[2:22, 0:w:8] = 1                         # plus a vertical line every 8 columns (doors, jambs)
+    query = sparse.copy()
+    query[12, 22:40] = 0                          # the low-contrast lines only partly detected
+    query[4, 62:90] = 0
+    for c in rng.integers(0, w, 10):
+        query[6:20, c] = 1                        # clutter: vertical edges of furniture, a fan
+    db = np.stack([sparse, busy])
+    ones = np.ones(h, np.float32)
+    sp = chamfer_spectra(db, tau_px=3.0, weights=ones)
+    plain = chamfer_table(sp, query[None], tau_px=3.0, weights=ones, chance="none")[0, :, 0]
+    fair = chamfer_table(sp, query[None], tau_px=3.0, weights=ones, chance="area")[0, :, 0]
+    assert plain[1] > plain[0]                    # the busy view wins the plain score
+    assert fair[0] > fair[1]                      # and loses the corrected one
 
 
 def test_refine_steps_halve_down_to_the_finest():
-    from placeloc.umap.panorama import refine_steps
+    from placeloc.umap.panorama import grid_step, refine_steps
 
-    assert refine_steps(0.15, 0.05) == [0.1, 0.05]        # reaches 0.15 m
-    assert refine_steps(0.35, 0.05) == [0.2, 0.1, 0.05]   # reaches 0.35 m
-    assert refine_steps(0.05, 0.05) == [0.05]
+    # after the cell stage (a third of the grid step): a sixth, a twelfth, ... while >= the finest
+    assert refine_steps(0.24, 0.02) == pytest.approx([0.04, 0.02])
+    assert refine_steps(0.24, 0.01) == pytest.approx([0.04, 0.02, 0.01])
+    assert refine_steps(0.24, 0.05) == pytest.approx([0.04])
+    xy = np.array([[0.125, 0.5], [0.375, 0.5], [0.375, 0.75], [1.125, 0.5]])
+    assert grid_step(xy) == pytest.approx(0.25)
+
+
+def test_closeness_batch_and_scores_at_shifts_equal_the_table():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, closeness, closeness_batch, row_weights
+
+    rng = np.random.default_rng(11)
+    db = (rng.random((7, H, W)) < 0.03).astype(np.uint8)
+    db[2] = 0                                             # an empty view
+    q = (rng.random((H, W)) < 0.04).astype(np.uint8)
+    assert np.abs(closeness_batch(db, 3.0) - closeness(db, 3.0)).max() < 1e-6
+    shifts = rng.integers(0, W, size=(7, 5))
+    shifts[0, 0] = W - 1                                  # the seam
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3)):
+        sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
+        for chance in ("none", "area", "yaw"):
+            table = chamfer_table(sp, q[None], tau_px=3.0, weights=wts, chance=chance)[0]
+            at = chamfer_at_shifts(db, q, shifts, tau_px=3.0, weights=wts, chance=chance)
+            assert np.abs(at - np.take_along_axis(table, shifts, axis=1)).max() < 1e-4, chance
+
+
+def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
+    # A camera 0.35 m from a wall, its true pose between grid points: the answer (within
+    # 0.05 m and one yaw column) is the same for grid origins shifted by 0, 1/3 and 2/3 of a step.
+    from dataclasses import replace
+
+    from placeloc.geometry.floorplan import plan_grid
+    from placeloc.umap.panorama import chamfer_spectra, row_weights, search_panoramas
+    from placeloc.umap.params import PanoramaParams
+
+    m = floor_plan_model(PLAN)
+    truth = np.array([[5.65, 1.37, 1.4, 117.5], [0.35, 5.52, 1.4, 250.0]])
+    q = _render_all(m, truth)
+    q[:, ::3, ::4] = 0                                    # a few line pixels lost
+    pp = replace(PanoramaParams(), chamfer_chance="area")
+    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    answers = []
+    for frac in (0.0, 1 / 3, 2 / 3):
+        step = 0.3
+        start = 0.1 + frac * step
+        poses, _ = plan_grid(m, x=[start, 6.0, step], y=[start, 7.0, step], z=1.4, headings=[0.0])
+        imgs = _render_all(m, poses)
+        db = {"spectra": chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=wts)}
+        _, xy, hd, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+        assert np.hypot(*(xy - truth[:, :2]).T).max() <= 0.05, frac
+        assert np.abs((hd - truth[:, 3] + 180) % 360 - 180).max() <= 2.5, frac
+        answers.append(xy)
+    assert np.abs(np.array(answers) - answers[0]).max() <= 0.05
+
+
+def _render_all(m, poses):
+    return unpack(render_panoramas(m.segments, m.faces, np.asarray(poses, float), width=W, height=H, hidden=True), H, W)

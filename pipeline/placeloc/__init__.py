@@ -9,8 +9,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from placeloc.core.caches import private_numba_cache
+
 __version__ = "0.1.0"
 __all__ = ["__version__", "describe", "load_config", "read_metrics", "run"]
+
+
+# numba loads its cached machine code (and pickled indexes) unchecked: point it at a private
+# folder before any placeloc module imports numba (docs/reliability.md, "Caches")
+private_numba_cache()
 
 
 def __getattr__(name: str) -> Any:

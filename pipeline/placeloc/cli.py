@@ -20,6 +20,7 @@ from typer.core import TyperGroup
 
 from placeloc.core.interrupts import Terminated, raise_if_interrupted
 from placeloc.core.interrupts import install as install_signal_handlers
+from placeloc.core.methods import METHOD_NAMES
 
 try:  # Typer 0.2x vendors its own copy of Click; its exceptions are the ones its main() handles
     from typer._click import ClickException
@@ -94,8 +95,42 @@ def _one_line(exc: BaseException) -> str:
                 "or executor.workers, or free memory")
     if isinstance(exc, OSError):
         return _os_error_line(exc)
+    if _non_utf8_name(exc):
+        return (f"'{_shown(exc.object)}' is not valid UTF-8 text (a file or folder name in another encoding); rename it "
+                "in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME)")
     text = " ".join(str(exc).split())
     return text or type(exc).__name__
+
+
+def _non_utf8_name(exc: BaseException) -> bool:
+    """A name that came from the file system or the command line in another encoding: Python
+    holds its bytes as lone surrogates, and writing it as UTF-8 (a log, a report, an HDF5
+    string) fails. The user's file name, not a bug."""
+    return (isinstance(exc, UnicodeEncodeError) and exc.reason == "surrogates not allowed"
+            and isinstance(exc.object, str))
+
+
+def _shown(text: str) -> str:
+    """Text with the bytes that are not UTF-8 shown as \\xNN."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def _check_utf8_path(path: Path | None, what: str) -> None:
+    """Refuse, before any work, a path argument that is not valid UTF-8 (the run would fail
+    when it first writes the name into its log, report or artifacts)."""
+    from placeloc.core.errors import ConfigError
+
+    if path is not None and not _is_utf8(str(path)):
+        raise ConfigError(f"{what} '{_shown(str(path))}' is not valid UTF-8 text (a name in another encoding); rename "
+                          "it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME) or choose another path")
+
+
+def _is_utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def classify(exc: BaseException) -> str:
@@ -120,7 +155,7 @@ def classify(exc: BaseException) -> str:
 
     if isinstance(exc, (EnvironmentFailure, MemoryError, BrokenProcessPool)):
         return "environment"
-    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)):
+    if isinstance(exc, (OSError, yaml.YAMLError, UnicodeDecodeError)) or _non_utf8_name(exc):
         return "user"
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and isinstance(exc, cv2.error):
@@ -132,6 +167,55 @@ def classify(exc: BaseException) -> str:
     if isinstance(exc, ValueError) and _raised_in_placeloc(exc):
         return "user"
     return "bug"
+
+
+def _stdout_failed(exc: BaseException) -> bool:
+    """True when ``exc`` is an OSError raised while writing the standard output (a
+    ``typer.echo``/``click.echo`` or ``print`` frame, or the flush after the command): the
+    reader of a pipe went away (``| head -1``) or the file it goes to is full (``> /dev/full``)."""
+    if not isinstance(exc, OSError):
+        return False
+    tb = exc.__traceback__
+    while tb is not None:
+        code = tb.tb_frame.f_code
+        module = tb.tb_frame.f_globals.get("__name__", "")
+        if code.co_name in ("echo", "secho") and module.split(".")[0] in ("click", "typer") or code.co_name == "_flush_stdout":
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def _stdout_failure(exc: OSError) -> None:
+    """The standard output failed. A closed pipe is what ``| head`` does on purpose: leave
+    quietly with rc 0 (the reader took what it wanted), pointing stdout at /dev/null so the
+    interpreter's own flush at exit does not fail again. Anything else (a full disk behind
+    ``> FILE``, an I/O error) is the environment: one line saying where, rc 3."""
+    import errno
+
+    _discard_stdout()
+    if exc.errno == errno.EPIPE:
+        raise typer.Exit(0)
+    name = errno.errorcode.get(exc.errno or -1, "")
+    what = {"ENOSPC": "is full (no space left on the device it is redirected to)",
+            "EDQUOT": "is over its disk quota"}.get(name, f"cannot be written ({exc.strerror or exc})")
+    typer.secho(f"error: the standard output {what}; free space there or redirect the output elsewhere",
+                fg="red", err=True)
+    raise typer.Exit(3)
+
+
+def _discard_stdout() -> None:
+    """Point the standard output at /dev/null (what is still buffered is dropped)."""
+    with contextlib.suppress(Exception):
+        fd = sys.stdout.fileno()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
+
+
+def _flush_stdout() -> None:
+    """Flush the standard output inside the error boundary (a failure is classified there,
+    not printed by the interpreter at exit)."""
+    sys.stdout.flush()
 
 
 class ErrorBoundaryGroup(TyperGroup):
@@ -147,6 +231,7 @@ class ErrorBoundaryGroup(TyperGroup):
         _announced.clear()  # one "interrupted" line per command, also when commands run in one process (tests, API)
         try:
             result = super().invoke(ctx)
+            _flush_stdout()
             raise_if_interrupted()  # a signal whose exception a garbage-collection callback swallowed
             return result
         except (typer.Exit, typer.Abort, ClickException):
@@ -155,6 +240,8 @@ class ErrorBoundaryGroup(TyperGroup):
             _announce_interrupt()
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         except Exception as exc:
+            if _stdout_failed(exc):
+                return _stdout_failure(exc)
             kind = classify(exc)
             if kind in ("user", "environment"):
                 typer.secho(f"error: {_one_line(exc)}", fg="red", err=True)
@@ -167,8 +254,9 @@ class ErrorBoundaryGroup(TyperGroup):
 
 app = typer.Typer(
     cls=ErrorBoundaryGroup,
-    help="placeloc: where am I, from images alone. Staged, resumable localization pipelines "
-    "(SeqSLAM, PIRF-nav2, UMap, co-embedding) over image folders, with HDF5 artifacts.",
+    help="placeloc: where am I, from images alone. Staged, resumable localization pipelines over image folders, "
+    f"with HDF5 artifacts. Methods (a config's `method:`): {', '.join(METHOD_NAMES)}; `placeloc params METHOD` lists "
+    "one's settings.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -187,6 +275,9 @@ def _version(value: bool) -> None:
 
 # Set by the global --verbose flag (placeloc --verbose run ...).
 _VERBOSE = False
+# True in the `placeloc` process itself (main()), not when the app runs inside another
+# program (tests, the API): only then may a command change the process's environment.
+_STANDALONE = False
 
 
 @app.callback()
@@ -211,6 +302,11 @@ class _SourceFormatter(logging.Formatter):
     """``placeloc: message`` for our lines, ``faiss.loader: message`` for a library's."""
 
     def format(self, record: logging.LogRecord) -> str:
+        if record.name == "py.warnings":
+            # "FILE:LINE: Category: text\n  source line" -> "warning: Category: text", one line
+            first = record.getMessage().splitlines()[0] if record.getMessage() else ""
+            parts = first.split(": ", 1)
+            return f"warning: {parts[1] if len(parts) == 2 and ':' in parts[0] else first}"
         source = "placeloc" if record.name == "placeloc" or record.name.startswith("placeloc.") else record.name
         return f"{source}: {record.getMessage()}" + (f"\n{self.formatException(record.exc_info)}" if record.exc_info else "")
 
@@ -224,6 +320,17 @@ def _setup_logging(quiet: bool) -> None:
     logging.basicConfig(level=logging.INFO if _VERBOSE else logging.WARNING, handlers=[handler], force=True)
     ours = logging.DEBUG if _VERBOSE else logging.WARNING if quiet else logging.INFO
     logging.getLogger("placeloc").setLevel(ours)
+    # Python warnings of the libraries (PIL's DecompressionBombWarning, numpy's RuntimeWarning,
+    # ...) go through logging as one line each ("py.warnings: ..."); --quiet silences them,
+    # here and, through PYTHONWARNINGS, in the worker processes this command starts.
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(logging.ERROR if quiet and not _VERBOSE else logging.WARNING)
+    if quiet and not _VERBOSE:
+        import warnings
+
+        warnings.simplefilter("ignore")
+        if _STANDALONE:
+            os.environ["PYTHONWARNINGS"] = "ignore"
 
 
 def _say_written(folder: Path, names: tuple[str, ...], runs: str) -> None:
@@ -244,6 +351,7 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
     from placeloc.core.runner import run_stage
 
     _setup_logging(quiet)
+    _check_utf8_path(run_dir, "--run-dir")
     # Errors reach the user through ErrorBoundaryGroup (one line, rc 2; a bug: traceback).
     cfg = load_config(config, sets)
     out = run_dir or Path("runs") / config.stem
@@ -351,16 +459,9 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
           seed: int = typer.Option(0, help="Random seed."),
           set: List[str] | None = typer.Option(None, "--set", "-s", help="Generator parameter, e.g. --set frames=200.")) -> None:
     """Generate a synthetic data set with known ground truth."""
-    import yaml
+    from placeloc.synth import generate, parse_settings
 
-    from placeloc.synth import generate
-
-    params = {}
-    for item in set or []:
-        if "=" not in item:
-            _fail(ValueError(f"--set {item!r}: expected name=value"))
-        k, v = item.split("=", 1)
-        params[k.strip()] = yaml.safe_load(v)
+    params = parse_settings(kind, list(set or []))
     try:
         summary = generate(kind, out, seed=seed, **params)
     except (KeyError, TypeError) as exc:  # an unknown kind or generator parameter
@@ -429,6 +530,8 @@ def experiment(name: str = typer.Argument(..., help="Experiment: one of the modu
 
 
 def main() -> None:
+    global _STANDALONE
+    _STANDALONE = True
     install_signal_handlers(on_repeat=_second_signal)
     try:
         app()
@@ -437,7 +540,25 @@ def main() -> None:
 
         if received() is not None:
             _exit_now(exc.code if isinstance(exc.code, int) else 130)
+        try:
+            sys.stdout.flush()
+        except OSError as flush_error:
+            _outside_boundary(flush_error)
         raise
+    except OSError as exc:
+        # What Click prints itself (--help, usage errors) runs outside the boundary: a closed
+        # pipe or a full output there must not end in the interpreter's traceback.
+        if not _stdout_failed(exc):
+            raise
+        _outside_boundary(exc)
+
+
+def _outside_boundary(exc: OSError) -> None:
+    """:func:`_stdout_failure` for a write Click made before or after the command ran."""
+    try:
+        _stdout_failure(exc)
+    except typer.Exit as leave:
+        raise SystemExit(leave.exit_code) from None
 
 
 _announced: list[bool] = []
@@ -495,21 +616,19 @@ def _exit_now(code: int) -> None:
     os._exit(code)
 
 
-if __name__ == "__main__":
-    main()
-
 
 # ---------------------------------------------------------------------------------------
 # Looking at results and sweeping parameters (evaluation layer)
 # ---------------------------------------------------------------------------------------
 @app.command()
 def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
-         sample: int = typer.Option(8, help="Queries spread over the traverse to draw."),
-         failures: int = typer.Option(8, help="Most confident wrong matches to draw (needs ground truth)."),
+         sample: int = typer.Option(8, min=0, help="Queries spread over the traverse to draw."),
+         failures: int = typer.Option(8, min=0, help="Most confident wrong matches to draw (needs ground truth)."),
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:
     """Draw the result's pictures (strips query | match | a true one; plan; map) and write RUN_DIR/report.html."""
+    from placeloc.core.errors import ConfigError
     from placeloc.evaluation.show import ShowError, recall_from_per_query, show_run
 
     _setup_logging(quiet)
@@ -520,7 +639,9 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
         for path in pictures:
             typer.echo(f"picture: {path}")
         if recall_at:
-            ns = [int(n) for n in recall_at.split(",") if n.strip()]
+            ns = [int(n) for n in recall_at.split(",") if n.strip().isdigit() and int(n) >= 1]
+            if len(ns) != len([n for n in recall_at.split(",") if n.strip()]):
+                raise ConfigError(f"--recall-at {recall_at!r}: give whole numbers from 1, separated by commas, e.g. --recall-at 1,5,10")
             for n, (all_q, with_pos) in recall_from_per_query(run_dir, ns).items():
                 fmt = lambda v: "n/a" if v is None else f"{v:.4f}"  # noqa: E731
                 typer.echo(f"recall@{n}: {fmt(all_q)} (all queries), {fmt(with_pos)} (queries with a positive)")
@@ -537,7 +658,7 @@ def sweep(config: Path = ConfigArg,
     """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
     import yaml
 
-    from placeloc.core.config import ConfigError, apply_override
+    from placeloc.core.config import ConfigError, apply_override, read_yaml_file
     from placeloc.core.errors import StageError
     from placeloc.core.images import ImageError
     from placeloc.experiments.sweep import parse_grid, run_sweep
@@ -546,7 +667,7 @@ def sweep(config: Path = ConfigArg,
     try:
         if not config.is_file():
             raise ConfigError(f"config file {config} does not exist")
-        raw = yaml.safe_load(config.read_text()) or {}
+        raw = read_yaml_file(config) or {}
         for item in set or []:
             apply_override(raw, item)
         table = run_sweep(raw, config.resolve().parent, parse_grid(grid), out or Path("runs") / f"{config.stem}-sweep",
@@ -555,3 +676,9 @@ def sweep(config: Path = ConfigArg,
         _fail(exc)
     typer.echo(table.read_text())
     _say_written(table.parent, ("sweep.md", "sweep.csv", "sweep.png"), "one run directory per combination")
+
+
+# Last, after every command is registered: `python -m placeloc.cli show` ran main() before
+# show and sweep (defined below the first such block) existed.
+if __name__ == "__main__":
+    main()

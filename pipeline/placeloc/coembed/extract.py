@@ -4,18 +4,19 @@ Experiment 1 records, per frame, each marker's id and the horizontal image coord
 centre; we do the same with OpenCV's aruco module (``image_values: x``), or keep both
 coordinates (``xy``). Experiment 2 tracks SIFT features through the video by matching each
 frame to the next (Lowe's ratio test, plus a mutual check so a track never forks); a track
-is a feature id. Per-image work (detection) is a module-level function so the executor can
-map it over frames; the chaining of matches into tracks is sequential by nature.
+is a feature id. Per-image work (detection) is a module-level function the engine
+(:mod:`placeloc.core.imagework`) maps over the frames; the chaining of matches into tracks
+is sequential by nature.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import Callable, Iterable
 
 import cv2
 import numpy as np
 
-from placeloc.core.images import read_gray
+from placeloc.core.imagework import ImageWork
 
 
 class ExtractError(ValueError):
@@ -31,29 +32,29 @@ def aruco_dictionary(name: str):  # noqa: ANN201 - an OpenCV object
     return cv2.aruco.getPredefinedDictionary(const)
 
 
-def detect_markers(item: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
-    """(path, dictionary name) -> marker ids (n,) and centres (n, 2) in pixels."""
-    path, dict_name = item
-    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dict_name), cv2.aruco.DetectorParameters())
-    corners, ids, _ = detector.detectMarkers(read_gray(path))
+def marker_arrays(gray: np.ndarray, *, dictionary: str) -> dict[str, np.ndarray]:
+    """The engine's per-image function for ArUco markers: marker ``ids`` (n,) int64 and
+    their ``centres`` (n, 2) in pixels (both ragged)."""
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
+    corners, ids, _ = detector.detectMarkers(gray)
     if ids is None or len(ids) == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 2))
+        return {"ids": np.zeros(0, np.int64), "centres": np.zeros((0, 2))}
     centres = np.array([np.asarray(c).reshape(-1, 2).mean(axis=0) for c in corners], dtype=np.float64)
     ids = np.asarray(ids).ravel().astype(np.int64)
     # A marker id seen twice in one frame is ambiguous (two printed copies): drop it rather than guess.
     uniq, counts = np.unique(ids, return_counts=True)
     keep = np.isin(ids, uniq[counts == 1])
-    return ids[keep], centres[keep]
+    return {"ids": ids[keep], "centres": centres[keep]}
 
 
-def detect_sift(item: tuple[str, int]) -> tuple[np.ndarray, np.ndarray]:
-    """(path, max features) -> keypoint positions (n, 2) and descriptors (n, 128) float32."""
-    path, n_features = item
+def sift_arrays(gray: np.ndarray, *, n_features: int) -> dict[str, np.ndarray]:
+    """The engine's per-image function for SIFT: keypoint positions ``xy`` (n, 2) and
+    ``descriptors`` (n, 128) float32 (both ragged)."""
     sift = cv2.SIFT_create(nfeatures=n_features)
-    kps, desc = sift.detectAndCompute(read_gray(path), None)
+    kps, desc = sift.detectAndCompute(gray, None)
     if desc is None or not kps:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32)
-    return np.array([k.pt for k in kps], np.float32), desc.astype(np.float32)
+        return {"xy": np.zeros((0, 2), np.float32), "descriptors": np.zeros((0, 128), np.float32)}
+    return {"xy": np.array([k.pt for k in kps], np.float32), "descriptors": desc.astype(np.float32)}
 
 
 def _mutual_ratio_matches(d0: np.ndarray, d1: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
@@ -102,19 +103,24 @@ def sift_tracks(per_frame: list[tuple[np.ndarray, np.ndarray]], *, ratio: float,
     return f[keep], k[keep] + id_offset, p[keep]
 
 
-def observations_from_images(paths: list[Path], *, source: str, image_values: str, aruco_dictionary: str, sift_features: int,
-                             sift_ratio: float, sift_min_track: int, sift_id_offset: int,
-                             mapper) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001 - executor map
-    """(step, feature, values) triplets from a frame sequence, by ``source`` (aruco, sift or aruco+sift)."""
+def observations_from_images(n_frames: int, *, source: str, image_values: str, aruco_dictionary: str,
+                             sift_features: int, sift_ratio: float, sift_min_track: int, sift_id_offset: int,
+                             describe: Callable[[ImageWork], Iterable[dict[str, np.ndarray]]],
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(step, feature, values) triplets from a sequence of ``n_frames`` frames, by
+    ``source`` (aruco, sift or aruco+sift). ``describe(work)`` gives each frame's arrays for
+    a per-image work, in frame order (the engine's :class:`placeloc.core.imagework.ImageStream`)."""
     use = [0] if image_values == "x" else [0, 1]
     steps, feats, vals = [], [], []
     if source in ("aruco", "aruco+sift"):
-        for t, (ids, centres) in enumerate(mapper(detect_markers, [(str(p), aruco_dictionary) for p in paths])):
-            steps.append(np.full(len(ids), t))
-            feats.append(ids)
-            vals.append(centres[:, use])
+        markers = ImageWork(fn=marker_arrays, settings={"dictionary": aruco_dictionary}, ragged=("ids", "centres"))
+        for t, frame in enumerate(describe(markers)):
+            steps.append(np.full(len(frame["ids"]), t))
+            feats.append(frame["ids"])
+            vals.append(frame["centres"][:, use])
     if source in ("sift", "aruco+sift"):
-        per_frame = list(mapper(detect_sift, [(str(p), sift_features) for p in paths]))
+        sift = ImageWork(fn=sift_arrays, settings={"n_features": sift_features}, ragged=("xy", "descriptors"))
+        per_frame = [(frame["xy"], frame["descriptors"]) for frame in describe(sift)]
         offset = sift_id_offset if source == "aruco+sift" else 0
         f, k, p = sift_tracks(per_frame, ratio=sift_ratio, min_track=sift_min_track, id_offset=offset)
         steps.append(f)
@@ -122,5 +128,5 @@ def observations_from_images(paths: list[Path], *, source: str, image_values: st
         vals.append(p[:, use])
     s = np.concatenate(steps) if steps else np.zeros(0, np.int64)
     if len(s) == 0:
-        raise ExtractError(f"no {source} observations in {len(paths)} images: check coembed.images and the marker dictionary")
+        raise ExtractError(f"no {source} observations in {n_frames} images: check coembed.images and the marker dictionary")
     return s, np.concatenate(feats), np.vstack(vals)

@@ -11,6 +11,7 @@ inferred from the values.
 from __future__ import annotations
 
 import csv
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,22 +105,39 @@ def from_triplets(steps: np.ndarray, features: np.ndarray, values: np.ndarray) -
 
 
 def _read_numeric_csv(path: str | Path, min_cols: int, what: str) -> tuple[list[str], np.ndarray]:
+    """A header row, then rows of numbers, as many as the header names. A bad row is named
+    by its line in the file (counting the header and blank lines), as an editor shows it."""
     path = Path(path)
     if not path.is_file():
         raise ObservationError(f"{what}: {path} does not exist")
     with path.open(newline="", encoding="utf-8-sig") as fh:  # a BOM is not part of the header
-        header = next(csv.reader(fh), None)
-    if header is None or len(header) < min_cols:
-        raise ObservationError(f"{what}: {path} needs a header row with at least {min_cols} columns")
-    try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
-    except ValueError as exc:
-        raise ObservationError(f"{what}: {path} has a non-numeric or ragged row ({exc})") from exc
-    if data.size == 0:
-        data = np.zeros((0, len(header)))
-    if data.shape[1] != len(header):
-        raise ObservationError(f"{what}: {path} has {data.shape[1]} columns but its header names {len(header)}")
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None or len(header) < min_cols:
+            raise ObservationError(f"{what}: {path} needs a header row with at least {min_cols} columns")
+        values = array("d")  # 8 bytes a number: a list of float rows would take ~6x the memory
+        for row in reader:
+            if not any(field.strip() for field in row) or row[0].lstrip().startswith("#"):
+                continue  # blank lines and comments, as numpy.loadtxt skipped them
+            if len(row) != len(header):
+                raise ObservationError(f"{what}: {path} line {reader.line_num} has {len(row)} fields but the header "
+                                       f"names {len(header)} ({', '.join(h.strip() for h in header)}); fix that line")
+            try:
+                values.extend(float(field) for field in row)
+            except ValueError:
+                bad = next(field for field in row if not _is_number(field))
+                raise ObservationError(f"{what}: {path} line {reader.line_num}: {bad.strip()!r} is not a number; every "
+                                       "field after the header must be one") from None
+    data = np.frombuffer(values, np.float64).reshape(-1, len(header)) if values else np.zeros((0, len(header)))
     return [h.strip() for h in header], data
+
+
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
 
 
 def _ids(col: np.ndarray, path: str | Path, what: str) -> np.ndarray:

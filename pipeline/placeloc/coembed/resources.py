@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from typing import Any, Sequence
 
 from placeloc.core.limits import Need, decode_need
@@ -33,8 +35,11 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
 
 
 def _count_lines(path: Any) -> int:
-    """Rows of a text file (a fast count of newlines; 0 when it cannot be read)."""
+    """Rows of a text file (a fast count of newlines; 0 when it cannot be read or is not a
+    regular file: /dev/zero would never end, a FIFO never open; the reader refuses those)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return 0
         with open(path, "rb") as fh:
             return sum(chunk.count(b"\n") for chunk in iter(lambda: fh.read(1 << 20), b""))
     except (OSError, TypeError):

@@ -69,13 +69,15 @@ def extract(ctx) -> None:  # noqa: ANN001 - StageContext
     else:
         from placeloc.coembed.extract import observations_from_images
         from placeloc.core.images import list_images
+        from placeloc.core.imagework import ImageStream
 
-        paths = list_images(p.images).paths
+        images = list_images(p.images)
+        paths = images.paths
         s, f, v = observations_from_images(
-            paths, source=p.source, image_values=p.image_values, aruco_dictionary=p.aruco_dictionary,
+            len(paths), source=p.source, image_values=p.image_values, aruco_dictionary=p.aruco_dictionary,
             sift_features=p.sift_features, sift_ratio=p.sift_ratio, sift_min_track=p.sift_min_track,
             sift_id_offset=p.sift_id_offset,
-            mapper=lambda fn, items: ctx.progress(ctx.executor.map(fn, items), total=len(items)))
+            describe=lambda work: (frame.arrays for frame in ImageStream(ctx, images, work, desc=f"extract {work.fn.__name__}")))
         obs = from_triplets(s, f, v)
         ctx.out.create_dataset("frames", data=np.array([q.name for q in paths], dtype=object), dtype=h5py.string_dtype())
     if p.intrinsics is not None:

@@ -43,6 +43,16 @@ def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{os.getpid()}")
 
 
+def create_tmp(path: Path) -> int:
+    """Create the temporary file ``path`` afresh and return its descriptor: whatever is at
+    that (predictable) name is removed first, and the file is created exclusively without
+    following a link, so a link planted there cannot send the write elsewhere."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+    return os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+                   0o666)
+
+
 def is_disk_full(exc: BaseException | None, depth: int = 0) -> bool:
     """True for ENOSPC/EDQUOT, also when HDF5 reports it only in its message text or the
     error was wrapped by another exception."""
@@ -97,7 +107,7 @@ class _GuardedFile(io.RawIOBase):
     def __init__(self, path: Path) -> None:
         super().__init__()
         self.path = path
-        self._fh = open(path, "w+b", buffering=0)  # noqa: SIM115 (closed in close())
+        self._fh = open(create_tmp(path), "w+b", buffering=0)  # noqa: SIM115 (closed in close())
         self._pos = 0
         self._pages: dict[int, bytearray] = {}
         self.full: OSError | None = None
@@ -263,7 +273,8 @@ def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -
     path = Path(path)
     tmp = tmp_path_for(path)
     try:
-        with tmp.open(mode, newline=newline) as fh:
+        encoding = None if "b" in mode else "utf-8"
+        with open(create_tmp(tmp), mode, newline=newline, encoding=encoding) as fh:
             yield fh
         os.replace(tmp, path)
     except BaseException as exc:
@@ -331,13 +342,20 @@ def provenance_attrs(stage: str, method: str, version: str, config_yaml: str, co
 
 
 def read_stamp(path: Path) -> str | None:
-    """The stamp of a complete artifact, or None if it is missing or unreadable."""
-    if not path.is_file():
+    """The stamp of a complete artifact, or None if it is missing or unreadable, or is not
+    what placeloc writes: a symbolic link (placeloc renames its artifacts into place, so a
+    link was put there by someone else), or a file with data stored in other files. Such an
+    artifact is never up to date: its stage re-runs and replaces it."""
+    from placeloc.core.safe_io import UnsafeInputError, foreign_storage
+
+    if path.is_symlink() or not path.is_file():
         return None
     try:
         with h5py.File(path, "r") as f:
+            if foreign_storage(f):
+                return None
             stamp = f.attrs.get("stamp")
-    except OSError:
+    except (OSError, UnsafeInputError):
         return None
     return str(stamp) if stamp is not None else None
 
@@ -370,8 +388,11 @@ def describe(path: str | Path) -> str:
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a folder, not an artifact: give one of its .h5 files, e.g. {path / 'extract.h5'}")
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"{path} does not exist")
+    from placeloc.core.safe_io import foreign_storage, input_file
+
+    input_file(path, "placeloc inspect")  # a FIFO or device is refused, not opened (is_hdf5 would wait on a FIFO)
     if not h5py.is_hdf5(path):
         raise ValueError(f"{path} is not an HDF5 file (not a placeloc artifact); give a RUN_DIR/<stage>.h5 file")
     lines: list[str] = []
@@ -403,6 +424,10 @@ def describe(path: str | Path) -> str:
                 lines.append(f"{pad}  @{k} = {_short(v)}")
 
         f.visititems(visit)
+        foreign = foreign_storage(f)
+        if foreign:
+            lines.append("  data stored outside this file (placeloc refuses such a file as input):")
+            lines.extend(f"    {line}" for line in foreign)
         if "config_yaml" in a:
             lines.append("  config:")
             lines.extend("    " + ln for ln in str(a["config_yaml"]).splitlines())

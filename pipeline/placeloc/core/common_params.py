@@ -48,12 +48,36 @@ class GroundTruthParams(Params):
     # 25 m is the VPR-Bench / Berton et al. VPR-methods-evaluation convention for street-level data.
     radius: float = param(25.0, min=0, min_exclusive=True,
                           help="poses: metres within which a reference (or loop closure) is correct")
-    recall_at: tuple[int, ...] = param([1, 5, 10, 20], min=1, help="the N of Recall@N in metrics.json and the "
+    recall_at: tuple[int, ...] = param([1, 5, 10, 20], min=1, min_len=1, help="the N of Recall@N in metrics.json and the "
                                                                    "Recall@N curve")
     # The evaluation kit of the public loop-closure sets (City Centre, New College, Lip6) uses
-    # frame rate x 40 s; 50 frames matches SeqSLAM's own loop-mode exclusion by default.
-    exclude_recent: int = param(50, min=0, help="loop closures: a frame is never a loop candidate for the next this "
-                                                "many frames (pairs closer in time never count)")
+    # frame rate x 40 s; without a frame rate, LOOP_EXCLUSION_FRAMES, cut on short sequences
+    # (loop_exclusion below).
+    exclude_recent: int | None = param(None, min=0, help="loop closures: a frame is never a loop candidate for the next "
+                                       "this many frames, in the method's search (SeqSLAM, retrieval) and in the scoring "
+                                       "alike; null: 50, or a fifth of the frames on sequences shorter than 250 (the run "
+                                       "says which)")
+
+
+# ground_truth.exclude_recent when not set: this many frames, but never more than a fifth of
+# the sequence, so that at least four fifths of its frames can still close a loop (on an
+# 84-frame sequence 50 would leave 34 frames that can, 16 leaves 68).
+LOOP_EXCLUSION_FRAMES = 50
+LOOP_EXCLUSION_SHARE = 5
+
+
+def loop_exclusion(setting: int | None, n_frames: int) -> tuple[int, str]:
+    """The exclusion in frames for a sequence of ``n_frames``, and how it was chosen (one
+    clause for the log and metrics.json)."""
+    if setting is not None:
+        return int(setting), "as set (ground_truth.exclude_recent)"
+    adapted = n_frames // LOOP_EXCLUSION_SHARE
+    if adapted >= LOOP_EXCLUSION_FRAMES:
+        return LOOP_EXCLUSION_FRAMES, f"the default {LOOP_EXCLUSION_FRAMES} frames (ground_truth.exclude_recent: null)"
+    return adapted, (f"a fifth of the {n_frames} frames, as the sequence is shorter than "
+                     f"{LOOP_EXCLUSION_FRAMES * LOOP_EXCLUSION_SHARE} (the default {LOOP_EXCLUSION_FRAMES} would leave "
+                     f"{max(n_frames - LOOP_EXCLUSION_FRAMES, 0)} frames that can close a loop); set "
+                     "ground_truth.exclude_recent to choose")
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import copy
 import glob
 import hashlib
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -27,31 +28,16 @@ import yaml
 from placeloc.core import params as P
 from placeloc.core.common_params import CommonParams
 from placeloc.core.errors import ConfigError  # noqa: F401 - re-exported: placeloc.core.config.ConfigError
+from placeloc.core.safe_io import MAX_YAML_DEPTH, load_yaml  # noqa: F401 - re-exported: the one YAML parser
+from placeloc.core.shared_data import SHARED_PREFIX, resolve_shared
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
 MAX_CONFIG_BYTES = 1 << 20
 
 
-class _NoAliasLoader(yaml.SafeLoader):
-    """SafeLoader that refuses YAML aliases, so a tiny file cannot expand without bound."""
-
-    def compose_node(self, parent: Any, index: Any) -> Any:
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            raise yaml.composer.ComposerError(
-                None, None, f"found alias *{event.anchor}: aliases are not allowed in placeloc configs "
-                "(write the value out instead)", event.start_mark)
-        return super().compose_node(parent, index)
-
-
 def safe_yaml(text: str) -> Any:
-    """Parse YAML text with the safe, alias-free loader."""
-    try:
-        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
-    except RecursionError:
-        # The parser recurses once per level of [ or {: thousands of them exhaust Python's stack.
-        raise yaml.YAMLError("nested too deeply (hundreds of levels of [ or {); a config holds a few levels "
-                             "of keys and values: close the brackets") from None
+    """Parse YAML text with :func:`placeloc.core.safe_io.load_yaml` (the older name)."""
+    return load_yaml(text, max_bytes=MAX_CONFIG_BYTES)
 
 
 def read_yaml_file(path: Path, what: str = "config file") -> Any:
@@ -60,12 +46,12 @@ def read_yaml_file(path: Path, what: str = "config file") -> Any:
         raise ConfigError(f"{what} {path} is a folder, not a YAML file: give the path of a .yaml file, e.g. configs/demo.yaml")
     if not path.exists():
         raise ConfigError(f"{what} {path} does not exist: give the path to a YAML preset, e.g. configs/demo.yaml")
+    from placeloc.core.safe_io import UnsafeInputError, read_input_bytes
+
     try:
-        size = path.stat().st_size
-        if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{what} {path} is {size / 1e6:.1f} MB; the limit is {MAX_CONFIG_BYTES / 1e6:.0f} MB "
-                              "(a config holds settings, not data: put data in files and name them)")
-        raw = path.read_bytes()
+        raw = read_input_bytes(path, what, MAX_CONFIG_BYTES)
+    except UnsafeInputError as exc:
+        raise ConfigError(f"{exc} (a config holds settings, not data: put data in files and name them)") from None
     except PermissionError as exc:
         raise ConfigError(f"{what} {path}: permission denied; make it readable (chmod u+r) or copy it") from exc
     try:
@@ -74,7 +60,7 @@ def read_yaml_file(path: Path, what: str = "config file") -> Any:
         raise ConfigError(f"{what} {path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
                           "save it as UTF-8") from exc
     try:
-        return safe_yaml(text)
+        return load_yaml(text, f"{what} {path}")
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from exc
 # Sections a user may leave out entirely (their absence means something).
@@ -109,6 +95,7 @@ def apply_override(data: dict, item: str) -> None:
     if "=" not in item:
         raise ConfigError(f"--set {item!r}: expected key.path=value, e.g. --set seqslam.ds=20")
     key, raw = item.split("=", 1)
+    _check_finite(f"--set {key.strip()}", raw, None)  # text that is not UTF-8, named before YAML's own words for it
     try:
         value = safe_yaml(raw) if raw.strip() else None
     except yaml.YAMLError as exc:
@@ -143,12 +130,14 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     types = {**P.declared_types(CommonParams),
              **{f"{method.name}.{k}": v for k, v in P.declared_types(method.params).items()}}
     nullable = set(P.nullable_keys(CommonParams)) | {f"{method.name}.{k}" for k in P.nullable_keys(method.params)}
+    item_types = {**P.declared_item_types(CommonParams),
+                  **{f"{method.name}.{k}": v for k, v in P.declared_item_types(method.params).items()}}
 
     path_keys = P.path_keys(CommonParams) + tuple(f"{method.name}.{k}" for k in method.path_keys)
 
     query_given = isinstance(data.get("query"), dict) and data["query"].get("images") is not None
     reference_given = isinstance(data.get("reference"), dict) and data["reference"].get("images") is not None
-    config = _merge(schema, data, prefix="", choices=choices, types=types, nullable=nullable)
+    config = _merge(schema, data, prefix="", choices=choices, types=types, nullable=nullable, item_types=item_types)
     config["method"] = method_name
     problems = P.check_bounds(method.params, config[method.name], f"{method.name}.")
     problems += P.check_bounds(CommonParams, config, "")
@@ -203,7 +192,7 @@ def _check_min_max_pairs(section: dict, prefix: str) -> list[str]:
 
 
 def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | None = None,
-           nullable: set[str] | None = None) -> dict:
+           nullable: set[str] | None = None, item_types: dict | None = None) -> dict:
     out = {}
     for key in data:
         if key not in schema:
@@ -223,18 +212,77 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(f"{dotted} must be a mapping (indented keys), not {value!r}")
-            out[key] = _merge(default, value, f"{dotted}.", choices, types, nullable)
+            out[key] = _merge(default, value, f"{dotted}.", choices, types, nullable, item_types)
             continue
         if value is None and nullable and dotted in nullable:
             out[key] = None  # declared ``X | None``: null is one of its values
             continue
+        # The one guard every value passes first: NaN and infinities compare false with every
+        # bound (a range check lets them through) and poison whatever they reach.
+        _check_finite(dotted, value, default)
         if default is None and types and dotted in types:
             out[key] = _check_declared(dotted, value, types[dotted])
         else:
             out[key] = _check_type(dotted, value, default)
+        if item_types and dotted in item_types and isinstance(out[key], list):
+            out[key] = [_check_type(f"{dotted}[{i}]", v, item_types[dotted](0)) for i, v in enumerate(out[key])]
         if dotted in choices and out[key] not in choices[dotted]:
             raise ConfigError(f"{dotted}: {out[key]!r} is not allowed; choose one of {', '.join(map(str, choices[dotted]))}")
     return out
+
+
+# Integers past what a 64-bit array index holds reach numpy as an OverflowError.
+_INT_LIMIT = 2**63 - 1
+
+
+def _non_finite(value: Any) -> float | int | None:
+    """The first NaN, infinity or integer beyond 64 bits in a value (a number, or a list or
+    mapping of them), else None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return value
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > _INT_LIMIT:
+        return value
+    items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+    for item in items:
+        bad = _non_finite(item)
+        if bad is not None:
+            return bad
+    return None
+
+
+def _not_utf8(value: Any) -> str | None:
+    """The first string in a value that is not valid UTF-8 (a ``--set`` argument or a path
+    with bytes the locale could not decode reaches Python as lone surrogates), else None."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return value
+        return None
+    items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+    for item in items:
+        bad = _not_utf8(item)
+        if bad is not None:
+            return bad
+    return None
+
+
+def _check_finite(key: str, value: Any, default: Any) -> None:
+    """Refuse NaN and infinities (``.nan``, ``.inf``, ``-.inf`` in YAML), integers no array
+    index holds, and text that is not valid UTF-8, in any value."""
+    text = _not_utf8(value)
+    if text is not None:
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise ConfigError(f"{key}: '{shown}' is not valid UTF-8 text; rename the file or folder in UTF-8 "
+                          "(e.g. convmv -f latin1 -t utf8 --notest NAME) and give the new name")
+    bad = _non_finite(value)
+    if bad is None:
+        return
+    what = "is not a finite number" if bad is value else f"holds {bad!r}, not a finite number"
+    if isinstance(bad, int):
+        what = "is too large a number" if bad is value else "holds a number too large (beyond 64 bits)"
+    example = f"; e.g. {key}: {default!r}" if default is not None else ""
+    raise ConfigError(f"{key}: {value!r} {what}; every number in a config must be finite and fit 64 bits{example}")
 
 
 _TYPE_WORDS = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
@@ -260,7 +308,8 @@ def _check_declared(key: str, value: Any, allowed: tuple[type, ...]) -> Any:
 
 def _check_type(key: str, value: Any, default: Any) -> Any:
     def fail(kind: str) -> ConfigError:
-        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}); e.g. {key}: {default!r}")
+        hint = P.text_number_hint(value) if kind in ("an integer", "a number") else ""
+        return ConfigError(f"{key} must be {kind}, got {value!r} ({type(value).__name__}){hint}; e.g. {key}: {default!r}")
 
     if default is None or value is None and not isinstance(default, (bool, int, float, list)):
         return value
@@ -304,6 +353,9 @@ def _resolve_path(config: dict, dotted: str, base_dir: Path) -> None:
     if node is None or node.get(leaf) is None:
         return
     value = str(node[leaf])
+    if value.startswith(SHARED_PREFIX):
+        node[leaf] = str(resolve_shared(value, dotted))
+        return
     p = Path(value).expanduser()
     node[leaf] = str(p if p.is_absolute() else (base_dir / p).resolve())
 

@@ -27,7 +27,8 @@ from typing import Any, Callable, Iterable, Iterator
 
 from distributed import Client, LocalCluster
 
-from placeloc.core.config import ConfigError
+from placeloc.core.common_params import ExecutorParams
+from placeloc.core.errors import ConfigError
 from placeloc.core.executor import Describe, Executor, WorkItemError, describe_item, ordered_window
 
 log = logging.getLogger("placeloc")
@@ -104,10 +105,10 @@ def dask_temp_dir() -> Path:
 class DaskExecutor(Executor):
     kind = "dask"
 
-    def __init__(self, section: dict[str, Any]) -> None:
-        self.workers = max(1, int(section.get("workers", 1)))
-        self.retries = max(0, int(section.get("retries", 2)))
-        self.scheduler = str(section.get("scheduler") or "local-cluster")
+    def __init__(self, params: ExecutorParams) -> None:
+        self.workers = max(1, int(params.workers))
+        self.retries = max(0, int(params.retries))
+        self.scheduler = str(params.scheduler or "local-cluster")
         self._cluster: LocalCluster | None = None
         # Dask's INFO chatter (nanny/scheduler lifecycle, set by its own config) would drown
         # placeloc's log in this process; keep its warnings and errors.

@@ -35,6 +35,15 @@ import numpy as np
 Describe = Callable[[Any], str]
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity (``taskset``, a container's
+    cpuset), not the machine's count."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 class WorkItemError(RuntimeError):
     """A work item failed in a worker (after the executor's retries); the message names it."""
 
@@ -102,6 +111,7 @@ class InlineExecutor(Executor):
     """In-process: no copies, no serialisation; exceptions propagate unchanged (with a note)."""
 
     kind = "inline"
+    workers = 1
 
     def map(self, fn: Callable[..., Any], items: Iterable[Any], shared: Any = None,
             describe: Describe | None = None) -> Iterator[Any]:

@@ -7,23 +7,21 @@ neither of those two imports the other: this is the one module that knows both.
 
 from __future__ import annotations
 
-from typing import Any
-
+from placeloc.core.common_params import ExecutorParams
 from placeloc.core.errors import ConfigError
 from placeloc.core.executor import Executor, InlineExecutor, LocalExecutor
 
 
-def make_executor(section: dict[str, Any]) -> Executor:
+def make_executor(params: ExecutorParams) -> Executor:
     """``kind: local`` with one worker runs in this process; more workers, a process pool;
     ``kind: dask``, a Dask client (the optional extra)."""
-    kind = section.get("kind", "local")
-    if kind == "dask":
+    if params.kind == "dask":
         try:
             from placeloc.core.dask_executor import DaskExecutor  # optional extra
         except ImportError as exc:
             raise ConfigError(f"executor.kind: dask is not available ({exc}); "
                               "install it with pip install 'placeloc[dask]' or use executor.kind: local") from exc
 
-        return DaskExecutor(section)
-    workers = int(section.get("workers", 1))
+        return DaskExecutor(params)
+    workers = int(params.workers)
     return InlineExecutor() if workers <= 1 else LocalExecutor(workers)

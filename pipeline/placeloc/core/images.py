@@ -5,11 +5,13 @@ from __future__ import annotations
 import errno
 import glob
 import hashlib
+import io
 import os
 import re
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +19,15 @@ if TYPE_CHECKING:
     import cv2
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+# Image formats placeloc does not read, though a camera, a browser or OpenCV may: their
+# headers are not checked before decoding (the memory estimate needs the size up front), and
+# animated or lossy-web formats are not frames of a traverse. A folder that holds one is
+# listed without it, and a warning names it (synchronous ground truth refuses the folder).
+OTHER_IMAGE_EXTENSIONS = (".webp", ".gif", ".avif", ".heic", ".heif", ".jp2", ".j2k", ".jpx", ".jxl", ".exr", ".hdr",
+                          ".pic", ".pfm", ".pbm", ".pnm", ".pxm", ".sr", ".ras", ".jpe", ".jfif", ".dib", ".ico",
+                          ".svg", ".psd", ".dng", ".cr2", ".nef", ".arw", ".raw")
+# The first bytes of image files, to spot an image under another name ("frame7.png~", "frame8").
+_IMAGE_SIGNATURES = (b"\x89PNG", b"\xff\xd8\xff", b"GIF8", b"BM", b"II*\x00", b"MM\x00*", b"P5", b"P6")
 
 
 class ImageError(RuntimeError):
@@ -39,6 +50,11 @@ class ImageSet:
     paths: list[Path]
     on_error: str = "stop"
     skipped: list[str] = field(default_factory=list)
+    # Files in the folder (or matched by the glob) that are not listed, with the reason:
+    # (name, reason) for images of a format placeloc does not read and files that look like
+    # images under another name; other files (CSV, notes) are in ``others``.
+    not_read: list[tuple[str, str]] = field(default_factory=list)
+    others: list[str] = field(default_factory=list)
     # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
     # "content": a BLAKE2b hash of every file's bytes (reads every image once per run).
     fingerprint_mode: str = "stat"
@@ -86,6 +102,12 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
     p = Path(spec)
     skipped: list[str] = []
 
+    def refuse(message: str) -> bool:
+        if on_error == "skip":
+            skipped.append(message)
+            return False
+        raise ImageError(message)
+
     def usable(path: Path, entry: os.DirEntry | None = None) -> bool:
         """A regular file (or a link to one). A link loop is an error naming the link, or
         skipped (and recorded in the artifact) with on_error: skip."""
@@ -99,22 +121,230 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
             return False
         raise ImageError(message)
 
+    not_read: list[tuple[str, str]] = []
+    others: list[str] = []
+
+    def listed(path: Path, entry: os.DirEntry | None = None) -> bool:
+        """Listed as an image; when not, say why in ``not_read`` (an image placeloc does not
+        read) or ``others`` (not an image)."""
+        if path.suffix.lower() in IMAGE_EXTENSIONS:
+            if not _utf8(path.name):
+                return refuse(f"{path.parent}/{shown_name(path.name)}: the file name is not valid UTF-8 text (its "
+                              "bytes are shown escaped); rename it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest "
+                              "FILE), or set on_error: skip beside images:")
+            return usable(path, entry)
+        reason = _why_not_read(path, entry)
+        if reason is None:
+            others.append(path.name)
+        else:
+            not_read.append((path.name, reason))
+        return False
+
     if p.is_dir():
         try:
             with os.scandir(p) as entries:
-                names = [e.name for e in entries
-                         if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and usable(p / e.name, e)]
+                names = [e.name for e in entries if listed(p / e.name, e)]
         except PermissionError as exc:
             raise ImageError(f"{spec}: the image folder cannot be listed (permission denied); "
                              "make it readable (chmod a+rx)") from exc
         files = [p / n for n in sorted(names, key=natural_key)]
     else:
-        files = sorted((Path(q) for q in glob.glob(spec) if Path(q).suffix.lower() in IMAGE_EXTENSIONS and usable(Path(q))),
-                       key=lambda q: natural_key(q.name))
+        files = sorted((Path(q) for q in glob.glob(spec) if listed(Path(q))), key=lambda q: natural_key(q.name))
+    not_read.sort(key=lambda item: natural_key(item[0]))
     if not files:
-        raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}); "
+        shown = f" (not read: {_first_names(not_read)})" if not_read else ""
+        raise ImageError(f"{spec}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}){shown}; "
                          "point reference.images / query.images at a folder of images")
-    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped)
+    if not_read:
+        _warn_once(spec, not_read)
+    return ImageSet(source=spec, paths=files, on_error=on_error, fingerprint_mode=fingerprint, skipped=skipped,
+                    not_read=not_read, others=sorted(others, key=natural_key))
+
+
+def _utf8(name: str) -> bool:
+    """True when a file name decoded from the file system is valid UTF-8 (Python keeps the
+    bytes of a name that is not as lone surrogates, which no text file, HDF5 string or
+    report can hold)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_name(name: str) -> str:
+    """A file name as printable text: bytes that are not UTF-8 appear as \\xNN."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def _why_not_read(path: Path, entry: os.DirEntry | None) -> str | None:
+    """Why a file that is not listed would matter: an image of another format, or a file that
+    starts like an image under a name without an image extension; None for other files."""
+    ext = path.suffix.lower()
+    if ext in OTHER_IMAGE_EXTENSIONS:
+        return (f"{ext[1:].upper()} is not a format placeloc reads ({', '.join(e[1:] for e in IMAGE_EXTENSIONS)}); "
+                "convert it (e.g. to PNG) or move it out")
+    try:
+        if entry is not None and not entry.is_file():
+            return None  # a folder or a special file: not an image
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError:
+        return None  # the listing only names files; an unreadable non-image is not ours to judge
+    if head.startswith(_IMAGE_SIGNATURES) or (head[:4] == b"RIFF" and head[8:12] == b"WEBP") or head[4:8] == b"ftyp":
+        return "its bytes are an image but its name has no image extension; rename it (e.g. .png) or move it out"
+    return None
+
+
+def _first_names(items: list[tuple[str, str]], n: int = 3) -> str:
+    shown = ", ".join(name for name, _ in items[:n])
+    return shown + (f" and {len(items) - n} more" if len(items) > n else "")
+
+
+# One warning per folder and process: the runner and the ground-truth check list a folder more than once.
+_WARNED: set[tuple[str, tuple[str, ...]]] = set()
+
+
+def _warn_once(spec: str, not_read: list[tuple[str, str]]) -> None:
+    import logging
+
+    key = (spec, tuple(name for name, _ in not_read))
+    if key in _WARNED:
+        return
+    _WARNED.add(key)
+    logging.getLogger("placeloc.images").warning(
+        "%s: %d file(s) not read: %s (%s)", spec, len(not_read), _first_names(not_read), not_read[0][1])
+
+
+def check_position_pairing(reference: ImageSet, query: ImageSet, why: str = "ground_truth.kind: synchronous") -> None:
+    """Refuse two listings that pair by position (query i is reference i) when something
+    shifts the positions: different counts, a file of either folder not listed (an image of a
+    format placeloc does not read, an unreadable entry skipped while listing), or folders
+    that share file names but list them in different places. The message names the first
+    mismatch; pairing the wrong files in silence turns a right answer into a wrong score."""
+    for role, images in (("reference", reference), ("query", query)):
+        if images.not_read:
+            name, reason = images.not_read[0]
+            raise ImageError(f"{role}.images: {name} is not read ({reason}); with {why} every later image would pair "
+                             f"with the wrong one: convert or remove it (from both folders, to keep the pairs)")
+        if images.skipped:
+            raise ImageError(f"{role}.images: {images.skipped[0]} (skipped while listing); with {why} every later image "
+                             "would pair with the wrong one: fix or remove it (from both folders, to keep the pairs)")
+    r, q = reference.names, query.names
+    shared = bool(set(r) & set(q))
+    first = next((i for i, (a, b) in enumerate(zip(r, q)) if a != b), None) if shared else None
+    if len(r) != len(q) or first is not None:
+        where = (f"; the first difference is at position {first}: reference {r[first]} beside query {q[first]}"
+                 if first is not None else "")
+        raise ImageError(f"{why} pairs query i with reference i, but the reference lists {len(r)} images and the query "
+                         f"{len(q)}{where}; give both folders the same frames (or use ground_truth.kind: csv or poses)")
+
+
+# ----------------------------------------------------------------- headers
+
+# Bytes a decode may hold per pixel: OpenCV's unchanged read (up to 4 channels of 16 bits),
+# then the 8-bit, upright and grey/RGB copies made from it.
+DECODE_BYTES_PER_PIXEL = 16
+
+
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """(width, height) from the header of a PNG, JPEG, BMP, PNM, TIFF, WebP or GIF file;
+    None when the format is none of those or the header is damaged (the decoder then
+    reports the file). Nothing is decoded."""
+    # A raw descriptor and one 32-byte read: a buffered file object costs several times the
+    # system calls, and every image of a traverse is checked before extract.
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        head = os.read(fd, 32)
+        size = _simple_size(head)
+        if size is not None:
+            return size
+        if head[:2] == b"\xff\xd8" or _pillow_format(head):
+            with open(fd, "rb", closefd=False) as fh:
+                return _jpeg_size(fh) if head[:2] == b"\xff\xd8" else _pillow_size(fh, head)
+    except (OSError, ValueError, struct.error):
+        return None
+    finally:
+        os.close(fd)
+    return None
+
+
+def image_size_of(data: bytes) -> tuple[int, int] | None:
+    """:func:`image_size` of an encoded image already in memory."""
+    try:
+        size = _simple_size(data[:32])
+        if size is not None:
+            return size
+        if data[:2] == b"\xff\xd8":
+            return _jpeg_size(io.BytesIO(data))
+        if _pillow_format(data[:32]):
+            return _pillow_size(io.BytesIO(data), data[:32])
+    except (OSError, ValueError, struct.error):
+        return None
+    return None
+
+
+def _simple_size(head: bytes) -> tuple[int, int] | None:
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    if head[:2] == b"BM" and len(head) >= 26:
+        w, h = struct.unpack("<ii", head[18:26])
+        return abs(w), abs(h)
+    if head[:2] in (b"P5", b"P6", b"P2", b"P3"):
+        fields = head[2:].split()
+        return (int(fields[0]), int(fields[1])) if len(fields) >= 2 else None
+    return None
+
+
+def _pillow_format(head: bytes) -> str | None:
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        return "TIFF"
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "WEBP"
+    if head[:6] in (b"GIF87a", b"GIF89a"):
+        return "GIF"
+    return None
+
+
+def _pillow_size(fh: Any, head: bytes) -> tuple[int, int] | None:
+    """Pillow's own header parser for the format (its plugin class, which reads the header
+    and none of the pixels; Image.open would also apply its decompression-bomb check, which
+    is placeloc's to make, against the memory there is)."""
+    import warnings
+
+    from PIL import GifImagePlugin, TiffImagePlugin, WebPImagePlugin
+
+    plugin = {"TIFF": TiffImagePlugin.TiffImageFile, "WEBP": WebPImagePlugin.WebPImageFile,
+              "GIF": GifImagePlugin.GifImageFile}[_pillow_format(head) or ""]
+    fh.seek(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            im = plugin(fh)
+        except Exception:  # a damaged header: the decoder reports the file
+            return None
+    return int(im.size[0]), int(im.size[1])
+
+
+def _jpeg_size(fh: Any) -> tuple[int, int] | None:
+    fh.seek(2)
+    for _ in range(10000):
+        marker = fh.read(2)
+        if len(marker) < 2 or marker[0] != 0xFF:
+            return None
+        kind = marker[1]
+        if kind in (0xD8, 0x01) or 0xD0 <= kind <= 0xD7:
+            continue
+        length = struct.unpack(">H", fh.read(2))[0]
+        # SOF0..SOF15 carry the frame size, except DHT (C4), JPG (C8) and DAC (CC).
+        if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
+            _, h, w = struct.unpack(">BHH", fh.read(5))
+            return w, h
+        fh.seek(length - 2, 1)
+    return None
 
 
 def _unreadable(path: str | Path) -> ImageError:
@@ -144,9 +374,29 @@ def os_error_message(path: str | Path, exc: OSError) -> str:
     return f"{path}: cannot be read ({exc.strerror or exc}); check the disk or the file, {fix}"
 
 
+def _open_nonblocking(path: str, flags: int) -> int:
+    return os.open(path, flags | getattr(os, "O_NONBLOCK", 0))
+
+
 def _read_bytes(path: str | Path) -> bytes:
+    """The file's bytes: a regular file (a FIFO or device put in place of an image is
+    refused, not read until it ends) no larger than the memory there is."""
+    import stat
+
+    from placeloc.core.safe_io import memory_budget
+
     try:
-        with open(path, "rb") as fh:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer
+        with open(path, "rb", buffering=0, opener=_open_nonblocking) as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ImageError(f"{path}: is not a regular file (a FIFO or device?); replace it with an image file, "
+                                 "or set on_error: skip beside images:")
+            budget = memory_budget() // 4
+            if st.st_size > budget:
+                raise ImageError(f"{path}: is {st.st_size / 2**20:.0f} MB, more than a quarter of the memory available "
+                                 f"({budget * 4 / 2**20:.0f} MB); resize the images")
+            os.set_blocking(fh.fileno(), True)
             return fh.read()
     except OSError as exc:
         raise ImageError(os_error_message(path, exc)) from exc
@@ -224,6 +474,15 @@ def decode_image(path: str | Path) -> np.ndarray:
     if data[:2] == b"\xff\xd8" and not jpeg_is_complete(data):
         raise ImageError(f"{path}: truncated JPEG (its data ends before the end-of-image marker: a copy or download "
                          "that did not finish); replace it, or set on_error: skip beside images:")
+    size = image_size_of(data)
+    if size is not None:  # the header's size against the memory there is, before any pixel is decoded
+        from placeloc.core.safe_io import memory_budget
+
+        need, budget = size[0] * size[1] * DECODE_BYTES_PER_PIXEL, memory_budget()
+        if need > budget:
+            raise ImageError(f"{path}: its header says {size[0]} x {size[1]} pixels; decoding it needs about "
+                             f"{need / 2**30:.1f} GiB, more than the {budget / 2**30:.1f} GiB available (MemAvailable or "
+                             "PLACELOC_MEMORY_LIMIT_MB); resize the images")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:

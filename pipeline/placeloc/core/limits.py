@@ -8,8 +8,9 @@ the memory available now (``/proc/meminfo`` MemAvailable, or ``PLACELOC_MEMORY_L
 and the free space of the run directory (``PLACELOC_DISK_LIMIT_MB`` caps it for tests),
 and raises :class:`ResourceError` naming the figure, the limit and the key to change.
 
-Image sizes come from the PNG/JPEG/BMP headers (a few bytes per file), never from decoding:
-one 8000x8000 frame would cost seconds and gigabytes before any check could run.
+Image sizes come from the headers (PNG, JPEG, BMP, PNM, TIFF, WebP, GIF: a few bytes per
+file, :func:`placeloc.core.images.image_size`), never from decoding: one 8000x8000 frame
+would cost seconds and gigabytes before any check could run.
 
 The estimates are deliberately rough (within a factor of about two): they exist to stop a
 run that would need ten or a thousand times the machine, not to pack memory tightly.
@@ -20,10 +21,12 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
+
+from placeloc.core.images import image_size
+from placeloc.core.safe_io import mem_available
 
 
 class ResourceError(ValueError):
@@ -45,8 +48,15 @@ def _mb(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
+# The largest size limit taken from the environment: 2**40 MB (an exbibyte), far beyond any
+# machine; a larger figure is a typo (1e308), and turned into bytes it overflows.
+ENV_MEGABYTES_MAX = 2**40
+
+
 def env_megabytes(name: str) -> int | None:
-    """A size limit in MB from the environment variable ``name`` (None when unset)."""
+    """A size limit in MB from the environment variable ``name`` (None when unset or empty).
+    The one parser of placeloc's numeric environment variables: a value that is not a
+    finite number from 0 to :data:`ENV_MEGABYTES_MAX` is refused naming the variable."""
     env = os.environ.get(name, "").strip()
     if not env:
         return None
@@ -57,6 +67,9 @@ def env_megabytes(name: str) -> int | None:
     if not math.isfinite(value) or value < 0:
         raise ResourceError(f"{name}={env!r} is not a number of megabytes; set it to e.g. {name}=4096, or unset it "
                             f"(unset {name})")
+    if value > ENV_MEGABYTES_MAX:
+        raise ResourceError(f"{name}={env!r} is more megabytes than any machine has (at most {ENV_MEGABYTES_MAX}); "
+                            f"set it to e.g. {name}=4096, or unset it (unset {name})")
     return int(value * 2**20)
 
 
@@ -65,13 +78,7 @@ def memory_limit() -> int:
     env = env_megabytes("PLACELOC_MEMORY_LIMIT_MB")
     if env is not None:
         return env
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 1 << 62  # unknown: do not refuse
+    return mem_available()
 
 
 def disk_free(folder: Path) -> int:
@@ -85,53 +92,6 @@ def disk_free(folder: Path) -> int:
 
 
 # ----------------------------------------------------------------- image headers
-
-def image_size(path: str | Path) -> tuple[int, int] | None:
-    """(width, height) from a PNG, JPEG, BMP or PNM header; None when the format is not one
-    of those or the header is damaged (the decoder then reports the file)."""
-    # A raw descriptor and one 32-byte read: a buffered file object costs several times the
-    # system calls, and every image of a traverse is checked before extract.
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return None
-    try:
-        head = os.read(fd, 32)
-        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
-            return struct.unpack(">II", head[16:24])
-        if head[:2] == b"BM" and len(head) >= 26:
-            w, h = struct.unpack("<ii", head[18:26])
-            return abs(w), abs(h)
-        if head[:2] in (b"P5", b"P6", b"P2", b"P3"):
-            fields = head[2:].split()
-            return (int(fields[0]), int(fields[1])) if len(fields) >= 2 else None
-        if head[:2] == b"\xff\xd8":
-            with open(fd, "rb", closefd=False) as fh:
-                return _jpeg_size(fh)
-    except (OSError, ValueError, struct.error):
-        return None
-    finally:
-        os.close(fd)
-    return None
-
-
-def _jpeg_size(fh: Any) -> tuple[int, int] | None:
-    fh.seek(2)
-    for _ in range(10000):
-        marker = fh.read(2)
-        if len(marker) < 2 or marker[0] != 0xFF:
-            return None
-        kind = marker[1]
-        if kind in (0xD8, 0x01) or 0xD0 <= kind <= 0xD7:
-            continue
-        length = struct.unpack(">H", fh.read(2))[0]
-        # SOF0..SOF15 carry the frame size, except DHT (C4), JPG (C8) and DAC (CC).
-        if 0xC0 <= kind <= 0xCF and kind not in (0xC4, 0xC8, 0xCC):
-            _, h, w = struct.unpack(">BHH", fh.read(5))
-            return w, h
-        fh.seek(length - 2, 1)
-    return None
-
 
 def largest_image(images: dict[str, Any]) -> tuple[int, Path | None]:
     """(pixels, path) of the largest image named by the image sets (headers only)."""

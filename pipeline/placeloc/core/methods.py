@@ -50,8 +50,9 @@ class Stage:
 
     ``keys`` are dotted keys of the method's parameters (``"ds"``, ``"ca.tie_tol"``; a
     section name covers the whole section); ``sections`` are common config sections beyond
-    method, seed, reference and query (``"ground_truth"``, ``"plots"``). Changing anything
-    else does not re-run the stage. Images, files named by path parameters and the parent
+    method, seed, reference and query (``"ground_truth"``, ``"plots"``), or one key of one,
+    dotted (``"ground_truth.exclude_recent"``). Changing anything else does not re-run the
+    stage. Images, files named by path parameters and the parent
     artifact are always inputs; a key an earlier stage declares reaches this one through
     the parent's stamp, and a key declared ``affects_result=False`` (block and task sizes)
     needs no declaration. tests/test_stage_keys.py runs every method with a parameter

@@ -126,6 +126,27 @@ def declared_types(cls: type, prefix: str = "") -> dict[str, tuple[type, ...]]:
     return out
 
 
+def declared_item_types(cls: type, prefix: str = "") -> dict[str, type]:
+    """Dotted key -> the type every item must have, for keys whose annotation is a list or
+    tuple of one number type (``tuple[float, float, float] | None`` -> ``float``,
+    ``tuple[int, ...]`` -> ``int``): a string or a bool among the items is refused like a
+    bad scalar, also where the default (null, an empty list) shows no item to compare with."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, type] = {}
+    for f in _fields(cls):
+        if _is_section(f):
+            out.update(declared_item_types(_section_type(cls, f), f"{prefix}{f.name}."))
+            continue
+        hint = hints.get(f.name, Any)
+        args = typing.get_args(hint) if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union else (hint,)
+        for a in args:
+            if typing.get_origin(a) in (list, tuple):
+                items = {t for t in typing.get_args(a) if t is not Ellipsis}
+                if len(items) == 1 and next(iter(items)) in (int, float):
+                    out[f"{prefix}{f.name}"] = next(iter(items))
+    return out
+
+
 def nullable_keys(cls: type, prefix: str = "") -> tuple[str, ...]:
     """Dotted keys whose annotation admits ``None`` (``float | None``): null is a value
     they take (e.g. "not set: use the default rule") even when their default is a number."""
@@ -214,3 +235,17 @@ def check_bounds(cls: type, section_values: dict[str, Any], prefix: str) -> list
                 problems.append(f"{prefix}{key}: {node!r} is out of range; it must be {rng}")
                 break
     return problems
+
+
+def text_number_hint(value: Any) -> str:
+    """For text where a number belongs that reads as one: why it is text. YAML 1.1 (PyYAML)
+    reads ``1e12`` and ``1.0e12`` as strings (a float needs a dot and a signed exponent,
+    ``1.0e+12``), and a quoted ``'10'`` is a string."""
+    if not isinstance(value, str):
+        return ""
+    try:
+        float(value)
+    except ValueError:
+        return ""
+    signed = ", and exponents with a dot and a sign: 1.0e+12" if "e" in value.lower() else ""
+    return f" (YAML read it as text: write the number without quotes{signed})"

@@ -34,7 +34,8 @@ from placeloc.core.artifacts import (
     read_write_id,
     remove_stale_tmp,
 )
-from placeloc.core.config import config_hash, to_yaml
+from placeloc.core.common_params import CommonParams
+from placeloc.core.config import MAX_CONFIG_BYTES, config_hash, to_yaml
 from placeloc.core.errors import RunDirError, StageError  # noqa: F401 - re-exported for callers of placeloc.core.runner
 from placeloc.core.executor import Executor, remove_stale_shared
 from placeloc.core.executors import make_executor
@@ -42,6 +43,8 @@ from placeloc.core.images import IMAGE_EXTENSIONS, ImageSet, list_images
 from placeloc.core.interrupts import raise_if_interrupted
 from placeloc.core.limits import check_inputs, check_resources
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
+from placeloc.core.params import from_section
+from placeloc.core.safe_io import UnsafeInputError, open_run_file, read_run_file
 
 try:
     import fcntl
@@ -75,6 +78,9 @@ class StageContext:
 
     # The method's parameter object (see placeloc.core.params), built once per run.
     params: Any = None
+    # The common sections (reference, query, ground_truth, executor, plots, seed) as the
+    # typed parameter object of placeloc.core.common_params: ctx.common.ground_truth.radius.
+    common: CommonParams | None = None
     # Where side outputs are written while the stage runs (a hidden folder in the run
     # directory); the runner moves them into the run directory together with the artifact,
     # and only when the stage succeeded. None: straight into the run directory.
@@ -137,6 +143,11 @@ class StageContext:
         self._open.clear()
 
 
+def common_params(config: dict[str, Any]) -> CommonParams:
+    """The common sections of a validated config as their typed parameter object."""
+    return from_section(CommonParams, {k: v for k, v in config.items() if v is not None})
+
+
 def normalise_stage(name: str) -> str:
     if name not in STAGES:
         raise StageError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}")
@@ -179,7 +190,7 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     sections = declared.sections if declared is not None else ()
     section = config.get(method.name, {})
     method_part = {k: _lookup(section, k) for k in keys}
-    common = {k: config.get(k) for k in BASE_SECTIONS + tuple(sections)}
+    common = {k: _lookup(config, k) for k in BASE_SECTIONS + tuple(sections)}  # a section, or one key of it (dotted)
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
     if stage == STAGES[0]:
         for role, s in images.items():
@@ -266,7 +277,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
                 check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
-                executor = make_executor(config["executor"])
+                executor = make_executor(common_params(config).executor)
             _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
             parent_stamp = _parent_token(stamp, path)
@@ -327,12 +338,13 @@ def check_run_dir(config: dict[str, Any], run_dir: Path) -> None:
     if not rd.is_dir():
         return
     cfg = rd / "config.yaml"
-    if cfg.is_file():
+    if cfg.is_file() or cfg.is_symlink():
+        # through the run-folder guard: a link (to /dev/zero, to a huge file) is refused, not read
         try:
-            head = cfg.open("r", errors="replace").readline()
+            text = read_run_file(rd, "config.yaml", MAX_CONFIG_BYTES + len(CONFIG_HEADER)).decode("utf-8", "replace")
         except OSError:
-            head = ""
-        if head != CONFIG_HEADER and not _written_by_older_placeloc(cfg):
+            text = ""
+        if not text.startswith(CONFIG_HEADER) and not _written_by_older_placeloc(cfg, text):
             raise RunDirError(f"{cfg} was not written by placeloc; refusing to overwrite it: "
                               "choose another --run-dir (a run directory holds only placeloc's outputs)")
     elif not any(rd.glob("*.h5")):
@@ -369,13 +381,9 @@ def _unwritable(run_dir: Path, exc: OSError) -> RunDirError:
                        "stage is up to date; make it writable (chmod u+w) or choose another --run-dir")
 
 
-def _written_by_older_placeloc(cfg: Path) -> bool:
-    """Run directories from before the header: config.yaml is ours when an artifact beside
-    it carries the same config text."""
-    try:
-        text = cfg.read_text(errors="replace")
-    except OSError:
-        return False
+def _written_by_older_placeloc(cfg: Path, text: str) -> bool:
+    """Run directories from before the header: config.yaml (``text``) is ours when an
+    artifact beside it carries the same config text."""
     for artifact in cfg.parent.glob("*.h5"):
         try:
             with h5py.File(artifact, "r") as f:
@@ -397,9 +405,8 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
     if fcntl is None:
         yield
         return
-    lock_path = run_dir / ".lock"
     try:
-        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_run_file(run_dir, ".lock", os.O_RDWR | os.O_CREAT)  # a link at .lock is refused, not followed
     except OSError as exc:  # read-only file system, or a folder (or .lock) we may not write
         raise _unwritable(run_dir, exc) from None
     try:
@@ -426,11 +433,17 @@ class _BestEffortFileHandler(logging.FileHandler):
     def handleError(self, record: logging.LogRecord) -> None:
         pass
 
+    def _open(self) -> Any:
+        # through the run-folder guard: a symbolic link or FIFO at log.txt is refused, not followed
+        path = Path(self.baseFilename)
+        fd = open_run_file(path.parent, path.name, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+        return os.fdopen(fd, "a", encoding=self.encoding, errors=self.errors)
+
 
 @contextlib.contextmanager
 def run_log(run_dir: Path) -> Iterator[None]:
     """Append this run's log lines (with times) to RUN_DIR/log.txt."""
-    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8", delay=True)
+    handler = _BestEffortFileHandler(run_dir / "log.txt", mode="a", encoding="utf-8")  # opened now: a bad log.txt stops the run
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%dT%H:%M:%S"))
     handler.setLevel(logging.INFO)
     old_level = log.level
@@ -449,7 +462,8 @@ def run_log(run_dir: Path) -> Iterator[None]:
 
 
 def _log_to_file_only(run_dir: Path, line: str) -> None:
-    with contextlib.suppress(OSError), (run_dir / "log.txt").open("a", encoding="utf-8") as fh:
+    with contextlib.suppress(OSError, UnsafeInputError), \
+            os.fdopen(open_run_file(run_dir, "log.txt", os.O_WRONLY | os.O_APPEND | os.O_CREAT), "a", encoding="utf-8") as fh:
         fh.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {line}\n")
 
 
@@ -480,7 +494,7 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
             staging.mkdir()
             ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
                                executor=executor, quiet=quiet, images=images, params=method.build_params(config),
-                               staging=staging)
+                               common=common_params(config), staging=staging)
             before = _run_files(run_dir)
             _run_stage_fn(fn, ctx, run_dir, name)
             f.attrs["seconds"] = time.perf_counter() - t0

@@ -40,14 +40,15 @@ positive. Metrics drop such candidates from a ranking before scoring it.
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any, Sequence
 
-import h5py
 import numpy as np
 
 from placeloc.core.common_params import GroundTruthParams
 from placeloc.core.errors import ConfigError
+from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text
 
 # The shared defaults (one home: placeloc.core.common_params), for callers that pass no config section.
 DEFAULT_RADIUS_M: float = GroundTruthParams().radius
@@ -134,11 +135,11 @@ class GroundTruth:
         """Pairs or ranges, by index or file name, several rows per query (module docstring)."""
         path = Path(path)
         try:
-            with path.open(newline="", encoding="utf-8-sig") as fh:
-                rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
-        except FileNotFoundError:
-            raise GroundTruthError(f"ground_truth.path: {path} does not exist; fix the path") from None
-        except (OSError, UnicodeDecodeError, csv.Error) as exc:
+            text = read_input_text(path, "ground_truth.path")
+            rows = [r for r in csv.reader(io.StringIO(text, newline="")) if any(c.strip() for c in r)]
+        except UnsafeInputError as exc:
+            raise GroundTruthError(str(exc)) from None
+        except (OSError, csv.Error) as exc:
             raise GroundTruthError(f"ground_truth.path: {path} cannot be read as a CSV file ({exc})") from None
         if not rows:
             raise GroundTruthError(f"{path}: empty ground-truth file; write a header 'query,reference' and one row per pair")
@@ -194,16 +195,13 @@ class GroundTruth:
         """A boolean or 0/1 matrix (rows = reference); ``.npz`` as the tutorial's GThard/GTsoft."""
         path = Path(path)
         hard_names, soft_names = ("gt", "GThard", "gt_hard"), ("gt_soft", "GTsoft")
-        arrays: dict[str, np.ndarray] = {}
+        # The matrix is n_ref x n_query: no array of the file may need more than that at 8 bytes
+        # an element, checked from its header before it is read.
+        budget = max(n_ref * n_query * 8, 1 << 16)
         try:
-            if path.suffix.lower() == ".npz":
-                with np.load(path) as z:
-                    arrays = {k: z[k] for k in z.files}
-            else:
-                with h5py.File(path, "r") as f:
-                    arrays = {k: f[k][()] for k in f if isinstance(f[k], h5py.Dataset)}
-        except (OSError, ValueError) as exc:
-            raise GroundTruthError(f"ground_truth.path: {path} cannot be read as HDF5/npz ({exc})") from None
+            arrays = load_arrays(path, "ground_truth.path", budget, kind=".npz" if path.suffix.lower() == ".npz" else ".h5")
+        except UnsafeInputError as exc:
+            raise GroundTruthError(str(exc)) from None
         if not arrays:
             raise GroundTruthError(f"{path}: no dataset found; store the boolean matrix as dataset 'gt'")
         hard_key = next((k for k in hard_names if k in arrays), None)

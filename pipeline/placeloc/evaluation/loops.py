@@ -40,12 +40,14 @@ record; the mean over the last tenth, where the map is largest) with ``map_size_
 
 from __future__ import annotations
 
+import io
 import logging
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from placeloc.core.safe_io import UnsafeInputError, load_arrays, read_input_text
 from placeloc.evaluation.contracts import Field, LoopEvaluation, Result, names_by_index, write_result
 from placeloc.evaluation.ground_truth import GroundTruthError
 
@@ -104,26 +106,21 @@ def read_matrix(path: str | Path, n_frames: int) -> np.ndarray:
     path = Path(path)
     suffix = path.suffix.lower()
     arrays: dict[str, np.ndarray] = {}
+    # the matrix is n_frames x n_frames: no array of the file may need more than that at 8
+    # bytes an element, checked from its header before it is read
+    budget = max(n_frames * n_frames * 8, 1 << 16)
     try:
-        if suffix == ".npy":
-            arrays = {"matrix": np.load(path, allow_pickle=False)}
-        elif suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        elif suffix == ".mat":
-            arrays = _read_mat(path)
+        if suffix in (".npy", ".npz", ".mat", ".h5", ".hdf5"):
+            arrays = load_arrays(path, "ground_truth.path", budget)
+            if "array" in arrays and suffix == ".npy":
+                arrays = {"matrix": arrays.pop("array")}
         elif suffix in (".txt", ".csv"):
             arrays = {"matrix": _read_text_matrix(path)}
-        elif suffix in (".h5", ".hdf5"):
-            import h5py
-
-            with h5py.File(path, "r") as f:
-                arrays = {k: f[k][()] for k in f if isinstance(f[k], h5py.Dataset)}
         else:
             raise GroundTruthError(f"ground_truth.path: {path} is not a loop-closure matrix file; give .npy, .npz, .mat, "
                                    ".txt, .csv or .h5")
-    except FileNotFoundError:
-        raise GroundTruthError(f"ground_truth.path: {path} does not exist; fix the path") from None
+    except UnsafeInputError as exc:
+        raise GroundTruthError(str(exc)) from None
     except (OSError, ValueError) as exc:
         raise GroundTruthError(f"ground_truth.path: {path} cannot be read as a {suffix} matrix "
                                f"({' '.join(str(exc).split())})") from None
@@ -156,22 +153,10 @@ def read_matrix(path: str | Path, n_frames: int) -> np.ndarray:
     return np.tril(m, -1) | np.tril(m.T, -1)
 
 
-def _read_mat(path: Path) -> dict[str, np.ndarray]:
-    try:
-        from scipy.io import loadmat
-
-        return {k: v for k, v in loadmat(path).items() if not k.startswith("__")}
-    except NotImplementedError:  # MATLAB v7.3 files are HDF5; MATLAB stores arrays transposed there
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            return {k: np.asarray(f[k][()]).T for k in f if isinstance(f[k], h5py.Dataset)}
-
-
 def _read_text_matrix(path: Path) -> np.ndarray:
-    text = path.read_text(encoding="utf-8-sig")
+    text = read_input_text(path, "ground_truth.path")
     delimiter = "," if "," in text.split("\n", 1)[0] else None
-    return np.loadtxt(path, delimiter=delimiter, ndmin=2, encoding="utf-8-sig")
+    return np.loadtxt(io.StringIO(text), delimiter=delimiter, ndmin=2)
 
 
 def loop_truth(section: dict[str, Any], names: Sequence[str]) -> Any:
@@ -252,6 +237,7 @@ def score_loops(truth: Any, frames: np.ndarray, match: np.ndarray, *, exclude_re
 
 def evaluate(ctx: Any, res: Result) -> LoopEvaluation:
     """Read the loop-closure ground truth against the listed frames and :func:`score` the result."""
+    from placeloc.core.common_params import LOOP_EXCLUSION_FRAMES, loop_exclusion
     from placeloc.core.errors import StageError
 
     section = ctx.config["ground_truth"]
@@ -262,8 +248,13 @@ def evaluate(ctx: Any, res: Result) -> LoopEvaluation:
     images = ctx.images.get("reference")
     n = len(images.paths) if images is not None else int(res.attrs.get("n_listed", len(res["frame_index"])))
     names = list(images.names) if images is not None else names_by_index(res["frame_index"], res["frame_names"], n)
-    return score(res, loop_truth(section, names), names=names, exclude_recent=int(section["exclude_recent"]),
-                 tolerance=int(section.get("tolerance") or 0))
+    truth = loop_truth(section, names)
+    exclude, exclude_rule = loop_exclusion(section["exclude_recent"], n)
+    (log.info if section["exclude_recent"] is not None or exclude == LOOP_EXCLUSION_FRAMES else log.warning)(
+        "loop closures: pairs fewer than %d frames apart never count: %s", exclude, exclude_rule)
+    ev = score(res, truth, names=names, exclude_recent=exclude, tolerance=int(section.get("tolerance") or 0))
+    ev.metrics["exclude_recent_rule"] = exclude_rule
+    return ev
 
 
 def score(res: Result, truth: Any, *, names: list[str], exclude_recent: int, tolerance: int) -> LoopEvaluation:

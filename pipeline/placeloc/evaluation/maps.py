@@ -16,11 +16,13 @@ features that are not landmarks, after the method's own alignment.
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from placeloc.core.safe_io import read_input_text
 from placeloc.evaluation.contracts import Field, MapEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads (the truth is named by the method's own parameters)
@@ -69,12 +71,12 @@ def read_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
     path = Path(path)
     try:
-        with path.open(newline="") as fh:
-            header = next(csv.reader(fh), None)
+        text = read_input_text(path, "truth points")
+        header = next(csv.reader(io.StringIO(text, newline="")), None)
         if header is None or len(header) < 3:
             raise GroundTruthError(f"truth points: {path} needs a header row feature,x,y[,z]")
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
-    except (OSError, ValueError) as exc:
+        data = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
+    except (OSError, ValueError) as exc:  # UnsafeInputError is a ValueError
         raise GroundTruthError(f"truth points: {path} cannot be read as feature,x,y[,z] rows "
                                f"({' '.join(str(exc).split())})") from None
     if data.size == 0:

@@ -21,6 +21,7 @@ Every problem is a :class:`PoseError` naming the file, the line and the fix.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from placeloc.core.safe_io import UnsafeInputError, read_input_text
 
 KEY_COLUMNS = ("frame", "t", "step", "index", "image", "name", "file", "filename")
 XY_COLUMNS = (("x", "y"), ("easting", "northing"), ("utm_e", "utm_n"))
@@ -115,14 +118,15 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
     """Read a pose CSV (see the module docstring for the columns it understands)."""
     path = Path(path)
     try:
+        if not path.exists():
+            raise PoseError(f"{what}: {path} does not exist; fix the path (relative paths start at the config's folder)")
         # utf-8-sig: a byte-order mark (Excel writes one) is not part of the first column's name
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh)
-            fields = list(reader.fieldnames or [])
-            rows = list(reader)
-    except FileNotFoundError:
-        raise PoseError(f"{what}: {path} does not exist; fix the path (relative paths start at the config's folder)") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        reader = csv.DictReader(io.StringIO(read_input_text(path, what, encoding="utf-8-sig"), newline=""))
+        fields = list(reader.fieldnames or [])
+        rows = list(reader)
+    except UnsafeInputError as exc:
+        raise PoseError(str(exc)) from None
+    except (OSError, csv.Error) as exc:
         raise PoseError(f"{what}: {path} cannot be read as a CSV file ({exc})") from exc
     key_col = _column(fields, KEY_COLUMNS)
     xy_cols = next(((cx, cy) for a, b in XY_COLUMNS if (cx := _column(fields, (a,))) and (cy := _column(fields, (b,)))), None)

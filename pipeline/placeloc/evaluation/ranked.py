@@ -114,7 +114,7 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
     """Build the ground truth in full against the listed images: every problem (format,
     columns, indices or names outside the traverses, matrix shape, missing positions) is
     one error naming the file, row and fix."""
-    from placeloc.core.images import ImageError, list_images
+    from placeloc.core.images import ImageError, check_position_pairing, list_images
     from placeloc.evaluation.ground_truth import GroundTruth
 
     section = config.get("ground_truth") or {}
@@ -125,6 +125,8 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
         query = list_images(config["query"]["images"]) if config.get("query") else None
     except (ImageError, TypeError, KeyError):
         return  # the image check reports this one
+    if section["kind"] == "synchronous" and query is not None:
+        check_position_pairing(ref, query)
     GroundTruth.from_config(section, len(ref), len(query) if query else len(ref), ref_names=ref.names,
                             query_names=query.names if query else None)
 

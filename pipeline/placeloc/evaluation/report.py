@@ -7,14 +7,22 @@ from __future__ import annotations
 import base64
 import html
 import json
+import logging
+import os
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from placeloc.core.artifacts import atomic_open
+from placeloc.core.safe_io import read_run_file
+
+log = logging.getLogger("placeloc")
 
 REPORT = "report.html"
+# placeloc's own pictures are a few MB; a larger PNG in the run folder is not embedded.
+MAX_PICTURE_BYTES = 32 << 20
+MAX_METRICS_BYTES = 16 << 20
 # Pictures first that say most; any other PNG follows in name order.
 ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "map.png", "recall_at_n.png", "pr_curve.png",
          "error_cdf.png", "time_per_frame.png", "difference_matrix.png")
@@ -51,27 +59,92 @@ def _table(rows: list[tuple[str, Any]], head: tuple[str, str]) -> str:
     return f"<table><tr><th>{head[0]}</th><th>{head[1]}</th></tr>{body}</table>"
 
 
-def run_config(run_dir: Path) -> dict[str, Any]:
-    """The config of the newest stage artifact in ``run_dir`` (config.yaml is written only
-    after a run succeeds, so during a stage it may still describe the previous run)."""
+def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
+    """(stage, parent token, config) of the artifacts that form one chain of stamps: the first
+    stage's artifact, then each next stage's as long as it records the stamp of the one
+    before as its parent. An artifact left from an earlier run (its parent re-run since)
+    ends the chain, however recent its modification time. Artifacts are read through the
+    run-folder guard (no symbolic links, regular files only)."""
+    from placeloc.core.stage_names import STAGES
+
+    chain: list[tuple[str, str, dict[str, Any]]] = []
+    for stage in STAGES:
+        attrs = _artifact_attrs(run_dir, f"{stage}.h5")
+        if attrs is None:
+            break
+        stamp, parent = str(attrs.get("stamp") or ""), None
+        try:
+            parent = json.loads(str(attrs.get("inputs") or "{}")).get("parent")
+        except ValueError:
+            break
+        if not stamp or (chain and parent != chain[-1][1]):
+            break
+        cfg = _parse_config(attrs.get("config_yaml"), run_dir / f"{stage}.h5")
+        if cfg is None:
+            break
+        # what a child records of its parent: the stamp and the id of the write (placeloc.core.runner)
+        write_id = attrs.get("write_id")
+        chain.append((stage, stamp if write_id is None else f"{stamp}:{write_id}", cfg))
+    return chain
+
+
+def _artifact_attrs(run_dir: Path, name: str) -> dict[str, Any] | None:
+    return artifact_attrs(run_dir, name, ("stamp", "write_id", "inputs", "config_yaml"))
+
+
+def artifact_attrs(run_dir: Path, name: str, keys: tuple[str, ...]) -> dict[str, Any] | None:
+    """Root attributes ``keys`` of a run folder's artifact (None when absent, a link, not a
+    regular file or not HDF5)."""
     import h5py
 
-    def newest_first(p: Path) -> float:
-        try:
-            return -p.stat().st_mtime
-        except OSError:
-            return 0.0
+    from placeloc.core.safe_io import UnsafeInputError, open_run_file
 
-    for path in sorted(Path(run_dir).glob("*.h5"), key=newest_first):
-        if path.is_file():
-            try:
-                with h5py.File(path, "r") as f:
-                    text = f.attrs.get("config_yaml")
-            except OSError:
-                continue
-            if text:
-                return yaml.safe_load(str(text)) or {}
-    return {}
+    try:
+        fd = open_run_file(run_dir, name, os.O_RDONLY)
+    except (OSError, UnsafeInputError):
+        return None
+    try:
+        with os.fdopen(fd, "rb") as fh, h5py.File(fh, "r") as f:
+            return {k: f.attrs[k] for k in keys if k in f.attrs}
+    except (OSError, ValueError):
+        return None
+
+
+def _parse_config(text: Any, where: Path) -> dict[str, Any] | None:
+    from placeloc.core.safe_io import load_yaml
+
+    if not text:
+        return None
+    try:
+        cfg = load_yaml(str(text), f"the config stamped in {where}")
+    except yaml.YAMLError:
+        return None
+    return cfg if isinstance(cfg, dict) else None
+
+
+def run_config(run_dir: Path) -> dict[str, Any]:
+    """The config of the last artifact of the run folder's chain of stamps
+    (:func:`stamped_configs`); config.yaml is written only after a run succeeds, and a
+    file's modification time says nothing about which run wrote it."""
+    chain = stamped_configs(Path(run_dir))
+    return chain[-1][2] if chain else {}
+
+
+def _picture_bytes(png: Path) -> bytes | None:
+    """A PNG of the run folder to embed: a regular file (a symbolic link, a FIFO or a device
+    named *.png is skipped with a warning, never followed: the report must not carry bytes
+    from outside the run), PNG-signed, at most MAX_PICTURE_BYTES."""
+    from placeloc.core.safe_io import UnsafeInputError
+
+    try:
+        raw = read_run_file(png.parent, png.name, MAX_PICTURE_BYTES)
+    except (OSError, UnsafeInputError) as exc:
+        log.warning("report: %s not embedded (%s)", png, " ".join(str(exc).split()))
+        return None
+    if not raw.startswith(b"\x89PNG\r\n\x1a\n"):
+        log.warning("report: %s not embedded (not a PNG file)", png)
+        return None
+    return raw
 
 
 def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
@@ -101,9 +174,9 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
     metrics: dict[str, Any] = {}
-    metrics_path = next((d / "metrics.json" for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
-    if metrics_path is not None:
-        metrics = json.loads(metrics_path.read_text())
+    metrics_dir = next((d for d in (out_dir, run_dir) if (d / "metrics.json").is_file()), None)
+    if metrics_dir is not None:
+        metrics = json.loads(read_run_file(metrics_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
     method = cfg.get("method", "?")
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title or run_dir.name)}</title>"
              f"<style>{CSS}</style></head><body>",
@@ -141,10 +214,15 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}
     pngs = sorted(found.values(), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
     parts.append("<h2>Pictures</h2>")
+    embedded = 0
     for png in pngs:
-        data = base64.b64encode(png.read_bytes()).decode("ascii")
+        raw = _picture_bytes(png)
+        if raw is None:
+            continue
+        embedded += 1
+        data = base64.b64encode(raw).decode("ascii")
         parts.append(f"<h3>{html.escape(png.name)}</h3><img alt='{html.escape(png.name)}' src='data:image/png;base64,{data}'>")
-    if not pngs:
+    if not embedded:
         parts.append("<p>No pictures in this run directory (plots: false?).</p>")
     parts.append("</body></html>")
     path = out_dir / REPORT

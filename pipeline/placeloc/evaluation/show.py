@@ -12,6 +12,9 @@ ones a threshold would let through first).
 from __future__ import annotations
 
 import csv
+import io
+import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,12 +44,11 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
     per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
-        with per_query.open(newline="") as fh:
-            for r in csv.DictReader(fh):
-                if only_matched and not r["best_image"]:
-                    continue
-                rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
-                                r["positive_image"]))
+        for r in csv.DictReader(_run_text(run_dir, "per_query.csv")):
+            if only_matched and not r["best_image"]:
+                continue
+            rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
+                            r["positive_image"]))
         return rows
     from placeloc.evaluation.contracts import localize_result
 
@@ -65,6 +67,18 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
             continue
         rows.append(Row(qn, name_of.get(int(j), "") if j >= 0 else "", float(c), None, ""))
     return rows
+
+
+# per_query.csv holds one short row per query: 1 GB is millions of queries past any run.
+MAX_TABLE_BYTES = 1 << 30
+
+
+def _run_text(run_dir: Path, name: str) -> io.StringIO:
+    """A CSV of the run folder through the run-folder guard (no link followed, a regular
+    file, bounded), ready for csv.reader."""
+    from placeloc.core.safe_io import read_run_file
+
+    return io.StringIO(read_run_file(run_dir, name, MAX_TABLE_BYTES).decode("utf-8", "replace"), newline="")
 
 
 def _num(text: str) -> float:
@@ -103,9 +117,26 @@ def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
         return np.full((*shape, 3), 235, np.uint8)
 
     try:
-        return read_rgb(path)  # upright (EXIF orientation), as the stages saw it
+        img = read_rgb(path)  # upright (EXIF orientation), as the stages saw it
     except ImageError:
         return np.full((*shape, 3), 200, np.uint8)
+    return shrink(img)
+
+
+# A strip's panel is about 3 inches at the figure's resolution: more pixels add nothing but
+# memory (matplotlib keeps float copies of every image it draws).
+PANEL_PIXELS = 480
+
+
+def shrink(img: np.ndarray, longest: int = PANEL_PIXELS) -> np.ndarray:
+    """``img`` scaled down (area averaging) so its longer side is at most ``longest``."""
+    import cv2
+
+    h, w = img.shape[:2]
+    scale = longest / max(h, w)
+    if scale >= 1:
+        return img
+    return cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
 
 
 def pick_sample(n: int, count: int) -> list[int]:
@@ -238,10 +269,9 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     path = Path(run_dir) / "per_query.csv"
     if not path.is_file():
         raise ShowError(f"{path} is missing: Recall@N needs ground truth; run `placeloc evaluate` first")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
-        rows = list(reader)
+    reader = csv.DictReader(_run_text(Path(run_dir), "per_query.csv"))
+    k = sum(1 for c in reader.fieldnames or [] if c.startswith("correct_"))
+    rows = list(reader)
     first = np.array([int(r["first_correct_rank"]) for r in rows])
     has = np.array([r["has_positive"] == "1" for r in rows])
     out: dict[int, tuple[float | None, float | None]] = {}
@@ -254,29 +284,86 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
     return out
 
 
+SHOW_DIR = "show"
+
+
 def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tuple[list[Path], Path]:
     """The contract's pictures (strips, plan, map) and report.html for a run directory, as
-    ``placeloc show`` does. A file that comes out byte-identical keeps its old modification
-    time, so that re-showing a run does not make the evaluate stage that wrote the same
-    file look out of date."""
-    import json
-    import os
+    ``placeloc show`` does.
 
+    ``show`` is read-only for the pipeline: it never changes a file a stage recorded as its
+    side output (a stage whose recorded file changed re-runs). Everything is drawn into a
+    temporary folder first; then each file goes to the run folder when no stage records
+    that name (or the recorded file is already gone or changed), is dropped when it is
+    byte-identical to the recorded one, and otherwise goes to ``RUN/show/``. Only the stages
+    of the run's chain of stamps count (:func:`placeloc.evaluation.report.stamped_configs`)."""
+    import shutil
+
+    from placeloc.core.artifacts import TMP_MARK
+    from placeloc.core.safe_io import read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
-    from placeloc.evaluation.report import REPORT, write_report
+    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, write_report
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
     if res is None:
         raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
     mod = contract(res.kind)
-    names = [p.name for p in run_dir.glob("*.png")] + [REPORT]
-    before = {n: ((run_dir / n).read_bytes(), (run_dir / n).stat()) for n in names if (run_dir / n).is_file()}
-    pictures = mod.show(run_dir, res, sample=sample, failures=failures)
-    metrics = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").is_file() else None
-    report = write_report(run_dir, **report_parts(res.kind, metrics))
-    for name, (data, st) in before.items():
-        p = run_dir / name
-        if p.is_file() and p.read_bytes() == data:
-            os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
-    return pictures, report
+    staging = run_dir / f".show{TMP_MARK}{os.getpid()}"
+    if staging.is_symlink():  # a predictable name: whatever was planted there goes
+        staging.unlink()
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(mode=0o700)
+    try:
+        drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
+        metrics = None
+        if (run_dir / "metrics.json").is_file():
+            metrics = json.loads(read_run_file(run_dir, "metrics.json", MAX_METRICS_BYTES).decode("utf-8"))
+        write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
+        placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    pictures = [placed[p.name] for p in drawn if p.name in placed]
+    return pictures, placed[REPORT]
+
+
+def recorded_side_outputs(run_dir: Path) -> dict[str, str]:
+    """name -> fingerprint of every side output recorded by the artifacts of the run's
+    chain of stamps (an artifact left from an older run re-runs anyway: its files are not
+    kept from show)."""
+    from placeloc.evaluation.report import artifact_attrs, stamped_configs
+
+    out: dict[str, str] = {}
+    for stage, _, _ in stamped_configs(run_dir):
+        attrs = artifact_attrs(run_dir, f"{stage}.h5", ("side_outputs",)) or {}
+        try:
+            out.update(json.loads(str(attrs.get("side_outputs") or "{}")))
+        except ValueError:
+            continue
+    return out
+
+
+def _fingerprint(path: Path) -> str:
+    """As the runner fingerprints a side output: size and modification time."""
+    st = path.stat()
+    return f"{st.st_size}:{st.st_mtime_ns}"
+
+
+def _place(run_dir: Path, staging: Path, recorded: dict[str, str]) -> dict[str, Path]:
+    """Move what show drew out of ``staging`` (see :func:`show_run`); name -> final path."""
+    placed: dict[str, Path] = {}
+    for new in sorted(staging.iterdir()):
+        target = run_dir / new.name
+        intact = (new.name in recorded and target.is_file() and not target.is_symlink()
+                  and _fingerprint(target) == recorded[new.name])
+        if intact and target.read_bytes() == new.read_bytes():
+            placed[new.name] = target  # what the stage wrote already: leave it (and its time) alone
+            continue
+        if intact:
+            from placeloc.core.safe_io import name_inside
+
+            target = name_inside(run_dir, SHOW_DIR, "show's folder") / new.name  # a link out of the run is refused
+            target.parent.mkdir(exist_ok=True)
+        os.replace(new, target)  # a link at the target is replaced, never written through
+        placed[new.name] = target
+    return placed

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 from placeloc.core.artifacts import atomic_open
+from placeloc.core.shared_data import shared_data_dir  # noqa: F401 - the one lookup, re-exported for experiments
 
 
 def _discover() -> dict[str, str]:
@@ -58,13 +58,3 @@ def write_summary(out_dir: Path, runs: dict[str, dict[str, Any]]) -> Path:
     return path
 
 
-def shared_data_dir() -> Path | None:
-    """``../shared/data`` beside the checkout (or $PLACELOC_SHARED_DATA), if present."""
-    env = os.environ.get("PLACELOC_SHARED_DATA")
-    candidates = [Path(env)] if env else []
-    here = Path(__file__).resolve().parents[3]  # the checkout: pipeline/placeloc/experiments/ -> ./
-    candidates += [here.parent / "shared" / "data", Path.cwd().parent / "shared" / "data"]
-    for c in candidates:
-        if c.is_dir():
-            return c
-    return None

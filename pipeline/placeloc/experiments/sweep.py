@@ -20,6 +20,7 @@ import yaml
 
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.config import ConfigError, apply_override, validate
+from placeloc.core.safe_io import load_yaml
 
 log = logging.getLogger("placeloc")
 TABLE_KEYS = ("recall_at_1", "recall_at_5", "recall_at_10", "recall_at_20",
@@ -34,7 +35,13 @@ def parse_grid(items: Sequence[str]) -> list[tuple[str, list[Any]]]:
         if "=" not in item:
             raise ConfigError(f"--grid {item!r}: expected key.path=v1,v2,..., e.g. --grid seqslam.ds=10,20,30")
         key, raw = item.split("=", 1)
-        values = [yaml.safe_load(v) for v in raw.split(",") if v.strip()]
+        try:
+            values = [load_yaml(v, f"--grid {key.strip()} value") for v in raw.split(",") if v.strip()]
+        except yaml.YAMLError as exc:
+            shown = item if len(item) <= 80 else f"{item[:60]}... ({len(item):,} characters)"
+            problem = getattr(exc, "problem", None) or " ".join(str(exc).split())
+            raise ConfigError(f"--grid {shown!r}: a value is not valid YAML ({problem}); e.g. --grid "
+                              f"{key.strip()}=10,20") from None
         if not values:
             raise ConfigError(f"--grid {item!r}: no values after '='")
         grid.append((key.strip(), values))

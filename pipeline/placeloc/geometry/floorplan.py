@@ -53,7 +53,6 @@ hide anything from a camera inside the storey, so they need no faces.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,8 +61,14 @@ import numpy as np
 import yaml
 
 from placeloc.core.errors import ModelError  # noqa: F401 - re-exported: placeloc.geometry.floorplan.ModelError
+from placeloc.core.safe_io import load_json, load_yaml, read_input_text
+from placeloc.geometry.plan_check import check_plan
+from placeloc.geometry.plan_check import number as _finite
 from placeloc.geometry.polygons import on_edge as _on_edge
 from placeloc.geometry.polygons import point_in_polygon
+
+# A wireframe of many thousand segments is a few MB of YAML; aliases and depth stay refused.
+MAX_MODEL_BYTES = 64 << 20
 
 
 @dataclass
@@ -128,12 +133,12 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
-    text = path.read_text()
+    text = read_input_text(path, "model file")
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
+    except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
         raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
     if isinstance(data, dict) and "merger" in data:
         from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
@@ -144,12 +149,14 @@ def load_model(path: str | Path, floor: str | None = None) -> Model:
     if isinstance(data, list):
         data = {"segments": data}
     if not isinstance(data, dict) or "segments" not in data:
-        raise ModelError(f"{path}: expected a list of segments [x0, y0, z0, x1, y1, z1], a mapping with 'segments', "
-                         "or a floor plan with 'outline'")
+        raise ModelError(f"{path}: expected a floor plan with 'rooms:' (a list of {{name, polygon: [[x, y], ...], "
+                         "ceiling_z}}, as in docs/umap.md) or one 'outline:', or a wireframe: a list of segments "
+                         "[x0, y0, z0, x1, y1, z1] or a mapping with 'segments'")
     segs = _rows(data["segments"], 6, path, "segments", "[x0, y0, z0, x1, y1, z1]")
     faces = _rows(data.get("faces") or [], 6, path, "faces", "[x0, y0, x1, y1, z0, z1]")
+    camera_z = data.get("camera_z")
     return Model(segs, faces, source=str(path),
-                 camera_z=float(data["camera_z"]) if isinstance(data.get("camera_z"), (int, float)) else None)
+                 camera_z=None if camera_z is None else _finite(camera_z, str(path), "camera_z", positive=True))
 
 
 def _rows(items: Any, n: int, path: Path, key: str, form: str) -> np.ndarray:
@@ -193,6 +200,9 @@ def _load_obj(path: Path, text: str) -> Model:
             raise ModelError(f"{path}:{ln}: malformed OBJ record {line.strip()!r} ({exc}); fix or remove that line") from exc
     if not segs:
         raise ModelError(f"{path}: no 'l' (line) elements found; the OBJ wireframe needs line segments")
+    bad = [i for i, v in enumerate(verts, 1) if not np.isfinite(v).all()]
+    if bad:
+        raise ModelError(f"{path}: vertex {bad[0]} ({verts[bad[0] - 1]}) is not finite (NaN or infinity); fix the file")
     return Model(np.asarray(segs, float), np.zeros((0, 6)), source=str(path))
 
 
@@ -204,7 +214,9 @@ def _poly(pts: Any, path: str, key: str) -> np.ndarray:
 
 
 def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
-    """Build the wireframe and wall faces of a floor plan (see the module docstring)."""
+    """Build the wireframe and wall faces of a floor plan (see the module docstring); the
+    plan passes :func:`placeloc.geometry.plan_check.check_plan` first."""
+    check_plan(plan, source)
     if "rooms" in plan:
         return rooms_model(plan, source)
     try:

@@ -39,7 +39,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.core.errors import ModelError
+from placeloc.core.safe_io import load_json, name_inside, read_input_text
+from placeloc.geometry.plan_check import check_plan, number, point
 
 
 def _to_world(local: np.ndarray, tr: dict[str, Any], metres: float) -> np.ndarray:
@@ -70,10 +73,10 @@ def floors_of(path: str | Path) -> tuple[list[str], list[str]]:
 
 def _read(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
+        data = load_json(read_input_text(path, "ZInD file"), str(path))
         if not isinstance(data["merger"], dict) or not isinstance(data["scale_meters_per_coordinate"], dict):
             raise TypeError("merger and scale_meters_per_coordinate must be mappings")
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError) as exc:  # ValueError: JSON syntax, depth, not a file
         raise ModelError(f"{path}: not a ZInD zind_data.json with 'merger' and 'scale_meters_per_coordinate' ({exc})") from exc
     return data
 
@@ -112,7 +115,7 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
     data = _read(path)
     merger, scales = data["merger"], data["scale_meters_per_coordinate"]
     floor = _pick_floor(source, sorted(merger), scales, floor)
-    metres = float(scales[floor])
+    metres = number(scales[floor], source, f"scale_meters_per_coordinate[{floor!r}]", positive=True)
     rooms: list[dict[str, Any]] = []
     doors: list[dict[str, Any]] = []
     openings: list[dict[str, Any]] = []
@@ -136,8 +139,11 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                 where = f"{floor}/{cr_name}/{pr_name}/{pano_name}"
                 try:
                     tr = pano["floor_plan_transformation"]
-                    units = float(tr["scale"]) * metres          # metres per local unit (camera height = 1)
-                    cam_h = float(pano.get("camera_height", 1.0))
+                    # scale, rotation, translation and heights: finite, and the lengths above 0
+                    units = number(tr["scale"], source, f"{where} floor_plan_transformation.scale", positive=True) * metres
+                    number(tr["rotation"], source, f"{where} floor_plan_transformation.rotation")
+                    point(tr["translation"], source, f"{where} floor_plan_transformation.translation")
+                    cam_h = number(pano.get("camera_height", 1.0), source, f"{where} camera_height", positive=True)
                     centre = _to_world(np.zeros((1, 2)), tr, metres)[0]
                     primary = bool(pano.get("is_primary", False))
                     panoramas.append({"frame": Path(pano["image_path"]).name, "image_path": pano["image_path"],
@@ -150,8 +156,9 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                     if not layout:
                         continue
                     poly = _to_world(np.asarray(layout["vertices"], float), tr, metres)
+                    ceiling = number(pano["ceiling_height"], source, f"{where} ceiling_height", positive=True)
                     room = {"name": f"{cr_name} ({pano.get('label', '')})".strip(), "polygon": poly.round(4).tolist(),
-                            "floor_z": 0.0, "ceiling_z": round(float(pano["ceiling_height"]) * units, 4)}
+                            "floor_z": 0.0, "ceiling_z": round(ceiling * units, 4)}
                     internal = [_to_world(np.asarray(v, float), tr, metres).round(4).tolist()
                                 for v in (layout.get("internal") or []) if len(v) >= 3]
                     if internal:
@@ -163,6 +170,8 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
                     for a, b, bottom, top in wall_items(layout.get("windows"), f"{where} windows", tr, cam_h, units):
                         windows.append({"from": a, "to": b, "sill": bottom, "top": top})
                     room_done = True
+                except ModelError:
+                    raise
                 except (KeyError, TypeError, ValueError, IndexError) as exc:
                     raise ModelError(f"{source}: {where}: malformed panorama entry ({exc!r})") from exc
     if not rooms:
@@ -170,6 +179,7 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
     plan = {"floor_z": 0.0, "ceiling_z": max(r["ceiling_z"] for r in rooms),
             "camera_z": round(float(np.median([p["z"] for p in panoramas])), 4), "rooms": rooms,
             "doors": doors, "openings": openings, "windows": windows}
+    check_plan(plan, source)  # the plan the importer writes is one the loader accepts: finite, simple, with an area
     return plan, panoramas
 
 
@@ -182,7 +192,9 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
     if floor is None:
         _, calibrated = floors_of(path)
         if len(calibrated) > 1:
-            return {f: _write_floor(path, out / f, f) for f in calibrated}
+            # a floor's key comes from the JSON: it names a folder only as one plain name inside OUT
+            folders = {f: name_inside(out, f, f"{path}: floor key") for f in calibrated}
+            return {f: _write_floor(path, folders[f], f) for f in calibrated}
         if not calibrated:
             _pick_floor(str(path), floors_of(path)[0], {}, None)  # raises with the reason
         floor = calibrated[0]
@@ -192,8 +204,10 @@ def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None)
 def _write_floor(path: str | Path, out: Path, floor: str) -> dict[str, Any]:
     plan, panos = zind_home(path, floor)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "floor_plan.yaml").write_text(yaml.safe_dump(plan, sort_keys=False))
-    with open(out / "poses.csv", "w", newline="") as f:
+    # written under a temporary name and renamed: a link at either name is replaced, not written through
+    with atomic_open(out / "floor_plan.yaml") as f:
+        f.write(yaml.safe_dump(plan, sort_keys=False))
+    with atomic_open(out / "poses.csv", newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "z", "heading_deg", "primary"])
         for p in panos:

@@ -30,6 +30,7 @@ import cv2
 import h5py
 import numpy as np
 
+from placeloc.core.faiss_loader import import_faiss
 from placeloc.pirf.knn import bf_knn2, exact_knn, sq_norms
 
 BACKENDS = ("bruteforce", "flann-auto", "flann-kmeans", "flann-kdtree", "faiss-hnsw", "faiss-ivf")
@@ -37,20 +38,6 @@ BACKENDS = ("bruteforce", "flann-auto", "flann-kmeans", "flann-kdtree", "faiss-h
 BACKEND_KEYS: dict[str, tuple[str, ...]] = {
     "bruteforce": (), "flann-auto": (), "flann-kmeans": ("checks", "kmeans_branching"), "flann-kdtree": ("checks", "kdtree_trees"),
     "faiss-hnsw": ("hnsw_m", "hnsw_ef_construction", "ef_search"), "faiss-ivf": ("ivf_nlist", "ivf_nprobe")}
-
-
-def import_faiss() -> Any:
-    """faiss, with OpenMP's idle threads sleeping instead of spinning (``OMP_WAIT_POLICY``
-    PASSIVE unless set already; it must be set before faiss loads libgomp).
-
-    One frame's m_t is ~100 queries, a few milliseconds. At 481k words, efSearch 24, two
-    threads: 3.4 ms per frame spinning, 3.1 ms sleeping on an idle machine, but 16 ms
-    spinning against 5.3 ms sleeping beside another busy process (one thread: 5.5-6.6 ms).
-    """
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    import faiss
-
-    return faiss
 
 
 class IndexMismatchError(RuntimeError):

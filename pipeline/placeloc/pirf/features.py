@@ -7,8 +7,6 @@ L2 distance equals the Hamming distance.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 
@@ -54,17 +52,12 @@ def extract_frame(item: tuple[str, str, int]) -> tuple[np.ndarray, np.ndarray, n
     return detect(img, kind, n_features)
 
 
-def extract_frame_or_error(item: tuple[str, str, int, bool]) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]] | str:
-    """Like :func:`extract_frame`; with ``skip`` (the item's last field, from ``on_error: skip``)
-    an unreadable image gives its error message instead of raising."""
-    path, kind, n_features, skip = item
-    try:
-        img = read_gray(path)
-    except ImageError as exc:
-        if not skip:
-            raise
-        return str(exc)
-    return detect(img, kind, n_features)
+def frame_arrays(image: np.ndarray, *, kind: str, n_features: int) -> dict[str, np.ndarray]:
+    """The engine's per-image function (:mod:`placeloc.core.imagework`): one greyscale
+    frame -> its keypoints ``xy`` (n, 2), ``response`` (n) and float32 ``descriptors``
+    (n, d), all ragged."""
+    xy, resp, d, _shape = detect(image, kind, n_features)
+    return {"xy": xy, "response": resp, "descriptors": d}
 
 
 def detect(img: np.ndarray, kind: str, n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
@@ -79,10 +72,53 @@ def detect(img: np.ndarray, kind: str, n_features: int) -> tuple[np.ndarray, np.
     return xy, resp, d, (int(img.shape[0]), int(img.shape[1]))
 
 
-def check_sizes(shapes: list[tuple[int, int]], paths: list[Path]) -> None:
-    """All frames of a video must share one size (features are compared across frames)."""
-    first = shapes[0]
-    for s, p in zip(shapes, paths):
-        if s != first:
-            raise ImageError(f"{p}: size {s[1]}x{s[0]} differs from the first frame's {first[1]}x{first[0]} ({paths[0]}); "
-                             "resize the video so every frame has one size")
+# A true loop closure's score (eq. 9) grows with the square of the PIRFs a frame keeps: on
+# the generated omnidirectional video (synth omni, layout small, 120 frames, seeds 0-2) the
+# median score of the correct closures over (median PIRFs a frame)^2 was 1.2e-6 at 120 x 60
+# (27 PIRFs), 1.6e-6 at 240 x 120 (51) and 1.7e-6 at 480 x 240 (84); 1.6e-6 over all nine
+# runs (docs/pirf.md, "Your own video"). Table 1's tau 0.015 is thus the score of a typical
+# true closure from ~95 PIRFs a frame.
+SCORE_PER_PIRF_SQUARED = 1.6e-6
+
+
+def blank_frames_note(role: str, names: list[str], n_features: np.ndarray, kind: str, shown: int = 5) -> str | None:
+    """One line counting and naming the frames where the detector found nothing (None: there
+    are none). Such frames are kept as frames without PIRFs; they cannot close a loop, and
+    the PIRF tracks through them break."""
+    blank = np.flatnonzero(np.asarray(n_features) == 0)
+    if not len(blank):
+        return None
+    listed = ", ".join(names[k] for k in blank[:shown]) + (f" and {len(blank) - shown} more" if len(blank) > shown else "")
+    return (f"{role}: {len(blank)} of {len(n_features)} frames have no {kind} features (blank or featureless: {listed}); "
+            "kept as frames without PIRFs, which match nothing (pirf.blank_frames: stop refuses them instead)")
+
+
+def few_features_note(role: str, n_features: np.ndarray, n_pirfs: np.ndarray, windows: np.ndarray, *, shape: tuple[int, int],
+                      kind: str, n_pmin: int, tau: float) -> str | None:
+    """One line saying why PIRF-nav2 will accept few loop closures on frames this small or
+    plain, with the measured counts and what to change (None unless a true closure at the
+    median PIRF count is expected to score below half of ``tau``: then most fall below it).
+
+    Eq. (2)'s window shrinks while a frame has fewer than n_pmin PIRFs; at 1 every feature
+    matched in the previous frame is a PIRF. And a true closure scores about
+    SCORE_PER_PIRF_SQUARED x PIRFs^2. Frame 0 (no history) and the frames without any
+    feature (:func:`blank_frames_note` names those) are left out of the medians."""
+    seen = np.asarray(n_features)[1:] > 0
+    n_features, n_pirfs, windows = (np.asarray(a)[1:][seen] for a in (n_features, n_pirfs, windows))
+    if not len(n_pirfs):
+        return None
+    pirfs = float(np.median(n_pirfs))
+    expected = SCORE_PER_PIRF_SQUARED * pirfs ** 2
+    if expected >= tau / 2:  # at expected == tau about half the true closures reach tau
+        return None
+    height, width = shape
+    collapsed = int((windows <= 1).sum())
+    window = (f"; the adaptive window fell to 1 in {collapsed} of {len(windows)} frames (fewer PIRFs than pirf.n_pmin "
+              f"{n_pmin})") if pirfs < n_pmin else ""
+    return (f"{role}: frames of {width} x {height} give few features: median {np.median(n_features):.0f} {kind} features "
+            f"and {pirfs:.0f} PIRFs a frame{window}. A true loop closure scores about {SCORE_PER_PIRF_SQUARED:.1e} x "
+            f"PIRFs^2, here {expected:.2g}, far below pirf.tau {tau:g}: most true closures will not be accepted. Give "
+            "frames with more detail (a typical true closure reaches table 1's tau 0.015 from ~95 PIRFs a frame; generated "
+            "omnidirectional frames of 480 x 240 give ~85, from ~490 SIFT features), or set pirf.tau to about "
+            f"{expected / 2:.2g} and check it against ground truth (docs/pirf.md, \"Your own video\")")
+

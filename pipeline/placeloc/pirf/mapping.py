@@ -24,7 +24,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import scipy.sparse as sp
 
-from placeloc.pirf.ann import import_faiss
+from placeloc.core.faiss_loader import import_faiss
 from placeloc.pirf.knn import bf_knn2, sq_norms
 
 

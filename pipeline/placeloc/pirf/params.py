@@ -18,7 +18,10 @@ from placeloc.pirf.features import FEATURE_TYPES
 class PirfParams(Params):
     features: str = param("sift", choices=FEATURE_TYPES, help="local feature type")
     n_features: int = param(1000, min=1, help="features per frame at most")
-    blank_frames: str = param("stop", choices=("stop", "empty"), help="a frame with no features: stop, or keep as empty")
+    # Every real video has frames without features (a blank wall, a tunnel, a lens cap): they
+    # are kept as frames without PIRFs, counted and named in the log and in metrics.json.
+    blank_frames: str = param("empty", choices=("empty", "stop"), help="a frame with no features: keep it as a frame "
+                              "without PIRFs (counted and reported), or stop the run there")
     ratio: float = param(0.7, min=0.0, max=1.0, min_exclusive=True, help="D_surf ratio test (table 1), below 1")
     w_size_default: int = param(3, min=2, help="sliding window size (table 1)")
     w_size_max: int = param(30, min=2, help="largest adaptive window")

@@ -20,21 +20,23 @@ ann.py (indexes), metrics.py, truth.py (poses per frame), tables.py (CSV) and pl
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
 
 from placeloc.core.artifacts import write_tree
 from placeloc.core.config import ConfigError
+from placeloc.core.errors import StageError
 from placeloc.core.images import ImageError, list_images, read_gray
+from placeloc.core.imagework import ImageResult, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import LoopEvaluation
 from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import check_sizes, extract_frame, extract_frame_or_error
+from placeloc.pirf.features import blank_frames_note, extract_frame, few_features_note, frame_arrays
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
 from placeloc.pirf.metrics import (
     accuracy_at_gap,
@@ -66,11 +68,20 @@ def _check(config: dict) -> None:
         raise ConfigError(f"pirf: need w_size_default <= w_size_max, got {p['w_size_default']} and {p['w_size_max']}")
     gt = config["ground_truth"]
     if gt["kind"] not in ("none", "poses", "matrix", "csv"):
-        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius) or a "
-                          f"loop-closure matrix, not {gt['kind']!r}; set ground_truth.kind: poses with ground_truth.path = the "
-                          "reference poses CSV (and pirf.query_poses for the query's), or kind: matrix")
+        raise ConfigError(f"ground_truth.kind: PIRF-nav2's loop closures are scored against poses (with a radius), a "
+                          f"loop-closure matrix or a CSV of pairs, not {gt['kind']!r}; set ground_truth.kind: poses with "
+                          "ground_truth.path = the reference poses CSV (and pirf.query_poses for the query's), kind: matrix "
+                          "or kind: csv")
     if p["query_poses"] is not None and gt["kind"] != "poses":
         raise ConfigError("pirf.query_poses needs the reference poses too: set ground_truth.kind: poses and ground_truth.path")
+    # A PIRF is a feature matched from one frame into the next: one frame gives none.
+    for role in ("reference", "query"):
+        section = config.get(role) or {}
+        if section.get("images"):
+            n = len(list_images(section["images"], section.get("on_error", "stop")))
+            if n < 2:
+                raise ConfigError(f"{role}.images: {section['images']} holds {n} image; PIRF-nav2 matches features from "
+                                  "frame to frame and needs a video of at least 2 frames")
     # Every image needs a pose: check the counts now, not after mapping.
     for role, path in (("reference", gt["path"] if gt["kind"] == "poses" else None), ("query", p["query_poses"])):
         section = config.get(role) or {}
@@ -86,48 +97,34 @@ def _check(config: dict) -> None:
 
 # -- extract --------------------------------------------------------------------------
 def stage_extract(ctx: Any) -> None:
+    """Every frame's features through the engine (:mod:`placeloc.core.imagework`; frames of
+    one size), chained frame by frame into PIRFs by one :class:`PirfTracker` per traverse."""
     p = ctx.params
     ctx.out.attrs["features"] = p.features
-    for role, images in ctx.images.items():
+    work = ImageWork(fn=frame_arrays, settings={"kind": p.features, "n_features": p.n_features},
+                     ragged=("xy", "response", "descriptors"), same_size=True)
+
+    def chain(role: str) -> Callable[[ImageResult], dict[str, np.ndarray]]:
         tracker = PirfTracker(ratio=p.ratio, w_size_default=p.w_size_default, w_size_max=p.w_size_max,
                               n_pmin=p.n_pmin, n_pmax=p.n_pmax)
-        items = [(str(q), p.features, p.n_features, images.on_error == "skip") for q in images.paths]
-        pirfs: list[np.ndarray] = []
-        windows, n_feat, index, shapes, skipped = [], [], [], [], []
-        frames = ctx.progress(ctx.executor.map(extract_frame_or_error, items), total=len(items), desc=f"extract {role}")
-        for i, res in enumerate(frames):
-            if isinstance(res, str):
-                skipped.append(res)
-                log.warning("skipped: %s", res)
-                continue
-            _xy, resp, d, shape = res
-            shapes.append(shape)
-            if shape != shapes[0]:
-                check_sizes(shapes, [images.paths[k] for k in index + [i]])
+
+        def step(frame: ImageResult) -> dict[str, np.ndarray]:
+            d = frame.arrays["descriptors"]
             if len(d) == 0 and p.blank_frames == "stop":
-                raise ImageError(f"{images.paths[i]}: no {p.features} features found (blank or featureless frame); "
+                raise ImageError(f"{frame.path}: no {p.features} features found (blank or featureless frame); "
                                  "remove it, or set pirf.blank_frames: empty to treat it as a frame without PIRFs")
-            pirf, w = tracker.push(d, resp)
-            pirfs.append(pirf)
-            windows.append(w)
-            n_feat.append(len(d))
-            index.append(i)
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        dim = pirfs[-1].shape[1]
-        counts = np.array([len(x) for x in pirfs], np.int64)
-        allp = np.concatenate(pirfs) if counts.sum() else np.zeros((0, dim), np.float32)
-        g = ctx.out.create_group(role)
-        g.attrs["height"], g.attrs["width"] = shapes[0]
-        g.attrs["dim"] = dim
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(items)
-        g.create_dataset("pirfs", data=allp, chunks=(min(max(len(allp), 1), 16384), dim), maxshape=(None, dim))
-        write_tree(g, {"offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-                       "window": np.array(windows, np.int32), "n_features": np.array(n_feat, np.int32),
-                       "index": np.array(index, np.int64)})
-        g.create_dataset("names", data=np.array([images.paths[k].name for k in index], dtype=object), dtype=h5py.string_dtype())
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
+            pirf, w = tracker.push(d, frame.arrays["response"])
+            return {"pirfs": pirf, "window": np.int32(w), "n_features": np.int32(len(d))}
+        return step
+
+    for role, table in extract_images(ctx, work, fold=chain, ragged=("pirfs",)).items():
+        g = ctx.out[role]
+        g.attrs["height"], g.attrs["width"] = table.first_shape
+        g.attrs["dim"] = g["pirfs"].shape[1]
+        blank = blank_frames_note(role, list(table.names), g["n_features"][()], p.features)
+        if blank:
+            log.warning("%s", blank)
+        g.attrs["blank_frames_note"] = blank or ""
 
 
 def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
@@ -145,6 +142,13 @@ def stage_build(ctx: Any) -> None:
     p = ctx.params
     ex = ctx.artifact("extract")
     pirfs, off = _pirfs(ex, "reference")
+    g = ex["reference"]
+    few = few_features_note("reference", g["n_features"][()], np.diff(off), g["window"][()],
+                            shape=(int(g.attrs["height"]), int(g.attrs["width"])), kind=str(ex.attrs["features"]),
+                            n_pmin=p.n_pmin, tau=p.tau)
+    if few:
+        log.warning("%s", few)
+    ctx.out.attrs["few_features_note"] = few or ""
     bar = lambda it: ctx.progress(it, total=len(off) - 1, desc=f"map ({p.update})")  # noqa: E731
     res = map_video(pirfs, off, ratio=p.ratio, n_pmax=p.n_pmax, eps=p.eps, sigma=p.sigma, update=p.update, search=p.map_search,
                     hnsw_m=p.map_hnsw_m, hnsw_ef_construction=p.map_ef_construction, ef_search=p.map_ef_search, progress=bar)
@@ -162,7 +166,7 @@ def stage_build(ctx: Any) -> None:
     ctx.out.attrs["map_search"] = p.map_search
     ctx.out.attrs["features"] = ex.attrs["features"]
     ctx.out.attrs["dictionary_size"] = len(d)
-    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]))
+    ctx.out.create_dataset("dictionary", data=d, chunks=(min(max(len(d), 1), 16384), d.shape[1]), maxshape=(None, d.shape[1]))
     ctx.out.attrs["verify_frames"] = p.verify_frames
     cand = {"frame": lc, "node": lc_node, "matched_node": best[lc], "score": score[lc]}
     write_tree(ctx.out, {**res, "loop_closures": {k: v[keep] for k, v in cand.items()},
@@ -198,7 +202,18 @@ def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_fr
 # -- index ----------------------------------------------------------------------------
 def stage_index(ctx: Any) -> None:
     p = ctx.params
+    if "query" not in ctx.artifact("extract"):
+        # Loop closure alone: the map finds its own closures while it grows; the index of
+        # the finished dictionary serves only a query traverse's m_t.
+        ctx.out.attrs["backend"] = "none"
+        ctx.out.attrs["note"] = "no query traverse configured: no index built (loop closure needs none)"
+        return
     d = ctx.artifact("build-dictionary")["dictionary"][()]
+    if len(d) < 2:
+        ex = ctx.artifact("extract")["reference"]
+        raise StageError(f"{ex.attrs['source']}: the map holds {len(d)} dictionary entries, too few to localize a query "
+                         f"against ({int((ex['n_features'][()] == 0).sum())} of {len(ex['n_features'])} frames have no "
+                         f"features); map a longer or more textured video")
     seed = int(ctx.config["seed"])
     idx = AnnIndex(p.index, d, index_settings(p), seed)
     tuned = None
@@ -217,9 +232,12 @@ def stage_index(ctx: Any) -> None:
 
 def _warn_if_unmet(tuned: dict[str, Any], p: PirfParams, stage: str, sample: str) -> None:
     if not tuned["target_met"]:
-        log.warning("%s: no %s setting up to %s reaches m_t recall %s / Jaccard %s on %s (it gives %.3f / %.3f); "
+        # The targets must hold with 95 % confidence (placeloc.pirf.tuning.meets): a small
+        # sample can agree perfectly and still not show it.
+        log.warning("%s: no %s setting up to %s shows m_t recall %s / Jaccard %s with 95 %% confidence on %s (it "
+                    "gives %.3f / %.3f on %d ratio-test matches, nearest-neighbour recall %.3f on %d neighbours); "
                     "using it anyway", stage, p.index, tuned["value"], p.index_recall, p.index_jaccard, sample,
-                    tuned["mt_recall"], tuned["mt_jaccard"])
+                    tuned["mt_recall"], tuned["mt_jaccard"], tuned["mt_matched"], tuned["nn_recall"], tuned["nn_count"])
 
 
 def _write_tuning(g: Any, tuned: dict[str, Any]) -> None:
@@ -313,7 +331,8 @@ def evaluate_extra(ctx: Any, ev: LoopEvaluation) -> None:
     m_contract = ev.metrics
     q_xy = _xy(ex, "query", p.query_poses, "pirf.query_poses") if r_xy is not None else None
     lc_f, lc_n, lc_s = (build[f"loop_closures/{k}"][()] for k in ("frame", "node", "score"))
-    m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"])}
+    m: dict[str, Any] = {"dictionary_size": int(build.attrs["dictionary_size"]), "update": str(build.attrs["update"]),
+                         "frames_without_features": int((ex["reference/n_features"][()] == 0).sum())}
     # PIRF's own closures (its eps rule) are the contract's accepted ones unless ground_truth.exclude_recent
     # drops some: then both counts are kept, each named for what it counts
     if int(len(lc_f)) != m_contract.get("n_accepted"):
@@ -352,7 +371,8 @@ def evaluate_extra(ctx: Any, ev: LoopEvaluation) -> None:
     for k in ("accuracy_gap0", "accuracy_gap1", "accuracy_gap2", "jaccard_ann_bf", "precision_ann_bf", "recall_ann_bf",
               "mt_seconds_bf", "mt_seconds_ann", "mt_total_seconds_bf", "mt_total_seconds_ann"):
         m[k] = None
-    tunings = {"index_tuned": ctx.artifact("index")["index"].attrs}
+    index_h5 = ctx.artifact("index")
+    tunings = {"index_tuned": index_h5["index"].attrs} if "index" in index_h5 else {}
     if "query_tuning" in loc:
         tunings["index_query_tuned"] = loc["query_tuning"].attrs
     for prefix, tuned in tunings.items():

@@ -17,6 +17,12 @@ def thumbnail_row(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return t / n if n > 0 else t
 
 
+def thumbnail_arrays(image: np.ndarray, *, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The engine's per-image function (:mod:`placeloc.core.imagework`): one grey image ->
+    its ``features`` row (:func:`thumbnail_row`)."""
+    return {"features": thumbnail_row(image, size)}
+
+
 def prepare(rows: np.ndarray, distance: str) -> np.ndarray:
     """Rows as the distance works on them: unit length for cosine."""
     rows = np.ascontiguousarray(rows, np.float32)
@@ -35,7 +41,7 @@ def nearest(reference: np.ndarray, query: np.ndarray, *, k: int, distance: str, 
     ref, qry = prepare(reference, distance), prepare(query, distance)
     kk = min(int(k), len(ref))
     if use_faiss:
-        from placeloc.pirf.ann import import_faiss
+        from placeloc.core.faiss_loader import import_faiss
 
         faiss = import_faiss()
         index = faiss.IndexFlatIP(ref.shape[1]) if distance == "cosine" else faiss.IndexFlatL2(ref.shape[1])
@@ -65,3 +71,33 @@ def nearest(reference: np.ndarray, query: np.ndarray, *, k: int, distance: str, 
         idx = np.pad(idx, ((0, 0), (0, pad)), constant_values=-1)
         score = np.pad(score.astype(np.float32), ((0, 0), (0, pad)), constant_values=np.nan)
     return idx, score.astype(np.float32)
+
+
+def nearest_earlier(rows: np.ndarray, *, exclude_recent: int, distance: str,
+                    block_size: int = 1024) -> tuple[np.ndarray, np.ndarray]:
+    """Loop closure within one sequence: for every row i its nearest row j with
+    ``j <= i - exclude_recent`` (and never i itself): (indices (N,), scores (N,)), scores as
+    :func:`nearest` gives them; -1 / NaN where no row lies that far back. Rows must be
+    :func:`prepare`-d. Exact, in blocks of ``block_size`` rows: memory block_size x N."""
+    rows = prepare(rows, distance)
+    n = len(rows)
+    gap = max(int(exclude_recent), 1)
+    idx = np.full(n, -1, np.int64)
+    score = np.full(n, np.nan, np.float32)
+    sq = (rows * rows).sum(1)
+    for b0 in range(gap, n, block_size):  # rows before ``gap`` have nothing far enough back
+        b1 = min(b0 + block_size, n)
+        q = rows[b0:b1]
+        earlier = rows[: b1 - gap]
+        sim = q @ earlier.T
+        key = -sim if distance == "cosine" else sq[None, : b1 - gap] - 2.0 * sim
+        # row i may use columns 0 .. i - gap only
+        allowed = np.arange(b1 - gap)[None, :] <= (np.arange(b0, b1) - gap)[:, None]
+        key = np.where(allowed, key, np.inf)
+        best = np.argmin(key, axis=1)
+        idx[b0:b1] = best
+        s = sim[np.arange(len(q)), best]
+        if distance == "l2":
+            s = np.sqrt(np.maximum(sq[best] - 2.0 * s + sq[b0:b1], 0))
+        score[b0:b1] = s
+    return idx, score

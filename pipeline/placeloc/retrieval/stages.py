@@ -1,6 +1,7 @@
 """Single-image retrieval on the staged pipeline: extract (thumbnails or one's own
-descriptors) -> localize (each query's nearest reference images) -> the ``ranked``
-contract's evaluate. The standard baseline of visual place recognition (e.g. Berton et
+descriptors) -> localize (each query's nearest reference images; without a query, each
+frame's nearest earlier frame: loop closure) -> the ``ranked`` (or ``loops``) contract's
+evaluate. The standard baseline of visual place recognition (e.g. Berton et
 al., "Deep visual geo-localization benchmark", CVPR 2022, score retrieval by Recall@N)."""
 
 from __future__ import annotations
@@ -11,51 +12,48 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.core.images import ImageError, read_gray
+from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
-from placeloc.evaluation.contracts import RankedEvaluation
+from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
 from placeloc.retrieval.params import RetrievalParams
 
 
 def _check(config: dict) -> None:
+    from placeloc.core.descriptors import check_descriptor_pair
     from placeloc.core.errors import ConfigError
 
     p = config["retrieval"]
+    if not (config.get("query") or {}).get("images"):  # loop mode: the reference against itself
+        if p["descriptors_query"] is not None:
+            raise ConfigError("retrieval.descriptors_query is set but no query.images: without a query, retrieval "
+                              "closes loops within the reference (give descriptors_reference only), or set query.images")
+        return
     if (p["descriptors_reference"] is None) != (p["descriptors_query"] is None):
         raise ConfigError("retrieval: give both descriptors_reference and descriptors_query, or neither (thumbnails)")
+    check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "retrieval.descriptors")
 
 
 def extract(ctx: Any) -> None:
-    """One row per image: a thumbnail, or the brought descriptor."""
+    """One row per image: a thumbnail (through the engine, :mod:`placeloc.core.imagework`),
+    or the brought descriptor."""
     from placeloc.core.descriptors import load_descriptors
-    from placeloc.retrieval.neighbours import thumbnail_row
+    from placeloc.retrieval.neighbours import thumbnail_arrays
 
     p: RetrievalParams = ctx.params
     descriptors = {"reference": p.descriptors_reference, "query": p.descriptors_query}
+    work = ImageWork(fn=thumbnail_arrays, settings={"size": (int(p.thumbnail[0]), int(p.thumbnail[1]))})
     for role, images in ctx.images.items():
-        index: list[int] = []
+        g = ctx.out.create_group(role)
         if descriptors[role] is not None:
             path = descriptors[role]
             rows = load_descriptors(path, len(images.paths), role, key="retrieval.descriptors")
-            index = list(range(len(rows)))
+            g.create_dataset("features", data=np.asarray(rows, np.float32))
+            g.create_dataset("index", data=np.arange(len(rows), dtype=np.int64))
+            g.create_dataset("names", data=np.array(images.names, dtype=object), dtype=h5py.string_dtype())
             source = f"descriptors {Path(path).name}"
         else:
-            kept = []
-            for i, path in enumerate(ctx.progress(images.paths, total=len(images.paths), desc=f"thumbnails {role}")):
-                try:
-                    kept.append(thumbnail_row(read_gray(path), p.thumbnail))
-                    index.append(i)
-                except ImageError:
-                    if images.on_error != "skip":
-                        raise
-            if not kept:
-                raise ImageError(f"{images.source}: no image could be read; check the folder")
-            rows, source = np.stack(kept), f"thumbnails {p.thumbnail[0]}x{p.thumbnail[1]}"
-        g = ctx.out.create_group(role)
-        g.create_dataset("features", data=np.asarray(rows, np.float32))
-        g.create_dataset("index", data=np.asarray(index, np.int64))
-        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
-                         dtype=h5py.string_dtype())
+            write_images(g, ImageStream(ctx, images, work, desc=f"thumbnails {role}"))
+            source = f"thumbnails {p.thumbnail[0]}x{p.thumbnail[1]}"
         g.attrs["source"] = source
         if role == "reference":  # what the rows are, named after their source in every figure
             ctx.out.attrs["features"] = source
@@ -68,6 +66,9 @@ def localize(ctx: Any) -> None:
 
     p: RetrievalParams = ctx.params
     ex = ctx.artifact("extract")
+    if "query" not in ex:
+        _localize_loops(ctx, ex)
+        return
     ref, query = ex["reference/features"][()], ex["query/features"][()]
     use_faiss = p.search == "faiss" or (p.search == "auto" and len(ref) >= p.faiss_from)
     idx, score = nearest(ref, query, k=p.top_k, distance=p.distance, use_faiss=use_faiss, block_size=p.block_size)
@@ -80,7 +81,38 @@ def localize(ctx: Any) -> None:
                  scores=score, confidence=score[:, 0] if higher else -score[:, 0], higher_is_better=higher)
 
 
-def evaluate_extra(ctx: Any, ev: RankedEvaluation) -> None:
+def _localize_loops(ctx: Any, ex: Any) -> None:
+    """Loop mode (no query traverse): every frame against the frames at least
+    ``ground_truth.exclude_recent`` before it (the exclusion the loops contract scores
+    with); its nearest one is the loop closure, its similarity the confidence. Retrieval has
+    no acceptance rule of its own, so no threshold: the PR curve sweeps the confidence."""
+    import time
+
+    from placeloc.core.artifacts import read_strings
+    from placeloc.core.common_params import loop_exclusion
+    from placeloc.evaluation import loops
+    from placeloc.retrieval.neighbours import nearest_earlier
+
+    p: RetrievalParams = ctx.params
+    rows, index = ex["reference/features"][()], ex["reference/index"][()]
+    images = ctx.images.get("reference")
+    exclude, _rule = loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], len(images.paths) if images else len(rows))
+    t0 = time.perf_counter()
+    best, score = nearest_earlier(rows, exclude_recent=exclude, distance=p.distance, block_size=p.block_size)
+    seconds = (time.perf_counter() - t0) / max(len(rows), 1)
+    ctx.out.attrs["search"] = "exact"
+    ctx.out.attrs["exclude_recent"] = exclude
+    found = best >= 0
+    confidence = np.asarray(score if p.distance == "cosine" else -score, np.float32)
+    # frames with nothing far enough back close no loop (match -1); their confidence is
+    # only a finite placeholder below every real one
+    confidence[~found] = float(confidence[found].min()) - 1.0 if found.any() else 0.0
+    loops.write(ctx, frame_index=index, frame_names=read_strings(ex["reference/names"]),
+                match=np.where(found, index[np.clip(best, 0, None)], -1), confidence=confidence, threshold=None,
+                seconds=np.full(len(rows), seconds))
+
+
+def evaluate_extra(ctx: Any, ev: RankedEvaluation | LoopEvaluation) -> None:
     """Name the curve after what was compared (thumbnails or the descriptors' file)."""
     ev.label = f"retrieval, {ctx.artifact('extract').attrs['features']} ({ctx.params.distance})"
     ev.metrics["features"] = ev.label
@@ -90,11 +122,12 @@ METHOD = Method(
     name="retrieval",
     params=RetrievalParams,
     stages={"extract": Stage(extract, keys=("thumbnail", "descriptors_reference", "descriptors_query")),
-            "localize": Stage(localize, keys=("distance", "top_k", "search", "faiss_from"))},
+            "localize": Stage(localize, keys=("distance", "top_k", "search", "faiss_from"),
+                              sections=("ground_truth.exclude_recent",))},
     result="ranked",
+    result_without_query="loops",
     evaluate_extra=evaluate_extra,
     evaluate_keys=("distance",),
-    required_images=("reference", "query"),
     checker=_check,
     citation="single-image nearest-neighbour retrieval, the baseline of visual place recognition (as benchmarked by "
              "G. Berton et al., \"Deep Visual Geo-localization Benchmark\", CVPR 2022)",

@@ -15,7 +15,17 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from placeloc.seqslam.comparisons import difference_block
-from placeloc.seqslam.search import confidence, enhance_t, query_offsets, sequence_search, single_image_best, velocities
+from placeloc.seqslam.search import (
+    REVERSE_COST,
+    SPEED_CHANGE_COST,
+    STOP_COST,
+    confidence,
+    enhance_t,
+    query_offsets,
+    sequence_search,
+    single_image_best,
+    velocities,
+)
 
 # (fn, jobs, shared, describe) -> results in job order; the executor's map has this shape.
 MapBlocks = Callable[..., Iterator[Any]]
@@ -47,10 +57,27 @@ def auto_velocity_scale(n_reference: int, n_query: int) -> float:
 
 
 def search_velocities(v_min: float, v_max: float, v_step: float, v_auto: bool, n_reference: int,
-                      n_query: int) -> np.ndarray:
+                      n_query: int, v_reverse: float = 0.0) -> np.ndarray:
     """The velocities the sequence search tries (scaled by :func:`auto_velocity_scale` with ``v_auto``)."""
-    vels = velocities(v_min, v_max, v_step)
+    vels = velocities(v_min, v_max, v_step, v_reverse)
     return np.round(vels * auto_velocity_scale(n_reference, n_query), 9) if v_auto else vels
+
+
+def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
+    """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
+    columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
+    traverse end, at least the ``before + after + 1`` frames nearest it, which a shifted
+    window (``edges: shift``) uses there. Without those, a last block shorter than a
+    window could not shift its queries' windows and left them unmatched (1056 queries
+    with block_size 1024 and ds 120 left 32), so ``block_size`` changed results."""
+    n_window = before + after + 1
+    spans = []
+    for c0 in range(0, n_q, block):
+        c1 = min(n_q, c0 + block)
+        lo = max(0, min(c0 - before, n_q - n_window))
+        hi = min(n_q, max(c1 + after, n_window))
+        spans.append((c0, c1, lo, hi))
+    return spans
 
 
 def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any = None) -> Iterator[Any]:
@@ -73,6 +100,10 @@ def sequence_match(
     sequence_shape: str,
     edges: str,
     top_k: int,
+    speed_change_cost: float = SPEED_CHANGE_COST,
+    stop_cost: float = STOP_COST,
+    reverse_cost: float = REVERSE_COST,
+    v_reverse: float = 0.0,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
@@ -82,7 +113,9 @@ def sequence_match(
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
-    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. ``exclude_recent`` is for loop closure (``query is ref``): references within that
+    ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
+    ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`). ``exclude_recent``
+    is for loop closure (``query is ref``): references within that
     many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
     raw difference columns ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, lo, et)``
@@ -91,7 +124,7 @@ def sequence_match(
     """
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q)
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q, v_reverse)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
     candidates = np.full((n_q, k), -1, np.int64)
@@ -99,7 +132,7 @@ def sequence_match(
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
 
-    spans = [(c0, min(n_q, c0 + block), max(0, c0 - before), min(n_q, c0 + block + after)) for c0 in range(0, n_q, block)]
+    spans = block_spans(n_q, block, before, after)
     # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
     # enhancement, search and writing stay here, in order.
     jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)
@@ -121,6 +154,7 @@ def sequence_match(
         if on_enhanced is not None:
             on_enhanced(c0, c1, lo, et)
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
-                               shape=sequence_shape, edges=edges)
+                               shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
+                               stop_cost=stop_cost, reverse_cost=reverse_cost)
         candidates[c0:c1], scores[c0:c1] = b, s
     return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)

@@ -31,6 +31,8 @@ class SeqSLAMParams(Params):
                                             "flexible path stand still where the query does")
     v_max: float = param(1.2, min=0.0, min_exclusive=True, help="fastest trajectory slope")
     v_step: float = param(0.1, min=0.0, min_exclusive=True, help="slope step")
+    v_reverse: float = param(0.0, min=0.0, help="flexible: fastest speed backwards (the forward speeds from v_min "
+                                                "mirrored down to -v_reverse); 0: never drives backwards")
     v_auto: bool = param(False, help="scale v_min..v_max (and v_step) by n_reference / n_query, for traverses "
                                       "recorded at different frame rates or speeds")
     sequence_shape: str = param("trajectory", choices=SEQUENCE_SHAPES,
@@ -38,11 +40,15 @@ class SeqSLAMParams(Params):
                                      "velocity cone) or hybrid (cone proposes, trajectories rank), as in OpenSeqSLAM2; "
                                      "flexible (a path of straight segments whose speed may change between them within "
                                      "v_min..v_max, at a cost: follows slow-downs, bursts and, with v_min 0, stops)")
+    speed_change_cost: float = param(1.0, min=0.0, help="flexible: cost of a change of speed, per reference frame by "
+                                                         "which it bends the path over one segment (enhanced z-score units)")
+    stop_cost: float = param(2.0, min=0.0, help="flexible, speeds including 0: cost of standing still, per unit of the "
+                                                "query's own change from frame to frame (about 0 where the query stops)")
+    reverse_cost: float = param(0.5, min=0.0, help="flexible, negative speeds: cost of driving backwards, per frame")
     edges: str = param("skip", choices=("skip", "shift"),
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")
     search: str = param("causal", choices=("causal", "centred"), help="causal (paper: the window ends at the query) or centred (OpenSeqSLAM)")
-    exclude_recent: int = param(50, min=0, help="loop closure only: ignore the last N frames of the same traverse")
     top_k: int = param(10, min=2, help="candidates kept per query (Recall@K)")
     images_per_task: int = param(256, min=1, affects_result=False, help="images per extraction task (bigger amortises process/Dask overhead)")
     block_size: int = param(1024, min=1, affects_result=False, help="query columns per difference-matrix block (bounds memory)")

@@ -24,13 +24,24 @@ import numpy as np
 
 from placeloc.seqslam.l1 import run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
+from placeloc.seqslam.params import SeqSLAMParams
 
 INVALID = np.float32(np.inf)
 
 
-def velocities(v_min: float, v_max: float, v_step: float) -> np.ndarray:
+def velocities(v_min: float, v_max: float, v_step: float, v_reverse: float = 0.0) -> np.ndarray:
+    """Speeds ``v_min..v_max`` in steps of ``v_step`` (reference frames per query frame),
+    ascending; with ``v_reverse`` > 0 also the backward speeds ``-v_reverse..-v_min`` (from
+    ``-v_step`` when ``v_min`` is 0), the forward ones mirrored: a path may back out as
+    slowly as it may crawl forwards."""
     n = int(math.floor((v_max - v_min) / v_step + 1e-9)) + 1
-    return np.round(v_min + v_step * np.arange(n), 9)
+    forward = np.round(v_min + v_step * np.arange(n), 9)
+    if v_reverse <= 0:
+        return forward
+    slowest = max(float(v_min), float(v_step))
+    n_back = int(math.floor((v_reverse - slowest) / v_step + 1e-9)) + 1
+    backward = -np.round(slowest + v_step * np.arange(max(0, n_back)), 9)
+    return np.concatenate([backward[::-1], forward])
 
 
 def query_offsets(ds: int, search: str) -> np.ndarray:
@@ -170,14 +181,15 @@ def _cone_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj:
 # ---------------------------------------------------------------------------------------
 # flexible: a path whose speed may change inside the window (dynamic programming)
 # ---------------------------------------------------------------------------------------
-# Cost of a bend, per reference frame by which it moves the path over one segment:
-# changing speed by dv between two segments of L frames costs SPEED_CHANGE_COST * L * |dv|.
-# Enhanced values are z-scores, so this is in units of one frame's standard deviation.
-# Chosen on nordland-dev frames 1-600 only (docs/seqslam.md, `make seqslam-speed`).
-SPEED_CHANGE_COST = 1.0
-# Cost of standing still, per unit of the query's own change from one frame to the next
-# (:class:`StopModel`): a stopped path is cheap only where the query itself stands still.
-STOP_COST = 2.0
+# The defaults of the path's costs (their home and meaning: SeqSLAMParams). A change of
+# speed by dv between two segments of L frames costs speed_change_cost * L * |dv|;
+# standing still costs stop_cost per unit of the query's own change (:class:`StopModel`),
+# so a stopped path is cheap only where the query itself stands still; driving backwards
+# costs reverse_cost per frame, so a backward path must earn it. Enhanced values are
+# z-scores, so all are in units of one frame's standard deviation.
+SPEED_CHANGE_COST = SeqSLAMParams.speed_change_cost
+STOP_COST = SeqSLAMParams.stop_cost
+REVERSE_COST = SeqSLAMParams.reverse_cost
 # The change between two unrelated z-scored columns, E|X - Y| for independent standard
 # normals (2 / sqrt(pi)): a query frame that changes this much from the one before it is
 # wholly new evidence; one that repeats it, none.
@@ -188,9 +200,9 @@ def segment_length(vels: np.ndarray) -> int:
     """Frames per straight segment of a flexible path: ``round(1 / v_step)``, the shortest
     run over which two neighbouring speeds end a whole reference frame apart (a shorter
     segment could not tell them apart); one segment per side for one speed. Standing
-    still does not count."""
+    still does not count (the gap between it and the slowest speed is no step)."""
     v = np.unique(np.asarray(vels, np.float64))
-    v = v[v > 0]
+    v = v[v != 0]
     if len(v) < 2:
         return 1 << 30
     return max(1, int(round(1.0 / float(np.diff(v).min()))))
@@ -247,7 +259,7 @@ def _l1_envelope(g: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
 
 
 def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, vels: np.ndarray, bend_cost: float,
-                direction: int, stops: StopModel | None, stop_cost: float,
+                direction: int, stops: StopModel | None, stop_cost: float, reverse_cost: float = 0.0,
                 on_first: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray | None:
     """Best path over ``n_frames`` query frames from the anchor ``(T, r)`` onwards
     (``direction`` +1: later queries, higher references; -1: earlier and lower), per first
@@ -257,7 +269,9 @@ def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, 
     segments costs ``bend_cost * |dv|``. Solved from the far end inwards (Viterbi over
     segments) for a chunk of anchors at once; inf where the path would leave the matrix.
     With ``stops`` (velocities that include 0), frames and standing still are scored as
-    :class:`StopModel` says.
+    :class:`StopModel` says. A negative velocity drives backwards (the reference position
+    falls as the query goes on) and pays ``reverse_cost`` for every frame-to-frame step it
+    does so.
     With ``on_first``, the first segment's array of each velocity goes to
     ``on_first(v_index, array)`` (which may overwrite it) instead of being returned."""
     a, b = rows
@@ -278,10 +292,11 @@ def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, 
             o = offs[vi]
             src = quiet
             end = int(o[length]) if h is not None else int(o[length - 1])  # furthest reference step used
-            if end >= nr:
+            if abs(end) >= nr:
                 out[:] = INVALID
             else:
-                lo, hi = (0, nr - end) if direction > 0 else (end, nr)
+                # references whose line stays inside the matrix (it runs from 0 to `end`)
+                lo, hi = (max(0, -end), nr - max(0, end)) if direction > 0 else (max(0, end), nr + min(0, end))
                 part = out[:, lo:hi]
                 f = a + direction * start
                 np.copyto(part, (et if j == 0 else src)[f:f + n, lo:hi])  # the anchor counts in full
@@ -297,6 +312,8 @@ def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, 
                     run = stops.running
                     c = run[f + m:f + m + n] - run[f:f + n] if direction > 0 else run[f:f + n] - run[f - m:f - m + n]
                     part += (stop_cost * c).astype(np.float32)[:, None]
+                if vels[vi] < 0 and reverse_cost > 0:
+                    part += np.float32(reverse_cost * (length if h is not None else length - 1))
                 out[:, hi:] = INVALID
                 out[:, :lo] = INVALID
             if stream:
@@ -308,24 +325,25 @@ def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, 
 
 def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
                      speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
-                     stops: StopModel | None = None) -> np.ndarray:
+                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST) -> np.ndarray:
     """``s[q, r]``: the cheapest path through ``(T, r)`` over the window ``T + t_off``
     whose speed may change every :func:`segment_length` frames, within the velocity bounds
     ``vels``, at ``speed_change_cost`` per frame of bend. With 0 among ``vels`` it may also
     stand still where the query does (:class:`StopModel`, ``stop_cost``); otherwise every
-    frame counts as it is. The window's two halves meet at the anchor:
+    frame counts as it is. Negative ``vels`` let it drive backwards, at ``reverse_cost``
+    per frame. The window's two halves meet at the anchor:
     backward from it (per velocity, relaxed by the cost of a change), then forward from
     it, one velocity at a time, with a change of speed at the anchor costed like any other."""
     a, b = rows
     seg = segment_length(vels)
     vels = np.unique(np.asarray(vels, np.float64))
-    if vels[0] > 0:
+    if not (vels == 0).any():
         stops = None
     elif stops is None:
         stops = StopModel(et)
     bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
     after, before = int(t_off[-1]), int(-t_off[0])
-    back = _chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost))
+    back = _chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost), float(reverse_cost))
     _l1_envelope(back, vels, bend)
     s = np.full((b - a, et.shape[1]), INVALID, np.float32)
 
@@ -333,7 +351,7 @@ def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, v
         fwd += back[vi]
         np.minimum(s, fwd, out=s)
 
-    _chain_side(et, rows, after + 1, seg, vels, bend, +1, stops, float(stop_cost), on_first=take)
+    _chain_side(et, rows, after + 1, seg, vels, bend, +1, stops, float(stop_cost), float(reverse_cost), on_first=take)
     s -= et[a:b]  # the anchor frame was counted by both halves
     return s
 
@@ -414,6 +432,7 @@ def sequence_search(
     edges: str,
     speed_change_cost: float = SPEED_CHANGE_COST,
     stop_cost: float = STOP_COST,
+    reverse_cost: float = REVERSE_COST,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
 
@@ -459,7 +478,7 @@ def sequence_search(
     flexible = None
     if shape == "flexible":
         flexible = {"speed_change_cost": float(speed_change_cost), "stop_cost": float(stop_cost),
-                    "stops": StopModel(et) if float(np.min(vels)) == 0 else None}
+                    "reverse_cost": float(reverse_cost), "stops": StopModel(et) if (np.asarray(vels) == 0).any() else None}
     # Queries whose whole window lies inside the matrix share the offsets: scored in
     # chunks of rows, one thread per core. The few near the ends are skipped or, with
     # edges: shift, scored one by one with the ds + 1 frames nearest them.

@@ -30,11 +30,11 @@ import numpy as np
 
 from placeloc.core.artifacts import read_strings
 from placeloc.core.common_params import GroundTruthParams
-from placeloc.core.images import ImageError
+from placeloc.core.imagework import extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.metrics import dissimilarity_ratios, summarise_ratios
 from placeloc.seqslam import resources as seqslam_resources
-from placeloc.seqslam.features import extract_chunk
+from placeloc.seqslam.features import feature_work
 from placeloc.seqslam.params import SeqSLAMParams
 
 log = logging.getLogger("placeloc")
@@ -47,6 +47,7 @@ PLAIN_RANKING_K = max(GroundTruthParams().recall_at)
 
 def _check(config: dict) -> None:
     from placeloc.core.config import ConfigError
+    from placeloc.core.descriptors import check_descriptor_pair
 
     p = config["seqslam"]
     if p["v_max"] < p["v_min"]:
@@ -57,58 +58,23 @@ def _check(config: dict) -> None:
     if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
         raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
                           "images need descriptors too")
+    check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "seqslam.descriptors")
 
 
 # ---------------------------------------------------------------------------------------
 # extract
 # ---------------------------------------------------------------------------------------
 def extract(ctx: Any) -> None:
-    """Features of every image, appended chunk by chunk to resizable datasets, so the
-    writing process holds one chunk at a time however long the traverse is."""
+    """Features of every image through the engine (:mod:`placeloc.core.imagework`): the
+    ``thumbnails`` and the comparison's ``features``, one row per kept image."""
     p: SeqSLAMParams = ctx.params
     if p.descriptors_reference is not None:
         _extract_descriptors(ctx)
         return
     ctx.out.attrs["comparison"] = p.comparison
-    chunk = int(p.images_per_task)
-    w, h = p.thumbnail
-    settings = {"thumbnail_size": (int(w), int(h)), "comparison": p.comparison, "patch": int(p.patch),
-                "normalisation": p.normalisation, "gaussian_sigma": float(p.gaussian_sigma),
-                "ocm_epsilon": float(p.ocm_epsilon)}
-    for role, images in ctx.images.items():
-        paths = [str(x) for x in images.paths]
-        jobs = [(paths[i:i + chunk], settings, images.on_error) for i in range(0, len(paths), chunk)]
-        g = ctx.out.create_group(role)
-        # Uncompressed: small grey thumbnails of real images shrink little under gzip, and
-        # compressing them was a tenth of extract's time.
-        thumbs = g.create_dataset("thumbnails", shape=(0, h, w), maxshape=(None, h, w), dtype=np.uint8,
-                                  chunks=(min(1024, max(1, len(paths))), h, w))
-        features = None
-        index: list[int] = []
-        skipped: list[str] = []
-        bar = ctx.progress(ctx.executor.map(extract_chunk, jobs), total=len(jobs), desc=f"extract {role}")
-        for c, (f, t, ok, errors) in enumerate(bar):
-            skipped.extend(errors)
-            if not ok:
-                continue
-            if features is None:
-                features = g.create_dataset("features", shape=(0, f.shape[1]), maxshape=(None, f.shape[1]), dtype=f.dtype,
-                                            chunks=(min(1024, max(1, len(paths))), f.shape[1]))
-            n0 = len(index)
-            index.extend(c * chunk + i for i in ok)
-            for dset, arr in ((features, f), (thumbs, t)):
-                dset.resize(len(index), axis=0)
-                dset[n0:] = arr
-        if not index:
-            raise ImageError(f"{images.source}: no image could be read; check the folder")
-        g.create_dataset("names", data=np.array([images.paths[i].name for i in index], dtype=object),
-                         dtype=h5py.string_dtype())
-        g.create_dataset("index", data=np.asarray(index, np.int64))
-        g.attrs["source"] = images.source
-        g.attrs["n_listed"] = len(paths)
-        g.create_dataset("skipped", data=np.array(skipped, dtype=object), dtype=h5py.string_dtype())
-        for msg in skipped:
-            log.warning("skipped: %s", msg)
+    extract_images(ctx, feature_work(thumbnail_size=p.thumbnail, comparison=p.comparison, patch=p.patch,
+                                     normalisation=p.normalisation, gaussian_sigma=p.gaussian_sigma,
+                                     ocm_epsilon=p.ocm_epsilon, images_per_task=int(p.images_per_task)))
 
 
 def _extract_descriptors(ctx: Any) -> None:
@@ -132,6 +98,16 @@ def _extract_descriptors(ctx: Any) -> None:
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
+def _loop_exclusion(ctx: Any) -> int:
+    """ground_truth.exclude_recent for this traverse (adapted to its length when not set),
+    as the loops contract scores it: a frame never matches the frames just before it."""
+    from placeloc.core.common_params import loop_exclusion
+
+    images = ctx.images.get("reference")
+    n = len(images.paths) if images is not None else len(ctx.artifact("extract")["reference/index"])
+    return loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], n)[0]
+
+
 def localize(ctx: Any) -> None:
     """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
     ``loops`` contract (no query: each frame against the earlier ones)."""
@@ -163,7 +139,7 @@ def localize(ctx: Any) -> None:
     plot_e = np.zeros_like(plot_d)
     k_plain = max(int(p.top_k), PLAIN_RANKING_K)
     plain = None if loop_closure else (np.full((n_q, k_plain), -1, np.int64), np.full((n_q, k_plain), np.inf, np.float32))
-    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q)
+    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q, float(p.v_reverse))
 
     def sampled(c0: int, c1: int) -> tuple[slice, np.ndarray]:
         """The picture's columns among queries c0..c1-1: where they go, and where they are in the block."""
@@ -186,13 +162,20 @@ def localize(ctx: Any) -> None:
         if plain is not None:
             plain[0][c0:c1], plain[1][c0:c1] = sequence_search(
                 et, c0 - lo, c1 - lo, int(p.ds), vels, p.search, 0, k_plain, None, lo, shape=p.sequence_shape,
-                edges=p.edges)
+                edges=p.edges, speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                reverse_cost=float(p.reverse_cost))
 
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
-                       exclude_recent=int(p.exclude_recent) if loop_closure else None, block_size=int(p.block_size),
-                       map_blocks=ctx.executor.map, on_difference=store, on_enhanced=keep_enhanced,
+                       speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
+                       reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
+                       exclude_recent=_loop_exclusion(ctx) if loop_closure else None, block_size=int(p.block_size),
+                       # Blocks run in this process: the difference kernel, the enhancement and the
+                       # search are threaded over every usable core already, and a pool worker would
+                       # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
+                       # 3576 references) while its threads compete with ours (docs/architecture.md).
+                       map_blocks=None, on_difference=store, on_enhanced=keep_enhanced,
                        progress=ctx.progress)
     pic = ctx.out.create_group("plot")
     pic.attrs["stride"] = (sr, sq)
@@ -342,7 +325,9 @@ METHOD = Method(
         "extract": Stage(extract, keys=("comparison", "thumbnail", "patch", "normalisation", "gaussian_sigma", "ocm_epsilon",
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
-                                          "search", "sequence_shape", "edges", "exclude_recent", "top_k", "store_difference")),
+                                          "search", "sequence_shape", "edges", "top_k", "store_difference",
+                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse"),
+                          sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",
     result_without_query="loops",

@@ -123,22 +123,47 @@ def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q
             for k in range(c + 1, width):
                 precision[k] += db_close[i, r, c - k + width]
         for k in range(width):
-            rr = recall[k] / n_map if n_map > 0 else 0.0
-            pp = precision[k] / n_q if n_q > 0 else 0.0
-            out[i, k] = 0.5 * (rr + pp)
+            out[i, 0, k] = recall[k] / n_map if n_map > 0 else 0.0
+            out[i, 1, k] = precision[k] / n_q if n_q > 0 else 0.0
 
 
-def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float) -> np.ndarray:
+# how far the chance level may approach 1 (a closeness image covering everything): the
+# chance-corrected halves stay finite
+CHANCE_FLOOR = 1e-3
+
+
+def chance_corrected(value: np.ndarray, chance: np.ndarray) -> np.ndarray:
+    """``(value - chance) / (1 - chance)``: 0 for what a line image placed with no regard to
+    the other earns, 1 for a perfect match (Cohen's kappa form)."""
+    return (value - chance) / np.maximum(1.0 - chance, CHANCE_FLOOR)
+
+
+def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
-    query at every column shift: (P, W) float64 in [0, 1]. ``db`` the undilated packed map
-    line images, ``db_close`` their :func:`closeness` images (P, H, W)."""
+    query at every column shift, pixel by pixel (the reference :func:`chamfer_table` is
+    tested against): (P, W) float64. ``db`` the undilated packed map line images,
+    ``db_close`` their :func:`closeness` images (P, H, W); ``chance``: ``none`` (the plain
+    halves, in [0, 1]), ``area`` (each half corrected for the share of the image the other
+    side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts)."""
     h, w = query.shape
     rows, cols = np.nonzero(query)
-    out = np.zeros((db.shape[0], w))
+    halves = np.zeros((db.shape[0], 2, w))
+    q_close = closeness(query, tau_px).astype(np.float32)
     if db.shape[0]:
         _chamfer_shifts(np.ascontiguousarray(db), np.ascontiguousarray(db_close, np.float32),
-                        closeness(query, tau_px).astype(np.float32), rows.astype(np.int64), cols.astype(np.int64), w, out)
-    return out
+                        q_close, rows.astype(np.int64), cols.astype(np.int64), w, halves)
+    recall, precision = halves[:, 0], halves[:, 1]
+    if chance == "area":
+        # a query pixel anywhere: the map's closeness averaged over the image; a map pixel
+        # anywhere: the query's
+        recall = chance_corrected(recall, np.full((len(db), 1), float(q_close.mean())))
+        precision = chance_corrected(precision, np.asarray(db_close, np.float64).reshape(len(db), -1).mean(axis=1)[:, None])
+    elif chance == "yaw":
+        recall = chance_corrected(recall, recall.mean(axis=1, keepdims=True))
+        precision = chance_corrected(precision, precision.mean(axis=1, keepdims=True))
+    elif chance != "none":
+        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+    return 0.5 * (recall + precision)
 
 
 # ------------------------------------------------------------------ the chamfer score as spectra
@@ -173,20 +198,45 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) ->
     return out
 
 
-def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray) -> np.ndarray:
-    """Chamfer scores (module docstring, rows weighted by ``weights``) of a batch of (N, H, W)
-    query line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at
-    every column shift: (N, P, W) float32, entry (n, p, k) for query n taken at heading
-    k 360 / W at position p. Equal to :func:`chamfer_yaw_scores` with unit weights."""
+def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
+                  chance: str) -> np.ndarray:
+    """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
+    chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
+    line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
+    column shift: (N, P, W) float32, entry (n, p, k) for query n taken at heading k 360 / W
+    at position p. Equal to :func:`chamfer_yaw_scores` with unit weights.
+
+    The chance levels cost nothing extra: a row's mean over all shifts is its zero
+    frequency, so the ``area`` level of the map side is the stored spectra's zero frequency
+    (the weighted closeness summed) and the ``yaw`` level is each half's product at
+    frequency 0; the correction is then a per-(query, position) scale of each half's
+    product and an offset, applied before the one inverse FFT."""
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
     q = queries.astype(np.float32)
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
-    x = np.concatenate([closeness(queries, tau_px), q / nq], axis=1)          # (N, 2H, W)
+    q_close = closeness(queries, tau_px)
+    x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
-    prod = np.matmul(spectra, qs)                                             # (F, P, N)
-    return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
+    if chance == "none":
+        prod = np.matmul(spectra, qs)                                         # (F, P, N)
+        return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
+    recall = np.matmul(spectra[:, :, :h], qs[:, :h])                          # (F, P, N) each half
+    precision = np.matmul(spectra[:, :, h:], qs[:, h:])
+    if chance == "area":
+        area = float(w) * float(np.sum(weights))
+        r_chance = np.broadcast_to((q_close * wr).sum(axis=(1, 2))[None, :] / area, recall.shape[1:])
+        p_chance = np.broadcast_to(spectra[0, :, h:].real.sum(axis=1)[:, None] / area, recall.shape[1:])
+    elif chance == "yaw":
+        r_chance, p_chance = recall[0].real / w, precision[0].real / w
+    else:
+        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+    r_scale = 1.0 / np.maximum(1.0 - r_chance, CHANCE_FLOOR)
+    p_scale = 1.0 / np.maximum(1.0 - p_chance, CHANCE_FLOOR)
+    prod = recall * r_scale.astype(np.float32) + precision * p_scale.astype(np.float32)
+    offset = (r_chance * r_scale + p_chance * p_scale).T                      # (N, P)
+    return (0.5 * (np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1) - offset[:, :, None])).astype(np.float32)
 
 
 def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
@@ -216,14 +266,129 @@ def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_s
 NEIGHBOURS = np.array([[dx, dy] for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy], float)
 
 
-def refine_steps(radius_m: float, step_m: float) -> list[float]:
-    """The steps of a coarse-to-fine local search that ends at ``step_m`` and reaches about
-    ``radius_m`` (halving from the largest power-of-two multiple of ``step_m`` within it):
-    0.15 m / 0.05 m gives 0.1, 0.05 (8 + 8 renders instead of a 7 x 7 grid's 48)."""
-    out = [float(step_m)]
-    while sum(out) + 2 * out[0] <= radius_m + 1e-9:
-        out.insert(0, 2 * out[0])
+def refine_steps(grid_step_m: float, finest_m: float) -> list[float]:
+    """The steps of the local search after the cell stage (:func:`search_panoramas`):
+    halving from a sixth of the grid step (the cell stage samples at a third) while not
+    below ``finest_m``; at least one step."""
+    out = [grid_step_m / 6.0]
+    while out[-1] / 2.0 >= finest_m - 1e-9:
+        out.append(out[-1] / 2.0)
     return out
+
+
+def grid_step(xy: np.ndarray) -> float:
+    """The spacing of a plan grid: the smallest gap between its distinct x or y values."""
+    gaps = [np.diff(np.unique(np.round(xy[:, a], 6))) for a in (0, 1)]
+    gaps = np.concatenate([g[g > 1e-6] for g in gaps]) if len(xy) > 1 else np.zeros(0)
+    return float(gaps.min()) if len(gaps) else 0.25
+
+
+def closeness_batch(lines: np.ndarray, tau_px: float) -> np.ndarray:
+    """:func:`closeness` of (N, H, W) binary images with one distance transform: the images
+    are stacked with ``ceil(tau) + 1`` blank rows between them (beyond tau the closeness is
+    0, so nothing reaches across) and wrapped horizontally. Equal to :func:`closeness`."""
+    lines = np.asarray(lines)
+    n, h, w = lines.shape
+    pad = int(math.ceil(tau_px)) + 1
+    tall = np.zeros((n, h + pad, w + 2 * pad), np.uint8)
+    tall[:, :h, pad:pad + w] = lines
+    tall[:, :h, :pad] = lines[:, :, -pad:]
+    tall[:, :h, pad + w:] = lines[:, :, :pad]
+    tall = tall.reshape(n * (h + pad), w + 2 * pad)
+    if not tall.any():
+        return np.zeros((n, h, w), np.float32)
+    d = cv2.distanceTransform((tall == 0).astype(np.uint8), cv2.DIST_L2, 5)
+    d = d.reshape(n, h + pad, w + 2 * pad)[:, :h, pad:pad + w]
+    return np.maximum(0.0, 1.0 - d / tau_px).astype(np.float32)
+
+
+@njit(cache=True)
+def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
+                       weights: np.ndarray, shifts: np.ndarray, out: np.ndarray, chance_out: np.ndarray) -> None:
+    """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
+    chance levels (chance_out (L, 4): area recall, area precision, yaw recall, yaw precision)."""
+    h, w = imgs.shape[1], imgs.shape[2]
+    wsum = 0.0
+    for r in range(h):
+        wsum += weights[r]
+    q_row_mean = np.zeros(h)
+    q_area = 0.0
+    for r in range(h):
+        acc = 0.0
+        for c in range(w):
+            acc += q_close[r, c]
+        q_row_mean[r] = acc / w
+        q_area += weights[r] * acc
+    q_area /= w * wsum
+    nq = 0.0
+    for m in range(q_rows.shape[0]):
+        nq += weights[q_rows[m]]
+    for i in range(imgs.shape[0]):
+        m_row_mean = np.zeros(h)
+        m_area = 0.0
+        for r in range(h):
+            acc = 0.0
+            for c in range(w):
+                acc += m_close[i, r, c]
+            m_row_mean[r] = acc / w
+            m_area += weights[r] * acc
+        m_area /= w * wsum
+        n_map = 0.0
+        yaw_r = 0.0
+        rec = np.zeros(shifts.shape[1])
+        for r in range(h):
+            wr = weights[r]
+            for c in range(w):
+                if imgs[i, r, c]:
+                    n_map += wr
+                    yaw_r += wr * q_row_mean[r]
+                    for s in range(shifts.shape[1]):
+                        # db column c is query column c + k (shifts lie in 0..w-1: one wrap at most)
+                        cc = c + shifts[i, s]
+                        rec[s] += wr * q_close[r, cc - w if cc >= w else cc]
+        yaw_p = 0.0
+        pre = np.zeros(shifts.shape[1])
+        for m in range(q_rows.shape[0]):
+            r = q_rows[m]
+            c = q_cols[m]
+            wr = weights[r]
+            yaw_p += wr * m_row_mean[r]
+            for s in range(shifts.shape[1]):
+                cc = c - shifts[i, s]
+                pre[s] += wr * m_close[i, r, cc + w if cc < 0 else cc]
+        for s in range(shifts.shape[1]):
+            out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
+            out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
+        chance_out[i, 0] = q_area
+        chance_out[i, 1] = m_area
+        chance_out[i, 2] = yaw_r / n_map if n_map > 0 else 0.0
+        chance_out[i, 3] = yaw_p / nq if nq > 0 else 0.0
+
+
+def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
+                      chance: str, query_close: np.ndarray | None = None) -> np.ndarray:
+    """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
+    (H, W) query line image against (L, H, W) map line images, each only at its own column
+    shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
+    around a candidate's heading, without the spectra's FFTs (equal to the table's entries:
+    tested)."""
+    imgs = np.ascontiguousarray(imgs, np.uint8)
+    q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
+    rows, cols = np.nonzero(query)
+    shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[1])
+    halves = np.zeros((len(imgs), shifts.shape[1], 2))
+    levels = np.zeros((len(imgs), 4))
+    if len(imgs):
+        _chamfer_at_shifts(imgs, closeness_batch(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64),
+                           np.asarray(weights, np.float64), shifts, halves, levels)
+    recall, precision = halves[..., 0], halves[..., 1]
+    if chance == "area":
+        recall, precision = chance_corrected(recall, levels[:, 0:1]), chance_corrected(precision, levels[:, 1:2])
+    elif chance == "yaw":
+        recall, precision = chance_corrected(recall, levels[:, 2:3]), chance_corrected(precision, levels[:, 3:4])
+    elif chance != "none":
+        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+    return 0.5 * (recall + precision)
 
 
 def dilate_lines(imgs: np.ndarray, tolerance_px: int) -> np.ndarray:
@@ -257,9 +422,20 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image: every grid position and yaw scored (``database``: ``spectra`` for the chamfer
     score, :func:`chamfer_spectra`; ``bits`` and ``counts`` for eq. (1)); then, with
-    ``pp.refine_candidates``, the best distinct grid positions are refined coarse to fine
-    (:func:`refine_steps`: the 8 neighbours at each step, rendered on the spot and scored the
-    same way) and the best refined pose is kept. ``pp``: the ``umap.panorama`` parameters."""
+    ``pp.refine_candidates``, a local search off the grid (``pp``: the ``umap.panorama``
+    parameters):
+
+    1. the cell stage: the ``refine_candidates`` best distinct grid positions (each at its
+       best yaw) each sample the 8 points a third of a grid step around them, so that every
+       plan point of their cells lies within a sixth of a step (0.06 m diagonally at 0.25 m)
+       of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
+       falls;
+    2. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
+       the 8 neighbours at each step, down to ``refine_step_m``).
+
+    Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
+    column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
+    the best pose wins."""
     n, h, w = lines.shape
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
@@ -267,27 +443,50 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
-            return chamfer_table(database["spectra"], lines[ks], tau_px=pp.chamfer_tau_px, weights=weights)
+            return chamfer_table(database["spectra"], lines[ks], tau_px=pp.chamfer_tau_px, weights=weights,
+                                 chance=pp.chamfer_chance)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
-    def local_tables(k: int, pts: np.ndarray, z: float) -> np.ndarray:
-        """(L, W) scores of query k at plan points pts (rendered on the spot), every shift."""
+    def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
+        """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
-            sp = chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=weights)
-            return chamfer_table(sp, lines[k:k + 1], tau_px=pp.chamfer_tau_px, weights=weights)[0]
+            return chamfer_at_shifts(imgs, lines[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+                                     chance=pp.chamfer_chance, query_close=q_close)
         dil = pack(dilate_lines(imgs, tolerance_px))
-        return iou_yaw_scores(dil, popcount_rows(dil), lines[k])
+        return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 
     walls = blocking_faces(faces, float(poses[0, 2])) if len(poses) else faces
-    steps = refine_steps(pp.refine_radius_m, pp.refine_step_m)
+    cell = grid_step(poses[:, :2]) / 3.0 if len(poses) else 0.0
+    steps = refine_steps(3.0 * cell, pp.refine_step_m)
+    window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
     refined_xy = np.full((n, 2), np.nan)
 
     def scored() -> Iterable:
         for s in range(0, n, PANORAMA_BATCH):
             ks = np.arange(s, min(n, s + PANORAMA_BATCH))
             yield from zip(ks, tables(ks))
+
+    def move(k: int, xy: np.ndarray, col: np.ndarray, sc: np.ndarray, step: float, floor_d: np.ndarray,
+             q_close: np.ndarray | None) -> None:
+        """One step of the local search: each pose's 8 neighbours at ``step``, kept where
+        better (in place)."""
+        pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
+        owner = np.repeat(np.arange(len(xy)), len(NEIGHBOURS))
+        if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
+            ok = wall_distance(pts, walls) >= floor_d[owner]
+            pts, owner = pts[ok], owner[ok]
+        if not len(pts):
+            return
+        cols = col[owner][:, None] + window[None]
+        sub = local_scores(k, pts, cols, float(poses[0, 2]), q_close)
+        top, arg = sub.max(axis=1), sub.argmax(axis=1)
+        for j in range(len(xy)):
+            mine = np.flatnonzero(owner == j)
+            if len(mine) and top[mine].max() > sc[j]:
+                i = mine[int(np.argmax(top[mine]))]
+                xy[j], col[j], sc[j] = pts[i], (cols[i, arg[i]]) % w, top[i]
 
     # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
     # shared cores they cost 3-5x the CPU time of the search; bench-umap)
@@ -300,30 +499,20 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
                 continue
-            # every candidate's current best (position, yaw, score); one render call per step for all of them
+            q_close = closeness(lines[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
             xy = poses[cands, :2].copy()
-            yaw = np.argmax(table[cands], axis=1) * 360.0 / w
-            sc = table[cands].max(axis=1)
+            col = np.argmax(table[cands], axis=1).astype(np.int64)
+            sc = table[cands].max(axis=1).astype(np.float64)
             floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
-            for step in steps:  # coarse to fine: the 8 neighbours at each step around each candidate's best so far
-                pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
-                owner = np.repeat(np.arange(len(cands)), len(NEIGHBOURS))
-                if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
-                    ok = wall_distance(pts, walls) >= floor_d[owner]
-                    pts, owner = pts[ok], owner[ok]
-                if not len(pts):
-                    continue
-                sub = local_tables(int(k), pts, float(poses[cands[0], 2]))
-                top, arg = sub.max(axis=1), sub.argmax(axis=1)
-                for j in range(len(cands)):
-                    mine = np.flatnonzero(owner == j)
-                    if len(mine) and top[mine].max() > sc[j]:
-                        i = mine[int(np.argmax(top[mine]))]
-                        xy[j], yaw[j], sc[j] = pts[i], arg[i] * 360.0 / w, top[i]
+            move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
+            beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
+            xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
+            for step in steps:                                                      # coarse to fine
+                move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
             if sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
-                best[k], heading[k], score[k] = cands[j], yaw[j], sc[j]
+                best[k], heading[k], score[k] = cands[beam[j]], col[j] * 360.0 / w, sc[j]
                 refined_xy[k] = xy[j]
     finally:
         limiter.restore_original_limits()

@@ -70,15 +70,23 @@ class PanoramaParams(Params):
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
+    chamfer_chance: str = param("none", choices=("area", "yaw", "none"),
+                                help="what each half of the chamfer score is corrected for, as (score - chance) / (1 - "
+                                     "chance): area, the share of the image the other side's closeness covers (a view "
+                                     "drawing much map earns no more for clutter near it); yaw, the half's mean over all "
+                                     "headings; none, the plain halves")
     polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "
                                                            "sunlight stripes, rugs, tripod; ceiling fans)")
-    refine_candidates: int = param(8, min=0, help="distinct best grid positions refined coarse to fine around themselves, "
-                                                  "for either score (0: off)")
-    refine_separation_m: float = param(0.5, min=0.0, help="least distance between two refined candidates")
-    refine_radius_m: float = param(0.15, min=0.0, help="how far the local search may move a candidate (per axis)")
-    refine_step_m: float = param(0.05, min=0.0, min_exclusive=True, help="the local search's finest step")
+    refine_candidates: int = param(32, min=0, help="distinct best grid positions whose cells are searched off the grid "
+                                                   "(8 points a third of a grid step around each), for either score (0: "
+                                                   "grid only)")
+    refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
+    refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
+    refine_step_m: float = param(0.02, min=0.0, min_exclusive=True, help="the local search's finest step")
+    refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
+                                                "local pose")
 
 
 @dataclass(frozen=True)

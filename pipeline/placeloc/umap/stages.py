@@ -22,18 +22,15 @@ import numpy as np
 
 from placeloc.core.artifacts import atomic_open, read_strings, write_tree
 from placeloc.core.config import ConfigError
-from placeloc.core.images import ImageError, read_gray
+from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import PoseEvaluation
-from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
-from placeloc.umap import ca as ca_mod
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
-from placeloc.umap.lines import check_query_size, line_image
 from placeloc.umap.panorama import (
     chamfer_spectra,
-    panorama_line_image,
     render_panorama_block,
     render_panoramas,
     row_weights,
@@ -41,6 +38,7 @@ from placeloc.umap.panorama import (
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_panorama_overlay
+from placeloc.umap.query_features import panorama_arrays, query_arrays, query_camera
 from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
@@ -209,93 +207,39 @@ def _pooled(ctx: Any) -> np.ndarray | None:
 
 # ------------------------------------------------------------------ extract
 
-def _query_images(ctx: Any, desc: str, check: Any) -> Any:
-    """(path, grey image) of each readable query image. With ``query.on_error: skip`` an
-    image that cannot be read or has the wrong size is left out with a warning (and listed
-    in the artifact's ``skipped``); otherwise its error stops the run."""
-    images = ctx.images["query"]
-    skipped = ctx.skipped = []
-    for path in ctx.progress(images.paths, total=len(images), desc=desc):
-        try:
-            gray = read_gray(path)
-            check(path, gray)
-        except ImageError as exc:
-            if images.on_error != "skip":
-                raise
-            log.warning("skipped: %s", exc)
-            skipped.append(str(exc))
-            continue
-        yield path, gray
-
-
-
 def extract(ctx: Any) -> None:
+    """Query line images and AKAZE features (:mod:`placeloc.umap.query_features`) through
+    the engine (:mod:`placeloc.core.imagework`), written at the artifact's root."""
     p = ctx.params
     cam = _camera(p)
     kind = p.query_kind
-    headings = [float(hd) for hd in p.grid.headings] if kind == "equirect" else [math.nan]
-    lines, pts_all, desc_all, offsets, names = [], [], [], [0], []
-    first: list[tuple[int, ...]] = []
-    qcam = None
+    images = ctx.images["query"]
     if kind == "panorama":
         _extract_panoramas(ctx)
         return
-
-    def check(path: Path, gray: np.ndarray) -> None:
-        check_query_size(path, gray.shape, first[0] if first else None, cam, kind)
-        if not first:
-            first.append(gray.shape[:2])
-
-    for path, gray in _query_images(ctx, "LSD + AKAZE", check):
-        names.append(path.name)
-        if kind == "equirect":
-            # Cut views at twice the database resolution, so LSD sees enough detail.
-            qcam = Camera(cam.width * 2, cam.height * 2, cam.hfov_deg)
-            views = [equirect_to_pinhole(gray, hd, qcam) for hd in headings]
-        else:
-            qcam = Camera(gray.shape[1], gray.shape[0], cam.hfov_deg)
-            views = [gray]
-        lines.append(pack(np.stack([line_image(v, cam, min_length=p.lsd_min_length_px, thickness=p.query_thickness_px)
-                                    for v in views])))
-        pts, desc = ca_mod.akaze(views[0], p.ca.akaze_threshold)
-        pts_all.append(pts)
-        desc_all.append(desc)
-        offsets.append(offsets[-1] + len(pts))
-    _no_queries_left(ctx, names)
-    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray(headings), "names": names,
-                         "kp_pts": np.concatenate(pts_all), "kp_desc": np.concatenate(desc_all),
-                         "kp_offsets": np.asarray(offsets, dtype=np.int64), "skipped": ctx.skipped})
+    headings = [float(hd) for hd in p.grid.headings] if kind == "equirect" else [math.nan]
+    work = ImageWork(fn=query_arrays, settings={"camera": (cam.width, cam.height, cam.hfov_deg), "kind": kind,
+                                                "headings": tuple(headings), "min_length": p.lsd_min_length_px,
+                                                "thickness": p.query_thickness_px, "akaze_threshold": p.ca.akaze_threshold},
+                     ragged=("kp_pts", "kp_desc"), offsets="kp_offsets", same_size=True, with_path=True)
+    table = write_images(ctx.out, ImageStream(ctx, images, work, desc="LSD + AKAZE"))
+    qcam = query_camera(table.first_shape, (cam.width, cam.height, cam.hfov_deg), kind)
+    ctx.out.create_dataset("view_heading", data=np.asarray(headings))
     ctx.out.attrs.update(width=cam.width, height=cam.height, query_width=qcam.width, query_height=qcam.height,
                          query_focal=qcam.focal, query_kind=kind)
-
-
-def _no_queries_left(ctx: Any, names: list[str]) -> None:
-    if not names:
-        raise ImageError(f"{ctx.images['query'].source}: none of the {len(ctx.images['query'])} query images could be used "
-                         f"(first problem: {ctx.skipped[0] if ctx.skipped else 'none'}); fix or replace them")
 
 
 def _extract_panoramas(ctx: Any) -> None:
     """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
     pp = ctx.params.panorama
-    lines, names = [], []
-    first: list[tuple[int, ...]] = []
-
-    def check(path: Path, gray: np.ndarray) -> None:
-        check_query_size(path, gray.shape, first[0] if first else None, Camera(2, 2, 90.0), "equirect")
-        if not first:
-            first.append(gray.shape[:2])
-
-    for path, gray in _query_images(ctx, "LSD on cube faces", check):
-        names.append(path.name)
-        img = panorama_line_image(gray, width=pp.width, height=pp.height, face_px=pp.face_px, min_length=pp.lsd_min_length_px)
-        lines.append(pack(img[None]))
-    _no_queries_left(ctx, names)
-    write_tree(ctx.out, {"lines": np.stack(lines), "view_heading": np.asarray([math.nan]), "names": names,
-                         "kp_pts": np.zeros((0, 2), np.float32), "kp_desc": np.zeros((0, 61), np.uint8),
-                         "kp_offsets": np.zeros(len(lines) + 1, dtype=np.int64), "skipped": ctx.skipped})
-    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(first[0][1]), query_height=int(first[0][0]),
-                         query_focal=0.0, query_kind="panorama")
+    work = ImageWork(fn=panorama_arrays, settings={"width": pp.width, "height": pp.height, "face_px": pp.face_px,
+                                                   "min_length": pp.lsd_min_length_px},
+                     same_size=True, with_path=True)
+    table = write_images(ctx.out, ImageStream(ctx, ctx.images["query"], work, desc="LSD on cube faces"))
+    write_tree(ctx.out, {"view_heading": np.asarray([math.nan]), "kp_pts": np.zeros((0, 2), np.float32),
+                         "kp_desc": np.zeros((0, 61), np.uint8), "kp_offsets": np.zeros(len(table) + 1, dtype=np.int64)})
+    ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(table.first_shape[1]),
+                         query_height=int(table.first_shape[0]), query_focal=0.0, query_kind="panorama")
 
 
 # ------------------------------------------------------------------ localize
@@ -480,10 +424,11 @@ METHOD = Method(
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px",
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.polar_deg", "panorama.polar_weight", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_radius_m", "panorama.refine_step_m", "hidden_lines",
+                                          "panorama.refine_beam", "panorama.refine_step_m", "panorama.refine_yaw_cols",
+                                          "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
     },

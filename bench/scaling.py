@@ -1,0 +1,144 @@
+"""Per-stage scaling over workers: the common helper of the bench/ scripts, and the SeqSLAM table.
+
+    python bench/scaling.py                       # SeqSLAM benchmark settings, 3576 x 3576, workers 1, 2, 4, ..., nproc
+    python bench/scaling.py --workers 1,2 --n 600 # a quick check
+    OUT=/some/folder python bench/scaling.py      # also writes $OUT/scaling.md
+
+Each stage (extract, localize, evaluate) runs as its own ``placeloc`` process, as a user
+runs it, with ``--set executor.workers=W``. The table shows the stage's own compute time
+(the artifact's ``seconds``: process start-up and imports aside) and the process's wall
+time, best of ``--repeat`` after one warm-up run (which fills the compiled-kernel cache and
+the page cache), and the speed-up of each worker count over one worker. Wall-clock figures
+on a shared machine include waiting for other processes: the load average is printed with
+them.
+
+The helpers (:func:`worker_counts`, :func:`scaling_table`, :func:`markdown`) are what the
+other bench scripts use to print their own tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import h5py
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "pipeline"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def usable_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def worker_counts(top: int | None = None) -> list[int]:
+    """1, 2, 4, ... up to ``top`` (default: the usable cores), ``top`` itself always last."""
+    top = top or usable_cores()
+    counts, w = [], 1
+    while w < top:
+        counts.append(w)
+        w *= 2
+    return counts + [top]
+
+
+def scaling_table(measure: Callable[[int], dict[str, float]], workers: list[int], repeat: int = 1,
+                  warm_up: bool = True) -> dict[str, dict[int, float]]:
+    """``measure(w)`` -> {row name: seconds} for each worker count; best of ``repeat`` runs
+    (after one warm-up run at the first count when ``warm_up``). Returns row -> w -> seconds."""
+    if warm_up:
+        measure(workers[0])
+    table: dict[str, dict[int, float]] = {}
+    for w in workers:
+        for _ in range(repeat):
+            for row, seconds in measure(w).items():
+                cell = table.setdefault(row, {})
+                cell[w] = min(cell.get(w, float("inf")), seconds)
+        print(f"  workers {w}: " + ", ".join(f"{row} {cells[w]:.2f} s" for row, cells in table.items() if w in cells),
+              flush=True)
+    return table
+
+
+def markdown(table: dict[str, dict[int, float]], title: str, note: str = "") -> str:
+    """The table as markdown: one row per measured thing, one column per worker count, and
+    the speed-up of the largest count over one worker."""
+    counts = sorted({w for cells in table.values() for w in cells})
+    head = f"| {title} | " + " | ".join(f"{w} worker{'s' if w > 1 else ''}" for w in counts) + \
+        f" | speed-up {counts[-1]} vs {counts[0]} |"
+    lines = [head, "|---" * (len(counts) + 2) + "|"]
+    for row, cells in table.items():
+        values = " | ".join(f"{cells[w]:.2f} s" if w in cells else "" for w in counts)
+        ratio = cells[counts[0]] / cells[counts[-1]] if counts[0] in cells and counts[-1] in cells else float("nan")
+        lines.append(f"| {row} | {values} | {ratio:.2f}x |")
+    load = os.getloadavg()
+    lines.append("")
+    lines.append(f"{usable_cores()} usable cores ({os.cpu_count()} on the machine); load average {load[0]:.1f} / "
+                 f"{load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min) at the end. {note}".rstrip())
+    return "\n".join(lines)
+
+
+def _run_stage(cfg: Path, run_dir: Path, stage: str, workers: int) -> tuple[float, float]:
+    """One stage as its own process: (the stage's own seconds, the process's wall seconds)."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(run_dir), "-q", "-f",
+                    "--set", f"executor.workers={workers}"], check=True, capture_output=True, text=True,
+                   env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")})
+    wall = time.perf_counter() - t0
+    with h5py.File(run_dir / f"{stage}.h5", "r") as f:
+        return float(f.attrs["seconds"]), wall
+
+
+def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: tuple[str, ...]) -> dict[str, dict[int, float]]:
+    from bench_seqslam import make_traverses, write_config
+
+    ref_dir, q_dir = make_traverses(work / "data", n)
+    cfg = write_config(work / "bench.yaml", ref_dir, q_dir)
+    cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "ground_truth": {"kind": "synchronous", "tolerance": 2}}))
+
+    def measure(w: int) -> dict[str, float]:
+        out = {}
+        for stage in stages:
+            own, wall = _run_stage(cfg, work / "run", stage, w)
+            out[f"{stage} (stage)"], out[f"{stage} (process)"] = own, wall
+        return out
+
+    return scaling_table(measure, workers, repeat)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
+    ap.add_argument("--workers", default=None, help="comma-separated worker counts (default 1, 2, 4, ..., nproc)")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--stages", default="extract,localize,evaluate")
+    ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
+    args = ap.parse_args()
+    workers = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
+    out = args.out or (Path(os.environ["OUT"]) / "scaling.md" if os.environ.get("OUT") else None)
+    work = Path(tempfile.mkdtemp(prefix="placeloc-scaling-"))
+    t0 = time.perf_counter()
+    try:
+        table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    text = markdown(table, f"SeqSLAM benchmark settings, {args.n} x {args.n}",
+                    note=f"Best of {args.repeat} after a warm-up; `python bench/scaling.py --n {args.n} "
+                         f"--workers {','.join(map(str, workers))}` took {time.perf_counter() - t0:.0f} s.")
+    print()
+    print(text)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")
+        print(f"\nwritten to {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,386 @@
+"""Per-image work, done by the engine for every method.
+
+A method says what one image gives; the engine does everything else once: it reads the
+images of a traverse (:class:`placeloc.core.images.ImageSet`) in their listed order,
+applies the traverse's ``on_error`` policy, cuts the list into chunks mapped over
+``ctx.executor`` (threads inside each chunk, since decoding and OpenCV release the GIL),
+shows a progress bar, stores the arrays in HDF5 and records names, original indices and
+skipped files. Modelled on hloc's ``extract_features`` (a model's ``_forward``: an image
+in, a dict of named arrays out, possibly ragged, written per image).
+
+What a method supplies, an :class:`ImageWork`:
+
+- ``fn(image, **settings) -> {name: array}``: a module-level function (the executor sends
+  it to worker processes by reference), thread-safe (it runs in threads of one worker), of
+  one image (``read`` decides what that is: 8-bit greyscale by default) and explicit
+  keyword arguments. An array is **fixed-size** (the same shape for every image: a feature
+  row, a thumbnail) or **ragged** (listed in ``ragged``: its first axis varies per image,
+  e.g. keypoints and their descriptors; all ragged arrays of one image have the same
+  number of rows). Raising :class:`ImageError` rejects the image (skipped or fatal, by
+  ``on_error``).
+- optionally ``batch(arrays, **settings) -> arrays``: a vectorised step over the stacked
+  fixed-size arrays of one chunk (SeqSLAM normalises all thumbnails of a chunk at once),
+  run in the worker; it must treat the rows independently (a chunk's cut never changes a
+  result);
+- optionally ``same_size=True``: every image must have the first kept image's size (the
+  check obeys ``on_error``); ``with_path=True``: ``fn`` also gets ``path=`` (to name the
+  file in its own messages); ``offsets``: the name of the offsets dataset.
+
+Storage (:func:`write_images`), in one HDF5 group per traverse:
+
+=================  ==================================================================
+``names``          (n) str, the kept images' file names
+``index``          (n) int64, their positions in the listed folder (natural order from
+                   0): images skipped with ``on_error: skip`` never shift an index
+``skipped``        (s) str, one message per image left out (file and reason)
+``<fixed>``        (n, ...) one row per kept image
+``<ragged>``       (total, ...) the rows of all kept images, concatenated in order
+``offsets``        (n + 1) int64: image ``i``'s ragged rows are ``offsets[i]:offsets[i+1]``
+attributes         ``source`` (the folder or glob), ``n_listed`` (images listed)
+=================  ==================================================================
+
+Local and original indices: the arrays are in *local* order (row ``i`` is the ``i``-th
+kept image); ``index[i]`` is its *original* position. Numerics and contracts work on local
+rows; :func:`local_to_original` maps an answer back (``-1`` stays ``-1``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
+
+import numpy as np
+
+from placeloc.core.errors import StageError
+from placeloc.core.executor import usable_cores
+from placeloc.core.images import ImageError, ImageSet, read_gray
+
+if TYPE_CHECKING:  # the writer's side only: pool workers never import h5py for this module
+    import h5py
+
+log = logging.getLogger("placeloc")
+
+Arrays = dict[str, np.ndarray]
+# Chunks hold at most this many images unless the method asks otherwise: enough to amortise
+# a process-pool task, few enough that every worker gets several.
+MAX_IMAGES_PER_TASK = 64
+# HDF5 chunks of about this many bytes (rows of a dataset per chunk follow from it).
+H5_CHUNK_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class ImageWork:
+    """What one image gives: see the module's documentation."""
+
+    fn: Callable[..., Arrays]
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    read: Callable[[str], np.ndarray] = read_gray
+    ragged: tuple[str, ...] = ()
+    batch: Callable[..., Arrays] | None = None
+    same_size: bool = False
+    # Pass the image's path to ``fn`` as ``path=`` (for messages that name the file).
+    with_path: bool = False
+    # Name of the ragged arrays' offsets dataset.
+    offsets: str = "offsets"
+    # Images per executor task; None: chosen from the number of images and workers.
+    images_per_task: int | None = None
+
+
+@dataclass
+class ImageResult:
+    """One kept image: its local row, original position, path, size and arrays."""
+
+    local: int
+    original: int
+    path: str
+    shape: tuple[int, int]
+    arrays: Arrays
+
+
+@dataclass
+class ChunkResult:
+    """What a worker returns for one chunk of images (positions relative to the chunk)."""
+
+    kept: list[int]
+    shapes: list[tuple[int, int]]
+    fixed: Arrays
+    ragged: Arrays
+    counts: np.ndarray
+    errors: list[tuple[int, str]]
+
+
+def _describe_one(path: str, work: ImageWork) -> tuple[tuple[int, int], Arrays] | ImageError:
+    try:
+        image = work.read(path)
+        settings = {**work.settings, "path": path} if work.with_path else work.settings
+        return (int(image.shape[0]), int(image.shape[1])), work.fn(image, **settings)
+    except ImageError as exc:
+        return exc
+
+
+def describe_chunk(task: tuple[list[str], ImageWork, bool, int]) -> ChunkResult:
+    """The executor's work item: ``(paths, work, skip, threads)`` -> a :class:`ChunkResult`.
+
+    Images are described in ``threads`` threads, one contiguous part each; an unreadable or
+    rejected image raises its :class:`ImageError` unless ``skip``."""
+    paths, work, skip, threads = task
+    threads = max(1, min(threads, len(paths)))
+
+    def part(k: int) -> list[Any]:
+        return [_describe_one(p, work) for p in paths[k * len(paths) // threads:(k + 1) * len(paths) // threads]]
+
+    if threads == 1:
+        results = part(0)
+    else:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            results = [r for chunk in pool.map(part, range(threads)) for r in chunk]
+    kept, shapes, per_image, errors = [], [], [], []
+    for i, res in enumerate(results):
+        if isinstance(res, ImageError):
+            if not skip:
+                raise res
+            errors.append((i, str(res)))
+            continue
+        kept.append(i)
+        shapes.append(res[0])
+        per_image.append(res[1])
+    fixed, ragged, counts = _stack(per_image, work.ragged, [paths[i] for i in kept])
+    if work.batch is not None and kept:
+        fixed = {**fixed, **work.batch(fixed, **work.settings)}
+    return ChunkResult(kept, shapes, fixed, ragged, counts, errors)
+
+
+def _stack(per_image: list[Arrays], ragged_names: tuple[str, ...], paths: list[str]) -> tuple[Arrays, Arrays, np.ndarray]:
+    """Stack the fixed-size arrays of several images and concatenate the ragged ones."""
+    if not per_image:
+        return {}, {}, np.zeros(0, np.int64)
+    first = per_image[0]
+    fixed: Arrays = {}
+    ragged: Arrays = {}
+    counts = np.array([_ragged_rows(a, ragged_names, p) for a, p in zip(per_image, paths)], np.int64)
+    for name in first:
+        values = [np.asarray(a[name]) for a in per_image]
+        if name in ragged_names:
+            ragged[name] = np.concatenate(values) if len(values) > 1 else values[0]
+            continue
+        for v, p in zip(values, paths):
+            if v.shape != values[0].shape:
+                raise StageError(f"{p}: the per-image output {name!r} has shape {v.shape}, the first image's {values[0].shape}; "
+                                 "a fixed-size output must have one shape (declare it ragged if its length varies)")
+        fixed[name] = np.stack(values)
+    return fixed, ragged, counts
+
+
+def _ragged_rows(arrays: Arrays, ragged_names: tuple[str, ...], path: str) -> int:
+    rows = {name: len(arrays[name]) for name in ragged_names}
+    if len(set(rows.values())) > 1:
+        raise StageError(f"{path}: the ragged outputs of one image must have one row count, got {rows}")
+    return next(iter(rows.values()), 0)
+
+
+def worker_threads(executor: Any) -> int:
+    """Threads per task: the usable cores shared among the executor's workers (at most 8)."""
+    return max(1, min(8, usable_cores() // max(1, int(getattr(executor, "workers", 1)))))
+
+
+def images_per_task(n_images: int, workers: int) -> int:
+    """Images per chunk when the method does not say: about four chunks per worker."""
+    return max(1, min(MAX_IMAGES_PER_TASK, math.ceil(n_images / (4 * max(1, workers)))))
+
+
+class ImageStream:
+    """The described images of one traverse, in listed order; skipped ones left out.
+
+    Iterating yields :class:`ImageResult` per kept image (:meth:`chunks`: per chunk);
+    afterwards ``skipped`` holds the messages of the images left out (also logged)."""
+
+    def __init__(self, ctx: Any, images: ImageSet, work: ImageWork, desc: str = "") -> None:
+        self.ctx, self.images, self.work = ctx, images, work
+        self.desc = desc or f"{ctx.stage} {images.source}"
+        self.skipped: list[str] = list(images.skipped)
+        self.first_shape: tuple[int, int] | None = None
+        self.first_path: str | None = None
+
+    def chunks(self) -> Iterator[tuple[list[int], ChunkResult]]:
+        """(original positions of the kept images, chunk result) per chunk, in order."""
+        paths = [str(p) for p in self.images.paths]
+        workers = int(getattr(self.ctx.executor, "workers", 1))
+        size = int(self.work.images_per_task or images_per_task(len(paths), workers))
+        skip = self.images.on_error == "skip"
+        tasks = [(paths[i:i + size], self.work, skip, worker_threads(self.ctx.executor)) for i in range(0, len(paths), size)]
+        results = self.ctx.executor.map(describe_chunk, tasks)
+        for c, res in enumerate(self.ctx.progress(results, total=len(tasks), desc=self.desc)):
+            start = c * size
+            for _, message in res.errors:
+                self._skip(message)
+            if self.work.same_size:
+                res = self._keep_same_size(res, paths, start, skip)
+            yield [start + i for i in res.kept], res
+
+    def _skip(self, message: str) -> None:
+        log.warning("skipped: %s", message)
+        self.skipped.append(message)
+
+    def _keep_same_size(self, res: ChunkResult, paths: list[str], start: int, skip: bool) -> ChunkResult:
+        keep = []
+        for j, (i, shape) in enumerate(zip(res.kept, res.shapes)):
+            if self.first_shape is None:
+                self.first_shape, self.first_path = shape, paths[start + i]
+            if shape == self.first_shape:
+                keep.append(j)
+                continue
+            (h, w), (h0, w0) = shape, self.first_shape
+            message = (f"{paths[start + i]}: size {w}x{h} differs from the first image's {w0}x{h0} ({self.first_path}); "
+                       "every image of a traverse must have one size: resize them, or set on_error: skip beside images:")
+            if not skip:
+                raise ImageError(message)
+            self._skip(message)
+        if len(keep) == len(res.kept):
+            return res
+        return _select(res, keep)
+
+    def __iter__(self) -> Iterator[ImageResult]:
+        local = 0
+        for originals, res in self.chunks():
+            offsets = np.concatenate([[0], np.cumsum(res.counts)])
+            for j, original in enumerate(originals):
+                arrays = {k: v[j] for k, v in res.fixed.items()}
+                arrays.update({k: v[offsets[j]:offsets[j + 1]] for k, v in res.ragged.items()})
+                yield ImageResult(local, original, str(self.images.paths[original]), res.shapes[j], arrays)
+                local += 1
+
+
+def _select(res: ChunkResult, keep: list[int]) -> ChunkResult:
+    """The part of a chunk result that keeps the images at positions ``keep`` of ``res.kept``."""
+    offsets = np.concatenate([[0], np.cumsum(res.counts)])
+    rows = np.concatenate([np.arange(offsets[j], offsets[j + 1]) for j in keep]) if keep else np.zeros(0, np.int64)
+    return ChunkResult([res.kept[j] for j in keep], [res.shapes[j] for j in keep],
+                       {k: v[keep] for k, v in res.fixed.items()}, {k: v[rows] for k, v in res.ragged.items()},
+                       res.counts[keep], res.errors)
+
+
+@dataclass
+class ImageTable:
+    """What :func:`write_images` stored for one traverse."""
+
+    index: np.ndarray
+    names: list[str]
+    skipped: list[str]
+    n_listed: int
+    first_shape: tuple[int, int] | None
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+class _Appender:
+    """Resizable HDF5 datasets grown block by block (the writer holds one block at a time)."""
+
+    def __init__(self, group: h5py.Group, rows_hint: int) -> None:
+        self.group, self.rows_hint = group, max(1, rows_hint)
+        self.sets: dict[str, h5py.Dataset] = {}
+
+    def append(self, name: str, block: np.ndarray) -> None:
+        block = np.asarray(block)
+        ds = self.sets.get(name)
+        if ds is None:
+            row_bytes = max(1, int(np.prod(block.shape[1:], dtype=np.int64)) * block.dtype.itemsize)
+            rows = max(1, min(self.rows_hint, H5_CHUNK_BYTES // row_bytes))
+            ds = self.group.create_dataset(name, shape=(0, *block.shape[1:]), maxshape=(None, *block.shape[1:]),
+                                           dtype=block.dtype, chunks=(rows, *block.shape[1:]))
+            self.sets[name] = ds
+        elif ds.shape[1:] != block.shape[1:]:
+            raise StageError(f"{self.group.file.filename}: per-image output {name!r} changed shape from {ds.shape[1:]} "
+                             f"to {block.shape[1:]} between images; a fixed-size output must have one shape")
+        n0 = ds.shape[0]
+        ds.resize(n0 + len(block), axis=0)
+        ds[n0:] = block
+
+
+def write_images(group: h5py.Group, stream: ImageStream, fold: Callable[[ImageResult], Arrays] | None = None,
+                 ragged: tuple[str, ...] | None = None) -> ImageTable:
+    """Describe every image of ``stream`` and store the results in ``group`` (layout in the
+    module's documentation).
+
+    ``fold`` (optional) turns each kept image's arrays, in order and in this process, into
+    the arrays to store: a method's sequential step over the images (PIRF-nav2 chains each
+    frame's descriptors with the previous frames'). ``ragged`` names the ragged arrays of
+    what is stored (default: the work's)."""
+    ragged_names = stream.work.ragged if ragged is None else ragged
+    n = len(stream.images.paths)
+    out = _Appender(group, n)
+    index: list[int] = []
+    counts: list[np.ndarray] = []
+    if fold is None:
+        for originals, res in stream.chunks():
+            index.extend(originals)
+            if not originals:
+                continue
+            for name, block in {**res.fixed, **res.ragged}.items():
+                out.append(name, block)
+            counts.append(res.counts)
+    else:
+        for item in stream:
+            arrays = fold(item)
+            index.append(item.original)
+            for name, value in arrays.items():
+                value = np.asarray(value)
+                out.append(name, value if name in ragged_names else value[None])
+            counts.append(np.array([_ragged_rows(arrays, ragged_names, item.path)], np.int64))
+    if not index:
+        first = stream.skipped[0] if stream.skipped else "none"
+        raise ImageError(f"{stream.images.source}: none of the {n} images could be used (first problem: {first}); "
+                         "fix or replace them")
+    if ragged_names:
+        all_counts = np.concatenate(counts) if counts else np.zeros(0, np.int64)
+        group.create_dataset(stream.work.offsets, data=np.concatenate([[0], np.cumsum(all_counts)]).astype(np.int64))
+    import h5py
+
+    names = [stream.images.paths[i].name for i in index]
+    group.create_dataset("names", data=np.array(names, dtype=object), dtype=h5py.string_dtype())
+    group.create_dataset("index", data=np.asarray(index, np.int64))
+    group.create_dataset("skipped", data=np.array(stream.skipped, dtype=object), dtype=h5py.string_dtype())
+    group.attrs["source"] = stream.images.source
+    group.attrs["n_listed"] = n
+    return ImageTable(np.asarray(index, np.int64), names, list(stream.skipped), n, stream.first_shape)
+
+
+def extract_images(ctx: Any, work: ImageWork, fold: Callable[[str], Callable[[ImageResult], Arrays]] | None = None,
+                   ragged: tuple[str, ...] | None = None) -> dict[str, ImageTable]:
+    """The whole extract stage of a per-image method: every traverse of ``ctx.images`` into
+    its own group (``reference/``, ``query/``) of ``ctx.out``. ``fold(role)`` (optional)
+    gives the sequential step for that traverse (see :func:`write_images`)."""
+    tables = {}
+    for role, images in ctx.images.items():
+        stream = ImageStream(ctx, images, work, desc=f"extract {role}")
+        tables[role] = write_images(ctx.out.create_group(role), stream, fold(role) if fold else None, ragged)
+    return tables
+
+
+def read_ragged(group: h5py.Group, name: str, offsets: str = "offsets") -> list[np.ndarray]:
+    """The per-image pieces of a ragged array stored by :func:`write_images`."""
+    data, off = group[name][()], group[offsets][()]
+    return [data[off[i]:off[i + 1]] for i in range(len(off) - 1)]
+
+
+def local_to_original(index: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Original positions of local rows (``-1``, no answer, stays ``-1``)."""
+    local = np.asarray(local)
+    return np.where(local >= 0, np.asarray(index)[np.clip(local, 0, None)], -1)
+
+
+def original_to_local(index: np.ndarray, original: np.ndarray) -> np.ndarray:
+    """Local rows of original positions (``-1`` for a position that was skipped)."""
+    index = np.asarray(index)
+    lookup = np.full(int(index.max()) + 1 if len(index) else 0, -1, np.int64)
+    lookup[index] = np.arange(len(index))
+    original = np.asarray(original)
+    inside = (original >= 0) & (original < len(lookup))
+    return np.where(inside, lookup[np.clip(original, 0, max(0, len(lookup) - 1))] if len(lookup) else -1, -1)
+
+
+__all__ = ["ImageWork", "ImageResult", "ImageStream", "ImageTable", "describe_chunk", "extract_images", "write_images",
+           "read_ragged", "local_to_original", "original_to_local", "images_per_task", "worker_threads"]

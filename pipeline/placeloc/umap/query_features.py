@@ -1,0 +1,48 @@
+"""What one UMap query image gives, for the engine (:mod:`placeloc.core.imagework`).
+
+A pinhole or equirectangular query becomes its packed line image(s) (LSD, one view per
+grid heading for an equirectangular image) and the AKAZE keypoints and descriptors of its
+first view (UMap+CA); a whole panorama becomes one packed equirectangular line image.
+Every query image of a run has one size (the engine checks that against the first one);
+its aspect ratio is checked here, per image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.umap import ca as ca_mod
+from placeloc.umap.bits import pack
+from placeloc.umap.lines import check_query_size, line_image
+from placeloc.umap.panorama import panorama_line_image
+
+
+def query_camera(shape: tuple[int, int], camera: tuple[int, int, float], kind: str) -> Camera:
+    """The camera the query's line images are cut with: twice the database resolution for
+    views of an equirectangular image (so LSD sees enough detail), else the image's own size."""
+    width, height, hfov = camera
+    if kind == "equirect":
+        return Camera(int(width) * 2, int(height) * 2, float(hfov))
+    return Camera(int(shape[1]), int(shape[0]), float(hfov))
+
+
+def query_arrays(gray: np.ndarray, *, camera: tuple[int, int, float], kind: str, headings: tuple[float, ...],
+                 min_length: float, thickness: int, akaze_threshold: float, path: str = "") -> dict[str, np.ndarray]:
+    """One grey query image -> ``lines`` (n_views, n_words) uint64, ``kp_pts`` (k, 2)
+    float32 and ``kp_desc`` (k, 61) uint8 (the last two ragged)."""
+    cam = Camera(*camera)
+    check_query_size(path, gray.shape, None, cam, kind)
+    qcam = query_camera(gray.shape[:2], camera, kind)
+    views = [equirect_to_pinhole(gray, hd, qcam) for hd in headings] if kind == "equirect" else [gray]
+    lines = pack(np.stack([line_image(v, cam, min_length=min_length, thickness=thickness) for v in views]))
+    pts, desc = ca_mod.akaze(views[0], akaze_threshold)
+    return {"lines": lines, "kp_pts": pts, "kp_desc": desc}
+
+
+def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
+                    path: str = "") -> dict[str, np.ndarray]:
+    """One grey equirectangular panorama -> ``lines`` (1, n_words) uint64."""
+    check_query_size(path, gray.shape, None, Camera(2, 2, 90.0), "equirect")
+    img = panorama_line_image(gray, width=width, height=height, face_px=face_px, min_length=min_length)
+    return {"lines": pack(img[None])}

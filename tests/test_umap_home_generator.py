@@ -1,0 +1,68 @@
+"""Known answers for the synthetic home generator's failure cases: the white bonus room,
+kitchen clutter at wall height and cameras close to a wall."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, wall_distance
+from placeloc.geometry.polygons import point_in_polygon
+from placeloc.synth.home import line_agreement, near_wall_poses, plan, room_name
+
+
+def _room(fp, name):
+    return np.asarray(next(r["polygon"] for r in fp["rooms"] if r["name"] == name), float)
+
+
+def test_kitchen_clutter_stands_at_wall_height():
+    fp, clutter = plan(np.random.default_rng(3))
+    kitchen = _room(fp, "kitchen")
+    lo, hi = kitchen.min(axis=0), kitchen.max(axis=0)
+    boxes = np.asarray(clutter["boxes"] + clutter["flat"], float)
+    inside = (boxes[:, 0] >= lo[0] - 1e-6) & (boxes[:, 3] <= hi[0] + 1e-6) & (boxes[:, 1] >= lo[1] - 1e-6) & (boxes[:, 4] <= hi[1] + 1e-6)
+    # between the floor line and the ceiling line (1.0-2.2 m): wall cabinets, hood, fridge, shelves, clock
+    at_wall_height = inside & (boxes[:, 5] > 1.2) & (boxes[:, 2] < 2.2)
+    assert at_wall_height.sum() >= 5
+
+
+def test_the_bonus_room_is_white_and_has_a_fan():
+    from placeloc.synth.home import scene_arrays
+
+    rng = np.random.default_rng(4)
+    fp, clutter = plan(rng)
+    bonus = _room(fp, "bonus")
+    scene = scene_arrays(fp, clutter, rng)
+    white = [r["name"] for r, wt in zip(fp["rooms"], scene["rooms_white"]) if wt]
+    assert white == ["bonus"]
+    fans = np.asarray(clutter["fans"], float)
+    centres = (fans[:, :2] + fans[:, 3:5]) / 2
+    assert point_in_polygon(centres, bonus).any()
+    assert room_name(fp, *bonus.mean(axis=0)) == "bonus"
+
+
+def test_near_wall_cameras_stand_0_4_to_0_6_m_from_a_wall():
+    rng = np.random.default_rng(5)
+    fp, clutter = plan(rng)
+    xy = near_wall_poses(fp, clutter, rng, 6, 1.5)
+    assert len(xy) == 6
+    walls = blocking_faces(floor_plan_model(fp).faces, 1.5)
+    d = wall_distance(xy, walls)
+    assert (d >= 0.4 - 1e-9).all() and (d <= 0.6 + 1e-9).all()
+    rooms = [room_name(fp, *p) for p in xy]
+    assert rooms == ["kitchen", "bonus"] * 3
+    boxes = np.asarray(clutter["boxes"], float)
+    for b in boxes:   # clear of the furniture
+        assert not ((xy[:, 0] > b[0] - 0.15) & (xy[:, 0] < b[3] + 0.15) & (xy[:, 1] > b[1] - 0.15) & (xy[:, 1] < b[4] + 0.15)).any()
+
+
+def test_line_agreement_by_hand():
+    m = np.zeros((18, 36), np.uint8)
+    m[9, :] = 1                              # a map line on the horizon: 36 pixels
+    q = np.zeros_like(m)
+    q[10, :18] = 1                           # 18 detected pixels one row below it (on the map within 1 px)
+    q[17, :12] = 1                           # 12 clutter pixels in the last row (elevation -85 deg)
+    q[4, :6] = 1                             # 6 clutter pixels at +40 deg
+    on_map, found, below = line_agreement(q, m)
+    assert on_map == 18 / 36
+    assert found == 19 / 36                  # columns 0-18 of the map line lie within 1 px of a detection
+    assert below == 12 / 18

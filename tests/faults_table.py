@@ -190,7 +190,7 @@ class _Table:
             print(f"{case[:width]:<{width}}  {outcome:<7}  {rc:>3}  {seconds:6.1f}{flag}  {line[:110]}")
         slow = sum(1 for r in self.rows if r[3] > 10)
         print(f"{len(self.rows)} cases, {sum(r[1] == 'FAILED' for r in self.rows)} failed, "
-              f"{slow} took over 10 s in all (set-up included; each bounded wait is asserted by its case)")
+              f"{slow} took over 10 s in all (set-up included; cases wait on events, bounded only against a hang)")
 
 
 def main() -> int:

@@ -239,10 +239,12 @@ def test_second_run_on_a_locked_run_dir_stops_or_waits(route, tmp_path):
     # event, so the case proves the wait however slow the machine is).
     held, waiting = threading.Event(), threading.Event()
     order: list[str] = []
+    saw_waiting: list[bool] = []
 
     class _Waiting(logging.Handler):
         def emit(self, record: logging.LogRecord) -> None:
             if record.getMessage().startswith("waiting for placeloc pid"):
+                saw_waiting.append(True)
                 waiting.set()
 
     def hold() -> None:
@@ -252,7 +254,10 @@ def test_second_run_on_a_locked_run_dir_stops_or_waits(route, tmp_path):
             order.append("released")
 
     handler = _Waiting()
-    logging.getLogger("placeloc").addHandler(handler)
+    placeloc_log = logging.getLogger("placeloc")
+    level = placeloc_log.level
+    placeloc_log.setLevel(logging.INFO)  # the line is INFO, logged before the run's log file raises the level
+    placeloc_log.addHandler(handler)
     try:
         t = threading.Thread(target=hold)
         t.start()
@@ -261,9 +266,11 @@ def test_second_run_on_a_locked_run_dir_stops_or_waits(route, tmp_path):
         order.append("ran")
     finally:
         waiting.set()
-        logging.getLogger("placeloc").removeHandler(handler)
+        placeloc_log.removeHandler(handler)
+        placeloc_log.setLevel(level)
     t.join()
     assert order == ["released", "ran"] and (run / "extract.h5").is_file()
+    assert saw_waiting, "the second run never said it waits"
 
 
 def test_refuses_image_folder_and_foreign_config_yaml(route, tmp_path):

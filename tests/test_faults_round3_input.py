@@ -392,6 +392,25 @@ def test_run_into_a_closed_pipe_exits_0_quietly_after_the_run(route, tmp_path):
     assert (tmp_path / "r" / "metrics.json").is_file()
 
 
+def test_a_closed_stderr_does_not_stop_the_run(route, tmp_path):
+    """`placeloc run ... 2>&1 | head -1`: the progress bar's next write met EPIPE and stopped
+    the run (rc 1, a "bug"). Progress and log lines are dropped once their reader is gone;
+    the run finishes, and a bad config still exits 2."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(PLACELOC + ["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r")],
+                              stdout=subprocess.PIPE, stderr=write_end, text=True, timeout=HANG_S)
+        bad = subprocess.run(PLACELOC + ["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "r2"),
+                                         "--set", "seqslam.ds=.nan"], stdout=subprocess.PIPE, stderr=write_end, text=True,
+                             timeout=HANG_S)
+    finally:
+        os.close(write_end)
+    record(done.returncode, "")
+    assert done.returncode == 0 and "metrics: " in done.stdout and (tmp_path / "r" / "metrics.json").is_file()
+    assert bad.returncode == 2
+
+
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this system")
 @pytest.mark.parametrize("args", [["params"], ["--help"]])
 def test_a_full_stdout_is_named_not_the_run_dir(args):

@@ -54,8 +54,9 @@ def test_preset_reads_the_shared_data_folder_from_any_clone(tmp_path: Path, monk
 
 def test_preset_without_shared_data_names_the_variable(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PLACELOC_SHARED_DATA", str(tmp_path / "missing"))
-    with pytest.raises(ConfigError, match=r"reference\.images: shared:nordland-dev/summer .*PLACELOC_SHARED_DATA=.*missing "
-                                          r"is not a folder; set PLACELOC_SHARED_DATA to the folder that holds nordland-dev/"):
+    with pytest.raises(ConfigError, match=r"reference\.images: shared:nordland-dev/summer names the shared data folder, "
+                                          r"but PLACELOC_SHARED_DATA='.*missing' does not exist; point it at the shared "
+                                          r"data folder"):
         load_config(CONFIGS / "nordland.yaml")
     (tmp_path / "other").mkdir()
     monkeypatch.setenv("PLACELOC_SHARED_DATA", str(tmp_path / "other"))

@@ -138,3 +138,52 @@ def test_localize_passes_the_path_settings_through():
     assert (np.abs(back.candidates[backing, 0] - places[backing]) <= 1).all()
     assert (np.abs(ahead.candidates[backing, 0] - places[backing]) > 1).sum() >= 5
     assert back.velocities.min() == -1.0 and ahead.velocities.min() == 0.5
+
+
+# ---------------------------------------------------------------------------------------
+# the experiment's own numerics: profiles, the soft ground truth, recall at 100 % precision
+# ---------------------------------------------------------------------------------------
+def test_shared_stops_cover_only_stretches_where_both_traverses_stand():
+    from placeloc.experiments.seqslam_motion import shared_stops
+
+    rng = np.random.default_rng(10)
+    ref = rng.normal(0, 1, (40, 16))
+    query = ref + rng.normal(0, 0.1, ref.shape)
+    ref[10:16] = ref[10]  # both stand at frames 10-15
+    query[10:16] = query[10]
+    ref[25:30] = ref[25]  # only the reference stands: not shared
+    truth = shared_stops(ref, query)
+    np.testing.assert_array_equal(truth[10:16], [[10, 15]] * 6)
+    np.testing.assert_array_equal(truth[:10], np.stack([np.arange(10)] * 2, axis=1))
+    np.testing.assert_array_equal(truth[25:30], np.stack([np.arange(25, 30)] * 2, axis=1))
+
+
+def test_recall_at_100_precision_counts_matches_above_the_most_confident_wrong_one():
+    from placeloc.experiments.seqslam_motion import recall_at_100_precision
+
+    correct = np.array([True, True, False, True, True])
+    conf = np.array([0.9, 0.5, 0.6, 0.6, 0.8])
+    assert recall_at_100_precision(correct, conf) == pytest.approx(2 / 5)  # 0.9 and 0.8; the tie at 0.6 is out
+    assert recall_at_100_precision(np.ones(3, bool), np.zeros(3)) == 1.0
+
+
+@pytest.mark.parametrize("family", ["stop", "crawl", "burst", "reverse", "fast", "varying", "steady"])
+def test_motion_profiles_do_what_their_family_says(family):
+    from placeloc.experiments.seqslam_motion import query_positions
+
+    pos, inside = query_positions(family, 600, seed=3)
+    assert pos[0] == 0 and pos.min() >= 0 and pos.max() <= 599 and pos[-1] >= 595  # the whole route, start to end
+    step = np.diff(pos)
+    moved = step[inside[:-1]]
+    if family == "stop":
+        assert (moved == 0).all() and inside.sum() >= 90  # three stops of 30-60 frames
+    elif family == "reverse":
+        assert (moved <= 0).all() and (moved < 0).mean() > 0.4  # backwards at 0.5x-1.0x
+    elif family == "burst":
+        assert 2.4 <= moved.mean() <= 4.1
+    elif family == "crawl":
+        assert 0.2 <= moved.mean() <= 0.45
+    elif family == "fast":
+        assert 2.2 <= 599 / len(pos) <= 3.05  # one speed of 2.25x-3.0x throughout
+    else:
+        assert (step >= 0).all()

@@ -529,9 +529,39 @@ def experiment(name: str = typer.Argument(..., help="Experiment: one of the modu
     typer.echo(f"results: {path}")
 
 
+class _StderrThatMayClose:
+    """Standard error that outlives its reader. Progress bars and log lines are not the
+    run's results: when their pipe closes (``2>&1 | head -1``) or their file fills up
+    (``2> /dev/full``), what is left of them is dropped and the run goes on, instead of a
+    progress bar's write stopping the work (or being blamed on the run directory)."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+        self.closed_by_reader = False
+
+    def write(self, text: str) -> int:
+        if not self.closed_by_reader:
+            try:
+                return self._stream.write(text)
+            except OSError:
+                self.closed_by_reader = True
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_by_reader:
+            try:
+                self._stream.flush()
+            except OSError:
+                self.closed_by_reader = True
+
+    def __getattr__(self, name: str) -> Any:  # encoding, errors, fileno, isatty, buffer, ...
+        return getattr(self._stream, name)
+
+
 def main() -> None:
     global _STANDALONE
     _STANDALONE = True
+    sys.stderr = _StderrThatMayClose(sys.stderr)
     install_signal_handlers(on_repeat=_second_signal)
     try:
         app()

@@ -41,7 +41,10 @@ def resolve_shared(value: str, key: str) -> Path:
     """``shared:REL`` -> the shared data folder / REL; a ConfigError naming ``key`` and the
     fix when there is no shared data folder or it lacks REL."""
     rel = value[len(SHARED_PREFIX):].lstrip("/")
-    root = shared_data_dir()
+    try:
+        root = shared_data_dir()
+    except ConfigError as exc:  # the variable names no folder: say which key needed it
+        raise ConfigError(f"{key}: {value} names the shared data folder, but {exc}") from None
     if root is None:
         where = "PLACELOC_SHARED_DATA is not set and no ../shared/data lies beside the checkout or the working folder"
         raise ConfigError(f"{key}: {value} names the shared data folder, but {where}; set PLACELOC_SHARED_DATA to the "

@@ -4,6 +4,7 @@ centred search) with ground truth and pictures on, and on the demo (configs/demo
 
     python bench/bench_evaluate.py            # both problems, best of 3 after a warm-up
     python bench/bench_evaluate.py --demo     # the demo only
+    python bench/bench_evaluate.py --no-plots # scoring alone (plots: false), what the pictures cost aside
 
 Prints, per problem, wall and CPU seconds of each stage's process, the stage's own
 seconds (its artifact's ``seconds``: process start-up and imports left out), and the ratio
@@ -59,18 +60,31 @@ def main() -> None:
     ap.add_argument("--demo", action="store_true", help="the demo only")
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-plots", action="store_true", help="plots: false (metrics.json and the CSVs only)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        report("demo (configs/demo.yaml, 81 x 81)", stage_times(ROOT / "configs" / "demo.yaml", work / "demo", a.repeat))
+        demo = ROOT / "configs" / "demo.yaml"
+        if a.no_plots:
+            import yaml
+
+            cfg = yaml.safe_load(demo.read_text())
+            for role in ("reference", "query"):
+                cfg[role]["images"] = str((demo.parent / cfg[role]["images"]).resolve())
+            cfg["ground_truth"]["path"] = str((demo.parent / cfg["ground_truth"]["path"]).resolve())
+            cfg["plots"] = False
+            demo = work / "demo.json"
+            demo.write_text(json.dumps(cfg))
+        report(f"demo (configs/demo.yaml, 81 x 81{', plots: false' if a.no_plots else ''})",
+               stage_times(demo, work / "demo", a.repeat))
         if a.demo:
             return
         ref, q = make_traverses(work / "data", a.n)
         cfg = work / "bench.json"
         cfg.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
-                                   "ground_truth": {"kind": "synchronous", "tolerance": 2},
+                                   "ground_truth": {"kind": "synchronous", "tolerance": 2}, "plots": not a.no_plots,
                                    "seqslam": {"comparison": "sad", "search": P.search}}))
-        report(f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures on)",
+        report(f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures {'off' if a.no_plots else 'on'})",
                stage_times(cfg, work / "run", a.repeat))
 
 

@@ -110,3 +110,18 @@ def test_metrics_name_the_truth_a_method_reads_from_its_own_section():
     assert contracts.method_truth(method, both) == "coembed.truth=features.csv, coembed.poses=poses.csv"
     assert contracts.method_truth(method, SimpleNamespace(truth="f.csv", poses=None)) == "coembed.truth=f.csv"
     assert contracts.method_truth(SimpleNamespace(name="seqslam", truth_keys={}), both) == ""
+
+
+def test_report_shows_a_value_the_method_chose_beside_the_configs_only(tmp_path):
+    import json
+
+    from placeloc.evaluation.report import write_report
+
+    (tmp_path / "metrics.json").write_text(json.dumps({"alpha": 10000.0, "beta": 2.0, "map_rmse": 0.5}))
+    cfg = {"method": "coembed", "coembed": {"alpha": 1000.0, "alpha_select": "loo", "beta": 1.0}}
+    html = write_report(tmp_path, config=cfg).read_text()
+    assert "1000.0000 in the config; 10000.0000 chosen by alpha_select (metrics.json)" in html
+    # beta has no *_select: metrics.json's value (from an earlier run, say) never relabels the config's
+    assert "<td>beta</td><td class='num'>1.0000</td>" in html
+    cfg["coembed"]["alpha_select"] = "fixed"
+    assert "chosen by" not in write_report(tmp_path, config=cfg).read_text()

@@ -49,8 +49,9 @@ def _auc(rec: np.ndarray, prec: np.ndarray) -> float:
 def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "Precision-recall",
                    xlabel: str = "recall (share of all queries matched correctly)") -> Path:
     """``curves``: label -> (recall, precision). Each curve has its own line style and a
-    few markers, so curves lying on top of each other stay visible; the legend gives the
-    AUC (trapezoids over recall, as :class:`placeloc.evaluation.metrics.PRCurve`)."""
+    few markers, so curves lying on top of each other stay visible, and a bar with its
+    recall where it ends; the legend gives the AUC (trapezoids over recall, as
+    :class:`placeloc.evaluation.metrics.PRCurve`)."""
     fig, ax = plt.subplots(figsize=(6.0, 4.8))
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))
     for i, label in enumerate(order):
@@ -59,8 +60,13 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
             ax.plot([], [], label=f"{label} (no matches)")
             continue
         x, y = np.r_[0.0, rec], np.r_[prec[0], prec]
-        ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], lw=2.2 - 0.25 * min(i, 4), marker=MARKERS[i % len(MARKERS)],
-                markevery=max(1, len(x) // 6), ms=5, alpha=0.9, label=f"{label}  (AUC {_auc(rec, prec):.3f})", zorder=10 - i)
+        line, = ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], lw=2.2 - 0.25 * min(i, 4), marker=MARKERS[i % len(MARKERS)],
+                        markevery=max(1, len(x) // 6), ms=5, alpha=0.9, label=f"{label}  (AUC {_auc(rec, prec):.3f})",
+                        zorder=10 - i)
+        # where the curve ends (every match accepted): visible even under a curve that goes further
+        ax.plot(x[-1], y[-1], "|", color=line.get_color(), ms=16, mew=2.5, zorder=20)
+        ax.annotate(f"{x[-1]:.3f}", (x[-1], y[-1]), textcoords="offset points", xytext=(0, -16 - 11 * i), ha="center",
+                    fontsize=7.5, color=line.get_color(), zorder=20)
     ax.set_xlim(-0.01, 1.01)
     ax.set_ylim(0, 1.03)
     ax.set_xlabel(xlabel)

@@ -210,10 +210,12 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
             f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
     if isinstance(cfg.get(method), dict):
-        # a value the method chose at run time (e.g. co-embedding's alpha from alpha_select) beside the config's
-        rows = [(k, f"{_fmt(v)} in the config; {_fmt(metrics[k])} used (metrics.json)"
-                 if k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
-                for k, v in _flatten(cfg[method])]
+        # a value the method chose at run time (co-embedding's alpha by alpha_select) beside the config's
+        section = cfg[method]
+        chosen = {k for k in section if section.get(f"{k}_select") not in (None, "none", "fixed", False)}
+        rows = [(k, f"{_fmt(v)} in the config; {_fmt(metrics[k])} chosen by {k}_select (metrics.json)"
+                 if k in chosen and k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
+                for k, v in _flatten(section)]
         parts.append(_table(rows, (f"{method} parameter", "value")))
     parts.append("</div>")
     if metrics:

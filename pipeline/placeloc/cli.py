@@ -96,7 +96,9 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         return _os_error_line(exc)
     if _non_utf8_name(exc):
-        return (f"'{_shown(exc.object)}' is not valid UTF-8 text (a file or folder name in another encoding); rename it "
+        from placeloc.core.images import shown_name
+
+        return (f"'{shown_name(exc.object)}' is not valid UTF-8 text (a file or folder name in another encoding); rename it "
                 "in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME)")
     text = " ".join(str(exc).split())
     return text or type(exc).__name__
@@ -110,27 +112,15 @@ def _non_utf8_name(exc: BaseException) -> bool:
             and isinstance(exc.object, str))
 
 
-def _shown(text: str) -> str:
-    """Text with the bytes that are not UTF-8 shown as \\xNN."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-
-
 def _check_utf8_path(path: Path | None, what: str) -> None:
     """Refuse, before any work, a path argument that is not valid UTF-8 (the run would fail
     when it first writes the name into its log, report or artifacts)."""
     from placeloc.core.errors import ConfigError
+    from placeloc.core.images import is_utf8, shown_name
 
-    if path is not None and not _is_utf8(str(path)):
-        raise ConfigError(f"{what} '{_shown(str(path))}' is not valid UTF-8 text (a name in another encoding); rename "
+    if path is not None and not is_utf8(str(path)):
+        raise ConfigError(f"{what} '{shown_name(str(path))}' is not valid UTF-8 text (a name in another encoding); rename "
                           "it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest NAME) or choose another path")
-
-
-def _is_utf8(text: str) -> bool:
-    try:
-        text.encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def classify(exc: BaseException) -> str:

@@ -128,7 +128,7 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
         """Listed as an image; when not, say why in ``not_read`` (an image placeloc does not
         read) or ``others`` (not an image)."""
         if path.suffix.lower() in IMAGE_EXTENSIONS:
-            if not _utf8(path.name):
+            if not is_utf8(path.name):
                 return refuse(f"{path.parent}/{shown_name(path.name)}: the file name is not valid UTF-8 text (its "
                               "bytes are shown escaped); rename it in UTF-8 (e.g. convmv -f latin1 -t utf8 --notest "
                               "FILE), or set on_error: skip beside images:")
@@ -161,7 +161,7 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
                     not_read=not_read, others=sorted(others, key=natural_key))
 
 
-def _utf8(name: str) -> bool:
+def is_utf8(name: str) -> bool:
     """True when a file name decoded from the file system is valid UTF-8 (Python keeps the
     bytes of a name that is not as lone surrogates, which no text file, HDF5 string or
     report can hold)."""

@@ -136,6 +136,19 @@ def test_synth_set_still_takes_good_values(tmp_path):
     assert len(list((tmp_path / "out" / "reference").glob("*.png"))) == 12
 
 
+
+@pytest.mark.parametrize("size", ["height=1", "width=1"])
+def test_synth_route_at_the_smallest_size_it_accepts(tmp_path, size):
+    """1 is the least a size takes: the generator draws frames of it (no traceback from an
+    empty random range)."""
+    import cv2
+
+    res = _cli(["synth", "route", str(tmp_path / "out"), "--set", "frames=6", "--set", size])
+    assert res.exit_code == 0, _err(res)
+    first = sorted((tmp_path / "out" / "reference").glob("*.png"))[0]
+    shape = cv2.imread(str(first), cv2.IMREAD_GRAYSCALE).shape
+    assert shape[0 if size.startswith("height") else 1] == 1
+
 def test_an_empty_recall_at_list_is_refused_at_config_check(route):
     with pytest.raises(ConfigError, match=r"ground_truth.recall_at: \[\] has 0 item\(s\); it needs at least 1"):
         load_config(route / "config.yaml", ["ground_truth.recall_at=[]"])

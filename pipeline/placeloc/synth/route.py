@@ -33,7 +33,7 @@ def _far_layer(rng: np.random.Generator, length: int, height: int) -> np.ndarray
     x = 0
     while x < length:
         w = int(rng.integers(12, 60))
-        top = int(rng.integers(height // 8, height // 2))
+        top = int(rng.integers(height // 8, max(height // 2, height // 8 + 1)))  # a non-empty range at any height
         shade = float(rng.uniform(60, 140))
         img[top:, x:x + w] = shade
         # windows: a regular grid, some lit

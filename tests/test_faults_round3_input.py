@@ -143,7 +143,7 @@ def test_synth_route_at_the_smallest_size_it_accepts(tmp_path, size):
     empty random range)."""
     import cv2
 
-    res = _cli(["synth", "route", str(tmp_path / "out"), "--set", "frames=6", "--set", size])
+    res = _cli(["synth", "route", str(tmp_path / "out"), "--set", "frames=10", "--set", size])
     assert res.exit_code == 0, _err(res)
     first = sorted((tmp_path / "out" / "reference").glob("*.png"))[0]
     shape = cv2.imread(str(first), cv2.IMREAD_GRAYSCALE).shape

@@ -105,6 +105,9 @@ def presets(out: Path, quiet: bool = True) -> Path:
     (chosen) and 55-110 (held out) scored from one run. R@1 per block of 100 (nordland)
     gives the spread. Writes ``presets.md`` and ``summary.json``."""
     data = shared_data_dir()
+    # absolute: the subsets are handed to the presets as overrides, and a relative path in a
+    # config resolves against the config's own folder (configs/), not the working folder
+    out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     summary: dict[str, dict] = {}
     lines = ["# SeqSLAM presets: chosen on one part, reported on the other\n",

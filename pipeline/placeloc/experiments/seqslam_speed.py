@@ -244,6 +244,7 @@ def report(out: Path, quiet: bool = True) -> Path:
     from placeloc.core.config import load_config
     from placeloc.core.runner import read_metrics, run_all
 
+    out = Path(out).resolve()  # the query folders go to the preset as overrides: relative ones would resolve in configs/
     lo, hi = 600, 1200
     summary: dict[str, dict] = {}
     results: dict[tuple[str, str], list[float]] = {}

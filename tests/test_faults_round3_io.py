@@ -1,5 +1,6 @@
-"""Hostile inputs, third round, input/output families (issue 28 families 1, 2, 3, 6 and the
-deep-bracket case of 7): each case sets up one fault on tiny data and asserts the outcome
+"""Hostile inputs, third round, input/output families (writes and reads inside the run,
+no code from a place others can write, bounded parsers, read-only commands, and deeply
+nested brackets): each case sets up one fault on tiny data and asserts the outcome
 docs/reliability.md promises ("Paths", "Caches", "Sizes"). ``make faults`` runs these with
 the earlier rounds and prints one table row per case."""
 

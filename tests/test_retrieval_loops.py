@@ -84,7 +84,7 @@ def test_retrieval_loop_mode_closes_every_revisit(twice: Path, tmp_path: Path, c
 
 
 def test_the_fixed_default_would_have_scored_nothing(twice: Path, tmp_path: Path) -> None:
-    """The issue's case: with 50 frames excluded, an 84-frame sequence whose revisits lie 42
+    """A short sequence: with 50 frames excluded, an 84-frame sequence whose revisits lie 42
     frames back has no frame left that can close a loop."""
     run_all(_loop_config(twice, "retrieval", exclude_recent=50), tmp_path / "run", quiet=True)
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())

@@ -394,7 +394,7 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
 # the figures of a real home (a held-out Zillow Indoor Dataset tour, 32 panoramas) the
 # generator is built to match: detected line pixels on map lines, map line pixels detected,
 # off-map detected pixels more than 60 degrees below the horizon
-# (issue 30's re-measurement: 26 %, the earlier 35 % counted the tripod's rim), and the lowest
+# (the real home re-measured: 26 %, the earlier 35 % counted the tripod's rim), and the lowest
 # share on map lines of any one panorama (its kitchen: cabinets at wall height)
 REAL_HOME_STATS = {"detected_on_map": 0.43, "map_detected": 0.66, "off_map_below_60": 0.26, "detected_on_map_lowest": 0.20}
 

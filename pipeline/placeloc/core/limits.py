@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from placeloc.core.images import image_size
-from placeloc.core.safe_io import mem_available
+from placeloc.core.safe_io import ENV_MEGABYTES_MAX, memory_budget
 
 
 class ResourceError(ValueError):
@@ -46,11 +46,6 @@ def _mb(n: float) -> str:
     if n >= 2**40:
         return f"{n / 2**40:.1f} TiB"
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
-
-
-# The largest size limit taken from the environment: 2**40 MB (an exbibyte), far beyond any
-# machine; a larger figure is a typo (1e308), and turned into bytes it overflows.
-ENV_MEGABYTES_MAX = 2**40
 
 
 def env_megabytes(name: str) -> int | None:
@@ -74,11 +69,10 @@ def env_megabytes(name: str) -> int | None:
 
 
 def memory_limit() -> int:
-    """Bytes of memory a run may use: PLACELOC_MEMORY_LIMIT_MB if set, else MemAvailable."""
-    env = env_megabytes("PLACELOC_MEMORY_LIMIT_MB")
-    if env is not None:
-        return env
-    return mem_available()
+    """Bytes of memory a run may use: PLACELOC_MEMORY_LIMIT_MB if set, else MemAvailable
+    (:func:`placeloc.core.safe_io.memory_budget`, after the variable is checked here)."""
+    env_megabytes("PLACELOC_MEMORY_LIMIT_MB")  # a bad value is refused, naming the variable
+    return memory_budget()
 
 
 def disk_free(folder: Path) -> int:

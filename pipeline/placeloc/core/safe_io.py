@@ -133,14 +133,21 @@ def mem_available() -> int:
     return 1 << 62
 
 
+# The largest size limit taken from the environment: 2**40 MB (an exbibyte), far beyond any
+# machine; a larger figure is a typo (1e308), and turned into bytes it overflows.
+ENV_MEGABYTES_MAX = 2**40
+
+
 def memory_budget() -> int:
-    """What one decode or read may take: ``PLACELOC_MEMORY_LIMIT_MB`` when it is a number
-    (placeloc.core.limits words a bad value before any stage), else MemAvailable."""
+    """Bytes of memory a run, a decode or a read may take: ``PLACELOC_MEMORY_LIMIT_MB`` when
+    it is a number of megabytes from 0 to :data:`ENV_MEGABYTES_MAX`, else MemAvailable.
+    Never raises: :func:`placeloc.core.limits.memory_limit` refuses a bad value, naming the
+    variable, before any stage runs (a worker decoding an image only needs the figure)."""
     try:
         value = float(os.environ.get("PLACELOC_MEMORY_LIMIT_MB", "").strip() or "nan")
     except ValueError:
         value = float("nan")
-    if math.isfinite(value) and 0 <= value < 2**40:
+    if math.isfinite(value) and 0 <= value <= ENV_MEGABYTES_MAX:
         return int(value * 2**20)
     return mem_available()
 

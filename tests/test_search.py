@@ -76,3 +76,23 @@ def test_loop_closure_excludes_recent_frames():
 def test_confidence_from_best_and_second():
     s = np.array([[1.0, 2.0], [2.0, 2.0], [np.inf, np.inf]], np.float32)
     np.testing.assert_allclose(confidence(s), [0.5, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("shape", ["trajectory", "cone", "hybrid", "flexible"])
+@pytest.mark.parametrize("edges", ["skip", "shift"])
+def test_plain_ranking_from_the_same_pass_equals_a_search_without_separation(shape, edges):
+    """``plain`` is filled from the scores the separated ranking uses: it must equal a search
+    of its own with no separation (window 0), row for row, edge queries included."""
+    rng = np.random.default_rng(3)
+    et = rng.random((70, 90)).astype(np.float32) * 3
+    vels = velocities(0.8, 1.2, 0.1)
+    p_k = 6
+    plain = (np.full((70, p_k), -1, np.int64), np.full((70, p_k), np.inf, np.float32))
+    best, scores = sequence_search(et, 0, 70, 8, vels, "centred", 5, 3, None, 0, shape=shape, edges=edges, plain=plain)
+    alone_best, alone_scores = sequence_search(et, 0, 70, 8, vels, "centred", 0, p_k, None, 0, shape=shape, edges=edges)
+    np.testing.assert_array_equal(plain[0], alone_best)
+    np.testing.assert_array_equal(plain[1], alone_scores)
+    # and the separated ranking is the one a search without ``plain`` gives
+    sep_best, sep_scores = sequence_search(et, 0, 70, 8, vels, "centred", 5, 3, None, 0, shape=shape, edges=edges)
+    np.testing.assert_array_equal(best, sep_best)
+    np.testing.assert_array_equal(scores, sep_scores)

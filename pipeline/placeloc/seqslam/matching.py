@@ -42,6 +42,9 @@ class SequenceMatches:
     single_best: np.ndarray
     single_confidence: np.ndarray
     velocities: np.ndarray
+    # the plain ranking (no separation between candidates), when asked for with ``plain_k``
+    plain_candidates: np.ndarray | None = None
+    plain_scores: np.ndarray | None = None
 
 
 def difference_job(job: tuple[tuple[int, int, int, int], np.ndarray, str], ref: np.ndarray) -> np.ndarray:
@@ -110,6 +113,7 @@ def sequence_match(
     on_difference: Callable[[int, int, np.ndarray], None] | None = None,
     on_enhanced: Callable[[int, int, int, np.ndarray], None] | None = None,
     progress: Callable[..., Iterable] | None = None,
+    plain_k: int = 0,
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
@@ -120,7 +124,9 @@ def sequence_match(
     difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
     raw difference columns ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, lo, et)``
     the enhanced block, query-major, its row 0 being query ``lo`` (the columns a sequence
-    window needs on either side included), for what the caller keeps of it.
+    window needs on either side included), for what the caller keeps of it. ``plain_k`` > 0
+    also ranks the ``plain_k`` best references with no separation (the standard Recall@N),
+    from the same sequence scores.
     """
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
@@ -131,6 +137,7 @@ def sequence_match(
     scores = np.full((n_q, k), np.inf, np.float32)
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
+    plain = (np.full((n_q, plain_k), -1, np.int64), np.full((n_q, plain_k), np.inf, np.float32)) if plain_k > 0 else None
 
     spans = block_spans(n_q, block, before, after)
     # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
@@ -155,6 +162,8 @@ def sequence_match(
             on_enhanced(c0, c1, lo, et)
         b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
                                shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
-                               stop_cost=stop_cost, reverse_cost=reverse_cost)
+                               stop_cost=stop_cost, reverse_cost=reverse_cost,
+                               plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
         candidates[c0:c1], scores[c0:c1] = b, s
-    return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels)
+    return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels,
+                           *(plain if plain is not None else (None, None)))

@@ -439,6 +439,7 @@ def sequence_search(
     speed_change_cost: float = SPEED_CHANGE_COST,
     stop_cost: float = STOP_COST,
     reverse_cost: float = REVERSE_COST,
+    plain: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
 
@@ -461,6 +462,10 @@ def sequence_search(
     ascending, the k best at least ``window + 1`` rows apart. ``exclude_recent`` (loop
     closure, reference == query) drops references ``r > T_global - exclude_recent`` where
     ``T_global = query_index0 + column``.
+
+    ``plain`` (optional): two arrays (n, p) filled with the plain ranking, the p best
+    references with no separation (neighbours allowed; the standard Recall@N), from the
+    same scores (for ``hybrid``, whose scores depend on the separation, scored again).
     """
     if edges not in ("skip", "shift"):
         raise ValueError(f"unknown edge handling {edges!r}; choose skip or shift")
@@ -492,10 +497,19 @@ def sequence_search(
     last = min(q_hi, ncols - int(t_off[-1]))
     inner = (first, last) if first < last else (q_lo, q_lo)
 
+    def rank(rows: slice, s: np.ndarray, t2: np.ndarray, traj2: np.ndarray) -> None:
+        """The separated top k (and the plain ranking) of queries ``rows`` from their scores ``s``."""
+        if plain is not None:
+            p_k = plain[0].shape[1]
+            s_plain = s.copy() if shape != "hybrid" else _scores(
+                et, (rows.start + q_lo, rows.stop + q_lo), t2, traj2, shape, 0, p_k, exclude_after[rows], vels, flexible)
+            plain[0][rows], plain[1][rows] = _top_k(s_plain, 0, p_k)
+        best[rows], scores[rows] = _top_k(s, window, k)
+
     def run(lo: int, hi: int) -> None:
         a, b = inner[0] + lo, inner[0] + hi
-        s = _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[a - q_lo:b - q_lo], vels, flexible)
-        best[a - q_lo:b - q_lo], scores[a - q_lo:b - q_lo] = _top_k(s, window, k)
+        rows = slice(a - q_lo, b - q_lo)
+        rank(rows, _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[rows], vels, flexible), t_off, traj)
 
     # the flexible search holds two score arrays per velocity for a chunk of rows
     per_row = et.shape[1] * (2 * (len(vels) + 1) if shape == "flexible" else 1)
@@ -505,9 +519,9 @@ def sequence_search(
         for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
             sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))
             t2 = t_off + sh
-            s = _scores(et, (T, T + 1), t2, trajectory_offsets(vels, t2), shape, window, k,
-                        exclude_after[T - q_lo:T - q_lo + 1], vels, flexible)
-            best[T - q_lo], scores[T - q_lo] = (x[0] for x in _top_k(s, window, k))
+            traj2 = trajectory_offsets(vels, t2)
+            rows = slice(T - q_lo, T - q_lo + 1)
+            rank(rows, _scores(et, (T, T + 1), t2, traj2, shape, window, k, exclude_after[rows], vels, flexible), t2, traj2)
     return best, scores
 
 

@@ -111,8 +111,7 @@ def _loop_exclusion(ctx: Any) -> int:
 def localize(ctx: Any) -> None:
     """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
     ``loops`` contract (no query: each frame against the earlier ones)."""
-    from placeloc.seqslam.matching import search_velocities, sequence_match
-    from placeloc.seqslam.search import sequence_search
+    from placeloc.seqslam.matching import sequence_match
 
     p: SeqSLAMParams = ctx.params
     ex = ctx.artifact("extract")
@@ -137,9 +136,6 @@ def localize(ctx: Any) -> None:
     sr, sq = max(1, -(-n_ref // PLOT_SIDE)), max(1, -(-n_q // PLOT_SIDE))
     plot_d = np.zeros((len(range(0, n_ref, sr)), len(range(0, n_q, sq))), np.float32)
     plot_e = np.zeros_like(plot_d)
-    k_plain = max(int(p.top_k), PLAIN_RANKING_K)
-    plain = None if loop_closure else (np.full((n_q, k_plain), -1, np.int64), np.full((n_q, k_plain), np.inf, np.float32))
-    vels = search_velocities(p.v_min, p.v_max, p.v_step, bool(p.v_auto), n_ref, n_q, float(p.v_reverse))
 
     def sampled(c0: int, c1: int) -> tuple[slice, np.ndarray]:
         """The picture's columns among queries c0..c1-1: where they go, and where they are in the block."""
@@ -159,11 +155,6 @@ def localize(ctx: Any) -> None:
             e_ds[:, c0:c1] = e.T
         where, cols = sampled(c0, c1)
         plot_e[:, where] = e[cols][:, ::sr].T
-        if plain is not None:
-            plain[0][c0:c1], plain[1][c0:c1] = sequence_search(
-                et, c0 - lo, c1 - lo, int(p.ds), vels, p.search, 0, k_plain, None, lo, shape=p.sequence_shape,
-                edges=p.edges, speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
-                reverse_cost=float(p.reverse_cost))
 
     m = sequence_match(ref, query, comparison=comparison, enhance_window=int(p.enhance_window), ds=int(p.ds),
                        v_min=p.v_min, v_max=p.v_max, v_step=p.v_step, v_auto=bool(p.v_auto), search=p.search,
@@ -176,7 +167,7 @@ def localize(ctx: Any) -> None:
                        # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
                        # 3576 references) while its threads compete with ours (docs/architecture.md).
                        map_blocks=None, on_difference=store, on_enhanced=keep_enhanced,
-                       progress=ctx.progress)
+                       progress=ctx.progress, plain_k=0 if loop_closure else max(int(p.top_k), PLAIN_RANKING_K))
     pic = ctx.out.create_group("plot")
     pic.attrs["stride"] = (sr, sq)
     pic.attrs["convention"] = "D and D^ at every stride-th reference (rows) and query (columns)"
@@ -201,12 +192,13 @@ def localize(ctx: Any) -> None:
         return
     from placeloc.evaluation import ranked
 
-    assert plain is not None
+    plain_candidates, plain_scores = m.plain_candidates, m.plain_scores
+    assert plain_candidates is not None and plain_scores is not None
     ranked.write(ctx, query_index=q_group["index"][()], query_names=read_strings(q_group["names"]), reference_index=ref_index,
                  reference_names=read_strings(ex["reference/names"]), candidates=original, scores=m.scores,
                  confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1,
-                 plain_candidates=np.where(plain[0] >= 0, ref_index[np.clip(plain[0], 0, None)], -1),
-                 plain_scores=np.where(np.isfinite(plain[1]), plain[1], np.nan))
+                 plain_candidates=local_to_original(ref_index, plain_candidates),
+                 plain_scores=np.where(np.isfinite(plain_scores), plain_scores, np.nan))
 
 
 # ---------------------------------------------------------------------------------------

@@ -235,6 +235,17 @@ def score_loops(truth: Any, frames: np.ndarray, match: np.ndarray, *, exclude_re
     return candidate, correct, has_loop, example
 
 
+def exclusion_for(ctx: Any, n_kept: int) -> int:
+    """``ground_truth.exclude_recent`` as this run's loop closures are scored with it (set, or
+    adapted to the reference traverse's listed length, ``n_kept`` frames when the listing is
+    not at hand): what a method's loop mode excludes, so it never proposes a pair the
+    scoring would not count."""
+    from placeloc.core.common_params import loop_exclusion
+
+    images = ctx.images.get("reference")
+    return loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], len(images.paths) if images is not None else n_kept)[0]
+
+
 def evaluate(ctx: Any, res: Result) -> LoopEvaluation:
     """Read the loop-closure ground truth against the listed frames and :func:`score` the result."""
     from placeloc.core.common_params import LOOP_EXCLUSION_FRAMES, loop_exclusion

@@ -89,14 +89,12 @@ def _localize_loops(ctx: Any, ex: Any) -> None:
     import time
 
     from placeloc.core.artifacts import read_strings
-    from placeloc.core.common_params import loop_exclusion
     from placeloc.evaluation import loops
     from placeloc.retrieval.neighbours import nearest_earlier
 
     p: RetrievalParams = ctx.params
     rows, index = ex["reference/features"][()], ex["reference/index"][()]
-    images = ctx.images.get("reference")
-    exclude, _rule = loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], len(images.paths) if images else len(rows))
+    exclude = loops.exclusion_for(ctx, len(rows))
     t0 = time.perf_counter()
     best, score = nearest_earlier(rows, exclude_recent=exclude, distance=p.distance, block_size=p.block_size)
     seconds = (time.perf_counter() - t0) / max(len(rows), 1)

@@ -98,19 +98,10 @@ def _extract_descriptors(ctx: Any) -> None:
 # ---------------------------------------------------------------------------------------
 # localize
 # ---------------------------------------------------------------------------------------
-def _loop_exclusion(ctx: Any) -> int:
-    """ground_truth.exclude_recent for this traverse (adapted to its length when not set),
-    as the loops contract scores it: a frame never matches the frames just before it."""
-    from placeloc.core.common_params import loop_exclusion
-
-    images = ctx.images.get("reference")
-    n = len(images.paths) if images is not None else len(ctx.artifact("extract")["reference/index"])
-    return loop_exclusion(ctx.config["ground_truth"]["exclude_recent"], n)[0]
-
-
 def localize(ctx: Any) -> None:
     """Sequence matching; writes the ``ranked`` contract (a query traverse) or the
     ``loops`` contract (no query: each frame against the earlier ones)."""
+    from placeloc.evaluation import loops
     from placeloc.seqslam.matching import sequence_match
 
     p: SeqSLAMParams = ctx.params
@@ -161,7 +152,7 @@ def localize(ctx: Any) -> None:
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
                        speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
                        reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
-                       exclude_recent=_loop_exclusion(ctx) if loop_closure else None, block_size=int(p.block_size),
+                       exclude_recent=loops.exclusion_for(ctx, n_ref) if loop_closure else None, block_size=int(p.block_size),
                        # Blocks run in this process: the difference kernel, the enhancement and the
                        # search are threaded over every usable core already, and a pool worker would
                        # send each D block back through a pipe (n_ref x block_size float32: 14 MB at
@@ -185,8 +176,6 @@ def localize(ctx: Any) -> None:
     q_group = ex["reference" if loop_closure else "query"]
     original = local_to_original(ref_index, m.candidates)
     if loop_closure:
-        from placeloc.evaluation import loops
-
         loops.write(ctx, frame_index=ref_index, frame_names=read_strings(ex["reference/names"]), match=original[:, 0],
                     confidence=m.confidence, threshold=None)
         return

@@ -258,33 +258,29 @@ def image_size(path: str | Path) -> tuple[int, int] | None:
     except OSError:
         return None
     try:
-        head = os.read(fd, 32)
-        size = _simple_size(head)
-        if size is not None:
-            return size
-        if head[:2] == b"\xff\xd8" or _pillow_format(head):
-            with open(fd, "rb", closefd=False) as fh:
-                return _jpeg_size(fh) if head[:2] == b"\xff\xd8" else _pillow_size(fh, head)
+        return _header_size(os.read(fd, 32), lambda: open(fd, "rb", closefd=False))
     except (OSError, ValueError, struct.error):
         return None
     finally:
         os.close(fd)
-    return None
 
 
 def image_size_of(data: bytes) -> tuple[int, int] | None:
     """:func:`image_size` of an encoded image already in memory."""
     try:
-        size = _simple_size(data[:32])
-        if size is not None:
-            return size
-        if data[:2] == b"\xff\xd8":
-            return _jpeg_size(io.BytesIO(data))
-        if _pillow_format(data[:32]):
-            return _pillow_size(io.BytesIO(data), data[:32])
+        return _header_size(data[:32], lambda: io.BytesIO(data))
     except (OSError, ValueError, struct.error):
         return None
-    return None
+
+
+def _header_size(head: bytes, open_stream: Any) -> tuple[int, int] | None:
+    """(width, height) from an image's first 32 bytes ``head``; JPEG and the formats
+    Pillow parses read on from ``open_stream()`` (opened only for them)."""
+    size = _simple_size(head)
+    if size is not None or not (head[:2] == b"\xff\xd8" or _pillow_format(head)):
+        return size
+    with open_stream() as fh:
+        return _jpeg_size(fh) if head[:2] == b"\xff\xd8" else _pillow_size(fh, head)
 
 
 def _simple_size(head: bytes) -> tuple[int, int] | None:

@@ -235,36 +235,37 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
 _INT_LIMIT = 2**63 - 1
 
 
+def _first_leaf(value: Any, bad: Any) -> Any:
+    """The first leaf of a value (a scalar, or lists and mappings of them) for which
+    ``bad(leaf)`` holds, else None."""
+    if not isinstance(value, (dict, list, tuple)):
+        return value if bad(value) else None
+    for item in value.values() if isinstance(value, dict) else value:
+        found = _first_leaf(item, bad)
+        if found is not None:
+            return found
+    return None
+
+
 def _non_finite(value: Any) -> float | int | None:
     """The first NaN, infinity or integer beyond 64 bits in a value (a number, or a list or
     mapping of them), else None."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return value
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > _INT_LIMIT:
-        return value
-    items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
-    for item in items:
-        bad = _non_finite(item)
-        if bad is not None:
-            return bad
-    return None
+    return _first_leaf(value, lambda v: (isinstance(v, float) and not math.isfinite(v)) or (
+        isinstance(v, int) and not isinstance(v, bool) and abs(v) > _INT_LIMIT))
 
 
 def _not_utf8(value: Any) -> str | None:
     """The first string in a value that is not valid UTF-8 (a ``--set`` argument or a path
     with bytes the locale could not decode reaches Python as lone surrogates), else None."""
-    if isinstance(value, str):
+
+    def bad(v: Any) -> bool:
         try:
-            value.encode("utf-8")
+            v.encode("utf-8")
         except UnicodeEncodeError:
-            return value
-        return None
-    items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
-    for item in items:
-        bad = _not_utf8(item)
-        if bad is not None:
-            return bad
-    return None
+            return True
+        return False
+
+    return _first_leaf(value, lambda v: isinstance(v, str) and bad(v))
 
 
 def _check_finite(key: str, value: Any, default: Any) -> None:

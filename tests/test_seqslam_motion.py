@@ -187,3 +187,161 @@ def test_motion_profiles_do_what_their_family_says(family):
         assert 2.2 <= 599 / len(pos) <= 3.05  # one speed of 2.25x-3.0x throughout
     else:
         assert (step >= 0).all()
+
+
+# ---------------------------------------------------------------------------------------
+# stops collapsed (collapse_stops) and paths driven backwards throughout (backward_paths)
+# ---------------------------------------------------------------------------------------
+def _standing_route(n_ref: int, places: np.ndarray, seed: int,
+                    ref_stands: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`_route` (each view of a place +-40 grey levels off the reference's, as
+    another season), but a query frame that repeats its place repeats its view up to
+    +-4 levels, as a stopped camera's frames differ by sensor noise only; ``ref_stands``
+    = (first, last): the reference stands there too (its rows repeat the first, +-4), as
+    at a station."""
+    rng = np.random.default_rng(seed)
+    ref = rng.integers(0, 256, (n_ref, 32)).astype(int)
+    if ref_stands is not None:
+        a, b = ref_stands
+        ref[a:b + 1] = ref[a] + rng.integers(-4, 5, (b + 1 - a, 32))
+    query = ref[places] + rng.integers(-40, 41, (len(places), 32))
+    for j in range(1, len(places)):
+        if places[j] == places[j - 1]:
+            query[j] = query[j - 1] + rng.integers(-4, 5, 32)
+    return np.clip(ref, 0, 255).astype(np.uint8), np.clip(query, 0, 255).astype(np.uint8)
+
+
+def test_standing_runs_collapse_stops_and_never_a_slow_drift():
+    from placeloc.seqslam.matching import standing_runs
+
+    rng = np.random.default_rng(11)
+    moving = rng.integers(0, 256, (60, 32)).astype(np.float64)
+    frames = np.concatenate([moving[:20], np.repeat(moving[20:21], 15, axis=0), moving[21:40],
+                             np.repeat(moving[40:41], 8, axis=0), moving[41:]])
+    frames = np.clip(frames + rng.normal(0, 2, frames.shape), 0, 255).astype(np.uint8)
+    first, run_of = standing_runs(frames, "sad")
+    # the 15-frame stop (frames 20-34) and the 8-frame one (54-61) each become one frame
+    keep = np.concatenate([np.arange(21), np.arange(35, 55), np.arange(62, len(frames))])
+    np.testing.assert_array_equal(first, keep)
+    np.testing.assert_array_equal(first[run_of[20:35]], [20] * 15)
+    np.testing.assert_array_equal(first[run_of[54:62]], [54] * 8)
+    # a crawl: 40 frames each 2 grey levels brighter than the one before (frame to frame
+    # far below a moving frame's change of about 85, but 80 levels over the stretch)
+    crawl = np.concatenate([moving[:30], moving[30:31] + 2.0 * np.arange(40)[:, None] % 256, moving[31:]])
+    first, _ = standing_runs(np.clip(crawl, 0, 255).astype(np.uint8), "sad")
+    assert len(first) >= 30 + 40 // 11 + 29  # cut whenever it drifts past the threshold (~21 levels)
+
+
+def test_collapsed_stop_is_followed_to_within_a_frame():
+    # a query that stops for 50 frames where the reference moves on: with collapse_stops
+    # every frame of the stop takes the match of the frame that opened it, the right one
+    places = np.concatenate([np.arange(10, 110), np.full(50, 110), np.arange(111, 200)])
+    ref, query = _standing_route(220, places, seed=12)
+    common = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+                  search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
+                  block_size=1024)
+    collapsed = sequence_match(ref, query, collapse_stops=True, **common)
+    err = np.abs(collapsed.candidates[:, 0] - places)
+    assert (err <= 1).all()
+    stop = slice(100, 150)
+    plain = sequence_match(ref, query, **common)  # moving only: the middle of the stop is lost
+    assert (np.abs(plain.candidates[stop, 0] - places[stop]) > 1).sum() >= 10
+    # every collapsed frame carries its run's answer, confidence included
+    assert (collapsed.confidence[stop] == collapsed.confidence[100]).all()
+
+
+def test_a_stop_both_traverses_made_stays_aligned():
+    # a station: the reference stands at 100-129 (30 frames of one place) and so does
+    # the query (its own 30 frames); both runs collapse, so the sequence runs on through
+    places = np.concatenate([np.arange(10, 100), np.full(30, 100), np.arange(130, 220)])
+    ref, query = _standing_route(240, places, seed=13, ref_stands=(100, 129))
+    common = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+                  search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
+                  block_size=1024)
+    m = sequence_match(ref, query, collapse_stops=True, **common)
+    best = m.candidates[:, 0]
+    inside = places == 100
+    assert (best[inside] == 100).all()  # the station's first frame stands for it
+    assert (np.abs(best[~inside] - places[~inside]) <= 1).all()
+
+
+@pytest.mark.parametrize("search", ["causal", "centred"])
+def test_collapsing_and_backward_paths_never_depend_on_the_block_size(search):
+    places = np.concatenate([np.arange(5, 40), np.full(12, 40), np.arange(41, 60), np.full(9, 60), np.arange(61, 85)])
+    ref, query = _standing_route(95, places, seed=14, ref_stands=(70, 76))
+    common = dict(comparison="sad", enhance_window=3, ds=20, v_min=0.5, v_max=1.5, v_step=0.25, v_auto=False,
+                  search=search, sequence_shape="flexible", edges="shift", top_k=3, exclude_recent=None,
+                  collapse_stops=True, backward_paths=True, plain_k=5)
+    seen: dict[int, list] = {}
+    one = sequence_match(ref, query, block_size=1000,
+                         on_difference=lambda c0, c1, d: seen.setdefault(1000, []).append((c0, c1, d.copy())), **common)
+    for block in (16, 5, 1):
+        cut = sequence_match(ref, query, block_size=block,
+                             on_difference=lambda c0, c1, d, b=block: seen.setdefault(b, []).append((c0, c1, d.copy())),
+                             **common)
+        np.testing.assert_array_equal(one.candidates, cut.candidates)
+        np.testing.assert_array_equal(one.scores, cut.scores)
+        np.testing.assert_array_equal(one.plain_candidates, cut.plain_candidates)
+        # the stored differences are every frame's own, whatever was collapsed
+        d = np.concatenate([x[2] for x in seen[block]], axis=1)
+        np.testing.assert_array_equal(d, np.concatenate([x[2] for x in seen[1000]], axis=1))
+    assert np.concatenate([x[2] for x in seen[1000]], axis=1).shape == (len(ref), len(query))
+
+
+def test_collapse_stops_refuses_loop_closure():
+    ref, _ = _route(50, np.arange(50), seed=15)
+    with pytest.raises(ValueError, match="loop closure"):
+        sequence_match(ref, ref, comparison="sad", enhance_window=3, ds=10, v_min=0.8, v_max=1.2, v_step=0.1,
+                       v_auto=False, search="causal", sequence_shape="flexible", edges="skip", top_k=2,
+                       exclude_recent=5, block_size=64, collapse_stops=True)
+
+
+def test_backward_paths_follow_a_reversal_to_within_a_frame():
+    # forward speeds only (0.3-4.0) and the family driven backwards throughout: the
+    # queries whose window lies inside a 90-frame reversal land within a frame; without
+    # the backward family they are lost
+    speeds = np.concatenate([np.ones(100), np.full(90, -1.0), np.ones(100)])
+    et, path = _planted(speeds, seed=16)
+    vels = velocities(0.3, 4.0, 0.1)
+    back, _ = sequence_search(et, 0, len(et), 40, vels, "centred", 5, 2, None, 0, shape="flexible", edges="shift",
+                              backward_paths=True, reverse_cost=0.5)
+    ahead, _ = sequence_search(et, 0, len(et), 40, vels, "centred", 5, 2, None, 0, shape="flexible", edges="shift")
+    inside = slice(125, 165)  # the windows (41 frames) lie inside the reversal
+    assert (np.abs(back[inside, 0] - path[inside]) <= 1).all()
+    assert (np.abs(ahead[inside, 0] - path[inside]) > 1).mean() > 0.5
+    steady = np.r_[0:80, 210:290]  # away from the turns, forward queries keep their matches
+    assert (np.abs(back[steady, 0] - path[steady]) <= 1).all()
+
+
+def test_backward_paths_take_the_better_family_per_reference():
+    # the combined scores are the elementwise minimum of the two families' scores: a
+    # planted reversal scored with only the backward speeds agrees with backward_paths
+    # wherever the backward family wins
+    speeds = np.concatenate([np.ones(60), np.full(60, -1.0), np.ones(60)])
+    et, _ = _planted(speeds, seed=17)
+    vels = velocities(0.5, 2.0, 0.1)
+    k = 3
+    both, s_both = sequence_search(et, 0, len(et), 20, vels, "centred", 5, k, None, 0, shape="flexible", edges="shift",
+                                   backward_paths=True, reverse_cost=0.25)
+    _, s_fwd = sequence_search(et, 0, len(et), 20, vels, "centred", 5, k, None, 0, shape="flexible", edges="shift")
+    np.testing.assert_array_less(s_both[:, 0] - 1e-4, s_fwd[:, 0])  # never worse than forward alone
+    with pytest.raises(ValueError, match="forward speeds only"):
+        sequence_search(et, 0, len(et), 20, velocities(0.5, 2.0, 0.1, v_reverse=1.0), "centred", 5, k, None, 0,
+                        shape="flexible", edges="shift", backward_paths=True)
+
+
+@pytest.mark.parametrize("seqslam,query,message", [
+    ({"collapse_stops": True}, False, r"seqslam\.collapse_stops needs a query traverse"),
+    ({"backward_paths": True, "sequence_shape": "flexible", "v_reverse": 1.0}, True,
+     r"seqslam\.backward_paths needs sequence_shape: flexible with forward speeds only"),
+    ({"backward_paths": True, "sequence_shape": "trajectory"}, True, r"seqslam\.backward_paths needs"),
+])
+def test_the_config_refuses_what_the_search_cannot_do(tmp_path, seqslam, query, message):
+    from placeloc.core.config import ConfigError, load_config
+
+    (tmp_path / "imgs").mkdir()
+    config = {"method": "seqslam", "reference": {"images": str(tmp_path / "imgs")}, "seqslam": seqslam}
+    if query:
+        config["query"] = {"images": str(tmp_path / "imgs")}
+    with pytest.raises(ConfigError, match=message):
+        load_config(data=config)

@@ -154,10 +154,13 @@ def preset() -> dict[str, Any]:
 
 def part(lo: int, hi: int) -> dict[str, np.ndarray]:
     """Features of nordland-dev frames lo..hi-1 (summer, winter) and the enhanced
-    differences ``E[winter frame, summer frame]``."""
+    differences ``E[winter frame, summer frame]``; for ``collapse_stops``, the summer
+    frames kept (:func:`placeloc.seqslam.matching.standing_runs`) and the differences to
+    them alone, enhanced (as ``localize`` enhances them: over the kept references)."""
     from placeloc.core.images import list_images
     from placeloc.seqslam.comparisons import difference_block
     from placeloc.seqslam.features import image_features
+    from placeloc.seqslam.matching import standing_runs
     from placeloc.seqslam.search import enhance
 
     p = preset()
@@ -169,26 +172,34 @@ def part(lo: int, hi: int) -> dict[str, np.ndarray]:
             paths, on_error="raise", thumbnail_size=tuple(p["thumbnail"]), comparison=p["comparison"], patch=p["patch"],
             normalisation=p["normalisation"], gaussian_sigma=p["gaussian_sigma"], ocm_epsilon=p["ocm_epsilon"])
     d = difference_block(feats["summer"], feats["winter"], p["comparison"])
+    ref_first = standing_runs(feats["summer"], p["comparison"])[0]
     return {"enhanced": np.ascontiguousarray(enhance(d, int(p["enhance_window"])).T),
-            "truth": shared_stops(feats["summer"], feats["winter"])}
+            "enhanced_kept": np.ascontiguousarray(enhance(d[ref_first], int(p["enhance_window"])).T),
+            "reference_kept": ref_first, "truth": shared_stops(feats["summer"], feats["winter"]),
+            "query_features": feats["winter"]}
 
 
 def search(data: dict[str, np.ndarray], pos: np.ndarray, setting: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """Best reference and confidence per query of the resampled query ``pos``, with the
-    preset's settings overridden by ``setting`` (``v_auto`` as ``localize`` applies it)."""
-    from placeloc.seqslam.matching import auto_velocity_scale
-    from placeloc.seqslam.search import confidence, sequence_search, velocities
+    preset's settings overridden by ``setting`` (``v_auto``, ``collapse_stops`` and
+    ``backward_paths`` as ``localize`` applies them)."""
+    from placeloc.seqslam.matching import search_velocities, standing_runs
+    from placeloc.seqslam.search import confidence, sequence_search
 
     p = {**preset(), **setting}
-    et = np.ascontiguousarray(data["enhanced"][pos])
-    vels = velocities(p["v_min"], p["v_max"], p["v_step"], p["v_reverse"])
-    if p["v_auto"]:
-        vels = np.round(vels * auto_velocity_scale(et.shape[1], len(pos)), 9)
-    best, scores = sequence_search(et, 0, len(pos), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
+    n = len(pos)
+    first, run_of = (standing_runs(data["query_features"][pos], p["comparison"]) if p["collapse_stops"]
+                     else (np.arange(n), np.arange(n)))
+    et = np.ascontiguousarray(data["enhanced_kept" if p["collapse_stops"] else "enhanced"][pos[first]])
+    vels = search_velocities(p["v_min"], p["v_max"], p["v_step"], p["v_auto"], et.shape[1], len(first), p["v_reverse"])
+    best, scores = sequence_search(et, 0, len(first), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
                                    int(p["top_k"]), None, 0, shape=p["sequence_shape"], edges=p["edges"],
                                    speed_change_cost=p["speed_change_cost"], stop_cost=p["stop_cost"],
-                                   reverse_cost=p["reverse_cost"])
-    return best[:, 0], confidence(scores)
+                                   reverse_cost=p["reverse_cost"], backward_paths=p["backward_paths"])
+    best = best[run_of, 0]
+    if p["collapse_stops"]:
+        best = np.where(best >= 0, data["reference_kept"][np.maximum(best, 0)], -1)
+    return best, confidence(scores)[run_of]
 
 
 def score(data: dict[str, np.ndarray], pos: np.ndarray, inside: np.ndarray, best: np.ndarray,
@@ -230,11 +241,18 @@ def tune_grid() -> list[dict[str, Any]]:
     """The path models compared on the tuning part (all flexible, ds 120, v_step 0.1,
     ``v_auto``): moving only over the old speeds (0.5-2.0) and over crawls to bursts
     (0.3-4.0); the latter allowed to back out (to -1.0) at two costs of driving
-    backwards; and the whole model, standing still too (v_min 0)."""
+    backwards; the whole model, standing still too (v_min 0); and 0.3-4.0 with standing
+    runs collapsed (``collapse_stops``), with a family of paths driven backwards
+    throughout (``backward_paths``) at three costs, and with both."""
     grid: list[dict[str, Any]] = [{"v_min": 0.5, "v_max": 2.0}, {"v_min": 0.3, "v_max": 4.0}]
     grid += [{"v_min": 0.3, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": r} for r in (0.0, 0.25)]
     grid += [{"v_min": 0.0, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": 0.0}]
-    return [{"v_auto": True, "stop_cost": 2.0, "reverse_cost": 0.5, "v_reverse": 0.0, **g} for g in grid]
+    grid += [{"v_min": 0.3, "v_max": 4.0, "collapse_stops": True}]
+    grid += [{"v_min": 0.3, "v_max": 4.0, "backward_paths": True, "reverse_cost": r} for r in (0.0, 0.25, 0.5)]
+    grid += [{"v_min": 0.3, "v_max": 4.0, "collapse_stops": True, "backward_paths": True, "reverse_cost": r}
+             for r in (0.0, 0.25, 0.5)]
+    return [{"v_auto": True, "stop_cost": 2.0, "reverse_cost": 0.5, "v_reverse": 0.0, "collapse_stops": False,
+             "backward_paths": False, **g} for g in grid]
 
 
 def choose(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -245,6 +263,10 @@ def choose(rows: list[dict[str, Any]]) -> dict[str, Any]:
     best = max(r["worst_family"] for r in ok)
     near = [r for r in ok if r["worst_family"] >= best - 0.005]
     return max(near, key=lambda r: round(r["median"], 3))
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "no"
 
 
 def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
@@ -267,7 +289,8 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
             continue
         r = run_setting(data, n, setting, seeds, quiet=True)
         motion = [x["recall_at_1"] for fam in FAMILIES[1:] for x in r[fam]]
-        row = {**setting, "steady": r["steady"][0]["recall_at_1"], "worst": min(motion),
+        row = {**setting, "steady": r["steady"][0]["recall_at_1"],
+               "steady_r100p": r["steady"][0]["recall_at_100_precision"], "worst": min(motion),
                "median": float(np.median([np.median([x["recall_at_1"] for x in r[f]]) for f in FAMILIES[1:]]))}
         row.update({f"{fam}_median": float(np.median([x["recall_at_1"] for x in r[fam]])) for fam in FAMILIES})
         row.update({f"{fam}_inside": float(np.median([x["recall_at_1_inside"] for x in r[fam]])) for fam in MOTIONS})
@@ -280,15 +303,18 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
             print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
     chosen = choose(rows)
     lines = [f"R@1 median over seeds {', '.join(map(str, seeds))} (inside the motion in brackets)\n",
-             "| v | reverse_cost | steady | worst seed | " + " | ".join(FAMILIES[1:]) + " |",
-             "|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
+             "| v | collapse_stops | backward_paths | reverse_cost | steady (R@100P) | worst seed | "
+             + " | ".join(FAMILIES[1:]) + " |",
+             "|---|---|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
     for r in rows:
-        lines.append(f"| {r['v_min']:g}..{r['v_max']:g}, back to -{r['v_reverse']:g} | {r['reverse_cost']:g} | "
-                     f"{r['steady']:.3f} | {r['worst']:.3f} | "
+        lines.append(f"| {r['v_min']:g}..{r['v_max']:g}, back to -{r['v_reverse']:g} | {_yes(r['collapse_stops'])} | "
+                     f"{_yes(r['backward_paths'])} | {r['reverse_cost']:g} | "
+                     f"{r['steady']:.3f} ({r.get('steady_r100p', float('nan')):.3f}) | {r['worst']:.3f} | "
                      + " | ".join(f"{r[f + '_median']:.3f}" + (f" ({r[f + '_inside']:.3f})" if f in MOTIONS else "")
                                   for f in FAMILIES[1:]) + " |")
     lines.append(f"\nchosen (rule in `choose`): v {chosen['v_min']:g}..{chosen['v_max']:g}, v_reverse "
-                 f"{chosen['v_reverse']:g}, reverse_cost {chosen['reverse_cost']:g}")
+                 f"{chosen['v_reverse']:g}, reverse_cost {chosen['reverse_cost']:g}, collapse_stops "
+                 f"{_yes(chosen['collapse_stops'])}, backward_paths {_yes(chosen['backward_paths'])}")
     out.mkdir(parents=True, exist_ok=True)
     (out / "tune.md").write_text("\n".join(lines) + "\n")
     if not quiet:
@@ -297,15 +323,22 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
 
 
 def report_settings() -> dict[str, dict[str, Any]]:
-    """The preset as shipped, the flexible preset it replaced, straight lines over the
-    preset's own speeds and window (what ``sequence_shape: trajectory`` gives), and the
-    whole path model (standing still and backing out too) that tuning turned down."""
+    """The preset as shipped; the preset with each of ``collapse_stops`` and
+    ``backward_paths`` switched the other way; the flexible preset it replaced; straight
+    lines over the preset's own speeds and window (what ``sequence_shape: trajectory``
+    gives); and the whole path model (standing still and backing out too) that tuning
+    turned down."""
+    p = preset()
+    toggled = {key: {key: not p[key], **({"reverse_cost": 0.5} if key == "backward_paths" and not p[key] else {})}
+               for key in ("collapse_stops", "backward_paths")}
     return {
         "preset (configs/nordland.yaml)": {},
-        "previous preset: flexible, v 0.5-2.0, no v_auto": {"v_min": 0.5, "v_max": 2.0, "v_auto": False},
-        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory"},
+        **{f"preset, {key} {'off' if p[key] else 'on'}": setting for key, setting in toggled.items()},
+        "previous preset: flexible, v 0.5-2.0, no v_auto": {"v_min": 0.5, "v_max": 2.0, "v_auto": False,
+                                                            "collapse_stops": False, "backward_paths": False},
+        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", "backward_paths": False},
         "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0)": {
-            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0},
+            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0, "backward_paths": False},
     }
 
 

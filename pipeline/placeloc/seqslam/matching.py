@@ -66,6 +66,62 @@ def search_velocities(v_min: float, v_max: float, v_step: float, v_auto: bool, n
     return np.round(vels * auto_velocity_scale(n_reference, n_query), 9) if v_auto else vels
 
 
+# A query frame stands (shows the same place as the frame that opened its run) when it
+# differs from that frame by less than STILL_FRACTION of a moving frame's change, the
+# MOVING_QUANTILE of the query's frame-to-frame changes. A camera at rest differs from its
+# last frame by noise only, a moving one by content: on nordland-dev (SAD, z-score
+# patches) standing pairs change 0.03-0.05 and moving ones 0.6-1.0, so the cut (about
+# 0.25) has a factor of 2.4 to the slowest moving pair and 5 to the busiest standing
+# one. The quantile is high so that the scale stays a moving frame's while up to 90 % of
+# the query stands (a median would fall into the stops once half the frames stand); a
+# query that never moves gives a scale of 0 and nothing is collapsed.
+STILL_FRACTION = 0.25
+MOVING_QUANTILE = 0.9
+
+
+def frame_changes(features: np.ndarray, comparison: str, chunk: int = 32) -> np.ndarray:
+    """``change[i]``: the comparison's difference between frames ``i - 1`` and ``i`` of one
+    traverse (``change[0]`` = inf), from the diagonal of small difference blocks."""
+    n = len(features)
+    change = np.full(n, np.inf)
+    for i in range(1, n, chunk):
+        j = min(n, i + chunk)
+        change[i:j] = np.diagonal(difference_block(features[i - 1:j - 1], features[i:j], comparison))
+    return change
+
+
+def standing_runs(features: np.ndarray, comparison: str) -> tuple[np.ndarray, np.ndarray]:
+    """The query with every standing run collapsed to its first frame: ``first`` (the
+    frames kept, ascending) and ``run_of`` (per frame, the position in ``first`` of the
+    frame whose match it takes). A run grows while each next frame stays within the
+    still threshold of the run's *first* frame (:data:`STILL_FRACTION`), so a slow crawl
+    whose frames drift a little each never collapses into one frame."""
+    n = len(features)
+    change = frame_changes(features, comparison)
+    if n < 2:
+        return np.arange(n), np.arange(n)
+    threshold = STILL_FRACTION * float(np.quantile(change[1:], MOVING_QUANTILE))
+    opens = change >= threshold  # frame 0 opens the first run (its change is inf)
+    still = np.flatnonzero(~opens)
+    i = 0
+    while i < len(still):
+        # a stretch of frames each close to the one before: check them against the run's first frame
+        j = i
+        while j + 1 < len(still) and still[j + 1] == still[j] + 1:
+            j += 1
+        start, stop = int(still[i]) - 1, int(still[j]) + 1
+        while start + 1 < stop:
+            d = difference_block(features[start:start + 1], features[start + 1:stop], comparison)[0]
+            far = np.flatnonzero(d >= threshold)
+            if len(far) == 0:
+                break
+            start = start + 1 + int(far[0])  # drifted too far: a new run opens here
+            opens[start] = True
+        i = j + 1
+    first = np.flatnonzero(opens)
+    return first, np.cumsum(opens) - 1
+
+
 def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
     """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
     columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
@@ -107,63 +163,116 @@ def sequence_match(
     stop_cost: float = STOP_COST,
     reverse_cost: float = REVERSE_COST,
     v_reverse: float = 0.0,
+    collapse_stops: bool = False,
+    backward_paths: bool = False,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
     on_difference: Callable[[int, int, np.ndarray], None] | None = None,
-    on_enhanced: Callable[[int, int, int, np.ndarray], None] | None = None,
+    on_enhanced: Callable[[int, int, np.ndarray], None] | None = None,
     progress: Callable[..., Iterable] | None = None,
     plain_k: int = 0,
 ) -> SequenceMatches:
     """Match every query row against the reference rows (features from ``extract``).
 
     ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
-    ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`). ``exclude_recent``
-    is for loop closure (``query is ref``): references within that
-    many frames before the query are ignored; ``None`` otherwise. ``map_blocks`` runs the
-    difference blocks (default: in this process); ``on_difference(c0, c1, d)`` gets the
-    raw difference columns ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, lo, et)``
-    the enhanced block, query-major, its row 0 being query ``lo`` (the columns a sequence
-    window needs on either side included), for what the caller keeps of it. ``plain_k`` > 0
-    also ranks the ``plain_k`` best references with no separation (the standard Recall@N),
-    from the same sequence scores.
+    ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`); ``backward_paths``
+    adds the family of paths that drive backwards throughout (see
+    :func:`placeloc.seqslam.search.sequence_search`). ``collapse_stops`` searches both
+    traverses with every standing run collapsed to its first frame (:func:`standing_runs`,
+    each traverse from its own frames; speeds scaled by the collapsed lengths with
+    ``v_auto``): every query frame of a run takes its first frame's matches, and a match on
+    a reference run is that run's first frame. The repeated frames of a stop carry no new
+    evidence of place; without them the sequence on either side of a query's stop is one
+    window, and a stop both traverses made (a station) stays aligned. ``exclude_recent``
+    is for loop closure (``query is ref``): references within that many frames before the
+    query are ignored; ``None`` otherwise (and ``collapse_stops`` must then be off: the
+    exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
+    (default: in this process); ``on_difference(c0, c1, d)`` gets the raw difference
+    columns of queries ``c0:c1`` (every frame, collapsed or not) as they are computed;
+    ``on_enhanced(c0, c1, e)`` their enhanced rows, query-major. ``plain_k`` > 0 also
+    ranks the ``plain_k`` best references with no separation (the standard Recall@N), from
+    the same sequence scores.
     """
+    if collapse_stops and exclude_recent is not None:
+        raise ValueError("collapse_stops needs a query traverse: loop closure's exclude_recent counts its frames")
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q, v_reverse)
+    first, run_of = standing_runs(query, comparison) if collapse_stops else (np.arange(n_q), np.arange(n_q))
+    ref_first = standing_runs(ref, comparison)[0] if collapse_stops else None
+    n_kept = len(first)
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref) if ref_first is None else len(ref_first), n_kept,
+                             v_reverse)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
-    candidates = np.full((n_q, k), -1, np.int64)
-    scores = np.full((n_q, k), np.inf, np.float32)
+    candidates = np.full((n_kept, k), -1, np.int64)
+    scores = np.full((n_kept, k), np.inf, np.float32)
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
-    plain = (np.full((n_q, plain_k), -1, np.int64), np.full((n_q, plain_k), np.inf, np.float32)) if plain_k > 0 else None
+    plain = (np.full((n_kept, plain_k), -1, np.int64),
+             np.full((n_kept, plain_k), np.inf, np.float32)) if plain_k > 0 else None
 
-    spans = block_spans(n_q, block, before, after)
-    # D blocks run on the executor (ref shipped once as shared; query slices made lazily, views inline);
+    # Blocks of query frames c0:c1 (every frame: their differences are stored and their
+    # single-image matches taken); the kept frames among them are searched, with the kept
+    # frames a window needs on either side (block_spans over the kept frames). Without
+    # collapsing, the kept frames are all frames and this is block_spans itself.
+    n_window = before + after + 1
+    spans = []
+    for c0, c1, _, _ in block_spans(n_q, block, before, after):
+        k0, k1 = (int(x) for x in np.searchsorted(first, (c0, c1)))
+        klo, khi = max(0, min(k0 - before, n_kept - n_window)), min(n_kept, max(k1 + after, n_window))
+        # the frames whose differences this block computes: c0:c1 and the kept ones its windows read
+        frames = np.union1d(np.arange(c0, c1), first[klo:khi])
+        contiguous = len(frames) == 0 or frames[-1] - frames[0] + 1 == len(frames)
+        spans.append((c0, c1, k0, k1, klo, khi, slice(int(frames[0]), int(frames[-1]) + 1) if contiguous else frames))
+    # D blocks run on the executor (ref shipped once as shared; query rows taken lazily, views inline);
     # enhancement, search and writing stay here, in order.
-    jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)
+    jobs = (((c0, c1, *_col_range(cols)), query[cols], comparison) for c0, c1, _, _, _, _, cols in spans)
     blocks = (map_blocks or _inline_map)(difference_job, jobs, shared=ref,
                                          describe=lambda job: f"difference block, query columns {job[0][2]}:{job[0][3]}")
     # blocks first in zip: its exhaustion runs the executor's clean-up (release the shared input).
     pairs: Iterable = zip(blocks, spans)
     if progress is not None:
         pairs = progress(pairs, total=len(spans), desc="localize blocks")
-    for d, (c0, c1, lo, _hi) in pairs:
+    for d, (c0, c1, k0, k1, klo, khi, cols) in pairs:
+        frames = np.arange(cols.start, cols.stop) if isinstance(cols, slice) else cols
+        s0 = int(np.searchsorted(frames, c0))
+        s1 = s0 + (c1 - c0)
         if on_difference is not None:
-            on_difference(c0, c1, d[:, c0 - lo:c1 - lo])
+            on_difference(c0, c1, d[:, s0:s1])
         dt = np.ascontiguousarray(d.T)
-        # single-image baseline on the raw differences
-        sb, ss = single_image_best(dt[c0 - lo:c1 - lo], window, exclude_recent, c0)
+        # single-image baseline on the raw differences, every frame
+        sb, ss = single_image_best(dt[s0:s1], window, exclude_recent, c0)
         single_best[c0:c1], single_conf[c0:c1] = sb, ss
-        et = enhance_t(dt, window)
+        et = enhance_t(dt, window)  # row by row: the rows need not be consecutive frames
+        d_t = dt if ref_first is not None else None
         del dt, d
         if on_enhanced is not None:
-            on_enhanced(c0, c1, lo, et)
-        b, s = sequence_search(et, c0 - lo, c1 - lo, int(ds), vels, search, window, k, exclude_recent, lo,
+            on_enhanced(c0, c1, et[s0:s1])
+        if k1 <= k0:
+            continue  # every frame of this block stands in a run opened before it
+        if ref_first is not None:  # the search's matrix: kept queries against kept references
+            et = enhance_t(np.ascontiguousarray(d_t[np.searchsorted(frames, first[klo:khi])][:, ref_first]), window)
+        elif len(frames) != khi - klo:
+            et = et[np.searchsorted(frames, first[klo:khi])]
+        b, s = sequence_search(et, k0 - klo, k1 - klo, int(ds), vels, search, window, k, exclude_recent, klo,
                                shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
-                               stop_cost=stop_cost, reverse_cost=reverse_cost,
-                               plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
-        candidates[c0:c1], scores[c0:c1] = b, s
-    return SequenceMatches(candidates, scores, confidence(scores), single_best, single_conf, vels,
-                           *(plain if plain is not None else (None, None)))
+                               stop_cost=stop_cost, reverse_cost=reverse_cost, backward_paths=backward_paths,
+                               plain=None if plain is None else (plain[0][k0:k1], plain[1][k0:k1]))
+        candidates[k0:k1], scores[k0:k1] = b, s
+        del d_t
+    if ref_first is not None:  # a kept reference stands for its run: its first frame
+        candidates = np.where(candidates >= 0, ref_first[np.maximum(candidates, 0)], -1)
+        if plain is not None:
+            plain = (np.where(plain[0] >= 0, ref_first[np.maximum(plain[0], 0)], -1), plain[1])
+    if plain is not None:
+        plain = (plain[0][run_of], plain[1][run_of])
+    return SequenceMatches(candidates[run_of], scores[run_of], confidence(scores)[run_of], single_best, single_conf,
+                           vels, *(plain if plain is not None else (None, None)))
+
+
+def _col_range(cols: slice | np.ndarray) -> tuple[int, int]:
+    """First and one-past-last query frame of a block's columns (for its description)."""
+    if isinstance(cols, slice):
+        return int(cols.start), int(cols.stop)
+    return int(cols[0]), int(cols[-1]) + 1

@@ -45,6 +45,13 @@ class SeqSLAMParams(Params):
     stop_cost: float = param(2.0, min=0.0, help="flexible, speeds including 0: cost of standing still, per unit of the "
                                                 "query's own change from frame to frame (about 0 where the query stops)")
     reverse_cost: float = param(0.5, min=0.0, help="flexible, negative speeds: cost of driving backwards, per frame")
+    collapse_stops: bool = param(False, help="search the query with each run of frames where it stands still (from the "
+                                              "query alone: frames within a quarter of a moving frame's change of the "
+                                              "run's first) collapsed to one frame, which gives the run its match; query "
+                                              "traverses only (not loop closure)")
+    backward_paths: bool = param(False, help="flexible, forward speeds only: also score paths that drive backwards "
+                                              "throughout the window (the speeds negated, reverse_cost per frame) and "
+                                              "keep the better per reference; doubles the search")
     edges: str = param("skip", choices=("skip", "shift"),
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")

@@ -395,7 +395,11 @@ def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.n
     """Sequence scores of queries ``rows`` for one set of offsets; references ``>= limit``
     (per query) are excluded. ``flexible``: keyword arguments of :func:`_flexible_scores`."""
     if shape == "flexible":
-        s = _flexible_scores(et, rows, t_off, vels, **(flexible or {}))
+        costs = dict(flexible or {})
+        backward = costs.pop("backward_paths", False)
+        s = _flexible_scores(et, rows, t_off, vels, **costs)
+        if backward:  # the paths that drive backwards throughout: the forward speeds negated
+            np.minimum(s, _flexible_scores(et, rows, t_off, -vels[::-1], **{**costs, "stops": None}), out=s)
     elif shape == "trajectory":
         s = _trajectory_scores(et, rows, t_off, traj)
     elif shape == "cone":
@@ -439,6 +443,7 @@ def sequence_search(
     speed_change_cost: float = SPEED_CHANGE_COST,
     stop_cost: float = STOP_COST,
     reverse_cost: float = REVERSE_COST,
+    backward_paths: bool = False,
     plain: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
@@ -452,7 +457,11 @@ def sequence_search(
     ``flexible`` (a path whose speed may change every few frames within the velocity
     bounds, at ``speed_change_cost`` per frame of bend, and that may stand still where the
     query does, at ``stop_cost``: follows slow-downs, stops and bursts; see
-    :func:`_flexible_scores`).
+    :func:`_flexible_scores`). ``backward_paths`` (flexible, forward ``vels`` only) scores
+    a second family of paths over the same window that drive backwards throughout (the
+    speeds negated, ``reverse_cost`` per frame) and keeps, per reference, the better of
+    the two: a query that backs out is followed where its window does, and no path ever
+    folds over the references (turning round inside a window is not in either family).
 
     ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
     (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
@@ -471,6 +480,8 @@ def sequence_search(
         raise ValueError(f"unknown edge handling {edges!r}; choose skip or shift")
     if shape not in SHAPES:
         raise ValueError(f"unknown sequence shape {shape!r}; choose one of {', '.join(SHAPES)}")
+    if backward_paths and (shape != "flexible" or (np.asarray(vels) <= 0).any()):
+        raise ValueError("backward_paths needs the flexible shape and forward speeds only (v_min > 0, v_reverse 0)")
     t_off = query_offsets(ds, search)
     traj = trajectory_offsets(vels, t_off)
     n = q_hi - q_lo
@@ -489,7 +500,8 @@ def sequence_search(
     flexible = None
     if shape == "flexible":
         flexible = {"speed_change_cost": float(speed_change_cost), "stop_cost": float(stop_cost),
-                    "reverse_cost": float(reverse_cost), "stops": StopModel(et) if (np.asarray(vels) == 0).any() else None}
+                    "reverse_cost": float(reverse_cost), "stops": StopModel(et) if (np.asarray(vels) == 0).any() else None,
+                    "backward_paths": bool(backward_paths)}
     # Queries whose whole window lies inside the matrix share the offsets: scored in
     # chunks of rows, one thread per core. The few near the ends are skipped or, with
     # edges: shift, scored one by one with the ds + 1 frames nearest them.

@@ -58,6 +58,12 @@ def _check(config: dict) -> None:
     if p["descriptors_reference"] is not None and has_query and p["descriptors_query"] is None:
         raise ConfigError("seqslam.descriptors_reference is set but seqslam.descriptors_query is not: the query "
                           "images need descriptors too")
+    if p["backward_paths"] and (p["sequence_shape"] != "flexible" or p["v_min"] <= 0 or p["v_reverse"] > 0):
+        raise ConfigError("seqslam.backward_paths needs sequence_shape: flexible with forward speeds only (v_min > 0, "
+                          "v_reverse: 0); set backward_paths: false or change those keys")
+    if p["collapse_stops"] and not has_query:
+        raise ConfigError("seqslam.collapse_stops needs a query traverse (loop closure's exclude_recent counts the "
+                          "traverse's own frames); set collapse_stops: false or give query.images")
     check_descriptor_pair(p["descriptors_reference"], p["descriptors_query"], "seqslam.descriptors")
 
 
@@ -140,8 +146,8 @@ def localize(ctx: Any) -> None:
         where, cols = sampled(c0, c1)
         plot_d[:, where] = d[::sr][:, cols]
 
-    def keep_enhanced(c0: int, c1: int, lo: int, et: np.ndarray) -> None:
-        e = et[c0 - lo:c1 - lo]  # query-major
+    def keep_enhanced(c0: int, c1: int, e: np.ndarray) -> None:
+        # e: query-major
         if e_ds is not None:
             e_ds[:, c0:c1] = e.T
         where, cols = sampled(c0, c1)
@@ -152,6 +158,7 @@ def localize(ctx: Any) -> None:
                        sequence_shape=p.sequence_shape, edges=p.edges, top_k=int(p.top_k),
                        speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
                        reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
+                       collapse_stops=bool(p.collapse_stops), backward_paths=bool(p.backward_paths),
                        exclude_recent=loops.exclusion_for(ctx, n_ref) if loop_closure else None, block_size=int(p.block_size),
                        # Blocks run in this process: the difference kernel, the enhancement and the
                        # search are threaded over every usable core already, and a pool worker would
@@ -307,7 +314,8 @@ METHOD = Method(
                                         "descriptors_reference", "descriptors_query", "descriptor_distance")),
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
                                           "search", "sequence_shape", "edges", "top_k", "store_difference",
-                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse"),
+                                          "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse",
+                                          "collapse_stops", "backward_paths"),
                           sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",

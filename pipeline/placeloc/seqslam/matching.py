@@ -66,15 +66,15 @@ def search_velocities(v_min: float, v_max: float, v_step: float, v_auto: bool, n
     return np.round(vels * auto_velocity_scale(n_reference, n_query), 9) if v_auto else vels
 
 
-# A query frame stands (shows the same place as the frame that opened its run) when it
-# differs from that frame by less than STILL_FRACTION of a moving frame's change, the
-# MOVING_QUANTILE of the query's frame-to-frame changes. A camera at rest differs from its
+# A frame of a traverse stands (shows the same place as the frame that opened its run)
+# when it differs from that frame by less than STILL_FRACTION of a moving frame's change,
+# the MOVING_QUANTILE of the traverse's own frame-to-frame changes. A camera at rest differs from its
 # last frame by noise only, a moving one by content: on nordland-dev (SAD, z-score
 # patches) standing pairs change 0.03-0.05 and moving ones 0.6-1.0, so the cut (about
 # 0.25) has a factor of 2.4 to the slowest moving pair and 5 to the busiest standing
 # one. The quantile is high so that the scale stays a moving frame's while up to 90 % of
-# the query stands (a median would fall into the stops once half the frames stand); a
-# query that never moves gives a scale of 0 and nothing is collapsed.
+# the traverse stands (a median would fall into the stops once half the frames stand); a
+# traverse that never moves gives a scale of 0 and nothing is collapsed.
 STILL_FRACTION = 0.25
 MOVING_QUANTILE = 0.9
 
@@ -91,7 +91,7 @@ def frame_changes(features: np.ndarray, comparison: str, chunk: int = 32) -> np.
 
 
 def standing_runs(features: np.ndarray, comparison: str) -> tuple[np.ndarray, np.ndarray]:
-    """The query with every standing run collapsed to its first frame: ``first`` (the
+    """One traverse with every standing run collapsed to its first frame: ``first`` (the
     frames kept, ascending) and ``run_of`` (per frame, the position in ``first`` of the
     frame whose match it takes). A run grows while each next frame stays within the
     still threshold of the run's *first* frame (:data:`STILL_FRACTION`), so a slow crawl
@@ -223,7 +223,7 @@ def sequence_match(
         klo, khi = max(0, min(k0 - before, n_kept - n_window)), min(n_kept, max(k1 + after, n_window))
         # the frames whose differences this block computes: c0:c1 and the kept ones its windows read
         frames = np.union1d(np.arange(c0, c1), first[klo:khi])
-        contiguous = len(frames) == 0 or frames[-1] - frames[0] + 1 == len(frames)
+        contiguous = frames[-1] - frames[0] + 1 == len(frames)
         spans.append((c0, c1, k0, k1, klo, khi, slice(int(frames[0]), int(frames[-1]) + 1) if contiguous else frames))
     # D blocks run on the executor (ref shipped once as shared; query rows taken lazily, views inline);
     # enhancement, search and writing stay here, in order.

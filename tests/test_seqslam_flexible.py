@@ -362,3 +362,6 @@ def test_compiled_kernel_is_bit_identical_to_the_numpy_formulation(v_min, v_max,
         np.testing.assert_array_equal(compiled, numpy)
         one = _flexible_scores(et, (rows[0] + 3, rows[0] + 4), t_off, vels, *costs[:2], reverse_cost=costs[2])
         np.testing.assert_array_equal(one[0], numpy[3])  # a row does not depend on its chunk
+        for tile in (1, 7, 33, 129):  # nor on the tile of references (a tile narrower than its reach included)
+            tiled = _flexible_scores(et, rows, t_off, vels, *costs[:2], reverse_cost=costs[2], tile=tile)
+            np.testing.assert_array_equal(tiled, numpy)

@@ -245,9 +245,15 @@ class StopModel:
         self.quiet_back = mean + nb * (et - mean)  # frame q before frame q + 1
 
 
+# References per tile of the compiled flexible search: the window's rows of a tile stay in
+# the core's cache from one anchor to the next. A row of 3576 references fits whole; at
+# 35,768 a whole row cost twice the time per matrix cell (bench_seqslam_full.py).
+FLEXIBLE_TILE = 4096
+
+
 def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
                      speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
-                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST) -> np.ndarray:
+                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST, tile: int | None = None) -> np.ndarray:
     """``s[q, r]``: the cheapest path through ``(T, r)`` over the window ``T + t_off``
     whose speed may change every :func:`segment_length` frames, within the velocity bounds
     ``vels``, at ``speed_change_cost`` per frame of bend. With 0 among ``vels`` it may also
@@ -262,7 +268,9 @@ def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, v
     relaxed over speeds by an L1 distance transform); the backward half first, then the
     forward one, whose first segment meets it at the anchor, with a change of speed there
     costed like any other. A path that would leave the matrix is not scored (inf). The
-    arithmetic is compiled (:mod:`placeloc.seqslam.flexible`) and runs without the GIL."""
+    arithmetic is compiled (:mod:`placeloc.seqslam.flexible`) and runs without the GIL, on
+    ``tile`` references at a time (default :data:`FLEXIBLE_TILE`; any tile gives the same
+    scores)."""
     from placeloc.seqslam.flexible import flexible_rows
 
     a, b = rows
@@ -286,7 +294,8 @@ def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, v
     s = np.empty((b - a, et.shape[1]), np.float32)
     flexible_rows(et, np.ascontiguousarray(quiet_back, np.float32), np.ascontiguousarray(quiet_fwd, np.float32),
                   np.ascontiguousarray(running, np.float64), stops is not None, int(a), int(b), int(min(seg, 1 << 30)),
-                  before, after, vels, offs, steps, float(stop_cost), float(reverse_cost), s)
+                  before, after, vels, offs, steps, float(stop_cost), float(reverse_cost), s,
+                  int(tile or FLEXIBLE_TILE))
     return s
 
 

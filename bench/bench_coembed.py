@@ -4,6 +4,9 @@ Prints the solve time and the peak memory (resident set) of the sparse closed fo
 in the same run, the literal dense solve of eq. (11) against the sparse one at a size where
 the dense (M K) x (M K) system still fits, with the ratio of their times and their largest
 difference. Run: ``make bench-coembed`` or ``python bench/bench_coembed.py [--steps M --features N --fill F]``.
+Last, the sparse solve on 1, 2, 4, ..., nproc cores (this process pinned with
+``sched_setaffinity``; the sparse factorisation and BLAS follow the affinity), best of 2;
+``--workers 1,2`` chooses the counts, ``--workers 0`` leaves the table out.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from placeloc.coembed.observations import from_triplets  # noqa: E402
 from placeloc.coembed.solver import coembed_map, coembed_map_dense  # noqa: E402
@@ -56,6 +60,7 @@ def main() -> None:
     ap.add_argument("--fill", type=float, default=0.05)
     ap.add_argument("--dense-steps", type=int, default=2_000)
     ap.add_argument("--dense-features", type=int, default=400)
+    ap.add_argument("--workers", default=None, help="core counts of the scaling table (default 1, 2, 4, ..., nproc; 0: none)")
     args = ap.parse_args()
     print(f"cpu cores: {os.cpu_count()}, numpy {np.__version__}")
 
@@ -83,6 +88,28 @@ def main() -> None:
     print(f"dense vs sparse at {obs2.n_steps} steps x {obs2.n_features} features ({obs2.n_steps * kk}^2 dense system): "
           f"dense {t_dense:.2f} s, sparse {t_fast:.3f} s, ratio {t_dense / t_fast:.0f}x, "
           f"max |difference| {np.abs(fast - dense).max():.2e} (map extent 100)")
+    if args.workers != "0" and hasattr(os, "sched_setaffinity"):
+        scaling(obs, lm, xs, args.workers)
+
+
+def scaling(obs, lm, xs, workers: str | None) -> None:
+    """The sparse solve pinned to 1, 2, 4, ... cores: which part of it scales with cores."""
+    from scaling import markdown, scaling_table, worker_counts
+
+    allowed = sorted(os.sched_getaffinity(0))
+    counts = [int(w) for w in workers.split(",")] if workers else worker_counts(len(allowed))
+
+    def measure(k: int) -> dict[str, float]:
+        os.sched_setaffinity(0, allowed[:k])
+        try:
+            t0 = time.perf_counter()
+            coembed_map(obs, lm, xs, alpha=1000.0)
+            return {f"sparse co-embedding, {obs.n_steps} x {obs.n_features}": time.perf_counter() - t0}
+        finally:
+            os.sched_setaffinity(0, allowed)
+
+    print(markdown(scaling_table(measure, counts, repeat=2, warm_up=False), "co-embedding solve", unit="core",
+                   note="This process pinned to the first k cores; best of 2."))
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
     python bench/bench_seqslam_full.py --frames 3576           # preset vs trajectory, one run
     python bench/bench_seqslam_full.py --frames 35768 --only preset   # the full-size figure
+    python bench/bench_seqslam_full.py --scaling       # the preset on 1, 2, 4, ..., nproc cores
 
 Each traverse is ``--frames`` feature rows: nordland-dev's summer and winter thumbnails
 (the preset's zscore patch features; shared data folder) tiled with noise, else random
@@ -15,6 +16,10 @@ not in these figures: ``bench/bench_seqslam.py --large`` measures it (about 20 s
 36,000 frames). Prints wall time, CPU time, peak RSS and the load average; a figure
 measured at fewer frames than 35,768 is scaled by the work (queries x references) and
 printed as such.
+
+``--scaling`` prints the preset's localize numerics on 1, 2, 4, ..., nproc cores (this
+process pinned to the first ``w`` cores with ``sched_setaffinity``; the search runs one
+thread per usable core), best of ``--repeat``, with the speed-up over one core.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from placeloc.experiments import shared_data_dir  # noqa: E402
 from placeloc.experiments.seqslam_motion import preset  # noqa: E402
@@ -74,14 +80,39 @@ def localize(ref: np.ndarray, query: np.ndarray, shape: str | None) -> tuple[flo
     return time.perf_counter() - t0, time.process_time() - c0, m.candidates[:, 0]
 
 
+def scaling(ref: np.ndarray, query: np.ndarray, args: argparse.Namespace) -> None:
+    """The preset's localize numerics pinned to 1, 2, 4, ... cores: wall and CPU seconds."""
+    from scaling import markdown, scaling_table, worker_counts
+
+    allowed = sorted(os.sched_getaffinity(0))
+    counts = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts(len(allowed))
+
+    def measure(w: int) -> dict[str, float]:
+        os.sched_setaffinity(0, allowed[:w])
+        try:
+            wall, cpu, _ = localize(ref, query, None)
+        finally:
+            os.sched_setaffinity(0, allowed)
+        return {"preset localize numerics, wall": wall, "preset localize numerics, CPU": cpu}
+
+    table = scaling_table(measure, counts, args.repeat)
+    print(markdown(table, f"Nordland preset, {args.frames} x {args.frames}",
+                   note="(CPU: all threads' seconds; the wall row's speed-up is the scaling)", unit="core"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=3576, help="frames per traverse (35768: the whole route)")
     ap.add_argument("--only", choices=("preset", "both"), default="both",
                     help="preset: only the preset (the full-size figure); both: preset and trajectory, alternating")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--scaling", action="store_true", help="the preset on 1, 2, 4, ..., nproc cores (pinned), a table")
+    ap.add_argument("--workers", default=None, help="core counts of the scaling table (default 1, 2, 4, ..., nproc)")
     args = ap.parse_args()
     ref, query = features(args.frames)
+    if args.scaling:
+        scaling(ref, query, args)
+        return
     p = preset()
     print(f"preset: {p['sequence_shape']}, ds {p['ds']}, v {p['v_min']:g}..{p['v_max']:g} step {p['v_step']:g}, "
           f"v_auto {p['v_auto']}, block_size {p['block_size']}; {os.cpu_count()} cores")

@@ -3,6 +3,7 @@
     python bench/scaling.py                       # SeqSLAM benchmark settings, 3576 x 3576, workers 1, 2, 4, ..., nproc
     python bench/scaling.py --workers 1,2 --n 600 # a quick check
     OUT=/some/folder python bench/scaling.py      # also writes $OUT/scaling.md
+    python bench/scaling.py --preset-cores        # the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores
 
 Each stage (extract, localize, evaluate) runs as its own ``placeloc`` process, as a user
 runs it, with ``--set executor.workers=W``. The table shows the stage's own compute time
@@ -159,6 +160,35 @@ def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[st
     return table
 
 
+def preset_cores(n: int, cores: list[int], repeat: int, work: Path) -> dict[str, dict[int, float]]:
+    """The Nordland preset (``configs/nordland.yaml``'s seqslam section, the flexible search)
+    on the benchmark's 3576 + 3576 frames: ``placeloc extract`` and ``placeloc localize``,
+    each its own process pinned to the first k usable cores (as ``taskset -c 0..k-1``), wall
+    seconds, best of ``repeat`` after a warm-up (which fills the compiled-kernel caches)."""
+    import yaml
+    from bench_seqslam import make_traverses
+
+    ref_dir, q_dir = make_traverses(work / "data", n)
+    preset = yaml.safe_load((ROOT / "configs" / "nordland.yaml").read_text())
+    cfg = work / "preset.yaml"
+    cfg.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref_dir)}, "query": {"images": str(q_dir)},
+                               "plots": False, "seqslam": preset["seqslam"]}))
+    everyone = sorted(os.sched_getaffinity(0))
+
+    def measure(k: int) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for stage in ("extract", "localize"):
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(work / "run"), "-q", "-f"],
+                           check=True, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")},
+                           preexec_fn=lambda: os.sched_setaffinity(0, everyone[:k]))
+            out[f"{stage} (process)"] = time.perf_counter() - t0
+        out["extract + localize"] = out["extract (process)"] + out["localize (process)"]
+        return out
+
+    return scaling_table(measure, cores, repeat)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
@@ -166,6 +196,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--stages", default="extract,localize,evaluate")
     ap.add_argument("--no-kernels", action="store_true", help="leave out the per-kernel table over cores")
+    ap.add_argument("--preset-cores", action="store_true",
+                    help="instead: the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores")
     ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
     args = ap.parse_args()
     workers = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
@@ -173,6 +205,16 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="placeloc-scaling-"))
     t0 = time.perf_counter()
     kernels = None
+    if args.preset_cores:
+        cores = [c for c in (workers if args.workers else worker_counts()) if c <= usable_cores()]
+        try:
+            table = preset_cores(args.n, cores, args.repeat, work)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        print(markdown(table, f"Nordland preset, {args.n} x {args.n}", unit="core",
+                       note=f"Each process pinned to the first k cores; best of {args.repeat} after a warm-up; "
+                            f"`python bench/scaling.py --preset-cores --n {args.n}` took {time.perf_counter() - t0:.0f} s."))
+        return
     try:
         table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")))
         if not args.no_kernels and hasattr(os, "sched_setaffinity"):

@@ -4,3 +4,11 @@
 
 bench-scaling:
 	PYTHON=$(BIN)/python bench/scaling.sh
+
+# The Nordland preset (the flexible search): extract + localize as processes pinned to
+# 1, 2, 4, ..., nproc cores (the goal: both cores of a 2-core machine at least 1.6x one),
+# and the preset's localize numerics alone over the same core counts.
+.PHONY: bench-scaling-preset
+bench-scaling-preset: $(STAMP)
+	$(BIN)/python bench/scaling.py --preset-cores
+	$(BIN)/python bench/bench_seqslam_full.py --scaling

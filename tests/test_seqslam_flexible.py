@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import itertools
+from typing import Callable
 
 import numpy as np
 import pytest
 
 from placeloc.seqslam.matching import sequence_match
 from placeloc.seqslam.search import (
+    INVALID,
+    REVERSE_COST,
+    SPEED_CHANGE_COST,
+    STOP_COST,
     UNRELATED_CHANGE,
+    StopModel,
     _flexible_scores,
     query_offsets,
     segment_length,
@@ -80,6 +86,123 @@ def _brute_flexible(et: np.ndarray, T: int, t_off: np.ndarray, vels: np.ndarray,
             ok = (inside.min(axis=1) >= 0) & (inside.max(axis=1) < nr)
             total = x1 + x2 - et[T] + c1 + c2 + cost * seg * abs(v1 - v2)
             s = np.where(ok, np.minimum(s, total), s)
+    return s
+
+
+# ---------------------------------------------------------------------------------------
+# The flexible search in NumPy, as it shipped before it was compiled: the reference the
+# compiled kernel (placeloc.seqslam.flexible) must reproduce bit for bit (same adds, same
+# order, same float32 rounding), on chunks of anchors at once.
+# ---------------------------------------------------------------------------------------
+
+def _numpy_l1_envelope(g: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
+    """In place, ``g[v] <- min_v' g[v'] + cost * |v - v'|`` over the first axis (velocities
+    sorted ascending): two passes, as a distance transform, instead of all pairs."""
+    tmp = np.empty_like(g[0])
+    for i in range(1, len(vels)):
+        np.add(g[i - 1], np.float32(cost * (vels[i] - vels[i - 1])), out=tmp)
+        np.minimum(g[i], tmp, out=g[i])
+    for i in range(len(vels) - 2, -1, -1):
+        np.add(g[i + 1], np.float32(cost * (vels[i + 1] - vels[i])), out=tmp)
+        np.minimum(g[i], tmp, out=g[i])
+    return g
+
+
+def _numpy_chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, vels: np.ndarray, bend_cost: float,
+                direction: int, stops: StopModel | None, stop_cost: float, reverse_cost: float = 0.0,
+                on_first: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray | None:
+    """Best path over ``n_frames`` query frames from the anchor ``(T, r)`` onwards
+    (``direction`` +1: later queries, higher references; -1: earlier and lower), per first
+    velocity: ``g[v, T - a, r]``. The path is a chain of straight segments of ``seg``
+    frames (the last one shorter), each with its own velocity, each starting where the
+    previous one's line ends (``round(v * seg)`` further); a change of velocity between
+    segments costs ``bend_cost * |dv|``. Solved from the far end inwards (Viterbi over
+    segments) for a chunk of anchors at once; inf where the path would leave the matrix.
+    With ``stops`` (velocities that include 0), frames and standing still are scored as
+    :class:`StopModel` says. A negative velocity drives backwards (the reference position
+    falls as the query goes on) and pays ``reverse_cost`` for every frame-to-frame step it
+    does so.
+    With ``on_first``, the first segment's array of each velocity goes to
+    ``on_first(v_index, array)`` (which may overwrite it) instead of being returned."""
+    a, b = rows
+    n, nr = b - a, et.shape[1]
+    nv = len(vels)
+    n_seg = -(-n_frames // seg)
+    lengths = [seg] * (n_seg - 1) + [n_frames - (n_seg - 1) * seg]
+    offs = trajectory_offsets(vels, np.arange(max(lengths) + 1, dtype=np.int64))  # round(v t), t >= 0
+    quiet = et if stops is None else stops.quiet_fwd if direction > 0 else stops.quiet_back
+    h = None
+    g: np.ndarray | None = None
+    for j in range(n_seg - 1, -1, -1):  # the outermost segment first
+        start, length = j * seg, lengths[j]
+        stream = j == 0 and on_first is not None
+        g = np.empty((1 if stream else nv, n, nr), np.float32)
+        for vi in range(nv):
+            out = g[0 if stream else vi]
+            o = offs[vi]
+            src = quiet
+            end = int(o[length]) if h is not None else int(o[length - 1])  # furthest reference step used
+            if abs(end) >= nr:
+                out[:] = INVALID
+            else:
+                # references whose line stays inside the matrix (it runs from 0 to `end`)
+                lo, hi = (max(0, -end), nr - max(0, end)) if direction > 0 else (max(0, end), nr + min(0, end))
+                part = out[:, lo:hi]
+                f = a + direction * start
+                np.copyto(part, (et if j == 0 else src)[f:f + n, lo:hi])  # the anchor counts in full
+                for t in range(1, length):
+                    f, sh = a + direction * (start + t), direction * int(o[t])
+                    part += src[f:f + n, lo + sh:hi + sh]
+                if h is not None:
+                    sh = direction * end
+                    part += h[vi, :, lo + sh:hi + sh]
+                if stops is not None and vels[vi] == 0 and stop_cost > 0:
+                    m = length if h is not None else length - 1  # frame-to-frame steps it stands through
+                    f = a + direction * start
+                    run = stops.running
+                    c = run[f + m:f + m + n] - run[f:f + n] if direction > 0 else run[f:f + n] - run[f - m:f - m + n]
+                    part += (stop_cost * c).astype(np.float32)[:, None]
+                if vels[vi] < 0 and reverse_cost > 0:
+                    part += np.float32(reverse_cost * (length if h is not None else length - 1))
+                out[:, hi:] = INVALID
+                out[:, :lo] = INVALID
+            if stream:
+                on_first(vi, out)
+        if j > 0:
+            h = _numpy_l1_envelope(g, vels, bend_cost)
+    return None if on_first is not None else g
+
+
+def _numpy_flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
+                     speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
+                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST) -> np.ndarray:
+    """``s[q, r]``: the cheapest path through ``(T, r)`` over the window ``T + t_off``
+    whose speed may change every :func:`segment_length` frames, within the velocity bounds
+    ``vels``, at ``speed_change_cost`` per frame of bend. With 0 among ``vels`` it may also
+    stand still where the query does (:class:`StopModel`, ``stop_cost``); otherwise every
+    frame counts as it is. Negative ``vels`` let it drive backwards, at ``reverse_cost``
+    per frame. The window's two halves meet at the anchor:
+    backward from it (per velocity, relaxed by the cost of a change), then forward from
+    it, one velocity at a time, with a change of speed at the anchor costed like any other."""
+    a, b = rows
+    seg = segment_length(vels)
+    vels = np.unique(np.asarray(vels, np.float64))
+    if not (vels == 0).any():
+        stops = None
+    elif stops is None:
+        stops = StopModel(et)
+    bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
+    after, before = int(t_off[-1]), int(-t_off[0])
+    back = _numpy_chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost), float(reverse_cost))
+    _numpy_l1_envelope(back, vels, bend)
+    s = np.full((b - a, et.shape[1]), INVALID, np.float32)
+
+    def take(vi: int, fwd: np.ndarray) -> None:
+        fwd += back[vi]
+        np.minimum(s, fwd, out=s)
+
+    _numpy_chain_side(et, rows, after + 1, seg, vels, bend, +1, stops, float(stop_cost), float(reverse_cost), on_first=take)
+    s -= et[a:b]  # the anchor frame was counted by both halves
     return s
 
 
@@ -216,3 +339,29 @@ def test_block_size_never_changes_a_flexible_result(v_min):
     np.testing.assert_array_equal(one.candidates, cut.candidates)
     np.testing.assert_array_equal(one.scores, cut.scores)
     assert (np.abs(one.candidates[:, 0] - places) <= 2).mean() > 0.9
+
+
+@pytest.mark.parametrize("v_min,v_max,v_step,v_reverse,search,ds", [
+    (0.5, 2.0, 0.1, 0.0, "centred", 30),  # the Nordland preset's shape: moving only
+    (0.0, 2.0, 0.25, 0.0, "centred", 21),  # standing still (the stop model)
+    (0.3, 1.5, 0.3, 1.0, "causal", 17),  # backwards too
+    (1.0, 1.0, 0.1, 0.0, "centred", 9),  # one speed: one segment a side
+    (0.0, 1.0, 0.5, 0.5, "centred", 6),  # everything, short segments
+])
+def test_compiled_kernel_is_bit_identical_to_the_numpy_formulation(v_min, v_max, v_step, v_reverse, search, ds):
+    rng = np.random.default_rng(11)
+    et = (rng.normal(0, 1, (90, 130)) + 3).astype(np.float32)
+    et[40:48] = et[39]  # a stop, so the stop model has something to do
+    vels = velocities(v_min, v_max, v_step, v_reverse)
+    t_off = query_offsets(ds, search)
+    rows = (-int(t_off[0]), 90 - int(t_off[-1]))
+    for costs in [(SPEED_CHANGE_COST, STOP_COST, REVERSE_COST), (0.3, 0.7, 0.4), (0.0, 0.0, 0.0)]:
+        compiled = _flexible_scores(et, rows, t_off, vels, *costs[:2], reverse_cost=costs[2])
+        numpy = _numpy_flexible_scores(et, rows, t_off, vels, *costs[:2], reverse_cost=costs[2])
+        assert np.isfinite(compiled).any()
+        np.testing.assert_array_equal(compiled, numpy)
+        one = _flexible_scores(et, (rows[0] + 3, rows[0] + 4), t_off, vels, *costs[:2], reverse_cost=costs[2])
+        np.testing.assert_array_equal(one[0], numpy[3])  # a row does not depend on its chunk
+        for tile in (1, 7, 33, 129):  # nor on the tile of references (a tile narrower than its reach included)
+            tiled = _flexible_scores(et, rows, t_off, vels, *costs[:2], reverse_cost=costs[2], tile=tile)
+            np.testing.assert_array_equal(tiled, numpy)

@@ -28,15 +28,15 @@ import numpy as np
 from placeloc.core.artifacts import write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.errors import StageError
-from placeloc.core.images import ImageError, list_images, read_gray
-from placeloc.core.imagework import ImageResult, ImageWork, extract_images
+from placeloc.core.images import ImageError, ImageSet, list_images, read_gray
+from placeloc.core.imagework import ImageResult, ImageStream, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import LoopEvaluation
 from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
 from placeloc.pirf.chain import PirfTracker
-from placeloc.pirf.features import blank_frames_note, extract_frame, few_features_note, frame_arrays
+from placeloc.pirf.features import blank_frames_note, few_features_note, frame_arrays
 from placeloc.pirf.mapping import correct_for_travel_direction, csr_rows, localize_video, loop_closures, map_video
 from placeloc.pirf.metrics import (
     accuracy_at_gap,
@@ -187,13 +187,17 @@ def _verify(ctx: Any, ex: h5py.File, frames: np.ndarray, nodes: np.ndarray, n_fr
         raise ConfigError("pirf.verify_frames reads the mapping images again: set reference.images, or pirf.verify_frames: 0")
     folder_pos = ex["reference/index"][()]
     width = int(ex["reference"].attrs["width"])
+    # the same per-image work as extract, through the engine: the frames were read once
+    # already, so any that fails now (changed on disk) stops the stage, naming the file
+    work = ImageWork(fn=frame_arrays, settings={"kind": p.features, "n_features": p.n_features},
+                     ragged=("xy", "response", "descriptors"))
     parts: list[dict[str, np.ndarray]] = []
-    starts = range(0, n, chunk)
-    for s in ctx.progress(starts, total=len(starts), desc=f"verify {n} loop closures"):
+    for s in range(0, n, chunk):
         f, c = frames[s:s + chunk], nodes[s:s + chunk]
         need = frames_needed(f, c, p.verify_frames, n_frames)
-        items = [(str(images.paths[folder_pos[j]]), p.features, p.n_features) for j in need]
-        feats = {int(j): (bearings(xy[:, 0], width), d) for j, (xy, _r, d, _s) in zip(need, ctx.executor.map(extract_frame, items))}
+        subset = ImageSet(images.source, [images.paths[folder_pos[j]] for j in need], on_error="stop")
+        stream = ImageStream(ctx, subset, work, desc=f"verify loop closures {s + 1}-{s + len(f)} of {n}")
+        feats = {int(need[r.local]): (bearings(r.arrays["xy"][:, 0], width), r.arrays["descriptors"]) for r in stream}
         parts.append(verify_closures(f, c, feats.__getitem__, k=p.verify_frames, n_frames=n_frames, ratio=p.ratio,
                                      min_matches=p.verify_min_matches))
     return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}

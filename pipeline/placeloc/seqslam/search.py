@@ -3,8 +3,9 @@
 Matrix convention: ``D[r, q]``, rows = reference, columns = query, lower = more alike.
 Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that each step is a slice
 of contiguous reference rows, for a chunk of queries at once; chunks run on one thread per
-core (NumPy releases the GIL). This was numba code; NumPy slices do the same adds in the
-same order, and a ``localize`` process no longer pays numba's start-up (about 0.7 s).
+core (NumPy releases the GIL). The straight shapes are NumPy slices (a ``localize`` process
+with them pays no numba start-up, about 0.7 s); the flexible path's dynamic programme is
+compiled (:mod:`placeloc.seqslam.flexible`), since in NumPy it was bound by the GIL.
 
 Trajectories (OpenSeqSLAM2's precomputed offsets): a trajectory is anchored at reference
 ``r`` for the current query ``T`` and passes through ``(T + t, r + round(V t))`` for the
@@ -18,11 +19,10 @@ with the best score outside ``+-window`` rows of it (see :func:`sequence_search`
 from __future__ import annotations
 
 import math
-from typing import Callable
 
 import numpy as np
 
-from placeloc.seqslam.l1 import n_threads, run_threaded
+from placeloc.seqslam.l1 import run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 from placeloc.seqslam.params import SeqSLAMParams
 
@@ -58,12 +58,6 @@ def trajectory_offsets(vels: np.ndarray, t_offsets: np.ndarray) -> np.ndarray:
     x = vels[:, None] * t_offsets[None, :].astype(np.float64)
     return (np.sign(x) * np.floor(np.abs(x) + 0.5)).astype(np.int64)
 
-
-# The flexible search is many small NumPy operations per chunk of queries: the GIL, not the
-# cores, bounds it. On a 16-core machine (bench/scaling.py, the Nordland preset at 3576 x
-# 3576, localize pinned with taskset) it took 15.3 s on 1 core, 7.9-9.2 s on 2, 9.5-10.3 s
-# on 4 or 8 and 15.7-16.6 s on 16: more threads than two only contend.
-FLEXIBLE_THREADS = 2
 
 def enhancement_shift(window: int) -> float:
     """A z-score over n <= 2R+1 samples is >= -sqrt(n-1); adding sqrt(2R) makes D^ >= 0.
@@ -251,95 +245,34 @@ class StopModel:
         self.quiet_back = mean + nb * (et - mean)  # frame q before frame q + 1
 
 
-def _l1_envelope(g: np.ndarray, vels: np.ndarray, cost: float) -> np.ndarray:
-    """In place, ``g[v] <- min_v' g[v'] + cost * |v - v'|`` over the first axis (velocities
-    sorted ascending): two passes, as a distance transform, instead of all pairs."""
-    tmp = np.empty_like(g[0])
-    for i in range(1, len(vels)):
-        np.add(g[i - 1], np.float32(cost * (vels[i] - vels[i - 1])), out=tmp)
-        np.minimum(g[i], tmp, out=g[i])
-    for i in range(len(vels) - 2, -1, -1):
-        np.add(g[i + 1], np.float32(cost * (vels[i + 1] - vels[i])), out=tmp)
-        np.minimum(g[i], tmp, out=g[i])
-    return g
-
-
-def _chain_side(et: np.ndarray, rows: tuple[int, int], n_frames: int, seg: int, vels: np.ndarray, bend_cost: float,
-                direction: int, stops: StopModel | None, stop_cost: float, reverse_cost: float = 0.0,
-                on_first: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray | None:
-    """Best path over ``n_frames`` query frames from the anchor ``(T, r)`` onwards
-    (``direction`` +1: later queries, higher references; -1: earlier and lower), per first
-    velocity: ``g[v, T - a, r]``. The path is a chain of straight segments of ``seg``
-    frames (the last one shorter), each with its own velocity, each starting where the
-    previous one's line ends (``round(v * seg)`` further); a change of velocity between
-    segments costs ``bend_cost * |dv|``. Solved from the far end inwards (Viterbi over
-    segments) for a chunk of anchors at once; inf where the path would leave the matrix.
-    With ``stops`` (velocities that include 0), frames and standing still are scored as
-    :class:`StopModel` says. A negative velocity drives backwards (the reference position
-    falls as the query goes on) and pays ``reverse_cost`` for every frame-to-frame step it
-    does so.
-    With ``on_first``, the first segment's array of each velocity goes to
-    ``on_first(v_index, array)`` (which may overwrite it) instead of being returned."""
-    a, b = rows
-    n, nr = b - a, et.shape[1]
-    nv = len(vels)
-    n_seg = -(-n_frames // seg)
-    lengths = [seg] * (n_seg - 1) + [n_frames - (n_seg - 1) * seg]
-    offs = trajectory_offsets(vels, np.arange(max(lengths) + 1, dtype=np.int64))  # round(v t), t >= 0
-    quiet = et if stops is None else stops.quiet_fwd if direction > 0 else stops.quiet_back
-    h = None
-    g: np.ndarray | None = None
-    for j in range(n_seg - 1, -1, -1):  # the outermost segment first
-        start, length = j * seg, lengths[j]
-        stream = j == 0 and on_first is not None
-        g = np.empty((1 if stream else nv, n, nr), np.float32)
-        for vi in range(nv):
-            out = g[0 if stream else vi]
-            o = offs[vi]
-            src = quiet
-            end = int(o[length]) if h is not None else int(o[length - 1])  # furthest reference step used
-            if abs(end) >= nr:
-                out[:] = INVALID
-            else:
-                # references whose line stays inside the matrix (it runs from 0 to `end`)
-                lo, hi = (max(0, -end), nr - max(0, end)) if direction > 0 else (max(0, end), nr + min(0, end))
-                part = out[:, lo:hi]
-                f = a + direction * start
-                np.copyto(part, (et if j == 0 else src)[f:f + n, lo:hi])  # the anchor counts in full
-                for t in range(1, length):
-                    f, sh = a + direction * (start + t), direction * int(o[t])
-                    part += src[f:f + n, lo + sh:hi + sh]
-                if h is not None:
-                    sh = direction * end
-                    part += h[vi, :, lo + sh:hi + sh]
-                if stops is not None and vels[vi] == 0 and stop_cost > 0:
-                    m = length if h is not None else length - 1  # frame-to-frame steps it stands through
-                    f = a + direction * start
-                    run = stops.running
-                    c = run[f + m:f + m + n] - run[f:f + n] if direction > 0 else run[f:f + n] - run[f - m:f - m + n]
-                    part += (stop_cost * c).astype(np.float32)[:, None]
-                if vels[vi] < 0 and reverse_cost > 0:
-                    part += np.float32(reverse_cost * (length if h is not None else length - 1))
-                out[:, hi:] = INVALID
-                out[:, :lo] = INVALID
-            if stream:
-                on_first(vi, out)
-        if j > 0:
-            h = _l1_envelope(g, vels, bend_cost)
-    return None if on_first is not None else g
+# References per tile of the compiled flexible search: the window's rows of a tile stay in
+# the core's cache from one anchor to the next. A row of 3576 references fits whole; at
+# 35,768 a whole row cost twice the time per matrix cell (bench_seqslam_full.py).
+FLEXIBLE_TILE = 4096
 
 
 def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
                      speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
-                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST) -> np.ndarray:
+                     stops: StopModel | None = None, reverse_cost: float = REVERSE_COST, tile: int | None = None) -> np.ndarray:
     """``s[q, r]``: the cheapest path through ``(T, r)`` over the window ``T + t_off``
     whose speed may change every :func:`segment_length` frames, within the velocity bounds
     ``vels``, at ``speed_change_cost`` per frame of bend. With 0 among ``vels`` it may also
     stand still where the query does (:class:`StopModel`, ``stop_cost``); otherwise every
     frame counts as it is. Negative ``vels`` let it drive backwards, at ``reverse_cost``
-    per frame. The window's two halves meet at the anchor:
-    backward from it (per velocity, relaxed by the cost of a change), then forward from
-    it, one velocity at a time, with a change of speed at the anchor costed like any other."""
+    per frame.
+
+    Each half of the window is a chain of straight segments of ``seg`` frames (the last one
+    shorter), each with its own speed, each starting where the previous one's line ends
+    (``round(v * seg)`` further); a change of speed between segments costs
+    ``bend * |dv|``. Each half is solved from its far end inwards (Viterbi over segments,
+    relaxed over speeds by an L1 distance transform); the backward half first, then the
+    forward one, whose first segment meets it at the anchor, with a change of speed there
+    costed like any other. A path that would leave the matrix is not scored (inf). The
+    arithmetic is compiled (:mod:`placeloc.seqslam.flexible`) and runs without the GIL, on
+    ``tile`` references at a time (default :data:`FLEXIBLE_TILE`; any tile gives the same
+    scores)."""
+    from placeloc.seqslam.flexible import flexible_rows
+
     a, b = rows
     seg = segment_length(vels)
     vels = np.unique(np.asarray(vels, np.float64))
@@ -349,17 +282,22 @@ def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, v
         stops = StopModel(et)
     bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
     after, before = int(t_off[-1]), int(-t_off[0])
-    back = _chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost), float(reverse_cost))
-    _l1_envelope(back, vels, bend)
-    s = np.full((b - a, et.shape[1]), INVALID, np.float32)
-
-    def take(vi: int, fwd: np.ndarray) -> None:
-        fwd += back[vi]
-        np.minimum(s, fwd, out=s)
-
-    _chain_side(et, rows, after + 1, seg, vels, bend, +1, stops, float(stop_cost), float(reverse_cost), on_first=take)
-    s -= et[a:b]  # the anchor frame was counted by both halves
+    # round(v t) for t = 0 .. the longest segment (+1: where it ends)
+    offs = np.ascontiguousarray(trajectory_offsets(vels, np.arange(min(seg, max(before, after) + 1) + 1, dtype=np.int64)))
+    steps = np.array([np.float32(bend * (vels[i + 1] - vels[i])) for i in range(len(vels) - 1)] or [0.0], np.float32)
+    et = np.ascontiguousarray(et, dtype=np.float32)
+    if stops is None:
+        quiet_back = quiet_fwd = et
+        running = np.zeros(1)
+    else:
+        quiet_back, quiet_fwd, running = stops.quiet_back, stops.quiet_fwd, stops.running
+    s = np.empty((b - a, et.shape[1]), np.float32)
+    flexible_rows(et, np.ascontiguousarray(quiet_back, np.float32), np.ascontiguousarray(quiet_fwd, np.float32),
+                  np.ascontiguousarray(running, np.float64), stops is not None, int(a), int(b), int(min(seg, 1 << 30)),
+                  before, after, vels, offs, steps, float(stop_cost), float(reverse_cost), s,
+                  int(tile or FLEXIBLE_TILE))
     return s
+
 
 def _around(centres: np.ndarray, window: int, nr: int) -> np.ndarray:
     """Column indices ``centre - window .. centre + window`` per row, clipped to the matrix
@@ -523,10 +461,10 @@ def sequence_search(
         rows = slice(a - q_lo, b - q_lo)
         rank(rows, _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[rows], vels, flexible), t_off, traj)
 
-    # the flexible search holds two score arrays per velocity for a chunk of rows
-    per_row = et.shape[1] * (2 * (len(vels) + 1) if shape == "flexible" else 1)
-    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row),
-                 threads=min(n_threads(), FLEXIBLE_THREADS) if shape == "flexible" else None)
+    # The flexible kernel works one anchor row at a time (its buffers do not grow with the
+    # chunk): smaller chunks than the other shapes' keep 16 threads evenly busy.
+    per_row = et.shape[1] * (4 if shape == "flexible" else 1)
+    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row))
     if edges == "shift" and nt <= ncols:
         for T in (*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)):
             sh = -(T + int(t_off[0])) if T + int(t_off[0]) < 0 else ncols - 1 - (T + int(t_off[-1]))

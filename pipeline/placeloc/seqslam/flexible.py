@@ -1,0 +1,195 @@
+"""The flexible path's dynamic programme (``search._flexible_scores``), compiled.
+
+One call scores a range of anchor queries ``T`` against every reference. For each anchor
+the backward half of the window is solved first (a Viterbi recursion over straight
+segments, from the far end inwards, relaxed over speeds by an L1 distance transform),
+then the forward half, whose first segment meets it at the anchor; the result is the
+cheapest path through ``(T, r)`` for every ``r``. ``search._flexible_scores`` documents
+the model; this module is its arithmetic only.
+
+Why compiled: the same recursion in NumPy is hundreds of small array operations per chunk
+of queries, so the GIL, not the cores, bounded it (on a 16-core machine 15.3 s on one core,
+7.9-9.2 s on two, slower again past two). Here a whole chunk runs without the GIL, one
+anchor row at a time, so its working set (three ``speeds x references`` arrays, 0.7 MB at
+16 speeds and 3576 references) stays in the core's cache. The adds, their order and their
+float32 rounding are those of the NumPy formulation, element by element (no fast-math,
+no reassociation), so the scores are bit-identical to it (tests/test_seqslam_flexible.py
+keeps the NumPy formulation as the reference).
+
+numba is imported only by a search with ``sequence_shape: flexible`` (the import costs about
+0.4 s, a few per cent of such a search at Nordland's size); ``cache=True`` keeps the
+machine code in placeloc's private numba cache (``core.caches``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add(part: np.ndarray, src: np.ndarray, width: int) -> None:
+    """``part += src`` over ``width`` elements (indices from 0, so no negative-index
+    checks stand in the way of vectorising)."""
+    for k in range(width):
+        part[k] += src[k]
+
+
+@njit(cache=True, nogil=True)
+def _envelope(g: np.ndarray, steps: np.ndarray) -> None:
+    """In place, ``g[v] <- min_v' g[v'] + cost * |v - v'|`` (speeds ascending), two passes;
+    ``steps[i]`` is the float32 cost between speed ``i`` and ``i + 1``."""
+    nv, nr = g.shape
+    for i in range(1, nv):
+        c = steps[i - 1]
+        for r in range(nr):
+            x = g[i - 1, r] + c
+            if x < g[i, r]:
+                g[i, r] = x
+    for i in range(nv - 2, -1, -1):
+        c = steps[i]
+        for r in range(nr):
+            x = g[i + 1, r] + c
+            if x < g[i, r]:
+                g[i, r] = x
+
+
+@njit(cache=True, nogil=True)
+def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: bool, T: int, n_frames: int, seg: int,
+          vels: np.ndarray, offs: np.ndarray, steps: np.ndarray, direction: int, stop_cost: float, reverse_cost: float,
+          g: np.ndarray, h: np.ndarray, row: np.ndarray, back: np.ndarray, s: np.ndarray, stream: bool) -> np.ndarray:
+    """One half of the window from the anchor ``T`` (``direction`` +1 later, -1 earlier):
+    the best chain per first speed, ``g[v, r]`` (returned: ``g`` or ``h``, whichever holds
+    it). With ``stream``, the first segment of each speed goes into ``row``, is added to
+    ``back[v]`` and folded into ``s`` by a minimum instead."""
+    inf = np.float32(np.inf)
+    nv, nr = g.shape
+    n_seg = (n_frames + seg - 1) // seg
+    last = n_frames - (n_seg - 1) * seg
+    have_h = False
+    for j in range(n_seg - 1, -1, -1):  # the outermost segment first
+        start = j * seg
+        length = seg if j < n_seg - 1 else last
+        streaming = stream and j == 0
+        for vi in range(nv):
+            out = row if streaming else g[vi]
+            end = offs[vi, length] if have_h else offs[vi, length - 1]  # furthest reference step used
+            if abs(end) >= nr:
+                for r in range(nr):
+                    out[r] = inf
+            else:
+                if direction > 0:
+                    lo, hi = max(0, -end), nr - max(0, end)
+                else:
+                    lo, hi = max(0, end), nr + min(0, end)
+                f = T + direction * start
+                width = hi - lo
+                part = out[lo:hi]
+                first = et[f, lo:hi] if j == 0 else quiet[f, lo:hi]  # the anchor counts in full
+                for k in range(width):
+                    part[k] = first[k]
+                for t in range(1, length):
+                    f = T + direction * (start + t)
+                    sh = direction * offs[vi, t]
+                    _add(part, quiet[f, lo + sh:hi + sh], width)
+                if have_h:
+                    sh = direction * end
+                    _add(part, h[vi, lo + sh:hi + sh], width)
+                if has_stops and vels[vi] == 0 and stop_cost > 0:
+                    m = length if have_h else length - 1  # frame-to-frame steps it stands through
+                    f = T + direction * start
+                    c = running[f + m] - running[f] if direction > 0 else running[f] - running[f - m]
+                    add = np.float32(stop_cost * c)
+                    for k in range(width):
+                        part[k] += add
+                if vels[vi] < 0 and reverse_cost > 0:
+                    add = np.float32(reverse_cost * (length if have_h else length - 1))
+                    for k in range(width):
+                        part[k] += add
+                for r in range(hi, nr):
+                    out[r] = inf
+                for r in range(0, lo):
+                    out[r] = inf
+            if streaming:
+                for r in range(nr):
+                    x = out[r] + back[vi, r]
+                    if x < s[r]:
+                        s[r] = x
+        if j > 0:
+            _envelope(g, steps)
+            g, h = h, g
+            have_h = True
+    return g
+
+
+@njit(cache=True, nogil=True)
+def _rows(et: np.ndarray, quiet_back: np.ndarray, quiet_fwd: np.ndarray, running: np.ndarray, has_stops: bool,
+          a: int, b: int, seg: int, before: int, after: int, vels: np.ndarray, offs: np.ndarray, steps: np.ndarray,
+          stop_cost: float, reverse_cost: float, s: np.ndarray, c0: int, c1: int) -> None:
+    """``s[T - a, :] = `` the scores of references ``c0..c1-1`` of ``et`` for anchors ``T = a..b-1``,
+    every reference of ``et`` computed (the matrix's edges are its own)."""
+    nv, nr = len(vels), et.shape[1]
+    inf = np.float32(np.inf)
+    back = np.empty((nv, nr), np.float32)
+    g = np.empty((nv, nr), np.float32)
+    h = np.empty((nv, nr), np.float32)
+    row = np.empty(nr, np.float32)
+    acc = np.empty(nr, np.float32)
+    # the backward half swaps its two buffers once per segment boundary: it ends in
+    # `back` after an even number of swaps, else in `g`; the other one is free for the forward half
+    n_back = (before + 1 + seg - 1) // seg
+    even = (n_back - 1) % 2 == 0
+    res = back if even else g
+    free = g if even else back
+    for T in range(a, b):
+        _side(et, quiet_back, running, has_stops, T, before + 1, seg, vels, offs, steps, -1, stop_cost,
+              reverse_cost, back, g, row, h, acc, False)
+        _envelope(res, steps)
+        for r in range(nr):
+            acc[r] = inf
+        _side(et, quiet_fwd, running, has_stops, T, after + 1, seg, vels, offs, steps, +1, stop_cost, reverse_cost,
+              free, h, row, res, acc, True)
+        out = s[T - a]
+        for r in range(c0, c1):
+            out[r - c0] = acc[r] - et[T, r]  # the anchor frame was counted by both halves
+
+
+@njit(cache=True, nogil=True)
+def flexible_rows(et: np.ndarray, quiet_back: np.ndarray, quiet_fwd: np.ndarray, running: np.ndarray, has_stops: bool,
+                  a: int, b: int, seg: int, before: int, after: int, vels: np.ndarray, offs: np.ndarray, steps: np.ndarray,
+                  stop_cost: float, reverse_cost: float, s: np.ndarray, tile: int) -> None:
+    """``s[T - a, r]`` for anchors ``T = a..b-1``: the cheapest flexible path through
+    ``(T, r)`` over the window ``T - before .. T + after`` (``inf`` where none stays inside
+    the matrix). ``vels`` ascending; ``offs[v, t] = round(vels[v] * t)``; ``steps``: the
+    float32 cost of a change between neighbouring speeds; ``quiet_*``/``running``: the
+    stop model's arrays (ignored unless ``has_stops``).
+
+    References are taken ``tile`` at a time, every anchor of the chunk within a tile before
+    the next tile, so the window's rows of a tile stay in the core's cache from one anchor
+    to the next (121 rows of 35,768 references, 17 MB, do not: measured, twice the time per
+    cell). A tile is computed with ``halo`` references on either side: each segment of the
+    recursion reads the next one's result at most ``reach = max |round(v * seg)|``
+    references away, so a value ``halo`` = reach x segments from the tile's cut is exact;
+    those within it, treated as if the cut were the matrix's edge, are computed and dropped.
+    Where the cut is the matrix's edge, it is the edge. Any tile gives the same scores."""
+    nr = et.shape[1]
+    reach = 0
+    for vi in range(len(vels)):
+        reach = max(reach, abs(offs[vi, min(seg, offs.shape[1] - 1)]))
+    n_seg = max((before + 1 + seg - 1) // seg, (after + 1 + seg - 1) // seg)
+    halo = reach * n_seg
+    tile = max(1, tile)
+    if tile + 2 * halo >= nr:
+        _rows(et, quiet_back, quiet_fwd, running, has_stops, a, b, seg, before, after, vels, offs, steps, stop_cost,
+              reverse_cost, s, 0, nr)
+        return
+    f0, f1 = a - before, b + after  # the rows the anchors' windows read
+    for r0 in range(0, nr, tile):
+        r1 = min(nr, r0 + tile)
+        e0, e1 = max(0, r0 - halo), min(nr, r1 + halo)
+        et_t = np.ascontiguousarray(et[f0:f1, e0:e1])
+        qb_t = np.ascontiguousarray(quiet_back[f0:f1, e0:e1]) if has_stops else et_t
+        qf_t = np.ascontiguousarray(quiet_fwd[f0:f1, e0:e1]) if has_stops else et_t
+        run_t = running[f0:f1] if has_stops else running
+        _rows(et_t, qb_t, qf_t, run_t, has_stops, a - f0, b - f0, seg, before, after, vels, offs, steps, stop_cost,
+              reverse_cost, s[:, r0:r1], r0 - e0, r1 - e0)

@@ -25,6 +25,7 @@ thread per usable core), best of ``--repeat``, with the speed-up over one core.
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import resource
 import sys
@@ -73,8 +74,9 @@ def localize(ref: np.ndarray, query: np.ndarray, shape: str | None) -> tuple[flo
     p = preset()
     if shape is not None:
         p["sequence_shape"] = shape
-    kw = {k: p[k] for k in ("enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto", "search", "sequence_shape",
-                            "edges", "top_k", "block_size", "speed_change_cost", "stop_cost", "reverse_cost")}
+    # every setting of the preset that localize's numerics take (a switch the preset turns on included)
+    takes = inspect.signature(sequence_match).parameters
+    kw = {k: v for k, v in p.items() if k in takes and k not in ("ref", "query", "comparison", "exclude_recent")}
     c0, t0 = time.process_time(), time.perf_counter()
     m = sequence_match(ref, query, comparison=p["comparison"], exclude_recent=None, **kw)
     return time.perf_counter() - t0, time.process_time() - c0, m.candidates[:, 0]

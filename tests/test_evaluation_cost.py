@@ -1,0 +1,74 @@
+"""What keeps evaluate cheap gives the same answers as the direct way: the ground truth's
+positive pairs without its dense block, the dissimilarity ratio's minima without a mask of
+the difference matrix's size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from placeloc.evaluation.ground_truth import GroundTruth, band_of
+from placeloc.evaluation.metrics import split_row_minima
+
+
+def _truths(tmp_path):
+    """One ground truth of every form on 40 references x 30 queries."""
+    rng = np.random.default_rng(7)
+    ranges = tmp_path / "ranges.csv"
+    ranges.write_text("query,ref_first,ref_last\n0,3,5\n0,4,9\n2,38,45\n7,0,0\n29,10,12\n29,30,31\n")
+    pairs = tmp_path / "pairs.csv"
+    pairs.write_text("query,reference\n1,6\n1,20\n4,39\n")
+    ref_xy = np.c_[np.arange(40) * 2.0, np.zeros(40)]
+    q_xy = np.c_[np.arange(30) * 2.6 + rng.normal(0, 0.5, 30), rng.normal(0, 1, 30)]
+    ref_xy[5] = q_xy[5] + (3.0, 4.0)  # exactly on the radius: a positive (<= radius)
+    return {
+        "synchronous": GroundTruth(40, 30, synchronous=True, tolerance=2),
+        "ranges": GroundTruth.from_csv(ranges, 40, 30),
+        "pairs with tolerance": GroundTruth.from_csv(pairs, 40, 30, tolerance=1),
+        "matrix": GroundTruth(40, 30, matrix=rng.random((40, 30)) < 0.1),
+        "positions": GroundTruth(40, 30, ref_xy=ref_xy, query_xy=q_xy, radius=5.0),
+    }
+
+
+@pytest.mark.parametrize("form", ["synchronous", "ranges", "pairs with tolerance", "matrix", "positions"])
+def test_positives_are_the_nonzeros_of_the_dense_block(tmp_path, form):
+    gt = _truths(tmp_path)[form]
+    # every image, and a listing with skipped images (original indices with gaps)
+    for r_idx, q_idx in ((np.arange(40), np.arange(30)), (np.r_[0:5, 7:22, 25:40], np.r_[0:3, 4:29])):
+        dense = gt.block_idx(r_idx, q_idx)
+        cols, rows = np.nonzero(dense.T)
+        got_rows, got_cols = gt.positives(r_idx, q_idx)
+        assert got_rows.tolist() == rows.tolist() and got_cols.tolist() == cols.tolist()
+        assert len(rows) > 3  # the forms above do have positives here
+        # the band drawn under the matrix: first and last positive row per query, 1 > 0 where none
+        lo, hi = gt.band(r_idx, q_idx)
+        anyp = dense.any(axis=0)
+        assert lo.tolist() == np.where(anyp, np.argmax(dense, axis=0), 1).tolist()
+        assert hi.tolist() == np.where(anyp, len(r_idx) - 1 - np.argmax(dense[::-1], axis=0), 0).tolist()
+
+
+def test_position_exactly_on_the_radius_counts():
+    gt = GroundTruth(2, 1, ref_xy=np.array([[3.0, 4.0], [3.0, 4.000001]]), query_xy=np.zeros((1, 2)), radius=5.0)
+    assert [r.tolist() for r in gt.positives(np.arange(2), np.arange(1))] == [[0], [0]]
+
+
+def test_band_of_by_hand():
+    lo, hi = band_of(np.array([4, 5, 6, 0, 9]), np.array([0, 0, 0, 2, 2]), 4)
+    assert lo.tolist() == [4, 1, 0, 1] and hi.tolist() == [6, 0, 9, 0]
+
+
+def test_split_row_minima_by_hand_and_against_masked_minima():
+    block = np.array([[5.0, 1.0, 7.0], [2.0, 3.0, 0.5], [4.0, 4.0, 4.0]], np.float32)
+    rows, cols = np.array([0, 1, 1, 2, 2, 2]), np.array([0, 0, 1, 0, 1, 2])
+    at_positive, elsewhere = split_row_minima(block.copy(), rows, cols)
+    # row 0: positive 5, others 1 and 7; row 1: positives 2 and 3, other 0.5; row 2: all positive
+    assert at_positive.tolist() == [5.0, 2.0, 4.0] and elsewhere.tolist() == [1.0, 0.5, np.inf]
+    rng = np.random.default_rng(3)
+    block = rng.random((50, 20)).astype(np.float32)
+    mask = rng.random((50, 20)) < 0.15
+    mask[7] = False  # a reference without a positive
+    cols, rows = np.nonzero(mask.T)
+    at_positive, elsewhere = split_row_minima(block.copy(), rows, cols)
+    assert at_positive.tolist() == block.min(axis=1, where=mask, initial=np.inf).tolist()
+    assert elsewhere.tolist() == block.min(axis=1, where=~mask, initial=np.inf).tolist()
+    assert at_positive[7] == np.inf

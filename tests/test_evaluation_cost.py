@@ -72,3 +72,83 @@ def test_split_row_minima_by_hand_and_against_masked_minima():
     assert at_positive.tolist() == block.min(axis=1, where=mask, initial=np.inf).tolist()
     assert elsewhere.tolist() == block.min(axis=1, where=~mask, initial=np.inf).tolist()
     assert at_positive[7] == np.inf
+
+
+# ---------------------------------------------------------------------------------------
+# the pictures evaluate draws on every run (Pillow, no matplotlib)
+# ---------------------------------------------------------------------------------------
+def test_nice_ticks_and_their_labels():
+    from placeloc.evaluation.raster import nice_ticks, tick_label
+
+    assert nice_ticks(0, 3575.5, most=9).tolist() == [0, 500, 1000, 1500, 2000, 2500, 3000, 3500]
+    ticks = nice_ticks(0, 1, most=6)
+    assert [tick_label(v, ticks) for v in ticks] == ["0.0", "0.2", "0.4", "0.6", "0.8", "1.0"]
+    ticks = nice_ticks(0, 79.5, most=9)  # 80 frames: a tick every 10
+    assert [tick_label(v, ticks) for v in ticks] == ["0", "10", "20", "30", "40", "50", "60", "70"]
+    assert nice_ticks(-0.5, 80.5, most=9).tolist() == [0, 20, 40, 60, 80]  # a span of 81 over at most 8 steps: 20 a step
+
+
+def test_axes_put_data_where_the_limits_say():
+    """A marker at a data point lands on the pixel the box and limits give; a matrix fills the box."""
+    from placeloc.evaluation.raster import Axes, Canvas, grey_image
+
+    c = Canvas(200, 100)
+    ax = Axes(c, (20, 10, 180, 90), (0.0, 10.0), (0.0, 1.0))
+    ax.markers(np.array([2.5]), np.array([0.25]), (255, 0, 0), "s", 6)
+    img = np.asarray(c.result())
+    # x: 20 + 2.5 / 10 * 160 = 60; y (upwards): 90 - 0.25 * 80 = 70
+    assert img[70, 60].tolist() == [255, 0, 0] and img[70, 70].tolist() == [255, 255, 255]
+    c = Canvas(200, 100)
+    ax = Axes(c, (20, 10, 180, 90), (-0.5, 1.5), (-0.5, 0.5), y_down=True)
+    ax.image(grey_image(np.array([[0.0, np.nan]]), 0.0, 1.0))  # black cell, then an empty (NaN) one
+    img = np.asarray(c.result())
+    assert img[50, 60].tolist() == [0, 0, 0] and img[50, 140].tolist() == [255, 255, 255]
+    assert grey_image(np.array([[-1.0, 0.5, 2.0]]), 0.0, 1.0)[0, :, 0].tolist() == [0, 128, 255]
+
+
+def test_dashed_line_is_on_for_its_share_of_the_pattern():
+    from placeloc.evaluation.raster import _dash_runs
+
+    runs = _dash_runs(np.array([0.0, 1000.0]), np.array([5.0, 5.0]), (6.0, 2.0))
+    drawn = sum(r[-1][0] - r[0][0] for r in runs)
+    assert len(runs) == 125 and drawn == pytest.approx(1000 * 6 / 8, abs=2)
+
+
+def test_difference_matrix_picture_shows_the_matrix_and_the_matches(tmp_path):
+    """Left half of D alike (black), right half not (white); a wrong match is a red cross
+    where it is; the picture has the size of two panels."""
+    from PIL import Image
+
+    from placeloc.evaluation.plots import plot_difference_matrices
+
+    d = np.zeros((40, 40), np.float32)
+    d[:, 20:] = 1.0
+    path = plot_difference_matrices({"D": d}, tmp_path / "dm.png", matches=np.full(40, 30), correct=np.zeros(40, bool),
+                                    title="t")
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape == (616, 712, 3)
+    # the axes box spans x 76..600 and y 60..558 for columns and rows -0.5..39.5
+    def px(q: float, r: float) -> tuple[int, int]:
+        return round(60 + (r + 0.5) / 40 * 498), round(76 + (q + 0.5) / 40 * 524)
+
+    y, x = px(5, 5)
+    assert img[y, x].tolist() == [0, 0, 0]
+    y, x = px(35, 5)
+    assert img[y, x].tolist() == [255, 255, 255]
+    y, x = px(20, 30)  # the match of query 20 is reference 30: a red cross centred there
+    assert img[y, x].tolist() == [255, 0, 0]
+
+
+def test_evaluate_draws_without_importing_matplotlib(route, tmp_path):
+    """matplotlib's import alone costs more than a small run's localize: evaluate of a
+    ranked result draws its pictures without it (every picture written, none missing)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from placeloc.core.config import load_config; from placeloc.core.runner import run_all; "
+            f"run_all(load_config({str(route / 'config.yaml')!r}), {str(tmp_path / 'run')!r}, quiet=True); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"
+    for name in ("strips_sample.png", "pr_curve.png", "recall_at_n.png", "difference_matrix.png", "report.html"):
+        assert (tmp_path / "run" / name).stat().st_size > 1000

@@ -312,6 +312,7 @@ def _dash_runs(px: np.ndarray, py: np.ndarray, pattern: Sequence[float]) -> list
     runs: list[list[tuple[float, float]]] = []
     edges = np.flatnonzero(np.diff(np.r_[0, on.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):
+        b = min(b + 1, len(s))  # to the first sample past the dash: a dash of 6 pixels is 6 long, not 5
         if b - a >= 2:
             runs.append(list(zip(x[a:b].tolist(), y[a:b].tolist())))
     return runs

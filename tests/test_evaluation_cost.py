@@ -152,3 +152,17 @@ def test_evaluate_draws_without_importing_matplotlib(route, tmp_path):
     assert out.strip().splitlines()[-1] == "[]"
     for name in ("strips_sample.png", "pr_curve.png", "recall_at_n.png", "difference_matrix.png", "report.html"):
         assert (tmp_path / "run" / name).stat().st_size > 1000
+
+
+def test_a_title_of_two_lines_gets_its_room(tmp_path):
+    from PIL import Image
+
+    from placeloc.evaluation.plots import plot_pr_curves
+
+    curve = {"m": (np.array([0.5, 1.0]), np.array([1.0, 0.5]))}
+    one = Image.open(plot_pr_curves(curve, tmp_path / "a.png", title="PR"))
+    two = Image.open(plot_pr_curves(curve, tmp_path / "b.png", title="PR\n(second line)"))
+    assert two.size[1] - one.size[1] == 17 and one.size[0] == two.size[0]
+    # the first line sits above the second, clear of the top edge: ink in the top rows of both lines only
+    ink = (np.asarray(two.convert("L"))[:40, 150:510] < 128).any(axis=1)
+    assert not ink[:2].any() and ink[5:18].any() and ink[22:36].any()

@@ -75,8 +75,9 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     few markers, so curves lying on top of each other stay visible, and a bar with its
     recall where it ends; the legend gives the AUC (trapezoids over recall, as
     :class:`placeloc.evaluation.metrics.PRCurve`)."""
-    c = R.Canvas(660, 530)
-    ax = R.Axes(c, (70, 34, 640, 466), (-0.01, 1.01), (0.0, 1.03))
+    extra = 17 * title.count("\n")  # room for a title of several lines
+    c = R.Canvas(660, 530 + extra)
+    ax = R.Axes(c, (70, 34 + extra, 640, 466 + extra), (-0.01, 1.01), (0.0, 1.03))
     ticks = np.round(np.arange(0, 1.01, 0.2), 1)
     ax.frame(ticks, ticks)
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))
@@ -121,8 +122,9 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
     if hi == lo:
         lo, hi = lo / 1.5, hi * 1.5
     pad = (np.log10(hi) - np.log10(lo)) * 0.05
-    c = R.Canvas(660, 490)
-    ax = R.Axes(c, (70, 34, 640, 426), (10 ** (np.log10(lo) - pad), 10 ** (np.log10(hi) + pad)), (0.0, 1.08), xlog=True)
+    extra = 17 * title.count("\n")
+    c = R.Canvas(660, 490 + extra)
+    ax = R.Axes(c, (70, 34 + extra, 640, 426 + extra), (10 ** (np.log10(lo) - pad), 10 ** (np.log10(hi) + pad)), (0.0, 1.08), xlog=True)
     ax.frame(ticks, np.round(np.arange(0, 1.01, 0.2), 1), xlabels=[str(t) for t in ticks])
     entries: list[R.LegendEntry] = []
     for i, (label, pts) in enumerate(plotted):
@@ -158,7 +160,8 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
     loop-closure matrix: several revisits per frame) is drawn as cyan points
     ``gt_points`` = (query, reference). The legend lists only what is drawn. ``stride`` =
     (reference, query) subsampling already applied; axes are in original frame numbers."""
-    panel_w, height = 712, 616
+    panel_w, extra = 712, 18 * title.count("\n")
+    height = 616 + extra
     c = R.Canvas(panel_w * max(1, len(panels)), height)
     sr, sq = stride
     for k, (name, matrix) in enumerate(panels.items()):
@@ -166,7 +169,7 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         nr, nq = matrix.shape
         finite = matrix[np.isfinite(matrix)]
         vmin, vmax = (float(v) for v in (np.percentile(finite, [1, 99]) if finite.size else (0, 1)))
-        ax = R.Axes(c, (x0 + 76, 60, x0 + 600, height - 58), (-0.5 * sq, (nq - 0.5) * sq), (-0.5 * sr, (nr - 0.5) * sr),
+        ax = R.Axes(c, (x0 + 76, 60 + extra, x0 + 600, height - 58), (-0.5 * sq, (nq - 0.5) * sq), (-0.5 * sr, (nr - 0.5) * sr),
                     y_down=True)
         ax.image(R.grey_image(matrix, vmin, vmax))
         entries: list[R.LegendEntry] = []
@@ -199,7 +202,7 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         ax.labels("query frame", "reference frame", name, title_size=12.5)
         # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
         ax.legend(entries, "lower left", size=10)
-        R.colour_bar(c, (x0 + 612, 60, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=10.5)
+        R.colour_bar(c, (x0 + 612, 60 + extra, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=10.5)
     if title:
         c.text(c.width / 2, 10, title, 14, anchor="ma")
     return c.save(path, photo=True)

@@ -67,7 +67,15 @@ class Canvas:
     def text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK, anchor: str = "la",
              box: Colour | None = None, pad: float = 2) -> None:
         """``anchor``: Pillow's two letters (horizontal l/m/r, vertical a(top)/m/s(baseline)/d);
-        ``box``: a filled box of that colour behind the text."""
+        ``box``: a filled box of that colour behind the text. Lines of a text with line
+        breaks stack away from the anchor (upwards from a bottom anchor)."""
+        if "\n" in text:
+            lines = text.split("\n")
+            n, step = len(lines), size * 1.3
+            for i, line in enumerate(lines):
+                shift = {"a": i, "m": i - (n - 1) / 2}.get(anchor[1], i - (n - 1)) * step
+                self.text(x, y + shift, line, size, fill, anchor, box, pad)
+            return
         xy = (x * SS, y * SS)
         if box is not None:
             left, top, right, bottom = self.draw.textbbox(xy, text, font=font(size), anchor=anchor)

@@ -166,3 +166,31 @@ def test_a_title_of_two_lines_gets_its_room(tmp_path):
     # the first line sits above the second, clear of the top edge: ink in the top rows of both lines only
     ink = (np.asarray(two.convert("L"))[:40, 150:510] < 128).any(axis=1)
     assert not ink[:2].any() and ink[5:18].any() and ink[22:36].any()
+
+
+def test_sidecar_fingerprint_lists_the_files_beside_the_images_in_name_order(tmp_path):
+    """What evaluate's stamp holds of the CSV/TXT/JSON/YAML files in an image folder (a
+    poses.csv ground truth may read): by hand, the same rows in the same order."""
+    import os
+
+    from placeloc.core.config import config_hash
+    from placeloc.core.images import list_images
+    from placeloc.core.runner import _sidecar_fingerprint
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for name in ("f0.png", "f1.png", "poses.csv", "B.TXT", "a.yml", ".hidden.csv", ".csv", "notes.md"):
+        (folder / name).write_bytes(b"x" * len(name))
+    (folder / "dir.json").mkdir()  # a folder is no sidecar file
+    import cv2
+
+    for name in ("f0.png", "f1.png"):
+        cv2.imwrite(str(folder / name), np.zeros((4, 4), np.uint8))
+
+    def row(name: str) -> str:
+        st = os.stat(folder / name)
+        return f"reference/{name}:{st.st_size}:{st.st_mtime_ns}"
+
+    # code-point order; ".hidden.csv" is a CSV, ".csv" (a name without suffix) is not
+    expected = config_hash([row(".hidden.csv"), row("B.TXT"), row("a.yml"), row("poses.csv")])
+    assert _sidecar_fingerprint({"reference": list_images(folder)}) == expected

@@ -106,6 +106,16 @@ def test_axes_put_data_where_the_limits_say():
     assert grey_image(np.array([[-1.0, 0.5, 2.0]]), 0.0, 1.0)[0, :, 0].tolist() == [0, 128, 255]
 
 
+def test_percentiles_as_numpy_computes_them():
+    from placeloc.evaluation.raster import percentiles
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 7, 1000):
+        v = rng.normal(size=n).astype(np.float32)
+        assert percentiles(v, (1, 99)) == pytest.approx(tuple(np.percentile(v.astype(np.float64), [1, 99])), abs=1e-12)
+    assert percentiles(np.arange(101.0), (1, 50, 99)) == (1.0, 50.0, 99.0)
+
+
 def test_dashed_line_is_on_for_its_share_of_the_pattern():
     from placeloc.evaluation.raster import _dash_runs
 

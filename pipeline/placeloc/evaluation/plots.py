@@ -168,7 +168,7 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         x0 = k * panel_w
         nr, nq = matrix.shape
         finite = matrix[np.isfinite(matrix)]
-        vmin, vmax = (float(v) for v in (np.percentile(finite, [1, 99]) if finite.size else (0, 1)))
+        vmin, vmax = R.percentiles(finite, (1, 99)) if finite.size else (0.0, 1.0)
         ax = R.Axes(c, (x0 + 76, 60 + extra, x0 + 600, height - 58), (-0.5 * sq, (nq - 0.5) * sq), (-0.5 * sr, (nr - 0.5) * sr),
                     y_down=True)
         ax.image(R.grey_image(matrix, vmin, vmax))

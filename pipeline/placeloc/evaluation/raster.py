@@ -26,6 +26,7 @@ CYCLE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103
 # dash patterns (on, off, ...) in units of the line's width, after matplotlib's "-", "--", "-.", ":"
 DASHES: dict[str, tuple[float, ...]] = {"-": (), "--": (3.7, 1.6), "-.": (6.4, 1.6, 1.0, 1.6), ":": (1.0, 1.65)}
 BLACK, GRID = (0, 0, 0), (222, 222, 222)
+STAMP_FROM = 64  # markers: more than this many are stamped as one mask (Axes._stamp), fewer drawn one by one
 Colour = tuple[int, int, int]
 
 
@@ -220,6 +221,9 @@ class Axes:
         ok = np.isfinite(px) & np.isfinite(py)
         r = size * SS / 2
         w = max(1, round(edge * SS))
+        if ok.sum() > STAMP_FROM and shape in "os+x|":
+            self._stamp(px[ok], py[ok], colour, shape, r, w)
+            return
         d = self.c.draw
         for cx, cy in zip(px[ok].tolist(), py[ok].tolist()):
             if shape == "o":
@@ -241,6 +245,25 @@ class Axes:
                 d.line([(cx, cy - r), (cx, cy + r)], fill=colour, width=w)
             else:
                 raise ValueError(f"unknown marker {shape!r}")
+
+    def _stamp(self, px: np.ndarray, py: np.ndarray, colour: Colour, shape: str, r: float, w: int) -> None:
+        """Many markers at once: the shape as a pixel mask, set at every point by numpy and
+        filled in one paste (one drawing call a marker cost more than the rest of a
+        difference-matrix picture). ``r``: radius, ``w``: stroke width, supersampled pixels."""
+        k = int(np.ceil(r))
+        dy, dx = np.mgrid[-k:k + 1, -k:k + 1]
+        half = max(w, 1) / 2
+        shapes = {"o": dx ** 2 + dy ** 2 <= r * r,
+                  "s": (np.abs(dx) <= r * 0.9) & (np.abs(dy) <= r * 0.9),
+                  "x": (np.abs(np.abs(dx) - np.abs(dy)) <= half * np.sqrt(2)) & (np.abs(dx) <= r) & (np.abs(dy) <= r),
+                  "+": ((np.abs(dx) <= half) & (np.abs(dy) <= r)) | ((np.abs(dy) <= half) & (np.abs(dx) <= r)),
+                  "|": (np.abs(dx) <= half) & (np.abs(dy) <= r)}
+        oy, ox = np.nonzero(shapes[shape])
+        cx, cy = np.rint(px).astype(np.int64), np.rint(py).astype(np.int64)
+        x0, y0 = int(cx.min()) - k, int(cy.min()) - k
+        mask = np.zeros((int(cy.max()) - y0 + k + 1, int(cx.max()) - x0 + k + 1), np.uint8)
+        mask[(cy[:, None] - y0 + oy[None, :] - k).ravel(), (cx[:, None] - x0 + ox[None, :] - k).ravel()] = 255
+        self.c.image.paste(colour, (x0, y0), Image.fromarray(mask, "L"))
 
     def fill_between(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, colour: Colour, alpha: float) -> None:
         """The region between two curves over ``x``, ``alpha`` opaque."""

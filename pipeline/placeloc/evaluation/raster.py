@@ -3,7 +3,7 @@
 matplotlib costs about 0.4 s to import and 0.1 to 0.3 s a figure, whatever the data's size:
 more than a small run's whole localize. The pictures evaluate draws each time are simple:
 an axes box with ticks, labels and a title; lines, markers and a legend; an image with a
-colour bar. Drawn here, each costs milliseconds. Everything is drawn at ``SS`` times the
+colour bar. Drawn here, each costs milliseconds. Charts are drawn at ``SS`` times the
 size and reduced by a box filter, which smooths lines and markers; text is Pillow's own
 FreeType font (Aileron), so no system font is needed.
 
@@ -31,14 +31,14 @@ Colour = tuple[int, int, int]
 
 
 @cache
-def font(size: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
-    """Pillow's bundled font at ``size`` output pixels (em height)."""
-    return ImageFont.load_default(size * SS)
+def font(pixels: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    """Pillow's bundled font, ``pixels`` high (em height) on the canvas drawn."""
+    return ImageFont.load_default(pixels)
 
 
 def text_width(text: str, size: float) -> float:
     """Width of ``text`` in output pixels."""
-    return float(font(size).getlength(text)) / SS
+    return float(font(size * SS).getlength(text)) / SS
 
 
 def save_png(image: Image.Image, path: str | Path, *, photo: bool = False) -> Path:
@@ -58,11 +58,12 @@ def save_png(image: Image.Image, path: str | Path, *, photo: bool = False) -> Pa
 
 
 class Canvas:
-    """A white picture of ``width`` x ``height`` output pixels."""
+    """A white picture of ``width`` x ``height`` output pixels, drawn at ``ss`` times the
+    size (1: no smoothing, for pictures of images and axis-parallel frames only)."""
 
-    def __init__(self, width: int, height: int) -> None:
-        self.width, self.height = int(width), int(height)
-        self.image = Image.new("RGB", (self.width * SS, self.height * SS), "white")
+    def __init__(self, width: int, height: int, ss: int = SS) -> None:
+        self.width, self.height, self.ss = int(width), int(height), int(ss)
+        self.image = Image.new("RGB", (self.width * self.ss, self.height * self.ss), "white")
         self.draw = ImageDraw.Draw(self.image)
 
     def text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK, anchor: str = "la",
@@ -77,36 +78,37 @@ class Canvas:
                 shift = {"a": i, "m": i - (n - 1) / 2}.get(anchor[1], i - (n - 1)) * step
                 self.text(x, y + shift, line, size, fill, anchor, box, pad)
             return
-        xy = (x * SS, y * SS)
+        xy = (x * self.ss, y * self.ss)
         if box is not None:
-            left, top, right, bottom = self.draw.textbbox(xy, text, font=font(size), anchor=anchor)
-            p = pad * SS
+            left, top, right, bottom = self.draw.textbbox(xy, text, font=font(round(size * self.ss)), anchor=anchor)
+            p = pad * self.ss
             self.draw.rectangle((left - p, top - p, right + p, bottom + p), fill=box)
-        self.draw.text(xy, text, font=font(size), fill=fill, anchor=anchor)
+        self.draw.text(xy, text, font=font(round(size * self.ss)), fill=fill, anchor=anchor)
 
     def vertical_text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK) -> None:
         """``text`` turned a quarter left (read bottom to top), centred on (x, y)."""
-        f = font(size)
+        f = font(round(size * self.ss))
         left, top, right, bottom = f.getbbox(text)
         mask = Image.new("L", (int(right - left) + 2, int(bottom - top) + 2), 0)
         ImageDraw.Draw(mask).text((1 - left, 1 - top), text, font=f, fill=255)
         mask = mask.transpose(Image.Transpose.ROTATE_90)
-        self.image.paste(fill, (int(x * SS - mask.width / 2), int(y * SS - mask.height / 2)), mask)
+        self.image.paste(fill, (int(x * self.ss - mask.width / 2), int(y * self.ss - mask.height / 2)), mask)
 
     def rectangle(self, box: Sequence[float], outline: Colour | None = None, fill: Colour | None = None,
                   width: float = 1) -> None:
-        x0, y0, x1, y1 = (v * SS for v in box)
-        self.draw.rectangle((x0, y0, x1, y1), outline=outline, fill=fill, width=max(1, round(width * SS)))
+        x0, y0, x1, y1 = (v * self.ss for v in box)
+        self.draw.rectangle((x0, y0, x1, y1), outline=outline, fill=fill, width=max(1, round(width * self.ss)))
 
     def paste(self, rgb: np.ndarray, x: float, y: float) -> None:
         """An RGB uint8 array of output-pixel size with its top left at (x, y)."""
-        img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB").resize(
-            (rgb.shape[1] * SS, rgb.shape[0] * SS), Image.Resampling.NEAREST)
-        self.image.paste(img, (round(x * SS), round(y * SS)))
+        img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB")
+        if self.ss != 1:
+            img = img.resize((rgb.shape[1] * self.ss, rgb.shape[0] * self.ss), Image.Resampling.NEAREST)
+        self.image.paste(img, (round(x * self.ss), round(y * self.ss)))
 
     def result(self) -> Image.Image:
         """The picture at output size."""
-        return self.image.reduce(SS)
+        return self.image if self.ss == 1 else self.image.reduce(self.ss)
 
     def save(self, path: str | Path, photo: bool = False) -> Path:
         return save_png(self.result(), path, photo=photo)
@@ -159,7 +161,7 @@ class Axes:
 
     def xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Data to supersampled canvas pixels."""
-        return self._x(x) * SS, self._y(y) * SS
+        return self._x(x) * self.c.ss, self._y(y) * self.c.ss
 
     # ----------------------------------------------------------------- frame, ticks, labels
     def frame(self, xticks: Sequence[float], yticks: Sequence[float], *, xlabels: Sequence[str] | None = None,
@@ -168,20 +170,20 @@ class Axes:
         xt, yt = np.asarray(xticks, np.float64), np.asarray(yticks, np.float64)
         xl = list(xlabels) if xlabels is not None else [tick_label(v, xt) for v in xt]
         yl = list(ylabels) if ylabels is not None else [tick_label(v, yt) for v in yt]
-        d = self.c.draw
+        d, k = self.c.draw, self.c.ss
         px, py = self._x(xt), self._y(yt)
         if grid:
             for x in px:
-                d.line([(x * SS, self.top * SS), (x * SS, self.bottom * SS)], fill=GRID, width=SS)
+                d.line([(x * k, self.top * k), (x * k, self.bottom * k)], fill=GRID, width=k)
             for y in py:
-                d.line([(self.left * SS, y * SS), (self.right * SS, y * SS)], fill=GRID, width=SS)
+                d.line([(self.left * k, y * k), (self.right * k, y * k)], fill=GRID, width=k)
         self.box()
         for x, label in zip(px, xl):
-            d.line([(x * SS, self.bottom * SS), (x * SS, (self.bottom + 4) * SS)], fill=BLACK, width=SS)
+            d.line([(x * k, self.bottom * k), (x * k, (self.bottom + 4) * k)], fill=BLACK, width=k)
             self.c.text(x, self.bottom + 6, label, size, anchor="ma")
         self.ytick_width = max((text_width(label, size) for label in yl), default=0.0)
         for y, label in zip(py, yl):
-            d.line([((self.left - 4) * SS, y * SS), (self.left * SS, y * SS)], fill=BLACK, width=SS)
+            d.line([((self.left - 4) * k, y * k), (self.left * k, y * k)], fill=BLACK, width=k)
             self.c.text(self.left - 6, y, label, size, anchor="rm")
 
     def box(self) -> None:
@@ -206,12 +208,12 @@ class Axes:
         px, py = px[ok], py[ok]
         if len(px) < 2:
             return
-        w = max(1, round(width * SS))
+        w = max(1, round(width * self.c.ss))
         pattern = DASHES.get(style, ())
         if not pattern:
             self.c.draw.line(list(zip(px.tolist(), py.tolist())), fill=colour, width=w, joint="curve")
             return
-        for run in _dash_runs(px, py, [p * width * SS for p in pattern]):
+        for run in _dash_runs(px, py, [p * width * self.c.ss for p in pattern]):
             self.c.draw.line(run, fill=colour, width=w, joint="curve")
 
     def markers(self, x: np.ndarray, y: np.ndarray, colour: Colour, shape: str = "o", size: float = 7.0,
@@ -219,8 +221,8 @@ class Axes:
         """``shape``: o s ^ D v x + | (``size``: output pixels across; ``edge``: the width of x, + and |)."""
         px, py = self.xy(x, y)
         ok = np.isfinite(px) & np.isfinite(py)
-        r = size * SS / 2
-        w = max(1, round(edge * SS))
+        r = size * self.c.ss / 2
+        w = max(1, round(edge * self.c.ss))
         if ok.sum() > STAMP_FROM and shape in "os+x|":
             self._stamp(px[ok], py[ok], colour, shape, r, w)
             return
@@ -283,10 +285,10 @@ class Axes:
         pixels than the box, each cell a block where it has fewer (no smoothing between cells)."""
         import cv2
 
-        w, h = round((self.right - self.left) * SS), round((self.bottom - self.top) * SS)
+        w, h = round((self.right - self.left) * self.c.ss), round((self.bottom - self.top) * self.c.ss)
         shrink = rgb.shape[0] >= h and rgb.shape[1] >= w
         resized = cv2.resize(np.ascontiguousarray(rgb), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_NEAREST)
-        self.c.image.paste(Image.fromarray(resized, "RGB"), (round(self.left * SS), round(self.top * SS)))
+        self.c.image.paste(Image.fromarray(resized, "RGB"), (round(self.left * self.c.ss), round(self.top * self.c.ss)))
 
     def legend(self, entries: Sequence[LegendEntry], loc: str = "lower left", size: float = 11) -> None:
         """A framed legend in a corner of the box (``loc``: "lower left", "lower right", "upper left", "upper right")."""
@@ -373,15 +375,15 @@ def grey_image(matrix: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
 def colour_bar(c: Canvas, box: Sequence[float], vmin: float, vmax: float, label: str, size: float = 11) -> None:
     """A vertical grey scale from ``vmin`` (bottom, black) to ``vmax`` (top, white) with ticks on the right."""
     left, top, right, bottom = box
-    h = max(2, round((bottom - top) * SS))
+    h = max(2, round((bottom - top) * c.ss))
     ramp = np.linspace(255, 0, h).round().astype(np.uint8)
-    bar = np.repeat(np.repeat(ramp[:, None], max(1, round((right - left) * SS)), axis=1)[..., None], 3, axis=2)
-    c.image.paste(Image.fromarray(bar, "RGB"), (round(left * SS), round(top * SS)))
+    bar = np.repeat(np.repeat(ramp[:, None], max(1, round((right - left) * c.ss)), axis=1)[..., None], 3, axis=2)
+    c.image.paste(Image.fromarray(bar, "RGB"), (round(left * c.ss), round(top * c.ss)))
     ax = Axes(c, box, (0, 1), (vmin, vmax) if vmax > vmin else (vmin, vmin + 1))
     ax.box()
     ticks = nice_ticks(*ax.ylim, most=10)
     for v, y in zip(ticks, ax._y(ticks)):
-        c.draw.line([(right * SS, y * SS), ((right + 4) * SS, y * SS)], fill=BLACK, width=SS)
+        c.draw.line([(right * c.ss, y * c.ss), ((right + 4) * c.ss, y * c.ss)], fill=BLACK, width=c.ss)
         c.text(right + 6, y, tick_label(v, ticks), size, anchor="lm")
     widest = max(text_width(tick_label(v, ticks), size) for v in ticks)
     c.vertical_text(right + 12 + widest + size * 0.8, (top + bottom) / 2, label, size)

@@ -248,13 +248,13 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path]
                              "green" if r.correct else "red"))
     h, w = canvas.shape[:2]
     title_h = 50
-    page = R.Canvas(w, h + title_h)
+    page = R.Canvas(w, h + title_h, ss=1)  # images, axis-parallel frames and text: nothing to smooth
     page.paste(canvas, 0, title_h)
     rgb = {name: colours[name] for name in ("black", "grey", "royalblue")} | {"limegreen": (0, 160, 0), "red": (220, 0, 0),
                                                                              "green": (0, 128, 0)}
     for x, y, text, colour in texts:
         centred = text == "no match"
-        page.text(x, title_h + y, text, 11.5, fill=rgb[colour], anchor="mm" if centred else "ld")
+        page.text(x, title_h + y, text, 12, fill=rgb[colour], anchor="mm" if centred else "ld")
     for x, y, text, colour in verdicts:
         page.text(x + 2, title_h + y + 2, text, 13, fill=(255, 255, 255), anchor="la", box=rgb[colour], pad=2)
     page.text(w / 2, title_h / 2, title, 15, anchor="mm")

@@ -162,7 +162,9 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
     (reference, query) subsampling already applied; axes are in original frame numbers."""
     panel_w, extra = 712, 18 * title.count("\n")
     height = 616 + extra
-    c = R.Canvas(panel_w * max(1, len(panels)), height)
+    # not supersampled: the matrix is an image already, and smoothing thousands of markers
+    # and two 800 x 800 panels at twice the size cost a third of the picture
+    c = R.Canvas(panel_w * max(1, len(panels)), height, ss=1)
     sr, sq = stride
     for k, (name, matrix) in enumerate(panels.items()):
         x0 = k * panel_w
@@ -188,21 +190,21 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
             q = np.arange(len(matches))
             has = matches >= 0
             if correct is None:
-                ax.markers(q[has], matches[has], _MATCH_UNJUDGED, "o", 4)
+                ax.markers(q[has], matches[has], _MATCH_UNJUDGED, "o", 5)
                 entries.append(R.LegendEntry("best match", _MATCH_UNJUDGED, marker="o", marker_size=6))
             else:
                 good, bad = has & correct, has & ~correct
-                ax.markers(q[good], matches[good], _MATCH_GOOD, "o", 4)
-                ax.markers(q[bad], matches[bad], _MATCH_BAD, "x", 5, edge=1.4)
+                ax.markers(q[good], matches[good], _MATCH_GOOD, "o", 5)
+                ax.markers(q[bad], matches[bad], _MATCH_BAD, "x", 6, edge=2)
                 entries += [R.LegendEntry(f"correct match ({good.sum()})", _MATCH_GOOD, marker="o", marker_size=6),
                             R.LegendEntry(f"wrong match ({bad.sum()})", _MATCH_BAD, marker="x", marker_size=7)]
         xt = R.nice_ticks(0, (nq - 0.5) * sq, most=9)
         yt = R.nice_ticks(0, (nr - 0.5) * sr, most=9)
         ax.frame(xt, yt, grid=False, size=12)
-        ax.labels("query frame", "reference frame", name, title_size=12.5)
+        ax.labels("query frame", "reference frame", name, size=13, title_size=13)
         # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
-        ax.legend(entries, "lower left", size=10)
-        R.colour_bar(c, (x0 + 612, 60 + extra, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=10.5)
+        ax.legend(entries, "lower left", size=11)
+        R.colour_bar(c, (x0 + 612, 60 + extra, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=11)
     if title:
         c.text(c.width / 2, 10, title, 14, anchor="ma")
     return c.save(path, photo=True)

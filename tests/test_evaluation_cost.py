@@ -204,3 +204,20 @@ def test_sidecar_fingerprint_lists_the_files_beside_the_images_in_name_order(tmp
     # code-point order; ".hidden.csv" is a CSV, ".csv" (a name without suffix) is not
     expected = config_hash([row(".hidden.csv"), row("B.TXT"), row("a.yml"), row("poses.csv")])
     assert _sidecar_fingerprint({"reference": list_images(folder)}) == expected
+
+
+def test_pr_legend_moves_right_when_every_curve_ends_early(tmp_path):
+    """Curves that end before half the recall leave the right half empty: the legend goes
+    there, off their ends and the labels under them; a curve reaching further keeps it left."""
+    from PIL import Image
+
+    from placeloc.evaluation.plots import plot_pr_curves
+
+    def legend_side(curves: dict) -> str:
+        img = np.asarray(Image.open(plot_pr_curves(curves, tmp_path / "pr.png")).convert("RGB"))
+        frame = (np.abs(img[380:466].astype(int) - 204).sum(axis=2) <= 6).sum(axis=0)  # the legend's grey frame
+        return "right" if frame[330:].sum() > frame[:330].sum() else "left"
+
+    short = {"a": (np.array([0.1, 0.26]), np.array([0.4, 0.26])), "b": (np.array([0.05, 0.13]), np.array([0.2, 0.13]))}
+    assert legend_side(short) == "right"
+    assert legend_side({**short, "c": (np.array([0.5, 0.9]), np.array([1.0, 0.8]))}) == "left"

@@ -98,13 +98,15 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
         entries.append(R.LegendEntry(f"{label}  (AUC {_auc(rec, prec):.3f})", colour, line_width=width, style=style,
                                      marker=marker, marker_size=5 * PT))
         ends.append((float(x[-1]), float(y[-1]), colour, i))
+    ax.labels(xlabel, "precision", title)
+    # lower left, unless every curve ends before half the recall: then the right half is empty
+    # and the lower left holds the curves' ends and their labels
+    ax.legend(entries, "lower right" if ends and max(e[0] for e in ends) <= 0.5 else "lower left", size=11)
     # where each curve ends (every match accepted): visible even under a curve that goes further
     for x_end, y_end, colour, i in ends:
         ax.markers(np.array([x_end]), np.array([y_end]), colour, "|", 16 * PT, edge=2.5 * PT)
         px, py = float(ax._x(np.array(x_end))), float(ax._y(np.array(y_end)))
         c.text(px, py + (16 + 11 * i) * PT, f"{x_end:.3f}", 11, fill=colour, anchor="md")
-    ax.labels(xlabel, "precision", title)
-    ax.legend(entries, "lower left", size=11)
     return c.save(path)
 
 

@@ -2,14 +2,20 @@
 its own process, at 3576 x 3576 (the frames of bench/bench_seqslam.py, SAD with the
 centred search) with ground truth and pictures on, and on the demo (configs/demo.yaml).
 
-    python bench/bench_evaluate.py            # both problems, best of 3 after a warm-up
-    python bench/bench_evaluate.py --demo     # the demo only
-    python bench/bench_evaluate.py --no-plots # scoring alone (plots: false), what the pictures cost aside
+    python bench/bench_evaluate.py                 # both problems, best of 3 after a warm-up
+    python bench/bench_evaluate.py --demo          # the demo only
+    python bench/bench_evaluate.py --no-plots      # scoring alone (plots: false), what the pictures cost aside
+    python bench/bench_evaluate.py --tree OLD --tree .   # two source trees, turn about, in one run
 
-Prints, per problem, wall and CPU seconds of each stage's process, the stage's own
+Prints, per problem and tree, wall and CPU seconds of each stage's process, the stage's own
 seconds (its artifact's ``seconds``: process start-up and imports left out), and the ratio
 evaluate / (extract + localize) of both, measured in the same run (goal: at most 0.25),
-with the load average, since the machine may be shared.
+with the load average, since the machine may be shared. Also the floor every stage process
+pays before any work: ``placeloc build-dictionary``, a stage SeqSLAM passes through
+(start-up, imports, the config check, listing the images, the stamps).
+
+A tree is a checkout's root: its ``pipeline/`` goes first on PYTHONPATH of every stage's
+process (the default: this checkout). Trees run turn about, so load changes reach both.
 """
 
 from __future__ import annotations
@@ -17,42 +23,70 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
+import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_seqslam import P, make_traverses, run_cli  # noqa: E402
+from bench_seqslam import P, make_traverses  # noqa: E402
 
 STAGES = ("extract", "localize", "evaluate")
+FLOOR = "build-dictionary"  # SeqSLAM has no dictionary: the stage passes its input through
+
+Times = dict[str, tuple[float, float, float]]  # stage -> (wall, CPU, the stage's own seconds)
 
 
-def stage_times(cfg: Path, run_dir: Path, repeat: int) -> dict[str, tuple[float, float, float]]:
-    """Each stage as ``placeloc STAGE CONFIG -o RUN_DIR -f``: (wall, CPU, the stage's own
-    seconds) of the run with the best wall of ``repeat``, after a warm-up run."""
+def run_stage(tree: Path, stage: str, cfg: Path, run_dir: Path) -> tuple[float, float, float]:
+    """``placeloc STAGE CONFIG -o RUN_DIR -q -f`` as its own process with ``tree``'s code:
+    (wall, CPU user + sys, the artifact's own seconds)."""
     import h5py
 
-    best: dict[str, tuple[float, float, float]] = {}
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree / "pipeline"), os.environ.get("PYTHONPATH", "")]))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    # as the installed `placeloc` script starts it (python -m would compile cli.py on every start)
+    code = "import sys; from placeloc.cli import main; sys.argv[0] = 'placeloc'; sys.exit(main())"
+    subprocess.run([sys.executable, "-c", code, stage, str(cfg), "-o", str(run_dir), "-q", "-f"], check=True,
+                   capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with h5py.File(run_dir / f"{stage}.h5", "r") as f:
+        own = float(f.attrs.get("seconds", 0.0))
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), own
+
+
+def stage_times(trees: list[Path], cfg: Path, work: Path, repeat: int) -> list[Times]:
+    """Per tree, each stage's run with the best wall of ``repeat`` (after one warm-up round),
+    the trees turn about in every round; each tree has its own run directory."""
+    best: list[Times] = [{} for _ in trees]
     for i in range(repeat + 1):
-        for stage in STAGES:
-            wall, cpu = run_cli([stage, str(cfg), "-o", str(run_dir), "-q", "-f"])
-            with h5py.File(run_dir / f"{stage}.h5", "r") as f:
-                own = float(f.attrs["seconds"])
-            if i > 0 and (stage not in best or wall < best[stage][0]):
-                best[stage] = (wall, cpu, own)
+        for k, tree in enumerate(trees):
+            for stage in (*STAGES, FLOOR):
+                t = run_stage(tree, stage, cfg, work / f"run{k}")
+                if i > 0 and (stage not in best[k] or t[0] < best[k][stage][0]):
+                    best[k][stage] = t
     return best
 
 
-def report(name: str, t: dict[str, tuple[float, float, float]]) -> None:
+def report(name: str, trees: list[Path], times: list[Times]) -> None:
     print(f"{name}: load average {os.getloadavg()[0]:.1f}")
-    for stage in STAGES:
-        print(f"  {stage:9s} wall {t[stage][0]:7.2f} s  cpu {t[stage][1]:7.2f} s  own {t[stage][2]:7.2f} s")
-    for what, k in (("process wall", 0), ("stage's own", 2)):
-        method = t["extract"][k] + t["localize"][k]
-        print(f"  {what:12s}: evaluate / (extract + localize) = {t['evaluate'][k]:.2f} / {method:.2f} = "
-              f"{t['evaluate'][k] / method:.2f}  (goal <= 0.25)")
+    for tree, t in zip(trees, times):
+        print(f"  tree {tree}")
+        for stage in STAGES:
+            print(f"    {stage:9s} wall {t[stage][0]:7.2f} s  cpu {t[stage][1]:7.2f} s  own {t[stage][2]:7.2f} s")
+        method_wall = t["extract"][0] + t["localize"][0]
+        for what, k in (("process wall", 0), ("stage's own", 2)):
+            method = t["extract"][k] + t["localize"][k]
+            print(f"    {what:12s}: evaluate / (extract + localize) = {t['evaluate'][k]:.2f} / {method:.2f} = "
+                  f"{t['evaluate'][k] / method:.2f}  (goal <= 0.25)")
+        floor = t[FLOOR][0]
+        print(f"    floor: a stage with no work ({FLOOR}) takes {floor:.2f} s wall ({t[FLOOR][1]:.2f} s CPU), "
+              f"{floor / method_wall:.2f} of extract + localize; evaluate beyond it {t['evaluate'][0] - floor:.2f} s")
 
 
 def main() -> None:
@@ -61,31 +95,38 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plots", action="store_true", help="plots: false (metrics.json and the CSVs only)")
+    ap.add_argument("--tree", action="append", type=Path, default=None,
+                    help="a checkout whose pipeline/ runs the stages (repeatable; default: this one)")
     a = ap.parse_args()
+    trees = [t.resolve() for t in (a.tree or [ROOT])]
+    for tree in trees:
+        if not (tree / "pipeline" / "placeloc").is_dir():
+            sys.exit(f"--tree {tree}: holds no pipeline/placeloc; give a checkout's root")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        demo = ROOT / "configs" / "demo.yaml"
-        if a.no_plots:
-            import yaml
+        import yaml
 
-            cfg = yaml.safe_load(demo.read_text())
-            for role in ("reference", "query"):
-                cfg[role]["images"] = str((demo.parent / cfg[role]["images"]).resolve())
-            cfg["ground_truth"]["path"] = str((demo.parent / cfg["ground_truth"]["path"]).resolve())
-            cfg["plots"] = False
-            demo = work / "demo.json"
-            demo.write_text(json.dumps(cfg))
-        report(f"demo (configs/demo.yaml, 81 x 81{', plots: false' if a.no_plots else ''})",
-               stage_times(demo, work / "demo", a.repeat))
+        demo_file = ROOT / "configs" / "demo.yaml"
+        cfg = yaml.safe_load(demo_file.read_text())
+        for role in ("reference", "query"):
+            cfg[role]["images"] = str((demo_file.parent / cfg[role]["images"]).resolve())
+        cfg["ground_truth"]["path"] = str((demo_file.parent / cfg["ground_truth"]["path"]).resolve())
+        cfg["plots"] = not a.no_plots
+        demo = work / "demo.json"
+        demo.write_text(json.dumps(cfg))
+        (work / "demo").mkdir()
+        report(f"demo (configs/demo.yaml, 81 x 81, pictures {'off' if a.no_plots else 'on'})", trees,
+               stage_times(trees, demo, work / "demo", a.repeat))
         if a.demo:
             return
         ref, q = make_traverses(work / "data", a.n)
-        cfg = work / "bench.json"
-        cfg.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
+        big = work / "bench.json"
+        big.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
                                    "ground_truth": {"kind": "synchronous", "tolerance": 2}, "plots": not a.no_plots,
                                    "seqslam": {"comparison": "sad", "search": P.search}}))
+        (work / "big").mkdir()
         report(f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures {'off' if a.no_plots else 'on'})",
-               stage_times(cfg, work / "run", a.repeat))
+               trees, stage_times(trees, big, work / "big", a.repeat))
 
 
 if __name__ == "__main__":

@@ -194,10 +194,10 @@ def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, 
     and per_query.csv were written): one line, and nothing of that evaluate in the run dir."""
     import errno
 
-    import matplotlib.figure
+    import PIL.Image
 
     run = tmp_path / "R"
-    real = matplotlib.figure.Figure.savefig
+    real = PIL.Image.Image.save
 
     def full(self, fname, *a, **k):
         if "difference_matrix" in str(fname):
@@ -205,7 +205,7 @@ def test_disk_full_while_evaluate_draws_leaves_no_metrics_and_no_tmp_png(route, 
             raise OSError(errno.ENOSPC, "No space left on device", str(fname))
         return real(self, fname, *a, **k)
 
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    monkeypatch.setattr(PIL.Image.Image, "save", full)
     res = _cli(["run", str(route / "config.yaml"), "-o", str(run), "-q"])
     lines = _lines(_err(res))
     assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: no space left on "), lines

@@ -174,8 +174,12 @@ def _sidecar_fingerprint(images: dict[str, ImageSet]) -> str:
         folder = Path(s.source) if Path(s.source).is_dir() else (s.paths[0].parent if s.paths else None)
         if folder is None:
             continue
-        for p in sorted(folder.iterdir()):
-            if p.is_file() and p.suffix.lower() in SIDECAR_SUFFIXES:
+        # names first, by suffix, then a Path for the few kept: a folder holds thousands of images
+        with os.scandir(folder) as entries:
+            names = sorted(e.name for e in entries if os.path.splitext(e.name)[1].lower() in SIDECAR_SUFFIXES)
+        for name in names:
+            p = folder / name
+            if p.is_file():
                 rows.append(f"{role}/{p.name}:{_path_fingerprint(p)}")
     return config_hash(rows)
 

@@ -306,15 +306,75 @@ class GroundTruth:
         out[iq[first]] = (ilo[first] + ihi[first]) // 2
         return out
 
+    def positives(self, r_idx: np.ndarray, q_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The positive pairs among the references ``r_idx`` and queries ``q_idx`` (original
+        indices) as (row, column) positions in them, sorted by column, then row: the
+        nonzeros of ``block_idx(r_idx, q_idx)``, found without building that n_ref x n_query
+        block where the truth is a band, ranges or positions (a few positives per query).
+        Every pair is confirmed by :meth:`correct`, so both always agree."""
+        r_idx, q_idx = np.asarray(r_idx, np.int64), np.asarray(q_idx, np.int64)
+        if self.matrix is not None:
+            cols, rows = np.nonzero(self.block_idx(r_idx, q_idx).T)
+            return rows.astype(np.int64), cols.astype(np.int64)
+        col_of_query = np.full(self.n_query, -1, np.int64)
+        q_ok = (q_idx >= 0) & (q_idx < self.n_query)
+        col_of_query[q_idx[q_ok]] = np.flatnonzero(q_ok)
+        # candidates: (column position, original reference), a superset of the positives
+        if self.synchronous:
+            offsets = np.arange(-self.tolerance, self.tolerance + 1, dtype=np.int64)
+            cols = np.repeat(np.arange(len(q_idx), dtype=np.int64), len(offsets))
+            refs = (q_idx[:, None] + offsets[None, :]).ravel()
+        elif self.ref_xy is not None:
+            from scipy.spatial import cKDTree
+
+            cols_ok = np.flatnonzero(q_ok)
+            # a hair wider than the radius: the tree's distance may round differently from
+            # correct()'s hypot; correct() below decides
+            near = cKDTree(self.ref_xy).query_ball_point(self.query_xy[q_idx[cols_ok]], r=float(self.radius) * (1 + 1e-9),
+                                                         return_sorted=False) if len(cols_ok) and len(self.ref_xy) else []
+            counts = np.fromiter((len(n) for n in near), np.int64, len(near))
+            cols = np.repeat(cols_ok, counts)
+            refs = np.fromiter((r for n in near for r in n), np.int64, int(counts.sum()))
+        else:
+            assert self.iv is not None
+            iq, ilo, ihi = self.iv
+            inside = iq < self.n_query
+            col = np.where(inside, col_of_query[np.where(inside, iq, 0)], -1)
+            keep = col >= 0
+            col, lo, hi = col[keep], ilo[keep], ihi[keep]
+            counts = hi - lo + 1
+            cols = np.repeat(col, counts)
+            starts = np.repeat(lo - np.r_[0, np.cumsum(counts)[:-1]], counts)
+            refs = starts + np.arange(int(counts.sum()), dtype=np.int64)
+        row_of_ref = np.full(self.n_ref, -1, np.int64)
+        r_ok = (r_idx >= 0) & (r_idx < self.n_ref)
+        row_of_ref[r_idx[r_ok]] = np.flatnonzero(r_ok)
+        valid = (refs >= 0) & (refs < self.n_ref)
+        cols, refs = cols[valid], refs[valid]
+        rows = row_of_ref[refs]
+        keep = rows >= 0
+        cols, refs, rows = cols[keep], refs[keep], rows[keep]
+        keep = self.correct(q_idx[cols], refs)
+        cols, rows = cols[keep], rows[keep]
+        key = np.sort(cols * max(len(r_idx), 1) + rows)
+        key = key[np.r_[True, key[1:] != key[:-1]]] if len(key) else key  # np.unique would import numpy.ma (20 ms)
+        return key % max(len(r_idx), 1), key // max(len(r_idx), 1)
+
     def band(self, r_idx: np.ndarray, q_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First and last row (positions in ``r_idx``) that are positive for each query in
         ``q_idx`` (lo > hi where none): the band drawn under a difference matrix."""
-        g = self.block_idx(r_idx, q_idx)
-        n = len(r_idx)
-        anyp = g.any(axis=0)
-        first = np.argmax(g, axis=0)
-        last = n - 1 - np.argmax(g[::-1], axis=0)
-        return np.where(anyp, first, 1), np.where(anyp, last, 0)
+        return band_of(*self.positives(r_idx, q_idx), len(q_idx))
+
+
+def band_of(rows: np.ndarray, cols: np.ndarray, n_cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per column of ``n_cols``, the first and last of the positive pairs' rows (1 and 0,
+    lo > hi, where a column has none)."""
+    lo, hi = np.full(n_cols, np.iinfo(np.int64).max, np.int64), np.full(n_cols, -1, np.int64)
+    np.minimum.at(lo, cols, rows)
+    np.maximum.at(hi, cols, rows)
+    none = hi < 0
+    lo[none], hi[none] = 1, 0
+    return lo, hi
 
 
 # ---------------------------------------------------------------------- helpers

@@ -25,6 +25,7 @@ Conventions (the keys of ``metrics.json``, the ``ranked`` contract's schema):
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -134,15 +135,15 @@ def write_per_query_csv(path: str | Path, s: MatchScores, query_names: Sequence[
         for i in range(1, k + 1):
             head += [f"ref_{i}", f"image_{i}", f"score_{i}", f"correct_{i}"]
         w.writerow(head)
-        for j, q in enumerate(s.query):
-            b, p = int(s.best[j]), int(s.example_positive[j])
-            row = [int(q), query_names[q], int(s.has_positive[j]), p if p >= 0 else "", ref_names[p] if p >= 0 else "",
-                   b if b >= 0 else "", ref_names[b] if b >= 0 else "", f"{s.confidence[j]:.6f}",
-                   int(s.best_correct[j]), int(first[j])]
-            for i in range(k):
-                r = int(s.ranked[j, i])
-                sc = s.ranked_scores[j, i]
+        # Python lists, not numpy scalars, in the loop: a tenth of the time at thousands of rows
+        ranked, scores, ok = s.ranked[:, :k].tolist(), s.ranked_scores[:, :k].tolist(), s.ranked_correct[:, :k].tolist()
+        columns = zip(s.query.tolist(), s.best.tolist(), s.example_positive.tolist(), s.has_positive.tolist(),
+                      s.confidence.tolist(), s.best_correct.tolist(), first.tolist(), ranked, scores, ok)
+        for q, b, p, has, conf, right, first_rank, refs, row_scores, row_ok in columns:
+            row = [q, query_names[q], int(has), p if p >= 0 else "", ref_names[p] if p >= 0 else "",
+                   b if b >= 0 else "", ref_names[b] if b >= 0 else "", f"{conf:.6f}", int(right), first_rank]
+            for r, sc, c in zip(refs, row_scores, row_ok):
                 row += [r if r >= 0 else "", ref_names[r] if r >= 0 else "",
-                        "" if r < 0 or not np.isfinite(sc) else f"{sc:.6g}", int(s.ranked_correct[j, i])]
+                        "" if r < 0 or not math.isfinite(sc) else f"{sc:.6g}", int(c)]
             w.writerow(row)
     return path

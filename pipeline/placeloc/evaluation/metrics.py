@@ -83,8 +83,23 @@ def recall_at_k(candidates_correct: np.ndarray, ks: tuple[int, ...] = (1, 5, 10)
     return out
 
 
+def split_row_minima(block: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``block`` (a difference matrix's columns, rows = reference), the smallest
+    value at the listed positive cells (``rows``, ``cols``) and the smallest at every other
+    cell (inf where a row has none): what :func:`dissimilarity_ratios` divides. One pass over
+    the block plus one over the positives, never a boolean mask of the block's size.
+    ``block`` is overwritten (its positive cells become inf): pass a block of one's own."""
+    at_positive = np.full(block.shape[0], np.inf)
+    np.minimum.at(at_positive, rows, block[rows, cols].astype(np.float64))
+    block[rows, cols] = np.inf
+    elsewhere = block.min(axis=1, initial=np.inf).astype(np.float64) if block.shape[1] else np.full(block.shape[0], np.inf)
+    return at_positive, elsewhere
+
+
 def dissimilarity_ratios(min_correct: np.ndarray, min_wrong: np.ndarray) -> np.ndarray:
-    """Seed 004's measure per reference image: the difference to its correct query over the
+    """Milford and Wyeth's dissimilarity ratio ("SeqSLAM: Visual route-based navigation for
+    sunny summer days and stormy winter nights", ICRA 2012) per reference image: the
+    difference to its correct query over the
     smallest difference to any wrong query. Smaller is better; >= 1 means a wrong query
     looked at least as alike. References with no correct or no wrong query are NaN."""
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -1,24 +1,44 @@
-"""Plots a person would rather look at than read (PNG, matplotlib's Agg backend)."""
+"""Plots a person would rather look at than read (PNG).
+
+The pictures evaluate draws on every run (precision-recall, Recall@N, the difference
+matrices) are drawn with :mod:`placeloc.evaluation.raster` (Pillow), in milliseconds;
+the rarer ones (sweeps, the other contracts' figures through :func:`_save`) with
+matplotlib's Agg backend, imported only when one of them is drawn.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from placeloc.evaluation import raster as R
 
 
-def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False, tight: bool = True) -> Path:
-    """Save under a temporary name and rename, so a killed run never leaves half a PNG;
-    a failed save (a full disk) leaves no temporary file either. ``photo``: pictures of
-    images or matrices, which zlib hardly shrinks: the fastest compression (level 1 took a
-    fifth of level 6's time on the strips, for files about a tenth larger). ``tight``:
-    crop to the drawn content (a second layout pass; a figure laid out by ``layout=
-    "constrained"`` or placed by hand needs none)."""
+def __getattr__(name: str) -> Any:
+    """``plt`` (matplotlib.pyplot on the Agg backend) on first use, not on import."""
+    if name == "plt":
+        return _pyplot()
+    raise AttributeError(name)
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path, dpi: int = 110, photo: bool = False, tight: bool = True) -> Path:
+    """Save a matplotlib figure under a temporary name and rename, so a killed run never
+    leaves half a PNG; a failed save (a full disk) leaves no temporary file either.
+    ``photo``: pictures of images or matrices, which zlib hardly shrinks: the fastest
+    compression (level 1 took a fifth of level 6's time on the strips, for files about a
+    tenth larger). ``tight``: crop to the drawn content (a second layout pass; a figure
+    laid out by ``layout="constrained"`` or placed by hand needs none)."""
     from placeloc.core.artifacts import tmp_path_for
 
     path = Path(path)
@@ -29,13 +49,16 @@ def _save(fig: plt.Figure, path: Path, dpi: int = 110, photo: bool = False, tigh
         fig.savefig(tmp, dpi=dpi, bbox_inches="tight" if tight else None, format=fmt, **extra)
         tmp.replace(path)
     finally:
-        plt.close(fig)
+        _pyplot().close(fig)
         tmp.unlink(missing_ok=True)
     return path
 
 
 LINE_STYLES = ("-", "--", "-.", ":")
 MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+# the raster charts' markers (Pillow draws these shapes)
+RASTER_MARKERS = ("o", "s", "^", "D", "v", "x", "+")
+PT = 110 / 72  # output pixels per typographic point at the pictures' 110 dpi
 
 
 def _auc(rec: np.ndarray, prec: np.ndarray) -> float:
@@ -52,60 +75,80 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     few markers, so curves lying on top of each other stay visible, and a bar with its
     recall where it ends; the legend gives the AUC (trapezoids over recall, as
     :class:`placeloc.evaluation.metrics.PRCurve`)."""
-    fig, ax = plt.subplots(figsize=(6.0, 4.8))
+    extra = 17 * title.count("\n")  # room for a title of several lines
+    c = R.Canvas(660, 530 + extra)
+    ax = R.Axes(c, (70, 34 + extra, 640, 466 + extra), (-0.01, 1.01), (0.0, 1.03))
+    ticks = np.round(np.arange(0, 1.01, 0.2), 1)
+    ax.frame(ticks, ticks)
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))
+    entries: list[R.LegendEntry] = []
+    ends: list[tuple[float, float, R.Colour, int]] = []
     for i, label in enumerate(order):
         rec, prec = curves[label]
+        colour = R.CYCLE[i % len(R.CYCLE)]
         if not len(rec):
-            ax.plot([], [], label=f"{label} (no matches)")
+            entries.append(R.LegendEntry(f"{label} (no matches)", colour, line_width=2.0))
             continue
         x, y = np.r_[0.0, rec], np.r_[prec[0], prec]
-        line, = ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], lw=2.2 - 0.25 * min(i, 4), marker=MARKERS[i % len(MARKERS)],
-                        markevery=max(1, len(x) // 6), ms=5, alpha=0.9, label=f"{label}  (AUC {_auc(rec, prec):.3f})",
-                        zorder=10 - i)
-        # where the curve ends (every match accepted): visible even under a curve that goes further
-        ax.plot(x[-1], y[-1], "|", color=line.get_color(), ms=16, mew=2.5, zorder=20)
-        ax.annotate(f"{x[-1]:.3f}", (x[-1], y[-1]), textcoords="offset points", xytext=(0, -16 - 11 * i), ha="center",
-                    fontsize=7.5, color=line.get_color(), zorder=20)
-    ax.set_xlim(-0.01, 1.01)
-    ax.set_ylim(0, 1.03)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("precision")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    if curves:
-        ax.legend(fontsize=8, loc="lower left", framealpha=0.9)
-    return _save(fig, path)
+        style, marker = LINE_STYLES[i % len(LINE_STYLES)], RASTER_MARKERS[i % len(RASTER_MARKERS)]
+        width = (2.2 - 0.25 * min(i, 4)) * PT
+        ax.line(x, y, colour, width, style)
+        every = max(1, len(x) // 6)
+        ax.markers(x[::every], y[::every], colour, marker, 5 * PT)
+        entries.append(R.LegendEntry(f"{label}  (AUC {_auc(rec, prec):.3f})", colour, line_width=width, style=style,
+                                     marker=marker, marker_size=5 * PT))
+        ends.append((float(x[-1]), float(y[-1]), colour, i))
+    ax.labels(xlabel, "precision", title)
+    # lower left, unless every curve ends before half the recall: then the right half is empty
+    # and the lower left holds the curves' ends and their labels
+    ax.legend(entries, "lower right" if ends and max(e[0] for e in ends) <= 0.5 else "lower left", size=11)
+    # where each curve ends (every match accepted): visible even under a curve that goes further
+    for x_end, y_end, colour, i in ends:
+        ax.markers(np.array([x_end]), np.array([y_end]), colour, "|", 16 * PT, edge=2.5 * PT)
+        px, py = float(ax._x(np.array(x_end))), float(ax._y(np.array(y_end)))
+        c.text(px, py + (16 + 11 * i) * PT, f"{x_end:.3f}", 11, fill=colour, anchor="md")
+    return c.save(path)
 
 
 def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | None]]], path: Path,
                      title: str = "Recall@N") -> Path:
     """``curves``: label -> (N values, recall at each N; None = unknown). Log-scaled N."""
-    fig, ax = plt.subplots(figsize=(6.0, 4.4))
+    plotted = []
     all_n: set[int] = set()
-    for i, (label, (ns, vals)) in enumerate(curves.items()):
-        pts = [(n, v) for n, v in zip(ns, vals) if v is not None]
+    for label, (ns, vals) in curves.items():
+        pts = [(int(n), float(v)) for n, v in zip(ns, vals) if v is not None]
+        plotted.append((label, pts))
+        all_n.update(n for n, _ in pts)
+    ticks = sorted(all_n) or [1]
+    lo, hi = min(ticks), max(ticks)
+    if hi == lo:
+        lo, hi = lo / 1.5, hi * 1.5
+    pad = (np.log10(hi) - np.log10(lo)) * 0.05
+    extra = 17 * title.count("\n")
+    c = R.Canvas(660, 490 + extra)
+    ax = R.Axes(c, (70, 34 + extra, 640, 426 + extra), (10 ** (np.log10(lo) - pad), 10 ** (np.log10(hi) + pad)), (0.0, 1.08), xlog=True)
+    ax.frame(ticks, np.round(np.arange(0, 1.01, 0.2), 1), xlabels=[str(t) for t in ticks])
+    entries: list[R.LegendEntry] = []
+    for i, (label, pts) in enumerate(plotted):
         if not pts:
             continue
-        x, y = zip(*pts)
-        all_n.update(x)
-        (line,) = ax.plot(x, y, LINE_STYLES[i % len(LINE_STYLES)], marker=MARKERS[i % len(MARKERS)], ms=6, lw=2,
-                          label=label)
+        colour = R.CYCLE[i % len(R.CYCLE)]
+        style, marker = LINE_STYLES[i % len(LINE_STYLES)], RASTER_MARKERS[i % len(RASTER_MARKERS)]
+        x, y = (np.array(v, np.float64) for v in zip(*pts))
+        ax.line(x, y, colour, 2 * PT, style)
+        ax.markers(x, y, colour, marker, 6 * PT)
+        entries.append(R.LegendEntry(label, colour, line_width=2 * PT, style=style, marker=marker, marker_size=6 * PT))
         for xi, yi in pts:  # values in the line's colour, first curve above its points, second below
-            ax.annotate(f"{yi:.2f}", (xi, yi), textcoords="offset points", xytext=(0, 8 if i % 2 == 0 else -14),
-                        ha="center", fontsize=7.5, color=line.get_color(), fontweight="bold")
-    ax.set_xscale("log")
-    ticks = sorted(all_n) or [1]
-    ax.set_xticks(ticks, [str(t) for t in ticks])
-    ax.minorticks_off()
-    ax.set_ylim(0, 1.08)
-    ax.set_xlabel("N (candidates considered per query)")
-    ax.set_ylabel("recall@N")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    if curves:
-        ax.legend(fontsize=8, loc="lower right", framealpha=0.9)
-    return _save(fig, path)
+            px, py = float(ax._x(np.array(xi))), float(ax._y(np.array(yi)))
+            above = i % 2 == 0
+            c.text(px, py - 8 * PT if above else py + 8 * PT, f"{yi:.2f}", 11, fill=colour,
+                   anchor="md" if above else "ma")
+    ax.labels("N (candidates considered per query)", "recall@N", title)
+    ax.legend(entries, "lower right", size=11)
+    return c.save(path)
+
+
+_MATCH_GOOD, _MATCH_BAD, _MATCH_UNJUDGED, _TRUTH = (0, 255, 0), (255, 0, 0), (255, 165, 0), (0, 255, 255)
 
 
 def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, matches: np.ndarray | None = None,
@@ -119,49 +162,60 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
     loop-closure matrix: several revisits per frame) is drawn as cyan points
     ``gt_points`` = (query, reference). The legend lists only what is drawn. ``stride`` =
     (reference, query) subsampling already applied; axes are in original frame numbers."""
-    n = len(panels)
-    fig, axes = plt.subplots(1, n, figsize=(6.6 * n, 5.6), squeeze=False, layout="constrained")
+    panel_w, extra = 712, 18 * title.count("\n")
+    height = 616 + extra
+    # not supersampled: the matrix is an image already, and smoothing thousands of markers
+    # and two 800 x 800 panels at twice the size cost a third of the picture
+    c = R.Canvas(panel_w * max(1, len(panels)), height, ss=1)
     sr, sq = stride
-    for ax, (name, matrix) in zip(axes[0], panels.items()):
+    for k, (name, matrix) in enumerate(panels.items()):
+        x0 = k * panel_w
         nr, nq = matrix.shape
         finite = matrix[np.isfinite(matrix)]
-        vmin, vmax = (np.percentile(finite, [1, 99]) if finite.size else (0, 1))
-        im = ax.imshow(matrix, cmap="gray", aspect="auto", vmin=vmin, vmax=vmax, interpolation="nearest",
-                       extent=(-0.5 * sq, (nq - 0.5) * sq, (nr - 0.5) * sr, -0.5 * sr))
-        cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
-        cb.set_label(f"{name} (lower = more alike)", fontsize=8)
+        vmin, vmax = R.percentiles(finite, (1, 99)) if finite.size else (0.0, 1.0)
+        ax = R.Axes(c, (x0 + 76, 60 + extra, x0 + 600, height - 58), (-0.5 * sq, (nq - 0.5) * sq), (-0.5 * sr, (nr - 0.5) * sr),
+                    y_down=True)
+        ax.image(R.grey_image(matrix, vmin, vmax))
+        entries: list[R.LegendEntry] = []
         if gt_points is not None and len(gt_points[0]):
-            ax.scatter(gt_points[0], gt_points[1], s=7, c="cyan", marker="s", alpha=0.8, lw=0, zorder=2,
-                       label="ground truth (a true pair that counts)")
+            ax.markers(np.asarray(gt_points[0]), np.asarray(gt_points[1]), _TRUTH, "s", 3.5)
+            entries.append(R.LegendEntry("ground truth (a true pair that counts)", _TRUTH, marker="s", marker_size=5))
         if gt_lo is not None and gt_hi is not None and (gt_hi >= gt_lo).any():
-            q = np.arange(len(gt_lo))
             ok = gt_hi >= gt_lo
-            ax.fill_between(q[ok], gt_lo[ok] - 0.5, gt_hi[ok] + 0.5, color="cyan", alpha=0.18, lw=0, zorder=2)
-            ax.plot(q[ok], gt_lo[ok] - 0.5, color="cyan", lw=0.8, zorder=3, label="ground truth band")
-            ax.plot(q[ok], gt_hi[ok] + 0.5, color="cyan", lw=0.8, zorder=3)
+            q = np.arange(len(gt_lo))[ok]
+            lo, hi = gt_lo[ok] - 0.5, gt_hi[ok] + 0.5
+            ax.fill_between(q, lo, hi, _TRUTH, 0.18)
+            ax.line(q, lo, _TRUTH, 1.2)
+            ax.line(q, hi, _TRUTH, 1.2)
+            entries.append(R.LegendEntry("ground truth band", _TRUTH, line_width=1.5))
         if matches is not None:
             q = np.arange(len(matches))
             has = matches >= 0
             if correct is None:
-                ax.scatter(q[has], matches[has], s=6, c="orange", label="best match", zorder=4)
+                ax.markers(q[has], matches[has], _MATCH_UNJUDGED, "o", 5)
+                entries.append(R.LegendEntry("best match", _MATCH_UNJUDGED, marker="o", marker_size=6))
             else:
                 good, bad = has & correct, has & ~correct
-                ax.scatter(q[good], matches[good], s=6, c="lime", label=f"correct match ({good.sum()})", zorder=4)
-                ax.scatter(q[bad], matches[bad], s=9, c="red", marker="x", label=f"wrong match ({bad.sum()})", zorder=5)
-        ax.set_xlabel("query frame")
-        ax.set_ylabel("reference frame")
-        ax.set_title(name, fontsize=9)
+                ax.markers(q[good], matches[good], _MATCH_GOOD, "o", 5)
+                ax.markers(q[bad], matches[bad], _MATCH_BAD, "x", 6, edge=2)
+                entries += [R.LegendEntry(f"correct match ({good.sum()})", _MATCH_GOOD, marker="o", marker_size=6),
+                            R.LegendEntry(f"wrong match ({bad.sum()})", _MATCH_BAD, marker="x", marker_size=7)]
+        xt = R.nice_ticks(0, (nq - 0.5) * sq, most=9)
+        yt = R.nice_ticks(0, (nr - 0.5) * sr, most=9)
+        ax.frame(xt, yt, grid=False, size=12)
+        ax.labels("query frame", "reference frame", name, size=13, title_size=13)
         # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
-        ax.legend(fontsize=7, loc="lower left", markerscale=2, framealpha=0.85)
+        ax.legend(entries, "lower left", size=11)
+        R.colour_bar(c, (x0 + 612, 60 + extra, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=11)
     if title:
-        fig.suptitle(title, fontsize=10)
-    return _save(fig, path, photo=True, tight=False)
+        c.text(c.width / 2, 10, title, 14, anchor="ma")
+    return c.save(path, photo=True)
 
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],
                path: Path, title: str = "Sweep") -> Path:
     """PR curves (AUC in the legend) and standard Recall@N of every run of a sweep, side by side."""
-    fig, (ax_pr, ax_rn) = plt.subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
+    fig, (ax_pr, ax_rn) = _pyplot().subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
     labels = list(dict.fromkeys([*curves, *recalls]))
     style = {k: (f"C{i % 10}", LINE_STYLES[i % 4], MARKERS[i % 8]) for i, k in enumerate(labels)}  # same look in both panels
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))

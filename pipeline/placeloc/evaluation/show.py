@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import logging
 import os
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,11 +47,19 @@ def read_rows(run_dir: Path, only_matched: bool = False) -> list[Row]:
     per_query = run_dir / "per_query.csv"
     rows: list[Row] = []
     if per_query.is_file():
-        for r in csv.DictReader(read_run_table(run_dir, "per_query.csv")):
-            if only_matched and not r["best_image"]:
+        # five columns of a hundred: read by position (a dict per row cost more than the strips)
+        reader = csv.reader(read_run_table(run_dir, "per_query.csv"))
+        head = next(reader, [])
+        wanted = ("query_image", "best_image", "confidence", "correct", "positive_image")
+        if not set(wanted) <= set(head):
+            raise ShowError(f"{per_query}: lacks the columns {', '.join(sorted(set(wanted) - set(head)))}; "
+                            "re-run evaluate (placeloc evaluate --force)")
+        qi, bi, ci, oi, pi = (head.index(c) for c in wanted)
+        for r in reader:
+            r += [""] * (len(head) - len(r))  # a short row: its missing cells empty
+            if only_matched and not r[bi]:
                 continue
-            rows.append(Row(r["query_image"], r["best_image"], _num(r["confidence"]), r["correct"] == "1",
-                            r["positive_image"]))
+            rows.append(Row(r[qi], r[bi], _num(r[ci]), r[oi] == "1", r[pi]))
         return rows
     from placeloc.evaluation.contracts import localize_result
 
@@ -78,26 +87,60 @@ def _num(text: str) -> float:
         return float("nan")
 
 
-def _folders(run_dir: Path, within_reference: bool = False) -> tuple[dict[str, Path], dict[str, Path]]:
-    from placeloc.core.images import ImageError, list_images
+class ImagesByName(Mapping[str, Path]):
+    """A traverse's images by file name (``reference.images``: a folder or a glob). In a
+    folder a name is looked up directly (one stat), not by listing the folder: the strips
+    need 8 to 16 images of what may be tens of thousands. A glob is listed once."""
+
+    def __init__(self, spec: str | Path) -> None:
+        self.spec = str(spec)
+        self._listed: dict[str, Path] | None = None
+
+    def _listing(self) -> dict[str, Path]:
+        from placeloc.core.images import ImageError, list_images
+
+        if self._listed is None:
+            try:
+                self._listed = {p.name: p for p in list_images(self.spec).paths}
+            except ImageError:
+                self._listed = {}
+        return self._listed
+
+    def __getitem__(self, name: str) -> Path:
+        from placeloc.core.images import IMAGE_EXTENSIONS
+
+        folder = Path(self.spec)
+        if not folder.is_dir():
+            return self._listing()[name]
+        # only a plain file name of an image the listing would hold (never a path out of the folder)
+        if name and Path(name).name == name and name not in (".", "..") and Path(name).suffix.lower() in IMAGE_EXTENSIONS:
+            path = folder / name
+            if path.is_file():
+                return path
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._listing())
+
+    def __len__(self) -> int:
+        return len(self._listing())
+
+
+def _folders(run_dir: Path, within_reference: bool = False) -> tuple[Mapping[str, Path], Mapping[str, Path]]:
     from placeloc.evaluation.report import run_config
 
     cfg = run_config(run_dir)
     if not cfg:
         raise ShowError(f"{run_dir}: holds no placeloc artifact; run `placeloc localize CONFIG -o {run_dir}` first")
 
-    def names(role: str) -> dict[str, Path]:
+    def images(role: str) -> Mapping[str, Path] | None:
         section = cfg.get(role) or {}
-        if not section.get("images"):
-            return {}
-        try:
-            return {p.name: p for p in list_images(section["images"]).paths}
-        except ImageError:
-            return {}
+        return ImagesByName(section["images"]) if section.get("images") else None
 
-    ref = names("reference")
-    query = ref if within_reference else (names("query") or ref)
-    return ref, query
+    ref, query = images("reference"), images("query")  # never `or`: that would list a folder to count it
+    if ref is None:
+        ref = {}
+    return ref, (ref if within_reference or query is None else query)
 
 
 def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
@@ -113,8 +156,8 @@ def _read(path: Path | None, shape: tuple[int, int]) -> np.ndarray:
     return shrink(img)
 
 
-# A strip's panel is about 3 inches at the figure's resolution: more pixels add nothing but
-# memory (matplotlib keeps float copies of every image it draws).
+# A strip's panel is drawn PANEL_HEIGHT_PX high: a frame is shrunk right after its decode,
+# so that drawing holds about one decoded frame; more pixels than this add nothing but memory.
 PANEL_PIXELS = 480
 
 
@@ -145,23 +188,23 @@ def pick_failures(rows: list[Row], count: int) -> list[int]:
 
 # the strips' panels: this many pixels high (the width keeps the first query's aspect)
 PANEL_HEIGHT_PX = 110
-_STRIP_DPI = 110
 
 
-def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], query: dict[str, Path], path: Path,
+def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path], query: Mapping[str, Path], path: Path,
                       title: str) -> Path | None:
     """One row per picked query: query | best match | a true positive, the match framed
     green (right), red (wrong) or grey (no ground truth).
 
-    The panels are composed into one image (each scaled to the same size) and drawn on one
-    axes with the labels as text: one picture's cost whatever the number of rows, where an
-    axes per panel made the strips most of evaluate's time."""
+    The panels are composed into one image (each scaled to the same size), the labels
+    drawn on it by Pillow (:mod:`placeloc.evaluation.raster`): one
+    picture's cost whatever the number of rows, and no matplotlib, whose import and text
+    layout made the strips most of evaluate's time."""
     if not picks:
         path.unlink(missing_ok=True)
         return None
     import cv2
 
-    from placeloc.evaluation.plots import _save, plt
+    from placeloc.evaluation import raster as R
 
     with_gt = any(rows[i].correct is not None for i in picks)
     cols = 3 if with_gt else 2
@@ -204,20 +247,18 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: dict[str, Path], q
             verdicts.append((cell_w + gap // 2 + 6, y0 + 6, "RIGHT" if r.correct else ("WRONG" if r.best_image else "MISSED"),
                              "green" if r.correct else "red"))
     h, w = canvas.shape[:2]
-    title_in = 0.45
-    fig = plt.figure(figsize=(w / _STRIP_DPI, h / _STRIP_DPI + title_in))
-    ax = fig.add_axes((0, 0, 1, h / (h + title_in * _STRIP_DPI)))
-    ax.imshow(canvas, interpolation="nearest")
-    ax.set_axis_off()
+    title_h = 50
+    page = R.Canvas(w, h + title_h, ss=1)  # images, axis-parallel frames and text: nothing to smooth
+    page.paste(canvas, 0, title_h)
+    rgb = {name: colours[name] for name in ("black", "grey", "royalblue")} | {"limegreen": (0, 160, 0), "red": (220, 0, 0),
+                                                                             "green": (0, 128, 0)}
     for x, y, text, colour in texts:
         centred = text == "no match"
-        ax.text(x, y, text, fontsize=7.5, color=colour, ha="center" if centred else "left",
-                va="center" if centred else "bottom", clip_on=False)
+        page.text(x, title_h + y, text, 12, fill=rgb[colour], anchor="mm" if centred else "ld")
     for x, y, text, colour in verdicts:
-        ax.text(x, y, text, fontsize=9, fontweight="bold", color="white", ha="left", va="top",
-                bbox={"facecolor": colour, "alpha": 0.85, "pad": 1.5, "edgecolor": "none"})
-    fig.suptitle(title, fontsize=10, y=1 - 0.1 * title_in / (h / _STRIP_DPI + title_in))
-    return _save(fig, path, dpi=_STRIP_DPI, photo=True)
+        page.text(x + 2, title_h + y + 2, text, 13, fill=(255, 255, 255), anchor="la", box=rgb[colour], pad=2)
+    page.text(w / 2, title_h / 2, title, 15, anchor="mm")
+    return page.save(path, photo=True)
 
 
 def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows: list[Row] | None = None,

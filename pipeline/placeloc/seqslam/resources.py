@@ -12,7 +12,9 @@ BASE_MEMORY: dict[str, int] = {
     "build-dictionary": 64 << 20,
     "index": 64 << 20,
     "localize": 130 << 20,
-    "evaluate": 100 << 20,
+    # evaluate: Pillow, its canvases and the report (36 MB measured for configs/demo.yaml with
+    # pictures, rows below included; matplotlib, no longer imported, took about 100 MB)
+    "evaluate": 16 << 20,
 }
 
 
@@ -61,19 +63,23 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
                           memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query + plain + picture,
                           disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + plain + picture
                           + (1 << 18)))  # + HDF5's own
-        # evaluate: D read back a block at a time, with its enhanced copies, the masked
-        # minima and the plot's subsamples (about 20 blocks; measured 164, 305, 516 MB at
-        # 1500, 3000, 6000 frames); per_query.csv and evaluate.h5 about 800 bytes a query;
-        # the PNGs and report.html a few MB.
+        # evaluate: D and D^ read back one chunk-wide column slab at a time (localize writes D in
+        # chunks of at most 256 queries) with the slab's row minima, the ground truth's positive
+        # pairs (a few per query), the result's rankings and per-query scores; per_query.csv and
+        # evaluate.h5 about 800 bytes a query; the PNGs and report.html a few MB (measured 13 MB
+        # with plots: false at 1500 frames a traverse, against 164 MB when the pass built a
+        # boolean block of the ground truth per 1024 queries).
         # The PNGs (the difference-matrix picture subsamples D to at most 800 x 800, two
         # panels) and report.html, which embeds them again in base64: about 2.5 times their
         # sum (the strips of samples and of failures about 160 kB each; measured 2.6 MiB in
         # all for configs/demo.yaml, 81 queries, estimated 3.5 MiB).
         plotting = bool(config.get("plots", True))
         pictures = (600_000 + 2 * min(n_ref, 800) * min(n_query, 800)) * 5 // 2 if plotting else 0
-        needs.append(Need(f"scoring {n_query} queries against {n_ref} references, {block} at a time",
-                          "seqslam.block_size", stage="evaluate",
-                          memory=(20 * d_block if d_full else 2 * d_block) + 64 * top_k * n_query + (24 << 20 if plotting else 0),
+        slab = 4 * n_ref * min(256, n_query)
+        needs.append(Need(f"scoring {n_query} queries against {n_ref} references, {min(256, n_query)} at a time",
+                          "seqslam.store_difference: false (no dissimilarity ratio)", stage="evaluate",
+                          memory=(4 * slab if d_full else 0) + 64 * max(top_k, 20) * n_query + (8 << 20)
+                          + (24 << 20 if plotting else 0),
                           disk=800 * n_query + pictures))
     return [n for n in needs if n.stage in stages] + decode_need(config, images, 8, "decoding", stages)
 

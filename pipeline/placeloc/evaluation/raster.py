@@ -1,0 +1,389 @@
+"""Charts drawn straight into pixels with Pillow: the pictures evaluate writes on every run.
+
+matplotlib costs about 0.4 s to import and 0.1 to 0.3 s a figure, whatever the data's size:
+more than a small run's whole localize. The pictures evaluate draws each time are simple:
+an axes box with ticks, labels and a title; lines, markers and a legend; an image with a
+colour bar. Drawn here, each costs milliseconds. Charts are drawn at ``SS`` times the
+size and reduced by a box filter, which smooths lines and markers; text is Pillow's own
+FreeType font (Aileron), so no system font is needed.
+
+Coordinates given to :class:`Canvas` are output pixels; :class:`Axes` maps data to them.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+SS = 2  # supersampling factor
+# matplotlib's default colour cycle ("tab10"), so curves keep the colours readers know
+CYCLE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+         (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
+# dash patterns (on, off, ...) in units of the line's width, after matplotlib's "-", "--", "-.", ":"
+DASHES: dict[str, tuple[float, ...]] = {"-": (), "--": (3.7, 1.6), "-.": (6.4, 1.6, 1.0, 1.6), ":": (1.0, 1.65)}
+BLACK, GRID = (0, 0, 0), (222, 222, 222)
+STAMP_FROM = 64  # markers: more than this many are stamped as one mask (Axes._stamp), fewer drawn one by one
+Colour = tuple[int, int, int]
+
+
+@cache
+def font(pixels: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    """Pillow's bundled font, ``pixels`` high (em height) on the canvas drawn."""
+    return ImageFont.load_default(pixels)
+
+
+def text_width(text: str, size: float) -> float:
+    """Width of ``text`` in output pixels."""
+    return float(font(size * SS).getlength(text)) / SS
+
+
+def save_png(image: Image.Image, path: str | Path, *, photo: bool = False) -> Path:
+    """Write ``image`` as PNG under a temporary name and rename, so a killed run never
+    leaves half a picture and a failed save (a full disk) leaves no temporary file.
+    ``photo``: images or matrices, which zlib hardly shrinks: its fastest level."""
+    from placeloc.core.artifacts import tmp_path_for
+
+    path = Path(path)
+    tmp = tmp_path_for(path)
+    try:
+        image.save(tmp, format="PNG", compress_level=1 if photo else 6)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+class Canvas:
+    """A white picture of ``width`` x ``height`` output pixels, drawn at ``ss`` times the
+    size (1: no smoothing, for pictures of images and axis-parallel frames only)."""
+
+    def __init__(self, width: int, height: int, ss: int = SS) -> None:
+        self.width, self.height, self.ss = int(width), int(height), int(ss)
+        self.image = Image.new("RGB", (self.width * self.ss, self.height * self.ss), "white")
+        self.draw = ImageDraw.Draw(self.image)
+
+    def text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK, anchor: str = "la",
+             box: Colour | None = None, pad: float = 2) -> None:
+        """``anchor``: Pillow's two letters (horizontal l/m/r, vertical a(top)/m/s(baseline)/d);
+        ``box``: a filled box of that colour behind the text. Lines of a text with line
+        breaks stack away from the anchor (upwards from a bottom anchor)."""
+        if "\n" in text:
+            lines = text.split("\n")
+            n, step = len(lines), size * 1.3
+            for i, line in enumerate(lines):
+                shift = {"a": i, "m": i - (n - 1) / 2}.get(anchor[1], i - (n - 1)) * step
+                self.text(x, y + shift, line, size, fill, anchor, box, pad)
+            return
+        xy = (x * self.ss, y * self.ss)
+        if box is not None:
+            left, top, right, bottom = self.draw.textbbox(xy, text, font=font(round(size * self.ss)), anchor=anchor)
+            p = pad * self.ss
+            self.draw.rectangle((left - p, top - p, right + p, bottom + p), fill=box)
+        self.draw.text(xy, text, font=font(round(size * self.ss)), fill=fill, anchor=anchor)
+
+    def vertical_text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK) -> None:
+        """``text`` turned a quarter left (read bottom to top), centred on (x, y)."""
+        f = font(round(size * self.ss))
+        left, top, right, bottom = f.getbbox(text)
+        mask = Image.new("L", (int(right - left) + 2, int(bottom - top) + 2), 0)
+        ImageDraw.Draw(mask).text((1 - left, 1 - top), text, font=f, fill=255)
+        mask = mask.transpose(Image.Transpose.ROTATE_90)
+        self.image.paste(fill, (int(x * self.ss - mask.width / 2), int(y * self.ss - mask.height / 2)), mask)
+
+    def rectangle(self, box: Sequence[float], outline: Colour | None = None, fill: Colour | None = None,
+                  width: float = 1) -> None:
+        x0, y0, x1, y1 = (v * self.ss for v in box)
+        self.draw.rectangle((x0, y0, x1, y1), outline=outline, fill=fill, width=max(1, round(width * self.ss)))
+
+    def paste(self, rgb: np.ndarray, x: float, y: float) -> None:
+        """An RGB uint8 array of output-pixel size with its top left at (x, y)."""
+        img = Image.fromarray(np.ascontiguousarray(rgb[..., :3]), "RGB")
+        if self.ss != 1:
+            img = img.resize((rgb.shape[1] * self.ss, rgb.shape[0] * self.ss), Image.Resampling.NEAREST)
+        self.image.paste(img, (round(x * self.ss), round(y * self.ss)))
+
+    def result(self) -> Image.Image:
+        """The picture at output size."""
+        return self.image if self.ss == 1 else self.image.reduce(self.ss)
+
+    def save(self, path: str | Path, photo: bool = False) -> Path:
+        return save_png(self.result(), path, photo=photo)
+
+
+def nice_ticks(lo: float, hi: float, most: int = 7) -> np.ndarray:
+    """Round tick values (1, 2, 2.5 or 5 times a power of ten) from ``lo`` to ``hi``, at most ``most``."""
+    span = hi - lo
+    if not np.isfinite(span) or span <= 0:
+        return np.array([lo])
+    raw = span / max(1, most - 1)
+    power = 10.0 ** np.floor(np.log10(raw))
+    step = next(m * power for m in (1, 2, 2.5, 5, 10) if m * power >= raw)
+    first = np.ceil(lo / step - 1e-9) * step
+    ticks = np.arange(first, hi + step * 1e-9, step)
+    return np.round(ticks, 12) + 0.0  # + 0.0: no "-0" label
+
+
+def tick_label(v: float, ticks: np.ndarray) -> str:
+    """A tick's label with as many decimals as the step needs (0.0, 0.2, ...; 500, 1000)."""
+    step = float(np.min(np.diff(ticks))) if len(ticks) > 1 else 1.0
+    decimals = 0 if step >= 1 and float(step).is_integer() else max(1, int(-np.floor(np.log10(step) + 1e-9)))
+    return f"{v:.{decimals}f}"
+
+
+class Axes:
+    """A data box on a canvas. ``box`` = (left, top, right, bottom) in output pixels;
+    ``xlog``: logarithmic x; ``y_down``: y grows downwards (a matrix's rows)."""
+
+    def __init__(self, canvas: Canvas, box: Sequence[float], xlim: tuple[float, float], ylim: tuple[float, float], *,
+                 xlog: bool = False, y_down: bool = False) -> None:
+        self.c = canvas
+        self.left, self.top, self.right, self.bottom = (float(v) for v in box)
+        self.xlim, self.ylim, self.xlog, self.y_down = xlim, ylim, xlog, y_down
+        self.ytick_width = 0.0  # the widest y tick label, set by frame(): where the y label goes
+
+    def _x(self, x: np.ndarray) -> np.ndarray:
+        """Data x to output pixels."""
+        x = np.asarray(x, np.float64)
+        lo, hi = self.xlim
+        if self.xlog:
+            x, lo, hi = np.log10(x), np.log10(lo), np.log10(hi)
+        return self.left + (x - lo) / (hi - lo) * (self.right - self.left)
+
+    def _y(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y, np.float64)
+        lo, hi = self.ylim
+        t = (y - lo) / (hi - lo)
+        return self.top + t * (self.bottom - self.top) if self.y_down else self.bottom - t * (self.bottom - self.top)
+
+    def xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Data to supersampled canvas pixels."""
+        return self._x(x) * self.c.ss, self._y(y) * self.c.ss
+
+    # ----------------------------------------------------------------- frame, ticks, labels
+    def frame(self, xticks: Sequence[float], yticks: Sequence[float], *, xlabels: Sequence[str] | None = None,
+              ylabels: Sequence[str] | None = None, grid: bool = True, size: float = 11) -> None:
+        """Grid lines (under what is drawn next), the box, ticks and their labels."""
+        xt, yt = np.asarray(xticks, np.float64), np.asarray(yticks, np.float64)
+        xl = list(xlabels) if xlabels is not None else [tick_label(v, xt) for v in xt]
+        yl = list(ylabels) if ylabels is not None else [tick_label(v, yt) for v in yt]
+        d, k = self.c.draw, self.c.ss
+        px, py = self._x(xt), self._y(yt)
+        if grid:
+            for x in px:
+                d.line([(x * k, self.top * k), (x * k, self.bottom * k)], fill=GRID, width=k)
+            for y in py:
+                d.line([(self.left * k, y * k), (self.right * k, y * k)], fill=GRID, width=k)
+        self.box()
+        for x, label in zip(px, xl):
+            d.line([(x * k, self.bottom * k), (x * k, (self.bottom + 4) * k)], fill=BLACK, width=k)
+            self.c.text(x, self.bottom + 6, label, size, anchor="ma")
+        self.ytick_width = max((text_width(label, size) for label in yl), default=0.0)
+        for y, label in zip(py, yl):
+            d.line([((self.left - 4) * k, y * k), (self.left * k, y * k)], fill=BLACK, width=k)
+            self.c.text(self.left - 6, y, label, size, anchor="rm")
+
+    def box(self) -> None:
+        self.c.rectangle((self.left, self.top, self.right, self.bottom), outline=BLACK, width=1)
+
+    def labels(self, xlabel: str = "", ylabel: str = "", title: str = "", *, size: float = 12.5,
+               title_size: float = 13) -> None:
+        """Axis labels and a title (call after :meth:`frame`: the y label clears the tick labels)."""
+        mid_x, mid_y = (self.left + self.right) / 2, (self.top + self.bottom) / 2
+        if xlabel:
+            self.c.text(mid_x, self.bottom + 24, xlabel, size, anchor="ma")
+        if ylabel:
+            self.c.vertical_text(self.left - 12 - self.ytick_width - size * 0.7, mid_y, ylabel, size)
+        if title:
+            self.c.text(mid_x, self.top - 7, title, title_size, anchor="md")
+
+    # ----------------------------------------------------------------- what is drawn in it
+    def line(self, x: np.ndarray, y: np.ndarray, colour: Colour, width: float = 2.0, style: str = "-") -> None:
+        """A polyline ``width`` output pixels wide, solid or dashed (``DASHES``)."""
+        px, py = self.xy(x, y)
+        ok = np.isfinite(px) & np.isfinite(py)
+        px, py = px[ok], py[ok]
+        if len(px) < 2:
+            return
+        w = max(1, round(width * self.c.ss))
+        pattern = DASHES.get(style, ())
+        if not pattern:
+            self.c.draw.line(list(zip(px.tolist(), py.tolist())), fill=colour, width=w, joint="curve")
+            return
+        for run in _dash_runs(px, py, [p * width * self.c.ss for p in pattern]):
+            self.c.draw.line(run, fill=colour, width=w, joint="curve")
+
+    def markers(self, x: np.ndarray, y: np.ndarray, colour: Colour, shape: str = "o", size: float = 7.0,
+                edge: float = 2.0) -> None:
+        """``shape``: o s ^ D v x + | (``size``: output pixels across; ``edge``: the width of x, + and |)."""
+        px, py = self.xy(x, y)
+        ok = np.isfinite(px) & np.isfinite(py)
+        r = size * self.c.ss / 2
+        w = max(1, round(edge * self.c.ss))
+        if ok.sum() > STAMP_FROM and shape in "os+x|":
+            self._stamp(px[ok], py[ok], colour, shape, r, w)
+            return
+        d = self.c.draw
+        for cx, cy in zip(px[ok].tolist(), py[ok].tolist()):
+            if shape == "o":
+                d.ellipse((cx - r, cy - r, cx + r, cy + r), fill=colour)
+            elif shape == "s":
+                d.rectangle((cx - r * 0.9, cy - r * 0.9, cx + r * 0.9, cy + r * 0.9), fill=colour)
+            elif shape in "^vD":
+                pts = {"^": [(cx, cy - r), (cx + r, cy + r * 0.8), (cx - r, cy + r * 0.8)],
+                       "v": [(cx, cy + r), (cx + r, cy - r * 0.8), (cx - r, cy - r * 0.8)],
+                       "D": [(cx, cy - r), (cx + r * 0.8, cy), (cx, cy + r), (cx - r * 0.8, cy)]}[shape]
+                d.polygon(pts, fill=colour)
+            elif shape == "x":
+                d.line([(cx - r, cy - r), (cx + r, cy + r)], fill=colour, width=w)
+                d.line([(cx - r, cy + r), (cx + r, cy - r)], fill=colour, width=w)
+            elif shape == "+":
+                d.line([(cx - r, cy), (cx + r, cy)], fill=colour, width=w)
+                d.line([(cx, cy - r), (cx, cy + r)], fill=colour, width=w)
+            elif shape == "|":
+                d.line([(cx, cy - r), (cx, cy + r)], fill=colour, width=w)
+            else:
+                raise ValueError(f"unknown marker {shape!r}")
+
+    def _stamp(self, px: np.ndarray, py: np.ndarray, colour: Colour, shape: str, r: float, w: int) -> None:
+        """Many markers at once: the shape as a pixel mask, set at every point by numpy and
+        filled in one paste (one drawing call a marker cost more than the rest of a
+        difference-matrix picture). ``r``: radius, ``w``: stroke width, supersampled pixels."""
+        k = int(np.ceil(r))
+        dy, dx = np.mgrid[-k:k + 1, -k:k + 1]
+        half = max(w, 1) / 2
+        shapes = {"o": dx ** 2 + dy ** 2 <= r * r,
+                  "s": (np.abs(dx) <= r * 0.9) & (np.abs(dy) <= r * 0.9),
+                  "x": (np.abs(np.abs(dx) - np.abs(dy)) <= half * np.sqrt(2)) & (np.abs(dx) <= r) & (np.abs(dy) <= r),
+                  "+": ((np.abs(dx) <= half) & (np.abs(dy) <= r)) | ((np.abs(dy) <= half) & (np.abs(dx) <= r)),
+                  "|": (np.abs(dx) <= half) & (np.abs(dy) <= r)}
+        oy, ox = np.nonzero(shapes[shape])
+        cx, cy = np.rint(px).astype(np.int64), np.rint(py).astype(np.int64)
+        x0, y0 = int(cx.min()) - k, int(cy.min()) - k
+        mask = np.zeros((int(cy.max()) - y0 + k + 1, int(cx.max()) - x0 + k + 1), np.uint8)
+        mask[(cy[:, None] - y0 + oy[None, :] - k).ravel(), (cx[:, None] - x0 + ox[None, :] - k).ravel()] = 255
+        self.c.image.paste(colour, (x0, y0), Image.fromarray(mask, "L"))
+
+    def fill_between(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, colour: Colour, alpha: float) -> None:
+        """The region between two curves over ``x``, ``alpha`` opaque."""
+        if len(x) == 0:
+            return
+        px, plo = self.xy(x, lo)
+        _, phi = self.xy(x, hi)
+        xs, ys = np.r_[px, px[::-1]], np.r_[plo, phi[::-1]]
+        x0, y0 = int(np.floor(xs.min())), int(np.floor(ys.min()))  # a mask over the region only
+        mask = Image.new("L", (int(np.ceil(xs.max())) - x0 + 2, int(np.ceil(ys.max())) - y0 + 2), 0)
+        ImageDraw.Draw(mask).polygon(list(zip((xs - x0).tolist(), (ys - y0).tolist())), fill=round(255 * alpha),
+                                     outline=round(255 * alpha))
+        self.c.image.paste(colour, (x0, y0), mask)
+
+    def image(self, rgb: np.ndarray) -> None:
+        """An RGB uint8 array stretched over the whole box: averaged where it has more
+        pixels than the box, each cell a block where it has fewer (no smoothing between cells)."""
+        import cv2
+
+        w, h = round((self.right - self.left) * self.c.ss), round((self.bottom - self.top) * self.c.ss)
+        shrink = rgb.shape[0] >= h and rgb.shape[1] >= w
+        resized = cv2.resize(np.ascontiguousarray(rgb), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_NEAREST)
+        self.c.image.paste(Image.fromarray(resized, "RGB"), (round(self.left * self.c.ss), round(self.top * self.c.ss)))
+
+    def legend(self, entries: Sequence[LegendEntry], loc: str = "lower left", size: float = 11) -> None:
+        """A framed legend in a corner of the box (``loc``: "lower left", "lower right", "upper left", "upper right")."""
+        if not entries:
+            return
+        sample_w, pad, row_h = 30.0, 6.0, size * 1.45
+        width = sample_w + 3 * pad + max(text_width(e.label, size) for e in entries)
+        height = row_h * len(entries) + pad
+        x0 = self.left + 8 if "left" in loc else self.right - 8 - width
+        y0 = self.bottom - 8 - height if "lower" in loc else self.top + 8
+        self.c.rectangle((x0, y0, x0 + width, y0 + height), outline=(204, 204, 204), fill=(255, 255, 255), width=1)
+        for i, e in enumerate(entries):
+            cy = y0 + pad / 2 + row_h * (i + 0.5)
+            sx0, sx1 = x0 + pad, x0 + pad + sample_w
+            if e.line_width:
+                _line_in_pixels(self.c, [sx0, sx1], [cy, cy], e.colour, e.line_width, e.style)
+            if e.marker:
+                _marker_in_pixels(self.c, (sx0 + sx1) / 2, cy, e.colour, e.marker, e.marker_size)
+            self.c.text(sx1 + pad, cy, e.label, size, anchor="lm")
+
+
+class LegendEntry:
+    """One row of a legend: a line sample (``line_width`` > 0) and/or a marker, and its label."""
+
+    def __init__(self, label: str, colour: Colour, *, line_width: float = 0.0, style: str = "-", marker: str = "",
+                 marker_size: float = 7.0) -> None:
+        self.label, self.colour, self.line_width, self.style = label, colour, line_width, style
+        self.marker, self.marker_size = marker, marker_size
+
+
+def _line_in_pixels(c: Canvas, xs: Sequence[float], ys: Sequence[float], colour: Colour, width: float, style: str) -> None:
+    ax = Axes(c, (0, 0, 1, 1), (0, 1), (0, 1), y_down=True)  # identity: data are output pixels
+    ax.line(np.asarray(xs), np.asarray(ys), colour, width, style)
+
+
+def _marker_in_pixels(c: Canvas, x: float, y: float, colour: Colour, shape: str, size: float) -> None:
+    ax = Axes(c, (0, 0, 1, 1), (0, 1), (0, 1), y_down=True)
+    ax.markers(np.array([x]), np.array([y]), colour, shape, size)
+
+
+def _dash_runs(px: np.ndarray, py: np.ndarray, pattern: Sequence[float]) -> list[list[tuple[float, float]]]:
+    """The drawn pieces of a dashed polyline: points every pixel along it, kept where the
+    distance travelled falls in an "on" part of ``pattern`` (on, off, on, off, ...)."""
+    seg = np.hypot(np.diff(px), np.diff(py))
+    total = float(seg.sum())
+    if total <= 0:
+        return []
+    at = np.concatenate([[0.0], np.cumsum(seg)])
+    s = np.linspace(0.0, total, max(2, int(total) + 1))
+    x, y = np.interp(s, at, px), np.interp(s, at, py)
+    bounds = np.cumsum(pattern)
+    phase = np.mod(s, bounds[-1])
+    on = np.searchsorted(bounds, phase, side="right") % 2 == 0
+    runs: list[list[tuple[float, float]]] = []
+    edges = np.flatnonzero(np.diff(np.r_[0, on.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        b = min(b + 1, len(s))  # to the first sample past the dash: a dash of 6 pixels is 6 long, not 5
+        if b - a >= 2:
+            runs.append(list(zip(x[a:b].tolist(), y[a:b].tolist())))
+    return runs
+
+
+def percentiles(values: np.ndarray, qs: Sequence[float]) -> tuple[float, ...]:
+    """``np.percentile(values, qs)`` (linear between the two nearest ranks) by partition:
+    np.percentile's np.unique would import numpy.ma (20 ms) for a colour scale's two ends."""
+    v = np.asarray(values, np.float64).ravel()
+    pos = [q / 100 * (len(v) - 1) for q in qs]
+    ranks = sorted({int(np.floor(p)) for p in pos} | {int(np.ceil(p)) for p in pos})
+    part = np.partition(v, ranks)
+    return tuple(float(part[int(np.floor(p))] + (part[int(np.ceil(p))] - part[int(np.floor(p))]) * (p - np.floor(p)))
+                 for p in pos)
+
+
+def grey_image(matrix: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
+    """A matrix as an RGB grey image, ``vmin`` black to ``vmax`` white (NaN white, as an
+    empty cell on a white page)."""
+    scale = 255.0 / (vmax - vmin) if vmax > vmin else 0.0
+    with np.errstate(invalid="ignore"):
+        g = np.clip((np.asarray(matrix, np.float32) - vmin) * scale, 0, 255)
+    g = np.where(np.isfinite(g), g, 255).round().astype(np.uint8)
+    return np.repeat(g[..., None], 3, axis=2)
+
+
+def colour_bar(c: Canvas, box: Sequence[float], vmin: float, vmax: float, label: str, size: float = 11) -> None:
+    """A vertical grey scale from ``vmin`` (bottom, black) to ``vmax`` (top, white) with ticks on the right."""
+    left, top, right, bottom = box
+    h = max(2, round((bottom - top) * c.ss))
+    ramp = np.linspace(255, 0, h).round().astype(np.uint8)
+    bar = np.repeat(np.repeat(ramp[:, None], max(1, round((right - left) * c.ss)), axis=1)[..., None], 3, axis=2)
+    c.image.paste(Image.fromarray(bar, "RGB"), (round(left * c.ss), round(top * c.ss)))
+    ax = Axes(c, box, (0, 1), (vmin, vmax) if vmax > vmin else (vmin, vmin + 1))
+    ax.box()
+    ticks = nice_ticks(*ax.ylim, most=10)
+    for v, y in zip(ticks, ax._y(ticks)):
+        c.draw.line([(right * c.ss, y * c.ss), ((right + 4) * c.ss, y * c.ss)], fill=BLACK, width=c.ss)
+        c.text(right + 6, y, tick_label(v, ticks), size, anchor="lm")
+    widest = max(text_width(tick_label(v, ticks), size) for v in ticks)
+    c.vertical_text(right + 12 + widest + size * 0.8, (top + bottom) / 2, label, size)

@@ -73,21 +73,68 @@ def iou_yaw_scores(db: np.ndarray, db_counts: np.ndarray, query: np.ndarray) -> 
     return np.divide(lc, union, out=np.zeros_like(lc), where=union > 0)
 
 
+def closeness_kernel(tau_px: float) -> np.ndarray:
+    """(2r + 1, 2r + 1) float32, r = ceil(tau): ``max(0, 1 - d / tau)`` around a lone line
+    pixel, d OpenCV's 5 x 5 chamfer distance (``cv2.distanceTransform``, ``DIST_L2``, mask
+    5), taken from that function itself so that :func:`closeness` equals it bit for bit."""
+    r = int(math.ceil(tau_px))
+    n = 2 * r + 5                      # room around the stamp: the chamfer paths stay inside it
+    img = np.ones((n, n), np.uint8)
+    img[n // 2, n // 2] = 0
+    d = cv2.distanceTransform(img, cv2.DIST_L2, 5)[n // 2 - r:n // 2 + r + 1, n // 2 - r:n // 2 + r + 1]
+    return np.maximum(0.0, 1.0 - d / tau_px).astype(np.float32)
+
+
+@njit(parallel=True, cache=True)
+def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int, out: np.ndarray) -> None:
+    h, w = lines.shape[1], lines.shape[2]
+    for i in prange(lines.shape[0]):
+        wide = np.zeros((h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        for y in range(h):
+            for x in range(w):
+                if lines[i, y, x] == 0:
+                    continue
+                for j in range(value.shape[0]):
+                    yy = y + dy[j]
+                    if 0 <= yy < h:
+                        xx = x + r + dx[j]
+                        if value[j] > wide[yy, xx]:
+                            wide[yy, xx] = value[j]
+        for y in range(h):
+            for x in range(w):
+                out[i, y, x] = wide[y, x + r]
+            for c in range(r):                  # stamped past the edges: fold back around the seam
+                x = (c - r) % w
+                if wide[y, c] > out[i, y, x]:
+                    out[i, y, x] = wide[y, c]
+                x = (w + r + c - r) % w
+                if wide[y, w + r + c] > out[i, y, x]:
+                    out[i, y, x] = wide[y, w + r + c]
+
+
 def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
-    """``max(0, 1 - d / tau)`` with d the distance (pixels) to the nearest line pixel of a
-    (..., H, W) binary image, wrapping around horizontally (a panorama has no left edge)."""
+    """``max(0, 1 - d / tau)`` (float32) with d the distance (pixels) to the nearest line
+    pixel of a (..., H, W) binary image, wrapping around horizontally (a panorama has no
+    left edge); d is OpenCV's 5 x 5 chamfer distance transform.
+
+    Why stamped, not transformed: a chamfer distance transform gives each pixel the least
+    chamfer distance to any line pixel, and only line pixels within tau count, so the
+    closeness is the largest :func:`closeness_kernel` value stamped around each line pixel
+    (equal to the transform bit for bit: tested); a line image is mostly empty, so this
+    touches 49 pixels per line pixel instead of the whole image twice (5x faster on map
+    panoramas, where the local search spends it)."""
     lines = np.asarray(lines)
     lead = lines.shape[:-2]
     h, w = lines.shape[-2:]
-    flat = lines.reshape(-1, h, w)
-    pad = int(math.ceil(tau_px)) + 1
+    flat = np.ascontiguousarray(lines.reshape(-1, h, w))
+    if flat.dtype != np.uint8:
+        flat = (flat != 0).astype(np.uint8)
     out = np.zeros(flat.shape, np.float32)
-    for i, img in enumerate(flat):
-        wrapped = np.concatenate([img[:, -pad:], img, img[:, :pad]], axis=1)
-        if not wrapped.any():
-            continue
-        d = cv2.distanceTransform((wrapped == 0).astype(np.uint8), cv2.DIST_L2, 5)[:, pad:pad + w]
-        out[i] = np.maximum(0.0, 1.0 - d / tau_px)
+    if flat.size:
+        kernel = closeness_kernel(tau_px)
+        r = kernel.shape[0] // 2
+        dy, dx = np.nonzero(kernel > 0)
+        _stamp_closeness(flat, (dy - r).astype(np.int64), (dx - r).astype(np.int64), kernel[dy, dx], r, out)
     return out.reshape(*lead, h, w)
 
 
@@ -283,25 +330,6 @@ def grid_step(xy: np.ndarray) -> float:
     return float(gaps.min()) if len(gaps) else 0.25
 
 
-def closeness_batch(lines: np.ndarray, tau_px: float) -> np.ndarray:
-    """:func:`closeness` of (N, H, W) binary images with one distance transform: the images
-    are stacked with ``ceil(tau) + 1`` blank rows between them (beyond tau the closeness is
-    0, so nothing reaches across) and wrapped horizontally. Equal to :func:`closeness`."""
-    lines = np.asarray(lines)
-    n, h, w = lines.shape
-    pad = int(math.ceil(tau_px)) + 1
-    tall = np.zeros((n, h + pad, w + 2 * pad), np.uint8)
-    tall[:, :h, pad:pad + w] = lines
-    tall[:, :h, :pad] = lines[:, :, -pad:]
-    tall[:, :h, pad + w:] = lines[:, :, :pad]
-    tall = tall.reshape(n * (h + pad), w + 2 * pad)
-    if not tall.any():
-        return np.zeros((n, h, w), np.float32)
-    d = cv2.distanceTransform((tall == 0).astype(np.uint8), cv2.DIST_L2, 5)
-    d = d.reshape(n, h + pad, w + 2 * pad)[:, :h, pad:pad + w]
-    return np.maximum(0.0, 1.0 - d / tau_px).astype(np.float32)
-
-
 @njit(cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                        weights: np.ndarray, shifts: np.ndarray, out: np.ndarray, chance_out: np.ndarray) -> None:
@@ -379,7 +407,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))
     if len(imgs):
-        _chamfer_at_shifts(imgs, closeness_batch(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64),
+        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64),
                            np.asarray(weights, np.float64), shifts, halves, levels)
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":

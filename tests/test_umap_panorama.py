@@ -362,3 +362,35 @@ def test_segment_hidden_by_hand():
     assert not _segment_hidden(1.5, -0.5, 0.0, 1.5, 0.5, 0.0, wall, 0.0, 0.0, 1.5)    # in front of it
     assert not _segment_hidden(3.0, -0.5, 3.0, 3.0, 0.5, 3.0, wall, 0.0, 0.0, 1.5)    # seen over its top
     assert not _segment_hidden(*behind, wall[:, [0, 1, 2, 3, 4, 5]] + [0, 0, 0, 0, 0.5, 0], 0.0, 0.0, 1.5)  # a lintel
+
+
+def test_solid_angle_weights_by_hand_and_floor_clutter_loses_its_pull():
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, row_weights
+
+    # 4 rows at elevations 67.5, 22.5, -22.5, -67.5 degrees; beyond 60 degrees polar_weight 0.5
+    w = row_weights(4, polar_deg=60.0, polar_weight=0.5, solid_angle=True)
+    assert w == pytest.approx([0.5 * np.cos(np.radians(67.5)), np.cos(np.radians(22.5)), np.cos(np.radians(22.5)),
+                               0.5 * np.cos(np.radians(67.5))], abs=1e-6)
+    assert row_weights(4, polar_deg=60.0, polar_weight=0.5).tolist() == [0.5, 1.0, 1.0, 0.5]
+    # View 0 (the truth) and view 1 differ at the walls (4 rows near the horizon) and on the
+    # floor right under the camera (4 rows 70-86 degrees down). The query sees 9 of view 0's
+    # 12 wall columns and, on its floor, stripes that lie on view 1's extra floor lines
+    # (sunlight through blinds). tau 1 px: a pixel matches only on a line. Per pixel, view 0
+    # scores (36/112 + 36/100) / 2 = 0.34 and view 1 (64/176 + 64/100) / 2 = 0.50; per solid
+    # angle (the floor rows weigh 0.19 on average) view 0 scores about 0.67, view 1 0.22.
+    h, wd = 72, 144
+    db = np.zeros((2, h, wd), np.uint8)
+    db[0, 30:42:3, 0:wd:12] = 1                         # view 0: wall lines near the horizon
+    db[1, 30:42:3, 6:wd:12] = 1                         # view 1: others
+    db[:, 64:72:2, 3:wd:9] = 1                          # both: the same floor lines
+    db[1, 64:72:2, 5:wd:9] = 1                          # view 1: more of them
+    q = np.zeros((h, wd), np.uint8)
+    q[30:42:3, 0:108:12] = 1                            # 9 of view 0's 12 wall columns
+    q[64:72:2, 5:wd:9] = 1                              # the stripes, on view 1's floor lines
+    for solid, want in ((False, 1), (True, 0)):
+        wts = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=solid)
+        table = chamfer_table(chamfer_spectra(db, tau_px=1.0, weights=wts), q[None], tau_px=1.0, weights=wts,
+                              chance="none")[0]
+        assert int(np.argmax(table[:, 0])) == want, solid
+        if not solid:
+            assert table[:, 0] == pytest.approx([(36 / 112 + 36 / 100) / 2, (64 / 176 + 64 / 100) / 2], abs=1e-5)

@@ -215,13 +215,20 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
 
 # ------------------------------------------------------------------ the chamfer score as spectra
 
-def row_weights(height: int, *, polar_deg: float, polar_weight: float) -> np.ndarray:
+def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_angle: bool = False) -> np.ndarray:
     """(H,) float32 weight of each equirectangular row in the scores: ``polar_weight`` for
     rows more than ``polar_deg`` above or below the horizon (the floor right under the
     camera, where sunlight stripes, rugs and the tripod's base lie, and a ceiling fan or
-    lamp right above it), 1 elsewhere."""
+    lamp right above it), 1 elsewhere; with ``solid_angle`` times the cosine of the row's
+    elevation. Why the cosine: a row at elevation e covers cos(e) of the solid angle of a row
+    at the horizon with as many pixels, so unweighted means over pixels count the floor
+    under the camera and the ceiling over it several times over (a row 75 degrees down
+    four times); weighted, each half is a mean over the directions the camera sees."""
     el = 90.0 - 180.0 * (np.arange(height) + 0.5) / height
-    return np.where(np.abs(el) > polar_deg, polar_weight, 1.0).astype(np.float32)
+    w = np.where(np.abs(el) > polar_deg, polar_weight, 1.0)
+    if solid_angle:
+        w = w * np.cos(np.radians(el))
+    return w.astype(np.float32)
 
 
 def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) -> np.ndarray:
@@ -466,7 +473,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     the best pose wins."""
     n, h, w = lines.shape
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
 
     def tables(ks: np.ndarray) -> np.ndarray:

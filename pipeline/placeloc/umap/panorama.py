@@ -302,18 +302,32 @@ def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
 
 # ------------------------------------------------------------------ local refinement
 
+@njit(cache=True)
+def _distinct(order: np.ndarray, xy: np.ndarray, count: int, min_separation_m: float, out: np.ndarray) -> int:
+    n = 0
+    for i in order:
+        ok = True
+        for m in range(n):
+            j = out[m]
+            if math.hypot(xy[i, 0] - xy[j, 0], xy[i, 1] - xy[j, 1]) < min_separation_m:
+                ok = False
+                break
+        if ok:
+            out[n] = i
+            n += 1
+            if n == count:
+                break
+    return n
+
+
 def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_separation_m: float) -> np.ndarray:
     """Rows of the ``count`` best grid positions (each scored at its best yaw), greedily
     skipping any within ``min_separation_m`` of one already taken: the distinct places that
     compete (the same spot in two look-alike rooms, say)."""
-    best = scores.max(axis=1)
-    taken: list[int] = []
-    for i in np.argsort(-best, kind="stable"):
-        if all(np.hypot(*(xy[i] - xy[j])) >= min_separation_m for j in taken):
-            taken.append(int(i))
-            if len(taken) == count:
-                break
-    return np.asarray(taken, dtype=np.int64)
+    order = np.argsort(-scores.max(axis=1), kind="stable")
+    out = np.zeros(max(count, 0), dtype=np.int64)
+    n = _distinct(order.astype(np.int64), np.ascontiguousarray(xy, np.float64), count, float(min_separation_m), out)
+    return out[:n]
 
 
 # the 8 neighbours of a point on a unit square grid
@@ -337,7 +351,7 @@ def grid_step(xy: np.ndarray) -> float:
     return float(gaps.min()) if len(gaps) else 0.25
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                        weights: np.ndarray, shifts: np.ndarray, out: np.ndarray, chance_out: np.ndarray) -> None:
     """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
@@ -358,7 +372,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
     nq = 0.0
     for m in range(q_rows.shape[0]):
         nq += weights[q_rows[m]]
-    for i in range(imgs.shape[0]):
+    for i in prange(imgs.shape[0]):
         m_row_mean = np.zeros(h)
         m_area = 0.0
         for r in range(h):

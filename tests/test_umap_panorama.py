@@ -169,7 +169,7 @@ def test_chamfer_spectra_equal_the_pixel_loop_and_weights_drop_rows():
         assert np.abs(fast - slow).max() < 1e-5
     # weight 0 beyond 60 degrees: the same as the plain score on images whose polar rows are
     # empty (closeness does not reach across: tau 1 px and the rows next to them cleared too)
-    wts = row_weights(H, polar_deg=60.0, polar_weight=0.0)
+    wts = row_weights(H, polar_deg=60.0, polar_weight=0.0, solid_angle=False)
     assert wts[0] == 0 and wts[H // 2] == 1 and (wts == 0).sum() == 2 * round(H * 30 / 180)
     keep = np.convolve(wts, np.ones(3), "same") == 3
     cleared_db, cleared_q = db * keep[None, :, None], qs * keep[None, :, None]
@@ -281,7 +281,7 @@ def test_scores_at_shifts_equal_the_table():
     q = (rng.random((H, W)) < 0.04).astype(np.uint8)
     shifts = rng.integers(0, W, size=(7, 5))
     shifts[0, 0] = W - 1                                  # the seam
-    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3)):
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3, solid_angle=False)):
         sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
         for chance in ("none", "area", "yaw"):
             table = chamfer_table(sp, q[None], tau_px=3.0, weights=wts, chance=chance)[0]
@@ -303,7 +303,7 @@ def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
     pp = replace(PanoramaParams(), chamfer_chance="area")
-    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     answers = []
     for frac in (0.0, 1 / 3, 2 / 3):
         step = 0.3
@@ -371,7 +371,7 @@ def test_solid_angle_weights_by_hand_and_floor_clutter_loses_its_pull():
     w = row_weights(4, polar_deg=60.0, polar_weight=0.5, solid_angle=True)
     assert w == pytest.approx([0.5 * np.cos(np.radians(67.5)), np.cos(np.radians(22.5)), np.cos(np.radians(22.5)),
                                0.5 * np.cos(np.radians(67.5))], abs=1e-6)
-    assert row_weights(4, polar_deg=60.0, polar_weight=0.5).tolist() == [0.5, 1.0, 1.0, 0.5]
+    assert row_weights(4, polar_deg=60.0, polar_weight=0.5, solid_angle=False).tolist() == [0.5, 1.0, 1.0, 0.5]
     # View 0 (the truth) and view 1 differ at the walls (4 rows near the horizon) and on the
     # floor right under the camera (4 rows 70-86 degrees down). The query sees 9 of view 0's
     # 12 wall columns and, on its floor, stripes that lie on view 1's extra floor lines

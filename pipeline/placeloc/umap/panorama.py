@@ -215,7 +215,7 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
 
 # ------------------------------------------------------------------ the chamfer score as spectra
 
-def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_angle: bool = False) -> np.ndarray:
+def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_angle: bool) -> np.ndarray:
     """(H,) float32 weight of each equirectangular row in the scores: ``polar_weight`` for
     rows more than ``polar_deg`` above or below the horizon (the floor right under the
     camera, where sunlight stripes, rugs and the tripod's base lie, and a ceiling fan or

@@ -104,7 +104,7 @@ def panorama(args: argparse.Namespace) -> None:
     q = unpack(render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True), h, w)
     q = (q & (rng.random(q.shape) < 0.66)) | (rng.random(q.shape) < 0.01)
     print(f"\nwhole panoramas: {len(poses):,} grid positions ({step} m) x {w} yaws, {len(q)} queries; score {pp.score} "
-          f"(chance: {pp.chamfer_chance}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}; cores "
+          f"(chance: {pp.chamfer_chance}, solid-angle rows: {pp.solid_angle}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}; cores "
           f"{os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
     db = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)

@@ -121,8 +121,9 @@ def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     chamfer distance to any line pixel, and only line pixels within tau count, so the
     closeness is the largest :func:`closeness_kernel` value stamped around each line pixel
     (equal to the transform bit for bit: tested); a line image is mostly empty, so this
-    touches 49 pixels per line pixel instead of the whole image twice (5x faster on map
-    panoramas, where the local search spends it)."""
+    touches the kernel's nonzero pixels (25 at tau 3) around each line pixel instead of
+    the whole image twice, without stacking padded copies (1.4x cheaper on map panoramas,
+    where the local search spends it)."""
     lines = np.asarray(lines)
     lead = lines.shape[:-2]
     h, w = lines.shape[-2:]

@@ -104,10 +104,10 @@ def panorama(args: argparse.Namespace) -> None:
     q = unpack(render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True), h, w)
     q = (q & (rng.random(q.shape) < 0.66)) | (rng.random(q.shape) < 0.01)
     print(f"\nwhole panoramas: {len(poses):,} grid positions ({step} m) x {w} yaws, {len(q)} queries; score {pp.score} "
-          f"(chance: {pp.chamfer_chance}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}; cores "
+          f"(chance: {pp.chamfer_chance}, solid-angle rows: {pp.solid_angle}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}; cores "
           f"{os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
     db = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True)
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     spectra, t_idx, c_idx = _timed(chamfer_spectra, unpack(db, h, w), tau_px=pp.chamfer_tau_px, weights=weights)
     print(f"index (map spectra, once per database): {t_idx:.2f} s wall, {c_idx:.2f} s CPU, {spectra.nbytes / 2**20:.0f} MiB")
     search_panoramas(q[:2], poses, model.segments, model.faces, {"spectra": spectra}, pp, tolerance_px=2,

@@ -169,7 +169,7 @@ def test_chamfer_spectra_equal_the_pixel_loop_and_weights_drop_rows():
         assert np.abs(fast - slow).max() < 1e-5
     # weight 0 beyond 60 degrees: the same as the plain score on images whose polar rows are
     # empty (closeness does not reach across: tau 1 px and the rows next to them cleared too)
-    wts = row_weights(H, polar_deg=60.0, polar_weight=0.0)
+    wts = row_weights(H, polar_deg=60.0, polar_weight=0.0, solid_angle=False)
     assert wts[0] == 0 and wts[H // 2] == 1 and (wts == 0).sum() == 2 * round(H * 30 / 180)
     keep = np.convolve(wts, np.ones(3), "same") == 3
     cleared_db, cleared_q = db * keep[None, :, None], qs * keep[None, :, None]
@@ -247,17 +247,41 @@ def test_refine_steps_halve_down_to_the_finest():
     assert grid_step(xy) == pytest.approx(0.25)
 
 
-def test_closeness_batch_and_scores_at_shifts_equal_the_table():
-    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, closeness, closeness_batch, row_weights
+def _closeness_by_transform(lines, tau_px):
+    """The reference closeness: OpenCV's 5 x 5 chamfer distance transform of each image,
+    wrapped around horizontally by padding both sides."""
+    h, w = lines.shape[-2:]
+    pad = int(np.ceil(tau_px)) + 1
+    out = np.zeros(lines.shape, np.float32)
+    for i, img in enumerate(lines):
+        wrapped = np.concatenate([img[:, -pad:], img, img[:, :pad]], axis=1)
+        if wrapped.any():
+            d = cv2.distanceTransform((wrapped == 0).astype(np.uint8), cv2.DIST_L2, 5)[:, pad:pad + w]
+            out[i] = np.maximum(0.0, 1.0 - d / tau_px)
+    return out
+
+
+@pytest.mark.parametrize("tau", [0.7, 1.0, 2.0, 2.5, 3.0, 4.2, 6.0])
+def test_stamped_closeness_equals_the_distance_transform_bit_for_bit(tau):
+    rng = np.random.default_rng(int(tau * 10))
+    for density in (0.002, 0.03, 0.2, 0.7):
+        imgs = (rng.random((6, 30, 48)) < density).astype(np.uint8)
+        imgs[0] = 0                                       # an empty image
+        imgs[1, :, :] = 0
+        imgs[1, 0, 0] = imgs[1, 29, 47] = imgs[1, 15, 1] = 1   # corners and the seam
+        assert np.array_equal(closeness(imgs, tau), _closeness_by_transform(imgs, tau)), density
+
+
+def test_scores_at_shifts_equal_the_table():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, row_weights
 
     rng = np.random.default_rng(11)
     db = (rng.random((7, H, W)) < 0.03).astype(np.uint8)
     db[2] = 0                                             # an empty view
     q = (rng.random((H, W)) < 0.04).astype(np.uint8)
-    assert np.abs(closeness_batch(db, 3.0) - closeness(db, 3.0)).max() < 1e-6
     shifts = rng.integers(0, W, size=(7, 5))
     shifts[0, 0] = W - 1                                  # the seam
-    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3)):
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3, solid_angle=False)):
         sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
         for chance in ("none", "area", "yaw"):
             table = chamfer_table(sp, q[None], tau_px=3.0, weights=wts, chance=chance)[0]
@@ -279,7 +303,7 @@ def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
     pp = replace(PanoramaParams(), chamfer_chance="area")
-    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     answers = []
     for frac in (0.0, 1 / 3, 2 / 3):
         step = 0.3
@@ -296,3 +320,77 @@ def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
 
 def _render_all(m, poses):
     return unpack(render_panoramas(m.segments, m.faces, np.asarray(poses, float), width=W, height=H, hidden=True), H, W)
+
+
+def test_segments_skipped_whole_are_hidden_at_every_point():
+    # The renderer skips a segment that one wall face hides whole; each of its points must
+    # then be hidden by the per-point test (with every face a candidate), on a generated
+    # home seen from a grid over its free space, and most hidden segments must be skipped.
+    from placeloc.geometry.floorplan import plan_grid
+    from placeloc.geometry.panorama import _segment_hidden
+    from placeloc.geometry.rays import occluded
+    from placeloc.synth.home import plan as home_plan
+
+    fp, _ = home_plan(np.random.default_rng(0), 3)
+    m = floor_plan_model({**fp, "camera_z": 1.5})
+    faces = np.ascontiguousarray(m.faces, np.float64)
+    every = np.arange(len(faces), dtype=np.int64)
+    segs = m.segments.reshape(-1, 6)
+    ts = np.linspace(0.0, 1.0, 33)
+    skipped = hidden_whole = 0
+    for px, py, pz, _ in plan_grid(m, step_m=0.9)[0]:
+        for s in segs:
+            a, b = s[:3], s[3:]
+            pts = a[None] + ts[:, None] * (b - a)[None]
+            hid = [occluded(px, py, pz, *q, faces, every, len(every)) for q in pts]
+            if _segment_hidden(a[0] - px, a[1] - py, a[2], b[0] - px, b[1] - py, b[2], faces, px, py, pz):
+                skipped += 1
+                assert all(hid)
+            hidden_whole += all(hid)
+    assert skipped >= 0.7 * hidden_whole > 100
+
+
+def test_segment_hidden_by_hand():
+    from placeloc.geometry.panorama import _segment_hidden
+
+    # a wall from (2, -1) to (2, 1), 0-2.5 m high; camera at the origin, 1.5 m up
+    wall = np.array([[2.0, -1.0, 2.0, 1.0, 0.0, 2.5]])
+    behind = (3.0, -0.5, 0.0, 3.0, 0.5, 0.0)             # a floor line behind the wall's middle
+    assert _segment_hidden(*behind, wall, 0.0, 0.0, 1.5)
+    assert not _segment_hidden(3.0, -0.5, 0.0, 3.0, 2.0, 0.0, wall, 0.0, 0.0, 1.5)   # reaches past its end
+    assert not _segment_hidden(2.003, -0.5, 0.0, 2.003, 0.5, 0.0, wall, 0.0, 0.0, 1.5)  # within 5 mm of it
+    assert not _segment_hidden(1.5, -0.5, 0.0, 1.5, 0.5, 0.0, wall, 0.0, 0.0, 1.5)    # in front of it
+    assert not _segment_hidden(3.0, -0.5, 3.0, 3.0, 0.5, 3.0, wall, 0.0, 0.0, 1.5)    # seen over its top
+    assert not _segment_hidden(*behind, wall[:, [0, 1, 2, 3, 4, 5]] + [0, 0, 0, 0, 0.5, 0], 0.0, 0.0, 1.5)  # a lintel
+
+
+def test_solid_angle_weights_by_hand_and_floor_clutter_loses_its_pull():
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, row_weights
+
+    # 4 rows at elevations 67.5, 22.5, -22.5, -67.5 degrees; beyond 60 degrees polar_weight 0.5
+    w = row_weights(4, polar_deg=60.0, polar_weight=0.5, solid_angle=True)
+    assert w == pytest.approx([0.5 * np.cos(np.radians(67.5)), np.cos(np.radians(22.5)), np.cos(np.radians(22.5)),
+                               0.5 * np.cos(np.radians(67.5))], abs=1e-6)
+    assert row_weights(4, polar_deg=60.0, polar_weight=0.5, solid_angle=False).tolist() == [0.5, 1.0, 1.0, 0.5]
+    # View 0 (the truth) and view 1 differ at the walls (4 rows near the horizon) and on the
+    # floor right under the camera (4 rows 70-86 degrees down). The query sees 9 of view 0's
+    # 12 wall columns and, on its floor, stripes that lie on view 1's extra floor lines
+    # (sunlight through blinds). tau 1 px: a pixel matches only on a line. Per pixel, view 0
+    # scores (36/112 + 36/100) / 2 = 0.34 and view 1 (64/176 + 64/100) / 2 = 0.50; per solid
+    # angle (the floor rows weigh 0.19 on average) view 0 scores about 0.67, view 1 0.22.
+    h, wd = 72, 144
+    db = np.zeros((2, h, wd), np.uint8)
+    db[0, 30:42:3, 0:wd:12] = 1                         # view 0: wall lines near the horizon
+    db[1, 30:42:3, 6:wd:12] = 1                         # view 1: others
+    db[:, 64:72:2, 3:wd:9] = 1                          # both: the same floor lines
+    db[1, 64:72:2, 5:wd:9] = 1                          # view 1: more of them
+    q = np.zeros((h, wd), np.uint8)
+    q[30:42:3, 0:108:12] = 1                            # 9 of view 0's 12 wall columns
+    q[64:72:2, 5:wd:9] = 1                              # the stripes, on view 1's floor lines
+    for solid, want in ((False, 1), (True, 0)):
+        wts = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=solid)
+        table = chamfer_table(chamfer_spectra(db, tau_px=1.0, weights=wts), q[None], tau_px=1.0, weights=wts,
+                              chance="none")[0]
+        assert int(np.argmax(table[:, 0])) == want, solid
+        if not solid:
+            assert table[:, 0] == pytest.approx([(36 / 112 + 36 / 100) / 2, (64 / 176 + 64 / 100) / 2], abs=1e-5)

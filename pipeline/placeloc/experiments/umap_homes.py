@@ -41,11 +41,15 @@ GRID_STEP_M = 0.25            # umap.grid.step_m's default, the step the origins
 ORIGINS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 # name -> umap.panorama settings; refine_candidates is the cost (8 renders each per panorama)
 SWEEP: dict[str, dict[str, Any]] = {
-    "plain chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16},
-    "area-corrected chamfer, 16 cells": {"chamfer_chance": "area", "refine_candidates": 16},
-    "yaw-corrected chamfer, 16 cells": {"chamfer_chance": "yaw", "refine_candidates": 16},
-    "plain chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32},
-    "area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32},
+    "plain chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": False},
+    "area-corrected chamfer, 16 cells": {"chamfer_chance": "area", "refine_candidates": 16, "solid_angle": False},
+    "yaw-corrected chamfer, 16 cells": {"chamfer_chance": "yaw", "refine_candidates": 16, "solid_angle": False},
+    "plain chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": False},
+    "area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": False},
+    # rows weighted by the solid angle they cover (umap.panorama.solid_angle)
+    "solid-angle chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": True},
+    "solid-angle chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": True},
+    "solid-angle area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": True},
 }
 NOISE = 1.0 / (len(DEV_SEEDS) * len(ORIGINS) * PANORAMAS)   # one panorama of the 180
 

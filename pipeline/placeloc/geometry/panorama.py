@@ -36,6 +36,70 @@ def _angle_to_col(az: float, width: int) -> float:
 
 
 
+# margins of the whole-segment hidden test (:func:`_segment_hidden`), far above float64 rounding:
+# a segment culled with them has every sample hidden by the per-sample test too
+CULL_SIN = 1e-9        # sine of the least angle a segment keeps inside a face's wedge
+CULL_M = 1e-6          # metres, beyond the 5 mm clearance of the per-sample test
+
+
+@njit(cache=True)
+def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray, px: float,
+                    py: float, pz: float) -> bool:
+    """True when one wall face hides the whole segment a -> b (plan coordinates relative to
+    the camera at (px, py, pz); heights absolute) from the camera: the face spans the line of
+    sight's heights (from the camera's to the segment's), the segment lies wholly on the far
+    side of the face's line, more than the per-sample test's 5 mm clearance beyond it, and
+    inside the wedge of directions the face covers. Every sample of the segment then fails
+    :func:`placeloc.geometry.rays.occluded`'s test only by being hidden (that test finds this
+    face in its column list: the list covers the face's span and a column more), so skipping
+    the segment draws the same pixels. Wedge and distance are convex: testing the two ends
+    covers the points between."""
+    z_lo = min(pz, az, bz)
+    z_hi = max(pz, az, bz)
+    la = math.sqrt(ax * ax + ay * ay)
+    lb = math.sqrt(bx * bx + by * by)
+    if la < 1e-9 or lb < 1e-9:
+        return False
+    for f in range(faces.shape[0]):
+        if faces[f, 4] > z_lo or faces[f, 5] < z_hi:
+            continue
+        cx = faces[f, 0] - px
+        cy = faces[f, 1] - py
+        dx = faces[f, 2] - px
+        dy = faces[f, 3] - py
+        ex = dx - cx
+        ey = dy - cy
+        le = math.sqrt(ex * ex + ey * ey)
+        if le < 1e-9:
+            continue
+        # signed distance of the camera from the face's line: away from it (the per-sample
+        # test's crossing parameter must exceed 1e-9 of the way to the point)
+        side_cam = (ex * (0.0 - cy) - ey * (0.0 - cx)) / le
+        if abs(side_cam) <= max(CULL_M, 1e-6 * max(la, lb)):
+            continue
+        sa = (ex * (ay - cy) - ey * (ax - cx)) / le
+        sb = (ex * (by - cy) - ey * (bx - cx)) / le
+        lim = 0.005 + CULL_M
+        if side_cam > 0.0:
+            if sa > -lim or sb > -lim:
+                continue
+        elif sa < lim or sb < lim:
+            continue
+        # inside the wedge C..D seen from the camera: same turn as C -> D from C to the point
+        # and from the point to D
+        turn = 1.0 if cx * dy - cy * dx > 0.0 else -1.0
+        lc = math.sqrt(cx * cx + cy * cy)
+        ld = math.sqrt(dx * dx + dy * dy)
+        if lc < 1e-9 or ld < 1e-9:
+            continue
+        if turn * (cx * ay - cy * ax) <= CULL_SIN * lc * la or turn * (ax * dy - ay * dx) <= CULL_SIN * la * ld:
+            continue
+        if turn * (cx * by - cy * bx) <= CULL_SIN * lc * lb or turn * (bx * dy - by * dx) <= CULL_SIN * lb * ld:
+            continue
+        return True
+    return False
+
+
 @njit(parallel=True, cache=True)
 def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
                      hidden: bool, which: int, out: np.ndarray) -> None:
@@ -78,6 +142,8 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
             ez = segs[s, 5] - segs[s, 2]
             ll = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ll < 1e-9:
+                continue
+            if hidden and _segment_hidden(ax, ay, segs[s, 2], ax + ex, ay + ey, segs[s, 5], faces, px, py, pz):
                 continue
             # closest distance camera -> segment bounds the angular speed along it
             t0 = -(ax * ex + ay * ey + az * ez) / (ll * ll)

@@ -79,6 +79,10 @@ class PanoramaParams(Params):
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "
                                                            "sunlight stripes, rugs, tripod; ceiling fans)")
+    solid_angle: bool = param(True, help="weight each row by the cosine of its elevation, the solid angle its pixels "
+                                          "cover, so that both halves of the chamfer score are means over the sphere of "
+                                          "directions, not over the image's pixels (whose rows near the floor and "
+                                          "ceiling poles are oversampled); multiplies polar_weight")
     refine_candidates: int = param(32, min=0, help="distinct best grid positions whose cells are searched off the grid "
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")

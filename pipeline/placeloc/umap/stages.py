@@ -180,7 +180,7 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     (:func:`placeloc.umap.panorama.chamfer_spectra`), so localize scores every position and
     yaw of a batch of queries with one matrix product per frequency."""
     pp = ctx.params.panorama
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     n = db.shape[0]
     spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
@@ -423,9 +423,9 @@ METHOD = Method(
         "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
-                                    "panorama.polar_weight")),
+                                    "panorama.polar_weight", "panorama.solid_angle")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
-                                          "panorama.polar_deg", "panorama.polar_weight", "tolerance_px",
+                                          "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
                                           "panorama.refine_beam", "panorama.refine_step_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",

@@ -7,6 +7,7 @@ stays cheap for the command line.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from placeloc.core.caches import private_numba_cache
@@ -18,6 +19,13 @@ __all__ = ["__version__", "describe", "load_config", "read_metrics", "run"]
 # numba loads its cached machine code (and pickled indexes) unchecked: point it at a private
 # folder before any placeloc module imports numba (docs/reliability.md, "Caches")
 private_numba_cache()
+
+# OpenMP's idle threads (numba's parallel kernels, faiss) sleep instead of spinning unless
+# the user chose otherwise; it must be set before either loads libgomp. Spinning threads
+# wait for a core another process needs: UMap's panorama search took 114-126 ms CPU a
+# panorama with them and 77 ms without at load 2-2.7 on 2 cores (docs/umap.md), PIRF's
+# m_t 16.1 ms against 5.3 ms a frame beside a busy process (docs/pirf.md, "Threads").
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 def __getattr__(name: str) -> Any:

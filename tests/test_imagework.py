@@ -167,3 +167,17 @@ def test_common_sections_reach_a_stage_as_typed_parameters(tmp_path):
     assert common.reference.images == cfg["reference"]["images"] and common.reference.on_error == "stop"
     no_query = load_config(data={"method": "seqslam", "reference": {"images": cfg["reference"]["images"]}})
     assert common_params(no_query).query.images is None
+
+
+def test_small_images_are_described_on_one_thread_larger_ones_on_the_cores(tmp_path, monkeypatch):
+    import placeloc.core.imagework as imagework
+
+    monkeypatch.setattr(imagework, "usable_cores", lambda: 4)
+    small, large = tmp_path / "small.png", tmp_path / "large.png"
+    cv2.imwrite(str(small), np.zeros((32, 64), np.uint8))  # 2048 pixels: decoding is cheaper than the GIL-held work
+    cv2.imwrite(str(large), np.zeros((64, 128), np.uint8))  # 8192 pixels
+    workers = SimpleNamespace(workers=2)
+    assert imagework.worker_threads(workers, str(small)) == 1
+    assert imagework.worker_threads(workers, str(large)) == 2  # the usable cores shared among the workers
+    assert imagework.worker_threads(workers, str(tmp_path / "missing.png")) == 2  # no header: the default
+    assert imagework.worker_threads(None) == 4

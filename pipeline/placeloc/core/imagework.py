@@ -56,7 +56,7 @@ import numpy as np
 
 from placeloc.core.errors import StageError
 from placeloc.core.executor import usable_cores
-from placeloc.core.images import ImageError, ImageSet, read_gray
+from placeloc.core.images import ImageError, ImageSet, image_size, read_gray
 
 if TYPE_CHECKING:  # the writer's side only: pool workers never import h5py for this module
     import h5py
@@ -191,8 +191,22 @@ def _ragged_rows(arrays: Arrays, ragged_names: tuple[str, ...], path: str) -> in
     return next(iter(rows.values()), 0)
 
 
-def worker_threads(executor: Any) -> int:
-    """Threads per task: the usable cores shared among the executor's workers (at most 8)."""
+# Images smaller than this (pixels) are described on one thread per task: decoding them
+# costs less than the Python work around each image, which holds the GIL, so a second
+# thread only contends for it. Measured with SeqSLAM's extract on 2 cores (PNG, one thread
+# against two): 64 x 32, 7152 images, 0.93 s against 1.25 s; 128 x 64, 3000 images, 0.68 s
+# against 0.59 s; 256 x 128, 1.35 s against 0.92 s.
+SMALL_IMAGE_PIXELS = 4096
+
+
+def worker_threads(executor: Any, first_image: str | None = None) -> int:
+    """Threads per task: the usable cores shared among the executor's workers (at most 8);
+    one when ``first_image`` (a traverse's first file) is smaller than
+    :data:`SMALL_IMAGE_PIXELS`."""
+    if first_image is not None:
+        size = image_size(first_image)
+        if size is not None and size[0] * size[1] < SMALL_IMAGE_PIXELS:
+            return 1
     return max(1, min(8, usable_cores() // max(1, int(getattr(executor, "workers", 1)))))
 
 
@@ -220,7 +234,8 @@ class ImageStream:
         workers = int(getattr(self.ctx.executor, "workers", 1))
         size = int(self.work.images_per_task or images_per_task(len(paths), workers))
         skip = self.images.on_error == "skip"
-        tasks = [(paths[i:i + size], self.work, skip, worker_threads(self.ctx.executor)) for i in range(0, len(paths), size)]
+        threads = worker_threads(self.ctx.executor, paths[0] if paths else None)
+        tasks = [(paths[i:i + size], self.work, skip, threads) for i in range(0, len(paths), size)]
         results = self.ctx.executor.map(describe_chunk, tasks)
         for c, res in enumerate(self.ctx.progress(results, total=len(tasks), desc=self.desc)):
             start = c * size

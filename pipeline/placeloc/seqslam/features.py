@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.core.imagework import ImageWork, describe_chunk
+from placeloc.core.imagework import ImageWork, describe_chunk, worker_threads
 from placeloc.seqslam.comparisons import feature_dtype, prepare_many, thumbnail
 
 
@@ -45,11 +45,10 @@ def image_features(paths: list[str], *, on_error: str, thumbnail_size: tuple[int
     read and the messages of those that could not be (``on_error == "skip"``; otherwise
     the first unreadable image raises :class:`ImageError`), in this process (for
     experiments that need the rows of a few frames without a run)."""
-    from placeloc.core.executor import usable_cores
 
     work = feature_work(thumbnail_size=thumbnail_size, comparison=comparison, patch=patch, normalisation=normalisation,
                         gaussian_sigma=gaussian_sigma, ocm_epsilon=ocm_epsilon)
-    res = describe_chunk((list(paths), work, on_error == "skip", usable_cores()))
+    res = describe_chunk((list(paths), work, on_error == "skip", worker_threads(None, str(paths[0]) if len(paths) else None)))
     w, h = thumbnail_size
     if not res.kept:
         return np.zeros((0, 0), feature_dtype(comparison, normalisation)), np.zeros((0, h, w), np.uint8), [], []

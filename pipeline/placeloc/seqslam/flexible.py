@@ -193,3 +193,16 @@ def flexible_rows(et: np.ndarray, quiet_back: np.ndarray, quiet_fwd: np.ndarray,
         run_t = running[f0:f1] if has_stops else running
         _rows(et_t, qb_t, qf_t, run_t, has_stops, a - f0, b - f0, seg, before, after, vels, offs, steps, stop_cost,
               reverse_cost, s[:, r0:r1], r0 - e0, r1 - e0)
+
+
+def warm_up() -> None:
+    """Load the compiled kernel (numba's import, its first dispatch and the cached machine
+    code: about 0.7 s of Python holding the GIL) by scoring a 3 x 4 matrix with the argument
+    types a search uses. ``sequence_match`` runs it on a thread while the first difference
+    block is computed (its kernel releases the GIL), so the two overlap where there is a
+    second core."""
+    et = np.ones((3, 4), np.float32)
+    vels = np.array([0.5, 1.0])
+    offs = np.zeros((2, 3), np.int64)
+    flexible_rows(et, et, et, np.zeros(1), False, 1, 2, 2, 1, 1, vels, offs, np.zeros(1, np.float32), 0.0, 0.0,
+                  np.empty((1, 4), np.float32), 4096)

@@ -181,3 +181,16 @@ def test_small_images_are_described_on_one_thread_larger_ones_on_the_cores(tmp_p
     assert imagework.worker_threads(workers, str(large)) == 2  # the usable cores shared among the workers
     assert imagework.worker_threads(workers, str(tmp_path / "missing.png")) == 2  # no header: the default
     assert imagework.worker_threads(None) == 4
+
+
+def test_a_folder_listed_twice_in_a_process_is_listed_again_when_its_entries_change(tmp_path):
+    from placeloc.core.images import list_images
+
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"f{i}.png"), np.zeros((4, 4), np.uint8))
+    first = list_images(tmp_path)
+    first.paths.append(tmp_path / "not-there.png")  # a caller's copy: the kept listing is untouched
+    assert [p.name for p in list_images(tmp_path).paths] == ["f0.png", "f1.png", "f2.png"]
+    cv2.imwrite(str(tmp_path / "f3.png"), np.zeros((4, 4), np.uint8))
+    (tmp_path / "f0.png").unlink()
+    assert [p.name for p in list_images(tmp_path).paths] == ["f1.png", "f2.png", "f3.png"]

@@ -83,9 +83,17 @@ COUNTS = ("n_frames", "frames_with_loop", "n_candidates", "n_accepted", "n_accep
 MATRIX_NAMES = ("truth", "gt", "GT", "GThard", "gt_hard", "ground_truth")
 
 
-def write(ctx: Any, *, frame_index: np.ndarray, frame_names: Sequence[str], match: np.ndarray, confidence: np.ndarray,
-          threshold: float | None, seconds: np.ndarray | None = None, map_size: np.ndarray | None = None) -> None:
-    """Write the contract into ``ctx.out/result``; ``match`` holds ORIGINAL frame indices."""
+def write(ctx: Any, *, frames: Any, match: np.ndarray, confidence: np.ndarray, threshold: float | None,
+          seconds: np.ndarray | None = None, map_size: np.ndarray | None = None) -> None:
+    """Write the contract into ``ctx.out/result``. ``frames`` is the traverse's group of the
+    extract artifact (``index`` and ``names`` as the engine wrote them); ``match`` holds
+    LOCAL rows (the earlier frame's row in the traverse's arrays; -1 = none), one per row:
+    the contract stores original indices, with the names."""
+    from placeloc.core.artifacts import read_strings
+    from placeloc.core.imagework import local_to_original
+
+    frame_index, frame_names = frames["index"][()], read_strings(frames["names"])
+    match = local_to_original(frame_index, match)
     images = ctx.images.get("reference")
     n_listed = len(images.paths) if images is not None else (int(np.max(frame_index)) + 1 if len(frame_index) else 0)
     attrs: dict[str, Any] = {"n_listed": n_listed}

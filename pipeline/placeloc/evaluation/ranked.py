@@ -61,12 +61,23 @@ METRICS_DOC = {
 }
 
 
-def write(ctx: Any, *, query_index: np.ndarray, query_names: Sequence[str], reference_index: np.ndarray,
-          reference_names: Sequence[str], candidates: np.ndarray, scores: np.ndarray, confidence: np.ndarray,
+def write(ctx: Any, *, reference: Any, query: Any, candidates: np.ndarray, scores: np.ndarray, confidence: np.ndarray,
           higher_is_better: bool, separation: int = 0, plain_candidates: np.ndarray | None = None,
           plain_scores: np.ndarray | None = None) -> None:
     """Write the contract into ``ctx.out/result`` and ``matches.csv`` (one row per query:
-    its best reference). ``candidates`` hold ORIGINAL reference indices (-1 = none)."""
+    its best reference). ``reference`` and ``query`` are the traverses' groups of the
+    extract artifact (``index`` and ``names`` as the engine wrote them); ``candidates`` and
+    ``plain_candidates`` hold LOCAL reference rows (row ``i`` of the reference's arrays;
+    -1 = none), one row per query row: the contract stores them as original indices, with
+    the names, so images skipped with ``on_error: skip`` never shift an answer."""
+    from placeloc.core.artifacts import read_strings
+    from placeloc.core.imagework import local_to_original
+
+    reference_index, query_index = reference["index"][()], query["index"][()]
+    reference_names, query_names = read_strings(reference["names"]), read_strings(query["names"])
+    candidates = local_to_original(reference_index, candidates)
+    if plain_candidates is not None:
+        plain_candidates = local_to_original(reference_index, plain_candidates)
     write_result(ctx.out, "ranked", {
         "query_index": np.asarray(query_index, np.int64), "query_names": list(query_names),
         "reference_index": np.asarray(reference_index, np.int64), "reference_names": list(reference_names),

@@ -266,17 +266,15 @@ def _write_loops(ctx: Any, ex: h5py.File, build: h5py.File) -> None:
     for the track lag where pirf.direction_correction applies) with its score; a candidate
     the geometric check rejected closes no loop; tau is the acceptance threshold; the
     mapping time per frame against the dictionary's size."""
-    names, index, _ = _frames(ex, "reference")
     best = build["best_node"][()].copy()
     if "closure_candidates/frame" in build:
         c_f, c_n = build["closure_candidates/frame"][()], build["closure_candidates/node"][()]
         best[c_f] = c_n  # the nodes in use (direction-corrected when configured)
         if "closure_candidates/keep" in build:
             best[c_f[~build["closure_candidates/keep"][()].astype(bool)]] = -1
-    match = np.where(best >= 0, index[np.clip(best, 0, None)], -1)
     from placeloc.evaluation import loops
 
-    loops.write(ctx, frame_index=index, frame_names=names, match=match, confidence=build["best_score"][()],
+    loops.write(ctx, frames=ex["reference"], match=best, confidence=build["best_score"][()],
                 threshold=float(ctx.params.tau), seconds=build["map_seconds"][()], map_size=build["dict_size_after"][()])
 
 

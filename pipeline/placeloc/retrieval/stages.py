@@ -60,7 +60,6 @@ def extract(ctx: Any) -> None:
 
 
 def localize(ctx: Any) -> None:
-    from placeloc.core.artifacts import read_strings
     from placeloc.evaluation import ranked
     from placeloc.retrieval.neighbours import nearest
 
@@ -72,13 +71,10 @@ def localize(ctx: Any) -> None:
     ref, query = ex["reference/features"][()], ex["query/features"][()]
     use_faiss = p.search == "faiss" or (p.search == "auto" and len(ref) >= p.faiss_from)
     idx, score = nearest(ref, query, k=p.top_k, distance=p.distance, use_faiss=use_faiss, block_size=p.block_size)
-    ref_index = ex["reference/index"][()]
-    cand = np.where(idx >= 0, ref_index[np.clip(idx, 0, None)], -1)
     higher = p.distance == "cosine"
     ctx.out.attrs["search"] = "faiss" if use_faiss else "exact"
-    ranked.write(ctx, query_index=ex["query/index"][()], query_names=read_strings(ex["query/names"]),
-                 reference_index=ref_index, reference_names=read_strings(ex["reference/names"]), candidates=cand,
-                 scores=score, confidence=score[:, 0] if higher else -score[:, 0], higher_is_better=higher)
+    ranked.write(ctx, reference=ex["reference"], query=ex["query"], candidates=idx, scores=score,
+                 confidence=score[:, 0] if higher else -score[:, 0], higher_is_better=higher)
 
 
 def _localize_loops(ctx: Any, ex: Any) -> None:
@@ -88,12 +84,11 @@ def _localize_loops(ctx: Any, ex: Any) -> None:
     no acceptance rule of its own, so no threshold: the PR curve sweeps the confidence."""
     import time
 
-    from placeloc.core.artifacts import read_strings
     from placeloc.evaluation import loops
     from placeloc.retrieval.neighbours import nearest_earlier
 
     p: RetrievalParams = ctx.params
-    rows, index = ex["reference/features"][()], ex["reference/index"][()]
+    rows = ex["reference/features"][()]
     exclude = loops.exclusion_for(ctx, len(rows))
     t0 = time.perf_counter()
     best, score = nearest_earlier(rows, exclude_recent=exclude, distance=p.distance, block_size=p.block_size)
@@ -105,8 +100,7 @@ def _localize_loops(ctx: Any, ex: Any) -> None:
     # frames with nothing far enough back close no loop (match -1); their confidence is
     # only a finite placeholder below every real one
     confidence[~found] = float(confidence[found].min()) - 1.0 if found.any() else 0.0
-    loops.write(ctx, frame_index=index, frame_names=read_strings(ex["reference/names"]),
-                match=np.where(found, index[np.clip(best, 0, None)], -1), confidence=confidence, threshold=None,
+    loops.write(ctx, frames=ex["reference"], match=np.where(found, best, -1), confidence=confidence, threshold=None,
                 seconds=np.full(len(rows), seconds))
 
 

@@ -28,9 +28,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from placeloc.core.artifacts import read_strings
 from placeloc.core.common_params import GroundTruthParams
-from placeloc.core.imagework import extract_images, local_to_original
+from placeloc.core.imagework import extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.ground_truth import band_of
 from placeloc.evaluation.metrics import dissimilarity_ratios, split_row_minima, summarise_ratios
@@ -180,21 +179,16 @@ def localize(ctx: Any) -> None:
     out.create_dataset("single_confidence", data=m.single_confidence)
     out.attrs["loop_closure"] = loop_closure
     out.attrs["velocities"] = m.velocities
-    ref_index = ex["reference/index"][()]
-    q_group = ex["reference" if loop_closure else "query"]
-    original = local_to_original(ref_index, m.candidates)
     if loop_closure:
-        loops.write(ctx, frame_index=ref_index, frame_names=read_strings(ex["reference/names"]), match=original[:, 0],
-                    confidence=m.confidence, threshold=None)
+        loops.write(ctx, frames=ex["reference"], match=m.candidates[:, 0], confidence=m.confidence, threshold=None)
         return
     from placeloc.evaluation import ranked
 
     plain_candidates, plain_scores = m.plain_candidates, m.plain_scores
     assert plain_candidates is not None and plain_scores is not None
-    ranked.write(ctx, query_index=q_group["index"][()], query_names=read_strings(q_group["names"]), reference_index=ref_index,
-                 reference_names=read_strings(ex["reference/names"]), candidates=original, scores=m.scores,
+    ranked.write(ctx, reference=ex["reference"], query=ex["query"], candidates=m.candidates, scores=m.scores,
                  confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1,
-                 plain_candidates=local_to_original(ref_index, plain_candidates),
+                 plain_candidates=plain_candidates,
                  plain_scores=np.where(np.isfinite(plain_scores), plain_scores, np.nan))
 
 

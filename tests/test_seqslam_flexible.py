@@ -17,6 +17,7 @@ from placeloc.seqslam.search import (
     UNRELATED_CHANGE,
     StopModel,
     _flexible_scores,
+    flexible_model,
     query_offsets,
     segment_length,
     sequence_search,
@@ -185,14 +186,7 @@ def _numpy_flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndar
     backward from it (per velocity, relaxed by the cost of a change), then forward from
     it, one velocity at a time, with a change of speed at the anchor costed like any other."""
     a, b = rows
-    seg = segment_length(vels)
-    vels = np.unique(np.asarray(vels, np.float64))
-    if not (vels == 0).any():
-        stops = None
-    elif stops is None:
-        stops = StopModel(et)
-    bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
-    after, before = int(t_off[-1]), int(-t_off[0])
+    seg, vels, stops, bend, before, after = flexible_model(et, t_off, vels, speed_change_cost, stops)
     back = _numpy_chain_side(et, rows, before + 1, seg, vels, bend, -1, stops, float(stop_cost), float(reverse_cost))
     _numpy_l1_envelope(back, vels, bend)
     s = np.full((b - a, et.shape[1]), INVALID, np.float32)

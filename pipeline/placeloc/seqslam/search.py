@@ -245,6 +245,22 @@ class StopModel:
         self.quiet_back = mean + nb * (et - mean)  # frame q before frame q + 1
 
 
+def flexible_model(et: np.ndarray, t_off: np.ndarray, vels: np.ndarray, speed_change_cost: float,
+                   stops: StopModel | None) -> tuple[int, np.ndarray, StopModel | None, float, int, int]:
+    """The flexible path's model for a window ``t_off``: its segment length, the speeds
+    (unique, ascending), the stop model (only when 0 is among the speeds), the cost of a
+    change per unit of speed (``speed_change_cost`` per frame of a segment), and the frames
+    before and after the anchor."""
+    seg = segment_length(vels)
+    vels = np.unique(np.asarray(vels, np.float64))
+    if not (vels == 0).any():
+        stops = None
+    elif stops is None:
+        stops = StopModel(et)
+    bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
+    return seg, vels, stops, bend, int(-t_off[0]), int(t_off[-1])
+
+
 # References per tile of the compiled flexible search: the window's rows of a tile stay in
 # the core's cache from one anchor to the next. A row of 3576 references fits whole; at
 # 35,768 a whole row cost twice the time per matrix cell (bench_seqslam_full.py).
@@ -274,14 +290,7 @@ def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, v
     from placeloc.seqslam.flexible import flexible_rows
 
     a, b = rows
-    seg = segment_length(vels)
-    vels = np.unique(np.asarray(vels, np.float64))
-    if not (vels == 0).any():
-        stops = None
-    elif stops is None:
-        stops = StopModel(et)
-    bend = float(speed_change_cost) * min(seg, int(t_off[-1] - t_off[0]) + 1)
-    after, before = int(t_off[-1]), int(-t_off[0])
+    seg, vels, stops, bend, before, after = flexible_model(et, t_off, vels, speed_change_cost, stops)
     # round(v t) for t = 0 .. the longest segment (+1: where it ends)
     offs = np.ascontiguousarray(trajectory_offsets(vels, np.arange(min(seg, max(before, after) + 1) + 1, dtype=np.int64)))
     steps = np.array([np.float32(bend * (vels[i + 1] - vels[i])) for i in range(len(vels) - 1)] or [0.0], np.float32)

@@ -109,16 +109,33 @@ def count_images(images: dict[str, Any]) -> int:
 
 
 def decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel: int, why: str,
-                 stages: Sequence[str]) -> list[Need]:
-    # Only ``extract`` decodes images: a later stage alone must not open every image's header.
-    if "extract" not in stages:
+                 stages: Sequence[str], stage: str = "extract") -> list[Need]:
+    """Memory for describing the largest image ``bytes_per_pixel`` at a time in ``stage``, as
+    many at once as the engine describes concurrently: the workers times the threads each
+    describes with (:func:`placeloc.core.imagework.worker_threads`; one for images smaller
+    than ``SMALL_IMAGE_PIXELS``)."""
+    # Only the stage that decodes opens the headers: a later stage alone must not open every image's header.
+    if stage not in stages:
         return []
     pixels, path = largest_image(images)
     if not pixels:
         return []
-    return [Need(f"{why} of the largest image {path} ({pixels / 1e6:.1f} megapixels) x {workers(config)} worker(s)",
-                 "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * workers(config),
-                 stage="extract")]
+    from placeloc.core.imagework import SMALL_IMAGE_PIXELS, worker_threads
+
+    n_workers = workers(config)
+    threads = 1 if pixels < SMALL_IMAGE_PIXELS else worker_threads(_Workers(n_workers))
+    at_once = n_workers * threads
+    return [Need(f"{why} of the largest image {path} ({pixels / 1e6:.1f} megapixels) x {at_once} at once "
+                 f"({n_workers} worker(s) x {threads} thread(s))",
+                 "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * at_once,
+                 stage=stage)]
+
+
+class _Workers:
+    """What :func:`placeloc.core.imagework.worker_threads` reads of an executor."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
 
 
 # ----------------------------------------------------------------- cross-key rules

@@ -33,5 +33,8 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     needs.append(Need("the dictionary's ANN index", "pirf.ann", stage="index", memory=2 * cap, disk=cap))
     # SIFT/SURF on one frame: about 240 bytes of scale space per pixel (measured: one
     # 8000x8000 frame took 14.9 GB).
+    verify = [] if int(p.get("verify_frames", 5)) == 0 else decode_need(
+        config, images, 240, "the loop closures' geometric check (features again, about 240 bytes a pixel)", stages,
+        stage="build-dictionary")
     return [x for x in needs if x.stage in stages] + \
-        decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages)
+        decode_need(config, images, 240, "feature extraction (about 240 bytes a pixel)", stages) + verify

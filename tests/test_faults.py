@@ -334,7 +334,10 @@ def _png_header(path: Path, width: int, height: int) -> None:
 
 
 def test_huge_frame_is_refused_from_its_header(tmp_path, monkeypatch):
+    import placeloc.core.imagework as imagework
+
     monkeypatch.setenv("PLACELOC_MEMORY_LIMIT_MB", "4096")
+    monkeypatch.setattr(imagework, "usable_cores", lambda: 1)  # one image described at a time
     frames = tmp_path / "frames"
     frames.mkdir()
     for i in range(3):
@@ -346,9 +349,17 @@ def test_huge_frame_is_refused_from_its_header(tmp_path, monkeypatch):
     with pytest.raises(ResourceError, match=r"f3.png \(64.0 megapixels\).*needs about 14.3 GiB of memory, "
                        r"more than PLACELOC_MEMORY_LIMIT_MB=4096 allows \(4.0 GiB\)"):
         check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES)
-    # stages after extract decode no image: their estimate does not read image headers
-    later = check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES[1:])
+    # on 4 cores the engine describes 4 images at once, and the estimate says so
+    monkeypatch.setattr(imagework, "usable_cores", lambda: 4)
+    with pytest.raises(ResourceError, match=r"x 4 at once \(1 worker\(s\) x 4 thread\(s\)\) needs about 57.2 GiB"):
+        check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES)
+    # stages after extract decode no image (PIRF's geometric check of loop closures aside,
+    # which reads the frames again in build-dictionary): their estimate reads no image header
+    later = check_resources({"method": "pirf", "executor": {"workers": 1}, "pirf": {"verify_frames": 0}}, images,
+                            tmp_path, STAGES[1:])
     assert not any("megapixels" in n.what for n in later)
+    with pytest.raises(ResourceError, match=r"geometric check .*f3.png \(64.0 megapixels\)"):
+        check_resources({"method": "pirf", "executor": {"workers": 1}}, images, tmp_path, STAGES[1:])
 
 
 def test_jpeg_header_size():

@@ -7,13 +7,15 @@ poses 0.15 m to the side under other lighting, 200 strongest SIFT each: twice
 ``--queries`` of them, every other one timed and compared, the ones between them the
 sample the default index re-tunes on (as localize re-tunes on the query run,
 ``pirf.index_tune_queries``). Descriptors are cached as .npy under ``--cache``. Prints
-one table with ratios against brute force.
+one table with ratios against brute force, then the default index's m_t on 1, 2, 4, ...,
+nproc faiss threads (``--workers``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -114,6 +116,34 @@ def bench_mapping(dic: np.ndarray, queries: list[np.ndarray], ef: int) -> None:
         print(f"{r[0]:<12}{r[1]:>9.1f}{1000 * r[2]:>10.1f}{1000 * r[3]:>9.1f}{1 / r[2]:>10.1f}{rows[0][2] / r[2]:>8.1f}x")
 
 
+def thread_scaling(dic: np.ndarray, queries: list[np.ndarray], reps: int, workers: str | None) -> None:
+    """m_t with the default index (HNSW, tuned) on 1, 2, 4, ... faiss threads
+    (``faiss.omp_set_num_threads``: one frame's ~200 queries are one faiss search)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from scaling import markdown, scaling_table, usable_cores, worker_counts
+
+    from placeloc.core.faiss_loader import import_faiss
+
+    faiss = import_faiss()
+    p = PirfParams()
+    ix = AnnIndex("faiss-hnsw", dic, index_settings(p), seed=0)
+    build_tuned(ix, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
+    counts = [int(w) for w in workers.split(",")] if workers else worker_counts(usable_cores())
+    before = faiss.omp_get_max_threads()
+
+    def measure(k: int) -> dict[str, float]:
+        faiss.omp_set_num_threads(k)
+        try:
+            # seconds per 100 frames, so the table's two decimals show it
+            return {f"m_t of 100 frames of 200 PIRFs, HNSW tuned, {len(dic)} words": 100 * time_mt(ix, queries, reps)[0]}
+        finally:
+            faiss.omp_set_num_threads(before)
+
+    print()
+    print(markdown(scaling_table(measure, counts), "PIRF-nav2 m_t", unit="thread",
+                   note=f"faiss threads set with omp_set_num_threads; best of {reps} a frame."))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=500_000)
@@ -125,6 +155,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path("runs/bench-pirf"))
     ap.add_argument("--mapping", action="store_true", help="also time a mapping step at this dictionary size (BF vs HNSW)")
     ap.add_argument("--map-ef", type=int, default=PirfParams().map_ef_search, help="HNSW efSearch while mapping")
+    ap.add_argument("--workers", default=None,
+                    help="faiss thread counts of the scaling table (default 1, 2, 4, ..., nproc; 0: no table)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     dic, frames = sift_set(args.size, 2 * args.queries, args.cache)
@@ -159,6 +191,8 @@ def main() -> None:
         print(f"{r['backend']:<14}{r['build_s']:>9.1f}{1000 * r['mt_s']:>10.2f}{r['speedup']:>8.1f}x"
               f"{r['jaccard']:>9.3f}{r['precision']:>10.3f}{r['recall']:>8.3f}")
     (args.cache / "bench.json").write_text(json.dumps(rows, indent=2))
+    if args.workers != "0":
+        thread_scaling(dic, queries, args.reps, args.workers)
     if args.mapping:
         bench_mapping(dic, queries, args.map_ef)
     print(f"\nwritten {args.cache / 'bench.json'}; m_t words per frame (BF): {np.mean([len(m) for m in bf_m]):.1f}")

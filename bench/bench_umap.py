@@ -20,6 +20,8 @@
    grid), both timed in the same run, per panorama, wall and CPU.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
+
+The panorama case ends with the search over numba thread counts 1, 2, 4, ... (`--workers`).
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import cv2
 import numba
@@ -51,6 +55,8 @@ def main() -> None:
     ap.add_argument("--panorama-only", action="store_true", help="only the whole-panorama search")
     ap.add_argument("--panorama-positions", type=int, default=2000, help="grid positions of the panorama case (about)")
     ap.add_argument("--old-panoramas", type=int, default=6, help="panoramas the search before is timed on")
+    ap.add_argument("--workers", default=None,
+                    help="numba thread counts of the panorama search's scaling table (default 1, 2, 4, ..., the threads; 0: none)")
     args = ap.parse_args()
     if not args.panorama_only:
         if not args.floor_only:
@@ -134,6 +140,25 @@ def panorama(args: argparse.Namespace) -> None:
           f"of it every position x yaw: {t_oglob / m * 1e3:.0f} ms wall")
     print(f"ratio, before / now, per panorama: whole search {t_old / m / (t_new / n):.1f}x wall, {c_old / m / (c_new / n):.1f}x "
           f"CPU; every position x yaw {t_oglob / m / (t_glob / n):.1f}x wall")
+    if args.workers != "0":
+        # the search's parallel kernels over numba thread counts (numba.set_num_threads)
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from scaling import markdown, scaling_table, worker_counts
+
+        top = numba.get_num_threads()
+        counts = [int(x) for x in args.workers.split(",")] if args.workers else worker_counts(top)
+
+        def measure(k: int) -> dict[str, float]:
+            numba.set_num_threads(min(k, top))
+            try:
+                _, wall, _ = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp,
+                                    tolerance_px=2, wall_margin_m=0.1, hidden=True)
+                return {f"localize search, {len(poses):,} positions, per panorama": wall / n}
+            finally:
+                numba.set_num_threads(top)
+
+        print(markdown(scaling_table(measure, counts, warm_up=False), "UMap whole-panorama search", unit="thread",
+                       note="numba threads set with numba.set_num_threads; one run each."))
 
 
 def _dilate(db: np.ndarray, cam: Camera, tolerance: int) -> np.ndarray:

@@ -194,3 +194,17 @@ def test_a_folder_listed_twice_in_a_process_is_listed_again_when_its_entries_cha
     cv2.imwrite(str(tmp_path / "f3.png"), np.zeros((4, 4), np.uint8))
     (tmp_path / "f0.png").unlink()
     assert [p.name for p in list_images(tmp_path).paths] == ["f1.png", "f2.png", "f3.png"]
+
+
+def test_an_image_edited_in_place_changes_the_fingerprint_of_a_listing_made_again(tmp_path):
+    import os
+
+    from placeloc.core.images import list_images
+
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / f"f{i}.png"), np.zeros((4, 4), np.uint8))
+    before = list_images(tmp_path).fingerprint()
+    cv2.imwrite(str(tmp_path / "f1.png"), np.full((4, 4), 255, np.uint8))  # same name: the folder's entries are unchanged
+    st = os.stat(tmp_path / "f1.png")
+    os.utime(tmp_path / "f1.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert list_images(tmp_path).fingerprint() != before

@@ -123,9 +123,11 @@ def list_images(spec: str | Path, on_error: str = "stop", fingerprint: str = "st
 
 
 def _copy_listing(images: ImageSet) -> ImageSet:
-    """A caller's own ImageSet (its lists copied) of a listing kept in :data:`_LISTINGS`."""
-    return replace(images, paths=list(images.paths), skipped=list(images.skipped),
-                               not_read=list(images.not_read), others=list(images.others))
+    """A caller's own ImageSet (its lists copied) of a listing kept in :data:`_LISTINGS`.
+    Its fingerprint is taken afresh: an image edited in place keeps the folder's listing but
+    must still change the stamp."""
+    return replace(images, paths=list(images.paths), skipped=list(images.skipped), not_read=list(images.not_read),
+                   others=list(images.others), _stat_digest=None)
 
 
 def _list_images(spec: str, on_error: str, fingerprint: str) -> ImageSet:

@@ -199,15 +199,19 @@ def _ragged_rows(arrays: Arrays, ragged_names: tuple[str, ...], path: str) -> in
 SMALL_IMAGE_PIXELS = 4096
 
 
+def threads_per_task(workers: int, pixels: int | None = None) -> int:
+    """Threads each of ``workers`` tasks describes images with: the usable cores shared among
+    the workers (at most 8); one for images of fewer than :data:`SMALL_IMAGE_PIXELS`."""
+    if pixels is not None and pixels < SMALL_IMAGE_PIXELS:
+        return 1
+    return max(1, min(8, usable_cores() // max(1, workers)))
+
+
 def worker_threads(executor: Any, first_image: str | None = None) -> int:
-    """Threads per task: the usable cores shared among the executor's workers (at most 8);
-    one when ``first_image`` (a traverse's first file) is smaller than
-    :data:`SMALL_IMAGE_PIXELS`."""
-    if first_image is not None:
-        size = image_size(first_image)
-        if size is not None and size[0] * size[1] < SMALL_IMAGE_PIXELS:
-            return 1
-    return max(1, min(8, usable_cores() // max(1, int(getattr(executor, "workers", 1)))))
+    """:func:`threads_per_task` for ``executor``'s workers and ``first_image`` (a
+    traverse's first file; its header gives the size)."""
+    size = image_size(first_image) if first_image is not None else None
+    return threads_per_task(int(getattr(executor, "workers", 1)), size[0] * size[1] if size is not None else None)
 
 
 def images_per_task(n_images: int, workers: int) -> int:
@@ -408,4 +412,4 @@ def original_to_local(index: np.ndarray, original: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["ImageWork", "ImageResult", "ImageStream", "ImageTable", "describe_chunk", "extract_images", "write_images",
-           "read_ragged", "local_to_original", "original_to_local", "images_per_task", "worker_threads"]
+           "read_ragged", "local_to_original", "original_to_local", "images_per_task", "worker_threads", "threads_per_task"]

@@ -112,30 +112,22 @@ def decode_need(config: dict[str, Any], images: dict[str, Any], bytes_per_pixel:
                  stages: Sequence[str], stage: str = "extract") -> list[Need]:
     """Memory for describing the largest image ``bytes_per_pixel`` at a time in ``stage``, as
     many at once as the engine describes concurrently: the workers times the threads each
-    describes with (:func:`placeloc.core.imagework.worker_threads`; one for images smaller
-    than ``SMALL_IMAGE_PIXELS``)."""
+    describes with (:func:`placeloc.core.imagework.threads_per_task`)."""
     # Only the stage that decodes opens the headers: a later stage alone must not open every image's header.
     if stage not in stages:
         return []
     pixels, path = largest_image(images)
     if not pixels:
         return []
-    from placeloc.core.imagework import SMALL_IMAGE_PIXELS, worker_threads
+    from placeloc.core.imagework import threads_per_task
 
     n_workers = workers(config)
-    threads = 1 if pixels < SMALL_IMAGE_PIXELS else worker_threads(_Workers(n_workers))
+    threads = threads_per_task(n_workers, pixels)
     at_once = n_workers * threads
     return [Need(f"{why} of the largest image {path} ({pixels / 1e6:.1f} megapixels) x {at_once} at once "
                  f"({n_workers} worker(s) x {threads} thread(s))",
                  "the image size (resize the images) or executor.workers", memory=pixels * bytes_per_pixel * at_once,
                  stage=stage)]
-
-
-class _Workers:
-    """What :func:`placeloc.core.imagework.worker_threads` reads of an executor."""
-
-    def __init__(self, workers: int) -> None:
-        self.workers = workers
 
 
 # ----------------------------------------------------------------- cross-key rules

@@ -14,7 +14,9 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
+from placeloc.core.imagework import local_to_original
 from placeloc.seqslam.comparisons import difference_block
+from placeloc.seqslam.l1 import run_threaded
 from placeloc.seqslam.search import (
     REVERSE_COST,
     SPEED_CHANGE_COST,
@@ -22,6 +24,7 @@ from placeloc.seqslam.search import (
     confidence,
     enhance_t,
     query_offsets,
+    row_chunks,
     sequence_search,
     single_image_best,
     velocities,
@@ -149,15 +152,12 @@ def _inline_map(fn: Callable, jobs: Iterable, shared: Any = None, describe: Any 
 # (12.6 s over the whole route), which 16 cores would wait for. Both go by rows over the cores.
 def _transposed(d: np.ndarray) -> np.ndarray:
     """``np.ascontiguousarray(d.T)``, copied a band of rows per thread (NumPy's copy releases the GIL)."""
-    from placeloc.seqslam.l1 import run_threaded
-
     out = np.empty((d.shape[1], d.shape[0]), d.dtype)
 
     def copy(lo: int, hi: int) -> None:
         out[lo:hi] = d[:, lo:hi].T
 
-    step = max(64, -(-d.shape[1] // 32))
-    run_threaded(copy, [(i, min(d.shape[1], i + step)) for i in range(0, d.shape[1], step)])
+    run_threaded(copy, row_chunks(*out.shape))
     return out
 
 
@@ -165,13 +165,10 @@ def _single_best_into(dt: np.ndarray, window: int, exclude_recent: int | None, q
                       conf: np.ndarray) -> None:
     """:func:`placeloc.seqslam.search.single_image_best` of the rows of ``dt`` (query ``q0``
     first) into ``best`` and ``conf``, a band of rows per thread (rows are independent)."""
-    from placeloc.seqslam.l1 import run_threaded
-
     def part(lo: int, hi: int) -> None:
         best[lo:hi], conf[lo:hi] = single_image_best(dt[lo:hi], window, exclude_recent, q0 + lo)
 
-    step = max(16, -(-len(dt) // 16))
-    run_threaded(part, [(i, min(len(dt), i + step)) for i in range(0, len(dt), step)])
+    run_threaded(part, row_chunks(*dt.shape))
 
 
 def _load_flexible_kernel_meanwhile() -> None:
@@ -310,9 +307,9 @@ def sequence_match(
         candidates[k0:k1], scores[k0:k1] = b, s
         del d_t
     if ref_first is not None:  # a kept reference stands for its run: its first frame
-        candidates = np.where(candidates >= 0, ref_first[np.maximum(candidates, 0)], -1)
+        candidates = local_to_original(ref_first, candidates)
         if plain is not None:
-            plain = (np.where(plain[0] >= 0, ref_first[np.maximum(plain[0], 0)], -1), plain[1])
+            plain = (local_to_original(ref_first, plain[0]), plain[1])
     if plain is not None:
         plain = (plain[0][run_of], plain[1][run_of])
     return SequenceMatches(candidates[run_of], scores[run_of], confidence(scores)[run_of], single_best, single_conf,

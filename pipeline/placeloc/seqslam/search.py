@@ -68,7 +68,7 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
-def _row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
+def row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
     """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
     step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 4 if n_cols > (1 << 17) else 16, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
@@ -119,7 +119,7 @@ def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:
     def run(lo: int, hi: int) -> None:
         _enhance_rows(dt[lo:hi], int(window), shift, out[lo:hi])
 
-    run_threaded(run, _row_chunks(dt.shape[0], dt.shape[1]))
+    run_threaded(run, row_chunks(dt.shape[0], dt.shape[1]))
 
 
 def enhance(d: np.ndarray, window: int) -> np.ndarray:
@@ -473,7 +473,7 @@ def sequence_search(
     # The flexible kernel works one anchor row at a time (its buffers do not grow with the
     # chunk): smaller chunks than the other shapes' keep 16 threads evenly busy.
     per_row = et.shape[1] * (4 if shape == "flexible" else 1)
-    run_threaded(run, _row_chunks(inner[1] - inner[0], per_row))
+    run_threaded(run, row_chunks(inner[1] - inner[0], per_row))
     if edges == "shift" and nt <= ncols:
         edge = [*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)]
 

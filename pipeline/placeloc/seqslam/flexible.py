@@ -57,11 +57,12 @@ def _envelope(g: np.ndarray, steps: np.ndarray) -> None:
 @njit(cache=True, nogil=True)
 def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: bool, T: int, n_frames: int, seg: int,
           vels: np.ndarray, offs: np.ndarray, steps: np.ndarray, direction: int, stop_cost: float, reverse_cost: float,
-          g: np.ndarray, h: np.ndarray, row: np.ndarray, back: np.ndarray, s: np.ndarray, stream: bool) -> np.ndarray:
+          g: np.ndarray, h: np.ndarray, row: np.ndarray, back: np.ndarray, s: np.ndarray, stream: bool) -> None:
     """One half of the window from the anchor ``T`` (``direction`` +1 later, -1 earlier):
-    the best chain per first speed, ``g[v, r]`` (returned: ``g`` or ``h``, whichever holds
-    it). With ``stream``, the first segment of each speed goes into ``row``, is added to
-    ``back[v]`` and folded into ``s`` by a minimum instead."""
+    the best chain per first speed, ``[v, r]``, left in ``g`` after an even number of
+    segment boundaries, else in ``h`` (the two swap at each). With ``stream``, the first
+    segment of each speed goes into ``row``, is added to ``back[v]`` and folded into ``s``
+    by a minimum instead."""
     inf = np.float32(np.inf)
     nv, nr = g.shape
     n_seg = (n_frames + seg - 1) // seg
@@ -119,7 +120,6 @@ def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: boo
             _envelope(g, steps)
             g, h = h, g
             have_h = True
-    return g
 
 
 @njit(cache=True, nogil=True)

@@ -94,21 +94,15 @@ def main() -> None:
 
 def scaling(obs, lm, xs, workers: str | None) -> None:
     """The sparse solve pinned to 1, 2, 4, ... cores: which part of it scales with cores."""
-    from scaling import markdown, scaling_table, worker_counts
-
-    allowed = sorted(os.sched_getaffinity(0))
-    counts = [int(w) for w in workers.split(",")] if workers else worker_counts(len(allowed))
+    from scaling import counts_from, markdown, on_first_cores, scaling_table
 
     def measure(k: int) -> dict[str, float]:
-        os.sched_setaffinity(0, allowed[:k])
-        try:
+        with on_first_cores(k):
             t0 = time.perf_counter()
             coembed_map(obs, lm, xs, alpha=1000.0)
             return {f"sparse co-embedding, {obs.n_steps} x {obs.n_features}": time.perf_counter() - t0}
-        finally:
-            os.sched_setaffinity(0, allowed)
 
-    print(markdown(scaling_table(measure, counts, repeat=2, warm_up=False), "co-embedding solve", unit="core",
+    print(markdown(scaling_table(measure, counts_from(workers), repeat=2, warm_up=False), "co-embedding solve", unit="core",
                    note="This process pinned to the first k cores; best of 2."))
 
 

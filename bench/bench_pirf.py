@@ -120,7 +120,7 @@ def thread_scaling(dic: np.ndarray, queries: list[np.ndarray], reps: int, worker
     """m_t with the default index (HNSW, tuned) on 1, 2, 4, ... faiss threads
     (``faiss.omp_set_num_threads``: one frame's ~200 queries are one faiss search)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from scaling import markdown, scaling_table, usable_cores, worker_counts
+    from scaling import counts_from, markdown, scaling_table
 
     from placeloc.core.faiss_loader import import_faiss
 
@@ -128,7 +128,7 @@ def thread_scaling(dic: np.ndarray, queries: list[np.ndarray], reps: int, worker
     p = PirfParams()
     ix = AnnIndex("faiss-hnsw", dic, index_settings(p), seed=0)
     build_tuned(ix, target=p.index_recall, jaccard=p.index_jaccard, sample=p.index_tune_sample, ratio=p.ratio, seed=0)
-    counts = [int(w) for w in workers.split(",")] if workers else worker_counts(usable_cores())
+    counts = counts_from(workers)
     before = faiss.omp_get_max_threads()
 
     def measure(k: int) -> dict[str, float]:

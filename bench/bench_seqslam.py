@@ -280,9 +280,9 @@ def main() -> None:
               f"{cpu_whole:.2f} s CPU)")
 
         # -- scaling: the same two processes over worker counts
-        from scaling import markdown, scaling_table, worker_counts
+        from scaling import counts_from, markdown, scaling_table
 
-        counts = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
+        counts = counts_from(args.workers)
 
         def measure(w: int) -> dict[str, float]:
             best = whole_run(cfg, work / "run", repeat=1, workers=w)

@@ -84,20 +84,14 @@ def localize(ref: np.ndarray, query: np.ndarray, shape: str | None) -> tuple[flo
 
 def scaling(ref: np.ndarray, query: np.ndarray, args: argparse.Namespace) -> None:
     """The preset's localize numerics pinned to 1, 2, 4, ... cores: wall and CPU seconds."""
-    from scaling import markdown, scaling_table, worker_counts
-
-    allowed = sorted(os.sched_getaffinity(0))
-    counts = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts(len(allowed))
+    from scaling import counts_from, markdown, on_first_cores, scaling_table
 
     def measure(w: int) -> dict[str, float]:
-        os.sched_setaffinity(0, allowed[:w])
-        try:
+        with on_first_cores(w):
             wall, cpu, _ = localize(ref, query, None)
-        finally:
-            os.sched_setaffinity(0, allowed)
         return {"preset localize numerics, wall": wall, "preset localize numerics, CPU": cpu}
 
-    table = scaling_table(measure, counts, args.repeat)
+    table = scaling_table(measure, counts_from(args.workers), args.repeat)
     print(markdown(table, f"Nordland preset, {args.frames} x {args.frames}",
                    note="(CPU: all threads' seconds; the wall row's speed-up is the scaling)", unit="core"))
 

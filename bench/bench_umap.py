@@ -143,10 +143,10 @@ def panorama(args: argparse.Namespace) -> None:
     if args.workers != "0":
         # the search's parallel kernels over numba thread counts (numba.set_num_threads)
         sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from scaling import markdown, scaling_table, worker_counts
+        from scaling import counts_from, markdown, scaling_table
 
         top = numba.get_num_threads()
-        counts = [int(x) for x in args.workers.split(",")] if args.workers else worker_counts(top)
+        counts = counts_from(args.workers, top)
 
         def measure(k: int) -> dict[str, float]:
             numba.set_num_threads(min(k, top))

@@ -27,8 +27,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import h5py
 
@@ -39,6 +40,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def counts_from(spec: str | None, top: int | None = None) -> list[int]:
+    """The counts a ``--workers 1,2,4`` option names, else :func:`worker_counts` up to ``top``."""
+    return [int(w) for w in spec.split(",")] if spec else worker_counts(top)
+
+
+@contextmanager
+def on_first_cores(k: int) -> Iterator[None]:
+    """This process pinned to its first ``k`` usable cores meanwhile (the threads its
+    kernels start follow the CPU affinity), then to all of them again."""
+    everyone = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, everyone[:k])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, everyone)
 
 
 def worker_counts(top: int | None = None) -> list[int]:
@@ -133,11 +151,9 @@ def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[st
     with h5py.File(features, "r") as f:
         ref, query = f["reference/features"][()], f["query/features"][()]
     vels = velocities(p.v_min, p.v_max, p.v_step)
-    everyone = sorted(os.sched_getaffinity(0))
     table: dict[str, dict[int, float]] = {}
-    try:
-        for k in cores:
-            os.sched_setaffinity(0, everyone[:k])
+    for k in cores:
+        with on_first_cores(k):
             best: dict[str, float] = {}
             for _ in range(repeat):
                 t0 = time.perf_counter()
@@ -155,8 +171,6 @@ def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[st
             # the enhancement reads D^T and writes D^ once each (float32), plus its window sums
             table.setdefault("enhancement GB/s", {})[k] = 2 * d.nbytes / best["enhancement"] / 1e9
             print(f"  {k} cores: " + ", ".join(f"{r} {t:.3f} s" for r, t in best.items()), flush=True)
-    finally:
-        os.sched_setaffinity(0, everyone)
     return table
 
 
@@ -200,7 +214,7 @@ def main() -> None:
                     help="instead: the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores")
     ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
     args = ap.parse_args()
-    workers = [int(w) for w in args.workers.split(",")] if args.workers else worker_counts()
+    workers = counts_from(args.workers)
     out = args.out or (Path(os.environ["OUT"]) / "scaling.md" if os.environ.get("OUT") else None)
     work = Path(tempfile.mkdtemp(prefix="placeloc-scaling-"))
     t0 = time.perf_counter()

@@ -104,10 +104,10 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
             for x in range(w):
                 out[i, y, x] = wide[y, x + r]
             for c in range(r):                  # stamped past the edges: fold back around the seam
-                x = (c - r) % w
+                x = (c - r) % w                 # wide column c is x = c - r
                 if wide[y, c] > out[i, y, x]:
                     out[i, y, x] = wide[y, c]
-                x = (w + r + c - r) % w
+                x = c % w                       # wide column w + r + c is x = w + c
                 if wide[y, w + r + c] > out[i, y, x]:
                     out[i, y, x] = wide[y, w + r + c]
 

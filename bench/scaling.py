@@ -4,6 +4,7 @@
     python bench/scaling.py --workers 1,2 --n 600 # a quick check
     OUT=/some/folder python bench/scaling.py      # also writes $OUT/scaling.md
     python bench/scaling.py --preset-cores        # the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores
+    python bench/scaling.py --preset              # the stage table with the Nordland preset (flexible search)
 
 Each stage (extract, localize, evaluate) runs as its own ``placeloc`` process, as a user
 runs it, with ``--set executor.workers=W``. The table shows the stage's own compute time
@@ -119,12 +120,19 @@ def _run_stage(cfg: Path, run_dir: Path, stage: str, workers: int) -> tuple[floa
         return float(f.attrs["seconds"]), wall
 
 
-def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: tuple[str, ...]) -> dict[str, dict[int, float]]:
+def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: tuple[str, ...],
+                   preset: bool = False) -> dict[str, dict[int, float]]:
+    """Each stage as its own process with ``executor.workers=W``: the benchmark settings, or
+    with ``preset`` the Nordland preset's seqslam section (``configs/nordland.yaml``)."""
+    import yaml
     from bench_seqslam import make_traverses, write_config
 
     ref_dir, q_dir = make_traverses(work / "data", n)
     cfg = write_config(work / "bench.yaml", ref_dir, q_dir)
-    cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "ground_truth": {"kind": "synchronous", "tolerance": 2}}))
+    settings = json.loads(cfg.read_text())
+    if preset:
+        settings["seqslam"] = yaml.safe_load((ROOT / "configs" / "nordland.yaml").read_text())["seqslam"]
+    cfg.write_text(json.dumps({**settings, "ground_truth": {"kind": "synchronous", "tolerance": 2}}))
 
     def measure(w: int) -> dict[str, float]:
         out = {}
@@ -210,6 +218,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--stages", default="extract,localize,evaluate")
     ap.add_argument("--no-kernels", action="store_true", help="leave out the per-kernel table over cores")
+    ap.add_argument("--preset", action="store_true",
+                    help="the stage table with the Nordland preset's seqslam section instead of the benchmark settings")
     ap.add_argument("--preset-cores", action="store_true",
                     help="instead: the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores")
     ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
@@ -230,15 +240,15 @@ def main() -> None:
                             f"`python bench/scaling.py --preset-cores --n {args.n}` took {time.perf_counter() - t0:.0f} s."))
         return
     try:
-        table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")))
-        if not args.no_kernels and hasattr(os, "sched_setaffinity"):
+        table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")), args.preset)
+        if not args.no_kernels and not args.preset and hasattr(os, "sched_setaffinity"):
             cores = [c for c in workers if c <= usable_cores()]
             kernels = kernel_scaling(work / "run" / "extract.h5", cores)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    text = markdown(table, f"SeqSLAM benchmark settings, {args.n} x {args.n}",
+    text = markdown(table, f"SeqSLAM {'Nordland preset' if args.preset else 'benchmark settings'}, {args.n} x {args.n}",
                     note=f"Best of {args.repeat} after a warm-up; `python bench/scaling.py --n {args.n} "
-                         f"--workers {','.join(map(str, workers))}` took {time.perf_counter() - t0:.0f} s.")
+                         f"--workers {','.join(map(str, workers))}{' --preset' if args.preset else ''}` took {time.perf_counter() - t0:.0f} s.")
     if kernels:
         text += "\n\n" + markdown(kernels, "localize kernels, one process", unit="core",
                                    note="This process pinned to the first k cores (sched_setaffinity); its kernel "

@@ -12,3 +12,9 @@ bench-scaling:
 bench-scaling-preset: $(STAMP)
 	$(BIN)/python bench/scaling.py --preset-cores
 	$(BIN)/python bench/bench_seqslam_full.py --scaling
+
+# Every scaling table in one go (SeqSLAM's stages with both settings, the preset pinned to
+# cores, UMap, co-embedding, PIRF), each under its own time limit; OUT=dir keeps them.
+.PHONY: bench-many-cores
+bench-many-cores: $(STAMP)
+	PYTHON=$(BIN)/python bench/many_cores.sh

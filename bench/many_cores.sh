@@ -1,18 +1,20 @@
 #!/bin/bash
 # Every scaling table in one go, for a many-core machine without network (it needs only the
 # working tree and the packages; `make bench-many-cores`):
-#   1. SeqSLAM's stages over executor.workers 1, 2, 4, ..., nproc, benchmark settings;
-#   2. the same with the Nordland preset (the flexible search);
-#   3. the preset's extract + localize pinned to 1, 2, ..., nproc cores;
-#   4. UMap's whole-panorama search over numba threads;
-#   5. co-embedding's sparse solve over cores;
-#   6. PIRF's default index over faiss threads (skipped without faiss).
+#   1. SeqSLAM's stages pinned to 1, 2, 4, ..., nproc cores, benchmark settings, and its
+#      localize kernels over the same cores (seqslam-cores);
+#   2. the same with the Nordland preset, the flexible search (preset-cores);
+#   3. SeqSLAM's stages over executor.workers 1, 2, 4, ..., nproc on every core (seqslam-workers);
+#   4. SeqSLAM's per-image work over threads, by image size (image-threads);
+#   5. UMap's whole-panorama search over numba threads (umap);
+#   6. co-embedding's sparse solve over cores (coembed);
+#   7. PIRF's default index over faiss threads (pirf; skipped without faiss).
 # Each table has its own time limit, so one that runs long costs only itself. Tables go to
 # $OUT (default runs/many-cores/) as markdown as each finishes; everything printed goes to
 # $OUT/all.log. Frames come from $PLACELOC_SHARED_DATA/nordland-dev when set (tiled with
 # noise, as on the development machines), else from the synthetic route generator.
 #   bench/many_cores.sh
-#   N=600 TABLES="seqslam-bench umap" bench/many_cores.sh   # a quick check of two tables
+#   N=600 TABLES="seqslam-cores umap" bench/many_cores.sh   # a quick check of two tables
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-.venv/bin/python}
@@ -21,7 +23,7 @@ OUT=${OUT:-runs/many-cores}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD/pipeline${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 N=${N:-3576}
-TABLES=${TABLES:-seqslam-bench seqslam-preset preset-cores umap coembed pirf}
+TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads umap coembed pirf}
 exec > >(tee -a "$OUT/all.log") 2>&1
 
 "$PY" - <<'EOF'
@@ -41,10 +43,10 @@ table() {  # name, seconds allowed, command...
     echo "== $name: exit $? $(date +%T)"
 }
 
-table seqslam-bench 160 "$PY" bench/scaling.py --n "$N" --repeat 2 --out "$OUT/seqslam-bench.md"
-table seqslam-preset 130 "$PY" bench/scaling.py --n "$N" --repeat 1 --preset --stages extract,localize,evaluate \
-    --out "$OUT/seqslam-preset.md"
-table preset-cores 100 "$PY" bench/scaling.py --n "$N" --repeat 1 --preset-cores
+table seqslam-cores 130 "$PY" bench/scaling.py --n "$N" --repeat 2 --cores --out "$OUT/seqslam-cores.md"
+table preset-cores 150 "$PY" bench/scaling.py --n "$N" --repeat 1 --cores --preset --out "$OUT/preset-cores.md"
+table seqslam-workers 100 "$PY" bench/scaling.py --n "$N" --repeat 2 --no-kernels --out "$OUT/seqslam-workers.md"
+table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
 table umap 60 "$PY" bench/bench_umap.py --panorama-only
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then

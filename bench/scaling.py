@@ -3,11 +3,15 @@
     python bench/scaling.py                       # SeqSLAM benchmark settings, 3576 x 3576, workers 1, 2, 4, ..., nproc
     python bench/scaling.py --workers 1,2 --n 600 # a quick check
     OUT=/some/folder python bench/scaling.py      # also writes $OUT/scaling.md
-    python bench/scaling.py --preset-cores        # the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores
-    python bench/scaling.py --preset              # the stage table with the Nordland preset (flexible search)
+    python bench/scaling.py --cores               # each stage pinned to 1, 2, 4, ..., nproc cores instead
+    python bench/scaling.py --preset              # the Nordland preset (flexible search) instead of the benchmark settings
+    python bench/scaling.py --preset-cores        # the preset's extract + localize pinned to 1, 2, ..., nproc cores
 
 Each stage (extract, localize, evaluate) runs as its own ``placeloc`` process, as a user
-runs it, with ``--set executor.workers=W``. The table shows the stage's own compute time
+runs it, with ``--set executor.workers=W`` (one worker is this process with threads on every
+usable core, so that table shows what more processes add), or with ``--cores`` pinned to
+the first k cores (``sched_setaffinity``, as ``taskset``), which shows how the stage scales
+with the cores it has. The table shows the stage's own compute time
 (the artifact's ``seconds``: process start-up and imports aside) and the process's wall
 time, best of ``--repeat`` after one warm-up run (which fills the compiled-kernel cache and
 the page cache), and the speed-up of each worker count over one worker. Wall-clock figures
@@ -109,21 +113,26 @@ def markdown(table: dict[str, dict[int, float]], title: str, note: str = "", uni
     return "\n".join(lines)
 
 
-def _run_stage(cfg: Path, run_dir: Path, stage: str, workers: int) -> tuple[float, float]:
-    """One stage as its own process: (the stage's own seconds, the process's wall seconds)."""
+def _run_stage(cfg: Path, run_dir: Path, stage: str, count: int, pin: bool) -> tuple[float, float]:
+    """One stage as its own process: (the stage's own seconds, the process's wall seconds).
+    ``pin``: the process pinned to the first ``count`` usable cores (as ``taskset -c
+    0..count-1``) with the default workers; else ``executor.workers=count`` on every core."""
+    everyone = sorted(os.sched_getaffinity(0)) if pin else []
+    extra = [] if pin else ["--set", f"executor.workers={count}"]
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(run_dir), "-q", "-f",
-                    "--set", f"executor.workers={workers}"], check=True, capture_output=True, text=True,
-                   env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")})
+    subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(run_dir), "-q", "-f", *extra],
+                   check=True, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")},
+                   preexec_fn=(lambda: os.sched_setaffinity(0, everyone[:count])) if pin else None)
     wall = time.perf_counter() - t0
     with h5py.File(run_dir / f"{stage}.h5", "r") as f:
         return float(f.attrs["seconds"]), wall
 
 
-def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: tuple[str, ...],
-                   preset: bool = False) -> dict[str, dict[int, float]]:
-    """Each stage as its own process with ``executor.workers=W``: the benchmark settings, or
-    with ``preset`` the Nordland preset's seqslam section (``configs/nordland.yaml``)."""
+def seqslam_stages(n: int, counts: list[int], repeat: int, work: Path, stages: tuple[str, ...],
+                   preset: bool = False, pin: bool = False) -> dict[str, dict[int, float]]:
+    """Each stage as its own process, over ``executor.workers`` (or, with ``pin``, over the
+    cores it is pinned to): the benchmark settings, or with ``preset`` the Nordland preset's
+    seqslam section (``configs/nordland.yaml``, the flexible search)."""
     import yaml
     from bench_seqslam import make_traverses, write_config
 
@@ -134,14 +143,17 @@ def seqslam_stages(n: int, workers: list[int], repeat: int, work: Path, stages: 
         settings["seqslam"] = yaml.safe_load((ROOT / "configs" / "nordland.yaml").read_text())["seqslam"]
     cfg.write_text(json.dumps({**settings, "ground_truth": {"kind": "synchronous", "tolerance": 2}}))
 
-    def measure(w: int) -> dict[str, float]:
+    def measure(k: int) -> dict[str, float]:
         out = {}
         for stage in stages:
-            own, wall = _run_stage(cfg, work / "run", stage, w)
+            own, wall = _run_stage(cfg, work / "run", stage, k, pin)
             out[f"{stage} (stage)"], out[f"{stage} (process)"] = own, wall
+        if "extract" in stages and "localize" in stages:
+            out["extract + localize (stage)"] = out["extract (stage)"] + out["localize (stage)"]
+            out["extract + localize (process)"] = out["extract (process)"] + out["localize (process)"]
         return out
 
-    return scaling_table(measure, workers, repeat)
+    return scaling_table(measure, counts, repeat)
 
 
 def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[str, dict[int, float]]:
@@ -182,35 +194,6 @@ def kernel_scaling(features: Path, cores: list[int], repeat: int = 2) -> dict[st
     return table
 
 
-def preset_cores(n: int, cores: list[int], repeat: int, work: Path) -> dict[str, dict[int, float]]:
-    """The Nordland preset (``configs/nordland.yaml``'s seqslam section, the flexible search)
-    on the benchmark's 3576 + 3576 frames: ``placeloc extract`` and ``placeloc localize``,
-    each its own process pinned to the first k usable cores (as ``taskset -c 0..k-1``), wall
-    seconds, best of ``repeat`` after a warm-up (which fills the compiled-kernel caches)."""
-    import yaml
-    from bench_seqslam import make_traverses
-
-    ref_dir, q_dir = make_traverses(work / "data", n)
-    preset = yaml.safe_load((ROOT / "configs" / "nordland.yaml").read_text())
-    cfg = work / "preset.yaml"
-    cfg.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref_dir)}, "query": {"images": str(q_dir)},
-                               "plots": False, "seqslam": preset["seqslam"]}))
-    everyone = sorted(os.sched_getaffinity(0))
-
-    def measure(k: int) -> dict[str, float]:
-        out: dict[str, float] = {}
-        for stage in ("extract", "localize"):
-            t0 = time.perf_counter()
-            subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(work / "run"), "-q", "-f"],
-                           check=True, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")},
-                           preexec_fn=lambda: os.sched_setaffinity(0, everyone[:k]))
-            out[f"{stage} (process)"] = time.perf_counter() - t0
-        out["extract + localize"] = out["extract (process)"] + out["localize (process)"]
-        return out
-
-    return scaling_table(measure, cores, repeat)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
@@ -219,36 +202,34 @@ def main() -> None:
     ap.add_argument("--stages", default="extract,localize,evaluate")
     ap.add_argument("--no-kernels", action="store_true", help="leave out the per-kernel table over cores")
     ap.add_argument("--preset", action="store_true",
-                    help="the stage table with the Nordland preset's seqslam section instead of the benchmark settings")
-    ap.add_argument("--preset-cores", action="store_true",
-                    help="instead: the Nordland preset's extract + localize pinned to 1, 2, ..., nproc cores")
+                    help="the Nordland preset's seqslam section (the flexible search) instead of the benchmark settings")
+    ap.add_argument("--cores", action="store_true",
+                    help="each stage's process pinned to 1, 2, 4, ..., nproc cores (default workers) instead of over workers")
+    ap.add_argument("--preset-cores", action="store_true", help="short for --preset --cores --stages extract,localize")
     ap.add_argument("--out", type=Path, default=None, help="markdown file (default $OUT/scaling.md when OUT is set)")
     args = ap.parse_args()
-    workers = counts_from(args.workers)
+    if args.preset_cores:
+        args.preset, args.cores, args.stages = True, True, "extract,localize"
+    counts = counts_from(args.workers)
+    if args.cores:
+        counts = [c for c in counts if c <= usable_cores()]
     out = args.out or (Path(os.environ["OUT"]) / "scaling.md" if os.environ.get("OUT") else None)
     work = Path(tempfile.mkdtemp(prefix="placeloc-scaling-"))
     t0 = time.perf_counter()
     kernels = None
-    if args.preset_cores:
-        cores = [c for c in (workers if args.workers else worker_counts()) if c <= usable_cores()]
-        try:
-            table = preset_cores(args.n, cores, args.repeat, work)
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
-        print(markdown(table, f"Nordland preset, {args.n} x {args.n}", unit="core",
-                       note=f"Each process pinned to the first k cores; best of {args.repeat} after a warm-up; "
-                            f"`python bench/scaling.py --preset-cores --n {args.n}` took {time.perf_counter() - t0:.0f} s."))
-        return
     try:
-        table = seqslam_stages(args.n, workers, args.repeat, work, tuple(args.stages.split(",")), args.preset)
+        table = seqslam_stages(args.n, counts, args.repeat, work, tuple(args.stages.split(",")), args.preset, args.cores)
         if not args.no_kernels and not args.preset and hasattr(os, "sched_setaffinity"):
-            cores = [c for c in workers if c <= usable_cores()]
-            kernels = kernel_scaling(work / "run" / "extract.h5", cores)
+            kernels = kernel_scaling(work / "run" / "extract.h5", [c for c in counts if c <= usable_cores()])
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    command = (f"`python bench/scaling.py --n {args.n} --workers {','.join(map(str, counts))} --repeat {args.repeat} "
+               f"--stages {args.stages}{' --preset' if args.preset else ''}{' --cores' if args.cores else ''}`")
+    how = ("Each stage's process pinned to the first k cores (its threads follow), default workers"
+           if args.cores else "Each stage's process with executor.workers = k, on every core")
     text = markdown(table, f"SeqSLAM {'Nordland preset' if args.preset else 'benchmark settings'}, {args.n} x {args.n}",
-                    note=f"Best of {args.repeat} after a warm-up; `python bench/scaling.py --n {args.n} "
-                         f"--workers {','.join(map(str, workers))}{' --preset' if args.preset else ''}` took {time.perf_counter() - t0:.0f} s.")
+                    unit="core" if args.cores else "worker",
+                    note=f"{how}; best of {args.repeat} after a warm-up; {command} took {time.perf_counter() - t0:.0f} s.")
     if kernels:
         text += "\n\n" + markdown(kernels, "localize kernels, one process", unit="core",
                                    note="This process pinned to the first k cores (sched_setaffinity); its kernel "

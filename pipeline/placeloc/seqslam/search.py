@@ -68,49 +68,73 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
+# Bytes of float32 a chunk of rows holds: the straight search's running sums over a chunk
+# then stay in a core's L2 cache while the window's rows stream past. At 3576 references
+# (27 rows) the search took 0.16-0.18 s on one core against 0.36-0.40 s with 2 MB chunks (146
+# rows), and 16 threads get 130 chunks to share instead of 25.
+ROW_CHUNK_BYTES = 384 << 10
+
+
 def row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
-    """Split rows into chunks of about 2 MB of float32 (a core's cache) for the threads."""
-    step = int(np.clip((2 << 20) // max(1, 4 * n_cols), 4 if n_cols > (1 << 17) else 16, 512))
+    """Split rows into chunks of about :data:`ROW_CHUNK_BYTES` of float32 for the threads
+    (4 to 512 rows)."""
+    step = int(np.clip(ROW_CHUNK_BYTES // max(1, 4 * n_cols), 4, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
 
 
-def _window_sums(c: np.ndarray, window: int) -> np.ndarray:
-    """``c[:, min(nr, r + R + 1)] - c[:, max(0, r - R)]`` for every column ``r`` of running
-    sums ``c`` (with a leading zero column): slices inside, the clipped ends apart."""
+# Rows per pass of the enhancement: its five float64 buffers of this many rows stay in a
+# core's L2 cache (3576 references: 16 x 3577 x 8 B = 0.46 MB each) and are allocated once
+# per thread. Fresh temporaries per chunk of rows cost a page fault every 4 KB, which the
+# cores take one at a time: on 16 cores the enhancement ran 2x faster than on one.
+ENHANCE_ROWS = 16
+
+
+def _window_sums_into(c: np.ndarray, window: int, ends: np.ndarray, out: np.ndarray) -> None:
+    """``out[:, r] = c[:, min(nr, r + R + 1)] - c[:, max(0, r - R)]`` for every column ``r``
+    of running sums ``c`` (with a leading zero column): slices inside, the clipped ends
+    (``ends``) apart."""
     nr = c.shape[1] - 1
-    out = np.empty((c.shape[0], nr))
-    r = np.arange(nr)
-    ends = np.flatnonzero((r < window) | (r >= nr - window))
     if nr > 2 * window:
         np.subtract(c[:, 2 * window + 1:], c[:, :nr - 2 * window], out=out[:, window:nr - window])
     out[:, ends] = c[:, np.minimum(nr, ends + window + 1)] - c[:, np.maximum(0, ends - window)]
-    return out
 
 
 def _enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
-    """Eq. (1) along each row of ``dt`` (float64 running sums, as the z-score needs)."""
+    """Eq. (1) along each row of ``dt`` (float64 running sums, as the z-score needs),
+    :data:`ENHANCE_ROWS` rows at a time in buffers allocated once."""
     n, nr = dt.shape
-    x = dt.astype(np.float64)
-    c = np.zeros((n, nr + 1))
-    np.cumsum(x, axis=1, out=c[:, 1:])
-    mean = _window_sums(c, window)
-    np.multiply(x, x, out=c[:, 1:])
-    np.cumsum(c[:, 1:], axis=1, out=c[:, 1:])
-    var = _window_sums(c, window)
+    rows = min(ENHANCE_ROWS, n)
+    x, mean, var, square = (np.empty((rows, nr)) for _ in range(4))
+    c = np.zeros((rows, nr + 1))
+    flat = np.empty((rows, nr), bool)
     r = np.arange(nr)
+    ends = np.flatnonzero((r < window) | (r >= nr - window))
     count = (np.minimum(nr, r + window + 1) - np.maximum(0, r - window)).astype(np.float64)
-    mean /= count
-    var /= count
-    var -= mean * mean
-    # sd = sqrt(var) where var > 1e-12, else the z-score is 0
-    flat = ~(var > 1e-12)
-    var[flat] = 1.0
-    np.sqrt(var, out=var)
-    x -= mean
-    x /= var
-    x[flat] = 0.0
-    x += shift
-    out[:] = x
+    for i in range(0, n, rows):
+        m = min(rows, n - i)
+        xi, ci, mi, vi, si, fi = x[:m], c[:m], mean[:m], var[:m], square[:m], flat[:m]
+        np.copyto(xi, dt[i:i + m])
+        np.cumsum(xi, axis=1, out=ci[:, 1:])
+        _window_sums_into(ci, window, ends, mi)
+        # squares into their own buffer: a cumulative sum in place (input and output
+        # overlapping) makes NumPy copy first, holding the GIL
+        np.multiply(xi, xi, out=si)
+        np.cumsum(si, axis=1, out=ci[:, 1:])
+        _window_sums_into(ci, window, ends, vi)
+        mi /= count
+        vi /= count
+        np.multiply(mi, mi, out=si)
+        vi -= si
+        # sd = sqrt(var) where var > 1e-12, else the z-score is 0
+        np.greater(vi, 1e-12, out=fi)
+        np.logical_not(fi, out=fi)
+        np.copyto(vi, 1.0, where=fi)
+        np.sqrt(vi, out=vi)
+        xi -= mi
+        xi /= vi
+        np.copyto(xi, 0.0, where=fi)
+        xi += shift
+        out[i:i + m] = xi
 
 
 def _enhance_into(dt: np.ndarray, window: int, out: np.ndarray) -> None:

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from placeloc.seqslam.l1 import run_threaded
+from placeloc.seqslam.l1 import n_threads, run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 from placeloc.seqslam.params import SeqSLAMParams
 
@@ -68,24 +68,32 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
-# Bytes of float32 a chunk of rows holds: the straight search's running sums over a chunk
-# then stay in a core's L2 cache while the window's rows stream past. At 3576 references
-# (27 rows) the search took 0.16-0.18 s on one core against 0.36-0.40 s with 2 MB chunks (146
-# rows), and 16 threads get 130 chunks to share instead of 25.
+# Bytes of float32 a chunk of rows holds, per thread that shares the GIL. The NumPy kernels
+# (the straight search, the enhancement, the ranking) hold the GIL for each call's dispatch,
+# and threads that queue for it wake one another through the OS: per call the work must
+# grow with the threads. Small chunks keep the straight search's running sums in L2: on one
+# core at 3576 references 0.16-0.18 s with 384 KB chunks (27 rows) against 0.36-0.40 s with 2
+# MB; on 16 cores 384 KB chunks made the same search 0.25 s against 0.11 s with 2 MB (one
+# H100 host, `python bench/scaling.py --cores`). So: 384 KB for up to 2 threads, growing
+# with the threads to 2 MB.
 ROW_CHUNK_BYTES = 384 << 10
+ROW_CHUNK_BYTES_MAX = 2 << 20
 
 
-def row_chunks(n_rows: int, n_cols: int) -> list[tuple[int, int]]:
-    """Split rows into chunks of about :data:`ROW_CHUNK_BYTES` of float32 for the threads
+def row_chunks(n_rows: int, n_cols: int, threads: int | None = None) -> list[tuple[int, int]]:
+    """Split rows into chunks for ``threads`` threads (None: one per usable core) of about
+    :data:`ROW_CHUNK_BYTES` of float32 per two threads, at most :data:`ROW_CHUNK_BYTES_MAX`
     (4 to 512 rows)."""
-    step = int(np.clip(ROW_CHUNK_BYTES // max(1, 4 * n_cols), 4, 512))
+    threads = threads or n_threads()
+    per_chunk = min(ROW_CHUNK_BYTES_MAX, ROW_CHUNK_BYTES * max(1, threads // 2))
+    step = int(np.clip(per_chunk // max(1, 4 * n_cols), 4, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
 
 
 # Rows per pass of the enhancement: its five float64 buffers of this many rows stay in a
 # core's L2 cache (3576 references: 16 x 3577 x 8 B = 0.46 MB each) and are allocated once
-# per thread. Fresh temporaries per chunk of rows cost a page fault every 4 KB, which the
-# cores take one at a time: on 16 cores the enhancement ran 2x faster than on one.
+# per chunk. Fresh temporaries of a whole chunk per step cost a page fault every 4 KB: at
+# 3576 x 3576 on one core of an H100 host 0.47 s before, 0.24 s now.
 ENHANCE_ROWS = 16
 
 

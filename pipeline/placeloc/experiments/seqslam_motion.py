@@ -152,15 +152,13 @@ def preset() -> dict[str, Any]:
     return {**dataclasses.asdict(SeqSLAMParams()), **section}
 
 
-def part(lo: int, hi: int) -> dict[str, np.ndarray]:
-    """Features of nordland-dev frames lo..hi-1 (summer, winter) and the enhanced
-    differences ``E[winter frame, summer frame]``; for ``collapse_stops``, the summer
-    frames kept (:func:`placeloc.seqslam.matching.standing_runs`) and the differences to
-    them alone, enhanced (as ``localize`` enhances them: over the kept references)."""
+def part(lo: int, hi: int) -> dict[str, Any]:
+    """Features of nordland-dev frames lo..hi-1 (summer, winter), the differences
+    ``D[summer frame, winter frame]`` and their enhancement, query-major
+    (``E[winter frame, summer frame]``), and the soft ground truth."""
     from placeloc.core.images import list_images
     from placeloc.seqslam.comparisons import difference_block
     from placeloc.seqslam.features import image_features
-    from placeloc.seqslam.matching import standing_runs
     from placeloc.seqslam.search import enhance
 
     p = preset()
@@ -172,37 +170,57 @@ def part(lo: int, hi: int) -> dict[str, np.ndarray]:
             paths, on_error="raise", thumbnail_size=tuple(p["thumbnail"]), comparison=p["comparison"], patch=p["patch"],
             normalisation=p["normalisation"], gaussian_sigma=p["gaussian_sigma"], ocm_epsilon=p["ocm_epsilon"])
     d = difference_block(feats["summer"], feats["winter"], p["comparison"])
-    ref_first = standing_runs(feats["summer"], p["comparison"])[0]
-    return {"enhanced": np.ascontiguousarray(enhance(d, int(p["enhance_window"])).T),
-            "enhanced_kept": np.ascontiguousarray(enhance(d[ref_first], int(p["enhance_window"])).T),
-            "reference_kept": ref_first, "truth": shared_stops(feats["summer"], feats["winter"]),
-            "query_features": feats["winter"]}
+    return {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, int(p["enhance_window"])).T),
+            "truth": shared_stops(feats["summer"], feats["winter"]), "query_features": feats["winter"],
+            "reference_features": feats["summer"]}
 
 
-def search(data: dict[str, np.ndarray], pos: np.ndarray, setting: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+def kept_reference(data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """For ``collapse_stops``: the summer frames kept (:func:`placeloc.seqslam.matching.standing_runs`)
+    and the differences to them alone, enhanced as ``localize`` enhances them (over the
+    kept references), query-major; computed once."""
+    from placeloc.seqslam.matching import standing_runs
+    from placeloc.seqslam.search import enhance
+
+    key = "kept_reference"
+    if key not in data:
+        p = preset()
+        ref_first = standing_runs(data["reference_features"], p["comparison"])[0]
+        data[key] = (ref_first, np.ascontiguousarray(enhance(data["difference"][ref_first], int(p["enhance_window"])).T))
+    return data[key]
+
+
+def search(data: dict[str, Any], pos: np.ndarray, setting: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """Best reference and confidence per query of the resampled query ``pos``, with the
     preset's settings overridden by ``setting`` (``v_auto``, ``collapse_stops`` and
-    ``backward_paths`` as ``localize`` applies them)."""
-    from placeloc.seqslam.matching import search_velocities, standing_runs
+    ``backward_paths`` as ``localize`` applies them: the search over every frame, then
+    the collapsed search and :func:`placeloc.seqslam.matching.stop_answers`)."""
+    from placeloc.seqslam.matching import search_velocities, standing_runs, stop_answers
     from placeloc.seqslam.search import confidence, sequence_search
 
     p = {**preset(), **setting}
-    n = len(pos)
-    first, run_of = (standing_runs(data["query_features"][pos], p["comparison"]) if p["collapse_stops"]
-                     else (np.arange(n), np.arange(n)))
-    et = np.ascontiguousarray(data["enhanced_kept" if p["collapse_stops"] else "enhanced"][pos[first]])
-    vels = search_velocities(p["v_min"], p["v_max"], p["v_step"], p["v_auto"], et.shape[1], len(first), p["v_reverse"])
-    best, scores = sequence_search(et, 0, len(first), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
-                                   int(p["top_k"]), None, 0, shape=p["sequence_shape"], edges=p["edges"],
-                                   speed_change_cost=p["speed_change_cost"], stop_cost=p["stop_cost"],
-                                   reverse_cost=p["reverse_cost"], backward_paths=p["backward_paths"])
-    best = best[run_of, 0]
+
+    def run(et: np.ndarray, n_ref: int, backward: bool) -> tuple[np.ndarray, np.ndarray]:
+        vels = search_velocities(p["v_min"], p["v_max"], p["v_step"], p["v_auto"], n_ref, len(et), p["v_reverse"])
+        best, scores = sequence_search(et, 0, len(et), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
+                                       int(p["top_k"]), None, 0, shape=p["sequence_shape"], edges=p["edges"],
+                                       speed_change_cost=p["speed_change_cost"], stop_cost=p["stop_cost"],
+                                       reverse_cost=p["reverse_cost"], backward_paths=backward)
+        return best[:, 0], confidence(scores)
+
+    et = np.ascontiguousarray(data["enhanced"][pos])
+    best, conf = run(et, et.shape[1], bool(p["backward_paths"]))
     if p["collapse_stops"]:
-        best = np.where(best >= 0, data["reference_kept"][np.maximum(best, 0)], -1)
-    return best, confidence(scores)[run_of]
+        first, run_of = standing_runs(data["query_features"][pos], p["comparison"])
+        ref_first, enhanced_kept = kept_reference(data)
+        kept_best, kept_conf = run(np.ascontiguousarray(enhanced_kept[pos[first]]), len(ref_first), False)
+        stop_best = np.where(kept_best >= 0, ref_first[np.maximum(kept_best, 0)], -1)[run_of]
+        take = stop_answers(best, stop_best, first, run_of)
+        best, conf = np.where(take, stop_best, best), np.where(take, kept_conf[run_of], conf)
+    return best, conf
 
 
-def score(data: dict[str, np.ndarray], pos: np.ndarray, inside: np.ndarray, best: np.ndarray,
+def score(data: dict[str, Any], pos: np.ndarray, inside: np.ndarray, best: np.ndarray,
           conf: np.ndarray) -> dict[str, float]:
     """R@1 (soft ground truth), recall at 100 % precision, and R@1 inside the motion."""
     lo, hi = data["truth"][pos, 0] - TOLERANCE, data["truth"][pos, 1] + TOLERANCE
@@ -211,7 +229,7 @@ def score(data: dict[str, np.ndarray], pos: np.ndarray, inside: np.ndarray, best
             "recall_at_1_inside": float(ok[inside].mean()), "recall_at_1_exact_truth": float((np.abs(best - pos) <= TOLERANCE).mean())}
 
 
-def run_setting(data: dict[str, np.ndarray], n_frames: int, setting: dict[str, Any], seeds: tuple[int, ...],
+def run_setting(data: dict[str, Any], n_frames: int, setting: dict[str, Any], seeds: tuple[int, ...],
                 families: tuple[str, ...] = FAMILIES, quiet: bool = True) -> dict[str, list[dict[str, float]]]:
     """Every family (one profile for steady, one per seed otherwise) -> its scores per seed."""
     out: dict[str, list[dict[str, float]]] = {}

@@ -22,8 +22,8 @@ Every figure is also given inside the motion's own stretch (``*_inside``).
 The search runs on the enhanced difference matrix of the part (columns in the query's
 order are exactly what ``localize`` searches, enhancement being per query column), with
 the preset's settings and ``v_auto`` applied as ``localize`` applies it.
-Costs are chosen on frames 1-600 (``tune``, seeds 0-2: nine settings, about 15 minutes under load) and reported on 601-1200 (seeds
-100-104); ``--quick`` (CI) runs the preset on frames 601-1050 with two seeds: 450 frames, so
+Costs are chosen on frames 1-600 (``tune``, seeds 0-2: twelve settings, about a minute on
+2 cores) and reported on 601-1200 (seeds 100-104); ``--quick`` (CI) runs the preset on frames 601-1050 with two seeds: 450 frames, so
 that a query 3x faster than the reference (150 frames) still holds a 121-frame window.
 """
 
@@ -259,9 +259,10 @@ def tune_grid() -> list[dict[str, Any]]:
     """The path models compared on the tuning part (all flexible, ds 120, v_step 0.1,
     ``v_auto``): moving only over the old speeds (0.5-2.0) and over crawls to bursts
     (0.3-4.0); the latter allowed to back out (to -1.0) at two costs of driving
-    backwards; the whole model, standing still too (v_min 0); and 0.3-4.0 with standing
-    runs collapsed (``collapse_stops``), with a family of paths driven backwards
-    throughout (``backward_paths``) at three costs, and with both."""
+    backwards; the whole model, standing still too (v_min 0); and 0.3-4.0 with the frames
+    of the query's standing runs answered by a search over both traverses' runs collapsed
+    (``collapse_stops``), with a family of paths driven backwards throughout
+    (``backward_paths``) at three costs, and with both."""
     grid: list[dict[str, Any]] = [{"v_min": 0.5, "v_max": 2.0}, {"v_min": 0.3, "v_max": 4.0}]
     grid += [{"v_min": 0.3, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": r} for r in (0.0, 0.25)]
     grid += [{"v_min": 0.0, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": 0.0}]
@@ -342,22 +343,22 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
 
 
 def report_settings() -> dict[str, dict[str, Any]]:
-    """The preset as shipped; the preset with ``collapse_stops``, ``backward_paths`` (at
-    the tuning's best ``reverse_cost``, 0) and both; the flexible preset it replaced; straight
+    """The preset as shipped (``collapse_stops`` and ``backward_paths`` at
+    ``reverse_cost`` 0, chosen by the tuning); the preset without each switch and without
+    both (the path alone, the previous preset); the flexible preset before that; straight
     lines over the preset's own speeds and window (what ``sequence_shape: trajectory``
     gives); and the whole path model (standing still and backing out too) that tuning
     turned down."""
+    off = {"collapse_stops": False, "backward_paths": False}
     return {
-        "preset (configs/nordland.yaml)": {},
-        "preset + collapse_stops": {"collapse_stops": True},
-        "preset + backward_paths (reverse_cost 0)": {"backward_paths": True, "reverse_cost": 0.0},
-        "preset + collapse_stops + backward_paths (reverse_cost 0)": {"collapse_stops": True, "backward_paths": True,
-                                                                     "reverse_cost": 0.0},
-        "previous preset: flexible, v 0.5-2.0, no v_auto": {"v_min": 0.5, "v_max": 2.0, "v_auto": False,
-                                                            "collapse_stops": False, "backward_paths": False},
-        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", "backward_paths": False},
-        "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0)": {
-            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0, "backward_paths": False},
+        "preset (configs/nordland.yaml): flexible 0.3x-4.0x, v_auto, collapse_stops, backward_paths": {},
+        "preset without collapse_stops": {"collapse_stops": False},
+        "preset without backward_paths": {"backward_paths": False},
+        "preset without either switch (the previous preset)": off,
+        "flexible, v 0.5-2.0, no v_auto, no switches": {"v_min": 0.5, "v_max": 2.0, "v_auto": False, **off},
+        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", **off},
+        "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0), no switches": {
+            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0, **off},
     }
 
 

@@ -400,3 +400,31 @@ def test_the_config_refuses_what_the_search_cannot_do(tmp_path, seqslam, query, 
         config["query"] = {"images": str(tmp_path / "imgs")}
     with pytest.raises(ConfigError, match=message):
         load_config(data=config)
+
+
+def test_the_experiment_searches_as_localize_does():
+    # seqslam_motion.search (on a precomputed enhanced matrix) and sequence_match (what
+    # localize runs) give the same matches and confidences with both switches on: a stop
+    # only the query makes, a station both make, and a stretch driven backwards
+    from placeloc.experiments.seqslam_motion import search
+    from placeloc.seqslam.comparisons import difference_block
+    from placeloc.seqslam.search import enhance
+
+    places = np.concatenate([np.arange(10, 80), np.full(25, 80), np.arange(81, 100), np.full(20, 100),
+                             np.arange(121, 180), np.arange(179, 149, -1), np.arange(150, 230)])
+    ref, query = _standing_route(240, places, seed=20, ref_stands=(100, 120))
+    # the part's data as seqslam_motion.part makes it (enhanced with the window of
+    # configs/nordland.yaml, 10, which the kept references' enhancement takes from there
+    # too); the query's own frames stand for the part's winter frames, each shown once
+    d = difference_block(ref, query, "sad")
+    data = {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, 10).T), "reference_features": ref,
+            "query_features": query}
+    pos = np.arange(len(query))
+    setting = dict(comparison="sad", enhance_window=10, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+                   search="centred", sequence_shape="flexible", edges="shift", top_k=2, v_reverse=0.0,
+                   speed_change_cost=1.0, stop_cost=2.0, reverse_cost=0.0, collapse_stops=True, backward_paths=True)
+    best, conf = search(data, pos, setting)
+    m = sequence_match(ref, query, exclude_recent=None, block_size=64, **setting)
+    np.testing.assert_array_equal(best, m.candidates[:, 0])
+    np.testing.assert_allclose(conf, m.confidence)
+    assert (np.abs(best - places) <= 1).mean() > 0.9

@@ -310,7 +310,8 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
         r = run_setting(data, n, setting, seeds, quiet=True)
         motion = [x["recall_at_1"] for fam in FAMILIES[1:] for x in r[fam]]
         row = {**setting, "steady": r["steady"][0]["recall_at_1"],
-               "steady_r100p": r["steady"][0]["recall_at_100_precision"], "worst": min(motion),
+               "steady_r100p": r["steady"][0]["recall_at_100_precision"],
+               "steady_exact": r["steady"][0]["recall_at_1_exact_truth"], "worst": min(motion),
                "median": float(np.median([np.median([x["recall_at_1"] for x in r[f]]) for f in FAMILIES[1:]]))}
         row.update({f"{fam}_median": float(np.median([x["recall_at_1"] for x in r[fam]])) for fam in FAMILIES})
         row.update({f"{fam}_inside": float(np.median([x["recall_at_1_inside"] for x in r[fam]])) for fam in MOTIONS})
@@ -323,13 +324,14 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
             print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
     chosen = choose(rows)
     lines = [f"R@1 median over seeds {', '.join(map(str, seeds))} (inside the motion in brackets)\n",
-             "| v | collapse_stops | backward_paths | reverse_cost | steady (R@100P) | worst seed | "
-             + " | ".join(FAMILIES[1:]) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
+             "| v | collapse_stops | backward_paths | reverse_cost | steady (R@100P) | steady, exact +-2 truth | "
+             "worst seed | " + " | ".join(FAMILIES[1:]) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
     for r in rows:
         lines.append(f"| {r['v_min']:g}..{r['v_max']:g}, back to -{r['v_reverse']:g} | {_yes(r['collapse_stops'])} | "
                      f"{_yes(r['backward_paths'])} | {r['reverse_cost']:g} | "
-                     f"{r['steady']:.3f} ({r.get('steady_r100p', float('nan')):.3f}) | {r['worst']:.3f} | "
+                     f"{r['steady']:.3f} ({r.get('steady_r100p', float('nan')):.3f}) | "
+                     f"{r.get('steady_exact', float('nan')):.3f} | {r['worst']:.3f} | "
                      + " | ".join(f"{r[f + '_median']:.3f}" + (f" ({r[f + '_inside']:.3f})" if f in MOTIONS else "")
                                   for f in FAMILIES[1:]) + " |")
     lines.append(f"\nchosen (rule in `choose`): v {chosen['v_min']:g}..{chosen['v_max']:g}, v_reverse "

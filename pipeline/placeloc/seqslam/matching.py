@@ -247,11 +247,10 @@ def sequence_match(
     a run repeats take that answer where :func:`stop_answers` finds it between the first
     search's answers around the run. The repeated frames of a stop carry no new evidence
     of place; without them the sequence on either side of a query's stop is one window.
-    Both searches run whole (the second over the kept frames that windows around a run
-    read). ``exclude_recent`` is for
-    loop closure (``query is ref``): references within that many frames before the query
-    are ignored; ``None`` otherwise (and ``collapse_stops`` must then be off: the
-    exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
+    The second search computes its own differences, for the kept frames the runs' windows
+    read. ``exclude_recent`` is for loop closure (``query is ref``): references within
+    that many frames before the query are ignored; ``None`` otherwise (and
+    ``collapse_stops`` must then be off: the exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
     (default: in this process); ``on_difference(c0, c1, d)`` gets the raw difference
     columns of queries ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, e)`` their
     enhanced rows, query-major. ``plain_k`` > 0 also ranks the ``plain_k`` best references
@@ -323,13 +322,13 @@ def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run
                       plain_k: int = 0) -> SequenceMatches:
     """The search of ``collapse_stops``: the query's kept frames ``first`` (``run_of`` from
     :func:`standing_runs`) against the reference's kept frames (its own standing runs),
-    speeds scaled by the collapsed lengths with ``v_auto``. Only
-    the kept frames that stand for others are searched, each with the kept frames its
-    window reads, in groups of at most ``block_size``; every query frame gets its kept
+    speeds scaled by the collapsed lengths with ``v_auto``. Only the kept frames that
+    stand for others are searched, each with the kept frames its window reads, in groups
+    spanning fewer than ``block_size`` kept frames; every query frame gets its kept
     frame's answer (original reference frames; -1 and no confidence for frames of no
-    standing run). Forward paths only: a vehicle that stands does not back out meanwhile,
-    and a query backing out through a stretch that looks still is left to the full
-    search (:func:`stop_answers`)."""
+    standing run). Without ``backward_paths``: a vehicle that stands does not back out
+    meanwhile, and a query backing out through a stretch that looks still is left to the
+    full search (:func:`stop_answers`)."""
     n_q, n_kept = len(query), len(first)
     ref_first = standing_runs(ref, comparison)[0]
     ref_kept = np.ascontiguousarray(ref[ref_first])

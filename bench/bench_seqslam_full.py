@@ -9,7 +9,8 @@ Each traverse is ``--frames`` feature rows: nordland-dev's summer and winter thu
 rows. localize's numerics (``sequence_match``: difference matrix block by block with the
 SAD kernel, enhancement, sequence search, confidence) run in this process with the
 settings of ``configs/nordland.yaml``; ``trajectory`` is the same with
-``sequence_shape: trajectory``, that is straight lines over the same speeds and the same
+``sequence_shape: trajectory`` and the preset's switches (``collapse_stops``,
+``backward_paths``) off, that is straight lines over the same speeds and the same
 window. Shapes alternate (preset, trajectory, preset, trajectory) so both see the same
 load; the ratio of the medians is printed. Extraction (decoding images, thumbnails) is
 not in these figures: ``bench/bench_seqslam.py --large`` measures it (about 20 s at
@@ -72,8 +73,8 @@ def localize(ref: np.ndarray, query: np.ndarray, shape: str | None) -> tuple[flo
     """Wall and CPU seconds of localize's numerics with the preset (``shape`` overriding
     its sequence shape), and the best match per query."""
     p = preset()
-    if shape is not None:
-        p["sequence_shape"] = shape
+    if shape is not None:  # the search alone, as `sequence_shape: trajectory` with the preset's switches off
+        p.update(sequence_shape=shape, collapse_stops=False, backward_paths=False)
     # every setting of the preset that localize's numerics take (a switch the preset turns on included)
     takes = inspect.signature(sequence_match).parameters
     kw = {k: v for k, v in p.items() if k in takes and k not in ("ref", "query", "comparison", "exclude_recent")}

@@ -4,9 +4,10 @@
 
 localize's numerics (``sequence_match``) with the settings of ``configs/nordland.yaml`` on
 the rows of ``bench_seqslam_full.features`` (nordland-dev's features tiled with noise to
-``--frames`` + ``--frames``), four ways, alternating so that all see the same load:
-straight trajectories over the preset's speeds and window, the preset, the preset with
-``backward_paths`` (``reverse_cost`` 0) and the preset with ``collapse_stops``. Prints
+``--frames`` + ``--frames``), five ways, alternating so that all see the same load:
+straight trajectories over the preset's speeds and window (switches off), the preset
+without its two switches, without ``collapse_stops``, without ``backward_paths``, and as
+shipped (both on, ``reverse_cost`` 0). Prints
 wall and CPU seconds of each run, the medians and their ratios to straight trajectories
 measured in the same run, and the load average before and after.
 """
@@ -32,10 +33,12 @@ from placeloc.seqslam.matching import sequence_match  # noqa: E402
 
 KEYS = ("enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto", "search", "sequence_shape", "edges", "top_k",
         "block_size", "speed_change_cost", "stop_cost", "reverse_cost", "collapse_stops", "backward_paths")
-SETTINGS = {"straight trajectories": {"sequence_shape": "trajectory", "backward_paths": False},
-            "preset": {},
-            "preset + backward_paths": {"backward_paths": True, "reverse_cost": 0.0},
-            "preset + collapse_stops": {"collapse_stops": True}}
+OFF = {"collapse_stops": False, "backward_paths": False}
+SETTINGS = {"straight trajectories": {"sequence_shape": "trajectory", **OFF},
+            "preset without the switches": OFF,
+            "preset without collapse_stops": {"collapse_stops": False},
+            "preset without backward_paths": {"backward_paths": False},
+            "preset": {}}
 
 
 def main() -> None:

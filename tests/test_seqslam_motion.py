@@ -232,37 +232,92 @@ def test_standing_runs_collapse_stops_and_never_a_slow_drift():
     assert len(first) >= 30 + 40 // 11 + 29  # cut whenever it drifts past the threshold (~21 levels)
 
 
+STANDING = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+                search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
+                block_size=1024)
+
+
 def test_collapsed_stop_is_followed_to_within_a_frame():
     # a query that stops for 50 frames where the reference moves on: with collapse_stops
-    # every frame of the stop takes the match of the frame that opened it, the right one
+    # every frame of the stop is within a frame; the frames the stop repeats take the
+    # collapsed search's answer and confidence
     places = np.concatenate([np.arange(10, 110), np.full(50, 110), np.arange(111, 200)])
     ref, query = _standing_route(220, places, seed=12)
-    common = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
-                  search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
-                  block_size=1024)
-    collapsed = sequence_match(ref, query, collapse_stops=True, **common)
+    collapsed = sequence_match(ref, query, collapse_stops=True, **STANDING)
     err = np.abs(collapsed.candidates[:, 0] - places)
     assert (err <= 1).all()
     stop = slice(100, 150)
-    plain = sequence_match(ref, query, **common)  # moving only: the middle of the stop is lost
+    plain = sequence_match(ref, query, **STANDING)  # moving only: the middle of the stop is lost
     assert (np.abs(plain.candidates[stop, 0] - places[stop]) > 1).sum() >= 10
-    # every collapsed frame carries its run's answer, confidence included
-    assert (collapsed.confidence[stop] == collapsed.confidence[100]).all()
+    # the stop opens at frame 100 (its first view of place 110), which keeps its own answer;
+    # frames 101-149 repeat it and carry the collapsed answer, confidence included
+    np.testing.assert_array_equal(collapsed.candidates[100], plain.candidates[100])
+    assert (collapsed.confidence[101:150] == collapsed.confidence[101]).all()
+    # away from the stop, the full search's answers are untouched
+    np.testing.assert_array_equal(collapsed.candidates[:100], plain.candidates[:100])
+    np.testing.assert_array_equal(collapsed.candidates[150:], plain.candidates[150:])
 
 
 def test_a_stop_both_traverses_made_stays_aligned():
     # a station: the reference stands at 100-129 (30 frames of one place) and so does
-    # the query (its own 30 frames); both runs collapse, so the sequence runs on through
+    # the query (its own 30 frames): every query frame lands inside the station (where
+    # any of its frames is as right as another), every other within a frame
     places = np.concatenate([np.arange(10, 100), np.full(30, 100), np.arange(130, 220)])
     ref, query = _standing_route(240, places, seed=13, ref_stands=(100, 129))
-    common = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
-                  search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
-                  block_size=1024)
-    m = sequence_match(ref, query, collapse_stops=True, **common)
-    best = m.candidates[:, 0]
+    best = sequence_match(ref, query, collapse_stops=True, **STANDING).candidates[:, 0]
     inside = places == 100
-    assert (best[inside] == 100).all()  # the station's first frame stands for it
+    assert ((best[inside] >= 100) & (best[inside] <= 129)).all()
     assert (np.abs(best[~inside] - places[~inside]) <= 1).all()
+
+
+def test_runs_that_open_a_frame_apart_leave_the_station_edge_right():
+    # the query's camera already sees the station one frame before the train stops (its
+    # run opens at place 99, the reference's at 100): the frame that opens the query's
+    # run keeps its own answer, 99 (copying the run's answer put it a frame off), and
+    # the station's frames land inside it
+    places = np.concatenate([np.arange(10, 100), np.full(30, 100), np.arange(130, 220)])
+    ref, query = _standing_route(240, places, seed=18, ref_stands=(100, 129))
+    at99 = int(np.flatnonzero(places == 99)[0])
+    rng = np.random.default_rng(18)
+    query[at99] = np.clip(query[at99 + 1].astype(int) + rng.integers(-4, 5, query.shape[1]), 0, 255)
+    from placeloc.seqslam.matching import standing_runs
+
+    first, run_of = standing_runs(query, "sad")
+    assert first[run_of[at99 + 1]] == at99  # the run opens at place 99
+    best = sequence_match(ref, query, collapse_stops=True, **STANDING).candidates[:, 0]
+    assert best[at99] == 99
+    inside = places == 100
+    assert ((best[inside] >= 99) & (best[inside] <= 129)).all()
+    assert (np.abs(best[~inside] - places[~inside]) <= 1).all()
+
+
+def test_a_query_moving_where_only_the_reference_stands_keeps_every_frame():
+    # the reference stands at 100-129 (its frames alike) where the query drives on at the
+    # reference's own speed: every query frame there stays within a frame of its place
+    # with collapse_stops, as without (collapsing the reference's run under a moving
+    # query once gave every query frame there the run's first frame, up to 29 off)
+    places = np.arange(10, 220)
+    ref, query = _standing_route(240, places, seed=19, ref_stands=(100, 129))
+    for collapse in (False, True):
+        best = sequence_match(ref, query, collapse_stops=collapse, **STANDING).candidates[:, 0]
+        assert (np.abs(best - places) <= 1).all(), collapse
+
+
+def test_stop_answers_take_only_repeated_frames_between_the_runs_neighbours():
+    from placeloc.seqslam.matching import stop_answers
+
+    # frames 0-6: a run 1-3 (frame 1 kept, 2 and 3 repeat it) and a run 5-6 that ends the traverse
+    first = np.array([0, 1, 4, 5])
+    run_of = np.array([0, 1, 1, 1, 2, 3, 3])
+    full = np.array([10, 11, 30, 31, 14, 15, 16])
+    # the first run's answer 12 lies between 11 (its first frame) and 14 (the frame after):
+    # its repeats take it; the last run's 20 is not between 15 and 16 (its own last frame)
+    stop = np.array([-1, 12, 12, 12, -1, 20, 20])
+    np.testing.assert_array_equal(stop_answers(full, stop, first, run_of), [0, 0, 1, 1, 0, 0, 0])
+    np.testing.assert_array_equal(stop_answers(full, np.array([-1, 14, 14, 14, -1, 16, 16]), first, run_of),
+                                  [0, 0, 1, 1, 0, 0, 1])  # both ends of the bracket count
+    full[4] = -1  # no answer after the run: nothing to bracket with
+    assert not stop_answers(full, stop, first, run_of)[2:4].any()
 
 
 @pytest.mark.parametrize("search", ["causal", "centred"])
@@ -345,3 +400,31 @@ def test_the_config_refuses_what_the_search_cannot_do(tmp_path, seqslam, query, 
         config["query"] = {"images": str(tmp_path / "imgs")}
     with pytest.raises(ConfigError, match=message):
         load_config(data=config)
+
+
+def test_the_experiment_searches_as_localize_does():
+    # seqslam_motion.search (on a precomputed enhanced matrix) and sequence_match (what
+    # localize runs) give the same matches and confidences with both switches on: a stop
+    # only the query makes, a station both make, and a stretch driven backwards
+    from placeloc.experiments.seqslam_motion import search
+    from placeloc.seqslam.comparisons import difference_block
+    from placeloc.seqslam.search import enhance
+
+    places = np.concatenate([np.arange(10, 80), np.full(25, 80), np.arange(81, 100), np.full(20, 100),
+                             np.arange(121, 180), np.arange(179, 149, -1), np.arange(150, 230)])
+    ref, query = _standing_route(240, places, seed=20, ref_stands=(100, 120))
+    # the part's data as seqslam_motion.part makes it (enhanced with the window of
+    # configs/nordland.yaml, 10, which the kept references' enhancement takes from there
+    # too); the query's own frames stand for the part's winter frames, each shown once
+    d = difference_block(ref, query, "sad")
+    data = {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, 10).T), "reference_features": ref,
+            "query_features": query}
+    pos = np.arange(len(query))
+    setting = dict(comparison="sad", enhance_window=10, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+                   search="centred", sequence_shape="flexible", edges="shift", top_k=2, v_reverse=0.0,
+                   speed_change_cost=1.0, stop_cost=2.0, reverse_cost=0.0, collapse_stops=True, backward_paths=True)
+    best, conf = search(data, pos, setting)
+    m = sequence_match(ref, query, exclude_recent=None, block_size=64, **setting)
+    np.testing.assert_array_equal(best, m.candidates[:, 0])
+    np.testing.assert_allclose(conf, m.confidence)
+    assert (np.abs(best - places) <= 1).mean() > 0.9

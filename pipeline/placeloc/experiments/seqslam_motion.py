@@ -22,8 +22,8 @@ Every figure is also given inside the motion's own stretch (``*_inside``).
 The search runs on the enhanced difference matrix of the part (columns in the query's
 order are exactly what ``localize`` searches, enhancement being per query column), with
 the preset's settings and ``v_auto`` applied as ``localize`` applies it.
-Costs are chosen on frames 1-600 (``tune``, seeds 0-2: nine settings, about 15 minutes under load) and reported on 601-1200 (seeds
-100-104); ``--quick`` (CI) runs the preset on frames 601-1050 with two seeds: 450 frames, so
+Costs are chosen on frames 1-600 (``tune``, seeds 0-2: twelve settings, about a minute on
+2 cores) and reported on 601-1200 (seeds 100-104); ``--quick`` (CI) runs the preset on frames 601-1050 with two seeds: 450 frames, so
 that a query 3x faster than the reference (150 frames) still holds a 121-frame window.
 """
 
@@ -152,15 +152,13 @@ def preset() -> dict[str, Any]:
     return {**dataclasses.asdict(SeqSLAMParams()), **section}
 
 
-def part(lo: int, hi: int) -> dict[str, np.ndarray]:
-    """Features of nordland-dev frames lo..hi-1 (summer, winter) and the enhanced
-    differences ``E[winter frame, summer frame]``; for ``collapse_stops``, the summer
-    frames kept (:func:`placeloc.seqslam.matching.standing_runs`) and the differences to
-    them alone, enhanced (as ``localize`` enhances them: over the kept references)."""
+def part(lo: int, hi: int) -> dict[str, Any]:
+    """Features of nordland-dev frames lo..hi-1 (summer, winter), the differences
+    ``D[summer frame, winter frame]`` and their enhancement, query-major
+    (``E[winter frame, summer frame]``), and the soft ground truth."""
     from placeloc.core.images import list_images
     from placeloc.seqslam.comparisons import difference_block
     from placeloc.seqslam.features import image_features
-    from placeloc.seqslam.matching import standing_runs
     from placeloc.seqslam.search import enhance
 
     p = preset()
@@ -172,37 +170,57 @@ def part(lo: int, hi: int) -> dict[str, np.ndarray]:
             paths, on_error="raise", thumbnail_size=tuple(p["thumbnail"]), comparison=p["comparison"], patch=p["patch"],
             normalisation=p["normalisation"], gaussian_sigma=p["gaussian_sigma"], ocm_epsilon=p["ocm_epsilon"])
     d = difference_block(feats["summer"], feats["winter"], p["comparison"])
-    ref_first = standing_runs(feats["summer"], p["comparison"])[0]
-    return {"enhanced": np.ascontiguousarray(enhance(d, int(p["enhance_window"])).T),
-            "enhanced_kept": np.ascontiguousarray(enhance(d[ref_first], int(p["enhance_window"])).T),
-            "reference_kept": ref_first, "truth": shared_stops(feats["summer"], feats["winter"]),
-            "query_features": feats["winter"]}
+    return {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, int(p["enhance_window"])).T),
+            "truth": shared_stops(feats["summer"], feats["winter"]), "query_features": feats["winter"],
+            "reference_features": feats["summer"]}
 
 
-def search(data: dict[str, np.ndarray], pos: np.ndarray, setting: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+def kept_reference(data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """For ``collapse_stops``: the summer frames kept (:func:`placeloc.seqslam.matching.standing_runs`)
+    and the differences to them alone, enhanced as ``localize`` enhances them (over the
+    kept references), query-major; computed once."""
+    from placeloc.seqslam.matching import standing_runs
+    from placeloc.seqslam.search import enhance
+
+    key = "kept_reference"
+    if key not in data:
+        p = preset()
+        ref_first = standing_runs(data["reference_features"], p["comparison"])[0]
+        data[key] = (ref_first, np.ascontiguousarray(enhance(data["difference"][ref_first], int(p["enhance_window"])).T))
+    return data[key]
+
+
+def search(data: dict[str, Any], pos: np.ndarray, setting: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """Best reference and confidence per query of the resampled query ``pos``, with the
     preset's settings overridden by ``setting`` (``v_auto``, ``collapse_stops`` and
-    ``backward_paths`` as ``localize`` applies them)."""
-    from placeloc.seqslam.matching import search_velocities, standing_runs
+    ``backward_paths`` as ``localize`` applies them: the search over every frame, then
+    the collapsed search and :func:`placeloc.seqslam.matching.stop_answers`)."""
+    from placeloc.seqslam.matching import search_velocities, standing_runs, stop_answers
     from placeloc.seqslam.search import confidence, sequence_search
 
     p = {**preset(), **setting}
-    n = len(pos)
-    first, run_of = (standing_runs(data["query_features"][pos], p["comparison"]) if p["collapse_stops"]
-                     else (np.arange(n), np.arange(n)))
-    et = np.ascontiguousarray(data["enhanced_kept" if p["collapse_stops"] else "enhanced"][pos[first]])
-    vels = search_velocities(p["v_min"], p["v_max"], p["v_step"], p["v_auto"], et.shape[1], len(first), p["v_reverse"])
-    best, scores = sequence_search(et, 0, len(first), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
-                                   int(p["top_k"]), None, 0, shape=p["sequence_shape"], edges=p["edges"],
-                                   speed_change_cost=p["speed_change_cost"], stop_cost=p["stop_cost"],
-                                   reverse_cost=p["reverse_cost"], backward_paths=p["backward_paths"])
-    best = best[run_of, 0]
+
+    def run(et: np.ndarray, n_ref: int, backward: bool) -> tuple[np.ndarray, np.ndarray]:
+        vels = search_velocities(p["v_min"], p["v_max"], p["v_step"], p["v_auto"], n_ref, len(et), p["v_reverse"])
+        best, scores = sequence_search(et, 0, len(et), int(p["ds"]), vels, p["search"], int(p["enhance_window"]),
+                                       int(p["top_k"]), None, 0, shape=p["sequence_shape"], edges=p["edges"],
+                                       speed_change_cost=p["speed_change_cost"], stop_cost=p["stop_cost"],
+                                       reverse_cost=p["reverse_cost"], backward_paths=backward)
+        return best[:, 0], confidence(scores)
+
+    et = np.ascontiguousarray(data["enhanced"][pos])
+    best, conf = run(et, et.shape[1], bool(p["backward_paths"]))
     if p["collapse_stops"]:
-        best = np.where(best >= 0, data["reference_kept"][np.maximum(best, 0)], -1)
-    return best, confidence(scores)[run_of]
+        first, run_of = standing_runs(data["query_features"][pos], p["comparison"])
+        ref_first, enhanced_kept = kept_reference(data)
+        kept_best, kept_conf = run(np.ascontiguousarray(enhanced_kept[pos[first]]), len(ref_first), False)
+        stop_best = np.where(kept_best >= 0, ref_first[np.maximum(kept_best, 0)], -1)[run_of]
+        take = stop_answers(best, stop_best, first, run_of)
+        best, conf = np.where(take, stop_best, best), np.where(take, kept_conf[run_of], conf)
+    return best, conf
 
 
-def score(data: dict[str, np.ndarray], pos: np.ndarray, inside: np.ndarray, best: np.ndarray,
+def score(data: dict[str, Any], pos: np.ndarray, inside: np.ndarray, best: np.ndarray,
           conf: np.ndarray) -> dict[str, float]:
     """R@1 (soft ground truth), recall at 100 % precision, and R@1 inside the motion."""
     lo, hi = data["truth"][pos, 0] - TOLERANCE, data["truth"][pos, 1] + TOLERANCE
@@ -211,7 +229,7 @@ def score(data: dict[str, np.ndarray], pos: np.ndarray, inside: np.ndarray, best
             "recall_at_1_inside": float(ok[inside].mean()), "recall_at_1_exact_truth": float((np.abs(best - pos) <= TOLERANCE).mean())}
 
 
-def run_setting(data: dict[str, np.ndarray], n_frames: int, setting: dict[str, Any], seeds: tuple[int, ...],
+def run_setting(data: dict[str, Any], n_frames: int, setting: dict[str, Any], seeds: tuple[int, ...],
                 families: tuple[str, ...] = FAMILIES, quiet: bool = True) -> dict[str, list[dict[str, float]]]:
     """Every family (one profile for steady, one per seed otherwise) -> its scores per seed."""
     out: dict[str, list[dict[str, float]]] = {}
@@ -241,9 +259,10 @@ def tune_grid() -> list[dict[str, Any]]:
     """The path models compared on the tuning part (all flexible, ds 120, v_step 0.1,
     ``v_auto``): moving only over the old speeds (0.5-2.0) and over crawls to bursts
     (0.3-4.0); the latter allowed to back out (to -1.0) at two costs of driving
-    backwards; the whole model, standing still too (v_min 0); and 0.3-4.0 with standing
-    runs collapsed (``collapse_stops``), with a family of paths driven backwards
-    throughout (``backward_paths``) at three costs, and with both."""
+    backwards; the whole model, standing still too (v_min 0); and 0.3-4.0 with the frames
+    of the query's standing runs answered by a search over both traverses' runs collapsed
+    (``collapse_stops``), with a family of paths driven backwards throughout
+    (``backward_paths``) at three costs, and with both."""
     grid: list[dict[str, Any]] = [{"v_min": 0.5, "v_max": 2.0}, {"v_min": 0.3, "v_max": 4.0}]
     grid += [{"v_min": 0.3, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": r} for r in (0.0, 0.25)]
     grid += [{"v_min": 0.0, "v_max": 4.0, "v_reverse": 1.0, "reverse_cost": 0.0}]
@@ -291,7 +310,8 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
         r = run_setting(data, n, setting, seeds, quiet=True)
         motion = [x["recall_at_1"] for fam in FAMILIES[1:] for x in r[fam]]
         row = {**setting, "steady": r["steady"][0]["recall_at_1"],
-               "steady_r100p": r["steady"][0]["recall_at_100_precision"], "worst": min(motion),
+               "steady_r100p": r["steady"][0]["recall_at_100_precision"],
+               "steady_exact": r["steady"][0]["recall_at_1_exact_truth"], "worst": min(motion),
                "median": float(np.median([np.median([x["recall_at_1"] for x in r[f]]) for f in FAMILIES[1:]]))}
         row.update({f"{fam}_median": float(np.median([x["recall_at_1"] for x in r[fam]])) for fam in FAMILIES})
         row.update({f"{fam}_inside": float(np.median([x["recall_at_1_inside"] for x in r[fam]])) for fam in MOTIONS})
@@ -304,13 +324,14 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
             print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
     chosen = choose(rows)
     lines = [f"R@1 median over seeds {', '.join(map(str, seeds))} (inside the motion in brackets)\n",
-             "| v | collapse_stops | backward_paths | reverse_cost | steady (R@100P) | worst seed | "
-             + " | ".join(FAMILIES[1:]) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
+             "| v | collapse_stops | backward_paths | reverse_cost | steady (R@100P) | steady, exact +-2 truth | "
+             "worst seed | " + " | ".join(FAMILIES[1:]) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(FAMILIES[1:])]
     for r in rows:
         lines.append(f"| {r['v_min']:g}..{r['v_max']:g}, back to -{r['v_reverse']:g} | {_yes(r['collapse_stops'])} | "
                      f"{_yes(r['backward_paths'])} | {r['reverse_cost']:g} | "
-                     f"{r['steady']:.3f} ({r.get('steady_r100p', float('nan')):.3f}) | {r['worst']:.3f} | "
+                     f"{r['steady']:.3f} ({r.get('steady_r100p', float('nan')):.3f}) | "
+                     f"{r.get('steady_exact', float('nan')):.3f} | {r['worst']:.3f} | "
                      + " | ".join(f"{r[f + '_median']:.3f}" + (f" ({r[f + '_inside']:.3f})" if f in MOTIONS else "")
                                   for f in FAMILIES[1:]) + " |")
     lines.append(f"\nchosen (rule in `choose`): v {chosen['v_min']:g}..{chosen['v_max']:g}, v_reverse "
@@ -324,22 +345,22 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
 
 
 def report_settings() -> dict[str, dict[str, Any]]:
-    """The preset as shipped; the preset with ``collapse_stops``, ``backward_paths`` (at
-    the tuning's best ``reverse_cost``, 0) and both; the flexible preset it replaced; straight
+    """The preset as shipped (``collapse_stops`` and ``backward_paths`` at
+    ``reverse_cost`` 0, chosen by the tuning); the preset without each switch and without
+    both (the path alone, the previous preset); the flexible preset before that; straight
     lines over the preset's own speeds and window (what ``sequence_shape: trajectory``
     gives); and the whole path model (standing still and backing out too) that tuning
     turned down."""
+    off = {"collapse_stops": False, "backward_paths": False}
     return {
-        "preset (configs/nordland.yaml)": {},
-        "preset + collapse_stops": {"collapse_stops": True},
-        "preset + backward_paths (reverse_cost 0)": {"backward_paths": True, "reverse_cost": 0.0},
-        "preset + collapse_stops + backward_paths (reverse_cost 0)": {"collapse_stops": True, "backward_paths": True,
-                                                                     "reverse_cost": 0.0},
-        "previous preset: flexible, v 0.5-2.0, no v_auto": {"v_min": 0.5, "v_max": 2.0, "v_auto": False,
-                                                            "collapse_stops": False, "backward_paths": False},
-        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", "backward_paths": False},
-        "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0)": {
-            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0, "backward_paths": False},
+        "preset (configs/nordland.yaml): flexible 0.3x-4.0x, v_auto, collapse_stops, backward_paths": {},
+        "preset without collapse_stops": {"collapse_stops": False},
+        "preset without backward_paths": {"backward_paths": False},
+        "preset without either switch (the previous preset)": off,
+        "flexible, v 0.5-2.0, no v_auto, no switches": {"v_min": 0.5, "v_max": 2.0, "v_auto": False, **off},
+        "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", **off},
+        "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0), no switches": {
+            "v_min": 0.0, "v_reverse": 1.0, "reverse_cost": 0.0, **off},
     }
 
 

@@ -223,9 +223,10 @@ def report_settings() -> dict[str, dict[str, Any]]:
     hybrid over the speeds the query may have, and the flexible search allowed to stand
     still."""
     wide = {"v_min": 0.5, "v_max": 2.0, "v_step": 0.1, "ds": 60}
-    # the keys spelt out: the shipped preset has since moved on (0.3-4.0 with v_auto,
-    # seqslam_motion), and this table is the one of docs/seqslam.md
-    return {
+    # the keys spelt out: the shipped preset has since moved on (0.3-4.0 with v_auto and
+    # the two switches, seqslam_motion), and this table is the one of docs/seqslam.md
+    off = {"collapse_stops": False, "backward_paths": False}
+    settings = {
         "preset: flexible, ds 120, v 0.5-2.0": {"v_min": 0.5, "v_max": 2.0, "v_auto": False},
         "trajectory, ds 60, v 0.8-1.2 (the previous preset)": {"sequence_shape": "trajectory", "ds": 60, "v_min": 0.8,
                                                                "v_max": 1.2},
@@ -234,6 +235,7 @@ def report_settings() -> dict[str, dict[str, Any]]:
         "hybrid, ds 60, v 0.5-2.0": {"sequence_shape": "hybrid", **wide},
         "flexible, ds 120, v 0-2.0 (may stand still)": {"v_min": 0.0, "v_max": 2.0, "v_auto": False},
     }
+    return {name: {**off, **keys} for name, keys in settings.items()}
 
 
 def report(out: Path, quiet: bool = True) -> Path:

@@ -125,6 +125,25 @@ def standing_runs(features: np.ndarray, comparison: str) -> tuple[np.ndarray, np
     return first, np.cumsum(opens) - 1
 
 
+def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray, run_of: np.ndarray) -> np.ndarray:
+    """Which query frames take the collapsed search's answer (``collapse_stops``): the
+    frames a standing run repeats (not its first frame, which keeps its own answer: the
+    traverses' runs may open a frame apart, and that frame may still be moving in the
+    other), where the run's answer ``stop_best`` (per query frame, original reference
+    frames) lies between the full search's answers ``full_best`` at the run's first frame
+    and at the frame after the run (the traverse's last frame for a run that ends it): a
+    stopped vehicle is where it arrived and where it leaves from. A stop the query makes
+    alone is bracketed so (the full search gets the frames around a stop right, the
+    collapsed one the stop); where the query only looks still while it moves (backing out
+    or bursting through a station) the collapsed answer leaves the bracket and the full
+    search's stands. -1 (no match) never takes part."""
+    n = len(run_of)
+    repeats = first[run_of] != np.arange(n)
+    a = full_best[first[run_of]]
+    b = full_best[np.append(first[1:], n - 1)[run_of]]
+    return repeats & (a >= 0) & (b >= 0) & (stop_best >= np.minimum(a, b)) & (stop_best <= np.maximum(a, b))
+
+
 def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
     """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
     columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
@@ -222,102 +241,125 @@ def sequence_match(
     ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
     ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`); ``backward_paths``
     adds the family of paths that drive backwards throughout (see
-    :func:`placeloc.seqslam.search.sequence_search`). ``collapse_stops`` searches both
-    traverses with every standing run collapsed to its first frame (:func:`standing_runs`,
-    each traverse from its own frames; speeds scaled by the collapsed lengths with
-    ``v_auto``): every query frame of a run takes its first frame's matches, and a match on
-    a reference run is that run's first frame. The repeated frames of a stop carry no new
-    evidence of place; without them the sequence on either side of a query's stop is one
-    window, and a stop both traverses made (a station) stays aligned. ``exclude_recent``
-    is for loop closure (``query is ref``): references within that many frames before the
-    query are ignored; ``None`` otherwise (and ``collapse_stops`` must then be off: the
-    exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
+    :func:`placeloc.seqslam.search.sequence_search`). ``collapse_stops``: after the search
+    over every frame, the query's standing runs (:func:`standing_runs`) are searched
+    again with both traverses' runs collapsed (:func:`collapsed_answers`), and the frames
+    a run repeats take that answer where :func:`stop_answers` finds it between the first
+    search's answers around the run. The repeated frames of a stop carry no new evidence
+    of place; without them the sequence on either side of a query's stop is one window.
+    The second search computes its own differences, for the kept frames the runs' windows
+    read. ``exclude_recent`` is for loop closure (``query is ref``): references within
+    that many frames before the query are ignored; ``None`` otherwise (and
+    ``collapse_stops`` must then be off: the exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
     (default: in this process); ``on_difference(c0, c1, d)`` gets the raw difference
-    columns of queries ``c0:c1`` (every frame, collapsed or not) as they are computed;
-    ``on_enhanced(c0, c1, e)`` their enhanced rows, query-major. ``plain_k`` > 0 also
-    ranks the ``plain_k`` best references with no separation (the standard Recall@N), from
-    the same sequence scores.
+    columns of queries ``c0:c1`` as they are computed; ``on_enhanced(c0, c1, e)`` their
+    enhanced rows, query-major. ``plain_k`` > 0 also ranks the ``plain_k`` best references
+    with no separation (the standard Recall@N), from the same sequence scores.
     """
     if collapse_stops and exclude_recent is not None:
         raise ValueError("collapse_stops needs a query traverse: loop closure's exclude_recent counts its frames")
     n_q = len(query)
     window, k, block = int(enhance_window), int(top_k), int(block_size)
-    first, run_of = standing_runs(query, comparison) if collapse_stops else (np.arange(n_q), np.arange(n_q))
-    ref_first = standing_runs(ref, comparison)[0] if collapse_stops else None
-    n_kept = len(first)
-    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref) if ref_first is None else len(ref_first), n_kept,
-                             v_reverse)
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref), n_q, v_reverse)
     t_off = query_offsets(int(ds), search)
     before, after = int(-t_off.min()), int(t_off.max())
-    candidates = np.full((n_kept, k), -1, np.int64)
-    scores = np.full((n_kept, k), np.inf, np.float32)
+    candidates = np.full((n_q, k), -1, np.int64)
+    scores = np.full((n_q, k), np.inf, np.float32)
     single_best = np.full(n_q, -1, np.int64)
     single_conf = np.zeros(n_q, np.float64)
-    plain = (np.full((n_kept, plain_k), -1, np.int64),
-             np.full((n_kept, plain_k), np.inf, np.float32)) if plain_k > 0 else None
-
-    # Blocks of query frames c0:c1 (every frame: their differences are stored and their
-    # single-image matches taken); the kept frames among them are searched, with the kept
-    # frames a window needs on either side (block_spans over the kept frames). Without
-    # collapsing, the kept frames are all frames and this is block_spans itself.
-    n_window = before + after + 1
-    spans = []
-    for c0, c1, _, _ in block_spans(n_q, block, before, after):
-        k0, k1 = (int(x) for x in np.searchsorted(first, (c0, c1)))
-        klo, khi = max(0, min(k0 - before, n_kept - n_window)), min(n_kept, max(k1 + after, n_window))
-        # the frames whose differences this block computes: c0:c1 and the kept ones its windows read
-        frames = np.union1d(np.arange(c0, c1), first[klo:khi])
-        contiguous = frames[-1] - frames[0] + 1 == len(frames)
-        spans.append((c0, c1, k0, k1, klo, khi, slice(int(frames[0]), int(frames[-1]) + 1) if contiguous else frames))
+    plain = (np.full((n_q, plain_k), -1, np.int64), np.full((n_q, plain_k), np.inf, np.float32)) if plain_k > 0 else None
+    spans = block_spans(n_q, block, before, after)
     if sequence_shape == "flexible":
         _load_flexible_kernel_meanwhile()
     # D blocks run on the executor (ref shipped once as shared; query rows taken lazily, views inline);
     # enhancement, search and writing stay here, in order.
-    jobs = (((c0, c1, *_col_range(cols)), query[cols], comparison) for c0, c1, _, _, _, _, cols in spans)
+    jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)
     blocks = (map_blocks or _inline_map)(difference_job, jobs, shared=ref,
                                          describe=lambda job: f"difference block, query columns {job[0][2]}:{job[0][3]}")
     # blocks first in zip: its exhaustion runs the executor's clean-up (release the shared input).
     pairs: Iterable = zip(blocks, spans)
     if progress is not None:
         pairs = progress(pairs, total=len(spans), desc="localize blocks")
-    for d, (c0, c1, k0, k1, klo, khi, cols) in pairs:
-        frames = np.arange(cols.start, cols.stop) if isinstance(cols, slice) else cols
-        s0 = int(np.searchsorted(frames, c0))
-        s1 = s0 + (c1 - c0)
+    for d, (c0, c1, lo, _hi) in pairs:
+        s0, s1 = c0 - lo, c1 - lo
         if on_difference is not None:
             on_difference(c0, c1, d[:, s0:s1])
         dt = _transposed(d)
-        # single-image baseline on the raw differences, every frame
+        del d
+        # single-image baseline on the raw differences
         _single_best_into(dt[s0:s1], window, exclude_recent, c0, single_best[c0:c1], single_conf[c0:c1])
-        et = enhance_t(dt, window)  # row by row: the rows need not be consecutive frames
-        d_t = dt if ref_first is not None else None
-        del dt, d
+        et = enhance_t(dt, window)
+        del dt
         if on_enhanced is not None:
             on_enhanced(c0, c1, et[s0:s1])
-        if k1 <= k0:
-            continue  # every frame of this block stands in a run opened before it
-        if ref_first is not None:  # the search's matrix: kept queries against kept references
-            et = enhance_t(np.ascontiguousarray(d_t[np.searchsorted(frames, first[klo:khi])][:, ref_first]), window)
-        elif len(frames) != khi - klo:
-            et = et[np.searchsorted(frames, first[klo:khi])]
-        b, s = sequence_search(et, k0 - klo, k1 - klo, int(ds), vels, search, window, k, exclude_recent, klo,
+        b, s = sequence_search(et, s0, s1, int(ds), vels, search, window, k, exclude_recent, lo,
                                shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
                                stop_cost=stop_cost, reverse_cost=reverse_cost, backward_paths=backward_paths,
-                               plain=None if plain is None else (plain[0][k0:k1], plain[1][k0:k1]))
-        candidates[k0:k1], scores[k0:k1] = b, s
-        del d_t
-    if ref_first is not None:  # a kept reference stands for its run: its first frame
-        candidates = local_to_original(ref_first, candidates)
-        if plain is not None:
-            plain = (local_to_original(ref_first, plain[0]), plain[1])
+                               plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
+        candidates[c0:c1], scores[c0:c1] = b, s
+    conf = confidence(scores)
+    if collapse_stops:
+        first, run_of = standing_runs(query, comparison)
+        if (np.bincount(run_of, minlength=len(first)) > 1).any():
+            stop = collapsed_answers(ref, query, first, run_of, comparison=comparison, enhance_window=window, ds=ds,
+                                     v_min=v_min, v_max=v_max, v_step=v_step, v_auto=v_auto, search=search,
+                                     sequence_shape=sequence_shape, edges=edges, top_k=k,
+                                     speed_change_cost=speed_change_cost, stop_cost=stop_cost,
+                                     reverse_cost=reverse_cost, v_reverse=v_reverse,
+                                     block_size=block, plain_k=plain_k)
+            take = stop_answers(candidates[:, 0], stop.candidates[:, 0], first, run_of)
+            candidates[take], scores[take], conf[take] = stop.candidates[take], stop.scores[take], stop.confidence[take]
+            if plain is not None and stop.plain_candidates is not None and stop.plain_scores is not None:
+                plain[0][take], plain[1][take] = stop.plain_candidates[take], stop.plain_scores[take]
+    return SequenceMatches(candidates, scores, conf, single_best, single_conf, vels,
+                           *(plain if plain is not None else (None, None)))
+
+
+def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, *, comparison: str,
+                      enhance_window: int, ds: int, v_min: float, v_max: float, v_step: float, v_auto: bool,
+                      search: str, sequence_shape: str, edges: str, top_k: int, speed_change_cost: float,
+                      stop_cost: float, reverse_cost: float, v_reverse: float, block_size: int,
+                      plain_k: int = 0) -> SequenceMatches:
+    """The search of ``collapse_stops``: the query's kept frames ``first`` (``run_of`` from
+    :func:`standing_runs`) against the reference's kept frames (its own standing runs),
+    speeds scaled by the collapsed lengths with ``v_auto``. Only the kept frames that
+    stand for others are searched, each with the kept frames its window reads, in groups
+    spanning fewer than ``block_size`` kept frames; every query frame gets its kept
+    frame's answer (original reference frames; -1 and no confidence for frames of no
+    standing run). Without ``backward_paths``: a vehicle that stands does not back out
+    meanwhile, and a query backing out through a stretch that looks still is left to the
+    full search (:func:`stop_answers`)."""
+    n_q, n_kept = len(query), len(first)
+    ref_first = standing_runs(ref, comparison)[0]
+    ref_kept = np.ascontiguousarray(ref[ref_first])
+    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref_first), n_kept, v_reverse)
+    window, k = int(enhance_window), int(top_k)
+    t_off = query_offsets(int(ds), search)
+    before, after = int(-t_off.min()), int(t_off.max())
+    n_window = before + after + 1
+    candidates = np.full((n_kept, k), -1, np.int64)
+    scores = np.full((n_kept, k), np.inf, np.float32)
+    plain = (np.full((n_kept, plain_k), -1, np.int64),
+             np.full((n_kept, plain_k), np.inf, np.float32)) if plain_k > 0 else None
+    need = np.flatnonzero(np.bincount(run_of, minlength=n_kept) > 1)
+    i = 0
+    while i < len(need):
+        # a group of kept frames to search: consecutive needs whose windows overlap, at most block_size
+        j = i
+        while j + 1 < len(need) and need[j + 1] - need[j] <= n_window and need[j + 1] - need[i] < block_size:
+            j += 1
+        a0, a1 = int(need[i]), int(need[j]) + 1
+        lo = max(0, min(a0 - before, n_kept - n_window))
+        hi = min(n_kept, max(a1 + after, n_window))
+        et = enhance_t(_transposed(difference_block(ref_kept, query[first[lo:hi]], comparison)), window)
+        b, s = sequence_search(et, a0 - lo, a1 - lo, int(ds), vels, search, window, k, None, lo,
+                               shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
+                               stop_cost=stop_cost, reverse_cost=reverse_cost,
+                               plain=None if plain is None else (plain[0][a0:a1], plain[1][a0:a1]))
+        candidates[a0:a1], scores[a0:a1] = b, s
+        i = j + 1
+    candidates = local_to_original(ref_first, candidates)
     if plain is not None:
-        plain = (plain[0][run_of], plain[1][run_of])
-    return SequenceMatches(candidates[run_of], scores[run_of], confidence(scores)[run_of], single_best, single_conf,
-                           vels, *(plain if plain is not None else (None, None)))
-
-
-def _col_range(cols: slice | np.ndarray) -> tuple[int, int]:
-    """First and one-past-last query frame of a block's columns (for its description)."""
-    if isinstance(cols, slice):
-        return int(cols.start), int(cols.stop)
-    return int(cols[0]), int(cols[-1]) + 1
+        plain = (local_to_original(ref_first, plain[0])[run_of], plain[1][run_of])
+    return SequenceMatches(candidates[run_of], scores[run_of], confidence(scores)[run_of],
+                           np.full(n_q, -1, np.int64), np.zeros(n_q), vels, *(plain if plain is not None else (None, None)))

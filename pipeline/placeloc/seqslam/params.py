@@ -45,11 +45,11 @@ class SeqSLAMParams(Params):
     stop_cost: float = param(2.0, min=0.0, help="flexible, speeds including 0: cost of standing still, per unit of the "
                                                 "query's own change from frame to frame (about 0 where the query stops)")
     reverse_cost: float = param(0.5, min=0.0, help="flexible, negative speeds: cost of driving backwards, per frame")
-    collapse_stops: bool = param(False, help="search both traverses with each run of frames where they stand still "
-                                              "(each from its own frames: within a quarter of a moving frame's change "
-                                              "of the run's first frame) collapsed to that first frame, which gives a "
-                                              "query run its match and stands for a reference run; query traverses "
-                                              "only (not loop closure)")
+    collapse_stops: bool = param(False, help="frames where the query stands still (within a quarter of a moving "
+                                              "frame's change of their run's first frame) are searched again with "
+                                              "both traverses' standing runs collapsed, and take that answer where it "
+                                              "lies between the full search's answers around the run; query "
+                                              "traverses only (not loop closure)")
     backward_paths: bool = param(False, help="flexible, forward speeds only: also score paths that drive backwards "
                                               "throughout the window (the speeds negated, reverse_cost per frame) and "
                                               "keep the better per reference; doubles the search")

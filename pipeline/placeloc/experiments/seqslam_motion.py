@@ -345,18 +345,18 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
 
 
 def report_settings() -> dict[str, dict[str, Any]]:
-    """The preset as shipped (``collapse_stops`` and ``backward_paths`` at
-    ``reverse_cost`` 0, chosen by the tuning); the preset without each switch and without
-    both (the path alone, the previous preset); the flexible preset before that; straight
+    """The preset as shipped (``backward_paths`` at ``reverse_cost`` 0, ``collapse_stops``
+    off); the preset with ``collapse_stops`` too (the tuning rule's pick), without
+    ``backward_paths`` (the previous preset); the flexible preset before that; straight
     lines over the preset's own speeds and window (what ``sequence_shape: trajectory``
     gives); and the whole path model (standing still and backing out too) that tuning
     turned down."""
     off = {"collapse_stops": False, "backward_paths": False}
     return {
-        "preset (configs/nordland.yaml): flexible 0.3x-4.0x, v_auto, collapse_stops, backward_paths": {},
-        "preset without collapse_stops": {"collapse_stops": False},
-        "preset without backward_paths": {"backward_paths": False},
-        "preset without either switch (the previous preset)": off,
+        "preset (configs/nordland.yaml): flexible 0.3x-4.0x, v_auto, backward_paths": {},
+        "preset with collapse_stops (the tuning rule's pick)": {"collapse_stops": True},
+        "preset with collapse_stops, without backward_paths": {"collapse_stops": True, "backward_paths": False},
+        "preset without backward_paths (the previous preset)": off,
         "flexible, v 0.5-2.0, no v_auto, no switches": {"v_min": 0.5, "v_max": 2.0, "v_auto": False, **off},
         "straight trajectories, same speeds and window": {"sequence_shape": "trajectory", **off},
         "preset standing still and backing out (v_min 0, v_reverse 1, reverse_cost 0), no switches": {

@@ -94,12 +94,14 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
             for x in range(w):
                 if lines[i, y, x] == 0:
                     continue
+                weight = np.float32(lines[i, y, x])
                 for j in range(value.shape[0]):
                     yy = y + dy[j]
                     if 0 <= yy < h:
                         xx = x + r + dx[j]
-                        if value[j] > wide[yy, xx]:
-                            wide[yy, xx] = value[j]
+                        v = value[j] * weight
+                        if v > wide[yy, xx]:
+                            wide[yy, xx] = v
         for y in range(h):
             for x in range(w):
                 out[i, y, x] = wide[y, x + r]
@@ -115,7 +117,9 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
 def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     """``max(0, 1 - d / tau)`` (float32) with d the distance (pixels) to the nearest line
     pixel of a (..., H, W) binary image, wrapping around horizontally (a panorama has no
-    left edge); d is OpenCV's 5 x 5 chamfer distance transform.
+    left edge); d is OpenCV's 5 x 5 chamfer distance transform. A float32 image is a
+    weighted line image (:func:`texture_weights`): the largest ``weight max(0, 1 - d / tau)``
+    over its line pixels, the same for weights 0 and 1.
 
     Why stamped, not transformed: a chamfer distance transform gives each pixel the least
     chamfer distance to any line pixel, and only line pixels within tau count, so the
@@ -128,7 +132,9 @@ def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     lead = lines.shape[:-2]
     h, w = lines.shape[-2:]
     flat = np.ascontiguousarray(lines.reshape(-1, h, w))
-    if flat.dtype != np.uint8:
+    if flat.dtype == np.float64:
+        flat = flat.astype(np.float32)
+    elif flat.dtype not in (np.uint8, np.float32):
         flat = (flat != 0).astype(np.uint8)
     out = np.zeros(flat.shape, np.float32)
     if flat.size:
@@ -139,10 +145,50 @@ def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     return out.reshape(*lead, h, w)
 
 
+# line pixels a texture patch is worth: two lines across the square (a corner of the map:
+# two lines meet there, and a rasterised line is thicker than one pixel where it is oblique)
+TEXTURE_LINES = 2.0
+
+
+def texture_weights(lines: np.ndarray, radius_px: int) -> np.ndarray:
+    """(..., H, W) float32 weight of each line pixel of binary panoramic line images: two
+    lines' worth of pixels in the (2r + 1)-pixel square around it (2r + 1 a line crossing
+    the square: :data:`TEXTURE_LINES`) over the line pixels there, at most 1; 0 off the
+    lines. ``radius_px`` 0: every line pixel weighs 1.
+
+    Why: the map draws walls, floor and ceiling edges, door and window frames, each an
+    isolated curve; what is dense in a query's line image is mostly texture the map lacks:
+    blinds, sunlight striped by them on the floor, tiles, planks, radiator fins, all a few
+    degrees apart or less, so that at 2.5 degrees a pixel they fill whole patches.
+    Weighted, such a patch counts about as much as two lines through it, so a pose does not
+    win by laying its map lines across the stripes; isolated lines and corners keep their
+    full weight. What it also weighs down: a distant wall's frames and corners, which the
+    map draws dense too (why it is off by default: docs/umap.md)."""
+    lines = np.asarray(lines)
+    binary = (lines != 0).astype(np.float32)
+    if radius_px <= 0:
+        return binary
+    r = int(radius_px)
+    h, w = lines.shape[-2:]
+    flat = binary.reshape(-1, h, w)
+    out = np.zeros_like(flat)
+    for i, img in enumerate(flat):
+        # the square's sum, wrapping around the seam (a panorama has no left edge), zero
+        # beyond the poles
+        padded = np.pad(img, ((r, r), (0, 0)))
+        padded = np.concatenate([padded[:, w - r:], padded, padded[:, :r]], axis=1)
+        count = cv2.boxFilter(padded, -1, (2 * r + 1, 2 * r + 1), normalize=False,
+                              borderType=cv2.BORDER_CONSTANT)[r:r + h, r:r + w]
+        out[i] = img * np.minimum(1.0, TEXTURE_LINES * (2 * r + 1) / np.maximum(count, 1.0))
+    return out.reshape(lines.shape).astype(np.float32)
+
+
 @njit(parallel=True, cache=True)
 def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
-                    width: int, out: np.ndarray) -> None:
-    n_q = q_rows.shape[0]
+                    q_vals: np.ndarray, width: int, out: np.ndarray) -> None:
+    n_q = 0.0
+    for m in range(q_rows.shape[0]):
+        n_q += q_vals[m]
     for i in prange(db.shape[0]):
         recall = np.zeros(width, dtype=np.float32)
         n_map = 0
@@ -162,14 +208,15 @@ def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q
                     for k in range(width - c, width):
                         recall[k] += q_close[r, c + k - width]
         precision = np.zeros(width, dtype=np.float32)
-        for m in range(n_q):
+        for m in range(q_rows.shape[0]):
             r = q_rows[m]
             c = q_cols[m]
+            v = q_vals[m]
             # query column c is db column c - k (mod width)
             for k in range(c + 1):
-                precision[k] += db_close[i, r, c - k]
+                precision[k] += v * db_close[i, r, c - k]
             for k in range(c + 1, width):
-                precision[k] += db_close[i, r, c - k + width]
+                precision[k] += v * db_close[i, r, c - k + width]
         for k in range(width):
             out[i, 0, k] = recall[k] / n_map if n_map > 0 else 0.0
             out[i, 1, k] = precision[k] / n_q if n_q > 0 else 0.0
@@ -192,14 +239,17 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     tested against): (P, W) float64. ``db`` the undilated packed map line images,
     ``db_close`` their :func:`closeness` images (P, H, W); ``chance``: ``none`` (the plain
     halves, in [0, 1]), ``area`` (each half corrected for the share of the image the other
-    side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts)."""
+    side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts).
+    A float ``query`` is a weighted line image (:func:`texture_weights`): each line pixel
+    counts with its weight in the precision half and stamps its closeness scaled by it."""
     h, w = query.shape
     rows, cols = np.nonzero(query)
+    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
     halves = np.zeros((db.shape[0], 2, w))
     q_close = closeness(query, tau_px).astype(np.float32)
     if db.shape[0]:
         _chamfer_shifts(np.ascontiguousarray(db), np.ascontiguousarray(db_close, np.float32),
-                        q_close, rows.astype(np.int64), cols.astype(np.int64), w, halves)
+                        q_close, rows.astype(np.int64), cols.astype(np.int64), vals, w, halves)
     recall, precision = halves[:, 0], halves[:, 1]
     if chance == "area":
         # a query pixel anywhere: the map's closeness averaged over the image; a map pixel
@@ -269,9 +319,9 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
-    q = queries.astype(np.float32)
+    q = queries.astype(np.float32)                                            # a float query: weighted
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
-    q_close = closeness(queries, tau_px)
+    q_close = closeness(q if queries.dtype.kind == "f" else queries, tau_px)
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance == "none":
@@ -354,7 +404,8 @@ def grid_step(xy: np.ndarray) -> float:
 
 @njit(parallel=True, cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
-                       weights: np.ndarray, shifts: np.ndarray, out: np.ndarray, chance_out: np.ndarray) -> None:
+                       q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray,
+                       chance_out: np.ndarray) -> None:
     """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
     chance levels (chance_out (L, 4): area recall, area precision, yaw recall, yaw precision)."""
     h, w = imgs.shape[1], imgs.shape[2]
@@ -372,7 +423,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
     q_area /= w * wsum
     nq = 0.0
     for m in range(q_rows.shape[0]):
-        nq += weights[q_rows[m]]
+        nq += weights[q_rows[m]] * q_vals[m]
     for i in prange(imgs.shape[0]):
         m_row_mean = np.zeros(h)
         m_area = 0.0
@@ -401,7 +452,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
         for m in range(q_rows.shape[0]):
             r = q_rows[m]
             c = q_cols[m]
-            wr = weights[r]
+            wr = weights[r] * q_vals[m]
             yaw_p += wr * m_row_mean[r]
             for s in range(shifts.shape[1]):
                 cc = c - shifts[i, s]
@@ -421,15 +472,16 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
     around a candidate's heading, without the spectra's FFTs (equal to the table's entries:
-    tested)."""
+    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`."""
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols = np.nonzero(query)
+    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
     shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[1])
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))
     if len(imgs):
-        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64),
+        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
                            np.asarray(weights, np.float64), shifts, halves, levels)
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":
@@ -490,10 +542,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
+    # the chamfer score's query side: line pixels weighted down inside dense texture
+    queries = texture_weights(lines, pp.texture_radius_px) if chamfer and pp.texture_radius_px > 0 else lines
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
-            return chamfer_table(database["spectra"], lines[ks], tau_px=pp.chamfer_tau_px, weights=weights,
+            return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
                                  chance=pp.chamfer_chance)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
@@ -502,7 +556,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
-            return chamfer_at_shifts(imgs, lines[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+            return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
                                      chance=pp.chamfer_chance, query_close=q_close)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
@@ -549,7 +603,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
                 continue
-            q_close = closeness(lines[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
+            q_close = closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
             xy = poses[cands, :2].copy()
             col = np.argmax(table[cands], axis=1).astype(np.int64)
             sc = table[cands].max(axis=1).astype(np.float64)

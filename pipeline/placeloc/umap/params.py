@@ -75,6 +75,11 @@ class PanoramaParams(Params):
                                      "chance): area, the share of the image the other side's closeness covers (a view "
                                      "drawing much map earns no more for clutter near it); yaw, the half's mean over all "
                                      "headings; none, the plain halves")
+    texture_radius_px: int = param(0, min=0, max=8,
+                                   help="chamfer score: each query line pixel weighs two lines' worth of pixels in the "
+                                        "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "
+                                        "that dense texture the map lacks (blinds, sunlight stripes, tiles) counts "
+                                        "about as two lines; 0: every line pixel weighs 1")
     polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "

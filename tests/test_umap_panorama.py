@@ -474,3 +474,16 @@ def test_texture_weights_keep_stripes_from_winning_a_pose():
     weighted = chamfer_table(sp, texture_weights(query, 2)[None], tau_px=2.0, weights=ones, chance="none")[0, :, 0]
     assert plain[1] > plain[0]
     assert weighted[0] > weighted[1]
+
+
+def test_square_offsets_cover_the_cell():
+    from placeloc.umap.panorama import NEIGHBOURS, refine_steps, square_offsets
+
+    assert sorted(map(tuple, square_offsets(1))) == sorted(map(tuple, NEIGHBOURS))
+    sq = square_offsets(3)
+    assert len(sq) == 7 * 7 - 1 and not (sq == 0).all(axis=1).any() and np.abs(sq).max() == 3
+    # at the first refine step (a sixth of the grid step) three steps reach half a grid step:
+    # the square covers the grid cell around the pose, every point within half a step
+    # (diagonally 0.015 m at 0.25 m) of a sampled one
+    step = refine_steps(0.25, 0.02)[0]
+    assert 3 * step == pytest.approx(0.25 / 2)

@@ -385,6 +385,13 @@ def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_s
 NEIGHBOURS = np.array([[dx, dy] for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy], float)
 
 
+def square_offsets(radius: int) -> np.ndarray:
+    """(K, 2) offsets of the points of a square grid within ``radius`` steps of its centre
+    on each axis, the centre left out (radius 1: :data:`NEIGHBOURS`)."""
+    r = range(-int(radius), int(radius) + 1)
+    return np.array([[dx, dy] for dx in r for dy in r if dx or dy], float).reshape(-1, 2)
+
+
 def refine_steps(grid_step_m: float, finest_m: float) -> list[float]:
     """The steps of the local search after the cell stage (:func:`search_panoramas`):
     halving from a sixth of the grid step (the cell stage samples at a third) while not
@@ -533,7 +540,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;
     2. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
-       the 8 neighbours at each step, down to ``refine_step_m``).
+       the 8 neighbours at each step, down to ``refine_step_m``); at the first step (a sixth
+       of a grid step) each first samples the whole square of ``refine_square`` steps either
+       side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
+       so that the peak is found where the score between the sampled points is too rugged
+       to climb.
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
@@ -565,6 +576,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     cell = grid_step(poses[:, :2]) / 3.0 if len(poses) else 0.0
     steps = refine_steps(3.0 * cell, pp.refine_step_m)
     window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
+    square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
 
     def scored() -> Iterable:
@@ -573,11 +585,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             yield from zip(ks, tables(ks))
 
     def move(k: int, xy: np.ndarray, col: np.ndarray, sc: np.ndarray, step: float, floor_d: np.ndarray,
-             q_close: np.ndarray | None) -> None:
-        """One step of the local search: each pose's 8 neighbours at ``step``, kept where
-        better (in place)."""
-        pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
-        owner = np.repeat(np.arange(len(xy)), len(NEIGHBOURS))
+             q_close: np.ndarray | None, offsets: np.ndarray = NEIGHBOURS) -> None:
+        """One step of the local search: each pose's neighbours (``offsets`` steps away, by
+        default the 8 nearest) at ``step``, kept where better (in place)."""
+        pts = (xy[:, None, :] + step * offsets[None]).reshape(-1, 2)
+        owner = np.repeat(np.arange(len(xy)), len(offsets))
         if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
             ok = wall_distance(pts, walls) >= floor_d[owner]
             pts, owner = pts[ok], owner[ok]
@@ -611,7 +623,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
             xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
-            for step in steps:                                                      # coarse to fine
+            for i, step in enumerate(steps):                                        # coarse to fine
+                # the beam's cells, densely (chamfer only: the IoU of dilated lines is flat over a
+                # few centimetres, and a dense square finds its spurious maxima: 5 degrees off on
+                # the end-to-end test)
+                if i == 0 and chamfer and pp.refine_square > 1:
+                    move(int(k), xy, col, sc, step, floor_d, q_close, square)
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
             if sc[j] > score[k]:

@@ -93,6 +93,9 @@ class PanoramaParams(Params):
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
     refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
+    refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
+                                                     "samples the square of this many steps either side of it (3: its "
+                                                     "whole grid cell; 1: only its 8 neighbours); chamfer score only")
     refine_step_m: float = param(0.02, min=0.0, min_exclusive=True, help="the local search's finest step")
     refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
                                                 "local pose")

@@ -487,3 +487,47 @@ def test_square_offsets_cover_the_cell():
     # (diagonally 0.015 m at 0.25 m) of a sampled one
     step = refine_steps(0.25, 0.02)[0]
     assert 3 * step == pytest.approx(0.25 / 2)
+
+
+def test_precision_rows_by_hand():
+    # 4 rows at elevations 67.5, 22.5, -22.5, -67.5 deg; the precision half keeps rows within
+    # 45 deg. tau 1: closeness 1 on a line pixel, 0 elsewhere. Map pixels (1, 0) and (3, 9),
+    # query pixels (1, 0) and (3, 5); 10 columns (query column c is map column c - k).
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, precision_rows
+
+    assert precision_rows(4, 45.0).tolist() == [0, 1, 1, 0]
+    assert precision_rows(72, 90.0).min() == 1 and precision_rows(72, 70.0).sum() == 72 - 2 * 8
+    db = np.zeros((1, 4, 10), np.uint8)
+    db[0, 1, 0] = db[0, 3, 9] = 1
+    q = np.zeros((4, 10), np.uint8)
+    q[1, 0] = q[3, 5] = 1
+    rows = precision_rows(4, 45.0)
+    for k, full, kept in ((0, 0.5 * (0.5 + 0.5), 0.5 * (0.5 + 1.0)),     # the row-3 query pixel is off the map
+                          (6, 0.5 * (0.5 + 0.5), 0.5 * (0.5 + 0.0))):    # it lands on the map's row-3 pixel
+        plain = chamfer_yaw_scores(pack(db), closeness(db, 1.0), q, tau_px=1.0, chance="none")
+        masked = chamfer_yaw_scores(pack(db), closeness(db, 1.0), q, tau_px=1.0, chance="none", precision_rows=rows)
+        assert plain[0, k] == pytest.approx(full) and masked[0, k] == pytest.approx(kept)
+        ones = np.ones(4, np.float32)
+        table = chamfer_table(chamfer_spectra(db, tau_px=1.0, weights=ones), q[None], tau_px=1.0, weights=ones,
+                              chance="none", precision_rows=rows)
+        assert table[0, 0, k] == pytest.approx(kept, abs=1e-6)
+
+
+def test_precision_rows_equal_the_pixel_loop_and_the_scores_at_shifts():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, precision_rows, row_weights
+
+    rng = np.random.default_rng(8)
+    db = (rng.random((6, H, W)) < 0.03).astype(np.uint8)
+    qs = (rng.random((2, H, W)) < 0.04).astype(np.uint8)
+    rows = precision_rows(H, 70.0)
+    shifts = rng.integers(0, W, size=(6, 4))
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=1.0, solid_angle=True)):
+        sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
+        for chance in ("none", "area", "yaw"):
+            table = chamfer_table(sp, qs, tau_px=3.0, weights=wts, chance=chance, precision_rows=rows)
+            if wts.min() == 1.0:
+                slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0, chance=chance,
+                                                    precision_rows=rows) for q in qs])
+                assert np.abs(table - slow).max() < 1e-5, chance
+            at = chamfer_at_shifts(db, qs[1], shifts, tau_px=3.0, weights=wts, chance=chance, precision_rows=rows)
+            assert np.abs(at - np.take_along_axis(table[1], shifts, axis=1)).max() < 1e-4, chance

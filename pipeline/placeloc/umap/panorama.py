@@ -233,7 +233,8 @@ def chance_corrected(value: np.ndarray, chance: np.ndarray) -> np.ndarray:
     return (value - chance) / np.maximum(1.0 - chance, CHANCE_FLOOR)
 
 
-def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str) -> np.ndarray:
+def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str,
+                       precision_rows: np.ndarray | None = None) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
     query at every column shift, pixel by pixel (the reference :func:`chamfer_table` is
     tested against): (P, W) float64. ``db`` the undilated packed map line images,
@@ -241,10 +242,14 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     halves, in [0, 1]), ``area`` (each half corrected for the share of the image the other
     side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts).
     A float ``query`` is a weighted line image (:func:`texture_weights`): each line pixel
-    counts with its weight in the precision half and stamps its closeness scaled by it."""
+    counts with its weight in the precision half and stamps its closeness scaled by it.
+    ``precision_rows`` (H,): each row's query pixels count in the precision half times
+    this (:func:`precision_rows`; the recall half keeps them all)."""
     h, w = query.shape
     rows, cols = np.nonzero(query)
     vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
+    if precision_rows is not None:
+        vals = vals * np.asarray(precision_rows, np.float64)[rows]
     halves = np.zeros((db.shape[0], 2, w))
     q_close = closeness(query, tau_px).astype(np.float32)
     if db.shape[0]:
@@ -282,6 +287,21 @@ def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_ang
     return w.astype(np.float32)
 
 
+def precision_rows(height: int, polar_deg: float) -> np.ndarray:
+    """(H,) float32: 1 for equirectangular rows within ``polar_deg`` of the horizon, 0
+    beyond: the rows whose query line pixels the chamfer score's precision half counts
+    (``umap.panorama.precision_polar_deg``; 90: all).
+
+    Why: within 20 degrees of the nadir the camera sees the floor within 0.55 m of its
+    foot (1.5 m up), where the tripod, rugs and sunlight striped by blinds lie and a map
+    line only where a wall stands that close; within 20 degrees of the zenith, a ceiling
+    fan or lamp. Detected pixels there are mostly clutter, and clutter near some other
+    place's lines wins that place the precision half. The recall half still counts the
+    map's lines there (a doorway camera's lintel overhead)."""
+    el = 90.0 - 180.0 * (np.arange(height) + 0.5) / height
+    return (np.abs(el) <= polar_deg).astype(np.float32)
+
+
 def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) -> np.ndarray:
     """The map side of the chamfer score (module docstring) of (P, H, W) binary panoramic
     line images, in the form :func:`chamfer_table` multiplies: (F, P, 2H) complex64, F =
@@ -304,7 +324,7 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) ->
 
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                  chance: str) -> np.ndarray:
+                  chance: str, precision_rows: np.ndarray | None = None) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -320,8 +340,10 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
     q = queries.astype(np.float32)                                            # a float query: weighted
-    nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
     q_close = closeness(q if queries.dtype.kind == "f" else queries, tau_px)
+    if precision_rows is not None:                                            # the precision half's rows only
+        q = q * np.asarray(precision_rows, np.float32)[None, :, None]
+    nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance == "none":
@@ -474,7 +496,8 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 
 
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                      chance: str, query_close: np.ndarray | None = None) -> np.ndarray:
+                      chance: str, query_close: np.ndarray | None = None,
+                      precision_rows: np.ndarray | None = None) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
@@ -484,6 +507,8 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols = np.nonzero(query)
     vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
+    if precision_rows is not None:
+        vals = vals * np.asarray(precision_rows, np.float64)[rows]
     shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[1])
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))
@@ -555,11 +580,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     chamfer = pp.score == "chamfer"
     # the chamfer score's query side: line pixels weighted down inside dense texture
     queries = texture_weights(lines, pp.texture_radius_px) if chamfer and pp.texture_radius_px > 0 else lines
+    prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
             return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance)
+                                 chance=pp.chamfer_chance, precision_rows=prows)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
@@ -568,7 +594,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
-                                     chance=pp.chamfer_chance, query_close=q_close)
+                                     chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 

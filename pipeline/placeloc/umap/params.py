@@ -80,6 +80,11 @@ class PanoramaParams(Params):
                                         "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "
                                         "that dense texture the map lacks (blinds, sunlight stripes, tiles) counts "
                                         "about as two lines; 0: every line pixel weighs 1")
+    precision_polar_deg: float = param(75.0, min=0.0, max=90.0,
+                                       help="chamfer score: the precision half counts only the query's line pixels "
+                                            "within this many degrees of the horizon (the floor at the camera's foot: "
+                                            "tripod, rugs, sunlight stripes; the ceiling over it: a fan or lamp); the "
+                                            "recall half keeps every row; 90: all")
     polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "

@@ -292,10 +292,10 @@ def precision_rows(height: int, polar_deg: float) -> np.ndarray:
     beyond: the rows whose query line pixels the chamfer score's precision half counts
     (``umap.panorama.precision_polar_deg``; 90: all).
 
-    Why: within 20 degrees of the nadir the camera sees the floor within 0.55 m of its
-    foot (1.5 m up), where the tripod, rugs and sunlight striped by blinds lie and a map
-    line only where a wall stands that close; within 20 degrees of the zenith, a ceiling
-    fan or lamp. Detected pixels there are mostly clutter, and clutter near some other
+    Why: within 15 degrees of the nadir (the default, 75) the camera sees the floor within
+    0.4 m of its foot (1.5 m up), where the tripod, rugs and sunlight striped by blinds lie
+    and a map line only where a wall stands that close; within 15 degrees of the zenith, a
+    ceiling fan or lamp. Detected pixels there are mostly clutter, and clutter near some other
     place's lines wins that place the precision half. The recall half still counts the
     map's lines there (a doorway camera's lintel overhead)."""
     el = 90.0 - 180.0 * (np.arange(height) + 0.5) / height

@@ -110,7 +110,8 @@ def panorama(args: argparse.Namespace) -> None:
     q = unpack(render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True), h, w)
     q = (q & (rng.random(q.shape) < 0.66)) | (rng.random(q.shape) < 0.01)
     print(f"\nwhole panoramas: {len(poses):,} grid positions ({step} m) x {w} yaws, {len(q)} queries; score {pp.score} "
-          f"(chance: {pp.chamfer_chance}, solid-angle rows: {pp.solid_angle}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}; cores "
+          f"(chance: {pp.chamfer_chance}, solid-angle rows: {pp.solid_angle}), {pp.refine_candidates} candidate cells, beam {pp.refine_beam}, "
+          f"beam square {pp.refine_square}; cores "
           f"{os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
     db = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
@@ -120,6 +121,10 @@ def panorama(args: argparse.Namespace) -> None:
                      wall_margin_m=0.1, hidden=True)  # JIT and caches
     res, t_new, c_new = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp,
                                tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    # the same search with the beam climbing by its 8 neighbours only (the search before the
+    # beam's square), timed in the same run
+    res1, t_climb, c_climb = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra},
+                                    PanoramaParams(refine_square=1), tolerance_px=2, wall_margin_m=0.1, hidden=True)
     pp0 = PanoramaParams(refine_candidates=0)
     _, t_glob, c_glob = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp0,
                                tolerance_px=2, wall_margin_m=0.1, hidden=True)
@@ -129,6 +134,10 @@ def panorama(args: argparse.Namespace) -> None:
           f"<= 100 ms wall); of it every position x yaw: {t_glob / n * 1e3:.1f} ms wall, {c_glob / n * 1e3:.1f} ms CPU; within "
           f"0.05 m of the truth {np.mean(err <= 0.05):.0%}, within 0.1 m {np.mean(err <= 0.1):.0%}; load average now "
           f"{os.getloadavg()[0]:.1f}")
+    err1 = np.hypot(*(res1[1] - truth[:, :2]).T)
+    print(f"the beam by 8 neighbours only (refine_square 1): {t_climb / n * 1e3:.0f} ms wall, {c_climb / n * 1e3:.0f} ms CPU per "
+          f"panorama; within 0.05 m {np.mean(err1 <= 0.05):.0%}; ratio default / that {t_new / t_climb:.2f}x wall, "
+          f"{c_new / c_climb:.2f}x CPU")
     close = closeness(unpack(db, h, w), 3.0)
     m = min(args.old_panoramas, n)
     _today_search(q[:1], poses, model, db, close, w, h)  # JIT

@@ -66,3 +66,25 @@ def test_line_agreement_by_hand():
     assert on_map == 18 / 36
     assert found == 19 / 36                  # columns 0-18 of the map line lie within 1 px of a detection
     assert below == 12 / 18
+
+
+def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
+    # placeloc experiment umap-homes: highest mean share over the development runs; among
+    # settings within one panorama of the 180 of it, the fewest candidate cells, then the
+    # earlier (plainer) in the sweep
+    from placeloc.experiments.umap_homes import NOISE, SWEEP, choose
+
+    names = list(SWEEP)
+    climb32 = "solid-angle chamfer, 32 cells"
+    square16 = "solid-angle chamfer, 16 cells, beam's cells whole"
+    square32 = "solid-angle chamfer, 32 cells, beam's cells whole"
+    texture_square32 = "solid-angle chamfer, texture r 1, 32 cells, beam's cells whole"
+    assert {climb32, square16, square32, texture_square32} <= set(names)
+    nine = [0.95] * 9
+    results = {climb32: nine, square32: [0.975] * 9, texture_square32: [0.975] * 9, square16: nine}
+    assert choose(results) == square32                        # a tie on 32 cells: the earlier in the sweep
+    assert names.index(square32) < names.index(texture_square32)
+    results[square16] = [0.975 - NOISE] * 9                   # one panorama below on fewer cells: the cheaper
+    assert choose(results) == square16
+    results[square16] = [0.975 - 2 * NOISE] * 9               # two panoramas below: the best
+    assert choose(results) == square32

@@ -394,3 +394,140 @@ def test_solid_angle_weights_by_hand_and_floor_clutter_loses_its_pull():
         assert int(np.argmax(table[:, 0])) == want, solid
         if not solid:
             assert table[:, 0] == pytest.approx([(36 / 112 + 36 / 100) / 2, (64 / 176 + 64 / 100) / 2], abs=1e-5)
+
+
+def test_texture_weights_by_hand():
+    from placeloc.umap.panorama import TEXTURE_LINES, texture_weights
+
+    img = np.zeros((12, 20), np.uint8)
+    img[3, 2:15] = 1                                      # an isolated line: full weight
+    img[6:11, 0:5] = 1                                    # a filled 5 x 5 patch (stripes at 2.5 deg a pixel)
+    img[6:11, 18:20] = 1                                  # the patch goes on across the seam (2 more columns)
+    w = texture_weights(img, 1)
+    assert w.dtype == np.float32 and np.array_equal(w > 0, img > 0)
+    assert np.all(w[3, 2:15] == 1.0)
+    # inside the patch a 3 x 3 square holds 9 line pixels: two lines' worth is 2 x 3
+    assert w[8, 2] == pytest.approx(TEXTURE_LINES * 3 / 9)
+    # at the seam the square wraps around: column 0's square holds columns 19, 0 and 1, all lines
+    assert w[8, 0] == pytest.approx(TEXTURE_LINES * 3 / 9)
+    # the patch's corner (row 6, column 4): 4 line pixels in its square -> weight 1
+    assert w[6, 4] == 1.0
+    assert np.array_equal(texture_weights(img, 0), img.astype(np.float32))
+
+
+def test_weighted_query_closeness_and_scores_equal_the_pixel_loop():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, row_weights, texture_weights
+
+    # closeness of a weighted line image: each line pixel's kernel scaled by its weight (tau 2:
+    # 1 on the pixel, 1 - 1/2 one column away)
+    img = np.zeros((1, 5, 12), np.float32)
+    img[0, 2, 3] = 0.5
+    c = closeness(img, 2.0)
+    assert c[0, 2, 3] == pytest.approx(0.5) and c[0, 2, 4] == pytest.approx(0.25) and c[0, 2, 6] == 0.0
+    assert np.array_equal(closeness(np.ones((1, 5, 12), np.float32), 2.0), closeness(np.ones((1, 5, 12), np.uint8), 2.0))
+    rng = np.random.default_rng(5)
+    db = (rng.random((6, H, W)) < 0.03).astype(np.uint8)
+    qs = (rng.random((2, H, W)) < 0.03).astype(np.uint8)
+    qs[:, 50:60, 20:40] = 1                               # a dense patch: weights below 1 there
+    weighted = texture_weights(qs, 2)
+    assert 0 < weighted[weighted > 0].min() < 1
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=0.3, solid_angle=True)):
+        sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
+        shifts = rng.integers(0, W, size=(6, 4))
+        for chance in ("none", "area", "yaw"):
+            table = chamfer_table(sp, weighted, tau_px=3.0, weights=wts, chance=chance)
+            if wts.min() == 1.0:                          # the pixel loop has unit row weights
+                slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0, chance=chance)
+                                 for q in weighted])
+                assert np.abs(table - slow).max() < 1e-5, chance
+            at = chamfer_at_shifts(db, weighted[0], shifts, tau_px=3.0, weights=wts, chance=chance)
+            assert np.abs(at - np.take_along_axis(table[0], shifts, axis=1)).max() < 1e-4, chance
+        # weights of 1 are the plain binary score
+        ones = chamfer_table(sp, qs.astype(np.float32), tau_px=3.0, weights=wts, chance="none")
+        assert np.abs(ones - chamfer_table(sp, qs, tau_px=3.0, weights=wts, chance="none")).max() < 1e-6
+
+
+def test_texture_weights_keep_stripes_from_winning_a_pose():
+    # The white bonus room's failure: the true view's lines are partly detected, and sunlight
+    # stripes on the floor (a dense patch) lie where another place draws its floor lines.
+    # Plain, the stripes give that place the precision half; weighted, the patch counts as
+    # two lines and the true view wins.
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, texture_weights
+
+    h, w = 36, 96
+    true_view = np.zeros((h, w), np.uint8)
+    true_view[14, 0:w] = 1                                # the ceiling line all round
+    true_view[22, 0:w] = 1                                # the floor line all round
+    true_view[14:23, 0:w:24] = 1                          # four corners
+    other = np.zeros((h, w), np.uint8)                    # a place nearer a wall: its lines elsewhere
+    other[10, 0:w] = 1
+    other[30, 10:50] = 1                                  # its floor line runs through the stripes
+    other[10:31, 0:w:24] = 1
+    query = true_view.copy()
+    query[14, :] = 0                                      # the white ceiling line not detected
+    query[22, 40:w] = 0                                   # the floor line partly
+    query[27:35, 8:52] = 1                                # sunlight stripes on the carpet: a filled patch
+    db = np.stack([true_view, other])
+    ones = np.ones(h, np.float32)
+    sp = chamfer_spectra(db, tau_px=2.0, weights=ones)
+    plain = chamfer_table(sp, query[None], tau_px=2.0, weights=ones, chance="none")[0, :, 0]
+    weighted = chamfer_table(sp, texture_weights(query, 2)[None], tau_px=2.0, weights=ones, chance="none")[0, :, 0]
+    assert plain[1] > plain[0]
+    assert weighted[0] > weighted[1]
+
+
+def test_square_offsets_cover_the_cell():
+    from placeloc.umap.panorama import NEIGHBOURS, refine_steps, square_offsets
+
+    assert sorted(map(tuple, square_offsets(1))) == sorted(map(tuple, NEIGHBOURS))
+    sq = square_offsets(3)
+    assert len(sq) == 7 * 7 - 1 and not (sq == 0).all(axis=1).any() and np.abs(sq).max() == 3
+    # at the first refine step (a sixth of the grid step) three steps reach half a grid step:
+    # the square covers the grid cell around the pose, every point within half a step
+    # (diagonally 0.015 m at 0.25 m) of a sampled one
+    step = refine_steps(0.25, 0.02)[0]
+    assert 3 * step == pytest.approx(0.25 / 2)
+
+
+def test_precision_rows_by_hand():
+    # 4 rows at elevations 67.5, 22.5, -22.5, -67.5 deg; the precision half keeps rows within
+    # 45 deg. tau 1: closeness 1 on a line pixel, 0 elsewhere. Map pixels (1, 0) and (3, 9),
+    # query pixels (1, 0) and (3, 5); 10 columns (query column c is map column c - k).
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, precision_rows
+
+    assert precision_rows(4, 45.0).tolist() == [0, 1, 1, 0]
+    assert precision_rows(72, 90.0).min() == 1 and precision_rows(72, 70.0).sum() == 72 - 2 * 8
+    db = np.zeros((1, 4, 10), np.uint8)
+    db[0, 1, 0] = db[0, 3, 9] = 1
+    q = np.zeros((4, 10), np.uint8)
+    q[1, 0] = q[3, 5] = 1
+    rows = precision_rows(4, 45.0)
+    for k, full, kept in ((0, 0.5 * (0.5 + 0.5), 0.5 * (0.5 + 1.0)),     # the row-3 query pixel is off the map
+                          (6, 0.5 * (0.5 + 0.5), 0.5 * (0.5 + 0.0))):    # it lands on the map's row-3 pixel
+        plain = chamfer_yaw_scores(pack(db), closeness(db, 1.0), q, tau_px=1.0, chance="none")
+        masked = chamfer_yaw_scores(pack(db), closeness(db, 1.0), q, tau_px=1.0, chance="none", precision_rows=rows)
+        assert plain[0, k] == pytest.approx(full) and masked[0, k] == pytest.approx(kept)
+        ones = np.ones(4, np.float32)
+        table = chamfer_table(chamfer_spectra(db, tau_px=1.0, weights=ones), q[None], tau_px=1.0, weights=ones,
+                              chance="none", precision_rows=rows)
+        assert table[0, 0, k] == pytest.approx(kept, abs=1e-6)
+
+
+def test_precision_rows_equal_the_pixel_loop_and_the_scores_at_shifts():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, precision_rows, row_weights
+
+    rng = np.random.default_rng(8)
+    db = (rng.random((6, H, W)) < 0.03).astype(np.uint8)
+    qs = (rng.random((2, H, W)) < 0.04).astype(np.uint8)
+    rows = precision_rows(H, 70.0)
+    shifts = rng.integers(0, W, size=(6, 4))
+    for wts in (np.ones(H, np.float32), row_weights(H, polar_deg=60.0, polar_weight=1.0, solid_angle=True)):
+        sp = chamfer_spectra(db, tau_px=3.0, weights=wts)
+        for chance in ("none", "area", "yaw"):
+            table = chamfer_table(sp, qs, tau_px=3.0, weights=wts, chance=chance, precision_rows=rows)
+            if wts.min() == 1.0:
+                slow = np.stack([chamfer_yaw_scores(pack(db), closeness(db, 3.0), q, tau_px=3.0, chance=chance,
+                                                    precision_rows=rows) for q in qs])
+                assert np.abs(table - slow).max() < 1e-5, chance
+            at = chamfer_at_shifts(db, qs[1], shifts, tau_px=3.0, weights=wts, chance=chance, precision_rows=rows)
+            assert np.abs(at - np.take_along_axis(table[1], shifts, axis=1)).max() < 1e-4, chance

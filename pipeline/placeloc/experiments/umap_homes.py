@@ -40,16 +40,42 @@ PANORAMAS = 20
 GRID_STEP_M = 0.25            # umap.grid.step_m's default, the step the origins are shifted by
 ORIGINS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 # name -> umap.panorama settings; refine_candidates is the cost (8 renders each per panorama)
+# the rounds before the precision half's rows (every row counts) and the beam's square
+# (the beam climbs by 8 neighbours)
+_ALL_ROWS = {"precision_polar_deg": 90.0}
+_CLIMB = {"refine_square": 1, **_ALL_ROWS}
 SWEEP: dict[str, dict[str, Any]] = {
-    "plain chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": False},
-    "area-corrected chamfer, 16 cells": {"chamfer_chance": "area", "refine_candidates": 16, "solid_angle": False},
-    "yaw-corrected chamfer, 16 cells": {"chamfer_chance": "yaw", "refine_candidates": 16, "solid_angle": False},
-    "plain chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": False},
-    "area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": False},
+    "plain chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": False, **_CLIMB},
+    "area-corrected chamfer, 16 cells": {"chamfer_chance": "area", "refine_candidates": 16, "solid_angle": False, **_CLIMB},
+    "yaw-corrected chamfer, 16 cells": {"chamfer_chance": "yaw", "refine_candidates": 16, "solid_angle": False, **_CLIMB},
+    "plain chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": False, **_CLIMB},
+    "area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": False, **_CLIMB},
     # rows weighted by the solid angle they cover (umap.panorama.solid_angle)
-    "solid-angle chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": True},
-    "solid-angle chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": True},
-    "solid-angle area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": True},
+    "solid-angle chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": True, **_CLIMB},
+    "solid-angle chamfer, 32 cells": {"chamfer_chance": "none", "refine_candidates": 32, "solid_angle": True, **_CLIMB},
+    "solid-angle area-corrected chamfer, 32 cells": {"chamfer_chance": "area", "refine_candidates": 32, "solid_angle": True,
+                                                     **_CLIMB},
+    # query texture weighted down (umap.panorama.texture_radius_px)
+    "solid-angle chamfer, texture r 1, 32 cells": {"refine_candidates": 32, "solid_angle": True, "texture_radius_px": 1,
+                                                   **_CLIMB},
+    "solid-angle chamfer, texture r 2, 32 cells": {"refine_candidates": 32, "solid_angle": True, "texture_radius_px": 2,
+                                                   **_CLIMB},
+    # the beam's cells searched whole (umap.panorama.refine_square)
+    "solid-angle chamfer, 16 cells, beam's cells whole": {"refine_candidates": 16, "solid_angle": True, "refine_square": 3,
+                                                          **_ALL_ROWS},
+    "solid-angle chamfer, 32 cells, beam's cells whole": {"refine_candidates": 32, "solid_angle": True, "refine_square": 3,
+                                                          **_ALL_ROWS},
+    "solid-angle chamfer, texture r 1, 32 cells, beam's cells whole": {"refine_candidates": 32, "solid_angle": True,
+                                                                       "texture_radius_px": 1, "refine_square": 3,
+                                                                       **_ALL_ROWS},
+    "solid-angle chamfer, texture r 2, 32 cells, beam's cells whole": {"refine_candidates": 32, "solid_angle": True,
+                                                                       "texture_radius_px": 2, "refine_square": 3,
+                                                                       **_ALL_ROWS},
+    # the precision half over the rows within so many degrees of the horizon only
+    # (umap.panorama.precision_polar_deg), the milder first
+    **{f"solid-angle chamfer, precision within {deg} deg, 32 cells, beam's cells whole":
+       {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": float(deg)}
+       for deg in (80, 75, 70, 65)},
 }
 NOISE = 1.0 / (len(DEV_SEEDS) * len(ORIGINS) * PANORAMAS)   # one panorama of the 180
 

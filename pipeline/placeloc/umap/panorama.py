@@ -94,12 +94,14 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
             for x in range(w):
                 if lines[i, y, x] == 0:
                     continue
+                weight = np.float32(lines[i, y, x])
                 for j in range(value.shape[0]):
                     yy = y + dy[j]
                     if 0 <= yy < h:
                         xx = x + r + dx[j]
-                        if value[j] > wide[yy, xx]:
-                            wide[yy, xx] = value[j]
+                        v = value[j] * weight
+                        if v > wide[yy, xx]:
+                            wide[yy, xx] = v
         for y in range(h):
             for x in range(w):
                 out[i, y, x] = wide[y, x + r]
@@ -115,7 +117,9 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
 def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     """``max(0, 1 - d / tau)`` (float32) with d the distance (pixels) to the nearest line
     pixel of a (..., H, W) binary image, wrapping around horizontally (a panorama has no
-    left edge); d is OpenCV's 5 x 5 chamfer distance transform.
+    left edge); d is OpenCV's 5 x 5 chamfer distance transform. A float32 image is a
+    weighted line image (:func:`texture_weights`): the largest ``weight max(0, 1 - d / tau)``
+    over its line pixels, the same for weights 0 and 1.
 
     Why stamped, not transformed: a chamfer distance transform gives each pixel the least
     chamfer distance to any line pixel, and only line pixels within tau count, so the
@@ -128,7 +132,9 @@ def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     lead = lines.shape[:-2]
     h, w = lines.shape[-2:]
     flat = np.ascontiguousarray(lines.reshape(-1, h, w))
-    if flat.dtype != np.uint8:
+    if flat.dtype == np.float64:
+        flat = flat.astype(np.float32)
+    elif flat.dtype not in (np.uint8, np.float32):
         flat = (flat != 0).astype(np.uint8)
     out = np.zeros(flat.shape, np.float32)
     if flat.size:
@@ -139,10 +145,50 @@ def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
     return out.reshape(*lead, h, w)
 
 
+# line pixels a texture patch is worth: two lines across the square (a corner of the map:
+# two lines meet there, and a rasterised line is thicker than one pixel where it is oblique)
+TEXTURE_LINES = 2.0
+
+
+def texture_weights(lines: np.ndarray, radius_px: int) -> np.ndarray:
+    """(..., H, W) float32 weight of each line pixel of binary panoramic line images: two
+    lines' worth of pixels in the (2r + 1)-pixel square around it (2r + 1 a line crossing
+    the square: :data:`TEXTURE_LINES`) over the line pixels there, at most 1; 0 off the
+    lines. ``radius_px`` 0: every line pixel weighs 1.
+
+    Why: the map draws walls, floor and ceiling edges, door and window frames, each an
+    isolated curve; what is dense in a query's line image is mostly texture the map lacks:
+    blinds, sunlight striped by them on the floor, tiles, planks, radiator fins, all a few
+    degrees apart or less, so that at 2.5 degrees a pixel they fill whole patches.
+    Weighted, such a patch counts about as much as two lines through it, so a pose does not
+    win by laying its map lines across the stripes; isolated lines and corners keep their
+    full weight. What it also weighs down: a distant wall's frames and corners, which the
+    map draws dense too (why it is off by default: docs/umap.md)."""
+    lines = np.asarray(lines)
+    binary = (lines != 0).astype(np.float32)
+    if radius_px <= 0:
+        return binary
+    r = int(radius_px)
+    h, w = lines.shape[-2:]
+    flat = binary.reshape(-1, h, w)
+    out = np.zeros_like(flat)
+    for i, img in enumerate(flat):
+        # the square's sum, wrapping around the seam (a panorama has no left edge), zero
+        # beyond the poles
+        padded = np.pad(img, ((r, r), (0, 0)))
+        padded = np.concatenate([padded[:, w - r:], padded, padded[:, :r]], axis=1)
+        count = cv2.boxFilter(padded, -1, (2 * r + 1, 2 * r + 1), normalize=False,
+                              borderType=cv2.BORDER_CONSTANT)[r:r + h, r:r + w]
+        out[i] = img * np.minimum(1.0, TEXTURE_LINES * (2 * r + 1) / np.maximum(count, 1.0))
+    return out.reshape(lines.shape).astype(np.float32)
+
+
 @njit(parallel=True, cache=True)
 def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
-                    width: int, out: np.ndarray) -> None:
-    n_q = q_rows.shape[0]
+                    q_vals: np.ndarray, width: int, out: np.ndarray) -> None:
+    n_q = 0.0
+    for m in range(q_rows.shape[0]):
+        n_q += q_vals[m]
     for i in prange(db.shape[0]):
         recall = np.zeros(width, dtype=np.float32)
         n_map = 0
@@ -162,14 +208,15 @@ def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q
                     for k in range(width - c, width):
                         recall[k] += q_close[r, c + k - width]
         precision = np.zeros(width, dtype=np.float32)
-        for m in range(n_q):
+        for m in range(q_rows.shape[0]):
             r = q_rows[m]
             c = q_cols[m]
+            v = q_vals[m]
             # query column c is db column c - k (mod width)
             for k in range(c + 1):
-                precision[k] += db_close[i, r, c - k]
+                precision[k] += v * db_close[i, r, c - k]
             for k in range(c + 1, width):
-                precision[k] += db_close[i, r, c - k + width]
+                precision[k] += v * db_close[i, r, c - k + width]
         for k in range(width):
             out[i, 0, k] = recall[k] / n_map if n_map > 0 else 0.0
             out[i, 1, k] = precision[k] / n_q if n_q > 0 else 0.0
@@ -186,20 +233,28 @@ def chance_corrected(value: np.ndarray, chance: np.ndarray) -> np.ndarray:
     return (value - chance) / np.maximum(1.0 - chance, CHANCE_FLOOR)
 
 
-def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str) -> np.ndarray:
+def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str,
+                       precision_rows: np.ndarray | None = None) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
     query at every column shift, pixel by pixel (the reference :func:`chamfer_table` is
     tested against): (P, W) float64. ``db`` the undilated packed map line images,
     ``db_close`` their :func:`closeness` images (P, H, W); ``chance``: ``none`` (the plain
     halves, in [0, 1]), ``area`` (each half corrected for the share of the image the other
-    side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts)."""
+    side's closeness covers) or ``yaw`` (corrected for the half's mean over all shifts).
+    A float ``query`` is a weighted line image (:func:`texture_weights`): each line pixel
+    counts with its weight in the precision half and stamps its closeness scaled by it.
+    ``precision_rows`` (H,): each row's query pixels count in the precision half times
+    this (:func:`precision_rows`; the recall half keeps them all)."""
     h, w = query.shape
     rows, cols = np.nonzero(query)
+    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
+    if precision_rows is not None:
+        vals = vals * np.asarray(precision_rows, np.float64)[rows]
     halves = np.zeros((db.shape[0], 2, w))
     q_close = closeness(query, tau_px).astype(np.float32)
     if db.shape[0]:
         _chamfer_shifts(np.ascontiguousarray(db), np.ascontiguousarray(db_close, np.float32),
-                        q_close, rows.astype(np.int64), cols.astype(np.int64), w, halves)
+                        q_close, rows.astype(np.int64), cols.astype(np.int64), vals, w, halves)
     recall, precision = halves[:, 0], halves[:, 1]
     if chance == "area":
         # a query pixel anywhere: the map's closeness averaged over the image; a map pixel
@@ -232,6 +287,21 @@ def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_ang
     return w.astype(np.float32)
 
 
+def precision_rows(height: int, polar_deg: float) -> np.ndarray:
+    """(H,) float32: 1 for equirectangular rows within ``polar_deg`` of the horizon, 0
+    beyond: the rows whose query line pixels the chamfer score's precision half counts
+    (``umap.panorama.precision_polar_deg``; 90: all).
+
+    Why: within 15 degrees of the nadir (the default, 75) the camera sees the floor within
+    0.4 m of its foot (1.5 m up), where the tripod, rugs and sunlight striped by blinds lie
+    and a map line only where a wall stands that close; within 15 degrees of the zenith, a
+    ceiling fan or lamp. Detected pixels there are mostly clutter, and clutter near some other
+    place's lines wins that place the precision half. The recall half still counts the
+    map's lines there (a doorway camera's lintel overhead)."""
+    el = 90.0 - 180.0 * (np.arange(height) + 0.5) / height
+    return (np.abs(el) <= polar_deg).astype(np.float32)
+
+
 def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) -> np.ndarray:
     """The map side of the chamfer score (module docstring) of (P, H, W) binary panoramic
     line images, in the form :func:`chamfer_table` multiplies: (F, P, 2H) complex64, F =
@@ -254,7 +324,7 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) ->
 
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                  chance: str) -> np.ndarray:
+                  chance: str, precision_rows: np.ndarray | None = None) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -269,9 +339,11 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
-    q = queries.astype(np.float32)
+    q = queries.astype(np.float32)                                            # a float query: weighted
+    q_close = closeness(q if queries.dtype.kind == "f" else queries, tau_px)
+    if precision_rows is not None:                                            # the precision half's rows only
+        q = q * np.asarray(precision_rows, np.float32)[None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
-    q_close = closeness(queries, tau_px)
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance == "none":
@@ -335,6 +407,13 @@ def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_s
 NEIGHBOURS = np.array([[dx, dy] for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy], float)
 
 
+def square_offsets(radius: int) -> np.ndarray:
+    """(K, 2) offsets of the points of a square grid within ``radius`` steps of its centre
+    on each axis, the centre left out (radius 1: :data:`NEIGHBOURS`)."""
+    r = range(-int(radius), int(radius) + 1)
+    return np.array([[dx, dy] for dx in r for dy in r if dx or dy], float).reshape(-1, 2)
+
+
 def refine_steps(grid_step_m: float, finest_m: float) -> list[float]:
     """The steps of the local search after the cell stage (:func:`search_panoramas`):
     halving from a sixth of the grid step (the cell stage samples at a third) while not
@@ -354,7 +433,8 @@ def grid_step(xy: np.ndarray) -> float:
 
 @njit(parallel=True, cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
-                       weights: np.ndarray, shifts: np.ndarray, out: np.ndarray, chance_out: np.ndarray) -> None:
+                       q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray,
+                       chance_out: np.ndarray) -> None:
     """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
     chance levels (chance_out (L, 4): area recall, area precision, yaw recall, yaw precision)."""
     h, w = imgs.shape[1], imgs.shape[2]
@@ -372,7 +452,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
     q_area /= w * wsum
     nq = 0.0
     for m in range(q_rows.shape[0]):
-        nq += weights[q_rows[m]]
+        nq += weights[q_rows[m]] * q_vals[m]
     for i in prange(imgs.shape[0]):
         m_row_mean = np.zeros(h)
         m_area = 0.0
@@ -401,7 +481,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
         for m in range(q_rows.shape[0]):
             r = q_rows[m]
             c = q_cols[m]
-            wr = weights[r]
+            wr = weights[r] * q_vals[m]
             yaw_p += wr * m_row_mean[r]
             for s in range(shifts.shape[1]):
                 cc = c - shifts[i, s]
@@ -416,20 +496,24 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 
 
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                      chance: str, query_close: np.ndarray | None = None) -> np.ndarray:
+                      chance: str, query_close: np.ndarray | None = None,
+                      precision_rows: np.ndarray | None = None) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
     around a candidate's heading, without the spectra's FFTs (equal to the table's entries:
-    tested)."""
+    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`."""
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols = np.nonzero(query)
+    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
+    if precision_rows is not None:
+        vals = vals * np.asarray(precision_rows, np.float64)[rows]
     shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[1])
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))
     if len(imgs):
-        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64),
+        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
                            np.asarray(weights, np.float64), shifts, halves, levels)
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":
@@ -481,7 +565,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;
     2. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
-       the 8 neighbours at each step, down to ``refine_step_m``).
+       the 8 neighbours at each step, down to ``refine_step_m``); at the first step (a sixth
+       of a grid step) each first samples the whole square of ``refine_square`` steps either
+       side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
+       so that the peak is found where the score between the sampled points is too rugged
+       to climb.
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
@@ -490,11 +578,14 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
+    # the chamfer score's query side: line pixels weighted down inside dense texture
+    queries = texture_weights(lines, pp.texture_radius_px) if chamfer and pp.texture_radius_px > 0 else lines
+    prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
-            return chamfer_table(database["spectra"], lines[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance)
+            return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
+                                 chance=pp.chamfer_chance, precision_rows=prows)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
@@ -502,8 +593,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
-            return chamfer_at_shifts(imgs, lines[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
-                                     chance=pp.chamfer_chance, query_close=q_close)
+            return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+                                     chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 
@@ -511,6 +602,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     cell = grid_step(poses[:, :2]) / 3.0 if len(poses) else 0.0
     steps = refine_steps(3.0 * cell, pp.refine_step_m)
     window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
+    square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
 
     def scored() -> Iterable:
@@ -519,11 +611,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             yield from zip(ks, tables(ks))
 
     def move(k: int, xy: np.ndarray, col: np.ndarray, sc: np.ndarray, step: float, floor_d: np.ndarray,
-             q_close: np.ndarray | None) -> None:
-        """One step of the local search: each pose's 8 neighbours at ``step``, kept where
-        better (in place)."""
-        pts = (xy[:, None, :] + step * NEIGHBOURS[None]).reshape(-1, 2)
-        owner = np.repeat(np.arange(len(xy)), len(NEIGHBOURS))
+             q_close: np.ndarray | None, offsets: np.ndarray = NEIGHBOURS) -> None:
+        """One step of the local search: each pose's neighbours (``offsets`` steps away, by
+        default the 8 nearest) at ``step``, kept where better (in place)."""
+        pts = (xy[:, None, :] + step * offsets[None]).reshape(-1, 2)
+        owner = np.repeat(np.arange(len(xy)), len(offsets))
         if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
             ok = wall_distance(pts, walls) >= floor_d[owner]
             pts, owner = pts[ok], owner[ok]
@@ -549,7 +641,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
                 continue
-            q_close = closeness(lines[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
+            q_close = closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
             xy = poses[cands, :2].copy()
             col = np.argmax(table[cands], axis=1).astype(np.int64)
             sc = table[cands].max(axis=1).astype(np.float64)
@@ -557,7 +649,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
             xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
-            for step in steps:                                                      # coarse to fine
+            for i, step in enumerate(steps):                                        # coarse to fine
+                # the beam's cells, densely (chamfer only: the IoU of dilated lines is flat over a
+                # few centimetres, and a dense square finds its spurious maxima: 5 degrees off on
+                # the end-to-end test)
+                if i == 0 and chamfer and pp.refine_square > 1:
+                    move(int(k), xy, col, sc, step, floor_d, q_close, square)
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
             if sc[j] > score[k]:

@@ -75,6 +75,16 @@ class PanoramaParams(Params):
                                      "chance): area, the share of the image the other side's closeness covers (a view "
                                      "drawing much map earns no more for clutter near it); yaw, the half's mean over all "
                                      "headings; none, the plain halves")
+    texture_radius_px: int = param(0, min=0, max=8,
+                                   help="chamfer score: each query line pixel weighs two lines' worth of pixels in the "
+                                        "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "
+                                        "that dense texture the map lacks (blinds, sunlight stripes, tiles) counts "
+                                        "about as two lines; 0: every line pixel weighs 1")
+    precision_polar_deg: float = param(75.0, min=0.0, max=90.0,
+                                       help="chamfer score: the precision half counts only the query's line pixels "
+                                            "within this many degrees of the horizon (the floor at the camera's foot: "
+                                            "tripod, rugs, sunlight stripes; the ceiling over it: a fan or lamp); the "
+                                            "recall half keeps every row; 90: all")
     polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "
@@ -88,6 +98,9 @@ class PanoramaParams(Params):
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
     refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
+    refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
+                                                     "samples the square of this many steps either side of it (3: its "
+                                                     "whole grid cell; 1: only its 8 neighbours); chamfer score only")
     refine_step_m: float = param(0.02, min=0.0, min_exclusive=True, help="the local search's finest step")
     refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
                                                 "local pose")

@@ -425,9 +425,10 @@ METHOD = Method(
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight", "panorama.solid_angle")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
+                                          "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_beam", "panorama.refine_step_m", "panorama.refine_yaw_cols",
+                                          "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),

@@ -68,24 +68,23 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
-# Bytes of float32 a chunk of rows holds, per thread that shares the GIL. The NumPy kernels
-# (the straight search, the enhancement, the ranking) hold the GIL for each call's dispatch,
-# and threads that queue for it wake one another through the OS: per call the work must
-# grow with the threads. Small chunks keep the straight search's running sums in L2: on one
-# core at 3576 references 0.16-0.18 s with 384 KB chunks (27 rows) against 0.36-0.40 s with 2
-# MB; on 16 cores 384 KB chunks made the same search 0.25 s against 0.11 s with 2 MB (one
-# H100 host, `python bench/scaling.py --cores`). So: 384 KB for up to 2 threads, growing
-# with the threads to 2 MB.
-ROW_CHUNK_BYTES = 384 << 10
-ROW_CHUNK_BYTES_MAX = 2 << 20
+# Bytes of float32 a chunk of rows holds. On one thread, small chunks keep the straight
+# search's running sums in L2: at 3576 references 0.26 s with 384 KB chunks (27 rows)
+# against 0.40 s with 2 MB (one core of an H100 host). With two threads or more, the NumPy
+# kernels (the straight search, the enhancement, the ranking) hold the GIL to dispatch each
+# call, and threads that queue for it wake one another through the OS, so each call needs
+# more work: localize with the benchmark settings took 0.92-0.96 s of its own with 384 KB
+# chunks on 2 cores against 0.80-0.85 s with 2 MB, and the search 0.25 s against 0.11 s on
+# 16 cores (`python bench/scaling.py --cores`).
+ROW_CHUNK_BYTES_ONE_THREAD = 384 << 10
+ROW_CHUNK_BYTES = 2 << 20
 
 
 def row_chunks(n_rows: int, n_cols: int, threads: int | None = None) -> list[tuple[int, int]]:
     """Split rows into chunks for ``threads`` threads (None: one per usable core) of about
-    :data:`ROW_CHUNK_BYTES` of float32 per two threads, at most :data:`ROW_CHUNK_BYTES_MAX`
-    (4 to 512 rows)."""
-    threads = threads or n_threads()
-    per_chunk = min(ROW_CHUNK_BYTES_MAX, ROW_CHUNK_BYTES * max(1, threads // 2))
+    :data:`ROW_CHUNK_BYTES` of float32 (:data:`ROW_CHUNK_BYTES_ONE_THREAD` on one thread),
+    4 to 512 rows."""
+    per_chunk = ROW_CHUNK_BYTES_ONE_THREAD if (threads or n_threads()) == 1 else ROW_CHUNK_BYTES
     step = int(np.clip(per_chunk // max(1, 4 * n_cols), 4, 512))
     return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
 

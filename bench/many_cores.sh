@@ -50,9 +50,10 @@ table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
 table umap 60 "$PY" bench/bench_umap.py --panorama-only
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then
-    table pirf 60 "$PY" bench/bench_pirf.py --size "${PIRF_SIZE:-100000}" --backends bruteforce,faiss-hnsw-tuned --cache /tmp/placeloc-pirf-cache
+    PIRF_CACHE=$(mktemp -d -t placeloc-pirf-XXXXXX)
+    table pirf 60 "$PY" bench/bench_pirf.py --size "${PIRF_SIZE:-100000}" --backends bruteforce,faiss-hnsw-tuned --cache "$PIRF_CACHE"
+    rm -rf "$PIRF_CACHE"
 else
     echo "== pirf: skipped (no faiss)"
 fi
-rm -rf /tmp/placeloc-pirf-cache
 echo "== done $(date +%T)"

@@ -144,20 +144,24 @@ def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray
     return repeats & (a >= 0) & (b >= 0) & (stop_best >= np.minimum(a, b)) & (stop_best <= np.maximum(a, b))
 
 
+def window_columns(c0: int, c1: int, n: int, before: int, after: int) -> tuple[int, int]:
+    """The columns ``lo:hi`` (of ``n``) the windows of queries ``c0:c1`` read: ``before``/
+    ``after`` on either side and, near a traverse end, at least the ``before + after + 1``
+    frames nearest it, which a shifted window (``edges: shift``) uses there."""
+    n_window = before + after + 1
+    return max(0, min(c0 - before, n - n_window)), min(n, max(c1 + after, n_window))
+
+
 def block_spans(n_q: int, block: int, before: int, after: int) -> list[tuple[int, int, int, int]]:
     """``(c0, c1, lo, hi)`` per block of at most ``block`` query columns ``c0:c1``, with the
-    columns ``lo:hi`` their windows read: ``before``/``after`` on either side and, near a
-    traverse end, at least the ``before + after + 1`` frames nearest it, which a shifted
-    window (``edges: shift``) uses there. Without those, a last block shorter than a
-    window could not shift its queries' windows and left them unmatched (1056 queries
-    with block_size 1024 and ds 120 left 32), so ``block_size`` changed results."""
-    n_window = before + after + 1
+    columns ``lo:hi`` their windows read (:func:`window_columns`). Without the frames a
+    shifted window needs, a last block shorter than a window could not shift its queries'
+    windows and left them unmatched (1056 queries with block_size 1024 and ds 120 left
+    32), so ``block_size`` changed results."""
     spans = []
     for c0 in range(0, n_q, block):
         c1 = min(n_q, c0 + block)
-        lo = max(0, min(c0 - before, n_q - n_window))
-        hi = min(n_q, max(c1 + after, n_window))
-        spans.append((c0, c1, lo, hi))
+        spans.append((c0, c1, *window_columns(c0, c1, n_q, before, after)))
     return spans
 
 
@@ -349,8 +353,7 @@ def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run
         while j + 1 < len(need) and need[j + 1] - need[j] <= n_window and need[j + 1] - need[i] < block_size:
             j += 1
         a0, a1 = int(need[i]), int(need[j]) + 1
-        lo = max(0, min(a0 - before, n_kept - n_window))
-        hi = min(n_kept, max(a1 + after, n_window))
+        lo, hi = window_columns(a0, a1, n_kept, before, after)
         et = enhance_t(_transposed(difference_block(ref_kept, query[first[lo:hi]], comparison)), window)
         b, s = sequence_search(et, a0 - lo, a1 - lo, int(ds), vels, search, window, k, None, lo,
                                shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,

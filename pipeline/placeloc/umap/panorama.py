@@ -233,6 +233,16 @@ def chance_corrected(value: np.ndarray, chance: np.ndarray) -> np.ndarray:
     return (value - chance) / np.maximum(1.0 - chance, CHANCE_FLOOR)
 
 
+def _query_pixels(query: np.ndarray, precision_rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows, columns and precision-half weights of a query's line pixels: a float query's
+    own weights (:func:`texture_weights`), else 1, times ``precision_rows`` of their row."""
+    rows, cols = np.nonzero(query)
+    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
+    if precision_rows is not None:
+        vals = vals * np.asarray(precision_rows, np.float64)[rows]
+    return rows, cols, vals
+
+
 def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str,
                        precision_rows: np.ndarray | None = None) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
@@ -246,10 +256,7 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     ``precision_rows`` (H,): each row's query pixels count in the precision half times
     this (:func:`precision_rows`; the recall half keeps them all)."""
     h, w = query.shape
-    rows, cols = np.nonzero(query)
-    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
-    if precision_rows is not None:
-        vals = vals * np.asarray(precision_rows, np.float64)[rows]
+    rows, cols, vals = _query_pixels(query, precision_rows)
     halves = np.zeros((db.shape[0], 2, w))
     q_close = closeness(query, tau_px).astype(np.float32)
     if db.shape[0]:
@@ -505,10 +512,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`."""
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
-    rows, cols = np.nonzero(query)
-    vals = np.asarray(query, np.float64)[rows, cols] if query.dtype.kind == "f" else np.ones(len(rows))
-    if precision_rows is not None:
-        vals = vals * np.asarray(precision_rows, np.float64)[rows]
+    rows, cols, vals = _query_pixels(query, precision_rows)
     shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[1])
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))

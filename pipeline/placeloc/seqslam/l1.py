@@ -206,16 +206,23 @@ def kernel(name: str, avx2: bool | None = None) -> Any:
     the IR, the CPU and llvmlite's version (compiling both kernels takes about 0.1 s,
     loading them 4 ms, bench/bench_kernel_cache.py), only in a cache no one else can write (:func:`trusted_cache`);
     without one it is compiled every time."""
+    if avx2 is None:
+        avx2 = host_has_avx2()
+    elif avx2 and not host_has_avx2():
+        raise ValueError("this CPU lacks AVX2: use avx2=None or False")
+    return compiled(name, module_source(name, bool(avx2)), _SIGNATURE)
+
+
+@functools.lru_cache(maxsize=16)
+def compiled(name: str, source: str, signature: Any) -> Any:
+    """The function ``name`` of the LLVM IR ``source``, compiled for this CPU (or loaded from
+    the private on-disk cache, keyed by the IR, the CPU and llvmlite's version), as a ctypes
+    function of type ``signature``; once per process. ctypes releases the GIL for the call."""
     import llvmlite
     import llvmlite.binding as llvm
 
     llvm.initialize_native_target()
     llvm.initialize_native_asmprinter()
-    if avx2 is None:
-        avx2 = host_has_avx2()
-    elif avx2 and not host_has_avx2():
-        raise ValueError("this CPU lacks AVX2: use avx2=None or False")
-    source = module_source(name, bool(avx2))
     cpu, features = llvm.get_host_cpu_name(), llvm.get_host_cpu_features().flatten()
     key = hashlib.sha256("\0".join([source, cpu, features, llvmlite.__version__]).encode()).hexdigest()[:32]
     file_name = f"{name}-{key}.o"
@@ -236,7 +243,7 @@ def kernel(name: str, avx2: bool | None = None) -> Any:
         if secret is not None:
             _store(folder, file_name, obj, secret)
     engine.finalize_object()
-    fn = _SIGNATURE(engine.get_function_address(name))
+    fn = signature(engine.get_function_address(name))
     fn.engine = engine  # the engine owns the code: keep it alive with the function
     return fn
 

@@ -99,3 +99,30 @@ def test_flat_variance_is_the_threshold_the_numpy_reference_uses():
         enhance_rows_numpy(dt, 3, 0.0, ref)
         np.testing.assert_array_equal(out, ref)
         assert bool(out[0, 3] > 2.0) is scored  # the bump's own z-score: (h - h/7) / sd = sqrt(6)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_ranking_is_the_numpy_reference_bit_for_bit(seed):
+    from placeloc.seqslam.search import top_k_numpy
+
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        n, nr = int(rng.integers(1, 6)), int(rng.integers(1, 300))
+        window, k = int(rng.integers(0, 30)), int(rng.integers(1, 12))
+        s = rng.integers(0, 20, (n, nr)).astype(np.float32)  # many ties: the first reference wins
+        s[rng.random((n, nr)) < 0.2] = np.inf  # left out: never picked
+        want = top_k_numpy(s.copy(), window, k)
+        got = row_kernels.top_k(s.copy(), window, k)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_ranking_by_hand():
+    s = np.array([[5, 1, 4, 1, 9, 0, 7, np.inf, 3, 2]], np.float32)
+    # window 1: 0 (at 5), then 1 at 1 (3 is free too but 1 comes first), then 1 at 3, then 2 at 9
+    best, scores = row_kernels.top_k(s.copy(), 1, 5)
+    np.testing.assert_array_equal(best, [[5, 1, 3, 9, -1]])
+    np.testing.assert_array_equal(scores, [[0, 1, 1, 2, np.inf]])
+    # window 0, the plain ranking: every reference in order of score, ties by position
+    best, _ = row_kernels.top_k(s.copy(), 0, 9)
+    np.testing.assert_array_equal(best, [[5, 1, 3, 9, 8, 2, 0, 6, 4]])

@@ -5,7 +5,8 @@ Kernels work on the transposed, query-major copy ``Dt[q, r]`` so that each step 
 of contiguous reference rows, for a chunk of queries at once; chunks run on one thread per
 core. The enhancement and the straight trajectories run as LLVM IR compiled by llvmlite
 (:mod:`placeloc.seqslam.row_kernels`, bit-identical to the NumPy references kept here,
-:func:`enhance_rows_numpy` and :func:`trajectory_scores_numpy`): in NumPy they were bound by
+:func:`enhance_rows_numpy` and :func:`trajectory_scores_numpy`), and so does the ranking
+(:func:`top_k_numpy`): in NumPy they were bound by
 the GIL past two cores. They pay no numba start-up (about 0.7 s a process); the flexible
 path's dynamic programme is compiled by numba (:mod:`placeloc.seqslam.flexible`). The cone
 shapes stay NumPy.
@@ -28,7 +29,7 @@ import numpy as np
 from placeloc.seqslam.l1 import n_threads, run_threaded
 from placeloc.seqslam.params import SEQUENCE_SHAPES as SHAPES
 from placeloc.seqslam.params import SeqSLAMParams
-from placeloc.seqslam.row_kernels import enhance_rows, trajectory_scores
+from placeloc.seqslam.row_kernels import enhance_rows, top_k, trajectory_scores
 
 INVALID = np.float32(np.inf)
 
@@ -360,7 +361,15 @@ def _recent_limits(t_global: np.ndarray, exclude_recent: int, nr: int) -> np.nda
 
 def _top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Greedy non-maximum suppression per row: the k best references at least window+1
-    apart (ties: the first), -1 / inf when none is left. Destroys ``s``."""
+    apart (ties: the first), -1 / inf when none is left. May destroy ``s``. Compiled
+    (:func:`placeloc.seqslam.row_kernels.top_k`): in NumPy (:func:`top_k_numpy`) each pick
+    held the GIL to index, and on 16 cores the ranking's threads queued for it."""
+    return top_k(np.ascontiguousarray(s, dtype=np.float32), int(window), int(k))
+
+
+def top_k_numpy(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The NumPy reference of :func:`_top_k` (what the compiled kernel is tested against).
+    Destroys ``s``."""
     n, nr = s.shape
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), INVALID, np.float32)

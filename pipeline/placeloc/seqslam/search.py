@@ -559,16 +559,13 @@ def single_image_best(dt: np.ndarray, window: int, exclude_recent: int | None, q
     (differences are >= 0 for every comparison). ``q0`` is the global index of row 0, for
     ``exclude_recent`` (loop closure)."""
     n, nr = dt.shape
-    rows = np.arange(n)[:, None]
-    x = dt
+    x = np.array(dt, dtype=np.float32, order="C")  # a copy: the ranking destroys it
     if exclude_recent is not None:
-        x = dt.copy()
         _exclude(x, _recent_limits(q0 + np.arange(n), exclude_recent, nr))
-    best = np.argmin(x, axis=1)
-    s1 = x[np.arange(n), best].astype(np.float64)
-    x = x.copy() if x is dt else x
-    x[rows, _around(best, window, nr)] = np.inf
-    s2 = x.min(axis=1).astype(np.float64)
+    # the best, and the best outside +-window of it: the separated ranking's first two
+    picks, two = _top_k(x, window, 2)
+    best = picks[:, 0]
+    s1, s2 = two[:, 0].astype(np.float64), two[:, 1].astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         conf = 1.0 - np.maximum(s1, 0) / s2
     conf[~np.isfinite(conf) | ~np.isfinite(s1)] = 0.0

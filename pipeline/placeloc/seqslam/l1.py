@@ -30,6 +30,7 @@ import hashlib
 import hmac
 import os
 import stat
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -213,11 +214,28 @@ def kernel(name: str, avx2: bool | None = None) -> Any:
     return compiled(name, module_source(name, bool(avx2)), _SIGNATURE)
 
 
-@functools.lru_cache(maxsize=16)
+# Kernels are loaded on a thread while localize starts (seqslam.matching): one at a time,
+# so that a kernel asked for meanwhile is compiled or loaded once.
+_COMPILE_LOCK = threading.Lock()
+
+
 def compiled(name: str, source: str, signature: Any) -> Any:
     """The function ``name`` of the LLVM IR ``source``, compiled for this CPU (or loaded from
     the private on-disk cache, keyed by the IR, the CPU and llvmlite's version), as a ctypes
     function of type ``signature``; once per process. ctypes releases the GIL for the call."""
+    return compiled_module(name, source, ((name, signature),))[name]
+
+
+def compiled_module(module: str, source: str, functions: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
+    """Several functions of one IR module, ``(name, ctypes signature)`` each, as
+    :func:`compiled` gives one: one engine and one cached object file for all (each engine
+    costs about 7 ms to set up)."""
+    with _COMPILE_LOCK:
+        return _compiled(module, source, functions)
+
+
+@functools.lru_cache(maxsize=16)
+def _compiled(module: str, source: str, functions: tuple[tuple[str, Any], ...]) -> dict[str, Any]:
     import llvmlite
     import llvmlite.binding as llvm
 
@@ -225,7 +243,7 @@ def compiled(name: str, source: str, signature: Any) -> Any:
     llvm.initialize_native_asmprinter()
     cpu, features = llvm.get_host_cpu_name(), llvm.get_host_cpu_features().flatten()
     key = hashlib.sha256("\0".join([source, cpu, features, llvmlite.__version__]).encode()).hexdigest()[:32]
-    file_name = f"{name}-{key}.o"
+    file_name = f"{module}-{key}.o"
     machine = llvm.Target.from_default_triple().create_target_machine(cpu=cpu, features=features, opt=3)
     engine = llvm.create_mcjit_compiler(llvm.parse_assembly(""), machine)
     folder = trusted_cache()
@@ -243,9 +261,12 @@ def compiled(name: str, source: str, signature: Any) -> Any:
         if secret is not None:
             _store(folder, file_name, obj, secret)
     engine.finalize_object()
-    fn = signature(engine.get_function_address(name))
-    fn.engine = engine  # the engine owns the code: keep it alive with the function
-    return fn
+    out = {}
+    for name, signature in functions:
+        fn = signature(engine.get_function_address(name))
+        fn.engine = engine  # the engine owns the code: keep it alive with the function
+        out[name] = fn
+    return out
 
 
 # A cached object is a few KB; anything larger is not one of ours.
@@ -278,7 +299,7 @@ def _read_private(folder: Path, name: str, limit: int) -> bytes | None:
 
 def _write_private(folder: Path, name: str, data: bytes) -> None:
     """Write a cache file 0600 (whatever the umask) under a temporary name, then rename."""
-    tmp = folder / f".{name}.tmp-{os.getpid()}"
+    tmp = folder / f".{name}.tmp-{os.getpid()}-{threading.get_ident()}"
     with contextlib.suppress(FileNotFoundError):
         tmp.unlink()
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)

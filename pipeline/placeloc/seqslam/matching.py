@@ -206,21 +206,28 @@ def _single_best_into(dt: np.ndarray, window: int, exclude_recent: int | None, q
     run_threaded(part, row_chunks(*dt.shape))
 
 
-def _load_flexible_kernel_meanwhile() -> None:
-    """Load the compiled flexible search on a thread while the first difference block is
-    computed. Measured on 2 cores (Nordland preset, 3576 x 3576, ``placeloc localize`` as a
-    process, three runs each, load about 1): 5.37-5.57 s wall with, 5.53-5.69 s without."""
+def _load_kernels_meanwhile(flexible: bool) -> None:
+    """Load the compiled kernels on a thread while the first difference block is computed:
+    the enhancement's, the search's and the ranking's (llvmlite's library and the cached
+    machine code, 40-90 ms, which a comparison other than the L1 ones does not load
+    before), and with ``flexible`` numba's flexible search (about 0.7 s). Measured on 2
+    cores (Nordland preset, 3576 x 3576, ``placeloc localize`` as a process, three runs
+    each, load about 1): 5.37-5.57 s wall with, 5.53-5.69 s without."""
     import threading
 
     def load() -> None:
-        try:  # numba's import too happens here, off the main thread
-            from placeloc.seqslam.flexible import warm_up
+        try:  # the searches load them again and report what fails
+            from placeloc.seqslam.row_kernels import warm_up
 
             warm_up()
-        except Exception:  # noqa: BLE001 - the search itself loads it again and reports what fails
+            if flexible:  # numba's import too happens here, off the main thread
+                from placeloc.seqslam.flexible import warm_up as warm_up_flexible
+
+                warm_up_flexible()
+        except Exception:  # noqa: BLE001
             pass
 
-    threading.Thread(target=load, name="placeloc-load-flexible", daemon=True).start()
+    threading.Thread(target=load, name="placeloc-load-kernels", daemon=True).start()
 
 
 def sequence_match(
@@ -285,8 +292,7 @@ def sequence_match(
     single_conf = np.zeros(n_q, np.float64)
     plain = (np.full((n_q, plain_k), -1, np.int64), np.full((n_q, plain_k), np.inf, np.float32)) if plain_k > 0 else None
     spans = block_spans(n_q, block, before, after)
-    if sequence_shape == "flexible":
-        _load_flexible_kernel_meanwhile()
+    _load_kernels_meanwhile(flexible=sequence_shape == "flexible")
     # D blocks run on the executor (ref shipped once as shared; query rows taken lazily, views inline);
     # enhancement, search and writing stay here, in order.
     jobs = ((span, query[span[2]:span[3]], comparison) for span in spans)

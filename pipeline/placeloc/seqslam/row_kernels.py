@@ -434,24 +434,21 @@ _TRAJECTORY_SIGNATURE = ctypes.CFUNCTYPE(None, _P, _P, _P, _I, _I, _I, _P, _I, _
 _TOP_K_SIGNATURE = ctypes.CFUNCTYPE(None, _P, _I, _I, _I, _I, _P, _P, _P)
 
 
-def _enhance_kernel():
-    from placeloc.seqslam.l1 import compiled
+def _kernels() -> dict:
+    """The three kernels, compiled as one module (or loaded from the cache), once per process."""
+    from placeloc.seqslam.l1 import compiled_module
 
     flat = _double(FLAT_VARIANCE)
-    source = _ENHANCE.format(FLAT=flat) + _ENHANCE_INNER.format(FLAT=flat)
-    return compiled("enhance_rows", source, _ENHANCE_SIGNATURE)
+    source = (_ENHANCE.format(FLAT=flat) + _ENHANCE_INNER.format(FLAT=flat) + _TRAJECTORY.format()
+              + _TOP_K.format())
+    return compiled_module("seqslam_rows", source, (("enhance_rows", _ENHANCE_SIGNATURE),
+                                                    ("trajectory_rows", _TRAJECTORY_SIGNATURE),
+                                                    ("top_k_rows", _TOP_K_SIGNATURE)))
 
 
-def _trajectory_kernel():
-    from placeloc.seqslam.l1 import compiled
-
-    return compiled("trajectory_rows", _TRAJECTORY.format(), _TRAJECTORY_SIGNATURE)
-
-
-def _top_k_kernel():
-    from placeloc.seqslam.l1 import compiled
-
-    return compiled("top_k_rows", _TOP_K.format(), _TOP_K_SIGNATURE)
+def warm_up() -> None:
+    """Load the three kernels (compiled, or from the cache) now."""
+    _kernels()
 
 
 def enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> None:
@@ -462,7 +459,7 @@ def enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> 
     _check(dt, out)
     n, nr = dt.shape
     scratch = np.empty((2, nr + 1), np.float64)
-    _enhance_kernel()(dt.ctypes.data, out.ctypes.data, n, nr, int(window), float(shift),
+    _kernels()["enhance_rows"](dt.ctypes.data, out.ctypes.data, n, nr, int(window), float(shift),
                       scratch[0].ctypes.data, scratch[1].ctypes.data)
 
 
@@ -486,7 +483,7 @@ def trajectory_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, 
     if b <= a or nr == 0:
         return s
     acc = np.empty(nr, np.float32)
-    _trajectory_kernel()(et.ctypes.data, s.ctypes.data, acc.ctypes.data, int(a), int(b), nr, t_off.ctypes.data,
+    _kernels()["trajectory_rows"](et.ctypes.data, s.ctypes.data, acc.ctypes.data, int(a), int(b), nr, t_off.ctypes.data,
                          len(t_off), traj.ctypes.data, lo.ctypes.data, hi.ctypes.data, len(traj))
     return s
 
@@ -502,7 +499,7 @@ def top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     scores = np.full((n, k), np.inf, np.float32)
     if n and nr and k:
         blocks = np.empty(-(-nr // 64), np.float32)
-        _top_k_kernel()(s.ctypes.data, n, nr, int(window), int(k), best.ctypes.data, scores.ctypes.data, blocks.ctypes.data)
+        _kernels()["top_k_rows"](s.ctypes.data, n, nr, int(window), int(k), best.ctypes.data, scores.ctypes.data, blocks.ctypes.data)
     return best, scores
 
 

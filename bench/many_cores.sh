@@ -34,6 +34,13 @@ print(platform.platform(), "| python", sys.version.split()[0], "| numpy", numpy.
 print("cores", os.cpu_count(), "usable", len(os.sched_getaffinity(0)), "| load", os.getloadavg())
 EOF
 
+# Byte-compile the tree before timing anything: where a process cannot keep its compiled
+# modules (PYTHONDONTWRITEBYTECODE, a tree copied fresh or read-only), every placeloc process
+# compiles each module from source. On a 16-core H100 host that was 0.35-0.42 s a process
+# (cProfile: builtins.compile, 467 calls), part of it inside the stages' own time.
+echo "PYTHONDONTWRITEBYTECODE=${PYTHONDONTWRITEBYTECODE:-unset}"
+"$PY" -m compileall -q pipeline bench cli.py > /dev/null || echo "compileall failed: timings include compiling the modules"
+
 table() {  # name, seconds allowed, command...
     local name=$1 limit=$2
     shift 2

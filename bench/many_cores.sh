@@ -36,8 +36,9 @@ EOF
 
 # Byte-compile the tree before timing anything: where a process cannot keep its compiled
 # modules (PYTHONDONTWRITEBYTECODE, a tree copied fresh or read-only), every placeloc process
-# compiles each module from source. On a 16-core H100 host that was 0.35-0.42 s a process
-# (cProfile: builtins.compile, 467 calls), part of it inside the stages' own time.
+# compiles from source the modules it imports. A 16-core H100 host that lends itself for
+# these tables sets PYTHONDONTWRITEBYTECODE=1; a localize there spent 0.23-0.42 s in
+# builtins.compile (docs/architecture.md, "Process start-up").
 echo "PYTHONDONTWRITEBYTECODE=${PYTHONDONTWRITEBYTECODE:-unset}"
 "$PY" -m compileall -q pipeline bench cli.py > /dev/null || echo "compileall failed: timings include compiling the modules"
 

@@ -36,24 +36,19 @@ def _double(x: float) -> str:
 # window r-R..r+R clipped to the row, mean, variance, z-score + shift, rounded to float32.
 # Three loops for r (the clipped left end, the interior, the clipped right end) so that the
 # interior's loads are contiguous and LLVM vectorises it.
-_ENHANCE = r"""
-declare double @llvm.sqrt.f64(double)
-
-define internal void @zone(float* noalias nocapture readonly %x, float* noalias nocapture %out,
+# One stretch r0..r1-1 of a row: the window sums from the running sums c1, c2, then mean,
+# variance, z-score + shift, rounded to float32. {BOUNDS} sets %lo, %hi and %n (the count).
+_ZONE = r"""
+define internal void @{NAME}(float* noalias nocapture readonly %x, float* noalias nocapture %out,
                            double* noalias nocapture readonly %c1, double* noalias nocapture readonly %c2,
                            i64 %nr, i64 %R, double %shift, i64 %r0, i64 %r1) alwaysinline {{
 entry:
   %empty = icmp sge i64 %r0, %r1
+{SETUP}
   br i1 %empty, label %exit, label %loop
 loop:
   %r = phi i64 [%r0, %entry], [%rn, %loop]
-  %lo0 = sub i64 %r, %R
-  %lneg = icmp slt i64 %lo0, 0
-  %lo = select i1 %lneg, i64 0, i64 %lo0
-  %hi0a = add i64 %r, %R
-  %hi0 = add i64 %hi0a, 1
-  %hbig = icmp sgt i64 %hi0, %nr
-  %hi = select i1 %hbig, i64 %nr, i64 %hi0
+{BOUNDS}
   %p1h = getelementptr inbounds double, double* %c1, i64 %hi
   %p1l = getelementptr inbounds double, double* %c1, i64 %lo
   %p2h = getelementptr inbounds double, double* %c2, i64 %hi
@@ -64,8 +59,6 @@ loop:
   %a2l = load double, double* %p2l, align 8
   %s1 = fsub double %a1h, %a1l
   %s2 = fsub double %a2h, %a2l
-  %ni = sub i64 %hi, %lo
-  %n = sitofp i64 %ni to double
   %m = fdiv double %s1, %n
   %v0 = fdiv double %s2, %n
   %mm = fmul double %m, %m
@@ -89,9 +82,34 @@ loop:
 exit:
   ret void
 }}
+"""
+# The row's ends: the window r-R..r+R clipped to the row, its count per r.
+_CLIPPED = dict(NAME="zone", SETUP="", BOUNDS="""\
+  %lo0 = sub i64 %r, %R
+  %lneg = icmp slt i64 %lo0, 0
+  %lo = select i1 %lneg, i64 0, i64 %lo0
+  %hi0a = add i64 %r, %R
+  %hi0 = add i64 %hi0a, 1
+  %hbig = icmp sgt i64 %hi0, %nr
+  %hi = select i1 %hbig, i64 %nr, i64 %hi0
+  %ni = sub i64 %hi, %lo
+  %n = sitofp i64 %ni to double""")
+# The interior: no clipping, so the loads are contiguous and LLVM vectorises the loop.
+_INTERIOR = dict(NAME="zone_inner", SETUP="""\
+  %width0 = shl i64 %R, 1
+  %width1 = add i64 %width0, 1
+  %n = sitofp i64 %width1 to double""", BOUNDS="""\
+  %lo = sub nsw i64 %r, %R
+  %hi0 = add nsw i64 %r, %R
+  %hi = add nsw i64 %hi0, 1""")
+
+# Per row: running sums of x and x^2 in float64 (c1, c2, a leading 0), then the three
+# stretches of r: the clipped left end, the interior, the clipped right end.
+_ENHANCE = r"""
+declare double @llvm.sqrt.f64(double)
 
 define void @enhance_rows(float* noalias nocapture readonly %x, float* noalias nocapture %out, i64 %n, i64 %nr,
-                          i64 %R, double %shift, double* noalias nocapture %c1, double* noalias nocapture %c2) {{
+                          i64 %R, double %shift, double* noalias nocapture %c1, double* noalias nocapture %c2) {
 entry:
   store double 0.0, double* %c1, align 8
   store double 0.0, double* %c2, align 8
@@ -138,58 +156,7 @@ row_done:
   br i1 %imore, label %row, label %exit
 exit:
   ret void
-}}
-"""
-
-# The interior: lo = r - R and hi = r + R + 1 need no clipping, so the loads are contiguous.
-_ENHANCE_INNER = r"""
-define internal void @zone_inner(float* noalias nocapture readonly %x, float* noalias nocapture %out,
-                                 double* noalias nocapture readonly %c1, double* noalias nocapture readonly %c2,
-                                 i64 %nr, i64 %R, double %shift, i64 %r0, i64 %r1) alwaysinline {{
-entry:
-  %empty = icmp sge i64 %r0, %r1
-  %width0 = shl i64 %R, 1
-  %width1 = add i64 %width0, 1
-  %n = sitofp i64 %width1 to double
-  br i1 %empty, label %exit, label %loop
-loop:
-  %r = phi i64 [%r0, %entry], [%rn, %loop]
-  %lo = sub nsw i64 %r, %R
-  %hi0 = add nsw i64 %r, %R
-  %hi = add nsw i64 %hi0, 1
-  %p1h = getelementptr inbounds double, double* %c1, i64 %hi
-  %p1l = getelementptr inbounds double, double* %c1, i64 %lo
-  %p2h = getelementptr inbounds double, double* %c2, i64 %hi
-  %p2l = getelementptr inbounds double, double* %c2, i64 %lo
-  %a1h = load double, double* %p1h, align 8
-  %a1l = load double, double* %p1l, align 8
-  %a2h = load double, double* %p2h, align 8
-  %a2l = load double, double* %p2l, align 8
-  %s1 = fsub double %a1h, %a1l
-  %s2 = fsub double %a2h, %a2l
-  %m = fdiv double %s1, %n
-  %v0 = fdiv double %s2, %n
-  %mm = fmul double %m, %m
-  %v = fsub double %v0, %mm
-  %ok = fcmp ogt double %v, {FLAT}
-  %sd0 = call double @llvm.sqrt.f64(double %v)
-  %sd = select i1 %ok, double %sd0, double 1.0
-  %px = getelementptr inbounds float, float* %x, i64 %r
-  %xf = load float, float* %px, align 4
-  %xd = fpext float %xf to double
-  %dx = fsub double %xd, %m
-  %z0 = fdiv double %dx, %sd
-  %z = select i1 %ok, double %z0, double 0.0
-  %zs = fadd double %z, %shift
-  %zf = fptrunc double %zs to float
-  %po = getelementptr inbounds float, float* %out, i64 %r
-  store float %zf, float* %po, align 4
-  %rn = add nsw i64 %r, 1
-  %more = icmp slt i64 %rn, %r1
-  br i1 %more, label %loop, label %exit
-exit:
-  ret void
-}}
+}
 """
 
 # For each query row q of a..b-1 and each trajectory v: acc[j] = sum_t et[q + t_off[t],
@@ -320,6 +287,27 @@ exit:
   ret float %r
 }}
 
+; the minima of blocks b0..b1 (inclusive) of 64 references of a row
+define internal void @block_mins(float* noalias nocapture readonly %row, float* noalias nocapture %bmin, i64 %nr,
+                                 i64 %b0, i64 %b1) alwaysinline {{
+entry:
+  br label %loop
+loop:
+  %b = phi i64 [%b0, %entry], [%bn, %loop]
+  %j0 = shl i64 %b, 6
+  %j1a = add i64 %j0, 64
+  %big = icmp sgt i64 %j1a, %nr
+  %j1 = select i1 %big, i64 %nr, i64 %j1a
+  %m = call float @block_min(float* %row, i64 %j0, i64 %j1)
+  %p = getelementptr inbounds float, float* %bmin, i64 %b
+  store float %m, float* %p, align 4
+  %bn = add nsw i64 %b, 1
+  %more = icmp sle i64 %bn, %b1
+  br i1 %more, label %loop, label %exit
+exit:
+  ret void
+}}
+
 define void @top_k_rows(float* noalias nocapture %s, i64 %n, i64 %nr, i64 %w, i64 %k, i64* noalias nocapture %best,
                         float* noalias nocapture %scores, float* noalias nocapture %bmin) {{
 entry:
@@ -334,21 +322,11 @@ row:
   %base = mul nsw i64 %i, %nr
   %r = getelementptr inbounds float, float* %s, i64 %base
   %kbase = mul nsw i64 %i, %k
-  br label %blocks
-blocks:
-  %b = phi i64 [0, %row], [%bn, %blocks]
-  %bj0 = shl i64 %b, 6
-  %bj1a = add i64 %bj0, 64
-  %bbig = icmp sgt i64 %bj1a, %nr
-  %bj1 = select i1 %bbig, i64 %nr, i64 %bj1a
-  %bm = call float @block_min(float* %r, i64 %bj0, i64 %bj1)
-  %pbm = getelementptr inbounds float, float* %bmin, i64 %b
-  store float %bm, float* %pbm, align 4
-  %bn = add nsw i64 %b, 1
-  %bmore = icmp slt i64 %bn, %nb
-  br i1 %bmore, label %blocks, label %picks
+  %blast = add nsw i64 %nb, -1
+  call void @block_mins(float* %r, float* %bmin, i64 %nr, i64 0, i64 %blast)
+  br label %picks
 picks:
-  %kk = phi i64 [0, %blocks], [%kkn, %suppressed]
+  %kk = phi i64 [0, %row], [%kkn, %suppressed]
   %kleft = icmp slt i64 %kk, %k
   br i1 %kleft, label %find, label %row_done
 find:
@@ -398,23 +376,12 @@ clear:
   store float 0x7FF0000000000000, float* %pcj, align 4
   %cjn = add nsw i64 %cj, 1
   %cmore = icmp sle i64 %cjn, %hi
-  br i1 %cmore, label %clear, label %refresh_start
-refresh_start:
+  br i1 %cmore, label %clear, label %refresh
+refresh:
   %rb0 = lshr i64 %lo, 6
   %rb1 = lshr i64 %hi, 6
-  br label %refresh
-refresh:
-  %rb = phi i64 [%rb0, %refresh_start], [%rbn, %refresh]
-  %rj0 = shl i64 %rb, 6
-  %rj1a = add i64 %rj0, 64
-  %rbig = icmp sgt i64 %rj1a, %nr
-  %rj1 = select i1 %rbig, i64 %nr, i64 %rj1a
-  %rm = call float @block_min(float* %r, i64 %rj0, i64 %rj1)
-  %prb = getelementptr inbounds float, float* %bmin, i64 %rb
-  store float %rm, float* %prb, align 4
-  %rbn = add nsw i64 %rb, 1
-  %rmore = icmp sle i64 %rbn, %rb1
-  br i1 %rmore, label %refresh, label %suppressed
+  call void @block_mins(float* %r, float* %bmin, i64 %nr, i64 %rb0, i64 %rb1)
+  br label %suppressed
 suppressed:
   %kkn = add nsw i64 %kk, 1
   br label %picks
@@ -439,8 +406,8 @@ def _kernels() -> dict:
     from placeloc.seqslam.l1 import compiled_module
 
     flat = _double(FLAT_VARIANCE)
-    source = (_ENHANCE.format(FLAT=flat) + _ENHANCE_INNER.format(FLAT=flat) + _TRAJECTORY.format()
-              + _TOP_K.format())
+    source = (_ENHANCE + _ZONE.format(FLAT=flat, **_CLIPPED) + _ZONE.format(FLAT=flat, **_INTERIOR)
+              + _TRAJECTORY.format() + _TOP_K.format())
     return compiled_module("seqslam_rows", source, (("enhance_rows", _ENHANCE_SIGNATURE),
                                                     ("trajectory_rows", _TRAJECTORY_SIGNATURE),
                                                     ("top_k_rows", _TOP_K_SIGNATURE)))

@@ -175,18 +175,19 @@ def part(lo: int, hi: int) -> dict[str, Any]:
             "reference_features": feats["summer"]}
 
 
-def kept_reference(data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
-    """For ``collapse_stops``: the summer frames kept (:func:`placeloc.seqslam.matching.standing_runs`)
-    and the differences to them alone, enhanced as ``localize`` enhances them (over the
-    kept references), query-major; computed once."""
+def kept_reference(data: dict[str, Any], comparison: str, enhance_window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For ``collapse_stops``: the summer frames kept (:func:`placeloc.seqslam.matching.standing_runs`
+    with ``comparison``), every summer frame's run among them, and the differences to the
+    kept frames alone, enhanced as ``localize`` enhances them (over the kept references,
+    ``enhance_window``), query-major; computed once per comparison and window."""
     from placeloc.seqslam.matching import standing_runs
     from placeloc.seqslam.search import enhance
 
-    key = "kept_reference"
+    key = ("kept_reference", comparison, int(enhance_window))
     if key not in data:
-        p = preset()
-        ref_first = standing_runs(data["reference_features"], p["comparison"])[0]
-        data[key] = (ref_first, np.ascontiguousarray(enhance(data["difference"][ref_first], int(p["enhance_window"])).T))
+        ref_first, ref_run_of = standing_runs(data["reference_features"], comparison)
+        data[key] = (ref_first, ref_run_of,
+                     np.ascontiguousarray(enhance(data["difference"][ref_first], int(enhance_window)).T))
     return data[key]
 
 
@@ -212,10 +213,10 @@ def search(data: dict[str, Any], pos: np.ndarray, setting: dict[str, Any]) -> tu
     best, conf = run(et, et.shape[1], bool(p["backward_paths"]))
     if p["collapse_stops"]:
         first, run_of = standing_runs(data["query_features"][pos], p["comparison"])
-        ref_first, enhanced_kept = kept_reference(data)
+        ref_first, ref_run_of, enhanced_kept = kept_reference(data, p["comparison"], p["enhance_window"])
         kept_best, kept_conf = run(np.ascontiguousarray(enhanced_kept[pos[first]]), len(ref_first), False)
         stop_best = np.where(kept_best >= 0, ref_first[np.maximum(kept_best, 0)], -1)[run_of]
-        take = stop_answers(best, stop_best, first, run_of)
+        take = stop_answers(best, stop_best, first, run_of, ref_run_of)
         best, conf = np.where(take, stop_best, best), np.where(take, kept_conf[run_of], conf)
     return best, conf
 

@@ -251,8 +251,8 @@ def test_collapsed_stop_is_followed_to_within_a_frame():
     assert (np.abs(plain.candidates[stop, 0] - places[stop]) > 1).sum() >= 10
     # the stop opens at frame 100 (its first view of place 110), which keeps its own answer;
     # frames 101-149 repeat it: those whose own answer was more than a frame off carry the
-    # collapsed answer, confidence included; those within a frame (the reference moves, so
-    # one kept frame is one frame) keep their own
+    # collapsed answer, confidence included; those within a frame keep their own (the
+    # reference moves: between them lies no frame of it)
     np.testing.assert_array_equal(collapsed.candidates[100], plain.candidates[100])
     repeats = slice(101, 150)
     took = np.abs(plain.candidates[repeats, 0] - collapsed.candidates[repeats, 0]) > 1
@@ -342,8 +342,9 @@ def test_stop_answers_take_only_repeated_frames_between_the_runs_neighbours():
     # both ends of the bracket count (14 for the first run); the last run's 16 is frame 6's own answer
     np.testing.assert_array_equal(stop_answers(full, np.array([-1, 14, 14, 14, -1, 16, 16]), first, run_of, moving),
                                   [0, 0, 1, 1, 0, 0, 0])
-    # a repeated frame whose own answer is within one kept frame of the run's keeps it
-    np.testing.assert_array_equal(stop_answers(np.array([10, 11, 13, 31, 14, 15, 16]), stop, first, run_of, moving),
+    # a repeated frame whose own answer is a frame from the run's keeps it (no moving
+    # reference frame between them); two frames off, 14, one lies between (13)
+    np.testing.assert_array_equal(stop_answers(np.array([10, 11, 13, 14, 14, 15, 16]), stop, first, run_of, moving),
                                   [0, 0, 0, 1, 0, 0, 0])
     no_after = full.copy()
     no_after[4] = -1  # no answer after the run: nothing to bracket with
@@ -353,21 +354,22 @@ def test_stop_answers_take_only_repeated_frames_between_the_runs_neighbours():
 def test_stop_answers_leave_a_shared_station_to_the_full_search():
     from placeloc.seqslam.matching import stop_answers
 
-    # the reference stands at 20-27 (one kept frame, 20) and moves elsewhere; the query
-    # stands for frames 1-5 and the collapsed search answers the station's first frame. The
-    # full search's answers inside the station (23, 24, 27) or one kept frame past it (28)
-    # agree with it and stay (they are the synchronous frames); 29 and 15 are two or more
-    # kept frames off and take the collapsed answer, 20
+    # the reference stands at a station it splits in two runs, 20-27 and 28-33, and moves
+    # elsewhere; the query's run (frames 0-5) opens a frame early, at place 19, so the
+    # collapsed search answers 19, the frame before the station. The full search's answers
+    # inside the station (23, 30, 33) or the frame after it (34) have nothing but standing
+    # reference between them and 19, and stay (they are the synchronous frames); 35 has a
+    # moving frame, 34, between, and takes 19
     opens = np.ones(40, bool)
-    opens[21:28] = False
+    opens[21:28] = opens[29:34] = False
     ref_run_of = np.cumsum(opens) - 1
     first = np.array([0, 6])
     run_of = np.array([0, 0, 0, 0, 0, 0, 1])
-    full = np.array([19, 23, 24, 27, 28, 29, 28])
-    take = stop_answers(full, np.full(7, 20), first, run_of, ref_run_of)
-    np.testing.assert_array_equal(take, [0, 0, 0, 0, 0, 1, 0])
-    full[1] = 15  # outside the bracket's station, two kept frames or more before it
-    np.testing.assert_array_equal(stop_answers(full, np.full(7, 20), first, run_of, ref_run_of), [0, 1, 0, 0, 0, 1, 0])
+    full = np.array([19, 23, 30, 33, 34, 35, 36])
+    collapsed = np.full(7, 19)
+    np.testing.assert_array_equal(stop_answers(full, collapsed, first, run_of, ref_run_of), [0, 0, 0, 0, 0, 1, 0])
+    # a reference that never stands: every answer more than a frame from 19 takes it
+    np.testing.assert_array_equal(stop_answers(full, collapsed, first, run_of, np.arange(40)), [0, 1, 1, 1, 1, 1, 0])
 
 
 @pytest.mark.parametrize("search", ["causal", "centred"])

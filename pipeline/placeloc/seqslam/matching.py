@@ -139,13 +139,16 @@ def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray
       is bracketed so (the full search gets the frames around a stop right, the collapsed
       one the stop); where the query only looks still while it moves (backing out or
       bursting through a station) the collapsed answer leaves the bracket;
-    - and the frame's own full answer is more than one kept reference frame away from it
-      (``ref_run_of``: per reference frame, its run among the reference's standing runs,
-      :func:`standing_runs`). The collapsed search sees places only as kept frames; where
-      the full answer lies in the same kept frame or the next one to either side, the two
-      agree to within that resolution and the full answer is the finer one: inside a
-      station where both traverses stand, it is the synchronous frame, where the
-      collapsed answer is the station's first.
+    - and a reference frame that moves (a run of one frame, ``ref_run_of``: per reference
+      frame, its run among the reference's standing runs, :func:`standing_runs`) lies
+      between the frame's own full answer and the collapsed one. Where nothing but
+      standing reference lies between them (the same run, neighbouring runs, or runs of a
+      station that one traverse splits in two), the two show the same place, and the full
+      answer is the finer one: inside a station where both traverses stand it is the
+      synchronous frame, where the collapsed answer is the station's first (or the kept
+      frame just before it, where the query's run opens a frame early: nordland-dev's
+      winter run opens at 249, the summer one at 250). Where the reference moves, the
+      full answer keeps to within one frame of the collapsed one or gives way.
 
     A run with no full answer (-1) at either end has no bracket and keeps the full
     answers; a repeated frame with none of its own takes a bracketed collapsed answer."""
@@ -153,7 +156,12 @@ def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray
     repeats = first[run_of] != np.arange(n)
     a = full_best[first[run_of]]
     b = full_best[np.append(first[1:], n - 1)[run_of]]
-    agree = (full_best >= 0) & (np.abs(ref_run_of[np.maximum(full_best, 0)] - ref_run_of[np.maximum(stop_best, 0)]) <= 1)
+    # moving[k]: reference runs of one frame among runs 0..k-1
+    moving = np.concatenate([[0], np.cumsum(np.bincount(ref_run_of) == 1)])
+    k_full, k_stop = ref_run_of[np.maximum(full_best, 0)], ref_run_of[np.maximum(stop_best, 0)]
+    lo, hi = np.minimum(k_full, k_stop), np.maximum(k_full, k_stop)
+    moving_between = moving[np.maximum(hi, lo + 1)] - moving[lo + 1]  # runs lo+1..hi-1; 0 where hi - lo <= 1
+    agree = (full_best >= 0) & (moving_between == 0)
     return (repeats & (a >= 0) & (b >= 0) & (stop_best >= np.minimum(a, b)) & (stop_best <= np.maximum(a, b))
             & ~agree)
 
@@ -263,8 +271,8 @@ def sequence_match(
     over every frame, the query's standing runs (:func:`standing_runs`) are searched
     again with both traverses' runs collapsed (:func:`collapsed_answers`), and the frames
     a run repeats take that answer where :func:`stop_answers` finds it between the first
-    search's answers around the run and more than one kept reference frame from the
-    frame's own. The repeated frames of a stop carry no new evidence
+    search's answers around the run and a moving reference frame lies between it and
+    the frame's own. The repeated frames of a stop carry no new evidence
     of place; without them the sequence on either side of a query's stop is one window.
     The second search computes its own differences, for the kept frames the runs' windows
     read. ``exclude_recent`` is for loop closure (``query is ref``): references within

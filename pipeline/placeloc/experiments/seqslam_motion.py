@@ -290,7 +290,7 @@ def choose(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The rule: among settings keeping steady R@1 >= 0.99 and steady recall at 100 %
     precision >= 0.99 (the issue's goal for confidence), the best worst family (the
     lowest median R@1 of any motion family); within 0.005 of it, the best median over
-    the motion families."""
+    the motion families. The rule's second step, on the whole route, is :func:`whole`."""
     ok = [r for r in rows if r["steady"] >= 0.99 and r.get("steady_r100p", 1.0) >= 0.99] or rows
     best = max(r["worst_family"] for r in ok)
     near = [r for r in ok if r["worst_family"] >= best - 0.005]

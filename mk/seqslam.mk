@@ -37,7 +37,8 @@ seqslam-speed: $(STAMP)
 
 # A query that stops, crawls, bursts past 2x and reverses (docs/seqslam.md, "A query that
 # stops, crawls, bursts and reverses"): the path model chosen on nordland-dev frames 1-600
-# (seeds 0-2), reported on 601-1200 (seeds 100-104); --quick for CI (450 frames, 2 seeds).
+# (seeds 0-2), reported on 601-1200 (seeds 200-204; --seeds 100-104 for the earlier rounds'
+# seeds); --quick for CI (450 frames, 2 seeds).
 seqslam-motion-tune: $(STAMP)
 	$(BIN)/python -m placeloc.experiments.seqslam_motion tune --out runs/seqslam-motion
 

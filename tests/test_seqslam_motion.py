@@ -250,9 +250,16 @@ def test_collapsed_stop_is_followed_to_within_a_frame():
     plain = sequence_match(ref, query, **STANDING)  # moving only: the middle of the stop is lost
     assert (np.abs(plain.candidates[stop, 0] - places[stop]) > 1).sum() >= 10
     # the stop opens at frame 100 (its first view of place 110), which keeps its own answer;
-    # frames 101-149 repeat it and carry the collapsed answer, confidence included
+    # frames 101-149 repeat it: those whose own answer was more than a frame off carry the
+    # collapsed answer, confidence included; those within a frame keep their own (the
+    # reference moves: between them lies no frame of it)
     np.testing.assert_array_equal(collapsed.candidates[100], plain.candidates[100])
-    assert (collapsed.confidence[101:150] == collapsed.confidence[101]).all()
+    repeats = slice(101, 150)
+    took = np.abs(plain.candidates[repeats, 0] - collapsed.candidates[repeats, 0]) > 1
+    assert took.sum() >= 10
+    assert (collapsed.confidence[repeats][took] == collapsed.confidence[repeats][took][0]).all()
+    np.testing.assert_array_equal(collapsed.candidates[repeats][~took], plain.candidates[repeats][~took])
+    np.testing.assert_array_equal(collapsed.confidence[repeats][~took], plain.confidence[repeats][~took])
     # away from the stop, the full search's answers are untouched
     np.testing.assert_array_equal(collapsed.candidates[:100], plain.candidates[:100])
     np.testing.assert_array_equal(collapsed.candidates[150:], plain.candidates[150:])
@@ -268,6 +275,23 @@ def test_a_stop_both_traverses_made_stays_aligned():
     inside = places == 100
     assert ((best[inside] >= 100) & (best[inside] <= 129)).all()
     assert (np.abs(best[~inside] - places[~inside]) <= 1).all()
+
+
+def test_a_shared_station_keeps_the_synchronous_answers():
+    # the same station, scored by the synchronous frame (what a +-2 ground truth wants):
+    # inside it every reference frame looks alike, so only the path's continuity places a
+    # query frame, and the full search keeps to the synchronous frame; the collapsed
+    # search answers the station's first frame, 0-29 frames back. collapse_stops must leave
+    # the full search's answers: they are within one kept frame of the collapsed one
+    places = np.concatenate([np.arange(10, 100), np.full(30, 100), np.arange(130, 220)])
+    synchronous = np.arange(10, 220)
+    ref, query = _standing_route(240, places, seed=13, ref_stands=(100, 129))
+    full = sequence_match(ref, query, **STANDING).candidates[:, 0]
+    best = sequence_match(ref, query, collapse_stops=True, **STANDING).candidates[:, 0]
+    np.testing.assert_array_equal(best, full)
+    station = places == 100
+    assert (np.abs(best[station] - synchronous[station]) <= 2).mean() >= 0.8  # the station's first frame: 5 of 30
+    assert (np.abs(best[~station] - synchronous[~station]) <= 1).all()
 
 
 def test_runs_that_open_a_frame_apart_leave_the_station_edge_right():
@@ -306,6 +330,7 @@ def test_a_query_moving_where_only_the_reference_stands_keeps_every_frame():
 def test_stop_answers_take_only_repeated_frames_between_the_runs_neighbours():
     from placeloc.seqslam.matching import stop_answers
 
+    moving = np.arange(40)  # a reference that never stands: every frame is its own kept frame
     # frames 0-6: a run 1-3 (frame 1 kept, 2 and 3 repeat it) and a run 5-6 that ends the traverse
     first = np.array([0, 1, 4, 5])
     run_of = np.array([0, 1, 1, 1, 2, 3, 3])
@@ -313,11 +338,38 @@ def test_stop_answers_take_only_repeated_frames_between_the_runs_neighbours():
     # the first run's answer 12 lies between 11 (its first frame) and 14 (the frame after):
     # its repeats take it; the last run's 20 is not between 15 and 16 (its own last frame)
     stop = np.array([-1, 12, 12, 12, -1, 20, 20])
-    np.testing.assert_array_equal(stop_answers(full, stop, first, run_of), [0, 0, 1, 1, 0, 0, 0])
-    np.testing.assert_array_equal(stop_answers(full, np.array([-1, 14, 14, 14, -1, 16, 16]), first, run_of),
-                                  [0, 0, 1, 1, 0, 0, 1])  # both ends of the bracket count
-    full[4] = -1  # no answer after the run: nothing to bracket with
-    assert not stop_answers(full, stop, first, run_of)[2:4].any()
+    np.testing.assert_array_equal(stop_answers(full, stop, first, run_of, moving), [0, 0, 1, 1, 0, 0, 0])
+    # both ends of the bracket count (14 for the first run); the last run's 16 is frame 6's own answer
+    np.testing.assert_array_equal(stop_answers(full, np.array([-1, 14, 14, 14, -1, 16, 16]), first, run_of, moving),
+                                  [0, 0, 1, 1, 0, 0, 0])
+    # a repeated frame whose own answer is a frame from the run's keeps it (no moving
+    # reference frame between them); two frames off, 14, one lies between (13)
+    np.testing.assert_array_equal(stop_answers(np.array([10, 11, 13, 14, 14, 15, 16]), stop, first, run_of, moving),
+                                  [0, 0, 0, 1, 0, 0, 0])
+    no_after = full.copy()
+    no_after[4] = -1  # no answer after the run: nothing to bracket with
+    assert not stop_answers(no_after, stop, first, run_of, moving)[2:4].any()
+
+
+def test_stop_answers_leave_a_shared_station_to_the_full_search():
+    from placeloc.seqslam.matching import stop_answers
+
+    # the reference stands at a station it splits in two runs, 20-27 and 28-33, and moves
+    # elsewhere; the query's run (frames 0-5) opens a frame early, at place 19, so the
+    # collapsed search answers 19, the frame before the station. The full search's answers
+    # inside the station (23, 30, 33) or the frame after it (34) have nothing but standing
+    # reference between them and 19, and stay (they are the synchronous frames); 35 has a
+    # moving frame, 34, between, and takes 19
+    opens = np.ones(40, bool)
+    opens[21:28] = opens[29:34] = False
+    ref_run_of = np.cumsum(opens) - 1
+    first = np.array([0, 6])
+    run_of = np.array([0, 0, 0, 0, 0, 0, 1])
+    full = np.array([19, 23, 30, 33, 34, 35, 36])
+    collapsed = np.full(7, 19)
+    np.testing.assert_array_equal(stop_answers(full, collapsed, first, run_of, ref_run_of), [0, 0, 0, 0, 0, 1, 0])
+    # a reference that never stands: every answer more than a frame from 19 takes it
+    np.testing.assert_array_equal(stop_answers(full, collapsed, first, run_of, np.arange(40)), [0, 1, 1, 1, 1, 1, 0])
 
 
 @pytest.mark.parametrize("search", ["causal", "centred"])
@@ -413,14 +465,15 @@ def test_the_experiment_searches_as_localize_does():
     places = np.concatenate([np.arange(10, 80), np.full(25, 80), np.arange(81, 100), np.full(20, 100),
                              np.arange(121, 180), np.arange(179, 149, -1), np.arange(150, 230)])
     ref, query = _standing_route(240, places, seed=20, ref_stands=(100, 120))
-    # the part's data as seqslam_motion.part makes it (enhanced with the window of
-    # configs/nordland.yaml, 10, which the kept references' enhancement takes from there
-    # too); the query's own frames stand for the part's winter frames, each shown once
+    # the part's data as seqslam_motion.part makes it, but enhanced with a window of 6, not
+    # configs/nordland.yaml's 10: the kept references' enhancement must take the window of
+    # the setting under test too; the query's own frames stand for the part's winter
+    # frames, each shown once
     d = difference_block(ref, query, "sad")
-    data = {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, 10).T), "reference_features": ref,
+    data = {"difference": d, "enhanced": np.ascontiguousarray(enhance(d, 6).T), "reference_features": ref,
             "query_features": query}
     pos = np.arange(len(query))
-    setting = dict(comparison="sad", enhance_window=10, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
+    setting = dict(comparison="sad", enhance_window=6, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
                    search="centred", sequence_shape="flexible", edges="shift", top_k=2, v_reverse=0.0,
                    speed_change_cost=1.0, stop_cost=2.0, reverse_cost=0.0, collapse_stops=True, backward_paths=True)
     best, conf = search(data, pos, setting)

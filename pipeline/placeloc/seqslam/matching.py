@@ -137,23 +137,45 @@ def standing_runs(features: np.ndarray, comparison: str) -> tuple[np.ndarray, np
     return first, np.cumsum(opens) - 1
 
 
-def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray, run_of: np.ndarray) -> np.ndarray:
+def stop_answers(full_best: np.ndarray, stop_best: np.ndarray, first: np.ndarray, run_of: np.ndarray,
+                 ref_run_of: np.ndarray) -> np.ndarray:
     """Which query frames take the collapsed search's answer (``collapse_stops``): the
     frames a standing run repeats (not its first frame, which keeps its own answer: the
     traverses' runs may open a frame apart, and that frame may still be moving in the
-    other), where the run's answer ``stop_best`` (per query frame, original reference
-    frames) lies between the full search's answers ``full_best`` at the run's first frame
-    and at the frame after the run (the traverse's last frame for a run that ends it): a
-    stopped vehicle is where it arrived and where it leaves from. A stop the query makes
-    alone is bracketed so (the full search gets the frames around a stop right, the
-    collapsed one the stop); where the query only looks still while it moves (backing out
-    or bursting through a station) the collapsed answer leaves the bracket and the full
-    search's stands. -1 (no match) never takes part."""
+    other), where
+
+    - the run's answer ``stop_best`` (per query frame, original reference frames) lies
+      between the full search's answers ``full_best`` at the run's first frame and at the
+      frame after the run (the traverse's last frame for a run that ends it): a stopped
+      vehicle is where it arrived and where it leaves from. A stop the query makes alone
+      is bracketed so (the full search gets the frames around a stop right, the collapsed
+      one the stop); where the query only looks still while it moves (backing out or
+      bursting through a station) the collapsed answer leaves the bracket;
+    - and a reference frame that moves (a run of one frame, ``ref_run_of``: per reference
+      frame, its run among the reference's standing runs, :func:`standing_runs`) lies
+      between the frame's own full answer and the collapsed one. Where nothing but
+      standing reference lies between them (the same run, neighbouring runs, or runs of a
+      station that one traverse splits in two), the two show the same place, and the full
+      answer is the finer one: inside a station where both traverses stand it is the
+      synchronous frame, where the collapsed answer is the station's first (or the kept
+      frame just before it, where the query's run opens a frame early: nordland-dev's
+      winter run opens at 249, the summer one at 250). Where the reference moves, the
+      full answer keeps to within one frame of the collapsed one or gives way.
+
+    A run with no full answer (-1) at either end has no bracket and keeps the full
+    answers; a repeated frame with none of its own takes a bracketed collapsed answer."""
     n = len(run_of)
     repeats = first[run_of] != np.arange(n)
     a = full_best[first[run_of]]
     b = full_best[np.append(first[1:], n - 1)[run_of]]
-    return repeats & (a >= 0) & (b >= 0) & (stop_best >= np.minimum(a, b)) & (stop_best <= np.maximum(a, b))
+    # moving[k]: reference runs of one frame among runs 0..k-1
+    moving = np.concatenate([[0], np.cumsum(np.bincount(ref_run_of) == 1)])
+    k_full, k_stop = ref_run_of[np.maximum(full_best, 0)], ref_run_of[np.maximum(stop_best, 0)]
+    lo, hi = np.minimum(k_full, k_stop), np.maximum(k_full, k_stop)
+    moving_between = moving[np.maximum(hi, lo + 1)] - moving[lo + 1]  # runs lo+1..hi-1; 0 where hi - lo <= 1
+    agree = (full_best >= 0) & (moving_between == 0)
+    return (repeats & (a >= 0) & (b >= 0) & (stop_best >= np.minimum(a, b)) & (stop_best <= np.maximum(a, b))
+            & ~agree)
 
 
 def window_columns(c0: int, c1: int, n: int, before: int, after: int) -> tuple[int, int]:
@@ -268,7 +290,8 @@ def sequence_match(
     over every frame, the query's standing runs (:func:`standing_runs`) are searched
     again with both traverses' runs collapsed (:func:`collapsed_answers`), and the frames
     a run repeats take that answer where :func:`stop_answers` finds it between the first
-    search's answers around the run. The repeated frames of a stop carry no new evidence
+    search's answers around the run and a moving reference frame lies between it and
+    the frame's own. The repeated frames of a stop carry no new evidence
     of place; without them the sequence on either side of a query's stop is one window.
     The second search computes its own differences, for the kept frames the runs' windows
     read. ``exclude_recent`` is for loop closure (``query is ref``): references within
@@ -321,13 +344,14 @@ def sequence_match(
     if collapse_stops:
         first, run_of = standing_runs(query, comparison)
         if (np.bincount(run_of, minlength=len(first)) > 1).any():
-            stop = collapsed_answers(ref, query, first, run_of, comparison=comparison, enhance_window=window, ds=ds,
+            ref_first, ref_run_of = standing_runs(ref, comparison)
+            stop = collapsed_answers(ref, query, first, run_of, ref_first, comparison=comparison, enhance_window=window, ds=ds,
                                      v_min=v_min, v_max=v_max, v_step=v_step, v_auto=v_auto, search=search,
                                      sequence_shape=sequence_shape, edges=edges, top_k=k,
                                      speed_change_cost=speed_change_cost, stop_cost=stop_cost,
                                      reverse_cost=reverse_cost, v_reverse=v_reverse,
                                      block_size=block, plain_k=plain_k)
-            take = stop_answers(candidates[:, 0], stop.candidates[:, 0], first, run_of)
+            take = stop_answers(candidates[:, 0], stop.candidates[:, 0], first, run_of, ref_run_of)
             candidates[take], scores[take], conf[take] = stop.candidates[take], stop.scores[take], stop.confidence[take]
             if plain is not None and stop.plain_candidates is not None and stop.plain_scores is not None:
                 plain[0][take], plain[1][take] = stop.plain_candidates[take], stop.plain_scores[take]
@@ -335,13 +359,14 @@ def sequence_match(
                            *(plain if plain is not None else (None, None)))
 
 
-def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, *, comparison: str,
+def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, ref_first: np.ndarray,
+                      *, comparison: str,
                       enhance_window: int, ds: int, v_min: float, v_max: float, v_step: float, v_auto: bool,
                       search: str, sequence_shape: str, edges: str, top_k: int, speed_change_cost: float,
                       stop_cost: float, reverse_cost: float, v_reverse: float, block_size: int,
                       plain_k: int = 0) -> SequenceMatches:
     """The search of ``collapse_stops``: the query's kept frames ``first`` (``run_of`` from
-    :func:`standing_runs`) against the reference's kept frames (its own standing runs),
+    :func:`standing_runs`) against the reference's kept frames ``ref_first`` (its own standing runs),
     speeds scaled by the collapsed lengths with ``v_auto``. Only the kept frames that
     stand for others are searched, each with the kept frames its window reads, in groups
     spanning fewer than ``block_size`` kept frames; every query frame gets its kept
@@ -350,7 +375,6 @@ def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run
     meanwhile, and a query backing out through a stretch that looks still is left to the
     full search (:func:`stop_answers`)."""
     n_q, n_kept = len(query), len(first)
-    ref_first = standing_runs(ref, comparison)[0]
     ref_kept = np.ascontiguousarray(ref[ref_first])
     vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref_first), n_kept, v_reverse)
     window, k = int(enhance_window), int(top_k)

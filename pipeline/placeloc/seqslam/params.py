@@ -48,7 +48,8 @@ class SeqSLAMParams(Params):
     collapse_stops: bool = param(False, help="frames where the query stands still (within a quarter of a moving "
                                               "frame's change of their run's first frame) are searched again with "
                                               "both traverses' standing runs collapsed, and take that answer where it "
-                                              "lies between the full search's answers around the run; query "
+                                              "lies between the full search's answers around the run and a moving "
+                                              "reference frame lies between it and the frame's own answer; query "
                                               "traverses only (not loop closure)")
     backward_paths: bool = param(False, help="flexible, forward speeds only: also score paths that drive backwards "
                                               "throughout the window (the speeds negated, reverse_cost per frame) and "

@@ -70,11 +70,16 @@ class PanoramaParams(Params):
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
-    chamfer_chance: str = param("none", choices=("area", "yaw", "none"),
+    chamfer_chance: str = param("none", choices=("area", "yaw", "none", "likelihood"),
                                 help="what each half of the chamfer score is corrected for, as (score - chance) / (1 - "
                                      "chance): area, the share of the image the other side's closeness covers (a view "
                                      "drawing much map earns no more for clutter near it); yaw, the half's mean over all "
-                                     "headings; none, the plain halves")
+                                     "headings; likelihood, each half the mean log likelihood ratio of its line pixels "
+                                     "drawn by the other side's lines or clutter (clutter_share) against clutter alone; "
+                                     "none, the plain halves")
+    clutter_share: float = param(0.5, min=0.0, max=0.99, min_exclusive=True,
+                                 help="chamfer_chance likelihood: the share of line pixels taken as clutter spread evenly "
+                                      "over the sphere (the rest lie near the other side's lines, as its closeness says)")
     texture_radius_px: int = param(0, min=0, max=8,
                                    help="chamfer score: each query line pixel weighs two lines' worth of pixels in the "
                                         "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "

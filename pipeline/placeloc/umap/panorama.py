@@ -614,7 +614,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        plan point of their cells lies within a sixth of a step (0.06 m diagonally at 0.25 m)
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;
-    2. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
+    2. with ``refine_climb``, every candidate first climbs that many times by its 8
+       neighbours at a sixth of a grid step, so that a peak whose cell-stage point ranks
+       low is reached before the beam is chosen;
+    3. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
        the 8 neighbours at each step, down to ``refine_step_m``); at the first step (a sixth
        of a grid step) each first samples the whole square of ``refine_square`` steps either
        side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
@@ -698,6 +701,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             sc = table[cands].max(axis=1).astype(np.float64)
             floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
             move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
+            for _ in range(pp.refine_climb):                                        # every candidate climbs
+                move(int(k), xy, col, sc, steps[0], floor_d, q_close)
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
             xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
             for i, step in enumerate(steps):                                        # coarse to fine

@@ -102,6 +102,9 @@ class PanoramaParams(Params):
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
+    refine_climb: int = param(0, min=0, max=4, help="after the cell stage, 8-neighbour climbs at a sixth of a grid step "
+                                                    "that every candidate makes before the beam is chosen (8 renders "
+                                                    "each per candidate and climb; 0: none)")
     refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
     refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
                                                      "samples the square of this many steps either side of it (3: its "

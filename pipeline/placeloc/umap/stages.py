@@ -439,6 +439,7 @@ METHOD = Method(
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_climb",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",
                                           "grid.wall_margin_m")

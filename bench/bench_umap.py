@@ -17,7 +17,9 @@
    (:func:`placeloc.umap.panorama.search_panoramas` with the default parameters: chamfer
    spectra, batched, the cell stage and the coarse-to-fine beam) against the search before the spectra (the chamfer
    score pixel by pixel for every shift, then 8 candidates each re-scored on a 7 x 7 local
-   grid), both timed in the same run, per panorama, wall and CPU.
+   grid), both timed in the same run, per panorama, wall and CPU; also the beam climbing by
+   8 neighbours only (``refine_square`` 1) and every candidate climbing once first
+   (``refine_climb`` 1), each against the defaults in the same run.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 

@@ -531,3 +531,121 @@ def test_precision_rows_equal_the_pixel_loop_and_the_scores_at_shifts():
                 assert np.abs(table - slow).max() < 1e-5, chance
             at = chamfer_at_shifts(db, qs[1], shifts, tau_px=3.0, weights=wts, chance=chance, precision_rows=rows)
             assert np.abs(at - np.take_along_axis(table[1], shifts, axis=1)).max() < 1e-4, chance
+
+
+def test_likelihood_image_by_hand():
+    # one row of 10 columns, tau 2: map lines at columns 0 and 5 -> closeness
+    # 1, .5, 0, 0, .5, 1, .5, 0, 0, .5, mean A = 0.4; clutter share s = 0.2:
+    # log(s + (1 - s) g / A) = log(0.2 + 2 g)
+    from placeloc.umap.panorama import likelihood_image
+
+    db = np.zeros((1, 10), np.uint8)
+    db[0, [0, 5]] = 1
+    g = closeness(db, 2.0)
+    lik = likelihood_image(g, np.ones(1, np.float32), 0.2)
+    assert lik[0, 0] == pytest.approx(np.log(2.2))
+    assert lik[0, 1] == pytest.approx(np.log(1.2))
+    assert lik[0, 2] == pytest.approx(np.log(0.2))
+    # no lines: nothing explained, log s everywhere
+    assert np.allclose(likelihood_image(np.zeros((2, 10), np.float32), np.ones(2, np.float32), 0.2), np.log(0.2))
+    # row weights enter the mean: a second, empty row of weight 3 makes A = 0.4 / 4 = 0.1
+    two = np.concatenate([g, np.zeros((1, 10), np.float32)])
+    lik2 = likelihood_image(two, np.array([1.0, 3.0], np.float32), 0.2)
+    assert lik2[0, 0] == pytest.approx(np.log(0.2 + 0.8 * 1.0 / 0.1))
+
+
+def test_likelihood_score_by_hand_and_against_the_pixel_loop():
+    from placeloc.umap.panorama import chamfer_at_shifts, chamfer_spectra, chamfer_table, row_weights
+
+    # the row of the hand case above; the query's one line pixel at column 1, s = 0.2
+    db = np.zeros((1, 1, 10), np.uint8)
+    db[0, 0, [0, 5]] = 1
+    q = np.zeros((1, 10), np.uint8)
+    q[0, 1] = 1
+    score = chamfer_yaw_scores(pack(db), closeness(db, 2.0), q, tau_px=2.0, chance="likelihood", clutter_share=0.2)
+    # shift 1: precision: the query pixel on map column 0, log(0.2 + 0.8 * 1 / 0.4) = log 2.2;
+    # recall: the query's closeness 1, .5, .5 at columns 1, 0, 2 (mean A_q 0.2): map columns
+    # 0 and 5 land on query columns 1 and 6, closeness 1 and 0: (log(0.2 + 4) + log 0.2) / 2
+    assert score[0, 1] == pytest.approx(0.5 * (0.5 * (np.log(4.2) + np.log(0.2)) + np.log(2.2)))
+    # the spectra and the scores at shifts equal the pixel loop, with and without row weights
+    rng = np.random.default_rng(5)
+    dbs = (rng.random((9, H, W)) < 0.03).astype(np.uint8)
+    dbs[4] = 0                                           # an empty view
+    qs = (rng.random((3, H, W)) < 0.04).astype(np.uint8)
+    ones = np.ones(H, np.float32)
+    for s in (0.1, 0.5, 0.9):
+        fast = chamfer_table(chamfer_spectra(dbs, tau_px=3.0, weights=ones, clutter_share=s), qs, tau_px=3.0,
+                             weights=ones, chance="likelihood", clutter_share=s)
+        slow = np.stack([chamfer_yaw_scores(pack(dbs), closeness(dbs, 3.0), x, tau_px=3.0, chance="likelihood",
+                                            clutter_share=s) for x in qs])
+        assert np.abs(fast - slow).max() < 1e-4
+    shifts = rng.integers(0, W, size=(9, 4))
+    for wts in (ones, row_weights(H, polar_deg=60.0, polar_weight=0.3, solid_angle=True)):
+        table = chamfer_table(chamfer_spectra(dbs, tau_px=3.0, weights=wts, clutter_share=0.4), qs[:1], tau_px=3.0,
+                              weights=wts, chance="likelihood", clutter_share=0.4)[0]
+        at = chamfer_at_shifts(dbs, qs[0], shifts, tau_px=3.0, weights=wts, chance="likelihood", clutter_share=0.4)
+        assert np.abs(at - np.take_along_axis(table, shifts, axis=1)).max() < 1e-4
+
+
+def test_likelihood_score_does_not_reward_a_busy_view():
+    # the planted case of test_chance_correction_does_not_reward_a_busy_view: a sparse query
+    # (two partly detected lines plus clutter) is won by the busy view under the plain score
+    # and by its own view under the likelihood ratio, for any clutter share
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table
+
+    rng = np.random.default_rng(7)
+    h, w = 24, 96
+    sparse = np.zeros((h, w), np.uint8)
+    sparse[12, 10:40] = 1
+    sparse[4, 50:90] = 1
+    busy = sparse.copy()
+    busy[2:22, 0:w:8] = 1
+    query = sparse.copy()
+    query[12, 22:40] = 0
+    query[4, 62:90] = 0
+    for c in rng.integers(0, w, 10):
+        query[6:20, c] = 1
+    db = np.stack([sparse, busy])
+    ones = np.ones(h, np.float32)
+    plain = chamfer_table(chamfer_spectra(db, tau_px=3.0, weights=ones), query[None], tau_px=3.0, weights=ones,
+                          chance="none")[0, :, 0]
+    assert plain[1] > plain[0]
+    for s in (0.2, 0.5, 0.8):
+        lik = chamfer_table(chamfer_spectra(db, tau_px=3.0, weights=ones, clutter_share=s), query[None], tau_px=3.0,
+                            weights=ones, chance="likelihood", clutter_share=s)[0, :, 0]
+        assert lik[0] > lik[1], s
+
+
+def test_every_candidate_climbing_makes_the_answer_independent_of_the_grid_origin():
+    # Four cameras of the L-shaped room (two 0.35-0.4 m from a wall, one 0.38 m from the
+    # far wall of the upper arm), grids of 0.3 m with origins shifted by 0, 1/3 and 2/3 of a
+    # step, a beam of one pose climbing by 8 neighbours: with refine_climb every candidate
+    # climbs once before the beam is chosen, and each camera's answer is the same at every
+    # origin (within 0.01 m) and within 0.03 m of the truth; without it the camera 0.4 m
+    # from the bottom wall ends 0.035 m off at origin 2/3 and 0 m off at the others.
+    from dataclasses import replace
+
+    from placeloc.geometry.floorplan import plan_grid
+    from placeloc.umap.panorama import chamfer_spectra, row_weights, search_panoramas
+    from placeloc.umap.params import PanoramaParams
+
+    m = floor_plan_model(PLAN)
+    truth = np.array([[5.65, 1.37, 1.4, 117.5], [0.35, 5.52, 1.4, 250.0], [3.2, 0.4, 1.4, 30.0], [1.8, 6.62, 1.4, 200.0]])
+    q = _render_all(m, truth)
+    q[:, ::3, ::4] = 0                                    # a few line pixels lost
+    answers = {0: [], 1: []}
+    for climb in (0, 1):
+        pp = replace(PanoramaParams(), refine_beam=1, refine_square=1, refine_climb=climb)
+        wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+        for frac in (0.0, 1 / 3, 2 / 3):
+            start = 0.1 + frac * 0.3
+            poses, _ = plan_grid(m, x=[start, 6.0, 0.3], y=[start, 7.0, 0.3], z=1.4, headings=[0.0])
+            db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
+            _, xy, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+                                           hidden=True)
+            answers[climb].append(xy)
+    climbed = np.array(answers[1])
+    assert np.hypot(*(climbed - truth[None, :, :2]).transpose(2, 0, 1)).max() <= 0.03
+    assert np.abs(climbed - climbed[0]).max() <= 0.01
+    off = np.hypot(*(np.array(answers[0])[:, 2] - truth[2, :2]).T)
+    assert off[2] > 0.03 and off[:2].max() < 0.01

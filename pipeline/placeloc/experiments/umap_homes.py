@@ -76,6 +76,23 @@ SWEEP: dict[str, dict[str, Any]] = {
     **{f"solid-angle chamfer, precision within {deg} deg, 32 cells, beam's cells whole":
        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": float(deg)}
        for deg in (80, 75, 70, 65)},
+    # each half a mean log likelihood ratio against clutter (umap.panorama.chamfer_chance
+    # likelihood), at three clutter shares
+    **{f"solid-angle likelihood chamfer, clutter share {share}, precision within 75 deg, 32 cells, beam's cells whole":
+       {"chamfer_chance": "likelihood", "clutter_share": share, "refine_candidates": 32, "solid_angle": True,
+        "refine_square": 3, "precision_polar_deg": 75.0}
+       for share in (0.2, 0.5, 0.8)},
+    # the search: candidates as distinct places (no two within 0.4 m: a taken point's 8 grid
+    # neighbours left out), every candidate climbing once before the beam
+    # (umap.panorama.refine_separation_m, refine_climb)
+    "solid-angle chamfer, precision within 75 deg, 32 cells 0.4 m apart, beam's cells whole":
+        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
+         "refine_separation_m": 0.4},
+    "solid-angle chamfer, precision within 75 deg, 32 cells each climbing once, beam's cells whole":
+        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0, "refine_climb": 1},
+    "solid-angle chamfer, precision within 75 deg, 32 cells 0.4 m apart each climbing once, beam's cells whole":
+        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
+         "refine_separation_m": 0.4, "refine_climb": 1},
 }
 NOISE = 1.0 / (len(DEV_SEEDS) * len(ORIGINS) * PANORAMAS)   # one panorama of the 180
 

@@ -233,6 +233,32 @@ def chance_corrected(value: np.ndarray, chance: np.ndarray) -> np.ndarray:
     return (value - chance) / np.maximum(1.0 - chance, CHANCE_FLOOR)
 
 
+CHANCES = ("none", "area", "yaw", "likelihood")
+
+
+def likelihood_image(close: np.ndarray, weights: np.ndarray, clutter_share: float) -> np.ndarray:
+    """``log(s + (1 - s) g / A)`` (float32, same shape) of (..., H, W) closeness images g
+    (:func:`closeness`), A each image's mean closeness with rows weighted by ``weights``
+    (H,), s = ``clutter_share``: the log likelihood ratio, for a line pixel of the *other*
+    image at each pixel, of "drawn by this image's lines or clutter" against "clutter".
+
+    Why (the ``likelihood`` chance of the chamfer score): a detected pixel is clutter with
+    probability s, spread evenly over the (row-weighted) sphere, density 1 / Omega, or one
+    of this image's lines, drawn near them with density g / (A Omega) (its closeness,
+    normalised to integrate to 1). Its likelihood ratio against clutter alone is
+    s + (1 - s) g / A: a view drawing much map (A large) spreads its density thin, so clutter
+    that lands near one of its many lines gains it little, while a sparse view's few lines,
+    where the pixels are, gain it much. An image with no lines (A = 0) explains nothing:
+    log s everywhere."""
+    close = np.asarray(close, np.float32)
+    h, w = close.shape[-2:]
+    wr = np.asarray(weights, np.float64).reshape(h, 1)
+    area = (close.astype(np.float64) * wr).sum(axis=(-2, -1)) / (w * max(float(wr.sum()), 1e-12))
+    area = np.asarray(area)[..., None, None]
+    ratio = np.divide(close, area, out=np.zeros(close.shape, np.float64), where=area > 0)
+    return np.log(clutter_share + (1.0 - clutter_share) * ratio).astype(np.float32)
+
+
 def _query_pixels(query: np.ndarray, precision_rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows, columns and precision-half weights of a query's line pixels: a float query's
     own weights (:func:`texture_weights`), else 1, times ``precision_rows`` of their row."""
@@ -244,7 +270,7 @@ def _query_pixels(query: np.ndarray, precision_rows: np.ndarray | None) -> tuple
 
 
 def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str,
-                       precision_rows: np.ndarray | None = None) -> np.ndarray:
+                       precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
     query at every column shift, pixel by pixel (the reference :func:`chamfer_table` is
     tested against): (P, W) float64. ``db`` the undilated packed map line images,
@@ -254,11 +280,17 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     A float ``query`` is a weighted line image (:func:`texture_weights`): each line pixel
     counts with its weight in the precision half and stamps its closeness scaled by it.
     ``precision_rows`` (H,): each row's query pixels count in the precision half times
-    this (:func:`precision_rows`; the recall half keeps them all)."""
+    this (:func:`precision_rows`; the recall half keeps them all). ``likelihood``: each half
+    the mean log likelihood ratio of its side's line pixels (:func:`likelihood_image` of the
+    other side's closeness, unit row weights, ``clutter_share``)."""
     h, w = query.shape
     rows, cols, vals = _query_pixels(query, precision_rows)
     halves = np.zeros((db.shape[0], 2, w))
     q_close = closeness(query, tau_px).astype(np.float32)
+    if chance == "likelihood":
+        ones = np.ones(h, np.float32)
+        q_close = likelihood_image(q_close, ones, clutter_share)
+        db_close = likelihood_image(db_close, ones, clutter_share)
     if db.shape[0]:
         _chamfer_shifts(np.ascontiguousarray(db), np.ascontiguousarray(db_close, np.float32),
                         q_close, rows.astype(np.int64), cols.astype(np.int64), vals, w, halves)
@@ -271,8 +303,8 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     elif chance == "yaw":
         recall = chance_corrected(recall, recall.mean(axis=1, keepdims=True))
         precision = chance_corrected(precision, precision.mean(axis=1, keepdims=True))
-    elif chance != "none":
-        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+    elif chance not in ("none", "likelihood"):
+        raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
     return 0.5 * (recall + precision)
 
 
@@ -309,11 +341,14 @@ def precision_rows(height: int, polar_deg: float) -> np.ndarray:
     return (np.abs(el) <= polar_deg).astype(np.float32)
 
 
-def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) -> np.ndarray:
+def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
+                    clutter_share: float | None = None) -> np.ndarray:
     """The map side of the chamfer score (module docstring) of (P, H, W) binary panoramic
     line images, in the form :func:`chamfer_table` multiplies: (F, P, 2H) complex64, F =
     W // 2 + 1, the conjugate row spectra of the weighted line image over its weighted
-    pixel count (recall) and of the weighted closeness image (precision).
+    pixel count (recall) and of the weighted closeness image (precision); with
+    ``clutter_share`` (the ``likelihood`` chance) of the weighted :func:`likelihood_image`
+    of the closeness instead.
 
     Why spectra: the score at column shift k is a circular cross-correlation of rows,
     summed over rows, so every shift of every position comes from one complex product per
@@ -325,13 +360,16 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray) ->
     for s in range(0, len(lines), 512):  # blocks keep the float temporaries small
         img = lines[s:s + 512].astype(np.float32) * w
         n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
-        x = np.concatenate([img / n, closeness(lines[s:s + 512], tau_px) * w], axis=1)
+        close = closeness(lines[s:s + 512], tau_px)
+        if clutter_share is not None:
+            close = likelihood_image(close, weights, clutter_share)
+        x = np.concatenate([img / n, close * w], axis=1)
         out[:, s:s + 512] = np.conj(np.fft.rfft(x, axis=-1)).transpose(2, 0, 1)
     return out
 
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                  chance: str, precision_rows: np.ndarray | None = None) -> np.ndarray:
+                  chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -342,18 +380,22 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     frequency, so the ``area`` level of the map side is the stored spectra's zero frequency
     (the weighted closeness summed) and the ``yaw`` level is each half's product at
     frequency 0; the correction is then a per-(query, position) scale of each half's
-    product and an offset, applied before the one inverse FFT."""
+    product and an offset, applied before the one inverse FFT. ``likelihood`` needs spectra
+    built with the same ``clutter_share``; the query's closeness becomes its
+    :func:`likelihood_image` and the product is the plain one."""
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
     q = queries.astype(np.float32)                                            # a float query: weighted
     q_close = closeness(q if queries.dtype.kind == "f" else queries, tau_px)
+    if chance == "likelihood":
+        q_close = likelihood_image(q_close, weights, clutter_share)
     if precision_rows is not None:                                            # the precision half's rows only
         q = q * np.asarray(precision_rows, np.float32)[None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
-    if chance == "none":
+    if chance in ("none", "likelihood"):
         prod = np.matmul(spectra, qs)                                         # (F, P, N)
         return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
     recall = np.matmul(spectra[:, :, :h], qs[:, :h])                          # (F, P, N) each half
@@ -365,7 +407,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     elif chance == "yaw":
         r_chance, p_chance = recall[0].real / w, precision[0].real / w
     else:
-        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+        raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
     r_scale = 1.0 / np.maximum(1.0 - r_chance, CHANCE_FLOOR)
     p_scale = 1.0 / np.maximum(1.0 - p_chance, CHANCE_FLOOR)
     prod = recall * r_scale.astype(np.float32) + precision * p_scale.astype(np.float32)
@@ -504,7 +546,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                       chance: str, query_close: np.ndarray | None = None,
-                      precision_rows: np.ndarray | None = None) -> np.ndarray:
+                      precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
@@ -517,15 +559,19 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     halves = np.zeros((len(imgs), shifts.shape[1], 2))
     levels = np.zeros((len(imgs), 4))
     if len(imgs):
-        _chamfer_at_shifts(imgs, closeness(imgs, tau_px), q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
+        m_close = closeness(imgs, tau_px)
+        if chance == "likelihood":
+            m_close = likelihood_image(m_close, weights, clutter_share)
+            q_close = likelihood_image(q_close, weights, clutter_share)
+        _chamfer_at_shifts(imgs, m_close, q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
                            np.asarray(weights, np.float64), shifts, halves, levels)
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":
         recall, precision = chance_corrected(recall, levels[:, 0:1]), chance_corrected(precision, levels[:, 1:2])
     elif chance == "yaw":
         recall, precision = chance_corrected(recall, levels[:, 2:3]), chance_corrected(precision, levels[:, 3:4])
-    elif chance != "none":
-        raise ValueError(f"chance must be none, area or yaw, not {chance!r}")
+    elif chance not in ("none", "likelihood"):
+        raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
     return 0.5 * (recall + precision)
 
 
@@ -568,7 +614,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        plan point of their cells lies within a sixth of a step (0.06 m diagonally at 0.25 m)
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;
-    2. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
+    2. with ``refine_climb``, every candidate first climbs that many times by its 8
+       neighbours at a sixth of a grid step, so that a peak whose cell-stage point ranks
+       low is reached before the beam is chosen;
+    3. the ``refine_beam`` best poses so far then move coarse to fine (:func:`refine_steps`:
        the 8 neighbours at each step, down to ``refine_step_m``); at the first step (a sixth
        of a grid step) each first samples the whole square of ``refine_square`` steps either
        side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
@@ -589,7 +638,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
             return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance, precision_rows=prows)
+                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
@@ -598,7 +647,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
-                                     chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows)
+                                     chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
+                                     clutter_share=pp.clutter_share)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 
@@ -651,6 +701,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             sc = table[cands].max(axis=1).astype(np.float64)
             floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
             move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
+            for _ in range(pp.refine_climb):                                        # every candidate climbs
+                move(int(k), xy, col, sc, steps[0], floor_d, q_close)
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
             xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
             for i, step in enumerate(steps):                                        # coarse to fine

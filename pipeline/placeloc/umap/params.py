@@ -70,11 +70,16 @@ class PanoramaParams(Params):
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")
     chamfer_tau_px: float = param(3.0, min=0.0, min_exclusive=True, help="chamfer truncation distance in pixels")
-    chamfer_chance: str = param("none", choices=("area", "yaw", "none"),
+    chamfer_chance: str = param("none", choices=("area", "yaw", "none", "likelihood"),
                                 help="what each half of the chamfer score is corrected for, as (score - chance) / (1 - "
                                      "chance): area, the share of the image the other side's closeness covers (a view "
                                      "drawing much map earns no more for clutter near it); yaw, the half's mean over all "
-                                     "headings; none, the plain halves")
+                                     "headings; likelihood, each half the mean log likelihood ratio of its line pixels "
+                                     "drawn by the other side's lines or clutter (clutter_share) against clutter alone; "
+                                     "none, the plain halves")
+    clutter_share: float = param(0.5, min=0.0, max=0.99, min_exclusive=True,
+                                 help="chamfer_chance likelihood: the share of line pixels taken as clutter spread evenly "
+                                      "over the sphere (the rest lie near the other side's lines, as its closeness says)")
     texture_radius_px: int = param(0, min=0, max=8,
                                    help="chamfer score: each query line pixel weighs two lines' worth of pixels in the "
                                         "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "
@@ -97,6 +102,9 @@ class PanoramaParams(Params):
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
+    refine_climb: int = param(0, min=0, max=4, help="after the cell stage, 8-neighbour climbs at a sixth of a grid step "
+                                                    "that every candidate makes before the beam is chosen (8 renders "
+                                                    "each per candidate and climb; 0: none)")
     refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
     refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
                                                      "samples the square of this many steps either side of it (3: its "

@@ -181,17 +181,22 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     yaw of a batch of queries with one matrix product per frequency."""
     pp = ctx.params.panorama
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    # the likelihood score stores the map's log likelihood-ratio image, not its closeness
+    share = float(pp.clutter_share)
+    clutter = share if pp.chamfer_chance == "likelihood" else None
     n = db.shape[0]
     spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
     block = 1024
     for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
         words = np.ascontiguousarray(db[s:s + block])
-        spectra[:, s:s + len(words)] = chamfer_spectra(unpack(words, h, w), tau_px=pp.chamfer_tau_px, weights=weights)
+        spectra[:, s:s + len(words)] = chamfer_spectra(unpack(words, h, w), tau_px=pp.chamfer_tau_px, weights=weights,
+                                                       clutter_share=clutter)
         counts[s:s + len(words)] = popcount_rows(words)
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=int(ctx.params.tolerance_px),
-                         kind="panorama", bits_in="index/spectra", bytes=int(spectra.size * 8))
+                         kind="panorama", bits_in="index/spectra", bytes=int(spectra.size * 8),
+                         clutter_share=-1.0 if clutter is None else clutter)
 
 
 def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
@@ -255,6 +260,11 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
         if "spectra" not in idx:
             raise _stage_error(ValueError("the index holds no chamfer spectra (it was built for umap.panorama.score iou): "
                                           "re-run index (--force)"))
+        built = float(idx.attrs.get("clutter_share", -1.0))
+        wanted = float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else -1.0
+        if abs(built - wanted) > 1e-9:
+            raise _stage_error(ValueError("the index's chamfer spectra were built for another umap.panorama.chamfer_chance "
+                                          "or clutter_share than localize's: re-run index (--force)"))
         database = {"spectra": idx["spectra"][()]}
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
@@ -423,11 +433,13 @@ METHOD = Method(
         "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
-                                    "panorama.polar_weight", "panorama.solid_angle")),
+                                    "panorama.polar_weight", "panorama.solid_angle", "panorama.chamfer_chance",
+                                    "panorama.clutter_share")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
-                                          "panorama.texture_radius_px", "panorama.precision_polar_deg",
+                                          "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_climb",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",
                                           "grid.wall_margin_m")

@@ -121,6 +121,27 @@ def test_a_chunk_described_in_threads_equals_one_described_alone(tmp_path):
     assert list(threaded.counts) == list(range(9))
 
 
+def opencv_pool(image: np.ndarray) -> dict[str, np.ndarray]:
+    """The size of OpenCV's own thread pool while this image is described."""
+    return {"pool": np.int64(cv2.getNumThreads())}
+
+
+def test_one_thread_describes_with_one_opencv_thread_and_gives_the_pool_back(tmp_path):
+    d = _folder(tmp_path, [10, 20, 30])
+    paths = [str(p) for p in list_images(d).paths]
+    work = ImageWork(fn=opencv_pool)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(3)
+    try:
+        alone = describe_chunk((paths, work, False, 1))
+        assert list(alone.fixed["pool"]) == [1, 1, 1]  # OpenCV's pool only wakes threads for such frames
+        assert cv2.getNumThreads() == 3  # given back
+        threaded = describe_chunk((paths, work, False, 2))
+        assert list(threaded.fixed["pool"]) == [3, 3, 3]  # our threads share the cores with OpenCV's pool
+    finally:
+        cv2.setNumThreads(before)
+
+
 def test_index_maps_and_chunk_size():
     index = np.array([0, 1, 3, 4, 7])
     assert list(local_to_original(index, np.array([0, 2, -1, 4]))) == [0, 3, -1, 7]

@@ -19,6 +19,7 @@ reference, ``search.enhance_rows_numpy``, ``search.trajectory_scores_numpy`` and
 from __future__ import annotations
 
 import ctypes
+import functools
 import struct
 
 import numpy as np
@@ -32,10 +33,6 @@ def _double(x: float) -> str:
     return "0x" + struct.pack(">d", x).hex().upper()
 
 
-# Per row: running sums of x and x^2 in float64 (c1, c2, a leading 0), then for every r the
-# window r-R..r+R clipped to the row, mean, variance, z-score + shift, rounded to float32.
-# Three loops for r (the clipped left end, the interior, the clipped right end) so that the
-# interior's loads are contiguous and LLVM vectorises it.
 # One stretch r0..r1-1 of a row: the window sums from the running sums c1, c2, then mean,
 # variance, z-score + shift, rounded to float32. {BOUNDS} sets %lo, %hi and %n (the count).
 _ZONE = r"""
@@ -401,8 +398,10 @@ _TRAJECTORY_SIGNATURE = ctypes.CFUNCTYPE(None, _P, _P, _P, _I, _I, _I, _P, _I, _
 _TOP_K_SIGNATURE = ctypes.CFUNCTYPE(None, _P, _I, _I, _I, _I, _P, _P, _P)
 
 
+@functools.lru_cache(maxsize=1)
 def _kernels() -> dict:
-    """The three kernels, compiled as one module (or loaded from the cache), once per process."""
+    """The three kernels, compiled as one module (or loaded from the cache), once per
+    process: every chunk of every call asks for them."""
     from placeloc.seqslam.l1 import compiled_module
 
     flat = _double(FLAT_VARIANCE)
@@ -422,8 +421,11 @@ def enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> 
     """Eq. (1) along each row of ``dt`` (float32, C-contiguous) into ``out`` (same shape):
     per reference ``r`` the z-score of ``dt[q, r]`` over ``r - window .. r + window``
     (clipped at the ends; a window with variance <= :data:`FLAT_VARIANCE` gives 0), plus
-    ``shift``. Sums in float64, bit for bit as the NumPy ``search._enhance_rows``."""
-    _check(dt, out)
+    ``shift``. Sums in float64, bit for bit as the NumPy ``search.enhance_rows_numpy``."""
+    _check_rows("dt", dt)
+    _check_rows("out", out)
+    if dt.shape != out.shape:
+        raise ValueError(f"shapes differ: {dt.shape} and {out.shape}")
     n, nr = dt.shape
     scratch = np.empty((2, nr + 1), np.float64)
     _kernels()["enhance_rows"](dt.ctypes.data, out.ctypes.data, n, nr, int(window), float(shift),
@@ -433,11 +435,10 @@ def enhance_rows(dt: np.ndarray, window: int, shift: float, out: np.ndarray) -> 
 def trajectory_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray) -> np.ndarray:
     """``s[q - a, r] = min_V sum_t et[q + t, r + traj[V, t]]`` for ``q`` in ``rows = (a, b)``
     (every ``q + t`` inside ``et``); inf where a trajectory would leave the matrix. Adds in
-    the order of ``t_off``, bit for bit as the NumPy ``search._trajectory_scores``."""
+    the order of ``t_off``, bit for bit as the NumPy ``search.trajectory_scores_numpy``."""
+    _check_rows("et", et)
     a, b = rows
     nr = et.shape[1]
-    if not et.flags.c_contiguous or et.dtype != np.float32:
-        raise ValueError("et must be C-contiguous float32")
     t_off = np.ascontiguousarray(t_off, np.int64)
     traj = np.ascontiguousarray(traj, np.int64)
     if traj.ndim != 2 or traj.shape[1] != len(t_off):
@@ -459,8 +460,7 @@ def top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Greedy non-maximum suppression per row of ``s`` (C-contiguous float32; destroyed):
     the ``k`` smallest scores at least ``window + 1`` apart (ties: the first reference),
     ``-1`` / inf when none is left; bit for bit as the NumPy ``search.top_k_numpy``."""
-    if s.dtype != np.float32 or not s.flags.c_contiguous or s.ndim != 2:
-        raise ValueError("s must be a C-contiguous 2-D float32 array")
+    _check_rows("s", s)
     n, nr = s.shape
     best = np.full((n, k), -1, np.int64)
     scores = np.full((n, k), np.inf, np.float32)
@@ -470,9 +470,7 @@ def top_k(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     return best, scores
 
 
-def _check(dt: np.ndarray, out: np.ndarray) -> None:
-    for name, x in (("dt", dt), ("out", out)):
-        if x.dtype != np.float32 or not x.flags.c_contiguous or x.ndim != 2:
-            raise ValueError(f"{name} must be a C-contiguous 2-D float32 array")
-    if dt.shape != out.shape:
-        raise ValueError(f"shapes differ: {dt.shape} and {out.shape}")
+def _check_rows(name: str, x: np.ndarray) -> None:
+    """The kernels read and write rows through raw pointers: C-contiguous 2-D float32 only."""
+    if x.dtype != np.float32 or not x.flags.c_contiguous or x.ndim != 2:
+        raise ValueError(f"{name} must be a C-contiguous 2-D float32 array")

@@ -45,6 +45,8 @@ import cv2
 import numpy as np
 
 COMPARISONS = ("sad", "histeq", "zncc", "abs_zncc", "isc", "isc_ext", "ocm", "ocm_ext")
+# the comparisons whose difference is the mean absolute difference of the feature rows
+L1_COMPARISONS = ("sad", "histeq")
 OCM_CODES = 16
 
 # Circular weights of eq. (8): code difference 0 -> 1, 1 or 15 -> 0.5, 2 or 14 -> 0.25.
@@ -221,7 +223,7 @@ def _ocm_onehot(codes: np.ndarray, weighted: bool) -> np.ndarray:
 
 def difference_block(ref: np.ndarray, query: np.ndarray, comparison: str) -> np.ndarray:
     """Difference block (rows = reference, columns = query, lower = more alike), float32."""
-    if comparison in ("sad", "histeq"):
+    if comparison in L1_COMPARISONS:
         return mean_abs_difference(ref, query)
     if comparison in ("cosine", "l2"):  # descriptors brought from elsewhere (see descriptors.py)
         from placeloc.seqslam.descriptors import descriptor_difference

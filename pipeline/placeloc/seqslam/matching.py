@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from placeloc.core.imagework import local_to_original
-from placeloc.seqslam.comparisons import difference_block, mean_abs_difference
+from placeloc.seqslam.comparisons import L1_COMPARISONS, difference_block, mean_abs_difference
 from placeloc.seqslam.l1 import run_threaded
 from placeloc.seqslam.search import (
     REVERSE_COST,
@@ -63,7 +63,7 @@ def difference_block_t(ref: np.ndarray, query: np.ndarray, comparison: str) -> n
     directly (their sums are exact integers, so either order gives the same bits); the
     others are transposed a band of rows per thread. At 3576 x 3576 the copy was 0.07 s of
     one core's localize."""
-    if comparison in ("sad", "histeq"):
+    if comparison in L1_COMPARISONS:
         return mean_abs_difference(query, ref)
     return _transposed(difference_block(ref, query, comparison))
 
@@ -396,20 +396,17 @@ def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run
         a0, a1 = int(need[i]), int(need[j]) + 1
         lo, hi = window_columns(a0, a1, n_kept, before, after)
         et = enhance_t(difference_block_t(ref_kept, query[first[lo:hi]], comparison), window)
-        group = need[i:j + 1]
 
-        def one(g0: int, g1: int, et: np.ndarray = et, lo: int = lo, group: np.ndarray = group) -> None:
+        def one(c: int, c1: int, et: np.ndarray = et, lo: int = lo) -> None:
             # only the kept frames that stand for others: on nordland-dev tiled to 3576
             # frames, 86 of the 1462 a group spans. A query's answer depends on its own
             # window alone, so searching it alone gives the same answer.
-            for c in group[g0:g1]:
-                c = int(c)
-                candidates[c:c + 1], scores[c:c + 1] = sequence_search(
-                    et, c - lo, c - lo + 1, int(ds), vels, search, window, k, None, lo, shape=sequence_shape,
-                    edges=edges, speed_change_cost=speed_change_cost, stop_cost=stop_cost, reverse_cost=reverse_cost,
-                    plain=None if plain is None else (plain[0][c:c + 1], plain[1][c:c + 1]))
+            candidates[c:c1], scores[c:c1] = sequence_search(
+                et, c - lo, c1 - lo, int(ds), vels, search, window, k, None, lo, shape=sequence_shape,
+                edges=edges, speed_change_cost=speed_change_cost, stop_cost=stop_cost, reverse_cost=reverse_cost,
+                plain=None if plain is None else (plain[0][c:c1], plain[1][c:c1]))
 
-        run_threaded(one, [(g, g + 1) for g in range(len(group))])
+        run_threaded(one, [(int(c), int(c) + 1) for c in need[i:j + 1]])
         i = j + 1
     candidates = local_to_original(ref_first, candidates)
     if plain is not None:

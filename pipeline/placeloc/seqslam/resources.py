@@ -13,7 +13,8 @@ BASE_MEMORY: dict[str, int] = {
     "index": 64 << 20,
     # localize: measured 141 MB of growth on tests/test_resource_estimates.py's 1500-frame
     # route in one virtualenv and 196-204 MB in a fresh one of the same packages (the same code
-    # from two revisions; the libraries' pages the stage touches differ): the larger holds
+    # from two revisions; the libraries' pages the stage touches differ): with the route's own
+    # terms added to this base, the estimate holds the larger
     "localize": 160 << 20,
     # evaluate: Pillow, its canvases and the report (36 MB measured for configs/demo.yaml with
     # pictures, rows below included; matplotlib, no longer imported, took about 100 MB)

@@ -73,14 +73,15 @@ def enhancement_shift(window: int) -> float:
     return math.sqrt(2 * window)
 
 
-# Bytes of float32 a chunk of rows holds. On one thread, small chunks keep the straight
-# search's running sums in L2: at 3576 references 0.26 s with 384 KB chunks (27 rows)
-# against 0.40 s with 2 MB (one core of an H100 host). With two threads or more, the NumPy
-# kernels (the straight search, the enhancement, the ranking) hold the GIL to dispatch each
-# call, and threads that queue for it wake one another through the OS, so each call needs
-# more work: localize with the benchmark settings took 0.92-0.96 s of its own with 384 KB
-# chunks on 2 cores against 0.80-0.85 s with 2 MB, and the search 0.25 s against 0.11 s on
-# 16 cores (`python bench/scaling.py --cores`).
+# Bytes of float32 a chunk of rows holds. Chosen when the straight search, the
+# enhancement and the ranking were NumPy (now compiled, :mod:`placeloc.seqslam.row_kernels`;
+# not measured again since). On one thread, small chunks kept the straight search's running
+# sums in L2: at 3576 references 0.26 s with 384 KB chunks (27 rows) against 0.40 s with
+# 2 MB (one core of an H100 host). With two threads or more, those NumPy kernels held the
+# GIL to dispatch each call, and threads queued for it woke one another through the OS, so
+# each call needed more work: localize with the benchmark settings took 0.92-0.96 s of its
+# own with 384 KB chunks on 2 cores against 0.80-0.85 s with 2 MB, and the search 0.25 s
+# against 0.11 s on 16 cores (`python bench/scaling.py --cores`).
 ROW_CHUNK_BYTES_ONE_THREAD = 384 << 10
 ROW_CHUNK_BYTES = 2 << 20
 

@@ -221,3 +221,82 @@ def test_pr_legend_moves_right_when_every_curve_ends_early(tmp_path):
     short = {"a": (np.array([0.1, 0.26]), np.array([0.4, 0.26])), "b": (np.array([0.05, 0.13]), np.array([0.2, 0.13]))}
     assert legend_side(short) == "right"
     assert legend_side({**short, "c": (np.array([0.5, 0.9]), np.array([1.0, 0.8]))}) == "left"
+
+
+def test_pictures_drawn_on_threads_are_all_waited_for_and_the_first_error_raised():
+    import threading
+
+    from placeloc.evaluation.pictures import background, draw
+
+    main, seen, release = threading.get_ident(), [], threading.Event()
+
+    def picture(k: int) -> None:
+        if k == 0:
+            release.wait()  # the stage goes on while this one is still drawing
+        seen.append((k, threading.get_ident() != main))
+
+    def broken() -> None:
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        with background(threads=2):
+            draw(picture, 0)
+            draw(broken)
+            draw(picture, 1)
+            assert (0, True) not in seen
+            release.set()
+    assert sorted(seen) == [(0, True), (1, True)]  # both finished before the error came out
+    # outside a background block (and with one thread) a picture is drawn at once, here
+    draw(picture, 2)
+    with background(threads=1):
+        draw(picture, 3)
+        assert seen[-1] == (3, False)
+    assert seen[-2] == (2, False)
+
+
+def test_save_png_writes_the_pixels_of_every_mode(tmp_path):
+    from PIL import Image
+
+    from placeloc.evaluation.raster import save_png
+
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 256, (17, 23, 3), dtype=np.uint8)
+    grey = rng.integers(0, 256, (9, 5), dtype=np.uint8)
+    for photo in (False, True):
+        got = np.asarray(Image.open(save_png(Image.fromarray(rgb, "RGB"), tmp_path / f"rgb{photo}.png", photo=photo)))
+        assert np.array_equal(got, rgb)  # channel order kept (OpenCV writes BGR)
+    assert np.array_equal(np.asarray(Image.open(save_png(Image.fromarray(grey, "L"), tmp_path / "l.png"))), grey)
+    rgba = np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)])
+    got = np.asarray(Image.open(save_png(Image.fromarray(rgba, "RGBA"), tmp_path / "rgba.png")))
+    assert np.array_equal(got[..., :3], rgb)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["l.png", "rgba.png", "rgbFalse.png", "rgbTrue.png"])
+
+
+def test_strips_drawn_from_the_evaluation_are_the_rows_per_query_csv_holds(route, tmp_path):
+    """Evaluate draws the strips from its scores in memory, while it writes per_query.csv;
+    the rows are those `placeloc show` reads back from that file."""
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_all
+    from placeloc.evaluation import ranked
+    from placeloc.evaluation.contracts import read_result
+    from placeloc.evaluation.show import read_rows
+
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml")
+    run_all(cfg, run, quiet=True)
+    seen = {}
+    real = ranked.strip_rows
+
+    def spy(ev):
+        seen["rows"] = real(ev)
+        return seen["rows"]
+
+    ranked.strip_rows = spy
+    try:
+        run_all(cfg, run, quiet=True, force=True)
+    finally:
+        ranked.strip_rows = real
+    assert read_result(run / "localize.h5").kind == "ranked"
+    from_csv = read_rows(run)
+    assert seen["rows"] == from_csv
+    assert any(r.correct for r in from_csv) and any(r.best_image for r in from_csv)

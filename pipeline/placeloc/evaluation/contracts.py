@@ -174,7 +174,7 @@ class Contract(Protocol):
     def headline(self, metrics: dict[str, Any]) -> list[str]: ...
 
     def show(self, run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-             out_dir: Path | None = None) -> list[Path]: ...
+             out_dir: Path | None = None, ev: Any = None) -> list[Path]: ...
 
 
 def contract(kind: str) -> Contract:
@@ -333,29 +333,36 @@ def evaluate_stage(ctx: Any) -> None:
     contract's pictures, the strips and report.html."""
     from placeloc.core.stage_names import STAGES
     from placeloc.evaluation import write_metrics
+    from placeloc.evaluation.pictures import background, draw
 
     res = read_result(ctx.artifact("localize"))
     mod = contract(res.kind)
-    ev: Evaluation = mod.evaluate(ctx, res)
-    if not ev.label:
-        ev.label = ctx.method.name
-    if ctx.method.evaluate_extra is not None:
-        ctx.method.evaluate_extra(ctx, ev)
-    own_truth = method_truth(ctx.method, ctx.params)
-    if own_truth:
-        ev.metrics["scored_against"] = own_truth
-    add_timing(ev.metrics, stage_seconds(ctx.run_dir, [s for s in STAGES if s in ctx.method.stages]), frames_of(ev))
-    write_tree(ctx.out, ev.arrays)
-    ctx.out.attrs["result_kind"] = res.kind
-    clean = write_metrics(ctx.output_dir, ordered(ev.metrics, getattr(mod, "COUNTS", ())), ctx.out)
     plots = bool(ctx.config.get("plots", True))
-    mod.finish(ctx, ev, plots=plots)
+    # pictures handed to pictures.draw (the method's and the contract's) are drawn on threads
+    # while the scoring and the tables go on; the block's end waits for them, before the
+    # report that shows them
+    with background():
+        ev: Evaluation = mod.evaluate(ctx, res)
+        if not ev.label:
+            ev.label = ctx.method.name
+        # the strips from the evaluation in memory (not per_query.csv read back), so they are
+        # drawn while the method's figures and the tables are made; side outputs are staged
+        # in ctx.output_dir until the stage commits
+        if plots and mod.SHOW_AT_EVALUATE:
+            draw(mod.show, ctx.run_dir, res, out_dir=ctx.output_dir, ev=ev)
+        if ctx.method.evaluate_extra is not None:
+            ctx.method.evaluate_extra(ctx, ev)
+        own_truth = method_truth(ctx.method, ctx.params)
+        if own_truth:
+            ev.metrics["scored_against"] = own_truth
+        add_timing(ev.metrics, stage_seconds(ctx.run_dir, [s for s in STAGES if s in ctx.method.stages]), frames_of(ev))
+        write_tree(ctx.out, ev.arrays)
+        ctx.out.attrs["result_kind"] = res.kind
+        clean = write_metrics(ctx.output_dir, ordered(ev.metrics, getattr(mod, "COUNTS", ())), ctx.out)
+        mod.finish(ctx, ev, plots=plots)
     if plots:
         from placeloc.evaluation.report import write_report
 
-        # side outputs are staged in ctx.output_dir until the stage commits: read and write there
-        if mod.SHOW_AT_EVALUATE:
-            mod.show(ctx.run_dir, res, out_dir=ctx.output_dir)
         write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
 
 

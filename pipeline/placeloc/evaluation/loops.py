@@ -321,6 +321,7 @@ def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
 
     from placeloc.core.artifacts import atomic_open
     from placeloc.evaluation import plots as P
+    from placeloc.evaluation.pictures import draw
 
     res, pr = ev.result, ev.pr
     g = ctx.out.create_group("pr")
@@ -342,10 +343,10 @@ def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
     if not plots:
         return
     m = ev.metrics
-    P.plot_pr_curves({ev.label: (pr.recall, pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
-                     title=f"Loop closure precision-recall\n({m['frames_with_loop']} of {m['n_frames']} "
-                           f"frames close a loop; pairs < {m['exclude_recent']} frames apart never count)",
-                     xlabel="recall (share of the frames that close a loop, closed correctly)")
+    draw(P.plot_pr_curves, {ev.label: (pr.recall, pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
+         title=f"Loop closure precision-recall\n({m['frames_with_loop']} of {m['n_frames']} "
+               f"frames close a loop; pairs < {m['exclude_recent']} frames apart never count)",
+         xlabel="recall (share of the frames that close a loop, closed correctly)")
     if "seconds" in res and "map_size" in res and len(res["seconds"]):
         plot_time_per_frame(ctx.output("time_per_frame.png"), res["map_size"], res["seconds"], ev.label)
 
@@ -368,15 +369,19 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None) -> list[Path]:
+         out_dir: Path | None = None, ev: LoopEvaluation | None = None) -> list[Path]:
     """Strips frame | matched earlier frame | a true earlier one, for the accepted loop
-    closures spread over the traverse (and the most confident wrong ones)."""
+    closures spread over the traverse (and the most confident wrong ones); from the
+    evaluation ``ev`` when evaluate draws them, else from per_query.csv or the result."""
     from placeloc.evaluation.show import draw_strips, read_rows
 
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     source = out_dir if (out_dir / "per_query.csv").is_file() else run_dir
-    rows = accepted_rows(source / "per_query.csv") if (source / "per_query.csv").is_file() else None
+    if ev is not None:
+        rows = strip_rows(ev)
+    else:
+        rows = accepted_rows(source / "per_query.csv") if (source / "per_query.csv").is_file() else None
     if rows is None:
         rows = read_rows(run_dir, only_matched=True)
         threshold = (res or _result(run_dir)).attrs.get("threshold")
@@ -384,6 +389,23 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
             rows = [r for r in rows if r.confidence >= float(threshold)]
     # "loop closures" also tells draw_strips that the matched frames are in the same traverse
     return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir)
+
+
+def strip_rows(ev: LoopEvaluation) -> list[Any]:
+    """:func:`accepted_rows` straight from the evaluation: the accepted loop closures as
+    per_query.csv writes them (confidence to six decimals)."""
+    from placeloc.evaluation.show import Row
+
+    res, names = ev.result, ev.names
+    rows = []
+    for k, i in enumerate(res["frame_index"]):
+        if not ev.accepted[k]:
+            continue
+        j, e = int(res["match"][k]), int(ev.example[k])
+        cand = bool(ev.candidate[k])
+        rows.append(Row(names[i], names[j] if cand else "", float(f"{res['confidence'][k]:.6f}"), bool(ev.correct[k]),
+                        names[e] if e >= 0 else ""))
+    return rows
 
 
 def accepted_rows(per_query: Path) -> list[Any]:

@@ -25,7 +25,6 @@ Conventions (the keys of ``metrics.json``, the ``ranked`` contract's schema):
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -135,15 +134,23 @@ def write_per_query_csv(path: str | Path, s: MatchScores, query_names: Sequence[
         for i in range(1, k + 1):
             head += [f"ref_{i}", f"image_{i}", f"score_{i}", f"correct_{i}"]
         w.writerow(head)
-        # Python lists, not numpy scalars, in the loop: a tenth of the time at thousands of rows
-        ranked, scores, ok = s.ranked[:, :k].tolist(), s.ranked_scores[:, :k].tolist(), s.ranked_correct[:, :k].tolist()
-        columns = zip(s.query.tolist(), s.best.tolist(), s.example_positive.tolist(), s.has_positive.tolist(),
-                      s.confidence.tolist(), s.best_correct.tolist(), first.tolist(), ranked, scores, ok)
-        for q, b, p, has, conf, right, first_rank, refs, row_scores, row_ok in columns:
-            row = [q, query_names[q], int(has), p if p >= 0 else "", ref_names[p] if p >= 0 else "",
-                   b if b >= 0 else "", ref_names[b] if b >= 0 else "", f"{conf:.6f}", int(right), first_rank]
-            for r, sc, c in zip(refs, row_scores, row_ok):
-                row += [r if r >= 0 else "", ref_names[r] if r >= 0 else "",
-                        "" if r < 0 or not math.isfinite(sc) else f"{sc:.6g}", int(c)]
-            w.writerow(row)
+        # built column by column and written by writerows: per row, the list building and
+        # the csv call per row cost 1.4x as much at 3576 rows of 20 candidates
+        names = [*ref_names, ""]  # index -1: no reference
+
+        def refs(col: np.ndarray) -> list[list[Any]]:  # reference numbers and names, "" where none
+            idx = col.tolist()
+            return [[r if r >= 0 else "" for r in idx], [names[r] for r in idx]]
+
+        query = s.query.tolist()
+        cols: list[list[Any]] = [query, [query_names[q] for q in query], s.has_positive.astype(np.int8).tolist(),
+                                 *refs(s.example_positive), *refs(s.best),
+                                 [f"{c:.6f}" for c in s.confidence.tolist()], s.best_correct.astype(np.int8).tolist(),
+                                 first.tolist()]
+        for j in range(k):
+            r, sc = s.ranked[:, j], s.ranked_scores[:, j]
+            blank = ((r < 0) | ~np.isfinite(sc)).tolist()
+            cols += [*refs(r), ["" if no else f"{x:.6g}" for x, no in zip(sc.tolist(), blank)],
+                     s.ranked_correct[:, j].astype(np.int8).tolist()]
+        w.writerows(zip(*cols))
     return path

@@ -197,6 +197,7 @@ def finish(ctx: Any, ev: RankedEvaluation, plots: bool = True) -> None:
     """evaluate.h5's PR curve and correctness, per_query.csv, pr_curve.png and recall_at_n.png."""
     from placeloc.evaluation import matching
     from placeloc.evaluation import plots as P
+    from placeloc.evaluation.pictures import draw
 
     s = ev.scores
     pr_group = ctx.out.create_group("pr")
@@ -207,14 +208,14 @@ def finish(ctx: Any, ev: RankedEvaluation, plots: bool = True) -> None:
     if not plots:
         return
     n_q, ns = len(s.query), ev.ns
-    P.plot_pr_curves({ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
-                     title=f"Precision-recall over the best match's confidence, {n_q} queries")
+    draw(P.plot_pr_curves, {ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
+         title=f"Precision-recall over the best match's confidence, {n_q} queries")
     curves = {f"{ev.label}, standard (plain ranking)": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
     if ev.separation:
         sep_ns = [n for n in ns if n == 1 or f"separated_recall_at_{n}" in ev.metrics]
         curves[f"{ev.label}, candidates >= {ev.separation} frames apart"] = (
             sep_ns, [ev.metrics["recall_at_1"] if n == 1 else ev.metrics[f"separated_recall_at_{n}"] for n in sep_ns])
-    P.plot_recall_at_n(curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
+    draw(P.plot_recall_at_n, curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:
@@ -222,9 +223,22 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None) -> list[Path]:
-    """Strips query | best match | a true one (from per_query.csv, else from the result),
-    written into ``out_dir`` (default ``run_dir``)."""
+         out_dir: Path | None = None, ev: RankedEvaluation | None = None) -> list[Path]:
+    """Strips query | best match | a true one (from the evaluation ``ev`` when evaluate
+    draws them, else from per_query.csv, else from the result), written into ``out_dir``
+    (default ``run_dir``)."""
     from placeloc.evaluation.show import draw_strips
 
-    return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir)
+    return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir,
+                       rows=None if ev is None else strip_rows(ev))
+
+
+def strip_rows(ev: RankedEvaluation) -> list[Any]:
+    """The rows per_query.csv holds for the strips (query, best match, confidence as written
+    there, correctness, a true reference), straight from the evaluation."""
+    from placeloc.evaluation.show import Row
+
+    s, q_names, ref_names = ev.scores, ev.q_names, ev.ref_names
+    return [Row(q_names[q], ref_names[b] if b >= 0 else "", float(f"{c:.6f}"), bool(ok), ref_names[p] if p >= 0 else "")
+            for q, b, c, ok, p in zip(s.query.tolist(), s.best.tolist(), s.confidence.tolist(), s.best_correct.tolist(),
+                                      s.example_positive.tolist())]

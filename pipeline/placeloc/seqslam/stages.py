@@ -212,6 +212,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     subsamples) with the ground-truth band (conventions in :mod:`placeloc.evaluation.matching`)."""
     from placeloc.evaluation import matching, plots
     from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
+    from placeloc.evaluation.pictures import draw
 
     p = ctx.params
     ex, lo_art = ctx.artifact("extract"), ctx.artifact("localize")
@@ -231,9 +232,27 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key in ("difference", "enhanced")}
     stored = "difference" in lo_art and "enhanced" in lo_art
     if isinstance(ev, RankedEvaluation):
-        gt = ev.gt
-        rows, cols = gt.positives(ref_index, q_index)  # sorted by query column
+        rows, cols = ev.gt.positives(ref_index, q_index)  # sorted by query column
         band_lo, band_hi = band_of(rows, cols, n_q)
+        best, best_ok = ev.scores.best, ev.scores.best_correct
+    else:
+        assert isinstance(ev, LoopEvaluation)
+        best, best_ok = ev.match_local, ev.correct
+    # the picture first: it is drawn on a thread (placeloc.evaluation.pictures) while the pass
+    # over the stored D and D^ below runs
+    if ctx.config.get("plots", True) and "plot" in lo_art:
+        head_key = "recall_at_1" if "recall_at_1" in metrics else "recall_at_100_precision"
+        head = metrics.get(head_key)
+        what = "recall@1" if head_key == "recall_at_1" else "recall at 100% precision"
+        pic = lo_art["plot"]
+        sr, sq = (int(x) for x in pic.attrs["stride"])
+        draw(plots.plot_difference_matrices,
+             {"D (raw)": pic["difference"][()], f"D^ (enhanced, R_window={window})": pic["enhanced"][()]},
+             ctx.output("difference_matrix.png"), matches=best, correct=best_ok, gt_lo=band_lo, gt_hi=band_hi,
+             gt_points=_loop_truth_points(ev, ref_index) if isinstance(ev, LoopEvaluation) else None, stride=(sr, sq),
+             title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, search={p.search}, "
+                   f"R_window={window}; {what} {'none' if head is None else f'{head:.3f}'}")
+    if isinstance(ev, RankedEvaluation):
         # column slabs one chunk wide: h5py copies whole chunks (a 1024-wide slab of 256-wide
         # chunks read at half the speed)
         step = int((lo_art["difference"].chunks or (0, block))[1]) if stored else block
@@ -245,34 +264,18 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
                 np.minimum(mc, at_positive, out=mc)
                 np.minimum(mw, elsewhere, out=mw)
         single = lo_art["single_best"][()]
-        single_s = matching.score_matches(gt, q_index, ref_index, separated=single[:, None],
+        single_s = matching.score_matches(ev.gt, q_index, ref_index, separated=single[:, None],
                                           confidence=lo_art["single_confidence"][()], ns=(1,))
         metrics.update({"single_image_recall_at_1": single_s.metrics["recall_at_1"],
                         "single_image_auc_pr": single_s.metrics["auc_pr"]})
         metrics["headline"] = [k for k in metrics["headline"] if k != "seconds_per_frame"] + [
             "single_image_recall_at_1", "seconds_per_frame"]
         ev.pr_curves["single image (no sequence)"] = (single_s.pr.recall, single_s.pr.precision)
-        best, best_ok = ev.scores.best, ev.scores.best_correct
         if stored:
             for key, suffix in (("difference", ""), ("enhanced", "_enhanced")):
                 ratio = dissimilarity_ratios(*mins[key])
                 metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
                 ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
-    else:
-        assert isinstance(ev, LoopEvaluation)
-        best, best_ok = ev.match_local, ev.correct
-    if ctx.config.get("plots", True) and "plot" in lo_art:
-        head_key = "recall_at_1" if "recall_at_1" in metrics else "recall_at_100_precision"
-        head = metrics.get(head_key)
-        what = "recall@1" if head_key == "recall_at_1" else "recall at 100% precision"
-        pic = lo_art["plot"]
-        sr, sq = (int(x) for x in pic.attrs["stride"])
-        plots.plot_difference_matrices(
-            {"D (raw)": pic["difference"][()], f"D^ (enhanced, R_window={window})": pic["enhanced"][()]},
-            ctx.output("difference_matrix.png"), matches=best, correct=best_ok, gt_lo=band_lo, gt_hi=band_hi,
-            gt_points=_loop_truth_points(ev, ref_index) if isinstance(ev, LoopEvaluation) else None, stride=(sr, sq),
-            title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, search={p.search}, "
-                  f"R_window={window}; {what} {'none' if head is None else f'{head:.3f}'}")
 
 
 def _loop_truth_points(ev: Any, ref_index: np.ndarray, most: int = 20000) -> tuple[np.ndarray, np.ndarray]:

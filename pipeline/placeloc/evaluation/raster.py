@@ -65,7 +65,13 @@ def save_png(image: Image.Image, path: str | Path, *, photo: bool = False) -> Pa
     pixels = np.asarray(image.convert("RGB") if image.mode not in ("RGB", "L") else image)
     if pixels.ndim == 3:
         pixels = pixels[:, :, ::-1]  # OpenCV writes BGR
-    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(pixels), [cv2.IMWRITE_PNG_COMPRESSION, 1 if photo else 6])
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1 if photo else 6]
+    if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.11
+        # one row filter ("up") instead of libpng's adaptive choice among five: the encode took
+        # a third to a half of the time (difference matrices 18 against 34 ms, strips 10
+        # against 29 ms) for files 0-15 % larger
+        params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(pixels), params)
     if not ok:
         raise OSError(f"{path}: OpenCV could not encode a {image.size[0]} x {image.size[1]} {image.mode} picture as PNG")
     tmp = tmp_path_for(path)
@@ -375,12 +381,16 @@ def _dash_runs(px: np.ndarray, py: np.ndarray, pattern: Sequence[float]) -> list
 def percentiles(values: np.ndarray, qs: Sequence[float]) -> tuple[float, ...]:
     """``np.percentile(values, qs)`` (linear between the two nearest ranks) by partition:
     np.percentile's np.unique would import numpy.ma (20 ms) for a colour scale's two ends."""
-    v = np.asarray(values, np.float64).ravel()
+    v = np.asarray(values).ravel()
+    if v.dtype.kind != "f":
+        v = v.astype(np.float64)
     pos = [q / 100 * (len(v) - 1) for q in qs]
     ranks = sorted({int(np.floor(p)) for p in pos} | {int(np.ceil(p)) for p in pos})
+    # partitioned in the values' own precision (a float32 matrix: half the memory to move),
+    # the ranks' values widened to float64 before interpolating: the results of before
     part = np.partition(v, ranks)
-    return tuple(float(part[int(np.floor(p))] + (part[int(np.ceil(p))] - part[int(np.floor(p))]) * (p - np.floor(p)))
-                 for p in pos)
+    at = {r: float(part[r]) for r in ranks}
+    return tuple(float(at[int(np.floor(p))] + (at[int(np.ceil(p))] - at[int(np.floor(p))]) * (p - np.floor(p))) for p in pos)
 
 
 def grey_image(matrix: np.ndarray, vmin: float, vmax: float) -> np.ndarray:

@@ -256,11 +256,16 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
         # column slabs one chunk wide: h5py copies whole chunks (a 1024-wide slab of 256-wide
         # chunks read at half the speed)
         step = int((lo_art["difference"].chunks or (0, block))[1]) if stored else block
+        # read into one reused slab: a new array per slab cost 1.5x the read (its pages
+        # touched for the first time)
+        slab = np.empty((n_ref, step), np.float32) if stored else None
         for c0 in range(0, n_q if stored else 0, step):
             c1 = min(n_q, c0 + step)
             a, b = np.searchsorted(cols, (c0, c1))
             for key, (mc, mw) in mins.items():
-                at_positive, elsewhere = split_row_minima(lo_art[key][:, c0:c1], rows[a:b], cols[a:b] - c0)
+                part = slab if c1 - c0 == step else np.empty((n_ref, c1 - c0), np.float32)
+                lo_art[key].read_direct(part, np.s_[:, c0:c1])
+                at_positive, elsewhere = split_row_minima(part, rows[a:b], cols[a:b] - c0)
                 np.minimum(mc, at_positive, out=mc)
                 np.minimum(mw, elsewhere, out=mw)
         single = lo_art["single_best"][()]

@@ -204,18 +204,17 @@ def finish(ctx: Any, ev: RankedEvaluation, plots: bool = True) -> None:
     for name, arr in (("threshold", s.pr.thresholds), ("precision", s.pr.precision), ("recall", s.pr.recall)):
         pr_group.create_dataset(name, data=arr)
     ctx.out.create_dataset("correct", data=s.best_correct)
+    if plots:  # handed to the picture threads first, so they are drawn while the table is written
+        n_q, ns = len(s.query), ev.ns
+        draw(P.plot_pr_curves, {ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
+             title=f"Precision-recall over the best match's confidence, {n_q} queries")
+        curves = {f"{ev.label}, standard (plain ranking)": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
+        if ev.separation:
+            sep_ns = [n for n in ns if n == 1 or f"separated_recall_at_{n}" in ev.metrics]
+            curves[f"{ev.label}, candidates >= {ev.separation} frames apart"] = (
+                sep_ns, [ev.metrics["recall_at_1"] if n == 1 else ev.metrics[f"separated_recall_at_{n}"] for n in sep_ns])
+        draw(P.plot_recall_at_n, curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
     matching.write_per_query_csv(ctx.output("per_query.csv"), s, ev.q_names, ev.ref_names)
-    if not plots:
-        return
-    n_q, ns = len(s.query), ev.ns
-    draw(P.plot_pr_curves, {ev.label: (s.pr.recall, s.pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
-         title=f"Precision-recall over the best match's confidence, {n_q} queries")
-    curves = {f"{ev.label}, standard (plain ranking)": (ns, [ev.metrics.get(f"recall_at_{n}") for n in ns])}
-    if ev.separation:
-        sep_ns = [n for n in ns if n == 1 or f"separated_recall_at_{n}" in ev.metrics]
-        curves[f"{ev.label}, candidates >= {ev.separation} frames apart"] = (
-            sep_ns, [ev.metrics["recall_at_1"] if n == 1 else ev.metrics[f"separated_recall_at_{n}"] for n in sep_ns])
-    draw(P.plot_recall_at_n, curves, ctx.output("recall_at_n.png"), title=f"Recall@N over all {n_q} queries")
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:

@@ -535,16 +535,16 @@ def test_keys_whose_default_is_none_have_a_declared_type(route):
 
 def test_permission_denied_image_is_not_called_corrupt(route, monkeypatch):
     img = sorted((route / "query").glob("*.png"))[0]
-    import placeloc.core.images
+    import os
 
-    real_open = open
+    real_open = os.open
 
-    def denied(path, *a, **k):  # what open() raises on a file without read permission (tests run as root)
+    def denied(path, *a, **k):  # what open(2) raises on a file without read permission (tests run as root)
         if Path(path) == img:
             raise PermissionError(13, "Permission denied", str(path))
         return real_open(path, *a, **k)
 
-    monkeypatch.setattr(placeloc.core.images, "open", denied, raising=False)
+    monkeypatch.setattr(os, "open", denied)  # images are read through os.open
     with pytest.raises(ImageError, match="permission denied; make it readable"):
         read_gray(img)
     garbage = route / "query" / "zz.png"

@@ -404,19 +404,20 @@ def os_error_message(path: str | Path, exc: OSError) -> str:
     return f"{path}: cannot be read ({exc.strerror or exc}); check the disk or the file, {fix}"
 
 
-def _open_nonblocking(path: str, flags: int) -> int:
-    return os.open(path, flags | getattr(os, "O_NONBLOCK", 0))
-
-
 def _read_bytes(path: str | Path) -> bytes:
     """The file's bytes: a regular file (a FIFO or device put in place of an image is
-    refused, not read until it ends) no larger than the memory there is."""
+    refused, not read until it ends) no larger than the memory there is.
+
+    Plain descriptor calls, one read of the file's size: a Python file object (its own
+    fstat, the blocking flag set back, a read until an empty one) took 18-21 us a file
+    against 6-8 us, a fifth of SeqSLAM's extract of 7152 thumbnails."""
     from placeloc.core.safe_io import memory_budget
 
     try:
-        # O_NONBLOCK: opening a FIFO must not wait for a writer
-        with open(path, "rb", buffering=0, opener=_open_nonblocking) as fh:
-            st = os.fstat(fh.fileno())
+        # O_NONBLOCK: opening a FIFO must not wait for a writer (a regular file ignores it)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+        try:
+            st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode):
                 raise ImageError(f"{path}: is not a regular file (a FIFO or device?); replace it with an image file, "
                                  "or set on_error: skip beside images:")
@@ -424,8 +425,15 @@ def _read_bytes(path: str | Path) -> bytes:
             if st.st_size > budget:
                 raise ImageError(f"{path}: is {st.st_size / 2**20:.0f} MB, more than a quarter of the memory available "
                                  f"({budget * 4 / 2**20:.0f} MB); resize the images")
-            os.set_blocking(fh.fileno(), True)
-            return fh.read()
+            data = os.read(fd, st.st_size + 1)
+            if len(data) != st.st_size:  # a short read, or a file grown since: read on to its end
+                parts = [data]
+                while chunk := os.read(fd, 1 << 20):
+                    parts.append(chunk)
+                data = b"".join(parts)
+            return data
+        finally:
+            os.close(fd)
     except OSError as exc:
         raise ImageError(os_error_message(path, exc)) from exc
 

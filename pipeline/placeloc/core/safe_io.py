@@ -30,6 +30,7 @@ import io
 import math
 import os
 import stat
+import time
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
@@ -131,8 +132,6 @@ _mem_cache: list[float] = [float("-inf"), 0.0]  # [when read (monotonic), bytes]
 def mem_available() -> int:
     """Bytes of memory available now (``/proc/meminfo`` MemAvailable, read at most once
     every :data:`MEM_AVAILABLE_TTL` seconds; unknown: no limit)."""
-    import time
-
     now = time.monotonic()
     when, value = _mem_cache
     if now - when < MEM_AVAILABLE_TTL:
@@ -155,15 +154,23 @@ def mem_available() -> int:
 ENV_MEGABYTES_MAX = 2**40
 
 
+_PARSED_LIMITS: dict[str, float] = {}  # PLACELOC_MEMORY_LIMIT_MB's text -> its number (nan: none)
+
+
 def memory_budget() -> int:
     """Bytes of memory a run, a decode or a read may take: ``PLACELOC_MEMORY_LIMIT_MB`` when
     it is a number of megabytes from 0 to :data:`ENV_MEGABYTES_MAX`, else MemAvailable.
     Never raises: :func:`placeloc.core.limits.memory_limit` refuses a bad value, naming the
     variable, before any stage runs (a worker decoding an image only needs the figure)."""
-    try:
-        value = float(os.environ.get("PLACELOC_MEMORY_LIMIT_MB", "").strip() or "nan")
-    except ValueError:
-        value = float("nan")
+    raw = os.environ.get("PLACELOC_MEMORY_LIMIT_MB", "")
+    value = _PARSED_LIMITS.get(raw)
+    if value is None:  # parsed once per text: every image read and decode asks
+        try:
+            value = float(raw.strip() or "nan")
+        except ValueError:
+            value = float("nan")
+        if len(_PARSED_LIMITS) < 64:
+            _PARSED_LIMITS[raw] = value
     if math.isfinite(value) and 0 <= value <= ENV_MEGABYTES_MAX:
         return int(value * 2**20)
     return mem_available()

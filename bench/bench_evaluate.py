@@ -6,6 +6,7 @@ centred search) with ground truth and pictures on, and on the demo (configs/demo
     python bench/bench_evaluate.py --demo          # the demo only
     python bench/bench_evaluate.py --no-plots      # scoring alone (plots: false), what the pictures cost aside
     python bench/bench_evaluate.py --tree OLD --tree .   # two source trees, turn about, in one run
+    python bench/bench_evaluate.py --cores         # evaluate pinned to 1, 2, 4, ..., nproc cores
 
 Prints, per problem and tree, wall and CPU seconds of each stage's process, the stage's own
 seconds (its artifact's ``seconds``: process start-up and imports left out), and the ratio
@@ -41,9 +42,10 @@ FLOOR = "build-dictionary"  # SeqSLAM has no dictionary: the stage passes its in
 Times = dict[str, tuple[float, float, float]]  # stage -> (wall, CPU, the stage's own seconds)
 
 
-def run_stage(tree: Path, stage: str, cfg: Path, run_dir: Path) -> tuple[float, float, float]:
-    """``placeloc STAGE CONFIG -o RUN_DIR -q -f`` as its own process with ``tree``'s code:
-    (wall, CPU user + sys, the artifact's own seconds)."""
+def run_stage(tree: Path, stage: str, cfg: Path, run_dir: Path, cores: int | None = None) -> tuple[float, float, float]:
+    """``placeloc STAGE CONFIG -o RUN_DIR -q -f`` as its own process with ``tree``'s code,
+    pinned to the first ``cores`` usable cores (as ``taskset``) when given: (wall, CPU user +
+    sys, the artifact's own seconds)."""
     import h5py
 
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree / "pipeline"), os.environ.get("PYTHONPATH", "")]))
@@ -51,8 +53,10 @@ def run_stage(tree: Path, stage: str, cfg: Path, run_dir: Path) -> tuple[float, 
     t0 = time.perf_counter()
     # as the installed `placeloc` script starts it (python -m would compile cli.py on every start)
     code = "import sys; from placeloc.cli import main; sys.argv[0] = 'placeloc'; sys.exit(main())"
+    usable = sorted(os.sched_getaffinity(0)) if cores else []
     subprocess.run([sys.executable, "-c", code, stage, str(cfg), "-o", str(run_dir), "-q", "-f"], check=True,
-                   capture_output=True, text=True, env=env)
+                   capture_output=True, text=True, env=env,
+                   preexec_fn=(lambda: os.sched_setaffinity(0, usable[:cores])) if cores else None)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     with h5py.File(run_dir / f"{stage}.h5", "r") as f:
@@ -71,6 +75,34 @@ def stage_times(trees: list[Path], cfg: Path, work: Path, repeat: int) -> list[T
                 if i > 0 and (stage not in best[k] or t[0] < best[k][stage][0]):
                     best[k][stage] = t
     return best
+
+
+def core_counts() -> list[int]:
+    """1, 2, 4, ... and the usable cores themselves."""
+    n = len(os.sched_getaffinity(0))
+    counts = [1 << i for i in range(n.bit_length()) if 1 << i < n]
+    return [*counts, n]
+
+
+def cores_table(tree: Path, cfg: Path, run_dir: Path, repeat: int) -> None:
+    """Evaluate alone, its process pinned to 1, 2, 4, ..., nproc cores (its pictures are
+    drawn on as many threads as it may use, up to four), best of ``repeat`` after a
+    warm-up: own seconds and the speed-up against one core, measured in the same run."""
+    for stage in ("extract", "localize"):
+        run_stage(tree, stage, cfg, run_dir)
+    counts = core_counts()
+    best: dict[int, tuple[float, float, float]] = {}
+    for i in range(repeat + 1):
+        for k in counts:  # turn about, so load changes reach every count
+            t = run_stage(tree, "evaluate", cfg, run_dir, cores=k)
+            if i > 0 and (k not in best or t[2] < best[k][2]):
+                best[k] = t
+    print(f"  evaluate pinned to k cores (load average {os.getloadavg()[0]:.1f}; best of {repeat}):")
+    print("    | cores | own | process wall | CPU | own, 1 core / k cores |")
+    print("    |---|---|---|---|---|")
+    for k in counts:
+        wall, cpu, own = best[k]
+        print(f"    | {k} | {own:.3f} s | {wall:.2f} s | {cpu:.2f} s | {best[1][2] / own:.2f}x |")
 
 
 def report(name: str, trees: list[Path], times: list[Times]) -> None:
@@ -95,6 +127,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plots", action="store_true", help="plots: false (metrics.json and the CSVs only)")
+    ap.add_argument("--cores", action="store_true",
+                    help="instead: evaluate pinned to 1, 2, 4, ..., nproc cores (the first --tree, 3576 x 3576 and the demo)")
     ap.add_argument("--tree", action="append", type=Path, default=None,
                     help="a checkout whose pipeline/ runs the stages (repeatable; default: this one)")
     a = ap.parse_args()
@@ -115,8 +149,12 @@ def main() -> None:
         demo = work / "demo.json"
         demo.write_text(json.dumps(cfg))
         (work / "demo").mkdir()
-        report(f"demo (configs/demo.yaml, 81 x 81, pictures {'off' if a.no_plots else 'on'})", trees,
-               stage_times(trees, demo, work / "demo", a.repeat))
+        demo_name = f"demo (configs/demo.yaml, 81 x 81, pictures {'off' if a.no_plots else 'on'})"
+        if a.cores:
+            print(f"{demo_name}, tree {trees[0]}")
+            cores_table(trees[0], demo, work / "demo", a.repeat)
+        else:
+            report(demo_name, trees, stage_times(trees, demo, work / "demo", a.repeat))
         if a.demo:
             return
         ref, q = make_traverses(work / "data", a.n)
@@ -125,8 +163,12 @@ def main() -> None:
                                    "ground_truth": {"kind": "synchronous", "tolerance": 2}, "plots": not a.no_plots,
                                    "seqslam": {"comparison": "sad", "search": P.search}}))
         (work / "big").mkdir()
-        report(f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures {'off' if a.no_plots else 'on'})",
-               trees, stage_times(trees, big, work / "big", a.repeat))
+        big_name = f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures {'off' if a.no_plots else 'on'})"
+        if a.cores:
+            print(f"{big_name}, tree {trees[0]}")
+            cores_table(trees[0], big, work / "big", a.repeat)
+        else:
+            report(big_name, trees, stage_times(trees, big, work / "big", a.repeat))
 
 
 if __name__ == "__main__":

@@ -121,6 +121,15 @@ def report(name: str, trees: list[Path], times: list[Times]) -> None:
               f"{floor / method_wall:.2f} of extract + localize; evaluate beyond it {t['evaluate'][0] - floor:.2f} s")
 
 
+def measure(a: argparse.Namespace, trees: list[Path], name: str, cfg: Path, run_dir: Path) -> None:
+    """One problem: the evaluate-over-cores table (``--cores``), else every tree's stages."""
+    if a.cores:
+        print(f"{name}, tree {trees[0]}")
+        cores_table(trees[0], cfg, run_dir, a.repeat)
+    else:
+        report(name, trees, stage_times(trees, cfg, run_dir, a.repeat))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--demo", action="store_true", help="the demo only")
@@ -149,12 +158,8 @@ def main() -> None:
         demo = work / "demo.json"
         demo.write_text(json.dumps(cfg))
         (work / "demo").mkdir()
-        demo_name = f"demo (configs/demo.yaml, 81 x 81, pictures {'off' if a.no_plots else 'on'})"
-        if a.cores:
-            print(f"{demo_name}, tree {trees[0]}")
-            cores_table(trees[0], demo, work / "demo", a.repeat)
-        else:
-            report(demo_name, trees, stage_times(trees, demo, work / "demo", a.repeat))
+        measure(a, trees, f"demo (configs/demo.yaml, 81 x 81, pictures {'off' if a.no_plots else 'on'})", demo,
+                work / "demo")
         if a.demo:
             return
         ref, q = make_traverses(work / "data", a.n)
@@ -163,12 +168,8 @@ def main() -> None:
                                    "ground_truth": {"kind": "synchronous", "tolerance": 2}, "plots": not a.no_plots,
                                    "seqslam": {"comparison": "sad", "search": P.search}}))
         (work / "big").mkdir()
-        big_name = f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures {'off' if a.no_plots else 'on'})"
-        if a.cores:
-            print(f"{big_name}, tree {trees[0]}")
-            cores_table(trees[0], big, work / "big", a.repeat)
-        else:
-            report(big_name, trees, stage_times(trees, big, work / "big", a.repeat))
+        measure(a, trees, f"{a.n} x {a.n} (bench_seqslam settings, synchronous ground truth, pictures "
+                f"{'off' if a.no_plots else 'on'})", big, work / "big")
 
 
 if __name__ == "__main__":

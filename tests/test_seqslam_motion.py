@@ -237,6 +237,40 @@ STANDING = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0,
                 block_size=1024)
 
 
+@pytest.mark.parametrize("features", ["uint8", "float32"])
+@pytest.mark.parametrize("block_size", [1024, 70])
+def test_collapsed_search_reads_the_full_search_differences_and_answers_the_same(monkeypatch, features, block_size):
+    # the second search of collapse_stops takes the differences the full search computed
+    # (kept as the blocks pass, up to a block's worth) instead of computing them again:
+    # every answer, score and confidence as when it computes them itself, and fewer computed
+    from placeloc.seqslam import matching
+
+    places = np.concatenate([np.arange(10, 80), np.full(40, 80), np.arange(81, 150), np.full(30, 150),
+                             np.arange(151, 200)])
+    ref, query = _standing_route(220, places, seed=21)
+    if features == "float32":  # the float kernel (zscore features) as well as the uint8 one
+        ref, query = (x.astype(np.float32) / 17 for x in (ref, query))
+    common = {**STANDING, "block_size": block_size}
+    computed = []
+    real_difference = matching.difference_block_t
+
+    def counting(r: np.ndarray, q: np.ndarray, comparison: str) -> np.ndarray:
+        computed.append(len(q))
+        return real_difference(r, q, comparison)
+
+    monkeypatch.setattr(matching, "difference_block_t", counting)
+    kept = sequence_match(ref, query, collapse_stops=True, **common)
+    with_kept = sum(computed)
+    real_answers = matching.collapsed_answers
+    monkeypatch.setattr(matching, "collapsed_answers", lambda *a, **k: real_answers(*a, **{**k, "differences": None}))
+    computed.clear()
+    again = sequence_match(ref, query, collapse_stops=True, **common)
+    for name in ("candidates", "scores", "confidence"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(again, name))
+    assert sum(computed) > with_kept  # the second search computed its own differences only without them
+    assert (np.abs(kept.candidates[:, 0] - places) <= 1).mean() > 0.95
+
+
 def test_collapsed_stop_is_followed_to_within_a_frame():
     # a query that stops for 50 frames where the reference moves on: with collapse_stops
     # every frame of the stop is within a frame; the frames the stop repeats take the

@@ -9,6 +9,7 @@ writes them to ``localize.h5``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator
 
@@ -292,6 +293,7 @@ def sequence_match(
     v_reverse: float = 0.0,
     collapse_stops: bool = False,
     backward_paths: bool = False,
+    backward_v_max: float = math.inf,
     exclude_recent: int | None,
     block_size: int,
     map_blocks: MapBlocks | None = None,
@@ -305,7 +307,9 @@ def sequence_match(
     ``v_auto`` scales the velocities by :func:`auto_velocity_scale`. The costs shape the
     ``flexible`` path (:class:`placeloc.seqslam.params.SeqSLAMParams`); ``backward_paths``
     adds the family of paths that drive backwards throughout (see
-    :func:`placeloc.seqslam.search.sequence_search`). ``collapse_stops``: after the search
+    :func:`placeloc.seqslam.search.sequence_search`), at the speeds up to
+    ``backward_v_max`` (after ``v_auto``'s scaling, which the limit itself does not take:
+    see :class:`placeloc.seqslam.params.SeqSLAMParams`). ``collapse_stops``: after the search
     over every frame, the query's standing runs (:func:`standing_runs`) are searched
     again with both traverses' runs collapsed (:func:`collapsed_answers`), and the frames
     a run repeats take that answer where :func:`stop_answers` finds it between the first
@@ -379,6 +383,7 @@ def sequence_match(
         b, s = sequence_search(et, s0, s1, int(ds), vels, search, window, k, exclude_recent, lo,
                                shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
                                stop_cost=stop_cost, reverse_cost=reverse_cost, backward_paths=backward_paths,
+                               backward_v_max=backward_v_max,
                                plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
         candidates[c0:c1], scores[c0:c1] = b, s
     conf = confidence(scores)

@@ -314,15 +314,21 @@ def choose(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The rule: among settings keeping steady R@1 >= 0.99 and steady recall at 100 %
     precision >= 0.99 (the issue's goal for confidence), the best worst family (the
     lowest median R@1 of any motion family); within 0.005 of it, the best median over
-    the motion families; within 0.005 of that too, the fewest backward speeds (the
-    cheaper search; added 2026-11-26 17:00 UTC for ``backward_v_max``, and no earlier pick
-    had a second row within both bands). The rule's second step, on the whole route, is
-    :func:`whole`."""
+    the motion families; within 0.005 of that too, the best worst seed (the lowest R@1 of
+    any family and seed), and within 0.005 of that, the fewest backward speeds (the
+    cheaper search). The last two ties were added 2026-11-26 for ``backward_v_max``; no
+    earlier pick had a second row within both earlier bands. The worst seed comes first
+    because a median over three seeds cannot see a loss on one: with the fewest speeds
+    first, the limit 1.0 won the tie and lost the one tuning seed that reverses faster
+    than 1.0x (seed 1, 1.45x: 0.915 -> 0.851). The rule's second step, on the whole
+    route, is :func:`whole`."""
     ok = [r for r in rows if r["steady"] >= 0.99 and r.get("steady_r100p", 1.0) >= 0.99] or rows
     best = max(r["worst_family"] for r in ok)
     near = [r for r in ok if r["worst_family"] >= best - 0.005]
     top = max(round(r["median"], 3) for r in near)
     tied = [r for r in near if round(r["median"], 3) >= top - 0.005]
+    floor = max(round(r["worst"], 3) for r in tied)
+    tied = [r for r in tied if round(r["worst"], 3) >= floor - 0.005]
     return min(tied, key=lambda r: (backward_speeds(r), -round(r["median"], 3)))
 
 

@@ -317,11 +317,12 @@ def choose(rows: list[dict[str, Any]]) -> dict[str, Any]:
     the motion families; within 0.005 of that too, the best worst seed (the lowest R@1 of
     any family and seed), and within 0.005 of that, the fewest backward speeds (the
     cheaper search). The last two ties were added 2026-11-26 for ``backward_v_max``; no
-    earlier pick had a second row within both earlier bands. The worst seed comes first
-    because a median over three seeds cannot see a loss on one: with the fewest speeds
-    first, the limit 1.0 won the tie and lost the one tuning seed that reverses faster
-    than 1.0x (seed 1, 1.45x: 0.915 -> 0.851). The rule's second step, on the whole
-    route, is :func:`whole`."""
+    earlier pick had a second row within both earlier bands. The fewest speeds was
+    written before the tuning rows were measured; the worst seed before it, after they
+    were read (docs/seqslam.md says so): a median over three seeds cannot see a loss on
+    one, and with the fewest speeds straight after the median the limit 1.0 won and lost
+    the one tuning seed that reverses faster than 1.0x (seed 1, 1.45x: 0.915 -> 0.851).
+    The rule's second step, on the whole route, is :func:`whole`."""
     ok = [r for r in rows if r["steady"] >= 0.99 and r.get("steady_r100p", 1.0) >= 0.99] or rows
     best = max(r["worst_family"] for r in ok)
     near = [r for r in ok if r["worst_family"] >= best - 0.005]
@@ -400,7 +401,8 @@ def tune(out: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
 
 def report_settings() -> dict[str, dict[str, Any]]:
     """The preset as shipped (``collapse_stops``, ``backward_paths`` at ``reverse_cost``
-    0); without ``collapse_stops`` (the previous preset), without ``backward_paths``, and
+    0, the backward family up to ``backward_v_max``); with every backward speed (the
+    previous preset); without ``collapse_stops``, without ``backward_paths``, and
     without both (the preset before those); the flexible preset before that; straight
     lines over the preset's own speeds and window (what ``sequence_shape: trajectory``
     gives); and the whole path model (standing still and backing out too) that tuning

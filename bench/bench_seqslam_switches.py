@@ -4,10 +4,11 @@
 
 localize's numerics (``sequence_match``) with the settings of ``configs/nordland.yaml`` on
 the rows of ``bench_seqslam_full.features`` (nordland-dev's features tiled with noise to
-``--frames`` + ``--frames``), five ways, alternating so that all see the same load:
+``--frames`` + ``--frames``), six ways, alternating so that all see the same load:
 straight trajectories over the preset's speeds and window (switches off), the preset
-without its two switches, without ``collapse_stops``, without ``backward_paths``, and as
-shipped (both on, ``reverse_cost`` 0). Prints
+without its two switches, without ``collapse_stops``, without ``backward_paths``, with
+the whole backward family (``backward_v_max`` 4.0, the forward range), and as shipped
+(both on, ``reverse_cost`` 0). Prints
 wall and CPU seconds of each run, the medians and their ratios to straight trajectories
 measured in the same run, and the load average before and after.
 """
@@ -32,12 +33,14 @@ from placeloc.experiments.seqslam_motion import preset  # noqa: E402
 from placeloc.seqslam.matching import sequence_match  # noqa: E402
 
 KEYS = ("enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto", "search", "sequence_shape", "edges", "top_k",
-        "block_size", "speed_change_cost", "stop_cost", "reverse_cost", "collapse_stops", "backward_paths")
+        "block_size", "speed_change_cost", "stop_cost", "reverse_cost", "collapse_stops", "backward_paths",
+        "backward_v_max")
 OFF = {"collapse_stops": False, "backward_paths": False}
 SETTINGS = {"straight trajectories": {"sequence_shape": "trajectory", **OFF},
             "preset without the switches": OFF,
             "preset without collapse_stops": {"collapse_stops": False},
             "preset without backward_paths": {"backward_paths": False},
+            "preset, whole backward family (backward_v_max 4.0)": {"backward_v_max": 4.0},
             "preset": {}}
 
 
@@ -56,7 +59,7 @@ def main() -> None:
             c0, t0 = time.process_time(), time.perf_counter()
             sequence_match(ref, query, comparison=p["comparison"], exclude_recent=None, **kw)
             runs[name].append((time.perf_counter() - t0, time.process_time() - c0))
-            print(f"{name:24s} {runs[name][-1][0]:.1f} s wall, {runs[name][-1][1]:.1f} s CPU, "
+            print(f"{name:50s} {runs[name][-1][0]:.1f} s wall, {runs[name][-1][1]:.1f} s CPU, "
                   f"load {os.getloadavg()[0]:.1f}", flush=True)
     base = runs["straight trajectories"]
     bw, bc = float(np.median([r[0] for r in base])), float(np.median([r[1] for r in base]))

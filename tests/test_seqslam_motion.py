@@ -178,7 +178,7 @@ def test_motion_profiles_do_what_their_family_says(family):
     if family == "stop":
         assert (moved == 0).all() and inside.sum() >= 90  # three stops of 30-60 frames
     elif family == "reverse":
-        assert (moved <= 0).all() and (moved < 0).mean() > 0.4  # backwards at 0.5x-1.0x
+        assert (moved <= 0).all() and (moved < 0).mean() > 0.4  # backwards at 0.5x-1.5x
     elif family == "burst":
         assert 2.4 <= moved.mean() <= 4.1
     elif family == "crawl":
@@ -235,6 +235,40 @@ def test_standing_runs_collapse_stops_and_never_a_slow_drift():
 STANDING = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
                 search="centred", sequence_shape="flexible", edges="shift", top_k=2, exclude_recent=None,
                 block_size=1024)
+
+
+@pytest.mark.parametrize("features", ["uint8", "float32"])
+@pytest.mark.parametrize("block_size", [1024, 70])
+def test_collapsed_search_reads_the_full_search_differences_and_answers_the_same(monkeypatch, features, block_size):
+    # the second search of collapse_stops takes the differences the full search computed
+    # (kept as the blocks pass, up to a block's worth) instead of computing them again:
+    # every answer, score and confidence as when it computes them itself, and fewer computed
+    from placeloc.seqslam import matching
+
+    places = np.concatenate([np.arange(10, 80), np.full(40, 80), np.arange(81, 150), np.full(30, 150),
+                             np.arange(151, 200)])
+    ref, query = _standing_route(220, places, seed=21)
+    if features == "float32":  # the float kernel (zscore features) as well as the uint8 one
+        ref, query = (x.astype(np.float32) / 17 for x in (ref, query))
+    common = {**STANDING, "block_size": block_size}
+    computed = []
+    real_difference = matching.difference_block_t
+
+    def counting(r: np.ndarray, q: np.ndarray, comparison: str) -> np.ndarray:
+        computed.append(len(q))
+        return real_difference(r, q, comparison)
+
+    monkeypatch.setattr(matching, "difference_block_t", counting)
+    kept = sequence_match(ref, query, collapse_stops=True, **common)
+    with_kept = sum(computed)
+    real_answers = matching.collapsed_answers
+    monkeypatch.setattr(matching, "collapsed_answers", lambda *a, **k: real_answers(*a, **{**k, "differences": None}))
+    computed.clear()
+    again = sequence_match(ref, query, collapse_stops=True, **common)
+    for name in ("candidates", "scores", "confidence"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(again, name))
+    assert sum(computed) > with_kept  # the second search computed its own differences only without them
+    assert (np.abs(kept.candidates[:, 0] - places) <= 1).mean() > 0.95
 
 
 def test_collapsed_stop_is_followed_to_within_a_frame():
@@ -437,6 +471,54 @@ def test_backward_paths_take_the_better_family_per_reference():
                         shape="flexible", edges="shift", backward_paths=True)
 
 
+def test_the_backward_family_spans_the_forward_speeds_up_to_its_own_fastest():
+    from placeloc.seqslam.matching import search_velocities
+    from placeloc.seqslam.search import backward_velocities
+
+    vels = velocities(0.3, 4.0, 0.1)
+    np.testing.assert_allclose(backward_velocities(vels, 1.5), -np.round(np.arange(1.5, 0.25, -0.1), 9))
+    assert len(backward_velocities(vels, 4.0)) == len(vels) == 38
+    assert len(backward_velocities(vels, 0.2)) == 0  # slower than the slowest: no family
+    # the limit is not scaled by v_auto: 600 references, 750 query frames (a query that
+    # drove 150 frames twice) -> speeds x0.8, 0.24..3.2; the family 0.24..1.44 (16 speeds)
+    scaled = search_velocities(0.3, 4.0, 0.1, True, 600, 750)
+    np.testing.assert_allclose(backward_velocities(scaled, 1.5), -scaled[:16][::-1])
+    assert scaled[16] > 1.5
+
+
+@pytest.mark.parametrize("back_speed", [1.0, 1.4])
+def test_a_limited_backward_family_follows_a_reversal_it_spans_and_scores_as_its_speeds_alone(back_speed):
+    # a 90-frame reversal at 1.0x and at 1.4x (the limit 1.5 above both): the queries whose
+    # window lies inside it land within a frame, as with the whole family; the combined
+    # scores are exactly the minimum of the forward family's and the limited backward
+    # family's; a limit below the reversal's speed (0.5) loses it
+    from placeloc.seqslam.search import _flexible_scores, _scores, backward_velocities, query_offsets
+
+    speeds = np.concatenate([np.ones(100), np.full(90, -back_speed), np.ones(100)])
+    et, path = _planted(speeds, seed=18)
+    vels = velocities(0.3, 4.0, 0.1)
+
+    def search(limit: float) -> tuple[np.ndarray, np.ndarray]:
+        return sequence_search(et, 0, len(et), 40, vels, "centred", 5, 2, None, 0, shape="flexible", edges="shift",
+                               backward_paths=True, reverse_cost=0.0, backward_v_max=limit)
+
+    limited, _ = search(1.5)
+    whole, _ = search(4.0)
+    slow, _ = search(0.5)
+    inside = slice(125, 165)
+    assert (np.abs(limited[inside, 0] - path[inside]) <= 1).all()
+    np.testing.assert_array_equal(limited[inside, 0], whole[inside, 0])
+    assert (np.abs(slow[inside, 0] - path[inside]) > 1).mean() > 0.5
+    t_off = query_offsets(40, "centred")
+    rows = (60, 70)
+    fwd = _flexible_scores(et, rows, t_off, vels, reverse_cost=0.0)
+    back = _flexible_scores(et, rows, t_off, backward_velocities(vels, 1.5), reverse_cost=0.0)
+    both = _scores(et, rows, t_off, np.zeros((1, 1), np.int64), "flexible", 5, 2, np.full(10, et.shape[1]), vels,
+                   {"speed_change_cost": 1.0, "stop_cost": 2.0, "reverse_cost": 0.0, "stops": None,
+                    "backward_paths": True, "backward_v_max": 1.5})
+    np.testing.assert_array_equal(both, np.minimum(fwd, back))
+
+
 @pytest.mark.parametrize("seqslam,query,message", [
     ({"collapse_stops": True}, False, r"seqslam\.collapse_stops needs a query traverse"),
     ({"backward_paths": True, "sequence_shape": "flexible", "v_reverse": 1.0}, True,
@@ -475,7 +557,8 @@ def test_the_experiment_searches_as_localize_does():
     pos = np.arange(len(query))
     setting = dict(comparison="sad", enhance_window=6, ds=40, v_min=0.5, v_max=2.0, v_step=0.1, v_auto=True,
                    search="centred", sequence_shape="flexible", edges="shift", top_k=2, v_reverse=0.0,
-                   speed_change_cost=1.0, stop_cost=2.0, reverse_cost=0.0, collapse_stops=True, backward_paths=True)
+                   speed_change_cost=1.0, stop_cost=2.0, reverse_cost=0.0, collapse_stops=True, backward_paths=True,
+                   backward_v_max=1.5)
     best, conf = search(data, pos, setting)
     m = sequence_match(ref, query, exclude_recent=None, block_size=64, **setting)
     np.testing.assert_array_equal(best, m.candidates[:, 0])

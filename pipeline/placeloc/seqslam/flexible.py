@@ -35,17 +35,60 @@ def _add(part: np.ndarray, src: np.ndarray, width: int) -> None:
         part[k] += src[k]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _add2(part: np.ndarray, a: np.ndarray, b: np.ndarray, width: int) -> None:
+    """``part += a; part += b`` over ``width`` elements, in one pass."""
+    for k in range(width):
+        part[k] = (part[k] + a[k]) + b[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add4(part: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, width: int) -> None:
+    """``part += a``, then ``b``, ``c``, ``d``, in one pass."""
+    for k in range(width):
+        part[k] = (((part[k] + a[k]) + b[k]) + c[k]) + d[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add8(part: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, e: np.ndarray, f: np.ndarray,
+          g: np.ndarray, h: np.ndarray, width: int) -> None:
+    """``part += a``, then ``b`` .. ``h``, in one pass."""
+    for k in range(width):
+        part[k] = (((((((part[k] + a[k]) + b[k]) + c[k]) + d[k]) + e[k]) + f[k]) + g[k]) + h[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _term(quiet: np.ndarray, h: np.ndarray, vi: int, i: int, n_rows: int, T: int, direction: int, start: int, lo: int,
+          hi: int, offs: np.ndarray, h_shift: int) -> np.ndarray:
+    """Term ``i`` a segment adds to its first frame: its frame ``i + 1`` (``i < n_rows``),
+    else the best chain beyond it (``h[vi]``, ``h_shift`` references on)."""
+    if i < n_rows:
+        sh = direction * offs[vi, i + 1]
+        return quiet[T + direction * (start + i + 1), lo + sh:hi + sh]
+    return h[vi, lo + h_shift:hi + h_shift]
+
+
 @njit(cache=True, nogil=True)
-def _envelope(g: np.ndarray, steps: np.ndarray) -> None:
-    """In place, ``g[v] <- min_v' g[v'] + cost * |v - v'|`` (speeds ascending), two passes;
-    ``steps[i]`` is the float32 cost between speed ``i`` and ``i + 1``."""
+def _envelope_up(g: np.ndarray, steps: np.ndarray, i: int) -> None:
+    """``g[v] <- min_v' g[v'] + cost * |v - v'|`` (speeds ascending) is two passes, up then
+    down (``steps[i]``: the float32 cost between speed ``i`` and ``i + 1``); this is the
+    upward one at speed ``i`` (> 0), once ``g[i - 1]`` has had it: ``g[i] <- min(g[i],
+    g[i - 1] + steps[i - 1])``. :func:`_side` runs it on each speed's row as soon as the
+    row is computed, while it is still in the core's cache (a pass over all rows afterwards
+    read them back; the same minima, in the same order)."""
+    c = steps[i - 1]
+    prev, cur = g[i - 1], g[i]
+    for r in range(g.shape[1]):
+        x = prev[r] + c
+        if x < cur[r]:
+            cur[r] = x
+
+
+@njit(cache=True, nogil=True)
+def _envelope_down(g: np.ndarray, steps: np.ndarray) -> None:
+    """The downward pass (:func:`_envelope_up`), after the upward one: ``g[i] <- min(g[i],
+    g[i + 1] + steps[i])`` from the fastest speed down."""
     nv, nr = g.shape
-    for i in range(1, nv):
-        c = steps[i - 1]
-        for r in range(nr):
-            x = g[i - 1, r] + c
-            if x < g[i, r]:
-                g[i, r] = x
     for i in range(nv - 2, -1, -1):
         c = steps[i]
         for r in range(nr):
@@ -57,12 +100,14 @@ def _envelope(g: np.ndarray, steps: np.ndarray) -> None:
 @njit(cache=True, nogil=True)
 def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: bool, T: int, n_frames: int, seg: int,
           vels: np.ndarray, offs: np.ndarray, steps: np.ndarray, direction: int, stop_cost: float, reverse_cost: float,
-          g: np.ndarray, h: np.ndarray, row: np.ndarray, back: np.ndarray, s: np.ndarray, stream: bool) -> None:
+          g: np.ndarray, h: np.ndarray, row: np.ndarray, back: np.ndarray, s: np.ndarray, stream: bool,
+          relax_first: bool) -> None:
     """One half of the window from the anchor ``T`` (``direction`` +1 later, -1 earlier):
     the best chain per first speed, ``[v, r]``, left in ``g`` after an even number of
     segment boundaries, else in ``h`` (the two swap at each). With ``stream``, the first
     segment of each speed goes into ``row``, is added to ``back[v]`` and folded into ``s``
-    by a minimum instead."""
+    by a minimum instead. Every segment but the first is relaxed over speeds
+    (:func:`_envelope_up`, :func:`_envelope_down`) before the next one reads it; with ``relax_first``, the first too."""
     inf = np.float32(np.inf)
     nv, nr = g.shape
     n_seg = (n_frames + seg - 1) // seg
@@ -89,13 +134,40 @@ def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: boo
                 first = et[f, lo:hi] if j == 0 else quiet[f, lo:hi]  # the anchor counts in full
                 for k in range(width):
                     part[k] = first[k]
-                for t in range(1, length):
-                    f = T + direction * (start + t)
-                    sh = direction * offs[vi, t]
-                    _add(part, quiet[f, lo + sh:hi + sh], width)
-                if have_h:
-                    sh = direction * end
-                    _add(part, h[vi, lo + sh:hi + sh], width)
+                # the segment's other frames, then the chain beyond it, added in that order
+                # up to eight in one pass: the running sum stays in a register, and part is
+                # loaded and stored once a pass instead of once a term (measured: 15 % less
+                # time per anchor at 38 speeds and 3576 references); the same adds in the
+                # same order, so the same bits
+                n_rows = length - 1
+                n_terms = n_rows + (1 if have_h else 0)
+                hs = direction * end
+                i = 0
+                while i < n_terms:
+                    left = n_terms - i
+                    if left >= 8:
+                        _add8(part, _term(quiet, h, vi, i, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 1, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 2, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 3, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 4, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 5, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 6, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 7, n_rows, T, direction, start, lo, hi, offs, hs), width)
+                        i += 8
+                    elif left >= 4:
+                        _add4(part, _term(quiet, h, vi, i, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 1, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 2, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 3, n_rows, T, direction, start, lo, hi, offs, hs), width)
+                        i += 4
+                    elif left >= 2:
+                        _add2(part, _term(quiet, h, vi, i, n_rows, T, direction, start, lo, hi, offs, hs),
+                              _term(quiet, h, vi, i + 1, n_rows, T, direction, start, lo, hi, offs, hs), width)
+                        i += 2
+                    else:
+                        _add(part, _term(quiet, h, vi, i, n_rows, T, direction, start, lo, hi, offs, hs), width)
+                        i += 1
                 if has_stops and vels[vi] == 0 and stop_cost > 0:
                     m = length if have_h else length - 1  # frame-to-frame steps it stands through
                     f = T + direction * start
@@ -116,8 +188,11 @@ def _side(et: np.ndarray, quiet: np.ndarray, running: np.ndarray, has_stops: boo
                     x = out[r] + back[vi, r]
                     if x < s[r]:
                         s[r] = x
+            elif vi > 0 and (j > 0 or relax_first):
+                _envelope_up(g, steps, vi)
+        if j > 0 or (relax_first and not streaming):
+            _envelope_down(g, steps)
         if j > 0:
-            _envelope(g, steps)
             g, h = h, g
             have_h = True
 
@@ -142,13 +217,13 @@ def _rows(et: np.ndarray, quiet_back: np.ndarray, quiet_fwd: np.ndarray, running
     res = back if even else g
     free = g if even else back
     for T in range(a, b):
+        # the backward half relaxed to its end (the forward half's first segment reads it)
         _side(et, quiet_back, running, has_stops, T, before + 1, seg, vels, offs, steps, -1, stop_cost,
-              reverse_cost, back, g, row, h, acc, False)
-        _envelope(res, steps)
+              reverse_cost, back, g, row, h, acc, False, True)
         for r in range(nr):
             acc[r] = inf
         _side(et, quiet_fwd, running, has_stops, T, after + 1, seg, vels, offs, steps, +1, stop_cost, reverse_cost,
-              free, h, row, res, acc, True)
+              free, h, row, res, acc, True, False)
         out = s[T - a]
         for r in range(c0, c1):
             out[r - c0] = acc[r] - et[T, r]  # the anchor frame was counted by both halves

@@ -53,7 +53,13 @@ class SeqSLAMParams(Params):
                                               "traverses only (not loop closure)")
     backward_paths: bool = param(False, help="flexible, forward speeds only: also score paths that drive backwards "
                                               "throughout the window (the speeds negated, reverse_cost per frame) and "
-                                              "keep the better per reference; doubles the search")
+                                              "keep the better per reference")
+    backward_v_max: float = param(1.5, min=0.0, min_exclusive=True,
+                                  help="backward_paths: fastest speed of the backward family, in reference frames "
+                                       "per query frame as counted (the search's speeds up to this, after v_auto's "
+                                       "scaling, which this limit does not take: a query that backs out has more "
+                                       "frames than the route, so the scale shrinks exactly for it); a vehicle "
+                                       "backs out slowly, and the family costs in proportion to its speeds")
     edges: str = param("skip", choices=("skip", "shift"),
                        help="queries within ds/2 of a traverse end: skip (no match, as SeqSLAM) or shift (use the "
                             "ds + 1 frames nearest them)")

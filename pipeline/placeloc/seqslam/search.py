@@ -386,6 +386,15 @@ def top_k_numpy(s: np.ndarray, window: int, k: int) -> tuple[np.ndarray, np.ndar
     return best, scores
 
 
+def backward_velocities(vels: np.ndarray, v_max: float) -> np.ndarray:
+    """The speeds of ``backward_paths``' family: the forward ``vels`` up to ``v_max``,
+    negated, ascending (a vehicle backs out slower than it may drive; the family's cost
+    is proportional to its speeds). Its segments are the forward family's: the step
+    between speeds is the same."""
+    v = np.asarray(vels, np.float64)
+    return -v[v <= v_max + 1e-9][::-1]
+
+
 def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.ndarray, shape: str, window: int,
             k: int, limit: np.ndarray, vels: np.ndarray | None = None, flexible: dict | None = None) -> np.ndarray:
     """Sequence scores of queries ``rows`` for one set of offsets; references ``>= limit``
@@ -393,9 +402,10 @@ def _scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, traj: np.n
     if shape == "flexible":
         costs = dict(flexible or {})
         backward = costs.pop("backward_paths", False)
+        back = backward_velocities(vels, costs.pop("backward_v_max", math.inf))
         s = _flexible_scores(et, rows, t_off, vels, **costs)
-        if backward:  # the paths that drive backwards throughout: the forward speeds negated
-            np.minimum(s, _flexible_scores(et, rows, t_off, -vels[::-1], **{**costs, "stops": None}), out=s)
+        if backward and len(back):  # the paths that drive backwards throughout
+            np.minimum(s, _flexible_scores(et, rows, t_off, back, **{**costs, "stops": None}), out=s)
     elif shape == "trajectory":
         s = trajectory_scores(et, rows, t_off, traj)
     elif shape == "cone":
@@ -440,6 +450,7 @@ def sequence_search(
     stop_cost: float = STOP_COST,
     reverse_cost: float = REVERSE_COST,
     backward_paths: bool = False,
+    backward_v_max: float = math.inf,
     plain: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Search queries ``q_lo..q_hi-1`` (columns of ``et = Dt[q, r]``, enhanced).
@@ -458,6 +469,8 @@ def sequence_search(
     speeds negated, ``reverse_cost`` per frame) and keeps, per reference, the better of
     the two: a query that backs out is followed where its window does, and no path ever
     folds over the references (turning round inside a window is not in either family).
+    The backward family's speeds are those of ``vels`` up to ``backward_v_max``
+    (:func:`backward_velocities`; in the units of ``vels``, already scaled).
 
     ``edges``: ``skip`` leaves queries whose window would leave the traverse unmatched
     (SeqSLAM, OpenSeqSLAM); ``shift`` uses the ds + 1 frames nearest them instead, so the
@@ -497,7 +510,7 @@ def sequence_search(
     if shape == "flexible":
         flexible = {"speed_change_cost": float(speed_change_cost), "stop_cost": float(stop_cost),
                     "reverse_cost": float(reverse_cost), "stops": StopModel(et) if (np.asarray(vels) == 0).any() else None,
-                    "backward_paths": bool(backward_paths)}
+                    "backward_paths": bool(backward_paths), "backward_v_max": float(backward_v_max)}
     # Queries whose whole window lies inside the matrix share the offsets: scored in
     # chunks of rows, one thread per core. The few near the ends are skipped or, with
     # edges: shift, scored one by one with the ds + 1 frames nearest them.

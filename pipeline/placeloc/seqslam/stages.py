@@ -159,6 +159,7 @@ def localize(ctx: Any) -> None:
                        speed_change_cost=float(p.speed_change_cost), stop_cost=float(p.stop_cost),
                        reverse_cost=float(p.reverse_cost), v_reverse=float(p.v_reverse),
                        collapse_stops=bool(p.collapse_stops), backward_paths=bool(p.backward_paths),
+                       backward_v_max=float(p.backward_v_max),
                        exclude_recent=loops.exclusion_for(ctx, n_ref) if loop_closure else None, block_size=int(p.block_size),
                        # Blocks run in this process: the difference kernel, the enhancement and the
                        # search are threaded over every usable core already, and a pool worker would
@@ -316,7 +317,7 @@ METHOD = Method(
         "localize": Stage(localize, keys=("comparison", "enhance_window", "ds", "v_min", "v_max", "v_step", "v_auto",
                                           "search", "sequence_shape", "edges", "top_k", "store_difference",
                                           "speed_change_cost", "stop_cost", "reverse_cost", "v_reverse",
-                                          "collapse_stops", "backward_paths"),
+                                          "collapse_stops", "backward_paths", "backward_v_max"),
                           sections=("ground_truth.exclude_recent",)),
     },
     result="ranked",

@@ -57,14 +57,16 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
         plain = 2 * 12 * max(top_k, 20) * n_query if "query" in images else 0
         picture = 2 * 4 * min(n_ref, 800) * min(n_query, 800)
         # localize: both traverses' features and about 8 float32 blocks of D at once (D,
-        # its enhanced copy, the sequence search's scores and their temporaries);
+        # its enhanced copy, the sequence search's scores and their temporaries), one more
+        # with collapse_stops (the differences its second search reads, kept as the blocks pass);
         # localize.h5 keeps D and D^ (chunked: 5% over) when store_difference, matches.csv a row
         # per query, and the ranked result contract a second copy of the candidates (int64)
         # and scores (float32) with both traverses' names and indices.
         # Measured: 138, 214, 299 MB at 1500, 3000, 6000 frames a traverse.
         needs.append(Need(f"the {n_ref} x {n_query} difference matrix, {block} query columns at a time",
                           "seqslam.block_size (memory) or seqslam.store_difference: false (disk)", stage="localize",
-                          memory=fbytes * pixels * (n_ref + n_query) + 8 * d_block + 64 * top_k * n_query + plain + picture,
+                          memory=fbytes * pixels * (n_ref + n_query) + (9 if p.get("collapse_stops") else 8) * d_block
+                          + 64 * top_k * n_query + plain + picture,
                           disk=d_full * 21 // 20 + (600 + 12 * top_k + 64) * n_query + 64 * n_ref + plain + picture
                           + (1 << 18)))  # + HDF5's own
         # evaluate: D and D^ read back one chunk-wide column slab at a time (localize writes D in

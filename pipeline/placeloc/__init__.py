@@ -27,6 +27,15 @@ private_numba_cache()
 # m_t 16.1 ms against 5.3 ms a frame beside a busy process (docs/pirf.md, "Threads").
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# OpenBLAS's idle threads (NumPy's, SciPy's) spin 2**28 clock cycles, about 0.1 s, after
+# their pool starts and after every BLAS call before they sleep; 2**20 (about 0.4 ms) keeps
+# them ready for back-to-back calls. Read when NumPy loads OpenBLAS, so set before any
+# placeloc module imports NumPy; a value the user set is kept. Every stage process spent
+# 0.1-0.25 s more CPU on 2 cores without it (SeqSLAM extract 0.94-1.15 s against
+# 0.72-0.77 s, evaluate 0.86-0.91 against 0.65-0.69 s at 3576 x 3576), CPU a process
+# sharing the cores goes without; with one thread per core that spin is per core.
+os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "20")
+
 
 def __getattr__(name: str) -> Any:
     if name in ("describe", "load_config", "read_metrics", "run"):

@@ -89,8 +89,8 @@ def test_panorama_line_image_lies_on_the_map_lines():
     assert found > 0.8 and 0.5 < on_map < 0.98                     # the clutter rectangles are off the map
 
 
-@pytest.mark.parametrize("score", ["iou", "chamfer"])
-def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
+@pytest.mark.parametrize("score,bins", [("iou", 1), ("chamfer", 1), ("chamfer", 4)])
+def test_panoramas_localized_with_unknown_yaw(tmp_path, score, bins):
     import yaml
 
     from placeloc.core.config import load_config
@@ -110,7 +110,7 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
                             "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
                             "umap": {"model": str(tmp_path / "plan.yaml"), "query_kind": "panorama",
                                      "grid": {"x": [0.2, 5.8, 0.2], "y": [0.2, 6.8, 0.2], "z": 1.4, "headings": [0.0]},
-                                     "panorama": {"score": score}},
+                                     "panorama": {"score": score, "orientation_bins": bins}},
                             "plots": False}, base_dir=tmp_path)
     run_all(cfg, tmp_path / "run", quiet=True)
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())

@@ -19,8 +19,10 @@ Two scores, both over all (position, shift) pairs:
   cost little: the mean of ``max(0, 1 - d / tau)`` over the map's line pixels (d = distance
   to the nearest query line pixel: how much of the map is seen) and over the query's line
   pixels (d = distance to the nearest map line: how much of what is seen is map), averaged.
-  Optionally split by direction: vertical map lines (wall corners, door jambs) only count
-  against vertical query lines and the rest against the rest.
+  With ``orientation_bins`` B > 1 (directional chamfer matching): every line pixel also
+  carries the bin of its direction in the image, and a pixel counts as near only to the
+  other side's lines of the same bin or within ``orientation_spread`` bins of it
+  (:func:`compatible_lines`); B = 1 is the score above.
 """
 
 from __future__ import annotations
@@ -308,6 +310,63 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     return 0.5 * (recall + precision)
 
 
+# ------------------------------------------------------------------ directions: the oriented (directional) score
+
+def orientation_channels(masks: np.ndarray, bins: int) -> np.ndarray:
+    """(..., H, W) orientation bitmask images (``render_panoramas`` / ``panorama_line_image``
+    with ``orientation_bins``) -> (..., B, H, W) uint8 0/1 channels, channel b the pixels a
+    line of direction bin b passes through (:func:`placeloc.geometry.panorama.orientation_bit`)."""
+    masks = np.asarray(masks, np.uint8)
+    shifts = np.arange(int(bins), dtype=np.uint8).reshape(-1, 1, 1)
+    return ((masks[..., None, :, :] >> shifts) & 1).astype(np.uint8)
+
+
+def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
+    """(..., B, H, W) oriented line channels -> (..., B, H, W): channel b the lines a pixel of
+    direction bin b counts as near, those of bins b - spread .. b + spread (directions wrap
+    at 180 degrees: bin B - 1 neighbours bin 0); the largest weight where channels are
+    weights (:func:`texture_weights`). Every bin when 2 spread + 1 >= B."""
+    channels = np.asarray(channels)
+    b = channels.shape[-3]
+    if 2 * int(spread) + 1 >= b:
+        return np.broadcast_to(channels.max(axis=-3, keepdims=True), channels.shape).copy()
+    out = channels.copy()
+    for d in range(1, int(spread) + 1):
+        out = np.maximum(out, np.maximum(np.roll(channels, d, axis=-3), np.roll(channels, -d, axis=-3)))
+    return out
+
+
+def oriented_closeness(channels: np.ndarray, tau_px: float, spread: int) -> np.ndarray:
+    """(..., B, H, W) float32: for a pixel of direction bin b, ``max(0, 1 - d / tau)`` with d
+    the distance to the nearest line of a compatible bin (:func:`compatible_lines`,
+    :func:`closeness` per channel, so no channel's closeness reaches into another's rows)."""
+    return closeness(compatible_lines(channels, spread), tau_px)
+
+
+def stack_channels(x: np.ndarray) -> np.ndarray:
+    """(..., B, H, W) -> (..., B H, W): the channels as rows of one image. Why: the chamfer
+    score is a sum over rows of row cross-correlations, so the oriented score is the plain
+    score's arithmetic on the stacked image with the row weights tiled B times, given the
+    closeness images of :func:`oriented_closeness`."""
+    x = np.asarray(x)
+    return x.reshape(*x.shape[:-3], x.shape[-3] * x.shape[-2], x.shape[-1])
+
+
+def render_oriented_block(item: tuple) -> np.ndarray:
+    """Executor work item: (segments, faces, poses, width, height, hidden, bins) -> each
+    view's B oriented channels packed one after another, (V, B n_words) uint64."""
+    segments, faces, poses, width, height, hidden, bins = item
+    masks = render_panoramas(segments, faces, poses, width=width, height=height, hidden=hidden, orientation_bins=bins)
+    words = pack(orientation_channels(masks, bins))
+    return words.reshape(len(words), -1)
+
+
+def _check_oriented(chance: str) -> None:
+    if chance != "none":
+        raise ValueError(f"the oriented chamfer score (orientation_bins > 1) has the plain halves only: chance none, "
+                         f"not {chance!r}")
+
+
 # ------------------------------------------------------------------ the chamfer score as spectra
 
 def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_angle: bool) -> np.ndarray:
@@ -342,7 +401,7 @@ def precision_rows(height: int, polar_deg: float) -> np.ndarray:
 
 
 def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                    clutter_share: float | None = None) -> np.ndarray:
+                    clutter_share: float | None = None, spread: int | None = None) -> np.ndarray:
     """The map side of the chamfer score (module docstring) of (P, H, W) binary panoramic
     line images, in the form :func:`chamfer_table` multiplies: (F, P, 2H) complex64, F =
     W // 2 + 1, the conjugate row spectra of the weighted line image over its weighted
@@ -353,7 +412,26 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
     Why spectra: the score at column shift k is a circular cross-correlation of rows,
     summed over rows, so every shift of every position comes from one complex product per
     frequency, summed over rows: one matrix product per frequency for a batch of queries,
-    instead of one pass over the pixels per shift. Exact up to float32 rounding."""
+    instead of one pass over the pixels per shift. Exact up to float32 rounding.
+
+    ``spread`` (the oriented score): ``lines`` are (P, B, H, W) oriented channels
+    (:func:`orientation_channels`) and the result (F, P, 2 B H), the same two halves of
+    the channel-stacked images (:func:`stack_channels`) with the closeness of each channel
+    to the compatible ones' lines (:func:`oriented_closeness`)."""
+    if spread is not None:
+        if clutter_share is not None:
+            raise ValueError("the oriented chamfer score has the plain halves only: no clutter_share")
+        lines = np.asarray(lines)
+        b = lines.shape[1]
+        w = np.tile(np.asarray(weights, np.float32), b)[None, :, None]
+        out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * b * lines.shape[-2]), np.complex64)
+        for s in range(0, len(lines), 512):
+            img = stack_channels(lines[s:s + 512]).astype(np.float32) * w
+            n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
+            close = stack_channels(oriented_closeness(lines[s:s + 512], tau_px, spread))
+            x = np.concatenate([img / n, close * w], axis=1)
+            out[:, s:s + 512] = np.conj(np.fft.rfft(x, axis=-1)).transpose(2, 0, 1)
+        return out
     lines = np.asarray(lines).reshape(-1, *lines.shape[-2:])
     w = np.asarray(weights, np.float32)[None, :, None]
     out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * lines.shape[-2]), np.complex64)
@@ -369,7 +447,8 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
 
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                  chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
+                  chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
+                  spread: int | None = None) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -382,7 +461,24 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     frequency 0; the correction is then a per-(query, position) scale of each half's
     product and an offset, applied before the one inverse FFT. ``likelihood`` needs spectra
     built with the same ``clutter_share``; the query's closeness becomes its
-    :func:`likelihood_image` and the product is the plain one."""
+    :func:`likelihood_image` and the product is the plain one.
+
+    ``spread`` (the oriented score): ``queries`` are (N, B, H, W) oriented channels (0/1, or
+    weights), ``spectra`` built with the same ``spread``; chance ``none`` only."""
+    if spread is not None:
+        _check_oriented(chance)
+        queries = np.asarray(queries)
+        n_q, b, h, w = queries.shape
+        wr = np.asarray(weights, np.float32)[None, None, :, None]
+        q = queries.astype(np.float32)
+        q_close = stack_channels(oriented_closeness(q if queries.dtype.kind == "f" else queries, tau_px, spread))
+        if precision_rows is not None:
+            q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
+        nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
+        x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
+        qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))
+        prod = np.matmul(spectra, qs)                                             # (F, P, N)
+        return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
@@ -546,12 +642,34 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                       chance: str, query_close: np.ndarray | None = None,
-                      precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
+                      precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
+                      spread: int | None = None) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
     around a candidate's heading, without the spectra's FFTs (equal to the table's entries:
-    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`."""
+    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`.
+
+    ``spread`` (the oriented score): ``imgs`` (L, B, H, W) and ``query`` (B, H, W) oriented
+    channels, ``query_close`` (if given) its stacked :func:`oriented_closeness`; the plain
+    arithmetic on the channel-stacked images (:func:`stack_channels`)."""
+    if spread is not None:
+        _check_oriented(chance)
+        b = query.shape[0]
+        if query_close is None:
+            query_close = stack_channels(oriented_closeness(query, tau_px, spread)).astype(np.float32)
+        m_close = stack_channels(oriented_closeness(np.asarray(imgs, np.uint8), tau_px, spread))
+        rows, cols, vals = _query_pixels(stack_channels(query),
+                                         None if precision_rows is None else np.tile(precision_rows, b))
+        shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[-1])
+        halves = np.zeros((len(imgs), shifts.shape[1], 2))
+        levels = np.zeros((len(imgs), 4))
+        if len(imgs):
+            _chamfer_at_shifts(np.ascontiguousarray(stack_channels(np.asarray(imgs, np.uint8))), m_close,
+                               np.ascontiguousarray(query_close, np.float32), rows.astype(np.int64),
+                               cols.astype(np.int64), vals, np.tile(np.asarray(weights, np.float64), b), shifts, halves,
+                               levels)
+        return 0.5 * (halves[..., 0] + halves[..., 1])
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols, vals = _query_pixels(query, precision_rows)
@@ -626,29 +744,46 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
-    the best pose wins."""
-    n, h, w = lines.shape
+    the best pose wins.
+
+    With ``pp.orientation_bins`` B > 1 (the oriented score, chamfer only) ``lines`` are
+    (N, B, H, W) oriented channels (:func:`orientation_channels`), ``database["spectra"]``
+    built with the same bins and ``orientation_spread``, and the local poses are rendered
+    with their directions."""
+    bins = int(pp.orientation_bins)
+    spread = int(pp.orientation_spread) if bins > 1 else None
+    n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
+    if spread is not None and not chamfer:
+        raise ValueError("orientation_bins > 1 needs the chamfer score")
     # the chamfer score's query side: line pixels weighted down inside dense texture
-    queries = texture_weights(lines, pp.texture_radius_px) if chamfer and pp.texture_radius_px > 0 else lines
+    queries = lines
+    if chamfer and pp.texture_radius_px > 0:
+        queries = (texture_weights(lines, pp.texture_radius_px) if spread is None
+                   else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
     prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
             return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share)
+                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share,
+                                 spread=spread)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
-        imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
+        if spread is not None:
+            imgs = orientation_channels(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden,
+                                                         orientation_bins=bins), bins)
+        else:
+            imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
                                      chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
-                                     clutter_share=pp.clutter_share)
+                                     clutter_share=pp.clutter_share, spread=spread)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 
@@ -695,7 +830,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
                 continue
-            q_close = closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
+            q_close = None
+            if chamfer:
+                q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
+                           stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
             xy = poses[cands, :2].copy()
             col = np.argmax(table[cands], axis=1).astype(np.int64)
             sc = table[cands].max(axis=1).astype(np.float64)

@@ -19,7 +19,10 @@
    score pixel by pixel for every shift, then 8 candidates each re-scored on a 7 x 7 local
    grid), both timed in the same run, per panorama, wall and CPU; also the beam climbing by
    8 neighbours only (``refine_square`` 1) and every candidate climbing once first
-   (``refine_climb`` 1), each against the defaults in the same run.
+   (``refine_climb`` 1), each against the defaults in the same run; and the oriented score
+   (``orientation_bins`` B for each B of ``--orientation-bins``, spread 1 (0 for B = 2): the
+   same queries with their directions, the clutter's at random), its index and search
+   against the defaults' in the same run.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -57,6 +60,8 @@ def main() -> None:
     ap.add_argument("--panorama-only", action="store_true", help="only the whole-panorama search")
     ap.add_argument("--panorama-positions", type=int, default=2000, help="grid positions of the panorama case (about)")
     ap.add_argument("--old-panoramas", type=int, default=6, help="panoramas the search before is timed on")
+    ap.add_argument("--orientation-bins", default="2,4,6,8",
+                    help="direction bin counts of the oriented score timed against the defaults (empty: none)")
     ap.add_argument("--workers", default=None,
                     help="numba thread counts of the panorama search's scaling table (default 1, 2, 4, ..., the threads; 0: none)")
     args = ap.parse_args()
@@ -147,6 +152,8 @@ def panorama(args: argparse.Namespace) -> None:
     print(f"every candidate climbing once first (refine_climb 1): {t_all / n * 1e3:.0f} ms wall, {c_all / n * 1e3:.0f} ms "
           f"CPU per panorama; within 0.05 m {np.mean(errc <= 0.05):.0%}; ratio that / default {t_all / t_new:.2f}x wall, "
           f"{c_all / c_new:.2f}x CPU")
+    for bins in [int(b) for b in args.orientation_bins.split(",") if b.strip()]:
+        _oriented_case(bins, model, poses, truth, q, rng, (t_idx, c_idx, t_new, c_new))
     close = closeness(unpack(db, h, w), 3.0)
     m = min(args.old_panoramas, n)
     _today_search(q[:1], poses, model, db, close, w, h)  # JIT
@@ -177,6 +184,45 @@ def panorama(args: argparse.Namespace) -> None:
 
         print(markdown(scaling_table(measure, counts, warm_up=False), "UMap whole-panorama search", unit="thread",
                        note="numba threads set with numba.set_num_threads; one run each."))
+
+
+def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator,  # noqa: ANN001
+                   default_times: tuple[float, float, float, float]) -> None:
+    """The oriented score with ``bins`` direction bins: index and search timed, against the
+    defaults' (``default_times``: index wall, CPU, search wall, CPU) measured in the same run."""
+    from placeloc.geometry.panorama import render_panoramas
+    from placeloc.umap.panorama import chamfer_spectra, orientation_channels, row_weights, search_panoramas
+    from placeloc.umap.params import PanoramaParams
+
+    pp = PanoramaParams(orientation_bins=bins, orientation_spread=0 if bins == 2 else 1)
+    w, h = pp.width, pp.height
+    # the same query pixels, each with its map direction; the clutter pixels a random direction
+    masks = render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True, orientation_bins=bins)
+    clutter = (q != 0) & (masks == 0)
+    masks = np.where(q != 0, masks, 0).astype(np.uint8)
+    masks[clutter] = (1 << rng.integers(0, bins, int(clutter.sum()))).astype(np.uint8)
+    qo = orientation_channels(masks, bins)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    chans = orientation_channels(render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True,
+                                                  orientation_bins=bins), bins)
+    spectra, t_idx, c_idx = _timed(chamfer_spectra, chans, tau_px=pp.chamfer_tau_px, weights=weights,
+                                   spread=pp.orientation_spread)
+    del chans
+    db = {"spectra": spectra}
+    search_panoramas(qo[:2], poses, model.segments, model.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    res, t, c = _timed(search_panoramas, qo, poses, model.segments, model.faces, db, pp, tolerance_px=2,
+                       wall_margin_m=0.1, hidden=True)
+    pp0 = PanoramaParams(orientation_bins=bins, orientation_spread=pp.orientation_spread, refine_candidates=0)
+    _, t_glob, c_glob = _timed(search_panoramas, qo, poses, model.segments, model.faces, db, pp0, tolerance_px=2,
+                               wall_margin_m=0.1, hidden=True)
+    n = len(qo)
+    err = np.hypot(*(res[1] - truth[:, :2]).T)
+    ti, ci, tn, cn = default_times
+    print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
+          f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the defaults' wall); search {t / n * 1e3:.0f} ms wall, "
+          f"{c / n * 1e3:.0f} ms CPU per panorama, of it every position x yaw {t_glob / n * 1e3:.1f} ms wall, "
+          f"{c_glob / n * 1e3:.1f} ms CPU; ratio that / default {t / tn:.2f}x wall, {c / cn:.2f}x CPU; within 0.05 m "
+          f"{np.mean(err <= 0.05):.0%}; load average now {os.getloadavg()[0]:.1f}")
 
 
 def _dilate(db: np.ndarray, cam: Camera, tolerance: int) -> np.ndarray:

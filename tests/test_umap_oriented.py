@@ -209,3 +209,26 @@ def test_oriented_search_finds_off_grid_cameras_wherever_the_grid_falls():
                                         hidden=True)
         assert np.hypot(*(xy - truth[:, :2]).T).max() <= 0.05, frac
         assert np.abs((hd - truth[:, 3] + 180) % 360 - 180).max() <= 2.5, frac
+
+
+@pytest.mark.parametrize("bins,spread", [(2, 0), (4, 1), (6, 2), (8, 1), (3, 3)])
+def test_oriented_closeness_from_bitmasks_equals_the_channels_closeness(bins, spread):
+    from placeloc.umap.panorama import closeness, oriented_closeness
+
+    rng = np.random.default_rng(bins + spread)
+    ch = (rng.random((3, bins, 12, 20)) < 0.05).astype(np.uint8)
+    ch[0, :, :, 0] = 1                                          # lines on the seam
+    fast = oriented_closeness(ch, 3.0, spread)
+    slow = closeness(compatible_lines(ch, spread), 3.0)
+    assert fast.shape == ch.shape and (fast == slow).all()
+    assert (oriented_closeness(ch.astype(np.float32), 3.0, spread) == slow).all()
+
+
+def test_the_renderer_s_direction_bins_equal_the_arctangent_s():
+    from placeloc.geometry.panorama import orientation_bit_fast
+
+    rng = np.random.default_rng(5)
+    for bins in (2, 3, 4, 6, 8):
+        bound = (np.arange(bins) + 0.5) * np.pi / bins
+        for du, dv in rng.normal(size=(400, 2)):
+            assert orientation_bit_fast(du, dv, bins, np.cos(bound), np.sin(bound)) == orientation_bit(du, dv, bins)

@@ -93,6 +93,13 @@ SWEEP: dict[str, dict[str, Any]] = {
     "solid-angle chamfer, precision within 75 deg, 32 cells 0.4 m apart each climbing once, beam's cells whole":
         {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
          "refine_separation_m": 0.4, "refine_climb": 1},
+    # the oriented (directional) chamfer score: a line pixel near only to the other side's
+    # lines of its direction bin or within spread bins of it (umap.panorama.orientation_bins,
+    # orientation_spread), the fewer bins first
+    **{f"oriented chamfer, {bins} bins, spread {spread}, precision within 75 deg, 32 cells, beam's cells whole":
+       {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
+        "orientation_bins": bins, "orientation_spread": spread}
+       for bins, spread in ((2, 0), (4, 1), (6, 1), (8, 1), (8, 2))},
 }
 NOISE = 1.0 / (len(DEV_SEEDS) * len(ORIGINS) * PANORAMAS)   # one panorama of the 180
 

@@ -111,6 +111,23 @@ def orientation_bit(du: float, dv: float, bins: int) -> int:
     return 1 << (int(math.floor(theta * bins / math.pi + 0.5)) % bins)
 
 
+@njit(cache=True)
+def orientation_bit_fast(du: float, dv: float, bins: int, bound_cos: np.ndarray, bound_sin: np.ndarray) -> int:
+    """:func:`orientation_bit` without the arctangent (the renderer's inner loop): the
+    direction turned into the upper half-plane counted against the bins' boundary directions
+    ``(bound_cos[k], bound_sin[k])`` at (k + 1/2) 180 / bins degrees (equal but at exact ties:
+    tested)."""
+    if bins <= 1:
+        return 1
+    if dv < 0.0 or (dv == 0.0 and du < 0.0):
+        du = -du
+        dv = -dv
+    k = 0
+    while k < bins and bound_cos[k] * dv - bound_sin[k] * du >= 0.0:
+        k += 1
+    return 1 << (k % bins)
+
+
 @njit(parallel=True, cache=True)
 def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
                      hidden: bool, which: int, bins: int, out: np.ndarray, masks: np.ndarray) -> None:
@@ -119,6 +136,9 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
     :func:`orientation_bit` of the lines through it into ``masks`` (V, H W) uint8."""
     nf = faces.shape[0]
     step = 2.0 * math.pi / width
+    bound = (np.arange(max(bins, 1)) + 0.5) * math.pi / max(bins, 1)
+    bound_cos = np.cos(bound)
+    bound_sin = np.sin(bound)
     for v in prange(poses.shape[0]):
         px = poses[v, 0]
         py = poses[v, 1]
@@ -183,11 +203,10 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
                 if bins > 1:
                     # the image's tangent along the segment, exactly: u = -(W / 2 pi) azimuth,
                     # v = -(H / pi) elevation (+ constants)
-                    r2 = max(qx * qx + qy * qy, 1e-18)
-                    dr = (qx * ex + qy * ey) / math.sqrt(r2)
-                    du = -width / (2.0 * math.pi) * (qx * ey - qy * ex) / r2
-                    dv = -height / math.pi * (math.sqrt(r2) * ez - qz * dr) / (r2 + qz * qz)
-                    bit = orientation_bit(du, dv, bins)
+                    rr = max(r, 1e-9)
+                    du = -width / (2.0 * math.pi) * (qx * ey - qy * ex) / (rr * rr)
+                    dv = -height / math.pi * (rr * ez - qz * (qx * ex + qy * ey) / rr) / (rr * rr + qz * qz)
+                    bit = orientation_bit_fast(du, dv, bins, bound_cos, bound_sin)
                 if img[pix] & bit:
                     continue
                 if hidden and counts[iu] > 0:

@@ -336,11 +336,175 @@ def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
     return out
 
 
+@njit(parallel=True, cache=True)
+def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
+                    out: np.ndarray) -> None:
+    """:func:`_stamp_closeness` for orientation bitmask images: each line pixel stamps its
+    closeness into every channel its bins are compatible with (``compat[mask]``)."""
+    b, h, w = out.shape[1], out.shape[2], out.shape[3]
+    for i in prange(masks.shape[0]):
+        wide = np.zeros((b, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        for y in range(h):
+            for x in range(w):
+                m = masks[i, y, x]
+                if m == 0:
+                    continue
+                cm = compat[m]
+                for c in range(b):
+                    if not (cm >> c) & 1:
+                        continue
+                    for j in range(value.shape[0]):
+                        yy = y + dy[j]
+                        if 0 <= yy < h:
+                            xx = x + r + dx[j]
+                            if value[j] > wide[c, yy, xx]:
+                                wide[c, yy, xx] = value[j]
+        for c in range(b):
+            for y in range(h):
+                for x in range(w):
+                    out[i, c, y, x] = wide[c, y, x + r]
+                for k in range(r):              # stamped past the edges: fold back around the seam
+                    x = (k - r) % w
+                    if wide[c, y, k] > out[i, c, y, x]:
+                        out[i, c, y, x] = wide[c, y, k]
+                    x = k % w
+                    if wide[c, y, w + r + k] > out[i, c, y, x]:
+                        out[i, c, y, x] = wide[c, y, w + r + k]
+
+
+@njit(parallel=True, cache=True)
+def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
+                     bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
+                     weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
+    """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
+    images against a query's stacked channels (rows b H + y), each map's closeness stamped
+    (as :func:`_stamp_oriented`) into a buffer of its own thread, never stored whole."""
+    h, w = masks.shape[1], masks.shape[2]
+    n_s = shifts.shape[1]
+    nq = 0.0
+    for m in range(q_rows.shape[0]):
+        nq += weights[q_rows[m] % h] * q_vals[m]
+    for i in prange(masks.shape[0]):
+        wide = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        rec = np.zeros(n_s)
+        n_map = 0.0
+        for y in range(h):
+            wr = weights[y]
+            for x in range(w):
+                mk = masks[i, y, x]
+                if mk == 0:
+                    continue
+                cm = compat[mk]
+                for c in range(bins):
+                    if (cm >> c) & 1:
+                        for j in range(value.shape[0]):
+                            yy = y + dy[j]
+                            if 0 <= yy < h:
+                                xx = x + r + dx[j]
+                                if value[j] > wide[c, yy, xx]:
+                                    wide[c, yy, xx] = value[j]
+                    if (mk >> c) & 1:           # a map line element of bin c: the recall half
+                        n_map += wr
+                        for s in range(n_s):
+                            cc = x + shifts[i, s]   # db column x is query column x + k
+                            rec[s] += wr * q_close[c * h + y, cc - w if cc >= w else cc]
+        for c in range(bins):                   # stamped past the edges: fold back around the seam
+            for y in range(h):
+                for k in range(r):
+                    if wide[c, y, w + r + k] > wide[c, y, r + k]:
+                        wide[c, y, r + k] = wide[c, y, w + r + k]
+                    if wide[c, y, k] > wide[c, y, w + k]:
+                        wide[c, y, w + k] = wide[c, y, k]
+        pre = np.zeros(n_s)
+        for m in range(q_rows.shape[0]):
+            c = q_rows[m] // h
+            y = q_rows[m] - c * h
+            v = weights[y] * q_vals[m]
+            for s in range(n_s):
+                cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
+                pre[s] += v * wide[c, y, (cc + w if cc < 0 else cc) + r]
+        for s in range(n_s):
+            out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
+            out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
+
+
+def channel_masks(channels: np.ndarray) -> np.ndarray:
+    """(..., B, H, W) oriented channels -> (..., H, W) uint8 bitmasks (the inverse of
+    :func:`orientation_channels`)."""
+    channels = np.asarray(channels)
+    masks = np.zeros((*channels.shape[:-3], *channels.shape[-2:]), np.uint8)
+    for c in range(channels.shape[-3]):
+        masks |= (channels[..., c, :, :] != 0).astype(np.uint8) << np.uint8(c)
+    return masks
+
+
+def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
+                       spread: int, query_close: np.ndarray | None = None,
+                       precision_rows: np.ndarray | None = None) -> np.ndarray:
+    """The oriented chamfer score (:func:`chamfer_table` with ``spread``) of one query's
+    (B, H, W) oriented channels (0/1 or weights) against (L, H, W) orientation bitmask map
+    images (as :func:`render_panoramas` draws them), each at its own column shifts (L, S):
+    (L, S) float64. Each map's compatible closeness is stamped and read in one pass
+    (:func:`_oriented_shifts`), so the local search never stores L x B closeness images."""
+    query = np.asarray(query)
+    b, h, w = query.shape
+    if query_close is None:
+        query_close = stack_channels(oriented_closeness(query, tau_px, spread))
+    rows, cols, vals = _query_pixels(stack_channels(query), None if precision_rows is None else np.tile(precision_rows, b))
+    shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % w)
+    masks = np.ascontiguousarray(np.asarray(masks, np.uint8).reshape(-1, h, w))
+    halves = np.zeros((len(masks), shifts.shape[1], 2))
+    if len(masks):
+        kernel = closeness_kernel(tau_px)
+        r = kernel.shape[0] // 2
+        dy, dx = np.nonzero(kernel > 0)
+        _oriented_shifts(masks, compatible_masks(b, min(int(spread), b)), (dy - r).astype(np.int64),
+                         (dx - r).astype(np.int64), kernel[dy, dx], r, b, np.ascontiguousarray(query_close, np.float32),
+                         rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
+                         halves)
+    return 0.5 * (halves[..., 0] + halves[..., 1])
+
+
+def compatible_masks(bins: int, spread: int) -> np.ndarray:
+    """(256,) uint8: for each orientation bitmask, the bitmask of the channels its bins are
+    compatible with (:func:`compatible_lines` as a table)."""
+    table = np.zeros(256, np.uint8)
+    for b in range(int(bins)):
+        near = 0
+        for d in range(-int(spread), int(spread) + 1):
+            near |= 1 << ((b + d) % int(bins))
+        for m in range(256):
+            if (m >> b) & 1:
+                table[m] |= near
+    return table
+
+
 def oriented_closeness(channels: np.ndarray, tau_px: float, spread: int) -> np.ndarray:
     """(..., B, H, W) float32: for a pixel of direction bin b, ``max(0, 1 - d / tau)`` with d
     the distance to the nearest line of a compatible bin (:func:`compatible_lines`,
-    :func:`closeness` per channel, so no channel's closeness reaches into another's rows)."""
-    return closeness(compatible_lines(channels, spread), tau_px)
+    :func:`closeness` per channel, so no channel's closeness reaches into another's rows).
+    Binary channels are stamped from their bitmasks in one pass (:func:`_stamp_oriented`,
+    equal to the channel-by-channel closeness: tested); weighted ones channel by channel."""
+    channels = np.asarray(channels)
+    if channels.dtype.kind == "f" or channels.shape[-3] > 8:
+        return closeness(compatible_lines(channels, spread), tau_px)
+    return oriented_closeness_of_masks(channel_masks(channels), channels.shape[-3], tau_px, spread)
+
+
+def oriented_closeness_of_masks(masks: np.ndarray, bins: int, tau_px: float, spread: int) -> np.ndarray:
+    """:func:`oriented_closeness` of (..., H, W) orientation bitmask images (as rendered):
+    (..., B, H, W) float32, in one stamping pass."""
+    masks = np.asarray(masks, np.uint8)
+    h, w = masks.shape[-2:]
+    flat = np.ascontiguousarray(masks.reshape(-1, h, w))
+    out = np.zeros((flat.shape[0], int(bins), h, w), np.float32)
+    if flat.size:
+        kernel = closeness_kernel(tau_px)
+        r = kernel.shape[0] // 2
+        dy, dx = np.nonzero(kernel > 0)
+        _stamp_oriented(flat, compatible_masks(bins, min(int(spread), int(bins))), (dy - r).astype(np.int64),
+                        (dx - r).astype(np.int64), kernel[dy, dx], r, out)
+    return out.reshape(*masks.shape[:-2], int(bins), h, w)
 
 
 def stack_channels(x: np.ndarray) -> np.ndarray:
@@ -579,9 +743,10 @@ def grid_step(xy: np.ndarray) -> float:
 @njit(parallel=True, cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                        q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray,
-                       chance_out: np.ndarray) -> None:
-    """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
-    chance levels (chance_out (L, 4): area recall, area precision, yaw recall, yaw precision)."""
+                       chance_out: np.ndarray, with_levels: bool) -> None:
+    """Recall and precision halves at the given shifts (out (L, S, 2)), and with
+    ``with_levels`` each point's chance levels (chance_out (L, 4): area recall, area
+    precision, yaw recall, yaw precision)."""
     h, w = imgs.shape[1], imgs.shape[2]
     wsum = 0.0
     for r in range(h):
@@ -601,13 +766,14 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
     for i in prange(imgs.shape[0]):
         m_row_mean = np.zeros(h)
         m_area = 0.0
-        for r in range(h):
-            acc = 0.0
-            for c in range(w):
-                acc += m_close[i, r, c]
-            m_row_mean[r] = acc / w
-            m_area += weights[r] * acc
-        m_area /= w * wsum
+        if with_levels:
+            for r in range(h):
+                acc = 0.0
+                for c in range(w):
+                    acc += m_close[i, r, c]
+                m_row_mean[r] = acc / w
+                m_area += weights[r] * acc
+            m_area /= w * wsum
         n_map = 0.0
         yaw_r = 0.0
         rec = np.zeros(shifts.shape[1])
@@ -651,25 +817,12 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`.
 
     ``spread`` (the oriented score): ``imgs`` (L, B, H, W) and ``query`` (B, H, W) oriented
-    channels, ``query_close`` (if given) its stacked :func:`oriented_closeness`; the plain
-    arithmetic on the channel-stacked images (:func:`stack_channels`)."""
+    channels, ``query_close`` (if given) its stacked :func:`oriented_closeness`: see
+    :func:`oriented_at_shifts`."""
     if spread is not None:
         _check_oriented(chance)
-        b = query.shape[0]
-        if query_close is None:
-            query_close = stack_channels(oriented_closeness(query, tau_px, spread)).astype(np.float32)
-        m_close = stack_channels(oriented_closeness(np.asarray(imgs, np.uint8), tau_px, spread))
-        rows, cols, vals = _query_pixels(stack_channels(query),
-                                         None if precision_rows is None else np.tile(precision_rows, b))
-        shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % query.shape[-1])
-        halves = np.zeros((len(imgs), shifts.shape[1], 2))
-        levels = np.zeros((len(imgs), 4))
-        if len(imgs):
-            _chamfer_at_shifts(np.ascontiguousarray(stack_channels(np.asarray(imgs, np.uint8))), m_close,
-                               np.ascontiguousarray(query_close, np.float32), rows.astype(np.int64),
-                               cols.astype(np.int64), vals, np.tile(np.asarray(weights, np.float64), b), shifts, halves,
-                               levels)
-        return 0.5 * (halves[..., 0] + halves[..., 1])
+        return oriented_at_shifts(channel_masks(imgs), query, shifts, tau_px=tau_px, weights=weights, spread=spread,
+                                  query_close=query_close, precision_rows=precision_rows)
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols, vals = _query_pixels(query, precision_rows)
@@ -682,7 +835,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
             m_close = likelihood_image(m_close, weights, clutter_share)
             q_close = likelihood_image(q_close, weights, clutter_share)
         _chamfer_at_shifts(imgs, m_close, q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
-                           np.asarray(weights, np.float64), shifts, halves, levels)
+                           np.asarray(weights, np.float64), shifts, halves, levels, chance in ("area", "yaw"))
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":
         recall, precision = chance_corrected(recall, levels[:, 0:1]), chance_corrected(precision, levels[:, 1:2])
@@ -776,14 +929,14 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
         if spread is not None:
-            imgs = orientation_channels(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden,
-                                                         orientation_bins=bins), bins)
-        else:
-            imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
+            masks = render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden, orientation_bins=bins)
+            return oriented_at_shifts(masks, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights, spread=spread,
+                                      query_close=q_close, precision_rows=prows)
+        imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
                                      chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
-                                     clutter_share=pp.clutter_share, spread=spread)
+                                     clutter_share=pp.clutter_share)
         dil = pack(dilate_lines(imgs, tolerance_px))
         return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
 

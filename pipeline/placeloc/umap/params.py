@@ -90,7 +90,7 @@ class PanoramaParams(Params):
                                             "within this many degrees of the horizon (the floor at the camera's foot: "
                                             "tripod, rugs, sunlight stripes; the ceiling over it: a fan or lamp); the "
                                             "recall half keeps every row; 90: all")
-    orientation_bins: int = param(1, min=1, max=8,
+    orientation_bins: int = param(6, min=1, max=8,
                                   help="chamfer score: bins of the line pixels' direction in the image (180 / bins "
                                        "degrees each, the map's exact from its segments, the query's from its LSD "
                                        "segments); a pixel is near only to the other side's lines of a compatible bin "

@@ -232,3 +232,20 @@ def test_the_renderer_s_direction_bins_equal_the_arctangent_s():
         bound = (np.arange(bins) + 0.5) * np.pi / bins
         for du, dv in rng.normal(size=(400, 2)):
             assert orientation_bit_fast(du, dv, bins, np.cos(bound), np.sin(bound)) == orientation_bit(du, dv, bins)
+
+
+def test_the_oriented_score_with_a_chance_correction_is_refused_with_the_keys_named(tmp_path):
+    import yaml
+
+    from placeloc.core.config import ConfigError, load_config
+    from placeloc.core.methods import get_method
+
+    (tmp_path / "plan.yaml").write_text(yaml.safe_dump(PLAN))
+    (tmp_path / "q").mkdir()
+    data = {"method": "umap", "query": {"images": str(tmp_path / "q")},
+            "umap": {"model": str(tmp_path / "plan.yaml"), "query_kind": "panorama",
+                     "panorama": {"chamfer_chance": "area"}}}
+    with pytest.raises(ConfigError, match="orientation_bins.*chamfer_chance none"):
+        get_method("umap").check(load_config(data=data, base_dir=tmp_path))
+    data["umap"]["panorama"]["orientation_bins"] = 1                    # the plain score takes any chance
+    get_method("umap").check(load_config(data=data, base_dir=tmp_path))

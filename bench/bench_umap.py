@@ -14,12 +14,15 @@
 3. Whole panoramas (``--panorama-only``): about 2,000 grid positions of a generated home x
    144 yaws, 32 query line images (map renders at off-grid poses and random headings, a
    third of their lines dropped, clutter added): the localize stage's search
-   (:func:`placeloc.umap.panorama.search_panoramas` with the default parameters: chamfer
+   (:func:`placeloc.umap.panorama.search_panoramas` with the default parameters but the plain score: chamfer
    spectra, batched, the cell stage and the coarse-to-fine beam) against the search before the spectra (the chamfer
    score pixel by pixel for every shift, then 8 candidates each re-scored on a 7 x 7 local
    grid), both timed in the same run, per panorama, wall and CPU; also the beam climbing by
    8 neighbours only (``refine_square`` 1) and every candidate climbing once first
-   (``refine_climb`` 1), each against the defaults in the same run.
+   (``refine_climb`` 1), each against the defaults in the same run; and the oriented score
+   (``orientation_bins`` B for each B of ``--orientation-bins``, spread 1 (0 for B = 2); 6
+   bins, spread 1 are the defaults: the same queries with their directions, the clutter's
+   at random), its index and search against the plain score's in the same run.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -57,6 +60,8 @@ def main() -> None:
     ap.add_argument("--panorama-only", action="store_true", help="only the whole-panorama search")
     ap.add_argument("--panorama-positions", type=int, default=2000, help="grid positions of the panorama case (about)")
     ap.add_argument("--old-panoramas", type=int, default=6, help="panoramas the search before is timed on")
+    ap.add_argument("--orientation-bins", default="2,4,6,8",
+                    help="direction bin counts of the oriented score timed against the defaults (empty: none)")
     ap.add_argument("--workers", default=None,
                     help="numba thread counts of the panorama search's scaling table (default 1, 2, 4, ..., the threads; 0: none)")
     args = ap.parse_args()
@@ -103,7 +108,7 @@ def panorama(args: argparse.Namespace) -> None:
     area = len(plan_grid(model, step_m=0.1)[0]) * 0.01
     step = round(float(np.sqrt(area / args.panorama_positions)), 3)
     poses = plan_grid(model, step_m=step)[0]
-    pp = PanoramaParams()
+    pp = PanoramaParams(orientation_bins=1)   # the plain score: the baseline of the oriented cases
     w, h = pp.width, pp.height
     rng = np.random.default_rng(1)
     truth = poses[rng.choice(len(poses), 32, replace=False)].copy()
@@ -126,27 +131,30 @@ def panorama(args: argparse.Namespace) -> None:
     # the same search with the beam climbing by its 8 neighbours only (the search before the
     # beam's square), timed in the same run
     res1, t_climb, c_climb = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra},
-                                    PanoramaParams(refine_square=1), tolerance_px=2, wall_margin_m=0.1, hidden=True)
+                                    PanoramaParams(refine_square=1, orientation_bins=1), tolerance_px=2, wall_margin_m=0.1, hidden=True)
     # every candidate climbing once before the beam (refine_climb 1), timed in the same run
     resc, t_all, c_all = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra},
-                                PanoramaParams(refine_climb=1), tolerance_px=2, wall_margin_m=0.1, hidden=True)
-    pp0 = PanoramaParams(refine_candidates=0)
+                                PanoramaParams(refine_climb=1, orientation_bins=1), tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    pp0 = PanoramaParams(refine_candidates=0, orientation_bins=1)
     _, t_glob, c_glob = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp0,
                                tolerance_px=2, wall_margin_m=0.1, hidden=True)
     err = np.hypot(*(res[1] - truth[:, :2]).T)
     n = len(q)
-    print(f"localize search, default: {t_new / n * 1e3:.0f} ms wall, {c_new / n * 1e3:.0f} ms CPU per panorama (target "
+    print(f"localize search, the plain score (orientation_bins 1), otherwise the defaults: {t_new / n * 1e3:.0f} ms wall, "
+          f"{c_new / n * 1e3:.0f} ms CPU per panorama (target "
           f"<= 100 ms wall); of it every position x yaw: {t_glob / n * 1e3:.1f} ms wall, {c_glob / n * 1e3:.1f} ms CPU; within "
           f"0.05 m of the truth {np.mean(err <= 0.05):.0%}, within 0.1 m {np.mean(err <= 0.1):.0%}; load average now "
           f"{os.getloadavg()[0]:.1f}")
     err1 = np.hypot(*(res1[1] - truth[:, :2]).T)
     print(f"the beam by 8 neighbours only (refine_square 1): {t_climb / n * 1e3:.0f} ms wall, {c_climb / n * 1e3:.0f} ms CPU per "
-          f"panorama; within 0.05 m {np.mean(err1 <= 0.05):.0%}; ratio default / that {t_new / t_climb:.2f}x wall, "
+          f"panorama; within 0.05 m {np.mean(err1 <= 0.05):.0%}; ratio plain search / that {t_new / t_climb:.2f}x wall, "
           f"{c_new / c_climb:.2f}x CPU")
     errc = np.hypot(*(resc[1] - truth[:, :2]).T)
     print(f"every candidate climbing once first (refine_climb 1): {t_all / n * 1e3:.0f} ms wall, {c_all / n * 1e3:.0f} ms "
-          f"CPU per panorama; within 0.05 m {np.mean(errc <= 0.05):.0%}; ratio that / default {t_all / t_new:.2f}x wall, "
+          f"CPU per panorama; within 0.05 m {np.mean(errc <= 0.05):.0%}; ratio that / plain search {t_all / t_new:.2f}x wall, "
           f"{c_all / c_new:.2f}x CPU")
+    for bins in [int(b) for b in args.orientation_bins.split(",") if b.strip()]:
+        _oriented_case(bins, model, poses, truth, q, rng, (t_idx, c_idx, t_new, c_new))
     close = closeness(unpack(db, h, w), 3.0)
     m = min(args.old_panoramas, n)
     _today_search(q[:1], poses, model, db, close, w, h)  # JIT
@@ -177,6 +185,45 @@ def panorama(args: argparse.Namespace) -> None:
 
         print(markdown(scaling_table(measure, counts, warm_up=False), "UMap whole-panorama search", unit="thread",
                        note="numba threads set with numba.set_num_threads; one run each."))
+
+
+def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator,  # noqa: ANN001
+                   default_times: tuple[float, float, float, float]) -> None:
+    """The oriented score with ``bins`` direction bins: index and search timed, against the
+    plain score's (``default_times``: index wall, CPU, search wall, CPU) measured in the same run."""
+    from placeloc.geometry.panorama import render_panoramas
+    from placeloc.umap.panorama import chamfer_spectra, orientation_channels, row_weights, search_panoramas
+    from placeloc.umap.params import PanoramaParams
+
+    pp = PanoramaParams(orientation_bins=bins, orientation_spread=0 if bins == 2 else 1)
+    w, h = pp.width, pp.height
+    # the same query pixels, each with its map direction; the clutter pixels a random direction
+    masks = render_panoramas(model.segments, model.faces, truth, width=w, height=h, hidden=True, orientation_bins=bins)
+    clutter = (q != 0) & (masks == 0)
+    masks = np.where(q != 0, masks, 0).astype(np.uint8)
+    masks[clutter] = (1 << rng.integers(0, bins, int(clutter.sum()))).astype(np.uint8)
+    qo = orientation_channels(masks, bins)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    chans = orientation_channels(render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=True,
+                                                  orientation_bins=bins), bins)
+    spectra, t_idx, c_idx = _timed(chamfer_spectra, chans, tau_px=pp.chamfer_tau_px, weights=weights,
+                                   spread=pp.orientation_spread)
+    del chans
+    db = {"spectra": spectra}
+    search_panoramas(qo[:2], poses, model.segments, model.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    res, t, c = _timed(search_panoramas, qo, poses, model.segments, model.faces, db, pp, tolerance_px=2,
+                       wall_margin_m=0.1, hidden=True)
+    pp0 = PanoramaParams(orientation_bins=bins, orientation_spread=pp.orientation_spread, refine_candidates=0)
+    _, t_glob, c_glob = _timed(search_panoramas, qo, poses, model.segments, model.faces, db, pp0, tolerance_px=2,
+                               wall_margin_m=0.1, hidden=True)
+    n = len(qo)
+    err = np.hypot(*(res[1] - truth[:, :2]).T)
+    ti, ci, tn, cn = default_times
+    print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
+          f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "
+          f"{c / n * 1e3:.0f} ms CPU per panorama, of it every position x yaw {t_glob / n * 1e3:.1f} ms wall, "
+          f"{c_glob / n * 1e3:.1f} ms CPU; ratio that / the plain score {t / tn:.2f}x wall, {c / cn:.2f}x CPU; within 0.05 m "
+          f"{np.mean(err <= 0.05):.0%}; load average now {os.getloadavg()[0]:.1f}")
 
 
 def _dilate(db: np.ndarray, cam: Camera, tolerance: int) -> np.ndarray:

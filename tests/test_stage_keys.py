@@ -349,11 +349,13 @@ def _umap_panorama_variants(tmp: Path) -> list[dict]:
             cv2.imwrite(str(tmp / "q" / f"p{k}.png"), _grey_panorama(pose, rng))
             w.writerow([f"p{k}.png", *pose])
     out = []
-    for kind, score in (("panorama", "chamfer"), ("equirect", "iou")):
+    # (the oriented chamfer score reads umap.panorama.orientation_spread)
+    for kind, score, bins in (("panorama", "chamfer", 1), ("panorama", "chamfer", 4), ("equirect", "iou", 1)):
         out.append(load_config(data={
             "method": "umap", "query": {"images": str(tmp / "q")}, "executor": {"workers": 1},
             "ground_truth": {"kind": "poses", "path": str(tmp / "poses.csv")},
-            "umap": {"model": str(tmp / "plan.yaml"), "query_kind": kind, "panorama": {"score": score},
+            "umap": {"model": str(tmp / "plan.yaml"), "query_kind": kind,
+                     "panorama": {"score": score, "orientation_bins": bins},
                      "grid": {"x": [0.2, 5.8, 0.4], "y": [0.2, 6.8, 0.4], "z": 1.4, "headings": [0.0, 90.0, 180.0, 270.0]}},
             "plots": False}, base_dir=tmp))
     return out

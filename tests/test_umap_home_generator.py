@@ -7,7 +7,7 @@ import numpy as np
 
 from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, wall_distance
 from placeloc.geometry.polygons import point_in_polygon
-from placeloc.synth.home import line_agreement, near_wall_poses, plan, room_name
+from placeloc.synth.home import cabinet_poses, line_agreement, near_wall_poses, plan, room_name
 
 
 def _room(fp, name):
@@ -53,6 +53,22 @@ def test_near_wall_cameras_stand_0_4_to_0_6_m_from_a_wall():
     boxes = np.asarray(clutter["boxes"], float)
     for b in boxes:   # clear of the furniture
         assert not ((xy[:, 0] > b[0] - 0.15) & (xy[:, 0] < b[3] + 0.15) & (xy[:, 1] > b[1] - 0.15) & (xy[:, 1] < b[4] + 0.15)).any()
+
+
+def test_cabinet_cameras_stand_in_front_of_the_counters():
+    # 0.15-0.35 m in front of a counter run's front, the runs in turn, in the kitchen, clear of
+    # the furniture that stands in front of the run
+    fp, clutter = plan(np.random.default_rng(6))
+    xy = cabinet_poses(fp, clutter, np.random.default_rng(7), 4, 1.5)
+    assert len(xy) == 4 and all(room_name(fp, *p) == "kitchen" for p in xy)
+    runs = np.asarray(clutter["counters"], float)
+    for i, p in enumerate(xy):
+        a, b, n = runs[i % len(runs), :2], runs[i % len(runs), 2:4], runs[i % len(runs), 4:]
+        depth = float((p - a) @ n)
+        along = float((p - a) @ (b - a)) / float(np.hypot(*(b - a)))
+        assert 0.15 - 1e-9 <= depth <= 0.35 + 1e-9 and 0.3 - 1e-9 <= along <= np.hypot(*(b - a)) - 0.3 + 1e-9
+    walls = blocking_faces(floor_plan_model(fp).faces, 1.5)
+    assert (wall_distance(xy, walls) >= 0.3 - 1e-9).all()
 
 
 def test_line_agreement_by_hand():

@@ -89,8 +89,8 @@ def test_panorama_line_image_lies_on_the_map_lines():
     assert found > 0.8 and 0.5 < on_map < 0.98                     # the clutter rectangles are off the map
 
 
-@pytest.mark.parametrize("score", ["iou", "chamfer"])
-def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
+@pytest.mark.parametrize("score,bins", [("iou", 1), ("chamfer", 1), ("chamfer", 4)])
+def test_panoramas_localized_with_unknown_yaw(tmp_path, score, bins):
     import yaml
 
     from placeloc.core.config import load_config
@@ -110,7 +110,7 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score):
                             "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
                             "umap": {"model": str(tmp_path / "plan.yaml"), "query_kind": "panorama",
                                      "grid": {"x": [0.2, 5.8, 0.2], "y": [0.2, 6.8, 0.2], "z": 1.4, "headings": [0.0]},
-                                     "panorama": {"score": score}},
+                                     "panorama": {"score": score, "orientation_bins": bins}},
                             "plots": False}, base_dir=tmp_path)
     run_all(cfg, tmp_path / "run", quiet=True)
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())
@@ -302,7 +302,7 @@ def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
     truth = np.array([[5.65, 1.37, 1.4, 117.5], [0.35, 5.52, 1.4, 250.0]])
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
-    pp = replace(PanoramaParams(), chamfer_chance="area")
+    pp = replace(PanoramaParams(), chamfer_chance="area", orientation_bins=1)
     wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     answers = []
     for frac in (0.0, 1 / 3, 2 / 3):
@@ -635,7 +635,7 @@ def test_every_candidate_climbing_makes_the_answer_independent_of_the_grid_origi
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
     answers = {0: [], 1: []}
     for climb in (0, 1):
-        pp = replace(PanoramaParams(), refine_beam=1, refine_square=1, refine_climb=climb)
+        pp = replace(PanoramaParams(), refine_beam=1, refine_square=1, refine_climb=climb, orientation_bins=1)
         wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
         for frac in (0.0, 1 / 3, 2 / 3):
             start = 0.1 + frac * 0.3

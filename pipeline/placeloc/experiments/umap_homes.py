@@ -42,7 +42,8 @@ ORIGINS = (0.0, 1.0 / 3.0, 2.0 / 3.0)
 # name -> umap.panorama settings; refine_candidates is the cost (8 renders each per panorama)
 # the rounds before the precision half's rows (every row counts) and the beam's square
 # (the beam climbs by 8 neighbours)
-_ALL_ROWS = {"precision_polar_deg": 90.0}
+_PLAIN = {"orientation_bins": 1}           # the rounds before directions (umap.panorama.orientation_bins)
+_ALL_ROWS = {"precision_polar_deg": 90.0, **_PLAIN}
 _CLIMB = {"refine_square": 1, **_ALL_ROWS}
 SWEEP: dict[str, dict[str, Any]] = {
     "plain chamfer, 16 cells": {"chamfer_chance": "none", "refine_candidates": 16, "solid_angle": False, **_CLIMB},
@@ -74,25 +75,33 @@ SWEEP: dict[str, dict[str, Any]] = {
     # the precision half over the rows within so many degrees of the horizon only
     # (umap.panorama.precision_polar_deg), the milder first
     **{f"solid-angle chamfer, precision within {deg} deg, 32 cells, beam's cells whole":
-       {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": float(deg)}
+       {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": float(deg), **_PLAIN}
        for deg in (80, 75, 70, 65)},
     # each half a mean log likelihood ratio against clutter (umap.panorama.chamfer_chance
     # likelihood), at three clutter shares
     **{f"solid-angle likelihood chamfer, clutter share {share}, precision within 75 deg, 32 cells, beam's cells whole":
        {"chamfer_chance": "likelihood", "clutter_share": share, "refine_candidates": 32, "solid_angle": True,
-        "refine_square": 3, "precision_polar_deg": 75.0}
+        "refine_square": 3, "precision_polar_deg": 75.0, **_PLAIN}
        for share in (0.2, 0.5, 0.8)},
     # the search: candidates as distinct places (no two within 0.4 m: a taken point's 8 grid
     # neighbours left out), every candidate climbing once before the beam
     # (umap.panorama.refine_separation_m, refine_climb)
     "solid-angle chamfer, precision within 75 deg, 32 cells 0.4 m apart, beam's cells whole":
         {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
-         "refine_separation_m": 0.4},
+         "refine_separation_m": 0.4, **_PLAIN},
     "solid-angle chamfer, precision within 75 deg, 32 cells each climbing once, beam's cells whole":
-        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0, "refine_climb": 1},
+        {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0, "refine_climb": 1,
+         **_PLAIN},
     "solid-angle chamfer, precision within 75 deg, 32 cells 0.4 m apart each climbing once, beam's cells whole":
         {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
-         "refine_separation_m": 0.4, "refine_climb": 1},
+         "refine_separation_m": 0.4, "refine_climb": 1, **_PLAIN},
+    # the oriented (directional) chamfer score: a line pixel near only to the other side's
+    # lines of its direction bin or within spread bins of it (umap.panorama.orientation_bins,
+    # orientation_spread), the fewer bins first
+    **{f"oriented chamfer, {bins} bins, spread {spread}, precision within 75 deg, 32 cells, beam's cells whole":
+       {"refine_candidates": 32, "solid_angle": True, "refine_square": 3, "precision_polar_deg": 75.0,
+        "orientation_bins": bins, "orientation_spread": spread}
+       for bins, spread in ((2, 0), (4, 1), (6, 1), (8, 1), (8, 2))},
 }
 NOISE = 1.0 / (len(DEV_SEEDS) * len(ORIGINS) * PANORAMAS)   # one panorama of the 180
 

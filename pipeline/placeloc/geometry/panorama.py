@@ -100,12 +100,45 @@ def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: f
     return False
 
 
+@njit(cache=True)
+def orientation_bit(du: float, dv: float, bins: int) -> int:
+    """The bit (1 << bin) of a line's direction (du, dv) in image pixels (columns right,
+    rows down) among ``bins`` bins of 180 / bins degrees, bin 0 centred on the image's
+    horizontal (bin b on b 180 / bins degrees); 1 when ``bins`` <= 1."""
+    if bins <= 1:
+        return 1
+    theta = math.atan2(dv, du) % math.pi
+    return 1 << (int(math.floor(theta * bins / math.pi + 0.5)) % bins)
+
+
+@njit(cache=True)
+def orientation_bit_fast(du: float, dv: float, bins: int, bound_cos: np.ndarray, bound_sin: np.ndarray) -> int:
+    """:func:`orientation_bit` without the arctangent (the renderer's inner loop): the
+    direction turned into the upper half-plane counted against the bins' boundary directions
+    ``(bound_cos[k], bound_sin[k])`` at (k + 1/2) 180 / bins degrees (equal but at exact ties:
+    tested)."""
+    if bins <= 1:
+        return 1
+    if dv < 0.0 or (dv == 0.0 and du < 0.0):
+        du = -du
+        dv = -dv
+    k = 0
+    while k < bins and bound_cos[k] * dv - bound_sin[k] * du >= 0.0:
+        k += 1
+    return 1 << (k % bins)
+
+
 @njit(parallel=True, cache=True)
 def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
-                     hidden: bool, which: int, out: np.ndarray) -> None:
-    """``which``: 0 every segment, 1 only vertical ones, 2 only the others."""
+                     hidden: bool, which: int, bins: int, out: np.ndarray, masks: np.ndarray) -> None:
+    """``which``: 0 every segment, 1 only vertical ones, 2 only the others. ``bins`` 0: the
+    packed binary image into ``out``; ``bins`` >= 1: each pixel's bitmask of the
+    :func:`orientation_bit` of the lines through it into ``masks`` (V, H W) uint8."""
     nf = faces.shape[0]
     step = 2.0 * math.pi / width
+    bound = (np.arange(max(bins, 1)) + 0.5) * math.pi / max(bins, 1)
+    bound_cos = np.cos(bound)
+    bound_sin = np.sin(bound)
     for v in prange(poses.shape[0]):
         px = poses[v, 0]
         py = poses[v, 1]
@@ -166,13 +199,24 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
                 iv = int(math.floor((math.pi / 2.0 - el) / math.pi * height - 0.5 + 0.5))
                 iv = min(max(iv, 0), height - 1)
                 pix = iv * width + iu
-                if img[pix]:
+                bit = 1
+                if bins > 1:
+                    # the image's tangent along the segment, exactly: u = -(W / 2 pi) azimuth,
+                    # v = -(H / pi) elevation (+ constants)
+                    rr = max(r, 1e-9)
+                    du = -width / (2.0 * math.pi) * (qx * ey - qy * ex) / (rr * rr)
+                    dv = -height / math.pi * (rr * ez - qz * (qx * ex + qy * ey) / rr) / (rr * rr + qz * qz)
+                    bit = orientation_bit_fast(du, dv, bins, bound_cos, bound_sin)
+                if img[pix] & bit:
                     continue
                 if hidden and counts[iu] > 0:
                     if occluded(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
                         continue
-                img[pix] = 1
-        pack_into(img, height * width, out[v])
+                img[pix] |= bit
+        if bins >= 1:
+            masks[v, :] = img
+        else:
+            pack_into(img, height * width, out[v])
 
 
 def vertical_segments(segments: np.ndarray) -> np.ndarray:
@@ -183,17 +227,25 @@ def vertical_segments(segments: np.ndarray) -> np.ndarray:
 
 
 def render_panoramas(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, *, width: int, height: int,
-                     hidden: bool, which: str = "all") -> np.ndarray:
+                     hidden: bool, which: str = "all", orientation_bins: int = 0) -> np.ndarray:
     """Equirectangular line images of ``segments`` from each pose (x, y, z, heading): packed
     (V, n_words) uint64 (layout of :mod:`placeloc.geometry.bitimage`). ``which``: ``all``, or only
-    the ``vertical`` or ``other`` segments (for the direction-split score)."""
+    the ``vertical`` or ``other`` segments (for the direction-split score). ``orientation_bins``
+    >= 1: instead (V, H, W) uint8, each pixel the bitmask of the :func:`orientation_bit` s of
+    the lines drawn through it (their image direction there, exact from the segment); the
+    pixels with a nonzero mask are those of the packed image."""
     poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 4)
     segs = np.ascontiguousarray(segments, np.float64).reshape(-1, 6)
-    out = np.zeros((len(poses), n_words(height, width)), dtype=np.uint64)
+    bins = int(orientation_bins)
+    if not 0 <= bins <= 8:
+        raise ValueError(f"orientation_bins must lie in 0..8 (one bit each in a uint8), not {bins}")
+    out = np.zeros((0 if bins else len(poses), n_words(height, width)), dtype=np.uint64)
+    masks = np.zeros((len(poses) if bins else 0, height * width), dtype=np.uint8)
     if len(poses):
         _render_equirect(segs, vertical_segments(segs), np.ascontiguousarray(faces, np.float64).reshape(-1, 6), poses,
-                         int(width), int(height), bool(hidden), {"all": 0, "vertical": 1, "other": 2}[which], out)
-    return out
+                         int(width), int(height), bool(hidden), {"all": 0, "vertical": 1, "other": 2}[which], bins, out,
+                         masks)
+    return masks.reshape(-1, height, width) if bins else out
 
 
 def render_panorama_block(item: tuple) -> np.ndarray:
@@ -231,20 +283,37 @@ def panorama_lines(pano: np.ndarray, *, face_px: int, min_length: float) -> list
 
 
 def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
-                        split: bool = False) -> np.ndarray:
+                        split: bool = False, orientation_bins: int = 0) -> np.ndarray:
     """Binary equirectangular line image (``height`` x ``width``) of a grey panorama's LSD
     lines (see :func:`panorama_lines`). ``split``: a (2, H, W) pair instead, the lines that
     are vertical in the world (vertical on an upright face, through the nadir/zenith on the
-    floor/ceiling faces) and the rest."""
+    floor/ceiling faces) and the rest. ``orientation_bins`` >= 1: a uint8 image whose pixels
+    hold the bitmask of the :func:`orientation_bit` s of the lines through them, each
+    sample's direction the equirectangular curve's tangent there (central differences along
+    the segment's samples), as :func:`render_panoramas` gives the map's."""
     cam = Camera(face_px, face_px, 90.0)
+    bins = int(orientation_bins)
     img = np.zeros((2 if split else 1, height, width), np.uint8)
     for (hd, pitch), segs in zip(CUBE_FACES, panorama_lines(pano, face_px=face_px, min_length=min_length)):
         for x0, y0, x1, y1 in segs:
             n = int(math.ceil(2.0 * math.hypot(x1 - x0, y1 - y0))) + 1
             t = np.linspace(0.0, 1.0, n)
             az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, hd, pitch)
-            u = np.floor(((math.pi - az) / (2 * math.pi) % 1.0) * width).astype(np.int64) % width
-            v = np.clip(np.floor((math.pi / 2 - el) / math.pi * height).astype(np.int64), 0, height - 1)
+            fu = ((math.pi - az) / (2 * math.pi) % 1.0) * width
+            fv = (math.pi / 2 - el) / math.pi * height
+            u = np.floor(fu).astype(np.int64) % width
+            v = np.clip(np.floor(fv).astype(np.int64), 0, height - 1)
+            if bins >= 1 and not split:
+                # the curve's tangent in image pixels; columns unwrapped across the seam
+                du = np.gradient(np.unwrap(fu, period=width)) if n > 1 else np.zeros(1)
+                dv = np.gradient(fv) if n > 1 else np.zeros(1)
+                if bins > 1:   # orientation_bit, vectorised
+                    b = np.floor((np.arctan2(dv, du) % math.pi) * bins / math.pi + 0.5).astype(np.int64) % bins
+                    bits = np.left_shift(1, b).astype(np.uint8)
+                else:
+                    bits = np.ones(len(u), np.uint8)
+                np.bitwise_or.at(img[0], (v, u), bits)
+                continue
             ch = 0
             if split:
                 if pitch == 0.0:  # upright face: vertical world lines are vertical in the image

@@ -19,8 +19,10 @@ Two scores, both over all (position, shift) pairs:
   cost little: the mean of ``max(0, 1 - d / tau)`` over the map's line pixels (d = distance
   to the nearest query line pixel: how much of the map is seen) and over the query's line
   pixels (d = distance to the nearest map line: how much of what is seen is map), averaged.
-  Optionally split by direction: vertical map lines (wall corners, door jambs) only count
-  against vertical query lines and the rest against the rest.
+  With ``orientation_bins`` B > 1 (directional chamfer matching): every line pixel also
+  carries the bin of its direction in the image, and a pixel counts as near only to the
+  other side's lines of the same bin or within ``orientation_spread`` bins of it
+  (:func:`compatible_lines`); B = 1 is the score above.
 """
 
 from __future__ import annotations
@@ -308,6 +310,227 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     return 0.5 * (recall + precision)
 
 
+# ------------------------------------------------------------------ directions: the oriented (directional) score
+
+def orientation_channels(masks: np.ndarray, bins: int) -> np.ndarray:
+    """(..., H, W) orientation bitmask images (``render_panoramas`` / ``panorama_line_image``
+    with ``orientation_bins``) -> (..., B, H, W) uint8 0/1 channels, channel b the pixels a
+    line of direction bin b passes through (:func:`placeloc.geometry.panorama.orientation_bit`)."""
+    masks = np.asarray(masks, np.uint8)
+    shifts = np.arange(int(bins), dtype=np.uint8).reshape(-1, 1, 1)
+    return ((masks[..., None, :, :] >> shifts) & 1).astype(np.uint8)
+
+
+def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
+    """(..., B, H, W) oriented line channels -> (..., B, H, W): channel b the lines a pixel of
+    direction bin b counts as near, those of bins b - spread .. b + spread (directions wrap
+    at 180 degrees: bin B - 1 neighbours bin 0); the largest weight where channels are
+    weights (:func:`texture_weights`). Every bin when 2 spread + 1 >= B."""
+    channels = np.asarray(channels)
+    b = channels.shape[-3]
+    if 2 * int(spread) + 1 >= b:
+        return np.broadcast_to(channels.max(axis=-3, keepdims=True), channels.shape).copy()
+    out = channels.copy()
+    for d in range(1, int(spread) + 1):
+        out = np.maximum(out, np.maximum(np.roll(channels, d, axis=-3), np.roll(channels, -d, axis=-3)))
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
+                    out: np.ndarray) -> None:
+    """:func:`_stamp_closeness` for orientation bitmask images: each line pixel stamps its
+    closeness into every channel its bins are compatible with (``compat[mask]``)."""
+    b, h, w = out.shape[1], out.shape[2], out.shape[3]
+    for i in prange(masks.shape[0]):
+        wide = np.zeros((b, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        for y in range(h):
+            for x in range(w):
+                m = masks[i, y, x]
+                if m == 0:
+                    continue
+                cm = compat[m]
+                for c in range(b):
+                    if not (cm >> c) & 1:
+                        continue
+                    for j in range(value.shape[0]):
+                        yy = y + dy[j]
+                        if 0 <= yy < h:
+                            xx = x + r + dx[j]
+                            if value[j] > wide[c, yy, xx]:
+                                wide[c, yy, xx] = value[j]
+        for c in range(b):
+            for y in range(h):
+                for x in range(w):
+                    out[i, c, y, x] = wide[c, y, x + r]
+                for k in range(r):              # stamped past the edges: fold back around the seam
+                    x = (k - r) % w
+                    if wide[c, y, k] > out[i, c, y, x]:
+                        out[i, c, y, x] = wide[c, y, k]
+                    x = k % w
+                    if wide[c, y, w + r + k] > out[i, c, y, x]:
+                        out[i, c, y, x] = wide[c, y, w + r + k]
+
+
+@njit(parallel=True, cache=True)
+def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
+                     bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
+                     weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
+    """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
+    images against a query's stacked channels (rows b H + y), each map's closeness stamped
+    (as :func:`_stamp_oriented`) into a buffer of its own thread, never stored whole."""
+    h, w = masks.shape[1], masks.shape[2]
+    n_s = shifts.shape[1]
+    nq = 0.0
+    for m in range(q_rows.shape[0]):
+        nq += weights[q_rows[m] % h] * q_vals[m]
+    for i in prange(masks.shape[0]):
+        wide = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        rec = np.zeros(n_s)
+        n_map = 0.0
+        for y in range(h):
+            wr = weights[y]
+            for x in range(w):
+                mk = masks[i, y, x]
+                if mk == 0:
+                    continue
+                cm = compat[mk]
+                for c in range(bins):
+                    if (cm >> c) & 1:
+                        for j in range(value.shape[0]):
+                            yy = y + dy[j]
+                            if 0 <= yy < h:
+                                xx = x + r + dx[j]
+                                if value[j] > wide[c, yy, xx]:
+                                    wide[c, yy, xx] = value[j]
+                    if (mk >> c) & 1:           # a map line element of bin c: the recall half
+                        n_map += wr
+                        for s in range(n_s):
+                            cc = x + shifts[i, s]   # db column x is query column x + k
+                            rec[s] += wr * q_close[c * h + y, cc - w if cc >= w else cc]
+        for c in range(bins):                   # stamped past the edges: fold back around the seam
+            for y in range(h):
+                for k in range(r):
+                    if wide[c, y, w + r + k] > wide[c, y, r + k]:
+                        wide[c, y, r + k] = wide[c, y, w + r + k]
+                    if wide[c, y, k] > wide[c, y, w + k]:
+                        wide[c, y, w + k] = wide[c, y, k]
+        pre = np.zeros(n_s)
+        for m in range(q_rows.shape[0]):
+            c = q_rows[m] // h
+            y = q_rows[m] - c * h
+            v = weights[y] * q_vals[m]
+            for s in range(n_s):
+                cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
+                pre[s] += v * wide[c, y, (cc + w if cc < 0 else cc) + r]
+        for s in range(n_s):
+            out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
+            out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
+
+
+def channel_masks(channels: np.ndarray) -> np.ndarray:
+    """(..., B, H, W) oriented channels -> (..., H, W) uint8 bitmasks (the inverse of
+    :func:`orientation_channels`)."""
+    channels = np.asarray(channels)
+    masks = np.zeros((*channels.shape[:-3], *channels.shape[-2:]), np.uint8)
+    for c in range(channels.shape[-3]):
+        masks |= (channels[..., c, :, :] != 0).astype(np.uint8) << np.uint8(c)
+    return masks
+
+
+def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
+                       spread: int, query_close: np.ndarray | None = None,
+                       precision_rows: np.ndarray | None = None) -> np.ndarray:
+    """The oriented chamfer score (:func:`chamfer_table` with ``spread``) of one query's
+    (B, H, W) oriented channels (0/1 or weights) against (L, H, W) orientation bitmask map
+    images (as :func:`render_panoramas` draws them), each at its own column shifts (L, S):
+    (L, S) float64. Each map's compatible closeness is stamped and read in one pass
+    (:func:`_oriented_shifts`), so the local search never stores L x B closeness images."""
+    query = np.asarray(query)
+    b, h, w = query.shape
+    if query_close is None:
+        query_close = stack_channels(oriented_closeness(query, tau_px, spread))
+    rows, cols, vals = _query_pixels(stack_channels(query), None if precision_rows is None else np.tile(precision_rows, b))
+    shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % w)
+    masks = np.ascontiguousarray(np.asarray(masks, np.uint8).reshape(-1, h, w))
+    halves = np.zeros((len(masks), shifts.shape[1], 2))
+    if len(masks):
+        kernel = closeness_kernel(tau_px)
+        r = kernel.shape[0] // 2
+        dy, dx = np.nonzero(kernel > 0)
+        _oriented_shifts(masks, compatible_masks(b, min(int(spread), b)), (dy - r).astype(np.int64),
+                         (dx - r).astype(np.int64), kernel[dy, dx], r, b, np.ascontiguousarray(query_close, np.float32),
+                         rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
+                         halves)
+    return 0.5 * (halves[..., 0] + halves[..., 1])
+
+
+def compatible_masks(bins: int, spread: int) -> np.ndarray:
+    """(256,) uint8: for each orientation bitmask, the bitmask of the channels its bins are
+    compatible with (:func:`compatible_lines` as a table)."""
+    table = np.zeros(256, np.uint8)
+    for b in range(int(bins)):
+        near = 0
+        for d in range(-int(spread), int(spread) + 1):
+            near |= 1 << ((b + d) % int(bins))
+        for m in range(256):
+            if (m >> b) & 1:
+                table[m] |= near
+    return table
+
+
+def oriented_closeness(channels: np.ndarray, tau_px: float, spread: int) -> np.ndarray:
+    """(..., B, H, W) float32: for a pixel of direction bin b, ``max(0, 1 - d / tau)`` with d
+    the distance to the nearest line of a compatible bin (:func:`compatible_lines`,
+    :func:`closeness` per channel, so no channel's closeness reaches into another's rows).
+    Binary channels are stamped from their bitmasks in one pass (:func:`_stamp_oriented`,
+    equal to the channel-by-channel closeness: tested); weighted ones channel by channel."""
+    channels = np.asarray(channels)
+    if channels.dtype.kind == "f" or channels.shape[-3] > 8:
+        return closeness(compatible_lines(channels, spread), tau_px)
+    return oriented_closeness_of_masks(channel_masks(channels), channels.shape[-3], tau_px, spread)
+
+
+def oriented_closeness_of_masks(masks: np.ndarray, bins: int, tau_px: float, spread: int) -> np.ndarray:
+    """:func:`oriented_closeness` of (..., H, W) orientation bitmask images (as rendered):
+    (..., B, H, W) float32, in one stamping pass."""
+    masks = np.asarray(masks, np.uint8)
+    h, w = masks.shape[-2:]
+    flat = np.ascontiguousarray(masks.reshape(-1, h, w))
+    out = np.zeros((flat.shape[0], int(bins), h, w), np.float32)
+    if flat.size:
+        kernel = closeness_kernel(tau_px)
+        r = kernel.shape[0] // 2
+        dy, dx = np.nonzero(kernel > 0)
+        _stamp_oriented(flat, compatible_masks(bins, min(int(spread), int(bins))), (dy - r).astype(np.int64),
+                        (dx - r).astype(np.int64), kernel[dy, dx], r, out)
+    return out.reshape(*masks.shape[:-2], int(bins), h, w)
+
+
+def stack_channels(x: np.ndarray) -> np.ndarray:
+    """(..., B, H, W) -> (..., B H, W): the channels as rows of one image. Why: the chamfer
+    score is a sum over rows of row cross-correlations, so the oriented score is the plain
+    score's arithmetic on the stacked image with the row weights tiled B times, given the
+    closeness images of :func:`oriented_closeness`."""
+    x = np.asarray(x)
+    return x.reshape(*x.shape[:-3], x.shape[-3] * x.shape[-2], x.shape[-1])
+
+
+def render_oriented_block(item: tuple) -> np.ndarray:
+    """Executor work item: (segments, faces, poses, width, height, hidden, bins) -> each
+    view's B oriented channels packed one after another, (V, B n_words) uint64."""
+    segments, faces, poses, width, height, hidden, bins = item
+    masks = render_panoramas(segments, faces, poses, width=width, height=height, hidden=hidden, orientation_bins=bins)
+    words = pack(orientation_channels(masks, bins))
+    return words.reshape(len(words), -1)
+
+
+def _check_oriented(chance: str) -> None:
+    if chance != "none":
+        raise ValueError(f"the oriented chamfer score (orientation_bins > 1) has the plain halves only: chance none, "
+                         f"not {chance!r}")
+
+
 # ------------------------------------------------------------------ the chamfer score as spectra
 
 def row_weights(height: int, *, polar_deg: float, polar_weight: float, solid_angle: bool) -> np.ndarray:
@@ -342,7 +565,7 @@ def precision_rows(height: int, polar_deg: float) -> np.ndarray:
 
 
 def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                    clutter_share: float | None = None) -> np.ndarray:
+                    clutter_share: float | None = None, spread: int | None = None) -> np.ndarray:
     """The map side of the chamfer score (module docstring) of (P, H, W) binary panoramic
     line images, in the form :func:`chamfer_table` multiplies: (F, P, 2H) complex64, F =
     W // 2 + 1, the conjugate row spectra of the weighted line image over its weighted
@@ -353,7 +576,26 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
     Why spectra: the score at column shift k is a circular cross-correlation of rows,
     summed over rows, so every shift of every position comes from one complex product per
     frequency, summed over rows: one matrix product per frequency for a batch of queries,
-    instead of one pass over the pixels per shift. Exact up to float32 rounding."""
+    instead of one pass over the pixels per shift. Exact up to float32 rounding.
+
+    ``spread`` (the oriented score): ``lines`` are (P, B, H, W) oriented channels
+    (:func:`orientation_channels`) and the result (F, P, 2 B H), the same two halves of
+    the channel-stacked images (:func:`stack_channels`) with the closeness of each channel
+    to the compatible ones' lines (:func:`oriented_closeness`)."""
+    if spread is not None:
+        if clutter_share is not None:
+            raise ValueError("the oriented chamfer score has the plain halves only: no clutter_share")
+        lines = np.asarray(lines)
+        b = lines.shape[1]
+        w = np.tile(np.asarray(weights, np.float32), b)[None, :, None]
+        out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * b * lines.shape[-2]), np.complex64)
+        for s in range(0, len(lines), 512):
+            img = stack_channels(lines[s:s + 512]).astype(np.float32) * w
+            n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
+            close = stack_channels(oriented_closeness(lines[s:s + 512], tau_px, spread))
+            x = np.concatenate([img / n, close * w], axis=1)
+            out[:, s:s + 512] = np.conj(np.fft.rfft(x, axis=-1)).transpose(2, 0, 1)
+        return out
     lines = np.asarray(lines).reshape(-1, *lines.shape[-2:])
     w = np.asarray(weights, np.float32)[None, :, None]
     out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * lines.shape[-2]), np.complex64)
@@ -369,7 +611,8 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
 
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
-                  chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
+                  chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
+                  spread: int | None = None) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -382,7 +625,24 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     frequency 0; the correction is then a per-(query, position) scale of each half's
     product and an offset, applied before the one inverse FFT. ``likelihood`` needs spectra
     built with the same ``clutter_share``; the query's closeness becomes its
-    :func:`likelihood_image` and the product is the plain one."""
+    :func:`likelihood_image` and the product is the plain one.
+
+    ``spread`` (the oriented score): ``queries`` are (N, B, H, W) oriented channels (0/1, or
+    weights), ``spectra`` built with the same ``spread``; chance ``none`` only."""
+    if spread is not None:
+        _check_oriented(chance)
+        queries = np.asarray(queries)
+        n_q, b, h, w = queries.shape
+        wr = np.asarray(weights, np.float32)[None, None, :, None]
+        q = queries.astype(np.float32)
+        q_close = stack_channels(oriented_closeness(q if queries.dtype.kind == "f" else queries, tau_px, spread))
+        if precision_rows is not None:
+            q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
+        nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
+        x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
+        qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))
+        prod = np.matmul(spectra, qs)                                             # (F, P, N)
+        return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
     wr = np.asarray(weights, np.float32)[None, :, None]
@@ -483,9 +743,10 @@ def grid_step(xy: np.ndarray) -> float:
 @njit(parallel=True, cache=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                        q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray,
-                       chance_out: np.ndarray) -> None:
-    """Recall and precision halves at the given shifts (out (L, S, 2)), and each point's
-    chance levels (chance_out (L, 4): area recall, area precision, yaw recall, yaw precision)."""
+                       chance_out: np.ndarray, with_levels: bool) -> None:
+    """Recall and precision halves at the given shifts (out (L, S, 2)), and with
+    ``with_levels`` each point's chance levels (chance_out (L, 4): area recall, area
+    precision, yaw recall, yaw precision)."""
     h, w = imgs.shape[1], imgs.shape[2]
     wsum = 0.0
     for r in range(h):
@@ -505,13 +766,14 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
     for i in prange(imgs.shape[0]):
         m_row_mean = np.zeros(h)
         m_area = 0.0
-        for r in range(h):
-            acc = 0.0
-            for c in range(w):
-                acc += m_close[i, r, c]
-            m_row_mean[r] = acc / w
-            m_area += weights[r] * acc
-        m_area /= w * wsum
+        if with_levels:
+            for r in range(h):
+                acc = 0.0
+                for c in range(w):
+                    acc += m_close[i, r, c]
+                m_row_mean[r] = acc / w
+                m_area += weights[r] * acc
+            m_area /= w * wsum
         n_map = 0.0
         yaw_r = 0.0
         rec = np.zeros(shifts.shape[1])
@@ -546,12 +808,21 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                       chance: str, query_close: np.ndarray | None = None,
-                      precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
+                      precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
+                      spread: int | None = None) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
     around a candidate's heading, without the spectra's FFTs (equal to the table's entries:
-    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`."""
+    tested). A float ``query`` is a weighted line image, as for :func:`chamfer_table`.
+
+    ``spread`` (the oriented score): ``imgs`` (L, B, H, W) and ``query`` (B, H, W) oriented
+    channels, ``query_close`` (if given) its stacked :func:`oriented_closeness`: see
+    :func:`oriented_at_shifts`."""
+    if spread is not None:
+        _check_oriented(chance)
+        return oriented_at_shifts(channel_masks(imgs), query, shifts, tau_px=tau_px, weights=weights, spread=spread,
+                                  query_close=query_close, precision_rows=precision_rows)
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols, vals = _query_pixels(query, precision_rows)
@@ -564,7 +835,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
             m_close = likelihood_image(m_close, weights, clutter_share)
             q_close = likelihood_image(q_close, weights, clutter_share)
         _chamfer_at_shifts(imgs, m_close, q_close, rows.astype(np.int64), cols.astype(np.int64), vals,
-                           np.asarray(weights, np.float64), shifts, halves, levels)
+                           np.asarray(weights, np.float64), shifts, halves, levels, chance in ("area", "yaw"))
     recall, precision = halves[..., 0], halves[..., 1]
     if chance == "area":
         recall, precision = chance_corrected(recall, levels[:, 0:1]), chance_corrected(precision, levels[:, 1:2])
@@ -626,24 +897,41 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
-    the best pose wins."""
-    n, h, w = lines.shape
+    the best pose wins.
+
+    With ``pp.orientation_bins`` B > 1 (the oriented score, chamfer only) ``lines`` are
+    (N, B, H, W) oriented channels (:func:`orientation_channels`), ``database["spectra"]``
+    built with the same bins and ``orientation_spread``, and the local poses are rendered
+    with their directions."""
+    bins = int(pp.orientation_bins)
+    spread = int(pp.orientation_spread) if bins > 1 else None
+    n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
+    if spread is not None and not chamfer:
+        raise ValueError("orientation_bins > 1 needs the chamfer score")
     # the chamfer score's query side: line pixels weighted down inside dense texture
-    queries = texture_weights(lines, pp.texture_radius_px) if chamfer and pp.texture_radius_px > 0 else lines
+    queries = lines
+    if chamfer and pp.texture_radius_px > 0:
+        queries = (texture_weights(lines, pp.texture_radius_px) if spread is None
+                   else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
     prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
             return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share)
+                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share,
+                                 spread=spread)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
+        if spread is not None:
+            masks = render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden, orientation_bins=bins)
+            return oriented_at_shifts(masks, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights, spread=spread,
+                                      query_close=q_close, precision_rows=prows)
         imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
@@ -695,7 +983,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
                 continue
-            q_close = closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if chamfer else None
+            q_close = None
+            if chamfer:
+                q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
+                           stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
             xy = poses[cands, :2].copy()
             col = np.argmax(table[cands], axis=1).astype(np.int64)
             sc = table[cands].max(axis=1).astype(np.float64)

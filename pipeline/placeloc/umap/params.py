@@ -90,6 +90,15 @@ class PanoramaParams(Params):
                                             "within this many degrees of the horizon (the floor at the camera's foot: "
                                             "tripod, rugs, sunlight stripes; the ceiling over it: a fan or lamp); the "
                                             "recall half keeps every row; 90: all")
+    orientation_bins: int = param(6, min=1, max=8,
+                                  help="chamfer score: bins of the line pixels' direction in the image (180 / bins "
+                                       "degrees each, the map's exact from its segments, the query's from its LSD "
+                                       "segments); a pixel is near only to the other side's lines of a compatible bin "
+                                       "(orientation_spread), so clutter matches the map only where its direction "
+                                       "agrees; 1: directions ignored; more than 1 needs chamfer_chance none")
+    orientation_spread: int = param(1, min=0, max=3,
+                                    help="orientation_bins > 1: a line pixel of direction bin b counts as near to the "
+                                         "other side's lines of bins b - spread .. b + spread (0: its own bin only)")
     polar_deg: float = param(60.0, min=0.0, max=90.0, help="rows more than this far above or below the horizon count with "
                                                         "polar_weight in the chamfer score")
     polar_weight: float = param(1.0, min=0.0, max=1.0, help="weight of the rows beyond polar_deg (floor under the camera: "

@@ -15,7 +15,7 @@ from placeloc.geometry import Camera, equirect_to_pinhole
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack
 from placeloc.umap.lines import check_query_size, line_image
-from placeloc.umap.panorama import panorama_line_image
+from placeloc.umap.panorama import orientation_channels, panorama_line_image
 
 
 def query_camera(shape: tuple[int, int], camera: tuple[int, int, float], kind: str) -> Camera:
@@ -41,8 +41,14 @@ def query_arrays(gray: np.ndarray, *, camera: tuple[int, int, float], kind: str,
 
 
 def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
-                    path: str = "") -> dict[str, np.ndarray]:
-    """One grey equirectangular panorama -> ``lines`` (1, n_words) uint64."""
+                    orientation_bins: int = 1, path: str = "") -> dict[str, np.ndarray]:
+    """One grey equirectangular panorama -> ``lines`` (B, n_words) uint64: its line image, or
+    with ``orientation_bins`` B > 1 its B oriented channels
+    (:func:`placeloc.umap.panorama.orientation_channels`)."""
     check_query_size(path, gray.shape, None, Camera(2, 2, 90.0), "equirect")
+    if orientation_bins > 1:
+        masks = panorama_line_image(gray, width=width, height=height, face_px=face_px, min_length=min_length,
+                                    orientation_bins=orientation_bins)
+        return {"lines": pack(orientation_channels(masks, orientation_bins))}
     img = panorama_line_image(gray, width=width, height=height, face_px=face_px, min_length=min_length)
     return {"lines": pack(img[None])}

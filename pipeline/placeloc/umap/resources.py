@@ -9,6 +9,7 @@ import numpy as np
 
 from placeloc.core.limits import Need, decode_need
 from placeloc.core.limits import workers as n_workers
+from placeloc.umap.params import PanoramaParams
 
 BASE_MEMORY: dict[str, int] = {
     "extract": 100 << 20,
@@ -60,14 +61,19 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     size = p.get("panorama" if panorama else "camera") or {}
     w, h = int(size.get("width", 160)), int(size.get("height", 120))
     words = (w * h + 63) // 64
-    db = views * words * 8  # one bit per pixel per view
+    pano = p.get("panorama") or {}
+    chamfer = panorama and pano.get("score", "chamfer") == "chamfer"
+    # the oriented chamfer score keeps each view's line image once per direction bin
+    bins = max(1, int(pano.get("orientation_bins", PanoramaParams.orientation_bins))) if chamfer else 1
+    words *= bins
+    db = views * words * 8  # one bit per pixel per view (and direction bin)
     pooled = 0 if panorama else views * (((w // 8) * (h // 8) + 63) // 64) * 8
     block = min(int(p.get("block", 2048)), views)
     # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
-    # frequencies x 2h rows of complex64, written 1024 positions at a time (that block and
-    # its FFT temporaries: measured 257 and 441 MB for blocks of 770 and 1024 positions of
-    # 144 x 72, about 4-5 blocks of spectra) and read whole by localize
-    spectra = views * (w // 2 + 1) * 2 * h * 8 if panorama and (p.get("panorama") or {}).get("score", "chamfer") == "chamfer" else 0
+    # frequencies x 2h rows of complex64 (x the direction bins), written 1024 positions at a
+    # time (that block and its FFT temporaries: measured 257 and 441 MB for blocks of 770 and
+    # 1024 positions of 144 x 72, about 4-5 blocks of spectra) and read whole by localize
+    spectra = views * (w // 2 + 1) * 2 * bins * h * 8 if chamfer else 0
     what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
         ("" if panorama else f", {len(g['headings'])} headings") + ")"
     key = "umap.grid (a larger step or a smaller range) or the camera size"
@@ -82,7 +88,8 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     pool = block * w * h * n_workers(config) if n_workers(config) > 1 else 0
     needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
                   disk=db + pooled + 48 * views + (1 << 20)),
-             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views + 11 * min(spectra, 1024 * (w // 2 + 1) * 2 * h * 8) // 2,
+             Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views
+                  + 11 * min(spectra, 1024 * (w // 2 + 1) * 2 * bins * h * 8) // 2,
                   disk=(db if panorama else 0) + 48 * views + spectra),
              Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
     return [n for n in needs if n.stage in stages] + decode_need(config, images, 16, "decoding", stages)

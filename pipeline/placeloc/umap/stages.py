@@ -31,6 +31,7 @@ from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
     chamfer_spectra,
+    render_oriented_block,
     render_panorama_block,
     render_panoramas,
     row_weights,
@@ -65,6 +66,11 @@ def _check(config: dict[str, Any]) -> None:
     if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
         raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
                           "one by one: set umap.mode: umap for umap.query_kind: panorama")
+    pp = p["panorama"]
+    if p["query_kind"] == "panorama" and pp["orientation_bins"] > 1 and (pp["score"] != "chamfer"
+                                                                         or pp["chamfer_chance"] != "none"):
+        raise ConfigError("umap.panorama.orientation_bins > 1 (the oriented chamfer score) needs umap.panorama.score "
+                          "chamfer and chamfer_chance none; set orientation_bins: 1 for the others")
     try:
         c = p["camera"]
         Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
@@ -101,9 +107,16 @@ def build_dictionary(ctx: Any) -> None:
         poses = poses[np.lexsort((poses[:, 1], poses[:, 0]))]
         poses[:, 3] = 0.0
         pw, ph = int(p.panorama.width), int(p.panorama.height)
-        items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
-                 for s in range(0, len(poses), block)]
-        render, cam = render_panorama_block, Camera(pw, ph, 90.0)
+        bins = int(p.panorama.orientation_bins)
+        if bins > 1:   # each view's oriented channels, packed one after another
+            items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, bins)
+                     for s in range(0, len(poses), block)]
+            render = render_oriented_block
+        else:
+            items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
+                     for s in range(0, len(poses), block)]
+            render = render_panorama_block
+        cam = Camera(pw, ph, 90.0)
     else:
         # Views drawn already dilated by the matching tolerance (the only stored copy), hidden
         # lines found once per position: a block holds whole positions (all their headings are
@@ -114,6 +127,8 @@ def build_dictionary(ctx: Any) -> None:
                   p.hidden_lines, int(p.tolerance_px)) for s in range(0, len(poses), block)]
         render = render_grid_block
     nw = (cam.width * cam.height + 63) // 64
+    bins = int(p.panorama.orientation_bins) if p.query_kind == "panorama" else 1
+    nw *= bins
     db = ctx.out.create_dataset("db", shape=(len(poses), nw), dtype=np.uint64, chunks=(min(block, len(poses)), nw))
     cells = None
     s = 0
@@ -129,7 +144,7 @@ def build_dictionary(ctx: Any) -> None:
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
     ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
                          kind="panorama" if p.query_kind == "panorama" else "pinhole",
-                         dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px))
+                         dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px), orientation_bins=bins)
 
 
 # ------------------------------------------------------------------ index
@@ -185,18 +200,26 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     share = float(pp.clutter_share)
     clutter = share if pp.chamfer_chance == "likelihood" else None
     n = db.shape[0]
-    spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * h), dtype=np.complex64)
+    bins = int(src.attrs.get("orientation_bins", 1))
+    if bins != int(pp.orientation_bins):
+        raise _stage_error(ValueError(f"the database was drawn with {bins} orientation bins but "
+                                      f"umap.panorama.orientation_bins is {int(pp.orientation_bins)}: re-run "
+                                      "build-dictionary (--force-all)"))
+    spread = int(pp.orientation_spread) if bins > 1 else None
+    spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * bins * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
     block = 1024
     for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
         words = np.ascontiguousarray(db[s:s + block])
-        spectra[:, s:s + len(words)] = chamfer_spectra(unpack(words, h, w), tau_px=pp.chamfer_tau_px, weights=weights,
-                                                       clutter_share=clutter)
+        imgs = unpack(words, h, w) if bins == 1 else unpack(words.reshape(len(words), bins, -1), h, w)
+        spectra[:, s:s + len(words)] = chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=weights,
+                                                       clutter_share=clutter, spread=spread)
         counts[s:s + len(words)] = popcount_rows(words)
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=int(ctx.params.tolerance_px),
                          kind="panorama", bits_in="index/spectra", bytes=int(spectra.size * 8),
-                         clutter_share=-1.0 if clutter is None else clutter)
+                         clutter_share=-1.0 if clutter is None else clutter, orientation_bins=bins,
+                         orientation_spread=-1 if spread is None else spread)
 
 
 def _dilated_bits(ctx: Any, idx: Any) -> np.ndarray:
@@ -238,13 +261,15 @@ def _extract_panoramas(ctx: Any) -> None:
     """Whole panoramas: one equirectangular line image each (no AKAZE: no CA on panoramas)."""
     pp = ctx.params.panorama
     work = ImageWork(fn=panorama_arrays, settings={"width": pp.width, "height": pp.height, "face_px": pp.face_px,
-                                                   "min_length": pp.lsd_min_length_px},
+                                                   "min_length": pp.lsd_min_length_px,
+                                                   "orientation_bins": int(pp.orientation_bins)},
                      same_size=True, with_path=True)
     table = write_images(ctx.out, ImageStream(ctx, ctx.images["query"], work, desc="LSD on cube faces"))
     write_tree(ctx.out, {"view_heading": np.asarray([math.nan]), "kp_pts": np.zeros((0, 2), np.float32),
                          "kp_desc": np.zeros((0, 61), np.uint8), "kp_offsets": np.zeros(len(table) + 1, dtype=np.int64)})
     ctx.out.attrs.update(width=pp.width, height=pp.height, query_width=int(table.first_shape[1]),
-                         query_height=int(table.first_shape[0]), query_focal=0.0, query_kind="panorama")
+                         query_height=int(table.first_shape[0]), query_focal=0.0, query_kind="panorama",
+                         orientation_bins=int(pp.orientation_bins))
 
 
 # ------------------------------------------------------------------ localize
@@ -254,7 +279,11 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
     :func:`placeloc.umap.panorama.search_panoramas` over the index's database."""
     pp = ctx.params.panorama
     h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
-    lines = unpack(ex["lines"][()][:, 0], h, w)
+    bins = int(pp.orientation_bins)
+    if int(ex.attrs.get("orientation_bins", 1)) != bins:
+        raise _stage_error(ValueError("the query line images were extracted with another umap.panorama.orientation_bins "
+                                      "than localize's: re-run extract (--force)"))
+    lines = unpack(ex["lines"][()][:, 0], h, w) if bins == 1 else unpack(ex["lines"][()], h, w)
     src = ctx.artifact("build-dictionary")
     if pp.score == "chamfer":
         if "spectra" not in idx:
@@ -265,6 +294,10 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.nda
         if abs(built - wanted) > 1e-9:
             raise _stage_error(ValueError("the index's chamfer spectra were built for another umap.panorama.chamfer_chance "
                                           "or clutter_share than localize's: re-run index (--force)"))
+        if (int(idx.attrs.get("orientation_bins", 1)), int(idx.attrs.get("orientation_spread", -1))) != (
+                bins, int(pp.orientation_spread) if bins > 1 else -1):
+            raise _stage_error(ValueError("the index's chamfer spectra were built for another umap.panorama."
+                                          "orientation_bins or orientation_spread than localize's: re-run index (--force)"))
         database = {"spectra": idx["spectra"][()]}
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
@@ -403,7 +436,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
     for k in range(min(len(names), PANORAMA_PICTURES)):
-        query = unpack(ex["lines"][k, 0], h, w)
+        query = unpack(ex["lines"][k], h, w).max(axis=0)   # oriented channels: their union
         est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
         at_est = unpack(render_panoramas(segs, faces, est_pose, width=w, height=h, hidden=True), h, w)[0]
         at_truth = None
@@ -429,17 +462,18 @@ METHOD = Method(
     stages={
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
-                                        "panorama.lsd_min_length_px")),
+                                        "panorama.lsd_min_length_px", "panorama.orientation_bins")),
         "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
-                                                          "panorama.width", "panorama.height", "tolerance_px")),
+                                                          "panorama.width", "panorama.height", "tolerance_px",
+                                                          "panorama.orientation_bins")),
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight", "panorama.solid_angle", "panorama.chamfer_chance",
-                                    "panorama.clutter_share")),
+                                    "panorama.clutter_share", "panorama.orientation_bins", "panorama.orientation_spread")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
-                                          "panorama.refine_climb",
+                                          "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",
                                           "grid.wall_margin_m")

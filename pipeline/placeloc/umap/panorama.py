@@ -733,6 +733,39 @@ def refine_steps(grid_step_m: float, finest_m: float) -> list[float]:
     return out
 
 
+# moves a pose may make at each step of the final search before the step is halved: a pose
+# that is still climbing after 4 moves of 0.02 m has left the basin the beam found, and the
+# cap bounds the renders (8 a move) a panorama
+FINAL_MOVES = 4
+
+
+def pattern_search(score_at: Callable[[np.ndarray, Any], tuple[np.ndarray, Any]], xy: np.ndarray, value: float,
+                   state: Any, *, start_m: float, finest_m: float, moves: int = FINAL_MOVES) -> tuple[np.ndarray, float, Any]:
+    """A compass (pattern) search for the maximum of a score over the plane (Kolda, Lewis and
+    Torczon, "Optimization by direct search: new perspectives on some classical and modern
+    methods", SIAM Review 2003): from ``xy`` (scoring ``value``) poll the 8 neighbours
+    ``step`` away, move to the best while it is better (at most ``moves`` times), then
+    halve the step, from ``start_m`` while the step is not below ``finest_m`` metres. The
+    stop is in metres, so where the search ends does not depend on the grid it started from
+    beyond the finest step.
+
+    ``score_at(points, state)`` gives the (P,) scores of (P, 2) points (``-inf`` for points
+    not allowed) and a (P,) sequence of the states they were scored with (here the heading
+    column: each pose's yaw is re-searched around its own); ``state`` is that of ``xy``.
+    Returns the best point, its score and its state."""
+    xy = np.asarray(xy, float).copy()
+    step = float(start_m)
+    while step >= finest_m - 1e-9:
+        for _ in range(moves):
+            scores, states = score_at(xy[None] + step * NEIGHBOURS, state)
+            i = int(np.argmax(scores))
+            if not scores[i] > value:
+                break
+            xy, value, state = xy + step * NEIGHBOURS[i], float(scores[i]), states[i]
+        step /= 2.0
+    return xy, value, state
+
+
 def grid_step(xy: np.ndarray) -> float:
     """The spacing of a plan grid: the smallest gap between its distinct x or y values."""
     gaps = [np.diff(np.unique(np.round(xy[:, a], 6))) for a in (0, 1)]
@@ -895,6 +928,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        so that the peak is found where the score between the sampled points is too rugged
        to climb.
 
+    4. with ``refine_final_m`` (chamfer only), the best of the beam climbs on by
+       :func:`pattern_search` from the beam's finest step, halving down to ``refine_final_m``
+       metres, so that its end point does not keep the grid's phase.
+
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
     the best pose wins.
@@ -972,6 +1009,19 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 i = mine[int(np.argmax(top[mine]))]
                 xy[j], col[j], sc[j] = pts[i], (cols[i, arg[i]]) % w, top[i]
 
+    def final_scorer(k: int, floor: float, q_close: np.ndarray | None) -> Callable:
+        """:func:`pattern_search`'s score: query k's scores at plan points (-inf nearer a wall
+        than ``floor``) at the yaw window about a heading column, and the best column of each."""
+        def score_at(pts: np.ndarray, col: int) -> tuple[np.ndarray, np.ndarray]:
+            out, cols_out = np.full(len(pts), -np.inf), np.full(len(pts), col, dtype=np.int64)
+            ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
+            if ok.any():
+                cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
+                sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), float(poses[0, 2]), q_close)
+                out[ok], cols_out[ok] = sub.max(axis=1), cols[0, sub.argmax(axis=1)] % w
+            return out, cols_out
+        return score_at
+
     # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
     # shared cores they cost 3-5x the CPU time of the search; bench-umap)
     limiter = threadpool_limits(limits=1, user_api="blas")
@@ -1004,6 +1054,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                     move(int(k), xy, col, sc, step, floor_d, q_close, square)
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
+            if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
+                xy[j], sc[j], col[j] = pattern_search(final_scorer(int(k), float(floor_d[j]), q_close), xy[j],
+                                                      float(sc[j]), int(col[j]), start_m=steps[-1],
+                                                      finest_m=min(pp.refine_final_m, steps[-1]))
             if sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
                 best[k], heading[k], score[k] = cands[beam[j]], col[j] * 360.0 / w, sc[j]

@@ -22,7 +22,9 @@
    (``refine_climb`` 1), each against the defaults in the same run; and the oriented score
    (``orientation_bins`` B for each B of ``--orientation-bins``, spread 1 (0 for B = 2); 6
    bins, spread 1 are the defaults: the same queries with their directions, the clutter's
-   at random), its index and search against the plain score's in the same run.
+   at random), its index and search against the plain score's in the same run, and with the
+   final pattern search of the beam's best pose (``refine_final_m``, ``--final-m``) against
+   it in the same run.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -62,6 +64,12 @@ def main() -> None:
     ap.add_argument("--old-panoramas", type=int, default=6, help="panoramas the search before is timed on")
     ap.add_argument("--orientation-bins", default="2,4,6,8",
                     help="direction bin counts of the oriented score timed against the defaults (empty: none)")
+    ap.add_argument("--final-m", type=float, default=0.01,
+                    help="the oriented cases also timed with the final pattern search down to this many metres "
+                         "(umap.panorama.refine_final_m; 0: not)")
+    ap.add_argument("--final-start-m", default="0,0.08",
+                    help="comma-separated first steps of that search in metres (umap.panorama.refine_final_start_m; 0: "
+                         "the beam's finest step)")
     ap.add_argument("--workers", default=None,
                     help="numba thread counts of the panorama search's scaling table (default 1, 2, 4, ..., the threads; 0: none)")
     args = ap.parse_args()
@@ -154,7 +162,8 @@ def panorama(args: argparse.Namespace) -> None:
           f"CPU per panorama; within 0.05 m {np.mean(errc <= 0.05):.0%}; ratio that / plain search {t_all / t_new:.2f}x wall, "
           f"{c_all / c_new:.2f}x CPU")
     for bins in [int(b) for b in args.orientation_bins.split(",") if b.strip()]:
-        _oriented_case(bins, model, poses, truth, q, rng, (t_idx, c_idx, t_new, c_new))
+        _oriented_case(bins, model, poses, truth, q, rng, (t_idx, c_idx, t_new, c_new), args.final_m,
+                       tuple(float(x) for x in args.final_start_m.split(",")))
     close = closeness(unpack(db, h, w), 3.0)
     m = min(args.old_panoramas, n)
     _today_search(q[:1], poses, model, db, close, w, h)  # JIT
@@ -188,9 +197,14 @@ def panorama(args: argparse.Namespace) -> None:
 
 
 def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator,  # noqa: ANN001
-                   default_times: tuple[float, float, float, float]) -> None:
+                   default_times: tuple[float, float, float, float], final_m: float = 0.0,
+                   final_starts: tuple[float, ...] = (0.0,)) -> None:
     """The oriented score with ``bins`` direction bins: index and search timed, against the
-    plain score's (``default_times``: index wall, CPU, search wall, CPU) measured in the same run."""
+    plain score's (``default_times``: index wall, CPU, search wall, CPU) measured in the same run;
+    with ``final_m`` > 0, the search with ``refine_final_m`` at it (from each first step of
+    ``final_starts``) against it off."""
+    from dataclasses import replace
+
     from placeloc.geometry.panorama import render_panoramas
     from placeloc.umap.panorama import chamfer_spectra, orientation_channels, row_weights, search_panoramas
     from placeloc.umap.params import PanoramaParams
@@ -218,6 +232,22 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
                                wall_margin_m=0.1, hidden=True)
     n = len(qo)
     err = np.hypot(*(res[1] - truth[:, :2]).T)
+    for start_m in final_starts if final_m > 0 else []:
+        # the final pattern search of the beam's best pose (refine_final_m, first step
+        # refine_final_start_m) on and off, timed in the same run (the defaults are one of the two)
+        on = replace(pp, refine_final_m=final_m, refine_final_start_m=start_m)
+        off = replace(pp, refine_final_m=0.0)
+        timed = {}
+        for name, p in (("on", on), ("off", off)):
+            timed[name] = (res, t, c) if p == pp else _timed(search_panoramas, qo, poses, model.segments, model.faces, db, p,
+                                                             tolerance_px=2, wall_margin_m=0.1, hidden=True)
+        (ron, ton, con), (roff, toff, coff) = timed["on"], timed["off"]
+        eon, eoff = (np.hypot(*(r[1] - truth[:, :2]).T) for r in (ron, roff))
+        print(f"oriented score, {bins} bins, with the final pattern search from {start_m or 'the beam finest step'} "
+              f"down to {final_m} m (refine_final_start_m, refine_final_m): {ton / n * 1e3:.0f} ms wall, "
+              f"{con / n * 1e3:.0f} ms CPU per panorama against {toff / n * 1e3:.0f} ms wall, {coff / n * 1e3:.0f} ms CPU "
+              f"without: {ton / toff:.2f}x wall, {con / coff:.2f}x CPU; median error {np.median(eon):.3f} m against "
+              f"{np.median(eoff):.3f} m, within 0.05 m {np.mean(eon <= 0.05):.0%} against {np.mean(eoff <= 0.05):.0%}")
     ti, ci, tn, cn = default_times
     print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
           f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "

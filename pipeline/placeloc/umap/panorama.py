@@ -929,8 +929,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        to climb.
 
     4. with ``refine_final_m`` (chamfer only), the best of the beam climbs on by
-       :func:`pattern_search` from the beam's finest step, halving down to ``refine_final_m``
-       metres, so that its end point does not keep the grid's phase.
+       :func:`pattern_search` from ``refine_final_start_m`` (from the nearest point of the
+       plan's lattice of that step; 0: from the beam's finest step, where it is), halving down
+       to ``refine_final_m`` metres, so that its end point does not keep the grid's phase;
+       kept where it scores higher.
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
@@ -983,6 +985,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
     square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
+    first = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
 
     def scored() -> Iterable:
         for s in range(0, n, PANORAMA_BATCH):
@@ -1055,9 +1058,17 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
             if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
-                xy[j], sc[j], col[j] = pattern_search(final_scorer(int(k), float(floor_d[j]), q_close), xy[j],
-                                                      float(sc[j]), int(col[j]), start_m=steps[-1],
-                                                      finest_m=min(pp.refine_final_m, steps[-1]))
+                scorer = final_scorer(int(k), float(floor_d[j]), q_close)
+                x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
+                if pp.refine_final_start_m > 0:
+                    # from the nearest point of the plan's own lattice of the first step (not the
+                    # grid's): two grid origins whose beams end near each other start alike
+                    x0 = np.round(xy[j] / first) * first
+                    s, c = scorer(x0[None], c0)
+                    s0, c0 = float(s[0]), int(c[0])
+                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=first, finest_m=min(pp.refine_final_m, first))
+                if fs > sc[j]:
+                    xy[j], sc[j], col[j] = fx, fs, fc
             if sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
                 best[k], heading[k], score[k] = cands[beam[j]], col[j] * 360.0 / w, sc[j]

@@ -474,8 +474,8 @@ METHOD = Method(
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
-                                          "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m", "panorama.refine_final_m",
-                                          "panorama.refine_yaw_cols",
+                                          "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
+                                          "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",
                                           "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),

@@ -734,8 +734,8 @@ def refine_steps(grid_step_m: float, finest_m: float) -> list[float]:
 
 
 # moves a pose may make at each step of the final search before the step is halved: a pose
-# that is still climbing after 4 moves of 0.02 m has left the basin the beam found, and the
-# cap bounds the renders (8 a move) a panorama
+# still climbing after 4 moves at one step is leaving the basin the beam found, and the cap
+# bounds the renders (8 a move) a panorama
 FINAL_MOVES = 4
 
 
@@ -745,9 +745,9 @@ def pattern_search(score_at: Callable[[np.ndarray, Any], tuple[np.ndarray, Any]]
     Torczon, "Optimization by direct search: new perspectives on some classical and modern
     methods", SIAM Review 2003): from ``xy`` (scoring ``value``) poll the 8 neighbours
     ``step`` away, move to the best while it is better (at most ``moves`` times), then
-    halve the step, from ``start_m`` while the step is not below ``finest_m`` metres. The
-    stop is in metres, so where the search ends does not depend on the grid it started from
-    beyond the finest step.
+    halve the step, from ``start_m`` while the step is not below ``finest_m`` metres. Steps
+    and stop are in metres, not grid steps; where it ends still depends on where it starts
+    (:func:`search_panoramas` starts it from a point of the plan's own lattice).
 
     ``score_at(points, state)`` gives the (P,) scores of (P, 2) points (``-inf`` for points
     not allowed) and a (P,) sequence of the states they were scored with (here the heading

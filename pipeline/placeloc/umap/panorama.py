@@ -336,6 +336,24 @@ def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
     return out
 
 
+@njit(cache=True, inline="always")
+def _stamp_pixel(wide: np.ndarray, cm: int, y: int, x: int, dy: np.ndarray, dx: np.ndarray, value: np.ndarray,
+                 r: int) -> None:
+    """One line pixel at (y, x) stamps its closeness ``value`` at offsets (``dy``, ``dx``)
+    into every channel of ``wide`` (B, H, W + 2 r; ``r`` columns either side) that its
+    compatible bins ``cm`` name, keeping the larger."""
+    h = wide.shape[1]
+    for c in range(wide.shape[0]):
+        if not (cm >> c) & 1:
+            continue
+        for j in range(value.shape[0]):
+            yy = y + dy[j]
+            if 0 <= yy < h:
+                xx = x + r + dx[j]
+                if value[j] > wide[c, yy, xx]:
+                    wide[c, yy, xx] = value[j]
+
+
 @njit(parallel=True, cache=True)
 def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
                     out: np.ndarray) -> None:
@@ -349,16 +367,7 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
                 m = masks[i, y, x]
                 if m == 0:
                     continue
-                cm = compat[m]
-                for c in range(b):
-                    if not (cm >> c) & 1:
-                        continue
-                    for j in range(value.shape[0]):
-                        yy = y + dy[j]
-                        if 0 <= yy < h:
-                            xx = x + r + dx[j]
-                            if value[j] > wide[c, yy, xx]:
-                                wide[c, yy, xx] = value[j]
+                _stamp_pixel(wide, compat[m], y, x, dy, dx, value, r)
         for c in range(b):
             for y in range(h):
                 for x in range(w):
@@ -394,15 +403,8 @@ def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: 
                 mk = masks[i, y, x]
                 if mk == 0:
                     continue
-                cm = compat[mk]
+                _stamp_pixel(wide, compat[mk], y, x, dy, dx, value, r)
                 for c in range(bins):
-                    if (cm >> c) & 1:
-                        for j in range(value.shape[0]):
-                            yy = y + dy[j]
-                            if 0 <= yy < h:
-                                xx = x + r + dx[j]
-                                if value[j] > wide[c, yy, xx]:
-                                    wide[c, yy, xx] = value[j]
                     if (mk >> c) & 1:           # a map line element of bin c: the recall half
                         n_map += wr
                         for s in range(n_s):

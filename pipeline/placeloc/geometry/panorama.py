@@ -112,6 +112,16 @@ def orientation_bit(du: float, dv: float, bins: int) -> int:
 
 
 @njit(cache=True)
+def orientation_bits(du: np.ndarray, dv: np.ndarray, bins: int) -> np.ndarray:
+    """:func:`orientation_bit` of each direction ``(du[i], dv[i])``, as uint8 (the query
+    line image's samples)."""
+    out = np.empty(len(du), np.uint8)
+    for i in range(len(du)):
+        out[i] = orientation_bit(du[i], dv[i], bins)
+    return out
+
+
+@njit(cache=True)
 def orientation_bit_fast(du: float, dv: float, bins: int, bound_cos: np.ndarray, bound_sin: np.ndarray) -> int:
     """:func:`orientation_bit` without the arctangent (the renderer's inner loop): the
     direction turned into the upper half-plane counted against the bins' boundary directions
@@ -307,12 +317,7 @@ def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: i
                 # the curve's tangent in image pixels; columns unwrapped across the seam
                 du = np.gradient(np.unwrap(fu, period=width)) if n > 1 else np.zeros(1)
                 dv = np.gradient(fv) if n > 1 else np.zeros(1)
-                if bins > 1:   # orientation_bit, vectorised
-                    b = np.floor((np.arctan2(dv, du) % math.pi) * bins / math.pi + 0.5).astype(np.int64) % bins
-                    bits = np.left_shift(1, b).astype(np.uint8)
-                else:
-                    bits = np.ones(len(u), np.uint8)
-                np.bitwise_or.at(img[0], (v, u), bits)
+                np.bitwise_or.at(img[0], (v, u), orientation_bits(du, dv, bins))
                 continue
             ch = 0
             if split:

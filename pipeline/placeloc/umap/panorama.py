@@ -87,6 +87,23 @@ def closeness_kernel(tau_px: float) -> np.ndarray:
     return np.maximum(0.0, 1.0 - d / tau_px).astype(np.float32)
 
 
+@njit(cache=True, inline="always")
+def _fold_seam(wide: np.ndarray, out: np.ndarray, r: int) -> None:
+    """``out`` (H, W) <- ``wide`` (H, W + 2 r), whose ``r`` columns either side hold what
+    was stamped past the panorama's edges: folded back around the seam, keeping the larger."""
+    h, w = out.shape
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = wide[y, x + r]
+        for c in range(r):
+            x = (c - r) % w                     # wide column c is x = c - r
+            if wide[y, c] > out[y, x]:
+                out[y, x] = wide[y, c]
+            x = c % w                           # wide column w + r + c is x = w + c
+            if wide[y, w + r + c] > out[y, x]:
+                out[y, x] = wide[y, w + r + c]
+
+
 @njit(parallel=True, cache=True)
 def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int, out: np.ndarray) -> None:
     h, w = lines.shape[1], lines.shape[2]
@@ -104,16 +121,7 @@ def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: n
                         v = value[j] * weight
                         if v > wide[yy, xx]:
                             wide[yy, xx] = v
-        for y in range(h):
-            for x in range(w):
-                out[i, y, x] = wide[y, x + r]
-            for c in range(r):                  # stamped past the edges: fold back around the seam
-                x = (c - r) % w                 # wide column c is x = c - r
-                if wide[y, c] > out[i, y, x]:
-                    out[i, y, x] = wide[y, c]
-                x = c % w                       # wide column w + r + c is x = w + c
-                if wide[y, w + r + c] > out[i, y, x]:
-                    out[i, y, x] = wide[y, w + r + c]
+        _fold_seam(wide, out[i], r)
 
 
 def closeness(lines: np.ndarray, tau_px: float) -> np.ndarray:
@@ -369,16 +377,7 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
                     continue
                 _stamp_pixel(wide, compat[m], y, x, dy, dx, value, r)
         for c in range(b):
-            for y in range(h):
-                for x in range(w):
-                    out[i, c, y, x] = wide[c, y, x + r]
-                for k in range(r):              # stamped past the edges: fold back around the seam
-                    x = (k - r) % w
-                    if wide[c, y, k] > out[i, c, y, x]:
-                        out[i, c, y, x] = wide[c, y, k]
-                    x = k % w
-                    if wide[c, y, w + r + k] > out[i, c, y, x]:
-                        out[i, c, y, x] = wide[c, y, w + r + k]
+            _fold_seam(wide[c], out[i, c], r)
 
 
 @njit(parallel=True, cache=True)

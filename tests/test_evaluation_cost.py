@@ -254,6 +254,49 @@ def test_pictures_drawn_on_threads_are_all_waited_for_and_the_first_error_raised
     assert seen[-2] == (2, False)
 
 
+def test_a_pass_alongside_runs_on_its_own_thread_and_is_filed_on_the_stages_thread_at_settle():
+    import threading
+
+    from placeloc.evaluation.pictures import alongside, background, draw
+
+    main, release = threading.get_ident(), threading.Event()
+    filed: list[tuple[str, int, bool]] = []
+
+    def slow_picture() -> None:
+        release.wait()  # holds the only picture thread until the pass has run
+
+    def minima(k: int) -> int:
+        return k * k  # the "pass": reached while the picture thread is still busy
+
+    def file(tag: str) -> object:
+        return lambda found: filed.append((tag, found, threading.get_ident() == main))
+
+    with background(threads=2) as side:
+        draw(slow_picture)
+        draw(slow_picture)  # both picture threads busy: a pass queued behind them would hang
+        alongside(lambda: minima(3), file("a"))
+        alongside(lambda: minima(4), file("b"))
+        assert filed == []  # nothing filed before settle, whatever the threads did
+        side.settle()
+        assert filed == [("a", 9, True), ("b", 16, True)]  # in order, on the stage's thread
+        release.set()
+
+    def broken() -> int:
+        raise OSError("read error in localize.h5")
+
+    with pytest.raises(OSError, match="read error"):
+        with background(threads=2):
+            alongside(broken, file("never"))
+            alongside(lambda: minima(5), file("c"))
+    assert len(filed) == 2  # a failed pass files nothing, and the rest are not filed after it
+    # outside a block, and with one thread, at once
+    alongside(lambda: minima(6), file("d"))
+    with background(threads=1):
+        alongside(lambda: minima(7), file("e"))
+        assert filed[-1] == ("e", 49, True)
+    assert filed[-2] == ("d", 36, True)
+
+
 def test_save_png_writes_the_pixels_of_every_mode(tmp_path):
     from PIL import Image
 
@@ -300,3 +343,50 @@ def test_strips_drawn_from_the_evaluation_are_the_rows_per_query_csv_holds(route
     from_csv = read_rows(run)
     assert seen["rows"] == from_csv
     assert any(r.correct for r in from_csv) and any(r.best_image for r in from_csv)
+
+
+def test_per_query_csv_is_what_csv_writer_writes_for_awkward_names_and_missing_candidates(tmp_path):
+    """per_query.csv is built as text (placeloc.evaluation.matching.write_per_query_csv); the
+    reference here is the csv module's writer, row by row, as the file was written before."""
+    import csv
+    from types import SimpleNamespace
+
+    from placeloc.evaluation.matching import csv_field, write_per_query_csv
+    from placeloc.evaluation.metrics import first_correct_rank
+
+    rng = np.random.default_rng(11)
+    awkward = ["plain.png", "a,b.png", 'say "cheese".png', "two\nlines.png", "cr\r.png", " lead space.png",
+               "tab\there.png", "ünïcødé.png", "", "semi;colon.png", "'single'.png", '"', ","]
+    n_ref, n_q, k = len(awkward), 9, 4
+    ref_names = awkward
+    query_names = [awkward[(3 * i + 1) % n_ref] for i in range(n_q)]
+    ranked = rng.integers(-1, n_ref, (n_q, k))
+    scores = rng.random((n_q, k)) * 1e3
+    scores[0, 1], scores[2, 3] = np.nan, np.inf
+    s = SimpleNamespace(query=np.arange(n_q), has_positive=rng.random(n_q) < 0.7,
+                        example_positive=rng.integers(-1, n_ref, n_q), best=ranked[:, 0],
+                        confidence=rng.random(n_q), best_correct=rng.random(n_q) < 0.5, ranked=ranked,
+                        ranked_scores=scores, ranked_correct=rng.random((n_q, k)) < 0.3)
+    got = write_per_query_csv(tmp_path / "per_query.csv", s, query_names, ref_names).read_bytes()
+
+    def name(r: int) -> str:
+        return ref_names[r] if r >= 0 else ""
+
+    first = first_correct_rank(s.ranked_correct)
+    with open(tmp_path / "reference.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        head = ["query", "query_image", "has_positive", "positive_reference", "positive_image", "best_reference",
+                "best_image", "confidence", "correct", "first_correct_rank"]
+        w.writerow(head + [f"{c}_{i}" for i in range(1, k + 1) for c in ("ref", "image", "score", "correct")])
+        for q in range(n_q):
+            row = [q, query_names[q], int(s.has_positive[q]), *(("", "") if s.example_positive[q] < 0 else
+                                                                 (int(s.example_positive[q]), name(s.example_positive[q]))),
+                   *(("", "") if s.best[q] < 0 else (int(s.best[q]), name(s.best[q]))), f"{s.confidence[q]:.6f}",
+                   int(s.best_correct[q]), int(first[q])]
+            for j in range(k):
+                r, sc = int(ranked[q, j]), float(scores[q, j])
+                row += ["" if r < 0 else r, name(r), "" if r < 0 or not np.isfinite(sc) else f"{sc:.6g}",
+                        int(s.ranked_correct[q, j])]
+            w.writerow(row)
+    assert got == (tmp_path / "reference.csv").read_bytes()
+    assert [csv_field(t) for t in ("x", "")] == ["x", ""]

@@ -174,7 +174,8 @@ class Contract(Protocol):
     def headline(self, metrics: dict[str, Any]) -> list[str]: ...
 
     def show(self, run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-             out_dir: Path | None = None, ev: Any = None) -> list[Path]: ...
+             out_dir: Path | None = None, ev: Any = None,
+             config: dict[str, Any] | None = None) -> list[Path]: ...
 
 
 def contract(kind: str) -> Contract:
@@ -341,7 +342,7 @@ def evaluate_stage(ctx: Any) -> None:
     # pictures handed to pictures.draw (the method's and the contract's) are drawn on threads
     # while the scoring and the tables go on; the block's end waits for them, before the
     # report that shows them
-    with background():
+    with background() as side:
         ev: Evaluation = mod.evaluate(ctx, res)
         if not ev.label:
             ev.label = ctx.method.name
@@ -349,17 +350,20 @@ def evaluate_stage(ctx: Any) -> None:
         # drawn while the method's figures and the tables are made; side outputs are staged
         # in ctx.output_dir until the stage commits
         if plots and mod.SHOW_AT_EVALUATE:
-            draw(mod.show, ctx.run_dir, res, out_dir=ctx.output_dir, ev=ev)
+            draw(mod.show, ctx.run_dir, res, out_dir=ctx.output_dir, ev=ev, config=ctx.config)
         if ctx.method.evaluate_extra is not None:
             ctx.method.evaluate_extra(ctx, ev)
         own_truth = method_truth(ctx.method, ctx.params)
         if own_truth:
             ev.metrics["scored_against"] = own_truth
         add_timing(ev.metrics, stage_seconds(ctx.run_dir, [s for s in STAGES if s in ctx.method.stages]), frames_of(ev))
+        # the contract's tables and charts first (they hold the GIL), while a method's pass
+        # handed to pictures.alongside runs; then its figures, then metrics.json
+        mod.finish(ctx, ev, plots=plots)
+        side.settle()
         write_tree(ctx.out, ev.arrays)
         ctx.out.attrs["result_kind"] = res.kind
         clean = write_metrics(ctx.output_dir, ordered(ev.metrics, getattr(mod, "COUNTS", ())), ctx.out)
-        mod.finish(ctx, ev, plots=plots)
     if plots:
         from placeloc.evaluation.report import write_report
 

@@ -369,10 +369,12 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None, ev: LoopEvaluation | None = None) -> list[Path]:
+         out_dir: Path | None = None, ev: LoopEvaluation | None = None,
+         config: dict[str, Any] | None = None) -> list[Path]:
     """Strips frame | matched earlier frame | a true earlier one, for the accepted loop
     closures spread over the traverse (and the most confident wrong ones); from the
-    evaluation ``ev`` when evaluate draws them, else from per_query.csv or the result."""
+    evaluation ``ev`` when evaluate draws them, else from per_query.csv or the result;
+    the image folders from ``config`` (the evaluate stage's), else the run's artifacts."""
     from placeloc.evaluation.show import draw_strips, read_rows
 
     run_dir = Path(run_dir)
@@ -388,7 +390,8 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
         if threshold is not None:  # only the loop closures the method accepts
             rows = [r for r in rows if r.confidence >= float(threshold)]
     # "loop closures" also tells draw_strips that the matched frames are in the same traverse
-    return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir)
+    return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir,
+                       config=config)
 
 
 def strip_rows(ev: LoopEvaluation) -> list[Any]:

@@ -184,7 +184,8 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None, ev: Any = None) -> list[Path]:
+         out_dir: Path | None = None, ev: Any = None,
+         config: dict[str, Any] | None = None) -> list[Path]:
     """The map against the truth (from per_query.csv when evaluate has run), else the map alone."""
     from placeloc.evaluation.contracts import localize_result
 

@@ -1,4 +1,5 @@
-"""Pictures drawn on threads while evaluate goes on scoring and writing.
+"""Pictures, and a method's passes over stored matrices, on threads while evaluate goes on
+scoring and writing.
 
 Evaluate's pictures (the difference matrices, the strips, the PR and Recall@N charts) are
 independent of each other and of the tables written beside them, and most of a picture's
@@ -13,6 +14,13 @@ draws at once, on the caller's thread. A picture that fails fails the stage, as 
 drawn inline: the first error is raised by :meth:`Pictures.wait`, after every other
 picture has finished, so no thread is left writing into a run folder that is being
 cleaned up.
+
+A method's own pass that mostly waits on the disk or runs in NumPy's GIL-free loops (SeqSLAM
+reads its stored D and D^ for the dissimilarity ratio) goes to :func:`alongside`: it runs
+on a thread of its own, not behind the pictures, while the stage writes its tables (which
+hold the GIL), and the stage takes its figures with :meth:`Pictures.settle` before it
+writes metrics.json. The pass returns its figures and a second function files them on the
+stage's thread, so no thread writes into the evaluation while the stage reads it.
 """
 
 from __future__ import annotations
@@ -37,12 +45,36 @@ class Pictures:
     def __init__(self, threads: int) -> None:
         self._pool = ThreadPoolExecutor(threads, thread_name_prefix="placeloc-picture") if threads > 1 else None
         self._futures: list[Future[Any]] = []
+        # passes: a thread of their own (behind the pictures they would wait for a picture
+        # thread), each with the function that files its result on the stage's thread
+        self._passes = ThreadPoolExecutor(1, thread_name_prefix="placeloc-pass") if threads > 1 else None
+        self._pending: list[tuple[Future[Any], Callable[[Any], None]]] = []
 
     def draw(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         if self._pool is None:
             fn(*args, **kwargs)
         else:
             self._futures.append(self._pool.submit(fn, *args, **kwargs))
+
+    def alongside(self, fn: Callable[[], Any], then: Callable[[Any], None]) -> None:
+        if self._passes is None:
+            then(fn())
+        else:
+            self._pending.append((self._passes.submit(fn), then))
+
+    def settle(self) -> None:
+        """Wait for the passes handed over so far and file their results, in the order
+        they were handed over; raise the first pass's error (after every pass has ended)."""
+        pending, self._pending = self._pending, []
+        first: BaseException | None = None
+        for f, then in pending:
+            exc = f.exception()
+            if exc is not None:
+                first = first or exc
+            elif first is None:
+                then(f.result())
+        if first is not None:
+            raise first
 
     def wait(self) -> None:
         """Wait for every picture handed over so far; raise the first one's error."""
@@ -56,8 +88,9 @@ class Pictures:
             raise first
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+        for pool in (self._pool, self._passes):
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
 
 
 def picture_threads() -> int:
@@ -78,6 +111,7 @@ def background(threads: int | None = None) -> Iterator[Pictures]:
     token = _CURRENT.set(pics)
     try:
         yield pics
+        pics.settle()
         pics.wait()
     finally:
         _CURRENT.reset(token)
@@ -91,3 +125,15 @@ def draw(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         fn(*args, **kwargs)
     else:
         pics.draw(fn, *args, **kwargs)
+
+
+def alongside(fn: Callable[[], Any], then: Callable[[Any], None]) -> None:
+    """``then(fn())``: ``fn`` on the open :func:`background` block's pass thread and
+    ``then`` on the stage's thread at its :meth:`Pictures.settle`; outside a block, at once.
+    ``fn`` must not touch what the stage goes on using (it may read an open artifact: h5py
+    serialises its calls); ``then`` files the result (metrics, arrays)."""
+    pics = _CURRENT.get()
+    if pics is None:
+        then(fn())
+    else:
+        pics.alongside(fn, then)

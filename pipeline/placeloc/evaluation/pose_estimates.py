@@ -196,7 +196,8 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None, ev: Any = None) -> list[Path]:
+         out_dir: Path | None = None, ev: Any = None,
+         config: dict[str, Any] | None = None) -> list[Path]:
     """The estimates on the plan: against the truth when evaluate has run (per_query.csv),
     else the estimates alone."""
     import csv

@@ -222,14 +222,16 @@ def headline(metrics: dict[str, Any]) -> list[str]:
 
 
 def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures: int = 8,
-         out_dir: Path | None = None, ev: RankedEvaluation | None = None) -> list[Path]:
+         out_dir: Path | None = None, ev: RankedEvaluation | None = None,
+         config: dict[str, Any] | None = None) -> list[Path]:
     """Strips query | best match | a true one (from the evaluation ``ev`` when evaluate
     draws them, else from per_query.csv, else from the result), written into ``out_dir``
-    (default ``run_dir``)."""
+    (default ``run_dir``); the image folders from ``config`` (the evaluate stage's), else
+    the run's artifacts."""
     from placeloc.evaluation.show import draw_strips
 
     return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir,
-                       rows=None if ev is None else strip_rows(ev))
+                       rows=None if ev is None else strip_rows(ev), config=config)
 
 
 def strip_rows(ev: RankedEvaluation) -> list[Any]:

@@ -213,7 +213,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     subsamples) with the ground-truth band (conventions in :mod:`placeloc.evaluation.matching`)."""
     from placeloc.evaluation import matching, plots
     from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
-    from placeloc.evaluation.pictures import draw
+    from placeloc.evaluation.pictures import alongside, draw
 
     p = ctx.params
     ex, lo_art = ctx.artifact("extract"), ctx.artifact("localize")
@@ -230,7 +230,6 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     # the band of true references per query (drawn under the matches), and per reference the
     # smallest difference to a right and to a wrong query, raw and enhanced (the ratio)
     band_lo, band_hi = np.full(n_q, 1, np.int64), np.full(n_q, 0, np.int64)
-    mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key in ("difference", "enhanced")}
     stored = "difference" in lo_art and "enhanced" in lo_art
     if isinstance(ev, RankedEvaluation):
         rows, cols = ev.gt.positives(ref_index, q_index)  # sorted by query column
@@ -254,21 +253,6 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
              title=f"SeqSLAM {comparison}: ds={ds}, v={p.v_min:g}..{p.v_max:g} step {p.v_step:g}, search={p.search}, "
                    f"R_window={window}; {what} {'none' if head is None else f'{head:.3f}'}")
     if isinstance(ev, RankedEvaluation):
-        # column slabs one chunk wide: h5py copies whole chunks (a 1024-wide slab of 256-wide
-        # chunks read at half the speed)
-        step = int((lo_art["difference"].chunks or (0, block))[1]) if stored else block
-        # read into one reused slab: a new array per slab cost 1.5x the read (its pages
-        # touched for the first time)
-        slab = np.empty((n_ref, step), np.float32) if stored else None
-        for c0 in range(0, n_q if stored else 0, step):
-            c1 = min(n_q, c0 + step)
-            a, b = np.searchsorted(cols, (c0, c1))
-            for key, (mc, mw) in mins.items():
-                part = slab if c1 - c0 == step else np.empty((n_ref, c1 - c0), np.float32)
-                lo_art[key].read_direct(part, np.s_[:, c0:c1])
-                at_positive, elsewhere = split_row_minima(part, rows[a:b], cols[a:b] - c0)
-                np.minimum(mc, at_positive, out=mc)
-                np.minimum(mw, elsewhere, out=mw)
         single = lo_art["single_best"][()]
         single_s = matching.score_matches(ev.gt, q_index, ref_index, separated=single[:, None],
                                           confidence=lo_art["single_confidence"][()], ns=(1,))
@@ -278,10 +262,41 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
             "single_image_recall_at_1", "seconds_per_frame"]
         ev.pr_curves["single image (no sequence)"] = (single_s.pr.recall, single_s.pr.precision)
         if stored:
-            for key, suffix in (("difference", ""), ("enhanced", "_enhanced")):
-                ratio = dissimilarity_ratios(*mins[key])
-                metrics[f"dissimilarity_mean{suffix}"], metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
-                ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
+            # the pass over D and D^ reads 2 x 4 x n_ref x n_q bytes, mostly outside the GIL
+            # (h5py's reads, NumPy's minima): on a thread of its own while the stage writes
+            # per_query.csv and the charts, which hold it
+            step = int((lo_art["difference"].chunks or (0, block))[1])
+            alongside(lambda: _dissimilarity_minima(lo_art, ("difference", "enhanced"), rows, cols, n_ref, n_q, step),
+                      lambda found: _file_dissimilarity(ev, found))
+
+
+def _dissimilarity_minima(lo_art: Any, keys: tuple[str, ...], rows: np.ndarray, cols: np.ndarray, n_ref: int,
+                          n_q: int, step: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per stored matrix (``keys`` in ``lo_art``, reference x query) and reference, the
+    smallest difference to a right query (the positive cells ``rows``, ``cols``, sorted by
+    column) and to a wrong one: one pass in column slabs ``step`` wide. Slabs one chunk wide:
+    h5py copies whole chunks (a 1024-wide slab of 256-wide chunks read at half the speed)."""
+    mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key in keys}
+    # one reused slab: a new array per slab cost 1.5x the read (its pages touched anew)
+    slab = np.empty((n_ref, step), np.float32)
+    for c0 in range(0, n_q, step):
+        c1 = min(n_q, c0 + step)
+        a, b = np.searchsorted(cols, (c0, c1))
+        for key, (mc, mw) in mins.items():
+            part = slab if c1 - c0 == step else np.empty((n_ref, c1 - c0), np.float32)
+            lo_art[key].read_direct(part, np.s_[:, c0:c1])
+            at_positive, elsewhere = split_row_minima(part, rows[a:b], cols[a:b] - c0)
+            np.minimum(mc, at_positive, out=mc)
+            np.minimum(mw, elsewhere, out=mw)
+    return mins
+
+
+def _file_dissimilarity(ev: Any, mins: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """The dissimilarity ratios' figures and arrays into the evaluation, raw then enhanced."""
+    for key, suffix in (("difference", ""), ("enhanced", "_enhanced")):
+        ratio = dissimilarity_ratios(*mins[key])
+        ev.metrics[f"dissimilarity_mean{suffix}"], ev.metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
+        ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio
 
 
 def _loop_truth_points(ev: Any, ref_index: np.ndarray, most: int = 20000) -> tuple[np.ndarray, np.ndarray]:

@@ -390,3 +390,22 @@ def test_per_query_csv_is_what_csv_writer_writes_for_awkward_names_and_missing_c
             w.writerow(row)
     assert got == (tmp_path / "reference.csv").read_bytes()
     assert [csv_field(t) for t in ("x", "")] == ["x", ""]
+
+
+def test_a_polyline_keeps_one_point_an_output_pixel_and_its_last():
+    from placeloc.evaluation.raster import _one_point_a_pixel
+
+    # canvas pixels, 2 a side of an output pixel: (0.1, 0.2) and (1.9, 1.0) share the first
+    px = np.array([0.1, 1.9, 2.0, 2.5, 3.9, 4.0, 4.1, 4.2])
+    py = np.array([0.2, 1.0, 0.0, 1.5, 0.1, 0.0, 0.0, 0.0])
+    kx, ky = _one_point_a_pixel(px, py, 2)
+    assert kx.tolist() == [0.1, 2.0, 4.0, 4.2] and ky.tolist() == [0.2, 0.0, 0.0, 0.0]
+    # a pixel left and come back to is drawn again (the path, not the set of pixels)
+    kx, _ = _one_point_a_pixel(np.array([0.0, 3.0, 0.5, 3.5]), np.zeros(4), 2)
+    assert kx.tolist() == [0.0, 3.0, 0.5, 3.5]
+    # a PR curve of 100,000 queries: the points drawn are bounded by the picture, not the queries
+    rng = np.random.default_rng(0)
+    recall = np.cumsum(rng.random(100_000) < 0.8) / 100_000
+    precision = np.cumsum(rng.random(100_000) < 0.8) / np.arange(1, 100_001)
+    kx, _ = _one_point_a_pixel(recall * 1800, (1 - precision) * 1500, 3)
+    assert len(kx) < 2_000

@@ -685,7 +685,10 @@ def sweep(config: Path = ConfigArg,
           grid: List[str] = typer.Option(..., "--grid", "-g", help="key=v1,v2,... (repeatable), e.g. --grid seqslam.ds=10,20"),
           out: Path | None = typer.Option(None, "--out", "-o", help="Sweep folder (default runs/<config name>-sweep)."),
           set: List[str] | None = SetOpt, force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
-    """Run every combination of the grid (each its own run directory, resumable); one table and one plot."""
+    """Run every combination of the grid (each its own run directory, resumable); one table and one plot.
+
+    Each run draws its own pictures; --set plots=false leaves them out (on small runs they
+    cost more than the method) and the table, sweep.png and each run's metrics are the same."""
     import yaml
 
     from placeloc.core.config import ConfigError, apply_override, read_yaml_file

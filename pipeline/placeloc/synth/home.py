@@ -5,6 +5,8 @@ bedrooms of nearly the same size and layout, a living room and a kitchen, all wi
 same paint, so that
 
 - many detected lines are not in the map: window blinds, kitchen cabinets and wardrobes,
+  what stands on the kitchen counters (appliances, a dish rack, a sink under a window the
+  map lacks) and the handles and panels of the cabinet doors,
   door leaves with panels (closed) or standing open against the wall, skirting boards just
   above the floor line, floor planks and tiles, sunlight patches cast through windows;
 - many map lines are hardly visible: walls and ceiling are painted alike, so the

@@ -104,3 +104,153 @@ def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
     assert choose(results) == square16
     results[square16] = [0.975 - 2 * NOISE] * 9               # two panoramas below: the best
     assert choose(results) == square32
+
+
+def _with_things(seed):
+    return plan(np.random.default_rng(seed), 3, things_rng=np.random.default_rng([seed, 2]))
+
+
+def _inside(t, b, pad):
+    """Box t's plan footprint lies inside box b's, grown by pad."""
+    return b[0] - pad <= t[0] and t[3] <= b[3] + pad and b[1] - pad <= t[1] and t[4] <= b[4] + pad
+
+
+def _on_a_wall(t, lo, hi):
+    """Box t is flat (at most 0.03 m thick) and within 3 mm of a wall of the room lo..hi."""
+    return ((t[4] - t[1] <= 0.03 and min(abs(t[1] - lo[1]), abs(t[4] - hi[1])) <= 0.003)
+            or (t[3] - t[0] <= 0.03 and min(abs(t[0] - lo[0]), abs(t[3] - hi[0])) <= 0.003))
+
+
+def test_kitchen_things_stand_on_the_counters_and_against_the_cabinets():
+    # the things the map lacks stand where a kitchen has them: appliances on a counter top
+    # (0.9 m up, at most 1.3 m), inside a counter's footprint; handles and door panels on a
+    # cabinet's front (within 0.03 m of it); the window over the sink in the gap of the wall
+    # cabinets; nothing outside the furniture's footprints by more than 0.03 m but flat things
+    # on a wall, so the cameras' clearances (0.15-0.3 m from the furniture, 0.3-0.5 m from the
+    # walls) are those of the home without them
+    from placeloc.synth.home import COUNTER_THINGS
+
+    on_counter = {name for name, *_ in COUNTER_THINGS}
+    for seed in range(5):
+        fp, clutter = _with_things(seed)
+        boxes = np.asarray(clutter["boxes"], float)
+        things = np.asarray(clutter["things"], float)
+        names = clutter["thing_names"]
+        assert len(names) == len(things) and on_counter & set(names) and "handle" in names
+        counters = boxes[(boxes[:, 2] == 0.0) & (boxes[:, 5] == 0.9) & (boxes[:, 6] == 0.45)]
+        assert len(counters) == 2
+
+        lo, hi = _room(fp, "kitchen").min(axis=0), _room(fp, "kitchen").max(axis=0)
+        for name, t in zip(names, things):
+            assert any(_inside(t, b, 0.03) for b in boxes) or _on_a_wall(t, lo, hi), name
+            if name in on_counter:
+                assert t[2] == 0.9 and t[5] <= 1.3 and any(_inside(t, c, 0.0) for c in counters), name
+        wall_cabinets = boxes[(boxes[:, 2] == 1.45) & (boxes[:, 5] == 2.15)]
+        frame = things[names.index("window frame")]
+        assert frame[2] >= 0.9 and frame[5] <= 2.15
+        south = wall_cabinets[wall_cabinets[:, 1] == frame[1]]
+        assert len(south) >= 1 and all(b[3] <= frame[0] or b[0] >= frame[3] for b in south)
+
+
+def test_kitchen_things_leave_the_plan_and_the_other_clutter_as_they_were():
+    for seed in range(3):
+        fp0, c0 = plan(np.random.default_rng(seed), 3)
+        fp1, c1 = _with_things(seed)
+        assert fp0 == fp1
+        assert all(c0[k] == c1[k] for k in c0 if k not in ("boxes", "things", "thing_names"))
+        assert c0["things"] == [] and c0["thing_names"] == []
+        # the boxes differ only in the south wall cabinets, split around the window over the sink
+        old = [b for b in c0["boxes"] if b not in c1["boxes"]]
+        new = [b for b in c1["boxes"] if b not in c0["boxes"]]
+        assert len(old) == 1 and 1 <= len(new) <= 2
+        assert all(b[1:3] == old[0][1:3] and b[4:] == old[0][4:] and old[0][0] <= b[0] and b[3] <= old[0][3] for b in new)
+
+
+def _pixel_ray(u, v, width, height, heading_deg):
+    # the renderer's convention (render_panorama): column u, row v -> (azimuth, elevation)
+    az = np.radians(heading_deg) + np.pi - 2 * np.pi * (u + 0.5) / width
+    el = np.pi / 2 - np.pi * (v + 0.5) / height
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def test_a_rendered_pixel_hits_the_kettle_where_it_stands():
+    # a camera 0.8 m in front of the kettle, 1.5 m up, looking at it: the pixel whose ray meets
+    # the kettle's front face (by hand: the plane's crossing lies inside the face) shows the
+    # kettle's grey (0.88 + 0.03 * noise in [0, 1]) dimmed by the distance (1 + 0.02 t);
+    # without the kitchen things the same pixel sees the splashback or the wall behind
+    from placeloc.synth.home import render_panorama, scene_arrays
+
+    seed = next(s for s in range(20) if "kettle" in _with_things(s)[1]["thing_names"])
+    fp, clutter = _with_things(seed)
+    box = np.asarray(clutter["things"][clutter["thing_names"].index("kettle")], float)
+    south = -min(p[1] for r in fp["rooms"] for p in r["polygon"])
+    if box[1] < -south + 0.7:    # on the south run: its front faces north (+y)
+        normal, face, centre = np.array([0.0, 1.0]), 4, np.array([(box[0] + box[3]) / 2, box[4]])
+    else:                        # on the east run: its front faces west (-x)
+        normal, face, centre = np.array([-1.0, 0.0]), 0, np.array([box[0], (box[1] + box[4]) / 2])
+    cam = centre + 0.8 * normal
+    pose = np.array([cam[0], cam[1], 1.5, np.degrees(np.arctan2(-normal[1], -normal[0]))])
+    width, height = 512, 256
+    u = width // 2
+    el = np.arctan2((box[2] + box[5]) / 2 - 1.5, 0.8)
+    v = int(round((np.pi / 2 - el) * height / np.pi - 0.5))
+    d = _pixel_ray(u, v, width, height, pose[3])
+    axis = 1 if face == 4 else 0
+    t = (box[face] - pose[axis]) / d[axis]
+    hit = pose[:3] + t * d
+    assert box[0] <= hit[0] <= box[3] and box[1] <= hit[1] <= box[4] and box[2] <= hit[2] <= box[5]
+    img = render_panorama(pose, scene_arrays(fp, clutter, np.random.default_rng(0)), width, height)
+    assert 0.88 / (1 + 0.02 * t) - 1e-9 <= img[v, u] <= 0.91 / (1 + 0.02 * t) + 1e-9
+    fp0, c0 = plan(np.random.default_rng(seed), 3)
+    bare = render_panorama(pose, scene_arrays(fp0, c0, np.random.default_rng(0)), width, height)
+    assert abs(bare[v, u] - img[v, u]) > 0.1
+
+
+def _through_door(pose, door, width, height, door_top):
+    """Pixels whose ray crosses the (east-west) door segment below its top."""
+    v, u = np.mgrid[0:height, 0:width]
+    el = np.pi / 2 - np.pi * (v + 0.5) / height
+    az = np.radians(pose[3]) + np.pi - 2 * np.pi * (u + 0.5) / width
+    dx, dy, dz = np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)
+    (ax, ay), (bx, _) = door
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ay - pose[1]) / dy
+        x, z = pose[0] + t * dx, pose[2] + t * dz
+    return (t > 0) & (x >= min(ax, bx)) & (x <= max(ax, bx)) & (z >= 0) & (z <= door_top)
+
+
+def test_panoramas_outside_the_kitchen_change_only_through_its_door(tmp_path):
+    # one small home generated with and without the kitchen things: the same plan and poses;
+    # a panorama whose camera stands outside the kitchen changes only in pixels whose ray
+    # passes the kitchen's door (3 px of blur allowed), so that other rooms are unchanged
+    import csv
+
+    import cv2
+    import yaml
+
+    from placeloc.synth.home import generate
+
+    kw = {"seed": 1, "panoramas": 8, "width": 256, "stats_width": 128, "cabinet_share": 0.125}
+    generate(tmp_path / "bare", kitchen_things=False, **kw)
+    generate(tmp_path / "things", kitchen_things=True, **kw)
+    for name in ("floor_plan.yaml", "poses.csv"):
+        assert (tmp_path / "bare" / name).read_bytes() == (tmp_path / "things" / name).read_bytes()
+    fp = yaml.safe_load((tmp_path / "things" / "floor_plan.yaml").read_text())
+    kitchen = _room(fp, "kitchen")
+    door = next((o["from"], o["to"]) for o in fp["openings"] if o["from"][1] == 0 == o["to"][1]
+                and kitchen[:, 0].min() <= o["from"][0] <= kitchen[:, 0].max())
+    changed, same = {"kitchen": 0, "elsewhere": 0}, {"kitchen": 0, "elsewhere": 0}
+    for row in csv.DictReader(open(tmp_path / "things" / "poses.csv")):
+        a = cv2.imread(str(tmp_path / "bare" / "panoramas" / row["frame"]), cv2.IMREAD_GRAYSCALE)
+        b = cv2.imread(str(tmp_path / "things" / "panoramas" / row["frame"]), cv2.IMREAD_GRAYSCALE)
+        pose = [float(row[k]) for k in ("x", "y", "z", "heading_deg")]
+        where = "kitchen" if room_name(fp, pose[0], pose[1]) == "kitchen" else "elsewhere"
+        changed[where] += int((a != b).any())
+        same[where] += int((a == b).all())
+        if where == "elsewhere":
+            seen = cv2.dilate(_through_door(pose, door, b.shape[1], b.shape[0], 2.05).astype(np.uint8), np.ones((7, 7), np.uint8))
+            assert not ((a != b) & (seen == 0)).any(), row["frame"]
+    # this home: every kitchen camera sees the things; of the five elsewhere, four are
+    # byte-identical and bedroom 3's camera sees them through its door and the kitchen's
+    assert changed["kitchen"] == 3 and same["kitchen"] == 0
+    assert same["elsewhere"] == 4 and changed["elsewhere"] == 1

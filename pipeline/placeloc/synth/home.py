@@ -5,6 +5,8 @@ bedrooms of nearly the same size and layout, a living room and a kitchen, all wi
 same paint, so that
 
 - many detected lines are not in the map: window blinds, kitchen cabinets and wardrobes,
+  what stands on the kitchen counters (appliances, a dish rack, a sink under a window the
+  map lacks) and the handles and panels of the cabinet doors,
   door leaves with panels (closed) or standing open against the wall, skirting boards just
   above the floor line, floor planks and tiles, sunlight patches cast through windows;
 - many map lines are hardly visible: walls and ceiling are painted alike, so the
@@ -52,9 +54,15 @@ HALL_W = 1.4
 FLOOR, CEIL, WALL, BOX, LEAF = 1, 2, 3, 4, 5
 
 
-def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
+def plan(rng: np.random.Generator, n_bedrooms: int = 3,
+         things_rng: np.random.Generator | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """A random home: (the floor plan in the multi-room format, the clutter that is not in
-    the map). Bedrooms north of an east-west hallway, living room and kitchen south of it."""
+    the map). Bedrooms north of an east-west hallway, living room and kitchen south of it.
+
+    With ``things_rng``, the kitchen's counters also hold what a real one holds at wall
+    height (:func:`_kitchen_things`: appliances, a sink under a window, a dish rack, handles
+    on the cabinet doors), drawn from that generator alone, so that everything else (the
+    plan, the other clutter, and the draws of ``rng`` after it) is the home without them."""
     rooms, openings, windows = [], [], []
     bed_w = [round(3.2 + rng.uniform(-0.15, 0.15), 2) for _ in range(n_bedrooms)]
     bed_d = round(3.4 + rng.uniform(-0.1, 0.1), 2)
@@ -65,7 +73,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     door_w = 0.85
     # boxes: furniture a camera keeps away from; fans and flat things (rugs, pictures) it may stand under or on
     clutter: dict[str, list] = {"boxes": [], "fans": [], "flat": [], "leaves": [], "blinds": [], "lamps": [],
-                                "counters": []}
+                                "counters": [], "things": [], "thing_names": []}
     for i, w in enumerate(bed_w):
         rooms.append({"name": f"bedroom{i + 1}", "polygon": [[x, y1], [x + w, y1], [x + w, y1 + bed_d], [x, y1 + bed_d]]})
         dx = x + 0.3 + rng.uniform(0.0, 0.4)
@@ -131,7 +139,8 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     # the counter runs' fronts (from, to, the inward normal), where a cook stands
     clutter["counters"] += [[k0, -south + 0.6, length - 0.1, -south + 0.6, 0.0, 1.0],
                             [length - 0.6, -south + 2.35, length - 0.6, -0.9, -1.0, 0.0]]
-    clutter["boxes"].append([k0, -south, 1.45, length - 0.1, -south + 0.35, 2.15, 0.5, 0.6])
+    if things_rng is None:
+        clutter["boxes"].append([k0, -south, 1.45, length - 0.1, -south + 0.35, 2.15, 0.5, 0.6])
     clutter["flat"].append([k0, -south, 0.9, length - 0.1, -south + 0.01, 1.45, 0.62, 0.3])        # splashback tiles
     hood = k0 + rng.uniform(0.6, 1.2)
     clutter["boxes"].append([hood, -south + 0.35, 1.6, hood + 0.6, -south + 0.55, 1.95, 0.3, 0.0])  # range hood
@@ -141,6 +150,8 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3) -> tuple[dict[str, Any],
     clutter["boxes"].append([liv_w, -south + 1.0, 1.2, liv_w + 0.25, -south + 2.6, 2.0, 0.45, -0.2])  # open shelves
     clutter["flat"].append([k0 + 1.9, -south + 0.6, 0.0, k0 + 2.5, -south + 0.62, 0.85, 0.25, 0.0])  # oven front
     clutter["flat"].append([liv_w, -south + 2.9, 1.5, liv_w + 0.02, -south + 3.3, 1.9, 0.3, 0.0])    # a clock
+    if things_rng is not None:
+        _kitchen_things(clutter, things_rng, k0, length, south, hood, kd + door_w)
     # open shelves and a television at eye height in the living room (horizontal lines
     # between the floor line and the ceiling line)
     sx = liv_w - 1.6 + rng.uniform(-0.3, 0.3)
@@ -194,6 +205,149 @@ def _fan(clutter: dict[str, list], cx: float, cy: float) -> None:
     clutter["fans"].append([cx - 0.6, cy - 0.06, z0, cx + 0.6, cy + 0.06, z0 + 0.03, 0.3, 0.0])
     clutter["fans"].append([cx - 0.06, cy - 0.6, z0, cx + 0.06, cy + 0.6, z0 + 0.03, 0.3, 0.0])
     clutter["fans"].append([cx - 0.02, cy - 0.02, z0, cx + 0.02, cy + 0.02, CEILING, 0.35, 0.0])
+
+
+# things that stand on a kitchen counter: (name, width along the run, depth, height, grey level)
+COUNTER_THINGS = (("microwave", 0.5, 0.36, 0.29, 0.32), ("kettle", 0.17, 0.17, 0.24, 0.88), ("toaster", 0.28, 0.17, 0.19, 0.7),
+                  ("knife block", 0.12, 0.2, 0.24, 0.3), ("bottle", 0.07, 0.07, 0.3, 0.15), ("bottle", 0.07, 0.07, 0.26, 0.85),
+                  ("kitchen roll", 0.12, 0.12, 0.28, 0.95), ("coffee machine", 0.25, 0.3, 0.38, 0.2),
+                  ("bread bin", 0.4, 0.25, 0.2, 0.6))
+COUNTER_TOP = 0.9      # the counters' height (m)
+DOOR_PITCH = 0.6       # the cabinets' door width (m): their gaps lie at multiples of it (the renderer's box pattern)
+
+
+def _kitchen_things(clutter: dict[str, list], rng: np.random.Generator, k0: float, length: float, south: float,
+                    hood: float, door_east: float) -> None:
+    """What a real kitchen holds at wall height and the map lacks (sizes in metres), added to
+    ``clutter["things"]``, each named in ``clutter["thing_names"]`` (rendered as boxes; never furniture a camera keeps away from: all of
+    it stands on or against the counters, the wall cabinets and the fridge, inside their
+    footprints): on the south run a cooktop under the hood, a sink under a window (its frame,
+    a mullion and a transom, in a gap of the wall cabinets, which ``clutter["boxes"]`` holds
+    split around it), a dish rack of upright plates, and appliances, bottles and a kitchen
+    roll on the free counter top; on the east run more of them; handles on every cabinet
+    door (a drawer line and a bar on the base cabinets, a bar at the foot of the wall
+    cabinets' doors), and the fridge's handle and freezer line, jars on the fridge, a framed
+    picture on the north wall between the door (its east jamb at ``door_east``) and the fridge."""
+    names = clutter.setdefault("thing_names", [])
+
+    def add(name: str, box: list[float]) -> None:
+        clutter["things"].append([float(v) for v in box])
+        names.append(name)
+
+    ys, kx1 = -south, length - 0.1            # the south wall; the south run's east end
+    top = COUNTER_TOP
+    # the window over the sink, east of the oven front (at k0 + 1.9..2.5): 0.8 m wide, 1.05-1.95 m up,
+    # its view outside darker than the sky (a garden), a white frame, a mullion and a transom
+    wx0 = float(rng.uniform(k0 + 2.5, max(k0 + 2.5, kx1 - 0.85)))
+    wx1 = wx0 + 0.8
+    clutter["boxes"].append([k0, ys, 1.45, wx0 - 0.05, ys + 0.35, 2.15, 0.5, DOOR_PITCH])
+    if kx1 - (wx1 + 0.05) >= 0.3:
+        clutter["boxes"].append([wx1 + 0.05, ys, 1.45, kx1, ys + 0.35, 2.15, 0.5, DOOR_PITCH])
+    outside = 0.5 + 0.15 * rng.random()
+    add("window frame", [wx0, ys, 1.05, wx1, ys + 0.02, 1.95, 0.93, 0.0])                           # the frame
+    add("window panes", [wx0 + 0.05, ys, 1.1, wx1 - 0.05, ys + 0.025, 1.9, outside, 0.0])          # the panes
+    add("window mullion", [(wx0 + wx1) / 2 - 0.02, ys, 1.1, (wx0 + wx1) / 2 + 0.02, ys + 0.03, 1.9, 0.93, 0.0])   # mullion
+    add("window transom", [wx0 + 0.05, ys, 1.58, wx1 - 0.05, ys + 0.03, 1.62, 0.93, 0.0])                     # transom
+    # a roman blind half drawn down over the panes (its folds every 0.1 m: bright lines)
+    drop = float(rng.uniform(0.2, 0.45))
+    add("blind", [wx0 + 0.04, ys + 0.03, 1.9 - drop, wx1 - 0.04, ys + 0.04, 1.92, 0.6, -0.1])
+    # a rail under the west wall cabinets with utensils hanging from it
+    if wx0 - 0.05 - k0 > 1.0:
+        r0 = float(rng.uniform(k0 + 0.1, wx0 - 0.95))
+        add("rail", [r0, ys + 0.03, 1.37, r0 + 0.8, ys + 0.05, 1.39, 0.3, 0.0])
+        for i in range(int(rng.integers(4, 7))):
+            u = r0 + 0.08 + 0.13 * i
+            add("utensil", [u, ys + 0.035, 1.37 - float(rng.uniform(0.18, 0.3)), u + 0.025, ys + 0.045, 1.37,
+                           0.2 if rng.random() < 0.5 else 0.8, 0.0])
+    # the sink (a dark steel basin in the counter top) and its tap
+    add("sink", [wx0 + 0.1, ys + 0.08, top, wx1 - 0.1, ys + 0.52, top + 0.005, 0.3, 0.0])
+    tap = (wx0 + wx1) / 2
+    add("tap", [tap - 0.015, ys + 0.04, top, tap + 0.015, ys + 0.07, top + 0.3, 0.25, 0.0])
+    add("tap", [tap - 0.015, ys + 0.04, top + 0.27, tap + 0.015, ys + 0.24, top + 0.3, 0.25, 0.0])
+    # the cooktop under the hood (dark glass)
+    add("cooktop", [hood, ys + 0.05, top, hood + 0.6, ys + 0.55, top + 0.01, 0.12, 0.0])
+    # a dish rack west of the sink: a low tray and five white plates on edge (vertical lines)
+    rack = wx0 - 0.5
+    if rack > hood + 0.62:
+        add("dish rack", [rack, ys + 0.12, top, rack + 0.45, ys + 0.44, top + 0.06, 0.4, 0.0])
+        for i in range(5):
+            px = rack + 0.06 + 0.07 * i
+            add("plate", [px, ys + 0.16, top + 0.02, px + 0.012, ys + 0.4, top + 0.25, 0.92, 0.0])
+    else:
+        rack = wx0 - 0.02
+    # appliances and bottles on the free stretches of counter top, in a random order
+    free = [(k0 + 0.05, hood - 0.03), (hood + 0.63, rack - 0.03)]
+    for a, b in free:
+        _on_counter(add, rng, a, b, lambda u, v, d0, d1: (u, ys + d0, v, ys + d1), run_depth=0.6)
+    # the east run (along y, its wall at x = length) and its wall cabinets' doors
+    e0, e1 = ys + 2.35, -0.9
+    _on_counter(add, rng, e0 + 0.05, e1 - 0.05, lambda u, v, d0, d1: (length - d1, u, length - d0, v), run_depth=0.6)
+    # handles: base cabinets (a drawer line 0.2 m under the top, a bar on the drawer, a bar by
+    # the door's edge), wall cabinets (a bar at the foot of each door, by its edge)
+    for a, b, front, base_front, along_x in ((k0, kx1, ys + 0.35, ys + 0.6, True),
+                                             (e0, e1, length - 0.35, length - 0.6, False)):
+        for k in range(int(math.floor(a / DOOR_PITCH)), int(math.ceil(b / DOOR_PITCH))):
+            d0, d1 = max(a, k * DOOR_PITCH), min(b, (k + 1) * DOOR_PITCH)
+            if d1 - d0 < 0.25:
+                continue
+            mid = (d0 + d1) / 2
+            edge = d0 + 0.05 if k % 2 else d1 - 0.05
+            bars = [(mid - 0.08, mid + 0.08, top - 0.13, top - 0.11, base_front),            # the drawer's bar
+                    (edge - 0.012, edge + 0.012, 0.42, 0.58, base_front)]                  # the door's bar
+            if not along_x or d1 <= wx0 - 0.05 + 1e-9 or d0 >= wx1 + 0.05 - 1e-9:
+                bars.append((edge - 0.012, edge + 0.012, 1.5, 1.63, front))                # the wall cabinet's bar
+            for u0, u1, z0, z1, face in bars:
+                if along_x:
+                    add("handle", [u0, face, z0, u1, face + 0.025, z1, 0.22, 0.0])
+                else:
+                    add("handle", [face - 0.025, u0, z0, face, u1, z1, 0.22, 0.0])
+            # the drawer's line across the door, 0.2 m under the counter top, and each door's
+            # raised centre panel (a shaker door: its four edges are lines the map lacks)
+            panels = [("drawer line", d0 + 0.01, d1 - 0.01, top - 0.21, top - 0.2, base_front, 0.28, 0.004),
+                      ("door panel", d0 + 0.07, d1 - 0.07, 0.18, top - 0.3, base_front, 0.38, 0.008)]
+            if not along_x or d1 <= wx0 - 0.05 + 1e-9 or d0 >= wx1 + 0.05 - 1e-9:
+                panels.append(("door panel", d0 + 0.07, d1 - 0.07, 1.53, 2.07, front, 0.42, 0.008))
+            for name, u0, u1, z0, z1, face, grey, proud in panels:
+                if along_x:
+                    add(name, [u0, face, z0, u1, face + proud, z1, grey, 0.0])
+                else:
+                    add(name, [face - proud, u0, z0, face, u1, z1, grey, 0.0])
+    # the splashback's tiles: grout rows every 0.15 m (the splashback's vertical joints are
+    # its pattern), either side of the window
+    for a, b in ((k0, wx0), (wx1, kx1)):
+        if b - a > 0.05:
+            for z in (1.05, 1.2, 1.35):
+                add("grout", [a, ys, z, b, ys + 0.015, z + 0.01, 0.42, 0.0])
+    # the fridge (x length-0.7..length-0.05, y -0.8..-0.1, its door facing west): a long handle
+    # and the freezer door's line
+    add("fridge handle", [length - 0.725, -0.26, 0.95, length - 0.7, -0.23, 1.6, 0.3, 0.0])
+    add("freezer line", [length - 0.704, -0.79, 1.3, length - 0.7, -0.11, 1.31, 0.45, 0.0])
+    for i in range(int(rng.integers(1, 4))):          # jars and boxes on top of the fridge
+        y0 = -0.75 + 0.2 * i
+        add("jar", [length - 0.6, y0, 1.85, length - 0.45, y0 + 0.15, 1.85 + float(rng.uniform(0.12, 0.3)),
+                       0.25 if i % 2 else 0.85, 0.0])
+    # a framed picture on the north wall (y = 0), between the door and the fridge; 2 mm off the
+    # wall's plane, which the hall's side of the wall shares (a box face in it would show through)
+    if length - 0.8 - door_east > 0.7:
+        px = float(rng.uniform(door_east + 0.15, length - 1.35))
+        add("picture frame", [px, -0.02, 1.25, px + 0.5, -0.002, 1.75, 0.25, 0.0])
+        add("picture", [px + 0.05, -0.025, 1.3, px + 0.45, -0.002, 1.7, 0.5 + 0.4 * float(rng.random()), 0.0])
+
+
+def _on_counter(add: Any, rng: np.random.Generator, a: float, b: float, place: Any, run_depth: float) -> None:
+    """Stand :data:`COUNTER_THINGS` in a random order on the counter stretch [a, b] (along
+    the run), 0.03-0.15 m apart, each 0.04-0.1 m from the wall; those that no longer fit are
+    left out; each goes to ``add(name, box)``. ``place(u0, u1, d0, d1)`` -> the plan rectangle (x0, y0, x1, y1) of a thing
+    spanning u0..u1 along the run and d0..d1 out from the wall."""
+    u = a + float(rng.uniform(0.0, 0.15))
+    for i in rng.permutation(len(COUNTER_THINGS)):
+        name, w, d, h, grey = COUNTER_THINGS[int(i)]
+        if u + w > b:
+            continue
+        d0 = float(rng.uniform(0.04, 0.1))
+        x0, y0, x1, y1 = place(u, u + w, d0, min(d0 + d, run_depth - 0.04))
+        add(name, [x0, y0, COUNTER_TOP, x1, y1, COUNTER_TOP + h, grey, 0.0])
+        u += w + float(rng.uniform(0.03, 0.15))
 
 
 def _door_leaf(clutter: dict[str, list], rng: np.random.Generator, a: tuple[float, float], b: tuple[float, float],
@@ -387,7 +541,9 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
     sun_az = math.radians(rng.uniform(210.0, 330.0))   # from the south: it shines through the south windows
     sun_el = math.radians(rng.uniform(25, 50))
     sun = np.array([math.cos(sun_az), math.sin(sun_az), math.tan(sun_el)])  # plan direction, rise per metre
-    return {"faces": model.faces, "boxes": np.asarray(clutter["boxes"] + clutter["fans"] + clutter["flat"], float).reshape(-1, 8),
+    return {"faces": model.faces,
+            "boxes": np.asarray(clutter["boxes"] + clutter["fans"] + clutter["flat"] + clutter.get("things", []),
+                                float).reshape(-1, 8),
             "leaves": np.asarray(clutter["leaves"], float).reshape(-1, 5),
             "blinds": np.asarray(clutter["blinds"], float).reshape(-1, 6),
             "windows": np.array([[*w["from"], *w["to"], w["sill"], w["top"]] for w in fp["windows"]], float).reshape(-1, 6),
@@ -503,20 +659,24 @@ def room_name(fp: dict[str, Any], x: float, y: float) -> str:
 
 def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
              noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
-             near_wall_share: float = 0.1, cabinet_share: float = 0.05, **unknown: Any) -> dict[str, Any]:
+             near_wall_share: float = 0.1, cabinet_share: float = 0.05, kitchen_things: bool = True,
+             **unknown: Any) -> dict[str, Any]:
     """Write the home, its panoramas, their ground truth and the line statistics under
     ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
     32 cameras within 0.12 m of a door's lintel face), ``near_wall_share`` 0.4-0.6 m from a
     wall in the kitchen and the bonus room (:func:`near_wall_poses`), ``cabinet_share`` (the
     last ones) in the kitchen beside the cabinets (:func:`cabinet_poses`; drawn from a
-    generator of their own, so that the other panoramas are those of a home without them)."""
+    generator of their own, so that the other panoramas are those of a home without them);
+    ``kitchen_things``: the counters hold appliances, a sink under a window, a dish rack and
+    handles on the doors (:func:`_kitchen_things`, from a generator of their own: the poses and
+    the rooms outside the kitchen are those of the home without them)."""
     if unknown:
         raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, noise, blur, "
-                        "stats_width, doorway_share, near_wall_share, cabinet_share")
+                        "stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    fp, clutter = plan(rng, bedrooms)
+    fp, clutter = plan(rng, bedrooms, things_rng=np.random.default_rng([seed, 2]) if kitchen_things else None)
     fp["camera_z"] = z   # the tripod's height, as the ZInD importer writes it
     (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(fp, sort_keys=False))
     model = floor_plan_model(fp)

@@ -21,9 +21,10 @@ on its first frame only), and a segment adds them before the chain beyond it. So
 takes its anchors ``seg`` apart and keeps each whole segment's sums for the anchors after
 it: an anchor sums one new segment a side instead of all of them (the Nordland preset:
 15 adds per matrix cell and speed a side instead of 60), the same adds in the same order.
-Measured on one core, 512 anchors of a random 3576-reference matrix, 38 speeds: 1.03 ms
-an anchor against 1.32 ms; less where other processes share the last-level cache, which
-the kept sums (3.8 MB a side) are read back from.
+Measured on one core, 512 anchors of a random 3576-reference matrix, 38 speeds: 1.08-1.18
+ms an anchor against 1.30 ms at load 5.4-5.8 on 2 cores; the kept sums (3.8 MB a side)
+are read back from the last-level cache, so the gain is less than the adds saved, and
+depends on who else uses that cache (docs/seqslam.md, "Cost, and the whole route").
 
 numba is imported only by a search with ``sequence_shape: flexible`` (the import costs about
 0.4 s, a few per cent of such a search at Nordland's size); ``cache=True`` keeps the

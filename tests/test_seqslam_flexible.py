@@ -385,3 +385,18 @@ def test_segment_sums_kept_between_anchors_give_the_same_bits(vels):
         np.testing.assert_array_equal(alone[0], numpy[T - rows[0]])
     tiled = _flexible_scores(et, rows, t_off, vels, reverse_cost=0.3, tile=64)
     np.testing.assert_array_equal(tiled, numpy)
+
+
+def test_flexible_chunks_one_per_thread_within_the_byte_limit():
+    from placeloc.seqslam.search import FLEXIBLE_CHUNK_BYTES, flexible_chunks
+
+    # 1024 anchors of 3576 references on 2 threads: two chunks of 512 (7.3 MB of scores each)
+    assert flexible_chunks(1024, 3576, threads=2) == [(0, 512), (512, 1024)]
+    # at 35,768 references the chunk's scores stay within the limit: 117 anchors
+    chunks = flexible_chunks(1024, 35768, threads=2)
+    assert max(hi - lo for lo, hi in chunks) == FLEXIBLE_CHUNK_BYTES // (4 * 35768) == 117
+    # every anchor once, in order, whatever the split
+    for n, cols, threads in [(1024, 35768, 2), (7, 100, 16), (1, 10, 1), (1000, 3576, 3)]:
+        chunks = flexible_chunks(n, cols, threads)
+        assert [i for lo, hi in chunks for i in range(lo, hi)] == list(range(n))
+        assert len(chunks) >= min(n, threads)

@@ -359,3 +359,44 @@ def test_compiled_kernel_is_bit_identical_to_the_numpy_formulation(v_min, v_max,
         for tile in (1, 7, 33, 129):  # nor on the tile of references (a tile narrower than its reach included)
             tiled = _flexible_scores(et, rows, t_off, vels, *costs[:2], reverse_cost=costs[2], tile=tile)
             np.testing.assert_array_equal(tiled, numpy)
+
+
+@pytest.mark.parametrize("vels", [
+    np.round(velocities(0.3, 4.0, 0.1) * 0.93, 9),  # the Nordland preset's speeds, as v_auto scales them
+    -velocities(0.3, 1.5, 0.1)[::-1],  # backward_paths' family
+    velocities(0.0, 2.0, 0.1),  # standing still: the anchor's own segment is summed afresh
+    velocities(0.3, 1.5, 0.1, 1.0),  # backwards and forwards in one path
+])
+def test_segment_sums_kept_between_anchors_give_the_same_bits(vels):
+    # the preset's window (ds 120, centred): anchors a segment apart share all but one of
+    # their segments' sums (placeloc.seqslam.flexible keeps them); a chunk of 50 anchors
+    # reads kept sums for every anchor but the first of each residue, one anchor alone
+    # sums its own; both must be the NumPy formulation's bits
+    rng = np.random.default_rng(13)
+    et = (rng.normal(0, 1, (171, 500)) + 3).astype(np.float32)
+    et[80:95] = et[79]  # a stop, so the stop model has something to do
+    t_off = query_offsets(120, "centred")
+    rows = (60, 110)
+    numpy = _numpy_flexible_scores(et, rows, t_off, vels, reverse_cost=0.3)
+    assert np.isfinite(numpy).mean() > 0.2
+    np.testing.assert_array_equal(_flexible_scores(et, rows, t_off, vels, reverse_cost=0.3), numpy)
+    for T in (60, 71, 109):
+        alone = _flexible_scores(et, (T, T + 1), t_off, vels, reverse_cost=0.3)
+        np.testing.assert_array_equal(alone[0], numpy[T - rows[0]])
+    tiled = _flexible_scores(et, rows, t_off, vels, reverse_cost=0.3, tile=64)
+    np.testing.assert_array_equal(tiled, numpy)
+
+
+def test_flexible_chunks_one_per_thread_within_the_byte_limit():
+    from placeloc.seqslam.search import FLEXIBLE_CHUNK_BYTES, flexible_chunks
+
+    # 1024 anchors of 3576 references on 2 threads: two chunks of 512 (7.3 MB of scores each)
+    assert flexible_chunks(1024, 3576, threads=2) == [(0, 512), (512, 1024)]
+    # at 35,768 references the chunk's scores stay within the limit: 117 anchors
+    chunks = flexible_chunks(1024, 35768, threads=2)
+    assert max(hi - lo for lo, hi in chunks) == FLEXIBLE_CHUNK_BYTES // (4 * 35768) == 117
+    # every anchor once, in order, whatever the split
+    for n, cols, threads in [(1024, 35768, 2), (7, 100, 16), (1, 10, 1), (1000, 3576, 3)]:
+        chunks = flexible_chunks(n, cols, threads)
+        assert [i for lo, hi in chunks for i in range(lo, hi)] == list(range(n))
+        assert len(chunks) >= min(n, threads)

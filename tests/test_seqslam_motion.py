@@ -241,7 +241,8 @@ STANDING = dict(comparison="sad", enhance_window=3, ds=40, v_min=0.5, v_max=2.0,
 @pytest.mark.parametrize("block_size", [1024, 70])
 def test_collapsed_search_reads_the_full_search_differences_and_answers_the_same(monkeypatch, features, block_size):
     # the second search of collapse_stops takes the differences the full search computed
-    # (kept as the blocks pass, up to a block's worth) instead of computing them again:
+    # (from the blocks as they pass, each group searched once all its frames have passed)
+    # instead of computing them again:
     # every answer, score and confidence as when it computes them itself, and fewer computed
     from placeloc.seqslam import matching
 
@@ -261,13 +262,22 @@ def test_collapsed_search_reads_the_full_search_differences_and_answers_the_same
     monkeypatch.setattr(matching, "difference_block_t", counting)
     kept = sequence_match(ref, query, collapse_stops=True, **common)
     with_kept = sum(computed)
-    real_answers = matching.collapsed_answers
-    monkeypatch.setattr(matching, "collapsed_answers", lambda *a, **k: real_answers(*a, **{**k, "differences": None}))
+    real_search = matching.collapsed_search
+
+    def computing_itself(*a, **k):  # takes no block: computes every difference it reads
+        search = real_search(*a, **k)
+        search.take = lambda q0, dt: None
+        return search
+
+    monkeypatch.setattr(matching, "collapsed_search", computing_itself)
     computed.clear()
     again = sequence_match(ref, query, collapse_stops=True, **common)
     for name in ("candidates", "scores", "confidence"):
         np.testing.assert_array_equal(getattr(kept, name), getattr(again, name))
     assert sum(computed) > with_kept  # the second search computed its own differences only without them
+    computed.clear()
+    sequence_match(ref, query, **common)
+    assert with_kept == sum(computed)  # with them, none beyond the full search's: its blocks held every one
     assert (np.abs(kept.candidates[:, 0] - places) <= 1).mean() > 0.95
 
 

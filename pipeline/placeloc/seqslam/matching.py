@@ -316,8 +316,8 @@ def sequence_match(
     search's answers around the run and a moving reference frame lies between it and
     the frame's own. The repeated frames of a stop carry no new evidence
     of place; without them the sequence on either side of a query's stop is one window.
-    The second search computes its own differences, for the kept frames the runs' windows
-    read. ``exclude_recent`` is for loop closure (``query is ref``): references within
+    The second search takes the differences it reads from the full search's blocks as
+    they pass (:class:`CollapsedSearch`). ``exclude_recent`` is for loop closure (``query is ref``): references within
     that many frames before the query are ignored; ``None`` otherwise (and
     ``collapse_stops`` must then be off: the exclusion counts the traverse's own frames). ``map_blocks`` runs the difference blocks
     (default: in this process); ``on_difference(c0, c1, d)`` gets the raw difference
@@ -338,23 +338,22 @@ def sequence_match(
     single_conf = np.zeros(n_q, np.float64)
     plain = (np.full((n_q, plain_k), -1, np.int64), np.full((n_q, plain_k), np.inf, np.float32)) if plain_k > 0 else None
     spans = block_spans(n_q, block, before, after)
-    # collapse_stops: the query's standing runs are known from its features alone, so the
-    # differences its second search reads (query frames its groups' windows hold, against
-    # the reference's kept frames) are kept as the blocks pass, up to one block's worth;
-    # the second search computed them again (0.9 s of 1.1 s CPU at 3576 x 3576)
+    # collapse_stops: the query's standing runs are known from its features alone, so its
+    # second search takes the differences it reads from the full search's blocks as they
+    # pass, and searches each group of kept frames once all of them have passed
     runs = None
-    kept_row_of: np.ndarray | None = None  # query frame -> its row of kept_rows, -1: none
-    kept_rows: np.ndarray | None = None  # allocated with the first block, in its dtype
+    collapsed: CollapsedSearch | None = None
     if collapse_stops:
         first, run_of = standing_runs(query, comparison)
         if (np.bincount(run_of, minlength=len(first)) > 1).any():
             ref_first, ref_run_of = standing_runs(ref, comparison)
             runs = (first, run_of, ref_first, ref_run_of)
-            groups = collapsed_groups(run_of, len(first), before, after, block)
-            frames = np.unique(np.concatenate([first[lo:hi] for _, lo, hi in groups]))
-            frames = frames[:max(0, (block * len(ref)) // max(1, len(ref_first)))]
-            kept_row_of = np.full(n_q, -1, np.int64)
-            kept_row_of[frames] = np.arange(len(frames))
+            collapsed = collapsed_search(ref, query, first, run_of, ref_first, comparison=comparison,
+                                         enhance_window=window, ds=ds, v_min=v_min, v_max=v_max, v_step=v_step,
+                                         v_auto=v_auto, search=search, sequence_shape=sequence_shape, edges=edges,
+                                         top_k=k, speed_change_cost=speed_change_cost, stop_cost=stop_cost,
+                                         reverse_cost=reverse_cost, v_reverse=v_reverse, block_size=block,
+                                         plain_k=plain_k)
     _load_kernels_meanwhile(flexible=sequence_shape == "flexible")
     # D blocks run on the executor (ref shipped once as shared; query rows taken lazily, views inline);
     # enhancement, search and writing stay here, in order.
@@ -371,11 +370,8 @@ def sequence_match(
             on_difference(c0, c1, dt[s0:s1].T)
         # single-image baseline on the raw differences
         _single_best_into(dt[s0:s1], window, exclude_recent, c0, single_best[c0:c1], single_conf[c0:c1])
-        if kept_row_of is not None and runs is not None:
-            if kept_rows is None:
-                kept_rows = np.empty((int((kept_row_of >= 0).sum()), len(runs[2])), dt.dtype)
-            mine = np.flatnonzero(kept_row_of[c0:c1] >= 0) + c0
-            kept_rows[kept_row_of[mine]] = dt[np.ix_(mine - lo, runs[2])]
+        if collapsed is not None:
+            collapsed.take(lo, dt)
         et = enhance_t(dt, window)
         del dt
         if on_enhanced is not None:
@@ -387,15 +383,9 @@ def sequence_match(
                                plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
         candidates[c0:c1], scores[c0:c1] = b, s
     conf = confidence(scores)
-    if runs is not None:
+    if runs is not None and collapsed is not None:
         first, run_of, ref_first, ref_run_of = runs
-        stop = collapsed_answers(ref, query, first, run_of, ref_first, comparison=comparison, enhance_window=window, ds=ds,
-                                 v_min=v_min, v_max=v_max, v_step=v_step, v_auto=v_auto, search=search,
-                                 sequence_shape=sequence_shape, edges=edges, top_k=k,
-                                 speed_change_cost=speed_change_cost, stop_cost=stop_cost,
-                                 reverse_cost=reverse_cost, v_reverse=v_reverse,
-                                 block_size=block, plain_k=plain_k,
-                                 differences=None if kept_rows is None else (kept_row_of, kept_rows))
+        stop = collapsed.answers()
         take = stop_answers(candidates[:, 0], stop.candidates[:, 0], first, run_of, ref_run_of)
         candidates[take], scores[take], conf[take] = stop.candidates[take], stop.scores[take], stop.confidence[take]
         if plain is not None and stop.plain_candidates is not None and stop.plain_scores is not None:
@@ -404,57 +394,119 @@ def sequence_match(
                            *(plain if plain is not None else (None, None)))
 
 
-def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, ref_first: np.ndarray,
-                      *, comparison: str,
-                      enhance_window: int, ds: int, v_min: float, v_max: float, v_step: float, v_auto: bool,
-                      search: str, sequence_shape: str, edges: str, top_k: int, speed_change_cost: float,
-                      stop_cost: float, reverse_cost: float, v_reverse: float, block_size: int,
-                      plain_k: int = 0, differences: tuple[np.ndarray, np.ndarray] | None = None) -> SequenceMatches:
-    """The search of ``collapse_stops``: the query's kept frames ``first`` (``run_of`` from
-    :func:`standing_runs`) against the reference's kept frames ``ref_first`` (its own standing runs),
-    speeds scaled by the collapsed lengths with ``v_auto``. Only the kept frames that
-    stand for others are searched (one thread each), each with the kept frames its window
-    reads, whose differences are computed in groups spanning fewer than ``block_size``
-    kept frames; every query frame gets its kept
-    frame's answer (original reference frames; -1 and no confidence for frames of no
-    standing run). Without ``backward_paths``: a vehicle that stands does not back out
-    meanwhile, and a query backing out through a stretch that looks still is left to the
-    full search (:func:`stop_answers`). ``differences`` (optional): ``(row_of, rows)``,
-    the query-major differences to the kept reference frames that the full search already
-    computed, ``rows[row_of[q]]`` for query frame ``q`` (-1: not kept); a group all of
-    whose frames are there reads them instead of computing them again (the same values:
-    each difference is one pair's, whatever block it was computed in)."""
-    n_q, n_kept = len(query), len(first)
-    ref_kept = np.ascontiguousarray(ref[ref_first])
-    vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref_first), n_kept, v_reverse)
-    window, k = int(enhance_window), int(top_k)
-    t_off = query_offsets(int(ds), search)
-    before, after = int(-t_off.min()), int(t_off.max())
-    candidates = np.full((n_kept, k), -1, np.int64)
-    scores = np.full((n_kept, k), np.inf, np.float32)
-    plain = (np.full((n_kept, plain_k), -1, np.int64),
-             np.full((n_kept, plain_k), np.inf, np.float32)) if plain_k > 0 else None
-    for need, lo, hi in collapsed_groups(run_of, n_kept, before, after, block_size):
-        rows = None if differences is None else differences[0][first[lo:hi]]
-        if rows is not None and (rows >= 0).all():
-            dt = differences[1][rows]
-        else:
-            dt = difference_block_t(ref_kept, query[first[lo:hi]], comparison)
-        et = enhance_t(dt, window)
-        del dt
+def collapsed_search(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, ref_first: np.ndarray,
+                     **settings: Any) -> CollapsedSearch:
+    """The search of ``collapse_stops`` (:class:`CollapsedSearch`), ready to take the full
+    search's difference blocks (a module-level function, so that a test can replace it)."""
+    return CollapsedSearch(ref, query, first, run_of, ref_first, **settings)
 
-        def one(c: int, c1: int, et: np.ndarray = et, lo: int = lo) -> None:
+
+def collapsed_answers(ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray, ref_first: np.ndarray,
+                      **settings: Any) -> SequenceMatches:
+    """:class:`CollapsedSearch`'s answers, every difference it reads computed by itself."""
+    return CollapsedSearch(ref, query, first, run_of, ref_first, **settings).answers()
+
+
+class CollapsedSearch:
+    """The search of ``collapse_stops``: the query's kept frames ``first`` (``run_of`` from
+    :func:`standing_runs`) against the reference's kept frames ``ref_first`` (its own
+    standing runs), speeds scaled by the collapsed lengths with ``v_auto``. Only the kept
+    frames that stand for others are searched (one thread each), each with the kept
+    frames its window reads, in groups spanning fewer than ``block_size`` kept frames
+    (:func:`collapsed_groups`); every query frame gets its kept frame's answer (original
+    reference frames; -1 and no confidence for frames of no standing run). Without
+    ``backward_paths``: a vehicle that stands does not back out meanwhile, and a query
+    backing out through a stretch that looks still is left to the full search
+    (:func:`stop_answers`).
+
+    :meth:`take` receives the full search's query-major difference blocks as they pass
+    and keeps the rows of the frames a group reads (against the kept reference frames);
+    a group is searched as soon as all of its rows are kept, and its rows are dropped
+    once no later group reads them, so at most about two blocks' worth are held.
+    :meth:`answers` searches the groups left, computing the differences they lack (the
+    same values: each difference is one pair's, whatever block it was computed in). At
+    3576 x 3576 with the Nordland preset, when at most one block's worth was kept,
+    computing the rest again cost 0.47-0.68 s CPU of the switch's 0.64-0.90 s."""
+
+    def __init__(self, ref: np.ndarray, query: np.ndarray, first: np.ndarray, run_of: np.ndarray,
+                 ref_first: np.ndarray, *, comparison: str, enhance_window: int, ds: int, v_min: float, v_max: float,
+                 v_step: float, v_auto: bool, search: str, sequence_shape: str, edges: str, top_k: int,
+                 speed_change_cost: float, stop_cost: float, reverse_cost: float, v_reverse: float, block_size: int,
+                 plain_k: int = 0) -> None:
+        self.ref_kept = np.ascontiguousarray(ref[ref_first])
+        self.query, self.first, self.run_of, self.ref_first = query, first, run_of, ref_first
+        self.comparison, self.window, self.ds, self.k = comparison, int(enhance_window), int(ds), int(top_k)
+        self.vels = search_velocities(v_min, v_max, v_step, v_auto, len(ref_first), len(first), v_reverse)
+        self.search_kw = dict(shape=sequence_shape, edges=edges, speed_change_cost=speed_change_cost,
+                              stop_cost=stop_cost, reverse_cost=reverse_cost)
+        self.search = search
+        t_off = query_offsets(int(ds), search)
+        n_kept = len(first)
+        self.groups = collapsed_groups(run_of, n_kept, int(-t_off.min()), int(t_off.max()), int(block_size))
+        self.next = 0  # the first group not searched yet
+        self.rows: dict[int, np.ndarray] = {}  # query frame -> its differences to the kept reference frames
+        self.wanted = np.zeros(len(query), bool)  # the query frames the groups read
+        for _, lo, hi in self.groups:
+            self.wanted[first[lo:hi]] = True
+        self.candidates = np.full((n_kept, self.k), -1, np.int64)
+        self.scores = np.full((n_kept, self.k), np.inf, np.float32)
+        self.plain = (np.full((n_kept, plain_k), -1, np.int64),
+                      np.full((n_kept, plain_k), np.inf, np.float32)) if plain_k > 0 else None
+
+    def take(self, q0: int, dt: np.ndarray) -> None:
+        """Keep what the groups read of the differences ``dt`` of query frames ``q0..``
+        (query-major, every reference frame), then search every group now complete."""
+        mine = np.flatnonzero(self.wanted[q0:q0 + len(dt)]) + q0
+        mine = mine[[int(q) not in self.rows for q in mine]]
+        if len(mine):
+            kept = dt[np.ix_(mine - q0, self.ref_first)]
+            for q, row in zip(mine, kept):
+                self.rows[int(q)] = row
+        self._search_groups(compute=False)
+
+    def answers(self) -> SequenceMatches:
+        """Every query frame's answer (the groups not searched yet computing the differences they lack)."""
+        self._search_groups(compute=True)
+        run_of, n_q = self.run_of, len(self.query)
+        candidates = local_to_original(self.ref_first, self.candidates)
+        plain = None
+        if self.plain is not None:
+            plain = (local_to_original(self.ref_first, self.plain[0])[run_of], self.plain[1][run_of])
+        return SequenceMatches(candidates[run_of], self.scores[run_of], confidence(self.scores)[run_of],
+                               np.full(n_q, -1, np.int64), np.zeros(n_q), self.vels,
+                               *(plain if plain is not None else (None, None)))
+
+    def _search_groups(self, compute: bool) -> None:
+        """Search the groups in order while their rows are kept (or, with ``compute``, all
+        of them), then drop the rows no later group reads."""
+        while self.next < len(self.groups):
+            need, lo, hi = self.groups[self.next]
+            frames = self.first[lo:hi]
+            if all(int(q) in self.rows for q in frames):
+                dt = np.stack([self.rows[int(q)] for q in frames])
+            elif compute:
+                dt = difference_block_t(self.ref_kept, self.query[frames], self.comparison)
+            else:
+                return
+            self._search(need, lo, dt)
+            self.next += 1
+            keep_from = self.first[self.groups[self.next][1]] if self.next < len(self.groups) else len(self.query)
+            for q in [q for q in self.rows if q < keep_from]:
+                del self.rows[q]
+
+    def _search(self, need: np.ndarray, lo: int, dt: np.ndarray) -> None:
+        """The kept frames ``need`` of a group whose windows read the kept columns from
+        ``lo`` on, ``dt`` their differences."""
+        et = enhance_t(dt, self.window)
+        del dt
+        plain = self.plain
+
+        def one(c: int, c1: int) -> None:
             # only the kept frames that stand for others: on nordland-dev tiled to 3576
             # frames, 86 of the 1462 a group spans. A query's answer depends on its own
             # window alone, so searching it alone gives the same answer.
-            candidates[c:c1], scores[c:c1] = sequence_search(
-                et, c - lo, c1 - lo, int(ds), vels, search, window, k, None, lo, shape=sequence_shape,
-                edges=edges, speed_change_cost=speed_change_cost, stop_cost=stop_cost, reverse_cost=reverse_cost,
-                plain=None if plain is None else (plain[0][c:c1], plain[1][c:c1]))
+            self.candidates[c:c1], self.scores[c:c1] = sequence_search(
+                et, c - lo, c1 - lo, self.ds, self.vels, self.search, self.window, self.k, None, lo,
+                plain=None if plain is None else (plain[0][c:c1], plain[1][c:c1]), **self.search_kw)
 
         run_threaded(one, [(int(c), int(c) + 1) for c in need])
-    candidates = local_to_original(ref_first, candidates)
-    if plain is not None:
-        plain = (local_to_original(ref_first, plain[0])[run_of], plain[1][run_of])
-    return SequenceMatches(candidates[run_of], scores[run_of], confidence(scores)[run_of],
-                           np.full(n_q, -1, np.int64), np.zeros(n_q), vels, *(plain if plain is not None else (None, None)))

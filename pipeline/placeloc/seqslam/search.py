@@ -308,6 +308,23 @@ def flexible_model(et: np.ndarray, t_off: np.ndarray, vels: np.ndarray, speed_ch
 FLEXIBLE_TILE = 4096
 
 
+# Bytes of float32 scores a chunk of the flexible search's anchors holds at most (per
+# thread; with backward_paths twice). Anchors ``seg`` apart share their segments' sums
+# (:mod:`placeloc.seqslam.flexible`), so a chunk gains from every anchor it holds: each
+# thread takes one long chunk, cut shorter only so that its scores stay within this
+# (at 35,768 references: 117 anchors).
+FLEXIBLE_CHUNK_BYTES = 16 << 20
+
+
+def flexible_chunks(n_rows: int, n_cols: int, threads: int | None = None) -> list[tuple[int, int]]:
+    """Anchors of the flexible search split into chunks: as few as there are threads
+    (None: one per usable core), of at most :data:`FLEXIBLE_CHUNK_BYTES` of float32 scores
+    (``n_cols`` a row) each."""
+    per_thread = -(-n_rows // max(1, threads or n_threads()))
+    step = max(1, min(per_thread, FLEXIBLE_CHUNK_BYTES // max(1, 4 * n_cols)))
+    return [(i, min(n_rows, i + step)) for i in range(0, n_rows, step)]
+
+
 def _flexible_scores(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray,
                      speed_change_cost: float = SPEED_CHANGE_COST, stop_cost: float = STOP_COST,
                      stops: StopModel | None = None, reverse_cost: float = REVERSE_COST, tile: int | None = None) -> np.ndarray:
@@ -532,10 +549,9 @@ def sequence_search(
         rows = slice(a - q_lo, b - q_lo)
         rank(rows, _scores(et, (a, b), t_off, traj, shape, window, k, exclude_after[rows], vels, flexible), t_off, traj)
 
-    # The flexible kernel works one anchor row at a time (its buffers do not grow with the
-    # chunk): smaller chunks than the other shapes' keep 16 threads evenly busy.
-    per_row = et.shape[1] * (4 if shape == "flexible" else 1)
-    run_threaded(run, row_chunks(inner[1] - inner[0], per_row))
+    n_inner = inner[1] - inner[0]
+    chunks = flexible_chunks(n_inner, nr) if shape == "flexible" else row_chunks(n_inner, nr)
+    run_threaded(run, chunks)
     if edges == "shift" and nt <= ncols:
         edge = [*range(q_lo, inner[0]), *range(max(inner[1], inner[0]), q_hi)]
 

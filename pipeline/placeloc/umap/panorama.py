@@ -381,19 +381,26 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
 
 
 @njit(parallel=True, cache=True)
-def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
+def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
                      bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
                      weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
     """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
     images against a query's stacked channels (rows b H + y), each map's closeness stamped
-    (as :func:`_stamp_oriented`) into a buffer of its own thread, never stored whole."""
+    into a buffer of its own thread, never stored whole.
+
+    Each map line element stamps its closeness into its *own* bin's channel only; a query
+    element of bin c reads the largest of the channels ``near[c]`` (the bins compatible with
+    c). Why: the compatible closeness is a largest value over pixels and bins, so it is the
+    same number either way (a maximum is exact), and stamping 2 s + 1 channels a pixel
+    cost more than the few reads at the query's elements and shifts."""
     h, w = masks.shape[1], masks.shape[2]
     n_s = shifts.shape[1]
+    n_near = near.shape[1]
     nq = 0.0
     for m in range(q_rows.shape[0]):
         nq += weights[q_rows[m] % h] * q_vals[m]
     for i in prange(masks.shape[0]):
-        wide = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        own = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
         rec = np.zeros(n_s)
         n_map = 0.0
         for y in range(h):
@@ -402,7 +409,7 @@ def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: 
                 mk = masks[i, y, x]
                 if mk == 0:
                     continue
-                _stamp_pixel(wide, compat[mk], y, x, dy, dx, value, r)
+                _stamp_pixel(own, mk, y, x, dy, dx, value, r)
                 for c in range(bins):
                     if (mk >> c) & 1:           # a map line element of bin c: the recall half
                         n_map += wr
@@ -412,10 +419,10 @@ def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: 
         for c in range(bins):                   # stamped past the edges: fold back around the seam
             for y in range(h):
                 for k in range(r):
-                    if wide[c, y, w + r + k] > wide[c, y, r + k]:
-                        wide[c, y, r + k] = wide[c, y, w + r + k]
-                    if wide[c, y, k] > wide[c, y, w + k]:
-                        wide[c, y, w + k] = wide[c, y, k]
+                    if own[c, y, w + r + k] > own[c, y, r + k]:
+                        own[c, y, r + k] = own[c, y, w + r + k]
+                    if own[c, y, k] > own[c, y, w + k]:
+                        own[c, y, w + k] = own[c, y, k]
         pre = np.zeros(n_s)
         for m in range(q_rows.shape[0]):
             c = q_rows[m] // h
@@ -423,7 +430,13 @@ def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: 
             v = weights[y] * q_vals[m]
             for s in range(n_s):
                 cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
-                pre[s] += v * wide[c, y, (cc + w if cc < 0 else cc) + r]
+                xx = (cc + w if cc < 0 else cc) + r
+                best = np.float32(0.0)
+                for j in range(n_near):
+                    got = own[near[c, j], y, xx]
+                    if got > best:
+                        best = got
+                pre[s] += v * best
         for s in range(n_s):
             out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
             out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
@@ -459,11 +472,18 @@ def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray,
         kernel = closeness_kernel(tau_px)
         r = kernel.shape[0] // 2
         dy, dx = np.nonzero(kernel > 0)
-        _oriented_shifts(masks, compatible_masks(b, min(int(spread), b)), (dy - r).astype(np.int64),
+        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), (dy - r).astype(np.int64),
                          (dx - r).astype(np.int64), kernel[dy, dx], r, b, np.ascontiguousarray(query_close, np.float32),
                          rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
                          halves)
     return 0.5 * (halves[..., 0] + halves[..., 1])
+
+
+def compatible_bins(bins: int, spread: int) -> np.ndarray:
+    """(B, K) int64: row b the K = min(2 s + 1, B) bins compatible with bin b (those within
+    ``spread`` bins of it, wrapping at 180 degrees), ascending."""
+    table = compatible_masks(bins, spread)
+    return np.array([[c for c in range(int(bins)) if (table[1 << b] >> c) & 1] for b in range(int(bins))], np.int64)
 
 
 def compatible_masks(bins: int, spread: int) -> np.ndarray:
@@ -903,6 +923,52 @@ def local_grid(x: float, y: float, *, radius_m: float, step_m: float) -> np.ndar
 # queries scored together: one matrix product per frequency serves the whole batch
 PANORAMA_BATCH = 16
 
+# bytes of local renders :class:`RenderCache` keeps for a search (6,472 orientation bitmask
+# images of 144 x 72): what the 32 bench panoramas' exact repeats need, not a whole home's
+RENDER_CACHE_BYTES = 64 * 2**20
+
+
+class RenderCache:
+    """Renders of local plan points kept by their exact coordinates (their float64 bytes),
+    newest kept, oldest dropped past ``max_bytes``: ``cache(pts)`` renders only the points
+    not seen before, each once, and returns every point's render in order.
+
+    Why: a point's render depends on the point alone (the map, height, heading 0 and image
+    size are those of the search), and the local search renders the same points again:
+    the cell stage's points around a grid position that is a candidate of several queries,
+    and the beam's square where it covers points of the cell stage. On the 32 bench
+    panoramas a quarter of the renders repeat a point bit for bit; a point equal to within
+    rounding is rendered anew, so every score is the one rendered on the spot."""
+
+    def __init__(self, render: Callable[[np.ndarray], np.ndarray], max_bytes: int = RENDER_CACHE_BYTES) -> None:
+        self.render = render
+        self.max_bytes = int(max_bytes)
+        self.kept: dict[bytes, np.ndarray] = {}    # insertion order: oldest first
+        self.bytes = 0
+        self.rendered = 0
+        self.reused = 0
+
+    def __call__(self, pts: np.ndarray) -> np.ndarray:
+        pts = np.ascontiguousarray(pts, np.float64)
+        keys = [row.tobytes() for row in pts]
+        new: dict[bytes, int] = {}
+        for i, key in enumerate(keys):
+            if key not in self.kept and key not in new:
+                new[key] = i
+        fresh = self.render(pts[list(new.values())]) if new else None
+        got = dict(zip(new, fresh)) if fresh is not None else {}
+        out = np.stack([got[key] if key in got else self.kept[key] for key in keys]) if keys else \
+            self.render(pts)
+        self.rendered += len(new)
+        self.reused += len(keys) - len(new)
+        for key, img in got.items():
+            img = img.copy()                         # not a view that holds the whole batch
+            self.kept[key] = img
+            self.bytes += img.nbytes
+        while self.bytes > self.max_bytes and self.kept:
+            self.bytes -= self.kept.pop(next(iter(self.kept))).nbytes
+        return out
+
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
@@ -965,14 +1031,24 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                  spread=spread)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
-    def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
-        """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
+    z = float(poses[0, 2]) if len(poses) else 0.0
+
+    def render_local(pts: np.ndarray) -> np.ndarray:
+        """Renders at plan points (height z, heading 0): orientation bitmasks (L, H, W) with
+        the oriented score, else packed line images (L, n_words)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
+        return render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden,
+                                orientation_bins=bins if spread is not None else 0)
+
+    renders = RenderCache(render_local)
+
+    def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
+        """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
+        an earlier render of the same point) at shifts cols (L, S)."""
         if spread is not None:
-            masks = render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden, orientation_bins=bins)
-            return oriented_at_shifts(masks, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights, spread=spread,
-                                      query_close=q_close, precision_rows=prows)
-        imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
+            return oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+                                      spread=spread, query_close=q_close, precision_rows=prows)
+        imgs = unpack(renders(pts), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
                                      chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
@@ -1005,7 +1081,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         if not len(pts):
             return
         cols = col[owner][:, None] + window[None]
-        sub = local_scores(k, pts, cols, float(poses[0, 2]), q_close)
+        sub = local_scores(k, pts, cols, q_close)
         top, arg = sub.max(axis=1), sub.argmax(axis=1)
         for j in range(len(xy)):
             mine = np.flatnonzero(owner == j)
@@ -1021,7 +1097,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
             if ok.any():
                 cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
-                sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), float(poses[0, 2]), q_close)
+                sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), q_close)
                 out[ok], cols_out[ok] = sub.max(axis=1), cols[0, sub.argmax(axis=1)] % w
             return out, cols_out
         return score_at

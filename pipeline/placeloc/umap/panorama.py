@@ -27,6 +27,7 @@ Two scores, both over all (position, shift) pairs:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -347,7 +348,7 @@ def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
 @njit(cache=True, inline="always")
 def _stamp_pixel(wide: np.ndarray, cm: int, y: int, x: int, dy: np.ndarray, dx: np.ndarray, value: np.ndarray,
                  r: int) -> None:
-    """One line pixel at (y, x) stamps its closeness ``value`` at offsets (``dy``, ``dx``)
+    """One line pixel at (y, x) stamps its closeness ``value`` (or its rank) at offsets (``dy``, ``dx``)
     into every channel of ``wide`` (B, H, W + 2 r; ``r`` columns either side) that its
     compatible bins ``cm`` name, keeping the larger."""
     h = wide.shape[1]
@@ -381,9 +382,9 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
 
 
 @njit(parallel=True, cache=True)
-def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
-                     bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
-                     weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
+def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np.ndarray, rank: np.ndarray,
+                     levels: np.ndarray, r: int, bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
+                     q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
     """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
     images against a query's stacked channels (rows b H + y), each map's closeness stamped
     into a buffer of its own thread, never stored whole.
@@ -392,7 +393,10 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
     element of bin c reads the largest of the channels ``near[c]`` (the bins compatible with
     c). Why: the compatible closeness is a largest value over pixels and bins, so it is the
     same number either way (a maximum is exact), and stamping 2 s + 1 channels a pixel
-    cost more than the few reads at the query's elements and shifts."""
+    cost more than the few reads at the query's elements and shifts. What is stamped is
+    each kernel value's ``rank`` among the kernel's distinct values (1 the least; 0 none),
+    ``levels[rank]`` the value: ranks order as the values do, so the largest rank names the
+    largest value, and the buffer (zeroed for every map) is a quarter of float32's."""
     h, w = masks.shape[1], masks.shape[2]
     n_s = shifts.shape[1]
     n_near = near.shape[1]
@@ -400,7 +404,7 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
     for m in range(q_rows.shape[0]):
         nq += weights[q_rows[m] % h] * q_vals[m]
     for i in prange(masks.shape[0]):
-        own = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        own = np.zeros((bins, h, w + 2 * r), rank.dtype)   # r columns either side, folded back below
         rec = np.zeros(n_s)
         n_map = 0.0
         for y in range(h):
@@ -409,7 +413,7 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
                 mk = masks[i, y, x]
                 if mk == 0:
                     continue
-                _stamp_pixel(own, mk, y, x, dy, dx, value, r)
+                _stamp_pixel(own, mk, y, x, dy, dx, rank, r)
                 for c in range(bins):
                     if (mk >> c) & 1:           # a map line element of bin c: the recall half
                         n_map += wr
@@ -431,12 +435,12 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
             for s in range(n_s):
                 cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
                 xx = (cc + w if cc < 0 else cc) + r
-                best = np.float32(0.0)
-                for j in range(n_near):
+                best = own[near[c, 0], y, xx]
+                for j in range(1, n_near):
                     got = own[near[c, j], y, xx]
                     if got > best:
                         best = got
-                pre[s] += v * best
+                pre[s] += v * levels[best]
         for s in range(n_s):
             out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
             out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
@@ -472,23 +476,33 @@ def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray,
         kernel = closeness_kernel(tau_px)
         r = kernel.shape[0] // 2
         dy, dx = np.nonzero(kernel > 0)
+        levels, rank = np.unique(kernel[dy, dx], return_inverse=True)
+        rank_type = np.uint8 if len(levels) < 2**8 else np.uint16 if len(levels) < 2**16 else np.uint32
         _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), (dy - r).astype(np.int64),
-                         (dx - r).astype(np.int64), kernel[dy, dx], r, b, np.ascontiguousarray(query_close, np.float32),
+                         (dx - r).astype(np.int64), (rank.ravel() + 1).astype(rank_type),
+                         np.concatenate([[0.0], levels]).astype(np.float32), r, b,
+                         np.ascontiguousarray(query_close, np.float32),
                          rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
                          halves)
     return 0.5 * (halves[..., 0] + halves[..., 1])
 
 
+@functools.lru_cache(maxsize=64)
 def compatible_bins(bins: int, spread: int) -> np.ndarray:
     """(B, K) int64: row b the K = min(2 s + 1, B) bins compatible with bin b (those within
-    ``spread`` bins of it, wrapping at 180 degrees), ascending."""
+    ``spread`` bins of it, wrapping at 180 degrees), ascending; read-only (kept for the next
+    call)."""
     table = compatible_masks(bins, spread)
-    return np.array([[c for c in range(int(bins)) if (table[1 << b] >> c) & 1] for b in range(int(bins))], np.int64)
+    out = np.array([[c for c in range(int(bins)) if (table[1 << b] >> c) & 1] for b in range(int(bins))], np.int64)
+    out.flags.writeable = False
+    return out
 
 
+@functools.lru_cache(maxsize=64)
 def compatible_masks(bins: int, spread: int) -> np.ndarray:
     """(256,) uint8: for each orientation bitmask, the bitmask of the channels its bins are
-    compatible with (:func:`compatible_lines` as a table)."""
+    compatible with (:func:`compatible_lines` as a table; read-only: it is kept for the next
+    call)."""
     table = np.zeros(256, np.uint8)
     for b in range(int(bins)):
         near = 0
@@ -497,6 +511,7 @@ def compatible_masks(bins: int, spread: int) -> np.ndarray:
         for m in range(256):
             if (m >> b) & 1:
                 table[m] |= near
+    table.flags.writeable = False
     return table
 
 
@@ -951,18 +966,23 @@ class RenderCache:
     def __call__(self, pts: np.ndarray) -> np.ndarray:
         pts = np.ascontiguousarray(pts, np.float64)
         keys = [row.tobytes() for row in pts]
-        new: dict[bytes, int] = {}
+        new: dict[bytes, int] = {}                   # a point not kept -> its row in the fresh renders
+        first: list[int] = []                        # the fresh renders' points, by their first row in pts
         for i, key in enumerate(keys):
             if key not in self.kept and key not in new:
-                new[key] = i
-        fresh = self.render(pts[list(new.values())]) if new else None
-        got = dict(zip(new, fresh)) if fresh is not None else {}
-        out = np.stack([got[key] if key in got else self.kept[key] for key in keys]) if keys else \
-            self.render(pts)
+                new[key] = len(new)
+                first.append(i)
+        fresh = self.render(pts[first] if len(new) < len(keys) else pts)
+        if len(new) == len(keys):                    # nothing kept: the fresh renders are the answer
+            out = fresh
+        else:
+            out = np.empty((len(keys), *fresh.shape[1:]), fresh.dtype)
+            for i, key in enumerate(keys):
+                out[i] = fresh[new[key]] if key in new else self.kept[key]
         self.rendered += len(new)
         self.reused += len(keys) - len(new)
-        for key, img in got.items():
-            img = img.copy()                         # not a view that holds the whole batch
+        for key, row in new.items():
+            img = fresh[row].copy()                  # not a view that holds the whole batch
             self.kept[key] = img
             self.bytes += img.nbytes
         while self.bytes > self.max_bytes and self.kept:
@@ -1083,11 +1103,15 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         cols = col[owner][:, None] + window[None]
         sub = local_scores(k, pts, cols, q_close)
         top, arg = sub.max(axis=1), sub.argmax(axis=1)
-        for j in range(len(xy)):
-            mine = np.flatnonzero(owner == j)
-            if len(mine) and top[mine].max() > sc[j]:
-                i = mine[int(np.argmax(top[mine]))]
-                xy[j], col[j], sc[j] = pts[i], (cols[i, arg[i]]) % w, top[i]
+        # each pose's best neighbour (the first of equals), where better than the pose: the
+        # owners run in order, one block each
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+        block_top = np.maximum.reduceat(top, starts)
+        block = np.cumsum(np.r_[False, owner[1:] != owner[:-1]])
+        first = np.minimum.reduceat(np.where(top == block_top[block], np.arange(len(top)), len(top)), starts)
+        better = block_top > sc[owner[starts]]
+        j, i = owner[starts][better], first[better]
+        xy[j], col[j], sc[j] = pts[i], cols[i, arg[i]] % w, top[i]
 
     def final_scorer(k: int, floor: float, q_close: np.ndarray | None) -> Callable:
         """:func:`pattern_search`'s score: query k's scores at plan points (-inf nearer a wall

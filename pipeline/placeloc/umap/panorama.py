@@ -382,9 +382,9 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
 
 
 @njit(parallel=True, cache=True)
-def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np.ndarray, rank: np.ndarray,
-                     levels: np.ndarray, r: int, bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
-                     q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
+def _oriented_shifts(masks: np.ndarray, near: np.ndarray, offset: np.ndarray, rank: np.ndarray, levels: np.ndarray,
+                     r: int, bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
+                     weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
     """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
     images against a query's stacked channels (rows b H + y), each map's closeness stamped
     into a buffer of its own thread, never stored whole.
@@ -396,15 +396,21 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
     cost more than the few reads at the query's elements and shifts. What is stamped is
     each kernel value's ``rank`` among the kernel's distinct values (1 the least; 0 none),
     ``levels[rank]`` the value: ranks order as the values do, so the largest rank names the
-    largest value, and the buffer (zeroed for every map) is a quarter of float32's."""
+    largest value. Each channel of the buffer has ``r`` rows and columns of margin on every
+    side (stamps past the poles land in the margin rows and are never read; past the seam,
+    folded back), so a stamp is ``offset`` (flat offsets of the kernel's pixels) from the
+    pixel's own index, with no bounds to test."""
     h, w = masks.shape[1], masks.shape[2]
     n_s = shifts.shape[1]
     n_near = near.shape[1]
+    n_k = offset.shape[0]
+    stride = w + 2 * r                              # a buffer row
+    plane = (h + 2 * r) * stride                    # a buffer channel
     nq = 0.0
     for m in range(q_rows.shape[0]):
         nq += weights[q_rows[m] % h] * q_vals[m]
     for i in prange(masks.shape[0]):
-        own = np.zeros((bins, h, w + 2 * r), rank.dtype)   # r columns either side, folded back below
+        own = np.zeros(bins * plane, rank.dtype)
         rec = np.zeros(n_s)
         n_map = 0.0
         for y in range(h):
@@ -413,31 +419,36 @@ def _oriented_shifts(masks: np.ndarray, near: np.ndarray, dy: np.ndarray, dx: np
                 mk = masks[i, y, x]
                 if mk == 0:
                     continue
-                _stamp_pixel(own, mk, y, x, dy, dx, rank, r)
                 for c in range(bins):
-                    if (mk >> c) & 1:           # a map line element of bin c: the recall half
-                        n_map += wr
+                    if (mk >> c) & 1:           # a map line element of bin c
+                        at = c * plane + (y + r) * stride + x + r
+                        for j in range(n_k):
+                            o = at + offset[j]
+                            own[o] = max(own[o], rank[j])
+                        n_map += wr             # the recall half
                         for s in range(n_s):
                             cc = x + shifts[i, s]   # db column x is query column x + k
                             rec[s] += wr * q_close[c * h + y, cc - w if cc >= w else cc]
         for c in range(bins):                   # stamped past the edges: fold back around the seam
             for y in range(h):
+                row = c * plane + (y + r) * stride
                 for k in range(r):
-                    if own[c, y, w + r + k] > own[c, y, r + k]:
-                        own[c, y, r + k] = own[c, y, w + r + k]
-                    if own[c, y, k] > own[c, y, w + k]:
-                        own[c, y, w + k] = own[c, y, k]
+                    if own[row + w + r + k] > own[row + r + k]:
+                        own[row + r + k] = own[row + w + r + k]
+                    if own[row + k] > own[row + w + k]:
+                        own[row + w + k] = own[row + k]
         pre = np.zeros(n_s)
         for m in range(q_rows.shape[0]):
             c = q_rows[m] // h
             y = q_rows[m] - c * h
             v = weights[y] * q_vals[m]
+            row = (y + r) * stride + r
             for s in range(n_s):
                 cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
-                xx = (cc + w if cc < 0 else cc) + r
-                best = own[near[c, 0], y, xx]
+                at = row + (cc + w if cc < 0 else cc)
+                best = own[near[c, 0] * plane + at]
                 for j in range(1, n_near):
-                    got = own[near[c, j], y, xx]
+                    got = own[near[c, j] * plane + at]
                     if got > best:
                         best = got
                 pre[s] += v * levels[best]
@@ -478,9 +489,9 @@ def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray,
         dy, dx = np.nonzero(kernel > 0)
         levels, rank = np.unique(kernel[dy, dx], return_inverse=True)
         rank_type = np.uint8 if len(levels) < 2**8 else np.uint16 if len(levels) < 2**16 else np.uint32
-        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), (dy - r).astype(np.int64),
-                         (dx - r).astype(np.int64), (rank.ravel() + 1).astype(rank_type),
-                         np.concatenate([[0.0], levels]).astype(np.float32), r, b,
+        offset = (dy - r) * (w + 2 * r) + (dx - r)          # flat, in a buffer row of w + 2 r
+        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), offset.astype(np.int64),
+                         (rank.ravel() + 1).astype(rank_type), np.concatenate([[0.0], levels]).astype(np.float32), r, b,
                          np.ascontiguousarray(query_close, np.float32),
                          rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
                          halves)

@@ -963,7 +963,7 @@ class RenderCache:
     size are those of the search), and the local search renders the same points again:
     the cell stage's points around a grid position that is a candidate of several queries,
     and the beam's square where it covers points of the cell stage. On the 32 bench
-    panoramas a quarter of the renders repeat a point bit for bit; a point equal to within
+    panoramas a fifth of the renders repeat a point bit for bit; a point equal to within
     rounding is rendered anew, so every score is the one rendered on the spot."""
 
     def __init__(self, render: Callable[[np.ndarray], np.ndarray], max_bytes: int = RENDER_CACHE_BYTES) -> None:

@@ -946,8 +946,11 @@ def local_grid(x: float, y: float, *, radius_m: float, step_m: float) -> np.ndar
 
 # ------------------------------------------------------------------ the search
 
-# queries scored together: one matrix product per frequency serves the whole batch
-PANORAMA_BATCH = 16
+# queries scored together: one matrix product per frequency serves the whole batch, and a
+# wider one runs nearer BLAS's peak (one BLAS thread, 2,043 positions x 864 oriented rows:
+# 14-16 ms a query in batches of 16, 10-12 in batches of 32, 9 in batches of 64); each
+# query's column of the product is the same number whatever the batch (compared)
+PANORAMA_BATCH = 32
 
 # bytes of local renders :class:`RenderCache` keeps for a search (6,472 orientation bitmask
 # images of 144 x 72): what the 32 bench panoramas' exact repeats need, not a whole home's

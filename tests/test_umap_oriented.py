@@ -335,3 +335,26 @@ def test_the_render_cache_renders_each_point_once_and_returns_the_fresh_renders(
     assert small.bytes <= 2 * H * W and len(small.kept) == 2
     small(np.array([a]))
     assert small.rendered == 4
+
+
+def test_a_query_s_table_is_the_same_whatever_batch_it_is_scored_in():
+    # The search scores its queries in batches (one matrix product per frequency for the
+    # whole batch); each query's column of the product is its own dot products, so its
+    # table does not depend on the batch it came in (a lone query is scored beside a zero
+    # one: numpy's product of a single column rounds differently): the answers do not
+    # depend on the batch size.
+    rng = np.random.default_rng(3)
+    bins, h, w = 6, 12, 24
+    db = (rng.random((40, bins, h, w)) < 0.05).astype(np.uint8)
+    q = (rng.random((5, bins, h, w)) < 0.05).astype(np.uint8)
+    weights = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
+    spectra = chamfer_spectra(db, tau_px=3.0, weights=weights, spread=1)
+
+    def table(queries):
+        return chamfer_table(spectra, queries, tau_px=3.0, weights=weights, chance="none",
+                             precision_rows=precision_rows(h, 75.0), spread=1)
+
+    whole = table(q)
+    assert (np.concatenate([table(q[:2]), table(q[2:])]) == whole).all()
+    assert (np.concatenate([table(q[:4]), table(q[4:])]) == whole).all()
+    assert all((table(q[k:k + 1])[0] == whole[k]).all() for k in range(len(q)))

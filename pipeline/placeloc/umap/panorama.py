@@ -657,6 +657,17 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
     return out
 
 
+def _batch_products(spectra: np.ndarray, qs: np.ndarray) -> np.ndarray:
+    """``spectra @ qs`` per frequency ((F, P, K) by (F, K, N) -> (F, P, N)), a lone query
+    (N = 1) beside a zero one. Why: each query's column of a matrix product is its own dot
+    products, the same to the bit in any batch of two or more (tested), but numpy takes
+    another BLAS route for a single column (a matrix-vector product) whose sums round
+    differently, and a search's last batch may hold one query."""
+    if qs.shape[-1] != 1:
+        return np.matmul(spectra, qs)
+    return np.matmul(spectra, np.concatenate([qs, np.zeros_like(qs)], axis=-1))[..., :1]
+
+
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
                   chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
                   spread: int | None = None) -> np.ndarray:
@@ -688,7 +699,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
         x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
         qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))
-        prod = np.matmul(spectra, qs)                                             # (F, P, N)
+        prod = _batch_products(spectra, qs)                                       # (F, P, N)
         return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
@@ -703,10 +714,10 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
-        prod = np.matmul(spectra, qs)                                         # (F, P, N)
+        prod = _batch_products(spectra, qs)                                   # (F, P, N)
         return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
-    recall = np.matmul(spectra[:, :, :h], qs[:, :h])                          # (F, P, N) each half
-    precision = np.matmul(spectra[:, :, h:], qs[:, h:])
+    recall = _batch_products(spectra[:, :, :h], qs[:, :h])                    # (F, P, N) each half
+    precision = _batch_products(spectra[:, :, h:], qs[:, h:])
     if chance == "area":
         area = float(w) * float(np.sum(weights))
         r_chance = np.broadcast_to((q_close * wr).sum(axis=(1, 2))[None, :] / area, recall.shape[1:])

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -983,7 +984,7 @@ class RenderCache:
     def __init__(self, render: Callable[[np.ndarray], np.ndarray], max_bytes: int = RENDER_CACHE_BYTES) -> None:
         self.render = render
         self.max_bytes = int(max_bytes)
-        self.kept: dict[bytes, np.ndarray] = {}    # insertion order: oldest first
+        self.kept: OrderedDict[bytes, np.ndarray] = OrderedDict()   # oldest first
         self.bytes = 0
         self.rendered = 0
         self.reused = 0
@@ -1011,7 +1012,7 @@ class RenderCache:
             self.kept[key] = img
             self.bytes += img.nbytes
         while self.bytes > self.max_bytes and self.kept:
-            self.bytes -= self.kept.pop(next(iter(self.kept))).nbytes
+            self.bytes -= self.kept.popitem(last=False)[1].nbytes
         return out
 
 

@@ -249,3 +249,112 @@ def test_the_oriented_score_with_a_chance_correction_is_refused_with_the_keys_na
         get_method("umap").check(load_config(data=data, base_dir=tmp_path))
     data["umap"]["panorama"]["orientation_bins"] = 1                    # the plain score takes any chance
     get_method("umap").check(load_config(data=data, base_dir=tmp_path))
+
+
+def _shifts_in_kernel_order(masks, query, shifts, *, tau, weights, spread, prows):
+    """The local oriented halves the way the search computed them before its own-bin
+    stamping: each map's closeness to the compatible bins' lines stamped whole
+    (``oriented_closeness_of_masks``), then summed in the kernel's order in float64, so that
+    the two agree to the bit."""
+    from placeloc.umap.panorama import channel_masks, oriented_closeness_of_masks, stack_channels
+
+    b, h, w = query.shape
+    m_close = oriented_closeness_of_masks(masks, b, tau, spread)                   # (L, B, H, W) float32
+    q_close = stack_channels(oriented_closeness_of_masks(channel_masks(query), b, tau, spread))
+    qs = stack_channels(query)
+    rows, cols = np.nonzero(qs)
+    vals = [float(qs[r, c]) * float(prows[r % h]) for r, c in zip(rows, cols)]
+    nq = 0.0
+    for r, v in zip(rows, vals):
+        nq += float(weights[r % h]) * v
+    out = np.zeros(shifts.shape)
+    for i in range(len(masks)):
+        rec, n_map = [0.0] * shifts.shape[1], 0.0
+        for y in range(h):
+            wr = float(weights[y])
+            for x in range(w):
+                for c in range(b):
+                    if (int(masks[i, y, x]) >> c) & 1:
+                        n_map += wr
+                        for s, k in enumerate(shifts[i]):
+                            rec[s] += wr * float(q_close[c * h + y, (x + k) % w])
+        pre = [0.0] * shifts.shape[1]
+        for r, c, v in zip(rows, cols, vals):
+            ch, y = divmod(int(r), h)
+            for s, k in enumerate(shifts[i]):
+                pre[s] += float(weights[y]) * v * float(m_close[i, ch, y, (c - k) % w])
+        for s in range(shifts.shape[1]):
+            out[i, s] = 0.5 * ((rec[s] / n_map if n_map > 0 else 0.0) + (pre[s] / nq if nq > 0 else 0.0))
+    return out
+
+
+@pytest.mark.parametrize("bins,spread", [(6, 1), (4, 1), (3, 0), (5, 2), (8, 3)])
+def test_the_local_scores_stamping_own_bins_equal_the_compatible_closeness_to_the_bit(bins, spread):
+    # The local search stamps each map element into its own bin's channel and reads the
+    # largest of the compatible channels at the query's elements; a maximum is exact, so
+    # this equals stamping every compatible channel, bit for bit.
+    from placeloc.umap.panorama import oriented_at_shifts
+
+    rng = np.random.default_rng(10 * bins + spread)
+    h, w = 12, 20
+    masks = (rng.random((4, h, w)) < 0.12) * rng.integers(1, 1 << bins, (4, h, w))   # several bins a pixel
+    masks[0, :, 0] |= 1                                        # lines on the seam
+    masks[1, :, w - 1] |= 1 << (bins - 1)
+    masks = masks.astype(np.uint8)
+    query = (rng.random((bins, h, w)) < 0.06).astype(np.uint8)
+    query[0, :, 1] = 1
+    weights = row_weights(h, polar_deg=60.0, polar_weight=0.5, solid_angle=True)
+    prows = precision_rows(h, 75.0)
+    shifts = rng.integers(0, w, (4, 5))
+    shifts[0] = [0, 1, 2, w - 2, w - 1]
+    got = oriented_at_shifts(masks, query, shifts, tau_px=3.0, weights=weights, spread=spread, precision_rows=prows)
+    ref = _shifts_in_kernel_order(masks, query, shifts, tau=3.0, weights=weights, spread=spread, prows=prows)
+    assert (got == ref).all()
+
+
+def test_the_render_cache_renders_each_point_once_and_returns_the_fresh_renders():
+    from placeloc.umap.panorama import RenderCache
+
+    m = floor_plan_model(PLAN)
+
+    def render(pts):
+        local = np.column_stack([pts, np.full(len(pts), 1.4), np.zeros(len(pts))])
+        return render_panoramas(m.segments, m.faces, local, width=W, height=H, hidden=True, orientation_bins=6)
+
+    a, b, c = [1.2, 1.1], [2.3, 5.8], [1.2 + 1e-15, 1.1]    # c: a by less than a micron, not the same point
+    cache = RenderCache(render)
+    pts = np.array([a, b, a, c])
+    got = cache(pts)
+    assert (got == render(pts)).all()
+    assert (cache.rendered, cache.reused) == (3, 1)          # a's repeat in the same call reused
+    again = cache(np.array([b, a]))
+    assert (again == render(np.array([b, a]))).all() and (cache.rendered, cache.reused) == (3, 3)
+    # past max_bytes the oldest renders go: with room for two, the third evicts a
+    small = RenderCache(render, max_bytes=2 * H * W)
+    small(np.array([a, b])), small(np.array([c]))
+    assert small.bytes <= 2 * H * W and len(small.kept) == 2
+    small(np.array([a]))
+    assert small.rendered == 4
+
+
+def test_a_query_s_table_is_the_same_whatever_batch_it_is_scored_in():
+    # The search scores its queries in batches (one matrix product per frequency for the
+    # whole batch); each query's column of the product is its own dot products, so its
+    # table does not depend on the batch it came in (a lone query is scored beside a zero
+    # one: numpy's product of a single column rounds differently): the answers do not
+    # depend on the batch size.
+    rng = np.random.default_rng(3)
+    bins, h, w = 6, 12, 24
+    db = (rng.random((40, bins, h, w)) < 0.05).astype(np.uint8)
+    q = (rng.random((5, bins, h, w)) < 0.05).astype(np.uint8)
+    weights = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
+    spectra = chamfer_spectra(db, tau_px=3.0, weights=weights, spread=1)
+
+    def table(queries):
+        return chamfer_table(spectra, queries, tau_px=3.0, weights=weights, chance="none",
+                             precision_rows=precision_rows(h, 75.0), spread=1)
+
+    whole = table(q)
+    assert (np.concatenate([table(q[:2]), table(q[2:])]) == whole).all()
+    assert (np.concatenate([table(q[:4]), table(q[4:])]) == whole).all()
+    assert all((table(q[k:k + 1])[0] == whole[k]).all() for k in range(len(q)))

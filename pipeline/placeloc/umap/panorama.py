@@ -27,7 +27,9 @@ Two scores, both over all (position, shift) pairs:
 
 from __future__ import annotations
 
+import functools
 import math
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -347,7 +349,7 @@ def compatible_lines(channels: np.ndarray, spread: int) -> np.ndarray:
 @njit(cache=True, inline="always")
 def _stamp_pixel(wide: np.ndarray, cm: int, y: int, x: int, dy: np.ndarray, dx: np.ndarray, value: np.ndarray,
                  r: int) -> None:
-    """One line pixel at (y, x) stamps its closeness ``value`` at offsets (``dy``, ``dx``)
+    """One line pixel at (y, x) stamps its closeness ``value`` (or its rank) at offsets (``dy``, ``dx``)
     into every channel of ``wide`` (B, H, W + 2 r; ``r`` columns either side) that its
     compatible bins ``cm`` name, keeping the larger."""
     h = wide.shape[1]
@@ -381,19 +383,35 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
 
 
 @njit(parallel=True, cache=True)
-def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
-                     bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
+def _oriented_shifts(masks: np.ndarray, near: np.ndarray, offset: np.ndarray, rank: np.ndarray, levels: np.ndarray,
+                     r: int, bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
                      weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
     """The oriented halves at the given shifts (out (L, S, 2)) of orientation bitmask map
     images against a query's stacked channels (rows b H + y), each map's closeness stamped
-    (as :func:`_stamp_oriented`) into a buffer of its own thread, never stored whole."""
+    into a buffer of its own thread, never stored whole.
+
+    Each map line element stamps its closeness into its *own* bin's channel only; a query
+    element of bin c reads the largest of the channels ``near[c]`` (the bins compatible with
+    c). Why: the compatible closeness is a largest value over pixels and bins, so it is the
+    same number either way (a maximum is exact), and stamping 2 s + 1 channels a pixel
+    cost more than the few reads at the query's elements and shifts. What is stamped is
+    each kernel value's ``rank`` among the kernel's distinct values (1 the least; 0 none),
+    ``levels[rank]`` the value: ranks order as the values do, so the largest rank names the
+    largest value. Each channel of the buffer has ``r`` rows and columns of margin on every
+    side (stamps past the poles land in the margin rows and are never read; past the seam,
+    folded back), so a stamp is ``offset`` (flat offsets of the kernel's pixels) from the
+    pixel's own index, with no bounds to test."""
     h, w = masks.shape[1], masks.shape[2]
     n_s = shifts.shape[1]
+    n_near = near.shape[1]
+    n_k = offset.shape[0]
+    stride = w + 2 * r                              # a buffer row
+    plane = (h + 2 * r) * stride                    # a buffer channel
     nq = 0.0
     for m in range(q_rows.shape[0]):
         nq += weights[q_rows[m] % h] * q_vals[m]
     for i in prange(masks.shape[0]):
-        wide = np.zeros((bins, h, w + 2 * r), np.float32)   # r columns either side, folded back below
+        own = np.zeros(bins * plane, rank.dtype)
         rec = np.zeros(n_s)
         n_map = 0.0
         for y in range(h):
@@ -402,28 +420,39 @@ def _oriented_shifts(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: 
                 mk = masks[i, y, x]
                 if mk == 0:
                     continue
-                _stamp_pixel(wide, compat[mk], y, x, dy, dx, value, r)
                 for c in range(bins):
-                    if (mk >> c) & 1:           # a map line element of bin c: the recall half
-                        n_map += wr
+                    if (mk >> c) & 1:           # a map line element of bin c
+                        at = c * plane + (y + r) * stride + x + r
+                        for j in range(n_k):
+                            o = at + offset[j]
+                            own[o] = max(own[o], rank[j])
+                        n_map += wr             # the recall half
                         for s in range(n_s):
                             cc = x + shifts[i, s]   # db column x is query column x + k
                             rec[s] += wr * q_close[c * h + y, cc - w if cc >= w else cc]
         for c in range(bins):                   # stamped past the edges: fold back around the seam
             for y in range(h):
+                row = c * plane + (y + r) * stride
                 for k in range(r):
-                    if wide[c, y, w + r + k] > wide[c, y, r + k]:
-                        wide[c, y, r + k] = wide[c, y, w + r + k]
-                    if wide[c, y, k] > wide[c, y, w + k]:
-                        wide[c, y, w + k] = wide[c, y, k]
+                    if own[row + w + r + k] > own[row + r + k]:
+                        own[row + r + k] = own[row + w + r + k]
+                    if own[row + k] > own[row + w + k]:
+                        own[row + w + k] = own[row + k]
         pre = np.zeros(n_s)
         for m in range(q_rows.shape[0]):
             c = q_rows[m] // h
             y = q_rows[m] - c * h
             v = weights[y] * q_vals[m]
+            row = (y + r) * stride + r
             for s in range(n_s):
                 cc = q_cols[m] - shifts[i, s]      # query column x is db column x - k
-                pre[s] += v * wide[c, y, (cc + w if cc < 0 else cc) + r]
+                at = row + (cc + w if cc < 0 else cc)
+                best = own[near[c, 0] * plane + at]
+                for j in range(1, n_near):
+                    got = own[near[c, j] * plane + at]
+                    if got > best:
+                        best = got
+                pre[s] += v * levels[best]
         for s in range(n_s):
             out[i, s, 0] = rec[s] / n_map if n_map > 0 else 0.0
             out[i, s, 1] = pre[s] / nq if nq > 0 else 0.0
@@ -459,16 +488,33 @@ def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray,
         kernel = closeness_kernel(tau_px)
         r = kernel.shape[0] // 2
         dy, dx = np.nonzero(kernel > 0)
-        _oriented_shifts(masks, compatible_masks(b, min(int(spread), b)), (dy - r).astype(np.int64),
-                         (dx - r).astype(np.int64), kernel[dy, dx], r, b, np.ascontiguousarray(query_close, np.float32),
+        levels, rank = np.unique(kernel[dy, dx], return_inverse=True)
+        rank_type = np.uint8 if len(levels) < 2**8 else np.uint16 if len(levels) < 2**16 else np.uint32
+        offset = (dy - r) * (w + 2 * r) + (dx - r)          # flat, in a buffer row of w + 2 r
+        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), offset.astype(np.int64),
+                         (rank.ravel() + 1).astype(rank_type), np.concatenate([[0.0], levels]).astype(np.float32), r, b,
+                         np.ascontiguousarray(query_close, np.float32),
                          rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
                          halves)
     return 0.5 * (halves[..., 0] + halves[..., 1])
 
 
+@functools.lru_cache(maxsize=64)
+def compatible_bins(bins: int, spread: int) -> np.ndarray:
+    """(B, K) int64: row b the K = min(2 s + 1, B) bins compatible with bin b (those within
+    ``spread`` bins of it, wrapping at 180 degrees), ascending; read-only (kept for the next
+    call)."""
+    table = compatible_masks(bins, spread)
+    out = np.array([[c for c in range(int(bins)) if (table[1 << b] >> c) & 1] for b in range(int(bins))], np.int64)
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=64)
 def compatible_masks(bins: int, spread: int) -> np.ndarray:
     """(256,) uint8: for each orientation bitmask, the bitmask of the channels its bins are
-    compatible with (:func:`compatible_lines` as a table)."""
+    compatible with (:func:`compatible_lines` as a table; read-only: it is kept for the next
+    call)."""
     table = np.zeros(256, np.uint8)
     for b in range(int(bins)):
         near = 0
@@ -477,6 +523,7 @@ def compatible_masks(bins: int, spread: int) -> np.ndarray:
         for m in range(256):
             if (m >> b) & 1:
                 table[m] |= near
+    table.flags.writeable = False
     return table
 
 
@@ -611,6 +658,17 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
     return out
 
 
+def _batch_products(spectra: np.ndarray, qs: np.ndarray) -> np.ndarray:
+    """``spectra @ qs`` per frequency ((F, P, K) by (F, K, N) -> (F, P, N)), a lone query
+    (N = 1) beside a zero one. Why: each query's column of a matrix product is its own dot
+    products, the same to the bit in any batch of two or more (tested), but numpy takes
+    another BLAS route for a single column (a matrix-vector product) whose sums round
+    differently, and a search's last batch may hold one query."""
+    if qs.shape[-1] != 1:
+        return np.matmul(spectra, qs)
+    return np.matmul(spectra, np.concatenate([qs, np.zeros_like(qs)], axis=-1))[..., :1]
+
+
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
                   chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
                   spread: int | None = None) -> np.ndarray:
@@ -642,7 +700,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
         x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
         qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))
-        prod = np.matmul(spectra, qs)                                             # (F, P, N)
+        prod = _batch_products(spectra, qs)                                       # (F, P, N)
         return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
@@ -657,10 +715,10 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
-        prod = np.matmul(spectra, qs)                                         # (F, P, N)
+        prod = _batch_products(spectra, qs)                                   # (F, P, N)
         return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
-    recall = np.matmul(spectra[:, :, :h], qs[:, :h])                          # (F, P, N) each half
-    precision = np.matmul(spectra[:, :, h:], qs[:, h:])
+    recall = _batch_products(spectra[:, :, :h], qs[:, :h])                    # (F, P, N) each half
+    precision = _batch_products(spectra[:, :, h:], qs[:, h:])
     if chance == "area":
         area = float(w) * float(np.sum(weights))
         r_chance = np.broadcast_to((q_close * wr).sum(axis=(1, 2))[None, :] / area, recall.shape[1:])
@@ -900,8 +958,62 @@ def local_grid(x: float, y: float, *, radius_m: float, step_m: float) -> np.ndar
 
 # ------------------------------------------------------------------ the search
 
-# queries scored together: one matrix product per frequency serves the whole batch
-PANORAMA_BATCH = 16
+# queries scored together: one matrix product per frequency serves the whole batch, and a
+# wider one runs nearer BLAS's peak (one BLAS thread, 2,043 positions x 864 oriented rows:
+# 14-16 ms a query in batches of 16, 10-12 in batches of 32, 9 in batches of 64); each
+# query's column of the product is the same number whatever the batch (compared)
+PANORAMA_BATCH = 32
+
+# bytes of local renders :class:`RenderCache` keeps for a search (6,472 orientation bitmask
+# images of 144 x 72): what the 32 bench panoramas' exact repeats need, not a whole home's
+RENDER_CACHE_BYTES = 64 * 2**20
+
+
+class RenderCache:
+    """Renders of local plan points kept by their exact coordinates (their float64 bytes),
+    newest kept, oldest dropped past ``max_bytes``: ``cache(pts)`` renders only the points
+    not seen before, each once, and returns every point's render in order.
+
+    Why: a point's render depends on the point alone (the map, height, heading 0 and image
+    size are those of the search), and the local search renders the same points again:
+    the cell stage's points around a grid position that is a candidate of several queries,
+    and the beam's square where it covers points of the cell stage. On the 32 bench
+    panoramas a fifth of the renders repeat a point bit for bit; a point equal to within
+    rounding is rendered anew, so every score is the one rendered on the spot."""
+
+    def __init__(self, render: Callable[[np.ndarray], np.ndarray], max_bytes: int = RENDER_CACHE_BYTES) -> None:
+        self.render = render
+        self.max_bytes = int(max_bytes)
+        self.kept: OrderedDict[bytes, np.ndarray] = OrderedDict()   # oldest first
+        self.bytes = 0
+        self.rendered = 0
+        self.reused = 0
+
+    def __call__(self, pts: np.ndarray) -> np.ndarray:
+        pts = np.ascontiguousarray(pts, np.float64)
+        keys = [row.tobytes() for row in pts]
+        new: dict[bytes, int] = {}                   # a point not kept -> its row in the fresh renders
+        first: list[int] = []                        # the fresh renders' points, by their first row in pts
+        for i, key in enumerate(keys):
+            if key not in self.kept and key not in new:
+                new[key] = len(new)
+                first.append(i)
+        fresh = self.render(pts[first] if len(new) < len(keys) else pts)
+        if len(new) == len(keys):                    # nothing kept: the fresh renders are the answer
+            out = fresh
+        else:
+            out = np.empty((len(keys), *fresh.shape[1:]), fresh.dtype)
+            for i, key in enumerate(keys):
+                out[i] = fresh[new[key]] if key in new else self.kept[key]
+        self.rendered += len(new)
+        self.reused += len(keys) - len(new)
+        for key, row in new.items():
+            img = fresh[row].copy()                  # not a view that holds the whole batch
+            self.kept[key] = img
+            self.bytes += img.nbytes
+        while self.bytes > self.max_bytes and self.kept:
+            self.bytes -= self.kept.popitem(last=False)[1].nbytes
+        return out
 
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
@@ -965,14 +1077,24 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                  spread=spread)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
-    def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, z: float, q_close: np.ndarray | None) -> np.ndarray:
-        """(L, S) scores of query k at plan points pts (rendered on the spot) at shifts cols (L, S)."""
+    z = float(poses[0, 2]) if len(poses) else 0.0
+
+    def render_local(pts: np.ndarray) -> np.ndarray:
+        """Renders at plan points (height z, heading 0): orientation bitmasks (L, H, W) with
+        the oriented score, else packed line images (L, n_words)."""
         local = np.column_stack([pts, np.full(len(pts), z), np.zeros(len(pts))])
+        return render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden,
+                                orientation_bins=bins if spread is not None else 0)
+
+    renders = RenderCache(render_local)
+
+    def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
+        """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
+        an earlier render of the same point) at shifts cols (L, S)."""
         if spread is not None:
-            masks = render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden, orientation_bins=bins)
-            return oriented_at_shifts(masks, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights, spread=spread,
-                                      query_close=q_close, precision_rows=prows)
-        imgs = unpack(render_panoramas(segments, faces, local, width=w, height=h, hidden=hidden), h, w)
+            return oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+                                      spread=spread, query_close=q_close, precision_rows=prows)
+        imgs = unpack(renders(pts), h, w)
         if chamfer:
             return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
                                      chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
@@ -1005,13 +1127,17 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         if not len(pts):
             return
         cols = col[owner][:, None] + window[None]
-        sub = local_scores(k, pts, cols, float(poses[0, 2]), q_close)
+        sub = local_scores(k, pts, cols, q_close)
         top, arg = sub.max(axis=1), sub.argmax(axis=1)
-        for j in range(len(xy)):
-            mine = np.flatnonzero(owner == j)
-            if len(mine) and top[mine].max() > sc[j]:
-                i = mine[int(np.argmax(top[mine]))]
-                xy[j], col[j], sc[j] = pts[i], (cols[i, arg[i]]) % w, top[i]
+        # each pose's best neighbour (the first of equals), where better than the pose: the
+        # owners run in order, one block each
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+        block_top = np.maximum.reduceat(top, starts)
+        block = np.cumsum(np.r_[False, owner[1:] != owner[:-1]])
+        first = np.minimum.reduceat(np.where(top == block_top[block], np.arange(len(top)), len(top)), starts)
+        better = block_top > sc[owner[starts]]
+        j, i = owner[starts][better], first[better]
+        xy[j], col[j], sc[j] = pts[i], cols[i, arg[i]] % w, top[i]
 
     def final_scorer(k: int, floor: float, q_close: np.ndarray | None) -> Callable:
         """:func:`pattern_search`'s score: query k's scores at plan points (-inf nearer a wall
@@ -1021,7 +1147,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
             if ok.any():
                 cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
-                sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), float(poses[0, 2]), q_close)
+                sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), q_close)
                 out[ok], cols_out[ok] = sub.max(axis=1), cols[0, sub.argmax(axis=1)] % w
             return out, cols_out
         return score_at

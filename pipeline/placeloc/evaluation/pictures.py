@@ -63,34 +63,29 @@ class Pictures:
             self._pending.append((self._passes.submit(fn), then))
 
     def settle(self) -> None:
-        """Wait for the passes handed over so far and file their results, in the order
-        they were handed over; raise the first pass's error (after every pass has ended)."""
+        """Wait for the passes handed over so far; raise the first one's error (after every
+        pass has ended), else file their results in the order they were handed over."""
         pending, self._pending = self._pending, []
-        first: BaseException | None = None
+        _raise_first_error([f for f, _ in pending])
         for f, then in pending:
-            exc = f.exception()
-            if exc is not None:
-                first = first or exc
-            elif first is None:
-                then(f.result())
-        if first is not None:
-            raise first
+            then(f.result())
 
     def wait(self) -> None:
         """Wait for every picture handed over so far; raise the first one's error."""
         futures, self._futures = self._futures, []
-        first: BaseException | None = None
-        for f in futures:
-            exc = f.exception()
-            if exc is not None and first is None:
-                first = exc
-        if first is not None:
-            raise first
+        _raise_first_error(futures)
 
     def close(self) -> None:
         for pool in (self._pool, self._passes):
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _raise_first_error(futures: list[Future[Any]]) -> None:
+    """Wait for every one of ``futures``; then raise the first one's error, if any."""
+    errors = [exc for exc in (f.exception() for f in futures) if exc is not None]
+    if errors:
+        raise errors[0]
 
 
 def picture_threads() -> int:

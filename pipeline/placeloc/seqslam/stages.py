@@ -266,17 +266,21 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
             # (h5py's reads, NumPy's minima): on a thread of its own while the stage writes
             # per_query.csv and the charts, which hold it
             step = int((lo_art["difference"].chunks or (0, block))[1])
-            alongside(lambda: _dissimilarity_minima(lo_art, ("difference", "enhanced"), rows, cols, n_ref, n_q, step),
+            alongside(lambda: _dissimilarity_minima(lo_art, rows, cols, n_ref, n_q, step),
                       lambda found: _file_dissimilarity(ev, found))
 
 
-def _dissimilarity_minima(lo_art: Any, keys: tuple[str, ...], rows: np.ndarray, cols: np.ndarray, n_ref: int,
-                          n_q: int, step: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per stored matrix (``keys`` in ``lo_art``, reference x query) and reference, the
-    smallest difference to a right query (the positive cells ``rows``, ``cols``, sorted by
-    column) and to a wrong one: one pass in column slabs ``step`` wide. Slabs one chunk wide:
-    h5py copies whole chunks (a 1024-wide slab of 256-wide chunks read at half the speed)."""
-    mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key in keys}
+# the stored matrices the dissimilarity ratio is taken of, and their metrics' suffixes
+_RATIO_OF = (("difference", ""), ("enhanced", "_enhanced"))
+
+
+def _dissimilarity_minima(lo_art: Any, rows: np.ndarray, cols: np.ndarray, n_ref: int, n_q: int,
+                          step: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per stored matrix (:data:`_RATIO_OF` in ``lo_art``, reference x query) and reference,
+    the smallest difference to a right query (the positive cells ``rows``, ``cols``, sorted
+    by column) and to a wrong one: one pass in column slabs ``step`` wide. Slabs one chunk
+    wide: h5py copies whole chunks (a 1024-wide slab of 256-wide chunks read at half the speed)."""
+    mins = {key: (np.full(n_ref, np.inf), np.full(n_ref, np.inf)) for key, _ in _RATIO_OF}
     # one reused slab: a new array per slab cost 1.5x the read (its pages touched anew)
     slab = np.empty((n_ref, step), np.float32)
     for c0 in range(0, n_q, step):
@@ -293,7 +297,7 @@ def _dissimilarity_minima(lo_art: Any, keys: tuple[str, ...], rows: np.ndarray, 
 
 def _file_dissimilarity(ev: Any, mins: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
     """The dissimilarity ratios' figures and arrays into the evaluation, raw then enhanced."""
-    for key, suffix in (("difference", ""), ("enhanced", "_enhanced")):
+    for key, suffix in _RATIO_OF:
         ratio = dissimilarity_ratios(*mins[key])
         ev.metrics[f"dissimilarity_mean{suffix}"], ev.metrics[f"dissimilarity_count_ge1{suffix}"] = summarise_ratios(ratio)
         ev.arrays[f"dissimilarity{suffix or '_raw'}"] = ratio

@@ -341,13 +341,12 @@ def sequence_match(
     # collapse_stops: the query's standing runs are known from its features alone, so its
     # second search takes the differences it reads from the full search's blocks as they
     # pass, and searches each group of kept frames once all of them have passed
-    runs = None
     collapsed: CollapsedSearch | None = None
+    ref_run_of = np.zeros(0, np.int64)
     if collapse_stops:
         first, run_of = standing_runs(query, comparison)
         if (np.bincount(run_of, minlength=len(first)) > 1).any():
             ref_first, ref_run_of = standing_runs(ref, comparison)
-            runs = (first, run_of, ref_first, ref_run_of)
             collapsed = collapsed_search(ref, query, first, run_of, ref_first, comparison=comparison,
                                          enhance_window=window, ds=ds, v_min=v_min, v_max=v_max, v_step=v_step,
                                          v_auto=v_auto, search=search, sequence_shape=sequence_shape, edges=edges,
@@ -383,10 +382,9 @@ def sequence_match(
                                plain=None if plain is None else (plain[0][c0:c1], plain[1][c0:c1]))
         candidates[c0:c1], scores[c0:c1] = b, s
     conf = confidence(scores)
-    if runs is not None and collapsed is not None:
-        first, run_of, ref_first, ref_run_of = runs
+    if collapsed is not None:
         stop = collapsed.answers()
-        take = stop_answers(candidates[:, 0], stop.candidates[:, 0], first, run_of, ref_run_of)
+        take = stop_answers(candidates[:, 0], stop.candidates[:, 0], collapsed.first, collapsed.run_of, ref_run_of)
         candidates[take], scores[take], conf[take] = stop.candidates[take], stop.scores[take], stop.confidence[take]
         if plain is not None and stop.plain_candidates is not None and stop.plain_scores is not None:
             plain[0][take], plain[1][take] = stop.plain_candidates[take], stop.plain_scores[take]

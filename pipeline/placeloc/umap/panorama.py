@@ -1108,7 +1108,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
     square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
-    first = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
+    final_start = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
 
     def scored() -> Iterable:
         for s in range(0, n, PANORAMA_BATCH):
@@ -1134,9 +1134,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
         block_top = np.maximum.reduceat(top, starts)
         block = np.cumsum(np.r_[False, owner[1:] != owner[:-1]])
-        first = np.minimum.reduceat(np.where(top == block_top[block], np.arange(len(top)), len(top)), starts)
+        best_of = np.minimum.reduceat(np.where(top == block_top[block], np.arange(len(top)), len(top)), starts)
         better = block_top > sc[owner[starts]]
-        j, i = owner[starts][better], first[better]
+        j, i = owner[starts][better], best_of[better]
         xy[j], col[j], sc[j] = pts[i], cols[i, arg[i]] % w, top[i]
 
     def final_scorer(k: int, floor: float, q_close: np.ndarray | None) -> Callable:
@@ -1190,10 +1190,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 if pp.refine_final_start_m > 0:
                     # from the nearest point of the plan's own lattice of the first step (not the
                     # grid's): two grid origins whose beams end near each other start alike
-                    x0 = np.round(xy[j] / first) * first
+                    x0 = np.round(xy[j] / final_start) * final_start
                     s, c = scorer(x0[None], c0)
                     s0, c0 = float(s[0]), int(c[0])
-                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=first, finest_m=min(pp.refine_final_m, first))
+                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start,
+                                            finest_m=min(pp.refine_final_m, final_start))
                 if fs > sc[j]:
                     xy[j], sc[j], col[j] = fx, fs, fc
             if sc[j] > score[k]:

@@ -292,22 +292,21 @@ def _kitchen_things(clutter: dict[str, list], rng: np.random.Generator, k0: floa
                 continue
             mid = (d0 + d1) / 2
             edge = d0 + 0.05 if k % 2 else d1 - 0.05
-            bars = [(mid - 0.08, mid + 0.08, top - 0.13, top - 0.11, base_front),            # the drawer's bar
-                    (edge - 0.012, edge + 0.012, 0.42, 0.58, base_front)]                  # the door's bar
-            if not along_x or d1 <= wx0 - 0.05 + 1e-9 or d0 >= wx1 + 0.05 - 1e-9:
-                bars.append((edge - 0.012, edge + 0.012, 1.5, 1.63, front))                # the wall cabinet's bar
-            for u0, u1, z0, z1, face in bars:
-                if along_x:
-                    add("handle", [u0, face, z0, u1, face + 0.025, z1, 0.22, 0.0])
-                else:
-                    add("handle", [face - 0.025, u0, z0, face, u1, z1, 0.22, 0.0])
+            # a wall cabinet above the door: the east run's all along, the south run's but in
+            # the gap over the sink's window
+            wall_cabinet = not along_x or d1 <= wx0 - 0.05 + 1e-9 or d0 >= wx1 + 0.05 - 1e-9
+            # (name, u0, u1 along the run, z0, z1, the door's face, grey, how far it stands proud)
+            on_doors = [("handle", mid - 0.08, mid + 0.08, top - 0.13, top - 0.11, base_front, 0.22, 0.025),  # drawer's bar
+                        ("handle", edge - 0.012, edge + 0.012, 0.42, 0.58, base_front, 0.22, 0.025)]          # door's bar
+            if wall_cabinet:
+                on_doors.append(("handle", edge - 0.012, edge + 0.012, 1.5, 1.63, front, 0.22, 0.025))
             # the drawer's line across the door, 0.2 m under the counter top, and each door's
             # raised centre panel (a shaker door: its four edges are lines the map lacks)
-            panels = [("drawer line", d0 + 0.01, d1 - 0.01, top - 0.21, top - 0.2, base_front, 0.28, 0.004),
-                      ("door panel", d0 + 0.07, d1 - 0.07, 0.18, top - 0.3, base_front, 0.38, 0.008)]
-            if not along_x or d1 <= wx0 - 0.05 + 1e-9 or d0 >= wx1 + 0.05 - 1e-9:
-                panels.append(("door panel", d0 + 0.07, d1 - 0.07, 1.53, 2.07, front, 0.42, 0.008))
-            for name, u0, u1, z0, z1, face, grey, proud in panels:
+            on_doors += [("drawer line", d0 + 0.01, d1 - 0.01, top - 0.21, top - 0.2, base_front, 0.28, 0.004),
+                         ("door panel", d0 + 0.07, d1 - 0.07, 0.18, top - 0.3, base_front, 0.38, 0.008)]
+            if wall_cabinet:
+                on_doors.append(("door panel", d0 + 0.07, d1 - 0.07, 1.53, 2.07, front, 0.42, 0.008))
+            for name, u0, u1, z0, z1, face, grey, proud in on_doors:
                 if along_x:
                     add(name, [u0, face, z0, u1, face + proud, z1, grey, 0.0])
                 else:

@@ -110,6 +110,47 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     return c.save(path)
 
 
+def plot_kept_precision(path: Path, kept_share: np.ndarray, precision: np.ndarray, *, confidence_label: str, label: str,
+                        right_means: str, kept_at_100: float, threshold: float | None) -> Path:
+    """Which answers to trust: the share of the kept answers that are right against the share
+    of all frames kept as a confidence threshold falls (one point per threshold, from the
+    most confident answer to all of them; drawn from the first point's precision at 0, as
+    :func:`plot_pr_curves`), the share right over all frames as a dashed line (what a
+    confidence that says nothing would give), and the point where the last threshold with
+    every kept answer right stands."""
+    title = f"{label}: trusting the answers by {confidence_label}"
+    c = R.Canvas(700, 560)
+    ax = R.Axes(c, (84, 40, 676, 476), (-0.01, 1.01), (0.0, 1.05))
+    ticks = np.round(np.arange(0, 1.01, 0.2), 1)
+    ax.frame(ticks, ticks, size=13)
+    ax.labels("share of all frames kept (threshold falling)", f"precision (share of kept answers {right_means})", title,
+              size=14, title_size=15)
+    if not len(kept_share):
+        c.text(380, 258, "no frames", 15, anchor="mm")
+        return c.save(path)
+    x, y = np.r_[0.0, kept_share], np.r_[precision[0], precision]
+    overall = float(precision[-1])
+    grey, blue, green = (110, 110, 110), R.CYCLE[0], R.CYCLE[2]
+    ax.line(np.array([0.0, 1.0]), np.array([overall, overall]), grey, 1.6 * PT, "--")
+    ax.line(x, y, blue, 2.4 * PT)
+    few = len(kept_share) <= 60  # every threshold a point while they can be told apart
+    if few:
+        ax.markers(kept_share, precision, blue, "o", 4.5 * PT)
+    entries = [R.LegendEntry("kept answers" + (" (a point per threshold)" if few else ""), blue, line_width=2.4 * PT,
+                             marker="o" if few else "", marker_size=4.5 * PT),
+               R.LegendEntry(f"all answers: {overall:.0%} right", grey, line_width=1.6 * PT, style="--")]
+    if kept_at_100 > 0:
+        ax.markers(np.array([kept_at_100]), np.array([1.0]), green, "D", 9 * PT)
+        at = "" if threshold is None else f" ({confidence_label} >= {threshold:.4g})"
+        entries.append(R.LegendEntry(f"{kept_at_100:.0%} kept, every one right{at}", green, marker="D",
+                                     marker_size=9 * PT))
+    else:
+        entries.append(R.LegendEntry("none kept with every one right: the most confident is wrong", R.BLACK))
+    # lower left: a confidence worth having keeps its first answers right, so the curve starts high there
+    ax.legend(entries, "lower left", size=13)
+    return c.save(path)
+
+
 def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | None]]], path: Path,
                      title: str = "Recall@N") -> Path:
     """``curves``: label -> (N values, recall at each N; None = unknown). Log-scaled N."""

@@ -15,7 +15,9 @@ import pytest
 from PIL import Image
 
 from placeloc.evaluation import pose_estimates as pe
+from placeloc.evaluation import write_metrics
 from placeloc.evaluation.contracts import ContractError, ordered, read_result, report_parts, validate
+from placeloc.evaluation.report import write_report
 
 NAN = float("nan")
 
@@ -181,11 +183,21 @@ def test_a_result_with_confidence_end_to_end(tmp_path):
     assert lines[0] == before[0] + ",confidence"
     assert [ln.rsplit(",", 1) for ln in lines[1:]] == [[b, c] for b, c in zip(
         before[1:], ["0.90000", "0.70000", "0.70000", "", "0.50000", "0.20000"])]
-    # the picture, and the report explains the figures
+    # the picture: the green diamond at (1/6 kept, precision 1), where plot_kept_precision's
+    # axes box (84, 40)-(676, 476) over x -0.01..1.01, y 0..1.05 puts it
     with Image.open(out / "confidence.png") as im:
         assert im.format == "PNG" and im.size == (700, 560)
-    doc = report_parts("poses", json.loads(json.dumps(ordered(m, pe.COUNTS))))["metrics_doc"]
-    assert {"confidence_average_precision", "kept_at_100_precision", "confidence_threshold_at_100_precision"} <= set(doc)
+        px = 84 + (1 / 6 + 0.01) / 1.02 * 592, 476 - 1.0 / 1.05 * 436
+        assert np.abs(np.subtract(im.convert("RGB").getpixel((round(px[0]), round(px[1]))), (44, 160, 44))).max() < 30
+    # metrics.json (NaN and None as null) and report.html: the figures listed and explained, the picture shown
+    write_metrics(out, ordered(m, pe.COUNTS))
+    clean = json.loads((out / "metrics.json").read_text())
+    assert clean["confidence_threshold_at_100_precision"] == 0.9
+    write_report(out, config={"method": "umap"}, **report_parts("poses", clean))
+    report = (out / "report.html").read_text()
+    for key in ("confidence_average_precision", "kept_at_100_precision", "confidence_threshold_at_100_precision"):
+        assert report.count(key) == 2, key  # its meaning above the table, its value in it
+    assert "alt='confidence.png'" in report
 
 
 def test_without_true_headings_right_is_within_1m(tmp_path):

@@ -288,11 +288,11 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
 
         right = right_answers(ev.err, ev.yaw_err)
         curve = confidence_curve(confidence, right)
-        plot_kept_precision(ctx.output("confidence.png"), curve.kept_share, curve.precision,
+        plot_kept_precision(ctx.output("confidence.png"), curve.kept, curve.right, curve.n,
                             confidence_label=_confidence_label(res), label=label,
                             right_means="within 1 m and 30°" if ev.yaw_err is not None else "within 1 m",
-                            kept_at_100=float(ev.metrics.get("kept_at_100_precision", 0.0)),
-                            threshold=ev.metrics.get("confidence_threshold_at_100_precision"))
+                            kept_at_100=round(ev.metrics["kept_at_100_precision"] * curve.n),
+                            threshold=ev.metrics["confidence_threshold_at_100_precision"])
 
 
 def _confidence_label(res: Result) -> str:

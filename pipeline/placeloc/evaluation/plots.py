@@ -110,6 +110,48 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     return c.save(path)
 
 
+def plot_kept_precision(path: Path, kept: np.ndarray, right: np.ndarray, n_frames: int, *, confidence_label: str,
+                        label: str, right_means: str, kept_at_100: int, threshold: float | None) -> Path:
+    """Which answers to trust: the share of the kept answers that are right against the share
+    of all ``n_frames`` kept as a confidence threshold falls, from ``kept`` frames and the
+    ``right`` answers among them at each threshold (one point per threshold, from the most
+    confident answer to all of them; drawn from the first point's precision at 0, as
+    :func:`plot_pr_curves`); the share right over all frames as a dashed line (what a
+    confidence that says nothing would give); a diamond where the last threshold keeping
+    only right answers stands (``kept_at_100`` frames, at confidence ``threshold``)."""
+    c = R.Canvas(700, 560)
+    ax = R.Axes(c, (84, 40, 676, 476), (-0.01, 1.01), (0.0, 1.05))
+    ticks = np.round(np.arange(0, 1.01, 0.2), 1)
+    ax.frame(ticks, ticks, size=13)
+    ax.labels("share of all frames kept (threshold falling)", f"precision (share of kept answers {right_means})",
+              f"{label}: trusting the answers by {confidence_label}", size=14, title_size=15)
+    kept, right = np.asarray(kept, np.float64), np.asarray(right, np.float64)
+    if not len(kept):
+        return c.save(path)
+    share, precision = kept / n_frames, right / kept
+    grey, blue, green = (110, 110, 110), R.CYCLE[0], R.CYCLE[2]
+    ax.line(np.array([0.0, 1.0]), np.array([precision[-1]] * 2), grey, 1.6 * PT, "--")
+    ax.line(np.r_[0.0, share], np.r_[precision[0], precision], blue, 2.4 * PT)
+    few = len(kept) <= 60  # every threshold a point while they can be told apart
+    if few:
+        ax.markers(share, precision, blue, "o", 4.5 * PT)
+    entries = [R.LegendEntry("kept answers" + (" (a point per threshold)" if few else ""), blue, line_width=2.4 * PT,
+                             marker="o" if few else "", marker_size=4.5 * PT),
+               R.LegendEntry(f"all answers: {int(right[-1])} of {n_frames} right", grey, line_width=1.6 * PT,
+                             style="--")]
+    if kept_at_100 > 0:
+        ax.markers(np.array([kept_at_100 / n_frames]), np.array([1.0]), green, "D", 9 * PT)
+        entries.append(R.LegendEntry(f"{kept_at_100} of {n_frames} kept, every one right", green, marker="D",
+                                     marker_size=9 * PT))
+        if threshold is not None:
+            entries.append(R.LegendEntry(f"at {confidence_label} >= {threshold:.4g}", green))
+    else:
+        entries.append(R.LegendEntry("no threshold keeps only right answers", R.BLACK))
+    # lower left: a confidence worth having keeps its first answers right, so the curve starts high there
+    ax.legend(entries, "lower left", size=13)
+    return c.save(path)
+
+
 def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | None]]], path: Path,
                      title: str = "Recall@N") -> Path:
     """``curves``: label -> (N values, recall at each N; None = unknown). Log-scaled N."""

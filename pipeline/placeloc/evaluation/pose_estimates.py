@@ -11,11 +11,19 @@ row for every query image: checked before any stage runs.
 within 1 m and 30 degrees, when the truth has headings), ``within_0_5m``, ``within_1m``,
 ``within_2m``, ``median_error_m``, ``mean_error_m``, ``max_error_m``, ``n_frames``; with
 headings also ``median_yaw_error_deg``, ``yaw_within_10deg``, ``yaw_within_30deg``,
-``within_0_5m_30deg``, ``within_2m_30deg``; ``headline``.
+``within_0_5m_30deg``, ``within_2m_30deg``; with a ``confidence`` also
+``confidence_average_precision``, ``kept_at_100_precision``,
+``confidence_threshold_at_100_precision``, ``confidence_right_if``, ``confidence_label`` and
+``n_without_confidence`` (:func:`confidence_metrics`); ``headline``.
+
+An optional ``confidence`` (Q, higher = more trusted, NaN: the method could not tell) says
+which answers to trust; its ``confidence_label`` attribute names it in pictures. Results
+without it are scored exactly as before it existed.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -37,12 +45,17 @@ SCHEMA = {
     "heading_deg": Field("float", ("Q",)),
     "score": Field("float", ("Q",)),
     "plan_segments": Field("float", ("S", "4"), optional=True),
+    "confidence": Field("float", ("Q",), optional=True),
 }
 
 METRICS_DOC = {
     "within_1m_30deg": "share of frames within 1 m and 30 degrees of the truth (headline)",
     "within_0_5m / within_1m / within_2m": "share of frames within that distance",
     "median_error_m": "median position error in metres",
+    "confidence_average_precision": "average precision of the right answers ranked by the method's confidence "
+                                    "(right: within 1 m and 30 degrees, or 1 m without true headings)",
+    "kept_at_100_precision": "largest share of all frames a confidence threshold keeps with every kept answer right",
+    "confidence_threshold_at_100_precision": "the lowest confidence kept at that point (n/a: none can be kept)",
     "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per frame",
 }
 # counts (kept apart from the scores in metrics.json)
@@ -50,14 +63,21 @@ COUNTS = ("n_frames",)
 
 
 def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
-          z: np.ndarray | None = None, plan_segments: np.ndarray | None = None, label: str = "estimates") -> None:
-    """Write the contract into ``ctx.out/result``; ``label`` names the estimates in pictures."""
+          z: np.ndarray | None = None, plan_segments: np.ndarray | None = None, label: str = "estimates",
+          confidence: np.ndarray | None = None, confidence_label: str = "confidence") -> None:
+    """Write the contract into ``ctx.out/result``; ``label`` names the estimates in pictures.
+    ``confidence`` (per frame, higher = more trusted, NaN = cannot tell), when given, is
+    named by ``confidence_label`` (e.g. "score margin over the best rival pose")."""
+    attrs = {"label": label}
+    if confidence is not None:
+        attrs["confidence_label"] = confidence_label
     write_result(ctx.out, "poses", {
         "names": list(names), "x": np.asarray(x, np.float64), "y": np.asarray(y, np.float64),
         "z": None if z is None else np.asarray(z, np.float64), "heading_deg": np.asarray(heading_deg, np.float64),
         "score": np.asarray(score, np.float64),
-        "plan_segments": None if plan_segments is None else np.asarray(plan_segments, np.float64).reshape(-1, 4)},
-        attrs={"label": label})
+        "plan_segments": None if plan_segments is None else np.asarray(plan_segments, np.float64).reshape(-1, 4),
+        "confidence": None if confidence is None else np.asarray(confidence, np.float64)},
+        attrs=attrs)
 
 
 # ---------------------------------------------------------------------------------------
@@ -125,6 +145,81 @@ def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[st
     return out
 
 
+# what makes an answer right when its confidence is judged: the headline's 1 m and 30 degrees
+RIGHT_M, RIGHT_DEG = 1.0, 30.0
+
+
+def right_answers(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> np.ndarray:
+    """Per frame, whether the estimate is within ``RIGHT_M`` of the truth and, when the truth
+    has headings, within ``RIGHT_DEG`` of its heading (without headings: the distance alone)."""
+    right = np.asarray(err_m, float) <= RIGHT_M
+    return right if yaw_err_deg is None else right & (np.asarray(yaw_err_deg, float) <= RIGHT_DEG)
+
+
+@dataclass(frozen=True)
+class ConfidenceCurve:
+    """The answers kept as a confidence threshold falls: one point per threshold a user can
+    set, i.e. per run of equal confidences (highest first), each kept or dropped whole; the
+    frames without a confidence (NaN) form the last run. ``threshold``: the run's confidence
+    (NaN for the last run of frames without one); ``kept``, ``right``: frames kept and right
+    answers among them, counted up to and including the run; ``n``: all frames."""
+
+    threshold: np.ndarray
+    kept: np.ndarray
+    right: np.ndarray
+    n: int
+
+    @property
+    def kept_share(self) -> np.ndarray:
+        return self.kept / max(self.n, 1)
+
+    @property
+    def precision(self) -> np.ndarray:
+        return self.right / np.maximum(self.kept, 1)
+
+
+def confidence_curve(confidence: np.ndarray, right: np.ndarray) -> ConfidenceCurve:
+    """:class:`ConfidenceCurve` of answers with ``confidence`` (NaN: ranked below every
+    finite value) that are ``right`` (bool). Not :func:`placeloc.evaluation.metrics.pr_curve`:
+    that one has no run of NaN frames and gives no kept count where the precision is 0."""
+    conf = np.asarray(confidence, np.float64)
+    right = np.asarray(right, bool)
+    nan = np.isnan(conf)
+    key = np.where(nan, 0.0, -conf)
+    order = np.lexsort((key, nan))  # frames with a confidence first, each by confidence, highest first
+    key, nan = key[order], nan[order]
+    last = np.r_[(key[1:] != key[:-1]) | (nan[1:] != nan[:-1]), True] if len(conf) else np.zeros(0, bool)
+    kept = np.arange(1, len(conf) + 1)[last]
+    return ConfidenceCurve(conf[order][last], kept, np.cumsum(right[order])[last], len(conf))
+
+
+def confidence_metrics(confidence: np.ndarray, right: np.ndarray) -> dict[str, Any]:
+    """How well ``confidence`` ranks the ``right`` answers above the wrong ones.
+
+    - ``kept_at_100_precision``: the largest share of all frames that a threshold keeps with
+      every kept answer right (0 when the most confident run holds a wrong answer);
+    - ``confidence_threshold_at_100_precision``: the lowest confidence kept there (None when
+      nothing can be kept, or when every frame is right and the last run kept has no
+      confidence);
+    - ``confidence_average_precision``: non-interpolated average precision (as in
+      scikit-learn's ``average_precision_score``): over the threshold runs, the precision of
+      the answers kept weighted by the share of all right answers the run adds; 1 when every
+      right answer ranks above every wrong one, the share of right answers when the
+      confidence is one value for all; None when no answer is right;
+    - ``n_without_confidence``: frames whose confidence is NaN."""
+    curve = confidence_curve(confidence, right)
+    perfect = np.flatnonzero(curve.right == curve.kept)
+    # the points at 100 % precision are a leading run: once a wrong answer is kept it stays kept
+    best = int(perfect[-1]) if len(perfect) and perfect[0] == 0 else -1
+    threshold = float(curve.threshold[best]) if best >= 0 else float("nan")
+    n_right = int(curve.right[-1]) if len(curve.right) else 0
+    added = np.diff(np.r_[0, curve.right])
+    return {"confidence_average_precision": float(np.sum(added * curve.precision) / n_right) if n_right else None,
+            "kept_at_100_precision": float(curve.kept_share[best]) if best >= 0 else 0.0,
+            "confidence_threshold_at_100_precision": None if np.isnan(threshold) else threshold,
+            "n_without_confidence": int(np.isnan(np.asarray(confidence, np.float64)).sum())}
+
+
 # ---------------------------------------------------------------------------------------
 # evaluate, pictures
 # ---------------------------------------------------------------------------------------
@@ -150,6 +245,10 @@ def score(res: Result, gt: Any, rows: np.ndarray) -> PoseEvaluation:
     yaw_err = yaw_errors(res["heading_deg"], truth_heading) if truth_heading is not None else None
     metrics = error_metrics(err)
     metrics.update(recall_metrics(err, yaw_err))
+    if res.get("confidence") is not None:
+        metrics.update(confidence_metrics(res["confidence"], right_answers(err, yaw_err)))
+        metrics["confidence_right_if"] = "within_1m_30deg" if yaw_err is not None else "within_1m"
+        metrics["confidence_label"] = _confidence_label(res)
     metrics["headline"] = (["within_1m_30deg"] if yaw_err is not None else []) + [
         "within_0_5m", "within_1m", "within_2m", "median_error_m", "seconds_per_frame"]
     ev = PoseEvaluation("poses", res, metrics=metrics, label=str(res.attrs.get("label", "")), truth=truth, est=est,
@@ -159,27 +258,45 @@ def score(res: Result, gt: Any, rows: np.ndarray) -> PoseEvaluation:
 
 
 def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
-    """per_query.csv (estimate, truth and error per frame), error_cdf.png and estimates_on_plan.png."""
+    """per_query.csv (estimate, truth and error per frame; the confidence last when the
+    result has one), error_cdf.png, estimates_on_plan.png and, with a confidence,
+    confidence.png."""
     import csv
 
     from placeloc.core.artifacts import atomic_open
 
     res = ev.result
+    confidence = res.get("confidence")
     with atomic_open(ctx.output("per_query.csv"), newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "x", "y", "heading_deg", "true_x", "true_y", "true_heading_deg", "error_m", "yaw_error_deg",
-                    "score"])
+                    "score"] + ([] if confidence is None else ["confidence"]))
         for k, name in enumerate(res["names"]):
             th = ev.truth_heading
             w.writerow([name, f"{res['x'][k]:.3f}", f"{res['y'][k]:.3f}", f"{res['heading_deg'][k]:.1f}",
                         f"{ev.truth[k, 0]:.3f}", f"{ev.truth[k, 1]:.3f}", "" if th is None else f"{th[k]:.1f}",
-                        f"{ev.err[k]:.3f}", "" if ev.yaw_err is None else f"{ev.yaw_err[k]:.1f}", f"{res['score'][k]:.5f}"])
+                        f"{ev.err[k]:.3f}", "" if ev.yaw_err is None else f"{ev.yaw_err[k]:.1f}", f"{res['score'][k]:.5f}"]
+                       + ([] if confidence is None else ["" if np.isnan(confidence[k]) else f"{confidence[k]:.5f}"]))
     if not plots:
         return
     label = ev.label
     plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
     plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
                            ev.truth_heading, res["heading_deg"])
+    if confidence is not None:
+        from placeloc.evaluation.plots import plot_kept_precision
+
+        right = right_answers(ev.err, ev.yaw_err)
+        curve = confidence_curve(confidence, right)
+        plot_kept_precision(ctx.output("confidence.png"), curve.kept, curve.right, curve.n,
+                            confidence_label=_confidence_label(res), label=label,
+                            right_means="within 1 m and 30°" if ev.yaw_err is not None else "within 1 m",
+                            kept_at_100=round(ev.metrics["kept_at_100_precision"] * curve.n),
+                            threshold=ev.metrics["confidence_threshold_at_100_precision"])
+
+
+def _confidence_label(res: Result) -> str:
+    return str(res.attrs.get("confidence_label", "confidence"))
 
 
 def _segments6(res: Result) -> np.ndarray:

@@ -26,7 +26,7 @@ MAX_PICTURE_BYTES = 32 << 20
 MAX_METRICS_BYTES = 16 << 20
 # Pictures first that say most; any other PNG follows in name order.
 ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "map.png", "recall_at_n.png", "pr_curve.png",
-         "error_cdf.png", "time_per_frame.png", "difference_matrix.png")
+         "error_cdf.png", "confidence.png", "time_per_frame.png", "difference_matrix.png")
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}

@@ -65,7 +65,7 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
             origin = 0.1 + frac * 0.3
             poses, _ = plan_grid(m, x=[origin, 6.0, 0.3], y=[origin, 7.0, 0.3], z=1.4, headings=[0.0])
             db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
-            _, xy, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+            _, xy, _, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
                                            hidden=True)
             out.append(xy)
         answers[final, start] = np.array(out)             # (origins, cameras, 2)

@@ -31,7 +31,7 @@ import functools
 import math
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -741,6 +741,50 @@ def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
 
 
 
+def rival_score(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, seen_score: np.ndarray,
+                answer_xy: np.ndarray, answer_col: int, *, distance_m: float, yaw_cols: float) -> float:
+    """The best score of a *rival* of an answer: a pose that would be a different answer,
+    i.e. more than ``distance_m`` from ``answer_xy`` at any heading, or within it at a
+    heading more than ``yaw_cols`` columns (circularly) from ``answer_col``.
+
+    Looked for among every (grid position, shift) of the (P, W) score ``table`` and among
+    the off-grid plan points the local search scored (``seen_xy``, ``seen_score``: each
+    point's best over the shifts it was scored at, all within a few columns of its
+    candidate's heading, so they only give rivals by distance). NaN when no pose scored is a
+    rival (a model smaller than ``distance_m``). The answer's score minus this is its
+    margin: how much better the answer is than the best place or heading that would make it
+    wrong, by the same score the search ranks with."""
+    best = -np.inf
+    far = np.hypot(*(np.asarray(grid_xy, float) - answer_xy).T) > distance_m
+    if far.any():
+        best = float(table[far].max())
+    w = table.shape[1]
+    cols = np.abs((np.arange(w) - int(answer_col) + w // 2) % w - w // 2)   # circular distance in columns
+    turned = cols > yaw_cols + 1e-9
+    if (~far).any() and turned.any():
+        best = max(best, float(table[~far][:, turned].max()))
+    if len(seen_xy):
+        far_seen = np.hypot(*(np.asarray(seen_xy, float) - answer_xy).T) > distance_m
+        if far_seen.any():
+            best = max(best, float(np.max(seen_score[far_seen])))
+    return best if np.isfinite(best) else math.nan
+
+
+class PanoramaAnswers(NamedTuple):
+    """What :func:`search_panoramas` finds for each of N query panoramas."""
+
+    best: np.ndarray      # (N,) grid row of the answer's candidate
+    xy: np.ndarray        # (N, 2) plan position, refined off the grid
+    heading: np.ndarray   # (N,) degrees
+    score: np.ndarray     # (N,) the answer's score
+    rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_score`)
+
+    @property
+    def margin(self) -> np.ndarray:
+        """score - rival: how far the answer is ahead of the best different answer (NaN: no rival)."""
+        return self.score - self.rival
+
+
 # ------------------------------------------------------------------ local refinement
 
 @njit(cache=True)
@@ -1018,10 +1062,10 @@ class RenderCache:
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
-                     progress: Callable[[Iterable], Iterable] = lambda it: it
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                     progress: Callable[[Iterable], Iterable] = lambda it: it) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
-    image: every grid position and yaw scored (``database``: ``spectra`` for the chamfer
+    image, and the best score of a rival answer (:func:`rival_score`, ``pp.margin_distance_m``
+    and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position and yaw scored (``database``: ``spectra`` for the chamfer
     score, :func:`chamfer_spectra`; ``bits`` and ``counts`` for eq. (1)); then, with
     ``pp.refine_candidates``, a local search off the grid (``pp``: the ``umap.panorama``
     parameters):
@@ -1058,7 +1102,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     bins = int(pp.orientation_bins)
     spread = int(pp.orientation_spread) if bins > 1 else None
     n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
-    best, heading, score = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n)
+    best, heading, score, rival = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n), np.full(n, np.nan)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
     if spread is not None and not chamfer:
@@ -1087,20 +1131,27 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                 orientation_bins=bins if spread is not None else 0)
 
     renders = RenderCache(render_local)
+    # the plan points the local search scored for the current query, each at its best shift:
+    # the rivals off the grid
+    seen_xy: list[np.ndarray] = []
+    seen_score: list[np.ndarray] = []
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
         an earlier render of the same point) at shifts cols (L, S)."""
         if spread is not None:
-            return oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
-                                      spread=spread, query_close=q_close, precision_rows=prows)
-        imgs = unpack(renders(pts), h, w)
-        if chamfer:
-            return chamfer_at_shifts(imgs, queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
-                                     chance=pp.chamfer_chance, query_close=q_close, precision_rows=prows,
-                                     clutter_share=pp.clutter_share)
-        dil = pack(dilate_lines(imgs, tolerance_px))
-        return np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
+            out = oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+                                     spread=spread, query_close=q_close, precision_rows=prows)
+        elif chamfer:
+            out = chamfer_at_shifts(unpack(renders(pts), h, w), queries[k], cols, tau_px=pp.chamfer_tau_px,
+                                    weights=weights, chance=pp.chamfer_chance, query_close=q_close,
+                                    precision_rows=prows, clutter_share=pp.clutter_share)
+        else:
+            dil = pack(dilate_lines(unpack(renders(pts), h, w), tolerance_px))
+            out = np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
+        seen_xy.append(pts)
+        seen_score.append(out.max(axis=1))
+        return out
 
     walls = blocking_faces(faces, float(poses[0, 2])) if len(poses) else faces
     cell = grid_step(poses[:, :2]) / 3.0 if len(poses) else 0.0
@@ -1109,6 +1160,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
     final_start = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
+    rival_cols = pp.margin_yaw_deg * w / 360.0
 
     def scored() -> Iterable:
         for s in range(0, n, PANORAMA_BATCH):
@@ -1159,9 +1211,14 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         for k, table in progress(scored()):
             best[k], shift, score[k] = best_pose(table)
             heading[k] = shift * 360.0 / w
+            seen_xy.clear()
+            seen_score.clear()
+            answer_xy, answer_col = poses[best[k], :2], shift
             cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
             if not len(cands):
+                rival[k] = rival_score(table, poses[:, :2], np.zeros((0, 2)), np.zeros(0), answer_xy, answer_col,
+                                       distance_m=pp.margin_distance_m, yaw_cols=rival_cols)
                 continue
             q_close = None
             if chamfer:
@@ -1201,9 +1258,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 # the grid row stays that of the candidate; the position is the refined one
                 best[k], heading[k], score[k] = cands[beam[j]], col[j] * 360.0 / w, sc[j]
                 refined_xy[k] = xy[j]
+                answer_xy, answer_col = xy[j], int(col[j])
+            rival[k] = rival_score(table, poses[:, :2], np.concatenate(seen_xy), np.concatenate(seen_score), answer_xy,
+                                   answer_col, distance_m=pp.margin_distance_m, yaw_cols=rival_cols)
     finally:
         limiter.restore_original_limits()
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]
-    return best, est, heading, score
+    return PanoramaAnswers(best, est, heading, score, rival)

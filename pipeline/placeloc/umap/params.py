@@ -129,6 +129,11 @@ class PanoramaParams(Params):
                                                             "it (0: the beam's finest step, from the beam's best pose)")
     refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
                                                 "local pose")
+    margin_distance_m: float = param(1.0, min=0.0, min_exclusive=True,
+                                     help="an answer's margin (estimates.csv, the poses contract's confidence) is its "
+                                          "score minus the best score the search saw of a rival: a pose more than "
+                                          "this far away, or nearer at a heading more than margin_yaw_deg off")
+    margin_yaw_deg: float = param(30.0, min=0.0, max=180.0, help="see margin_distance_m")
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
+    PanoramaAnswers,
     chamfer_spectra,
     render_oriented_block,
     render_panorama_block,
@@ -274,8 +275,8 @@ def _extract_panoramas(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ localize
 
-def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Best (grid row, plan position, heading, score) of each panorama:
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
+    """Best (grid row, plan position, heading, score) of each panorama and its rival's score:
     :func:`placeloc.umap.panorama.search_panoramas` over the index's database."""
     pp = ctx.params.panorama
     h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
@@ -318,7 +319,7 @@ def localize(ctx: Any) -> None:
     if str(ex.attrs["query_kind"]) == "panorama" or str(idx.attrs.get("kind", "pinhole")) == "panorama":
         if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
-        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), *_localize_panoramas(ctx, idx, ex))
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), _localize_panoramas(ctx, idx, ex))
         return
     scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
                     shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
@@ -381,25 +382,34 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
-def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], best: np.ndarray, xy: np.ndarray,
-                              heading: np.ndarray, score: np.ndarray) -> None:
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers) -> None:
     n = len(names)
-    est = np.column_stack([xy, poses[best, 2:]])
+    est = np.column_stack([found.xy, poses[found.best, 2:]])
+    heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
     nan = np.full(n, np.nan)
-    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score)
-    write_tree(ctx.out, {"names": names, "best_index": best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
-                         "score": score, "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
+    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin)
+    write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
+                         "score": score, "rival_score": rival, "margin": margin, "ca_distance_m": nan,
+                         "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", "score"])
+        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin"])
         for k in range(n):
-            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}"])
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}",
+                        _csv_number(rival[k]), _csv_number(margin[k])])
 
 
-def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, heading: np.ndarray, score: np.ndarray) -> None:
-    """The ``poses`` contract, with the plan's walls (room outlines, else the wireframe seen from above)."""
+def _csv_number(x: float) -> str:
+    """A score in estimates.csv (empty for NaN: no rival was scored)."""
+    return "" if math.isnan(x) else f"{x:.5f}"
+
+
+def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, heading: np.ndarray, score: np.ndarray,
+                  margin: np.ndarray | None = None) -> None:
+    """The ``poses`` contract, with the plan's walls (room outlines, else the wireframe seen from above), and
+    for panoramas each answer's margin over its rival as the confidence."""
     from placeloc.evaluation import pose_estimates
 
     plan = ctx.artifact("build-dictionary")
@@ -409,7 +419,8 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
     else:
         segments = plan["segments"][()][:, [0, 1, 3, 4]]
     pose_estimates.write(ctx, names=names, x=x, y=y, heading_deg=heading, score=score, plan_segments=segments,
-                         label=str(ctx.params.mode))
+                         label=str(ctx.params.mode), confidence=margin,
+                         confidence_label="score margin over the best rival pose")
 
 
 # ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds

@@ -1,0 +1,79 @@
+"""Known answers for a panorama answer's margin: the best score of a rival answer (another
+place, or the same place facing elsewhere) by hand, and on scenes where the answer is
+certain (an L-shaped room) or a coin toss (two identical rooms)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from placeloc.geometry.floorplan import floor_plan_model, plan_grid
+from placeloc.geometry.panorama import render_panoramas
+from placeloc.umap.bits import unpack
+from placeloc.umap.panorama import chamfer_spectra, rival_score, row_weights, search_panoramas
+from placeloc.umap.params import PanoramaParams
+
+W, H = 144, 72
+
+
+def test_rival_score_by_hand():
+    # 4 grid positions on a line, 8 columns (45 deg each); the answer at position 0, column 1.
+    table = np.array([[0.90, 0.95, 0.70, 0.10, 0.80, 0.20, 0.30, 0.60],    # x = 0: the answer's place
+                      [0.40, 0.50, 0.20, 0.20, 0.75, 0.20, 0.20, 0.20],    # x = 0.5: near
+                      [0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.65],    # x = 1.5: far
+                      [0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10]])   # x = 3: far
+    xy = np.array([[0.0, 0.0], [0.5, 0.0], [1.5, 0.0], [3.0, 0.0]])
+    none = (np.zeros((0, 2)), np.zeros(0))
+    # within 1 m, rivals face more than one column (45 deg) from column 1: columns 3-7 (column 7
+    # wraps to 2 columns away); best 0.80 at (x = 0, column 4); far: 0.70 at x = 1.5
+    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == np.float32(0.80)
+    # every heading within 90 deg (2 columns) is the answer's: near rivals only in columns 4-6
+    # (0.80 at x = 0 column 4); with a tolerance of 3 columns only column 5 (0.20), so the far 0.70 wins
+    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=3) == np.float32(0.70)
+    # every place within 2 m is the answer's, any heading within 180 deg too: only x = 3 (0.10)
+    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=2.0, yaw_cols=4) == np.float32(0.10)
+    # an off-grid point the local search scored 1.2 m away outscores the grid; one 0.9 m away
+    # (nearer than the distance) does not count, however high
+    seen_xy, seen = np.array([[0.9, 0.0], [0.0, 1.2]]), np.array([0.99, 0.85])
+    assert rival_score(table, xy, seen_xy, seen, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == 0.85
+    # no rival at all: NaN
+    assert math.isnan(rival_score(table[:2], xy[:2], *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=4))
+
+
+# two identical rooms 4 x 3 m, 6 m apart (their walls hide each other), each with a door
+# on the same side: a camera in one sees what the same spot in the other sees
+ROOM = [[0, 0], [4, 0], [4, 3], [0, 3]]
+TWINS = {"floor_z": 0.0, "ceiling_z": 2.6,
+         "rooms": [{"name": "a", "polygon": ROOM}, {"name": "b", "polygon": [[x + 6, y] for x, y in ROOM]}],
+         "openings": [{"from": [1, 0], "to": [1.9, 0], "height": 2.0}, {"from": [7, 0], "to": [7.9, 0], "height": 2.0}]}
+# the same home with room b turned into an L by a wall closet: nothing looks like room a
+ODD = {**TWINS, "rooms": [{"name": "a", "polygon": ROOM},
+                          {"name": "b", "polygon": [[6, 0], [10, 0], [10, 1.8], [8.8, 1.8], [8.8, 3], [6, 3]]}]}
+
+
+def _answers(plan: dict, truth: np.ndarray):
+    m = floor_plan_model(plan)
+    q = unpack(render_panoramas(m.segments, m.faces, truth, width=W, height=H, hidden=True), H, W)
+    poses, _ = plan_grid(m, x=[0.25, 10.0, 0.25], y=[0.25, 3.0, 0.25], z=1.4, headings=[0.0], inside_only=True)
+    imgs = unpack(render_panoramas(m.segments, m.faces, poses, width=W, height=H, hidden=True), H, W)
+    pp = replace(PanoramaParams(), orientation_bins=1)
+    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    db = {"spectra": chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=wts)}
+    return search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+
+
+def test_margin_is_zero_in_a_twin_room_and_clear_in_a_room_of_its_own():
+    # Cameras in room a, off the grid. With a twin room b the same spot there is a rival as
+    # good as the answer (margin 0, to float rounding: the twin's grid and search points are
+    # the answer's moved by 6 m, a whole number of steps); with room b changed, the answer
+    # stands clear of every other place and heading.
+    truth = np.array([[1.37, 1.12, 1.4, 40.0], [2.81, 2.2, 1.4, 200.0]])
+    twins = _answers(TWINS, truth)
+    assert np.all(np.isfinite(twins.rival))
+    assert np.abs(twins.margin).max() <= 1e-4, twins.margin
+    odd = _answers(ODD, truth)
+    assert np.hypot(*(odd.xy - truth[:, :2]).T).max() <= 0.05
+    assert odd.margin.min() >= 0.05, odd.margin
+    assert np.all(odd.rival < odd.score)

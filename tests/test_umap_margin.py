@@ -77,3 +77,41 @@ def test_margin_is_zero_in_a_twin_room_and_clear_in_a_room_of_its_own():
     assert np.hypot(*(odd.xy - truth[:, :2]).T).max() <= 0.05
     assert odd.margin.min() >= 0.05, odd.margin
     assert np.all(odd.rival < odd.score)
+
+
+def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog):
+    # Through the pipeline: a panorama taken in one of two identical rooms is marked doubtful
+    # in estimates.csv and named in the log; in the home where room b differs, it is not.
+    import csv
+    import logging
+
+    import cv2
+    import yaml
+
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_stage
+
+    truth = (1.37, 1.12, 1.4, 40.0)
+    for name, plan in (("twins", TWINS), ("odd", ODD)):
+        d = tmp_path / name
+        (d / "q").mkdir(parents=True)
+        (d / "plan.yaml").write_text(yaml.safe_dump(plan))
+        m = floor_plan_model(plan)
+        lines = unpack(render_panoramas(m.segments, m.faces, np.array([truth]), width=512, height=256, hidden=True),
+                       256, 512)[0]
+        cv2.imwrite(str(d / "q" / "p0.png"), np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190)
+                    .astype(np.uint8))
+        cfg = load_config(data={"method": "umap", "query": {"images": str(d / "q")},
+                                "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
+                                         "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4,
+                                                  "headings": [0.0]},
+                                         "panorama": {"orientation_bins": 1}},
+                                "plots": False}, base_dir=d)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="placeloc"):
+            run_stage(cfg, d / "run", "localize", quiet=True)
+        (row,) = list(csv.DictReader(open(d / "run" / "estimates.csv")))
+        doubtful = name == "twins"
+        assert row["doubtful"] == ("true" if doubtful else "false"), row
+        assert (float(row["margin"]) < 0.02) == doubtful
+        assert ("1 of 1 answers are doubtful" in caplog.text) == doubtful

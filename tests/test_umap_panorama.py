@@ -125,6 +125,8 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score, bins):
         # the L-shaped room has no look-alike: each answer beats every other place and heading,
         # and the margin is its score minus its rival's
         assert float(r["rival_score"]) < float(r["score"])
+        # doubtful_margin is in the chamfer score's units (the IoU's margins here are 0.016-0.03)
+        assert score == "iou" or r["doubtful"] == "false"
         assert float(r["margin"]) == pytest.approx(float(r["score"]) - float(r["rival_score"]), abs=2e-5)
     # the margin reaches evaluate as the poses contract's confidence
     assert m["kept_at_100_precision"] == 1.0 and m["confidence_average_precision"] == 1.0

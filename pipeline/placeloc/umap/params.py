@@ -134,6 +134,11 @@ class PanoramaParams(Params):
                                           "score minus the best score the search saw of a rival: a pose more than "
                                           "this far away, or nearer at a heading more than margin_yaw_deg off")
     margin_yaw_deg: float = param(30.0, min=0.0, max=180.0, help="see margin_distance_m")
+    doubtful_margin: float = param(0.02, min=0.0, help="answers whose margin is below this are marked doubtful in "
+                                                        "estimates.csv and named in the log (in the score's units: "
+                                                        "0.02 flags 5 % of the right answers of the default chamfer "
+                                                        "score on generated homes, docs/umap.md; the IoU score's "
+                                                        "margins are smaller: set your own)")
 
 
 @dataclass(frozen=True)

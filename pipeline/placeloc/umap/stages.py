@@ -393,12 +393,18 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                          "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
+    # NaN (no rival scored) is not doubtful: nothing else was a candidate
+    doubtful = margin < ctx.params.panorama.doubtful_margin
+    if doubtful.any():
+        log.warning("%d of %d answers are doubtful (margin below umap.panorama.doubtful_margin %g: another place or "
+                    "heading scores nearly as well): %s", int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
+                    ", ".join(names[k] for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin"])
+        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin", "doubtful"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}",
-                        _csv_number(rival[k]), _csv_number(margin[k])])
+                        _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false"])
 
 
 def _csv_number(x: float) -> str:

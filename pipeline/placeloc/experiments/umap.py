@@ -130,6 +130,14 @@ def home_table(runs: dict[str, dict[str, Any]]) -> list[str]:
         lines.append(f"| {score} | {len(ms)} | {head.min():.0%} / {np.median(head):.0%} / {head.max():.0%} | "
                      f"{np.median(col('within_1m')):.0%} | {np.median(col('within_2m')):.0%} | "
                      f"{np.median(col('median_error_m')):.2f} | {np.median(col('median_yaw_error_deg')):.1f} |")
+    kept = {score: [m["kept_at_100_precision"] for k, m in runs.items()
+                    if k.endswith(f"-panorama-{score}") and m.get("kept_at_100_precision") is not None]
+            for score in HOME_SCORES}
+    kept = {score: np.array(v) for score, v in kept.items() if v}
+    if kept:
+        lines += ["", "Answers kept at 100 % precision when ranked by their margin (the poses contract's confidence; "
+                  "worst / median / best over the runs): "
+                  + "; ".join(f"{score} {v.min():.0%} / {np.median(v):.0%} / {v.max():.0%}" for score, v in kept.items())]
     st = [m["line_stats"] for k, m in runs.items() if k.endswith(f"-panorama-{HOME_SCORES[0]}")]
     if st:
         real = REAL_HOME_STATS

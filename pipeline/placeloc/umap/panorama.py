@@ -757,12 +757,14 @@ def rival_score(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, see
     best = -np.inf
     far = np.hypot(*(np.asarray(grid_xy, float) - answer_xy).T) > distance_m
     if far.any():
-        best = float(table[far].max())
+        # each position's best shift first: one pass over the table, no copy of its far rows
+        best = float(table.max(axis=1)[far].max())
     w = table.shape[1]
     cols = np.abs((np.arange(w) - int(answer_col) + w // 2) % w - w // 2)   # circular distance in columns
-    turned = cols > yaw_cols + 1e-9
-    if (~far).any() and turned.any():
-        best = max(best, float(table[~far][:, turned].max()))
+    turned = np.flatnonzero(cols > yaw_cols + 1e-9)
+    near = np.flatnonzero(~far)
+    if len(near) and len(turned):
+        best = max(best, float(table[np.ix_(near, turned)].max()))
     if len(seen_xy):
         far_seen = np.hypot(*(np.asarray(seen_xy, float) - answer_xy).T) > distance_m
         if far_seen.any():

@@ -493,7 +493,8 @@ METHOD = Method(
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",
-                                          "hidden_lines",
+                                          "panorama.margin_distance_m", "panorama.margin_yaw_deg",
+                                          "panorama.doubtful_margin", "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
     },

@@ -206,3 +206,15 @@ def test_without_true_headings_right_is_within_1m(tmp_path):
     assert ev.metrics["confidence_average_precision"] == pytest.approx(37 / 48)
     assert ev.metrics["confidence_right_if"] == "within_1m"
     assert ev.metrics["confidence_label"] == "confidence"  # write's default
+
+
+def test_the_plan_picture_names_the_worst_wrong_answers_first():
+    # errors (m) and yaw errors (deg): frame 1 is 40 deg off at 0.2 m (wrong by heading), frames
+    # 2 and 4 are 3 m and 7 m off, frame 3 0.9 m and 10 deg (right); the worst first, then the limit
+    from placeloc.evaluation.pose_estimates import right_answers, worst_wrong
+
+    err = np.array([0.1, 0.2, 3.0, 0.9, 7.0])
+    wrong = ~right_answers(err, np.array([5.0, 40.0, 2.0, 10.0, 1.0]))
+    assert worst_wrong(err, wrong) == [4, 2, 1]
+    assert worst_wrong(err, wrong, limit=2) == [4, 2]
+    assert worst_wrong(err, ~right_answers(err, None)) == [4, 2]

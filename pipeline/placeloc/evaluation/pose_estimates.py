@@ -147,6 +147,9 @@ def recall_metrics(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> dict[st
 
 # what makes an answer right when its confidence is judged: the headline's 1 m and 30 degrees
 RIGHT_M, RIGHT_DEG = 1.0, 30.0
+# wrong answers named on the plan picture: enough to find the failures of a home's tour,
+# few enough that the names stay legible
+NAMED_WRONG = 12
 
 
 def right_answers(err_m: np.ndarray, yaw_err_deg: np.ndarray | None) -> np.ndarray:
@@ -282,7 +285,7 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
     label = ev.label
     plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
     plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
-                           ev.truth_heading, res["heading_deg"])
+                           ev.truth_heading, res["heading_deg"], names=res["names"])
     if confidence is not None:
         from placeloc.evaluation.plots import plot_kept_precision
 
@@ -335,8 +338,14 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
                 truth_heading = np.array([float(rows[n]["true_heading_deg"]) for n in res["names"]])
     path = out_dir / "estimates_on_plan.png"
     plot_estimates_on_plan(path, truth, est, [], _segments6(res), str(res.attrs.get("label", "estimates")), truth_heading,
-                           res["heading_deg"])
+                           res["heading_deg"], names=res["names"])
     return [path]
+
+
+def worst_wrong(err_m: np.ndarray, wrong: np.ndarray, limit: int = NAMED_WRONG) -> list[int]:
+    """The frames of the ``wrong`` answers, the largest position error first (ties in frame
+    order), at most ``limit``: those the plan picture names."""
+    return [int(k) for k in np.argsort(-np.asarray(err_m, float), kind="stable") if wrong[k]][:limit]
 
 
 def _plt():  # noqa: ANN202
@@ -386,10 +395,13 @@ ARROW_INCHES = 0.12
 
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
                            mode: str, truth_heading_deg: np.ndarray | None = None,
-                           est_heading_deg: np.ndarray | None = None) -> None:
+                           est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None) -> None:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
     positions joined by error lines, headings as short arrows of a fixed length on the page
-    (drawn under the dots). A long plan (a corridor) is cut into up to four pieces along its
+    (drawn under the dots). With the truth and ``names``, the wrong answers (more than 1 m
+    off, or more than 30 degrees where both headings are known; at most
+    :data:`NAMED_WRONG`, the worst first) are named at their true position, so that the
+    frame to look at is read off the picture. A long plan (a corridor) is cut into up to four pieces along its
     length, stacked (or side by side when it runs up the page), each to scale, so that it
     fills the figure instead of a thin strip in white space; the view covers the part of the
     plan the frames visit."""
@@ -418,6 +430,10 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         panel_w = float(np.clip(9.0 * span[0] / piece, 1.2, width / pieces))
         fig, axes = plt.subplots(1, pieces, figsize=(pieces * panel_w + 2.5, 9.5), squeeze=False)
     err = np.hypot(*(est - truth).T)
+    yaw_err = (yaw_errors(est_heading_deg, truth_heading_deg)
+               if truth_heading_deg is not None and est_heading_deg is not None else None)
+    wrong = ~right_answers(err, yaw_err) if known and names is not None else np.zeros(len(err), bool)
+    named = worst_wrong(err, wrong)
     for k, ax in enumerate(axes.ravel()):
         if polys:
             for poly in polys:
@@ -437,6 +453,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         if known:
             ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=4.5, zorder=4, label="true position")
         ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=5.5, mew=1.4, zorder=5, label=f"{mode} estimate")
+        for j in named:
+            ax.annotate(str(names[j]), truth[j], textcoords="offset points", xytext=(5, 5), fontsize=8,
+                        color="tab:blue", zorder=6, annotation_clip=True)
         a0, a1 = lo[along] + k * piece, lo[along] + (k + 1) * piece
         lims = ((a0, a1), (lo[1], hi[1])) if along == 0 else ((lo[0], hi[0]), (a0, a1))
         ax.set_xlim(*lims[0])
@@ -452,6 +471,10 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     if truth_heading_deg is not None or est_heading_deg is not None:
         handles.append(plt.Line2D([], [], color="0.3", lw=0, marker=r"$\rightarrow$", ms=10))
         labels.append("heading")
+    if named:
+        handles.append(plt.Line2D([], [], color="tab:blue", lw=0, marker=r"$\mathrm{ab}$", ms=12))
+        labels.append("wrong answer, named at its truth" + (f" ({len(named)} worst of {int(wrong.sum())})"
+                                                            if wrong.sum() > len(named) else ""))
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
     if known:

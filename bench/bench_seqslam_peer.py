@@ -2,6 +2,7 @@
 
     python bench/bench_seqslam_peer.py --peer-bin /tmp/seqslam/build/peer-run            # 5 pairs
     python bench/bench_seqslam_peer.py --peer-bin /tmp/seqslam/build/peer-run --load 2   # + 2 busy processes
+    python bench/bench_seqslam_peer.py --peer-bin ... --settings peer    # the peer's own benchmark's problem
     python bench/bench_seqslam_peer.py --write-driver /tmp/seqslam/driver                # the driver's source
 
 The problem is ``bench_seqslam.py``'s: 3576 + 3576 64x32 thumbnails (nordland-dev tiled with
@@ -10,7 +11,10 @@ noise, the same PNG bytes for both programs), 11 query frames centred on the que
 ``v_step 0.1``, five slopes of which four differ; the peer's 5 steps, which it reduces to
 the slopes with distinct end points, 0.8, 1.0 and 1.2), contrast enhancement over 21
 reference rows centred on the row (placeloc ``enhance_window 10``; the peer's window 21).
-Each program normalises the images its own way: placeloc patch normalisation (patch 8),
+``--settings peer`` gives both programs the problem of the peer's own whole-run benchmark
+instead (``benchmark-seqslam.cpp``: 15 query frames, slopes 0-5 in 10 steps, enhancement
+over 30 rows, here 31 so that both centre it; placeloc ``ds 14``, ``v_step 5/9``,
+``enhance_window 15``). Each program normalises the images its own way: placeloc patch normalisation (patch 8),
 the peer OpenCV CLAHE (clip 20, its benchmark's value). Each pair runs both programs once,
 the first of the two alternating from pair to pair, after one untimed run of each (which
 fills placeloc's compiled-kernel cache and pocl's kernel cache, and the page cache).
@@ -78,6 +82,7 @@ The ratio printed is the peer's time over placeloc's (the issue's goal: at least
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -92,15 +97,20 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_seqslam import P, make_traverses, run_cli, write_config  # noqa: E402
+from bench_seqslam import P, make_traverses, run_cli  # noqa: E402
 
 from placeloc.core.images import list_images  # noqa: E402
 from placeloc.experiments import shared_data_dir  # noqa: E402
 
-# The peer's arguments for the same problem (see the module docstring).
-PEER_SEQUENCE_LENGTH = P.ds + 1          # placeloc's window has ds + 1 query frames
-PEER_ENHANCE_WINDOW = 2 * P.enhance_window + 1   # placeloc enhances over +-enhance_window rows
-PEER_TRAJECTORIES = round((P.v_max - P.v_min) / P.v_step) + 1
+# The problem, in placeloc's keys: ``placeloc`` is bench_seqslam.py's (the defaults, centred);
+# ``peer`` is the whole run of the peer's own benchmark (benchmark-seqslam.cpp: 15 query
+# frames, slopes 0-5 in 10 steps, an enhancement window of 30 rows, here 31 so that both
+# programs centre it on the row).
+SETTINGS = {
+    "placeloc": {"ds": P.ds, "enhance_window": P.enhance_window, "v_min": P.v_min, "v_max": P.v_max,
+                 "v_step": P.v_step},
+    "peer": {"ds": 14, "enhance_window": 15, "v_min": 0.0, "v_max": 5.0, "v_step": 5 / 9},
+}
 PEER_CLAHE_CLIP = 20                     # the peer's benchmark (benchmark-seqslam.cpp) value
 # The OpenCL work sizes of the peer's gpuWhole: diff-matrix tiles 4 x 4 with 8 pixels a
 # work-item, 8 references a work-item in the enhancement, 6 in the search.
@@ -288,11 +298,30 @@ def placeloc_answers(run_dir: Path) -> list[tuple[int, int]]:
     return [(frame_number(Path(q).name), frame_number(Path(r_names[b]).name)) for q, b in zip(q_names, best)]
 
 
-def run_peer(peer_bin: Path, path: str, ref: Path, query: Path, out_file: Path) -> tuple[float, float, str]:
+def peer_problem(settings: dict) -> list[str]:
+    """The peer's arguments for placeloc's ``settings``: ds + 1 query frames (placeloc's window),
+    2 R + 1 enhancement rows (placeloc's +-R), the same slopes and their count."""
+    n_slopes = round((settings["v_max"] - settings["v_min"]) / settings["v_step"]) + 1
+    return [str(2 * settings["enhance_window"] + 1), str(settings["ds"] + 1), f"{settings['v_min']:g}",
+            f"{settings['v_max']:g}", str(n_slopes)]
+
+
+def write_config(path: Path, ref: Path, query: Path, settings: dict) -> Path:
+    """bench_seqslam.py's configuration (SAD, centred, trajectories, D kept) with ``settings``."""
+    path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(query)},
+                                "plots": False, "seqslam": {"comparison": "sad", "store_difference": True,
+                                                            "search": "centred", "sequence_shape": "trajectory",
+                                                            **settings}}))
+    return path
+
+
+def run_peer(peer_bin: Path, path: str, ref: Path, query: Path, out_file: Path,
+             problem: list[str]) -> tuple[float, float, str]:
     """One whole run of the peer as its own process: (wall s, CPU s, its timing line)."""
     sizes = PEER_OPENCL_SIZES if path == "opencl" else ("32", "32", "1", "1", "1")
-    args = [str(peer_bin), path, str(ref), str(query), str(PEER_CLAHE_CLIP), str(PEER_ENHANCE_WINDOW),
-            str(PEER_SEQUENCE_LENGTH), f"{P.v_min:g}", f"{P.v_max:g}", str(PEER_TRAJECTORIES), *sizes, str(out_file)]
+    window, frames, v_min, v_max, n_slopes = problem
+    args = [str(peer_bin), path, str(ref), str(query), str(PEER_CLAHE_CLIP), window, frames, v_min, v_max,
+            n_slopes, *sizes, str(out_file)]
     before = os.times()
     t0 = time.perf_counter()
     done = subprocess.run(args, cwd=peer_bin.parent, capture_output=True, text=True)
@@ -304,13 +333,15 @@ def run_peer(peer_bin: Path, path: str, ref: Path, query: Path, out_file: Path) 
     return wall, cpu, done.stderr.strip()
 
 
-def run_placeloc(cfg: Path, run_dir: Path) -> tuple[float, float]:
-    """``placeloc extract`` then ``placeloc localize``, each its own process: (wall s, CPU s)."""
-    wall = cpu = 0.0
+def run_placeloc(cfg: Path, run_dir: Path) -> tuple[float, float, float]:
+    """``placeloc extract`` then ``placeloc localize``, each its own process:
+    (wall s of both, CPU s of both, wall s of extract)."""
+    wall = cpu = extract = 0.0
     for stage in ("extract", "localize"):
         w, c = run_cli([stage, str(cfg), "-o", str(run_dir), "-q", "-f"])
         wall, cpu = wall + w, cpu + c
-    return wall, cpu
+        extract = extract or w
+    return wall, cpu, extract
 
 
 def start_load(k: int) -> list[subprocess.Popen]:
@@ -337,6 +368,8 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=5, help="alternating pairs timed")
     ap.add_argument("--load", type=int, default=0, help="busy processes running during the pairs")
     ap.add_argument("--n", type=int, default=3576, help="frames per traverse")
+    ap.add_argument("--settings", choices=tuple(SETTINGS), default="placeloc",
+                    help="placeloc: bench_seqslam.py's problem; peer: the peer's own benchmark's window, frames, slopes")
     ap.add_argument("--work", type=Path, default=None, help="keep the images and runs here (default: a temporary folder)")
     ap.add_argument("--write-driver", type=Path, default=None, metavar="DIR",
                     help="only: write the driver's source to DIR/peer-run.cpp and stop")
@@ -359,14 +392,17 @@ def main() -> None:
         for src, dst in ((ref, peer_ref), (query, peer_query)):
             if not dst.is_dir():
                 write_in_listing_order([src / f"f{i}.png" for i in range(args.n)], dst)
-        cfg = write_config(work / "config.json", ref, query)
+        settings = SETTINGS[args.settings]
+        problem = peer_problem(settings)
+        cfg = write_config(work / "config.json", ref, query, settings)
         run_dir, peer_out = work / "run", work / "peer-answers.txt"
-        print(f"settings: {args.n} x {args.n}, 64x32, 11 query frames centred, slopes {P.v_min:g}-{P.v_max:g}, "
-              f"enhancement over {PEER_ENHANCE_WINDOW} rows; peer path {args.peer_path}, CLAHE clip {PEER_CLAHE_CLIP}")
+        print(f"settings ({args.settings}): {args.n} x {args.n}, 64x32, {problem[1]} query frames centred, slopes "
+              f"{problem[2]}-{problem[3]} ({problem[4]} steps), enhancement over {problem[0]} rows; peer path "
+              f"{args.peer_path}, CLAHE clip {PEER_CLAHE_CLIP}")
 
         # One untimed run of each: placeloc's kernel cache, pocl's kernel cache, the page cache.
         run_placeloc(cfg, run_dir)
-        *_, line = run_peer(peer_bin, args.peer_path, peer_ref, peer_query, peer_out)
+        *_, line = run_peer(peer_bin, args.peer_path, peer_ref, peer_query, peer_out, problem)
         period = tile_period()
         print(f"answers within {TRUTH_TOLERANCE} frames of the truth: placeloc "
               f"{share_correct(placeloc_answers(run_dir), period):.3f}, peer "
@@ -374,20 +410,21 @@ def main() -> None:
         print(line, flush=True)
 
         load = start_load(args.load)
-        pl_wall, pl_cpu, peer_wall, peer_cpu, ratios, loads = [], [], [], [], [], []
+        pl_wall, pl_cpu, pl_extract, peer_wall, peer_cpu, ratios, loads = [], [], [], [], [], [], []
         try:
             for i in range(args.pairs):
                 loads.append(os.getloadavg()[0])
                 order = ("peer", "placeloc") if i % 2 == 0 else ("placeloc", "peer")
                 for who in order:
                     if who == "peer":
-                        w, c, line = run_peer(peer_bin, args.peer_path, peer_ref, peer_query, peer_out)
+                        w, c, line = run_peer(peer_bin, args.peer_path, peer_ref, peer_query, peer_out, problem)
                         peer_wall.append(w)
                         peer_cpu.append(c)
                     else:
-                        w, c = run_placeloc(cfg, run_dir)
+                        w, c, e = run_placeloc(cfg, run_dir)
                         pl_wall.append(w)
                         pl_cpu.append(c)
+                        pl_extract.append(e)
                 loads.append(os.getloadavg()[0])
                 ratios.append(peer_wall[-1] / pl_wall[-1])
                 print(f"pair {i + 1} ({order[0]} first): placeloc {pl_wall[-1]:.2f} s (CPU {pl_cpu[-1]:.2f}), "
@@ -396,7 +433,8 @@ def main() -> None:
         finally:
             stop_load(load)
         print(f"\nplaceloc whole run (extract + localize, two processes): {spread(pl_wall)}; "
-              f"CPU median {statistics.median(pl_cpu):.2f} s")
+              f"CPU median {statistics.median(pl_cpu):.2f} s; extract median {statistics.median(pl_extract):.2f} s, "
+              f"localize median {statistics.median([w - e for w, e in zip(pl_wall, pl_extract)]):.2f} s")
         print(f"peer whole run ({args.peer_path}, one process): {spread(peer_wall)}; "
               f"CPU median {statistics.median(peer_cpu):.2f} s")
         print(f"ratio peer / placeloc: median {statistics.median(ratios):.2f} over {args.pairs} pairs "

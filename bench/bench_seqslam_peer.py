@@ -63,7 +63,8 @@ to build them together on Debian 12:
    ``enhanceDiffMxStrided`` become ``enhanceDiffMx``, ``enhanceDiffMxOrig`` (the names in
    the stored ``enhancement.cl``; same arguments).
 3. ``CMakeLists.txt``: ``enable_testing()``, ``add_subdirectory(test)`` and
-   ``add_subdirectory(benchmark)`` left out, and the driver added::
+   ``add_subdirectory(benchmark)`` left out (and the benchmarks' targets from its clang-tidy
+   list), and the driver added::
 
        add_executable(peer-run driver/peer-run.cpp)
        target_link_libraries(peer-run PRIVATE seqslam fmt::fmt)

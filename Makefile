@@ -6,7 +6,7 @@ BIN     = $(VENV)/bin
 PL      = $(BIN)/placeloc
 STAMP   = $(VENV)/.installed
 
-.PHONY: help venv demo test lint clean
+.PHONY: help venv demo test lint clean bench-seqslam-peer
 
 help:
 	@echo "make demo               set up .venv, run SeqSLAM on data-samples, print and explain its figures"
@@ -15,6 +15,7 @@ help:
 	@echo "make experiment-seqslam reproduce the SeqSLAM comparison (corridor, nordland-dev, synthetic)"
 	@echo "make bench-seqslam      SeqSLAM speed and memory benchmark (3576 x 3576)"
 	@echo "make bench-seqslam-large  ... plus a 36,000 x 36,000 run (several minutes, ~10 GB disk)"
+	@echo "make bench-seqslam-peer PEER_BIN=path [LOAD=2] [PAIRS=5]  whole run beside the C++ peer (TimQuelch/seqslam), 5 alternating pairs"
 	@echo "make seqslam-presets    SeqSLAM presets: chosen on one part of nordland-dev/corridor, reported on the other"
 	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building, panoramas in 5 generated homes"
 	@echo "make bench-umap         UMap database rendering and scoring speed"
@@ -62,5 +63,17 @@ lint: $(STAMP)
 
 clean:
 	rm -rf runs .pytest_cache
+
+# The C++ peer is not part of this repository: PEER_BIN is the whole-run driver built against
+# it (bench/bench_seqslam_peer.py --help says how). Without it this target says so and stops.
+PEER_BIN ?=
+LOAD ?= 0
+PAIRS ?= 5
+bench-seqslam-peer: $(STAMP)
+	@if [ -z "$(PEER_BIN)" ] || [ ! -x "$(PEER_BIN)" ]; then \
+		echo "bench-seqslam-peer: no peer driver (PEER_BIN='$(PEER_BIN)'); build it as 'bench/bench_seqslam_peer.py --help' says, then: make bench-seqslam-peer PEER_BIN=/path/to/peer-run"; \
+	else \
+		$(BIN)/python bench/bench_seqslam_peer.py --peer-bin "$(PEER_BIN)" --load $(LOAD) --pairs $(PAIRS); \
+	fi
 
 -include mk/*.mk

@@ -817,6 +817,34 @@ def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_s
     return out[:n]
 
 
+def suppressed_neighbours(scores: np.ndarray, xy: np.ndarray, candidates: np.ndarray, *, top: int,
+                          min_separation_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The grid rows among the ``top`` best by rank alone (each at its best yaw) that are not
+    ``candidates`` (:func:`distinct_candidates`), in rank order, and for each the index into
+    ``candidates`` of the best-ranked candidate within ``min_separation_m`` of it (the one
+    that kept it out; a row near none, ranked below the last candidate, is left out).
+
+    Why: a narrow peak (0.1 m wide) between grid points can lie in the cell of a grid point
+    one step from a better-ranked candidate; the separation keeps that point out, and a
+    candidate's search covers its own cell only, so the peak's cell is never searched
+    (generated test home 24's pano_015 at one grid origin: the point 0.08 m from the truth
+    ranked 5th of 1,450 and lay 0.25 m from the 2nd candidate). The best few by rank are where
+    the table itself puts the peak. :func:`search_panoramas` searches the cells of those kept
+    out by a pose of its beam after the beam is chosen, so that the beam is still chosen
+    among distinct places by their own cells (searched before the beam, the extra cells
+    raise the places they lie beside over others: the best of more samples), and each that
+    beats its pose joins the beam beside it rather than in its place (on the rugged score a
+    better start can climb to a lower bump: both on generated homes, docs/umap.md)."""
+    if top <= 0 or not len(candidates):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order = np.argsort(-scores.max(axis=1), kind="stable")[:top]
+    rows = order[~np.isin(order, candidates)].astype(np.int64)
+    d = np.hypot(*(xy[rows][:, None, :] - xy[candidates][None, :, :]).transpose(2, 0, 1))     # (rows, candidates)
+    near = d < min_separation_m
+    owner = np.where(near.any(axis=1), np.argmax(near, axis=1), -1).astype(np.int64)
+    return rows[owner >= 0], owner[owner >= 0]
+
+
 # the 8 neighbours of a point on a unit square grid
 NEIGHBOURS = np.array([[dx, dy] for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy], float)
 
@@ -1085,7 +1113,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        of a grid step) each first samples the whole square of ``refine_square`` steps either
        side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
        so that the peak is found where the score between the sampled points is too rugged
-       to climb.
+       to climb. With ``refine_top``, before that the cells of the best-ranked grid points
+       that a pose of the beam kept out of the candidates are sampled as in the cell stage,
+       and each that beats its pose joins the beam (:func:`suppressed_neighbours`).
 
     4. with ``refine_final_m`` (chamfer only), the best of the beam climbs on by
        :func:`pattern_search` from ``refine_final_start_m`` (from the nearest point of the
@@ -1216,8 +1246,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             seen_xy.clear()
             seen_score.clear()
             answer_xy, answer_col = poses[best[k], :2], shift
-            cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                        min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0 else []
+            cands = (distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0
+                     else np.zeros(0, np.int64))
             if not len(cands):
                 rival[k] = rival_score(table, poses[:, :2], np.zeros((0, 2)), np.zeros(0), answer_xy, answer_col,
                                        distance_m=pp.margin_distance_m, yaw_cols=rival_cols)
@@ -1226,15 +1257,34 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             if chamfer:
                 q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
                            stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
-            xy = poses[cands, :2].copy()
-            col = np.argmax(table[cands], axis=1).astype(np.int64)
-            sc = table[cands].max(axis=1).astype(np.float64)
-            floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(cands)))
+            rows = cands.copy()
+            xy = poses[rows, :2].copy()
+            col = np.argmax(table[rows], axis=1).astype(np.int64)
+            sc = table[rows].max(axis=1).astype(np.float64)
+            floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(rows)))
             move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
             for _ in range(pp.refine_climb):                                        # every candidate climbs
                 move(int(k), xy, col, sc, steps[0], floor_d, q_close)
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
-            xy, col, sc, floor_d = xy[beam], col[beam], sc[beam], floor_d[beam]
+            rows, xy, col, sc, floor_d = rows[beam], xy[beam], col[beam], sc[beam], floor_d[beam]
+            # refine_top: the cells of the best-ranked grid points that a pose of the beam kept
+            # out of the candidates, searched after the beam is chosen (so that the choice among
+            # places is the candidates' own); each that beats the pose joins the beam beside it
+            # (not in its place: a better start need not climb higher on a rugged score)
+            extra, owner = suppressed_neighbours(table, poses[:, :2], cands, top=pp.refine_top,
+                                                 min_separation_m=pp.refine_separation_m)
+            slot = np.full(len(cands), -1)
+            slot[beam] = np.arange(len(beam))
+            extra, owner = extra[slot[owner] >= 0], slot[owner[slot[owner] >= 0]]
+            if len(extra):
+                e_xy = poses[extra, :2].copy()
+                e_col = np.argmax(table[extra], axis=1).astype(np.int64)
+                e_sc = table[extra].max(axis=1).astype(np.float64)
+                e_floor = np.minimum(wall_margin_m, wall_distance(e_xy, walls)) if len(walls) else np.zeros(len(extra))
+                move(int(k), e_xy, e_col, e_sc, cell, e_floor, q_close)
+                up = e_sc > sc[owner]
+                rows, xy, col = np.r_[rows, extra[up]], np.r_[xy, e_xy[up]], np.r_[col, e_col[up]]
+                sc, floor_d = np.r_[sc, e_sc[up]], np.r_[floor_d, e_floor[up]]
             for i, step in enumerate(steps):                                        # coarse to fine
                 # the beam's cells, densely (chamfer only: the IoU of dilated lines is flat over a
                 # few centimetres, and a dense square finds its spurious maxima: 5 degrees off on
@@ -1258,7 +1308,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                     xy[j], sc[j], col[j] = fx, fs, fc
             if sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
-                best[k], heading[k], score[k] = cands[beam[j]], col[j] * 360.0 / w, sc[j]
+                best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]
                 refined_xy[k] = xy[j]
                 answer_xy, answer_col = xy[j], int(col[j])
             rival[k] = rival_score(table, poses[:, :2], np.concatenate(seen_xy), np.concatenate(seen_score), answer_xy,

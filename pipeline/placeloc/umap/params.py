@@ -111,6 +111,12 @@ class PanoramaParams(Params):
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
+    refine_top: int = param(0, min=0, help="the best grid positions by the table's own rank (each at its best yaw) "
+                                           "that a pose of the beam kept out of the candidates (within "
+                                           "refine_separation_m of it) get their cell stage after the beam is chosen; "
+                                           "each that beats that pose joins the beam, so that a narrow peak one grid "
+                                           "step from a better-ranked place is reached (8 renders each, and a beam "
+                                           "pose's climb each that joins; 0: none)")
     refine_climb: int = param(0, min=0, max=4, help="after the cell stage, 8-neighbour climbs at a sixth of a grid step "
                                                     "that every candidate makes before the beam is chosen (8 renders "
                                                     "each per candidate and climb; 0: none)")

@@ -489,7 +489,7 @@ METHOD = Method(
         "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
-                                          "panorama.refine_candidates", "panorama.refine_separation_m",
+                                          "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",

@@ -1095,8 +1095,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                      progress: Callable[[Iterable], Iterable] = lambda it: it) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image, and the best score of a rival answer (:func:`rival_score`, ``pp.margin_distance_m``
-    and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position and yaw scored (``database``: ``spectra`` for the chamfer
-    score, :func:`chamfer_spectra`; ``bits`` and ``counts`` for eq. (1)); then, with
+    and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
+    and yaw scored (``database``: ``spectra`` for the chamfer score, :func:`chamfer_spectra`;
+    ``bits`` and ``counts`` for eq. (1)); then, with
     ``pp.refine_candidates``, a local search off the grid (``pp``: the ``umap.panorama``
     parameters):
 

@@ -1224,6 +1224,19 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         j, i = owner[starts][better], best_of[better]
         xy[j], col[j], sc[j] = pts[i], cols[i, arg[i]] % w, top[i]
 
+    def cell_stage(k: int, rows: np.ndarray, table: np.ndarray, q_close: np.ndarray | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The cell stage of grid ``rows`` (each from its best shift in ``table``): each moved to
+        the best of the 8 points a third of a grid step around it where better. Returns their
+        (position, heading column, score, least distance to a wall), the candidates' and
+        ``refine_top``'s alike."""
+        xy = poses[rows, :2].copy()
+        col = np.argmax(table[rows], axis=1).astype(np.int64)
+        sc = table[rows].max(axis=1).astype(np.float64)
+        floor_d = np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(rows))
+        move(k, xy, col, sc, cell, floor_d, q_close)
+        return xy, col, sc, floor_d
+
     def final_scorer(k: int, floor: float, q_close: np.ndarray | None) -> Callable:
         """:func:`pattern_search`'s score: query k's scores at plan points (-inf nearer a wall
         than ``floor``) at the yaw window about a heading column, and the best column of each."""
@@ -1258,12 +1271,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             if chamfer:
                 q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
                            stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
-            rows = cands.copy()
-            xy = poses[rows, :2].copy()
-            col = np.argmax(table[rows], axis=1).astype(np.int64)
-            sc = table[rows].max(axis=1).astype(np.float64)
-            floor_d = (np.minimum(wall_margin_m, wall_distance(xy, walls)) if len(walls) else np.zeros(len(rows)))
-            move(int(k), xy, col, sc, cell, floor_d, q_close)                      # the cell stage
+            rows = cands
+            xy, col, sc, floor_d = cell_stage(int(k), rows, table, q_close)
             for _ in range(pp.refine_climb):                                        # every candidate climbs
                 move(int(k), xy, col, sc, steps[0], floor_d, q_close)
             beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
@@ -1278,11 +1287,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             slot[beam] = np.arange(len(beam))
             extra, owner = extra[slot[owner] >= 0], slot[owner[slot[owner] >= 0]]
             if len(extra):
-                e_xy = poses[extra, :2].copy()
-                e_col = np.argmax(table[extra], axis=1).astype(np.int64)
-                e_sc = table[extra].max(axis=1).astype(np.float64)
-                e_floor = np.minimum(wall_margin_m, wall_distance(e_xy, walls)) if len(walls) else np.zeros(len(extra))
-                move(int(k), e_xy, e_col, e_sc, cell, e_floor, q_close)
+                e_xy, e_col, e_sc, e_floor = cell_stage(int(k), extra, table, q_close)
                 up = e_sc > sc[owner]
                 rows, xy, col = np.r_[rows, extra[up]], np.r_[xy, e_xy[up]], np.r_[col, e_col[up]]
                 sc, floor_d = np.r_[sc, e_sc[up]], np.r_[floor_d, e_floor[up]]

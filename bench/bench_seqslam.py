@@ -144,10 +144,13 @@ def run_stage_subprocess(config: Path, run_dir: Path, stage: str) -> tuple[float
 
 
 def write_config(path: Path, ref: Path, q: Path, comparison: str = "sad", store: bool = True,
-                 shape: str = "trajectory") -> Path:
+                 shape: str = "trajectory", settings: dict | None = None) -> Path:
+    """The bench's configuration (``comparison``, D kept with ``store``, centred, sequences of
+    ``shape``), with any other ``seqslam`` keys in ``settings``."""
     path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(q)},
                                 "plots": False, "seqslam": {"comparison": comparison, "store_difference": store,
-                                                            "search": P.search, "sequence_shape": shape}}))
+                                                            "search": P.search, "sequence_shape": shape,
+                                                            **(settings or {})}}))
     return path
 
 

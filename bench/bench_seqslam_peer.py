@@ -83,7 +83,6 @@ The ratio printed is the peer's time over placeloc's (the issue's goal: at least
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import shutil
@@ -98,7 +97,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_seqslam import P, make_traverses, run_cli  # noqa: E402
+from bench_seqslam import P, make_traverses, run_cli, write_config  # noqa: E402
 
 from placeloc.core.images import list_images  # noqa: E402
 from placeloc.experiments import shared_data_dir  # noqa: E402
@@ -307,15 +306,6 @@ def peer_problem(settings: dict) -> list[str]:
             f"{settings['v_max']:g}", str(n_slopes)]
 
 
-def write_config(path: Path, ref: Path, query: Path, settings: dict) -> Path:
-    """bench_seqslam.py's configuration (SAD, centred, trajectories, D kept) with ``settings``."""
-    path.write_text(json.dumps({"method": "seqslam", "reference": {"images": str(ref)}, "query": {"images": str(query)},
-                                "plots": False, "seqslam": {"comparison": "sad", "store_difference": True,
-                                                            "search": "centred", "sequence_shape": "trajectory",
-                                                            **settings}}))
-    return path
-
-
 def run_peer(peer_bin: Path, path: str, ref: Path, query: Path, out_file: Path,
              problem: list[str]) -> tuple[float, float, str]:
     """One whole run of the peer as its own process: (wall s, CPU s, its timing line)."""
@@ -395,7 +385,7 @@ def main() -> None:
                 write_in_listing_order([src / f"f{i}.png" for i in range(args.n)], dst)
         settings = SETTINGS[args.settings]
         problem = peer_problem(settings)
-        cfg = write_config(work / "config.json", ref, query, settings)
+        cfg = write_config(work / "config.json", ref, query, settings=settings)  # SAD, centred, trajectories, D kept
         run_dir, peer_out = work / "run", work / "peer-answers.txt"
         print(f"settings ({args.settings}): {args.n} x {args.n}, 64x32, {problem[1]} query frames centred, slopes "
               f"{problem[2]}-{problem[3]} ({problem[4]} steps), enhancement over {problem[0]} rows; peer path "

@@ -159,6 +159,44 @@ def test_ctrl_c_and_sigterm_with_a_pool_is_one_line(tmp_path, sig, rc):
     assert list(tmpdir.glob("placeloc-shared-*")) == [] and not list((tmp_path / "run").glob(".*tmp-*"))
 
 
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum, frame):
+    raise _Stop()
+
+
+def test_sigterm_while_a_worker_is_spawned_waits_until_the_worker_has_its_instructions(monkeypatch):
+    """A spawned worker reads its instructions from a pipe the parent writes just after the
+    exec. SIGTERM in between used to raise in the parent before the write, and the worker
+    printed "EOFError: Ran out of input" under the run's one line (seen once in CI). The
+    signal here comes at exactly that moment: start() must finish, the worker must run its
+    task, and the signal must then reach the parent's handler."""
+    from multiprocessing import util
+
+    from placeloc.core.executor import _QuietSpawnProcess
+
+    real = util.spawnv_passfds
+
+    def spawn_then_sigterm(*args, **kwargs):
+        pid = real(*args, **kwargs)
+        signal.raise_signal(signal.SIGTERM)  # the handler runs here, before the write
+        return pid
+
+    monkeypatch.setattr(util, "spawnv_passfds", spawn_then_sigterm)
+    old = signal.signal(signal.SIGTERM, _raise_stop)
+    try:
+        proc = _QuietSpawnProcess(target=abs, args=(0,))
+        with pytest.raises(_Stop):
+            proc.start()
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert proc._popen is not None, "start() was cut short: the worker never got its instructions"
+    proc.join(HANG_S)
+    assert proc.exitcode == 0
+
+
 # ----------------------------------------------------------------- 3. stale or mixed results
 
 def test_rewritten_parent_reruns_children_even_with_the_same_stamp(route, tmp_path):

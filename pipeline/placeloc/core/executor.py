@@ -152,17 +152,29 @@ def _worker_init(parent_pid: int) -> None:
 class _QuietSpawnProcess(mp.get_context("spawn").Process):  # type: ignore[name-defined,misc]
     """A spawned worker that ignores Ctrl-C from its first instruction: SIG_IGN survives
     exec, and Python keeps an ignored SIGINT ignored. Without this, a worker still
-    importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback."""
+    importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback.
+
+    SIGTERM is held while the worker starts: the parent writes the worker's instructions
+    to a pipe just after the exec, and a handler raising in between left the worker
+    reading an empty pipe ("EOFError: Ran out of input" under the run's one line). The held
+    signal is raised again as soon as start() is done. A caught signal is reset to its
+    default at exec, so the worker itself still dies on SIGTERM."""
 
     def start(self) -> None:
         try:
-            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
         except ValueError:  # not the main thread: cannot touch handlers, start as is
             return super().start()
+        held: list[int] = []
+        old_term = signal.signal(signal.SIGTERM, lambda signum, frame: held.append(signum))
         try:
             super().start()
         finally:
-            signal.signal(signal.SIGINT, old)
+            signal.signal(signal.SIGINT, old_int)
+            # None: a handler set outside Python (an embedding program); the default stands in
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if old_term is None else old_term)
+        if held:
+            signal.raise_signal(signal.SIGTERM)
 
 
 class _QuietSpawnContext(type(mp.get_context("spawn"))):  # type: ignore[misc]

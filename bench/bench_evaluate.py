@@ -110,11 +110,11 @@ def report(name: str, trees: list[Path], times: list[Times]) -> None:
     for tree, t in zip(trees, times):
         print(f"  tree {tree}")
         for stage in STAGES:
-            print(f"    {stage:9s} wall {t[stage][0]:7.2f} s  cpu {t[stage][1]:7.2f} s  own {t[stage][2]:7.2f} s")
+            print(f"    {stage:9s} wall {t[stage][0]:7.2f} s  cpu {t[stage][1]:7.2f} s  own {t[stage][2]:7.3f} s")
         method_wall = t["extract"][0] + t["localize"][0]
         for what, k in (("process wall", 0), ("stage's own", 2)):
             method = t["extract"][k] + t["localize"][k]
-            print(f"    {what:12s}: evaluate / (extract + localize) = {t['evaluate'][k]:.2f} / {method:.2f} = "
+            print(f"    {what:12s}: evaluate / (extract + localize) = {t['evaluate'][k]:.3f} / {method:.3f} = "
                   f"{t['evaluate'][k] / method:.2f}  (goal <= 0.25)")
         floor = t[FLOOR][0]
         print(f"    floor: a stage with no work ({FLOOR}) takes {floor:.2f} s wall ({t[FLOOR][1]:.2f} s CPU), "

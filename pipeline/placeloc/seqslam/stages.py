@@ -211,7 +211,7 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     again): the paper's dissimilarity ratio before/after enhancement (a pass over the stored
     D and D^), the single-image baseline, and the difference matrices' picture (localize's
     subsamples) with the ground-truth band (conventions in :mod:`placeloc.evaluation.matching`)."""
-    from placeloc.evaluation import matching, plots
+    from placeloc.evaluation import matching
     from placeloc.evaluation.contracts import LoopEvaluation, RankedEvaluation
     from placeloc.evaluation.pictures import alongside, draw
 
@@ -241,6 +241,8 @@ def evaluate_extra(ctx: Any, ev: Any) -> None:
     # the picture first: it is drawn on a thread (placeloc.evaluation.pictures) while the pass
     # over the stored D and D^ below runs
     if ctx.config.get("plots", True) and "plot" in lo_art:
+        from placeloc.evaluation import plots  # only with pictures (see ranked.finish)
+
         head_key = "recall_at_1" if "recall_at_1" in metrics else "recall_at_100_precision"
         head = metrics.get(head_key)
         what = "recall@1" if head_key == "recall_at_1" else "recall at 100% precision"

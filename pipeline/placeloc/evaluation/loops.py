@@ -320,7 +320,6 @@ def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
     import csv
 
     from placeloc.core.artifacts import atomic_open
-    from placeloc.evaluation import plots as P
     from placeloc.evaluation.pictures import draw
 
     res, pr = ev.result, ev.pr
@@ -342,6 +341,8 @@ def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
                         int(ev.accepted[k]), int(ev.correct[k])])
     if not plots:
         return
+    from placeloc.evaluation import plots as P  # only with pictures (see ranked.finish)
+
     m = ev.metrics
     draw(P.plot_pr_curves, {ev.label: (pr.recall, pr.precision), **ev.pr_curves}, ctx.output("pr_curve.png"),
          title=f"Loop closure precision-recall\n({m['frames_with_loop']} of {m['n_frames']} "

@@ -167,34 +167,64 @@ def _raise_stop(signum, frame):
     raise _Stop()
 
 
-def test_sigterm_while_a_worker_is_spawned_waits_until_the_worker_has_its_instructions(monkeypatch):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_a_worker_is_spawned_waits_until_the_worker_has_its_instructions(monkeypatch, sig):
     """A spawned worker reads its instructions from a pipe the parent writes just after the
     exec. SIGTERM in between used to raise in the parent before the write, and the worker
-    printed "EOFError: Ran out of input" under the run's one line (seen once in CI). The
-    signal here comes at exactly that moment: start() must finish, the worker must run its
-    task, and the signal must then reach the parent's handler."""
+    printed "EOFError: Ran out of input" under the run's one line (seen once in CI); Ctrl-C
+    there was ignored by the parent, so the run went on. The signal here comes at exactly
+    that moment: start() must finish, the worker must run its task, and the signal must
+    then reach the parent's handler."""
     from multiprocessing import util
 
     from placeloc.core.executor import _QuietSpawnProcess
 
     real = util.spawnv_passfds
 
-    def spawn_then_sigterm(*args, **kwargs):
+    def spawn_then_signal(*args, **kwargs):
         pid = real(*args, **kwargs)
-        signal.raise_signal(signal.SIGTERM)  # the handler runs here, before the write
+        signal.raise_signal(sig)  # a handler would run here, before the write
         return pid
 
-    monkeypatch.setattr(util, "spawnv_passfds", spawn_then_sigterm)
-    old = signal.signal(signal.SIGTERM, _raise_stop)
+    monkeypatch.setattr(util, "spawnv_passfds", spawn_then_signal)
+    old = signal.signal(sig, _raise_stop)
     try:
         proc = _QuietSpawnProcess(target=abs, args=(0,))
         with pytest.raises(_Stop):
             proc.start()
     finally:
-        signal.signal(signal.SIGTERM, old)
+        signal.signal(sig, old)
     assert proc._popen is not None, "start() was cut short: the worker never got its instructions"
     proc.join(HANG_S)
     assert proc.exitcode == 0
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set()), "Ctrl-C left blocked"
+
+
+def test_a_worker_starts_with_ctrl_c_held_back_and_then_ignores_it(tmp_path):
+    """The worker is born with SIGINT blocked (so a Ctrl-C during its imports does nothing)
+    and, once its initializer ran, ignores it and no longer blocks it."""
+    from placeloc.core.executor import _QuietSpawnProcess
+
+    out = tmp_path / "masks.txt"
+    proc = _QuietSpawnProcess(target=_masks_then_init, args=(str(out), os.getpid()))
+    proc.start()
+    proc.join(HANG_S)
+    assert proc.exitcode == 0
+    before, after = out.read_text().split()
+    assert before == "blocked" and after == "ignored-unblocked"
+
+
+def _masks_then_init(path: str, parent: int) -> None:
+    """In the worker: whether Ctrl-C is blocked as it starts, then what the pool's
+    initializer leaves."""
+    from placeloc.core.executor import _worker_init
+
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    _worker_init(parent)
+    ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    unblocked = signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    Path(path).write_text(f"{'blocked' if blocked else 'open'} "
+                          f"{'ignored' if ignored else 'handled'}-{'unblocked' if unblocked else 'blocked'}")
 
 
 # ----------------------------------------------------------------- 3. stale or mixed results

@@ -133,6 +133,8 @@ def _worker_init(parent_pid: int) -> None:
     tracebacks); when the parent dies, even by kill -9, the worker dies too: the kernel's
     parent-death signal on Linux, and a watchdog thread everywhere."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):  # started with Ctrl-C blocked (_QuietSpawnProcess); ignored now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)
@@ -150,31 +152,44 @@ def _worker_init(parent_pid: int) -> None:
 
 
 class _QuietSpawnProcess(mp.get_context("spawn").Process):  # type: ignore[name-defined,misc]
-    """A spawned worker that ignores Ctrl-C from its first instruction: SIG_IGN survives
-    exec, and Python keeps an ignored SIGINT ignored. Without this, a worker still
-    importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback.
+    """A spawned worker whose start no signal can cut short, and that no Ctrl-C reaches
+    before it ignores Ctrl-C.
 
-    SIGTERM is held while the worker starts: the parent writes the worker's instructions
-    to a pipe just after the exec, and a handler raising in between left the worker
-    reading an empty pipe ("EOFError: Ran out of input" under the run's one line). The held
-    signal is raised again as soon as start() is done. A caught signal is reset to its
-    default at exec, so the worker itself still dies on SIGTERM."""
+    - The parent writes the worker's instructions to a pipe just after the exec. A handler
+      raising in between (SIGTERM, seen once in CI) left the worker reading an empty pipe
+      and printing "EOFError: Ran out of input" under the run's one line. So while the
+      worker starts, SIGINT and SIGTERM are only recorded, and raised again as soon as
+      start() is done: the parent loses neither.
+    - SIGINT is also blocked in this thread while the worker starts: a blocked signal
+      survives the exec, so the worker starts with Ctrl-C held back, and
+      :func:`_worker_init` ignores it before letting it through (without this, a worker
+      still importing when Ctrl-C arrives prints its own KeyboardInterrupt traceback).
+      Blocked, not ignored: an ignored signal is dropped, and the parent's Ctrl-C with it
+      (a Ctrl-C in that window used to be lost: the run went on).
+    - A handled signal is reset to its default at exec, so the worker itself still dies
+      on SIGTERM."""
 
     def start(self) -> None:
-        try:
-            old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        except ValueError:  # not the main thread: cannot touch handlers, start as is
-            return super().start()
+        if threading.current_thread() is not threading.main_thread():
+            return super().start()  # only the main thread may set handlers; start as is
         held: list[int] = []
-        old_term = signal.signal(signal.SIGTERM, lambda signum, frame: held.append(signum))
+
+        def hold(signum: int, frame: Any) -> None:
+            held.append(signum)
+
+        old = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
+        mask = getattr(signal, "pthread_sigmask", None)  # POSIX only
+        previous = mask(signal.SIG_BLOCK, {signal.SIGINT}) if mask is not None else None
         try:
             super().start()
         finally:
-            signal.signal(signal.SIGINT, old_int)
-            # None: a handler set outside Python (an embedding program); the default stands in
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if old_term is None else old_term)
-        if held:
-            signal.raise_signal(signal.SIGTERM)
+            if mask is not None:
+                mask(signal.SIG_SETMASK, previous)  # a Ctrl-C held back meanwhile reaches `hold` here
+            for sig, handler in old.items():
+                # None: a handler set outside Python (an embedding program); the default stands in
+                signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+            for sig in dict.fromkeys(held):
+                signal.raise_signal(sig)
 
 
 class _QuietSpawnContext(type(mp.get_context("spawn"))):  # type: ignore[misc]

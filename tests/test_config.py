@@ -99,3 +99,33 @@ def test_null_is_accepted_where_the_parameter_declares_it(route):
         cfg(index_recall="high")
     with pytest.raises(ConfigError, match="pirf.tau must be a number"):
         cfg(tau=None)
+
+
+ROOT_CONFIGS = __import__("pathlib").Path(__file__).resolve().parent.parent / "configs"
+
+
+@pytest.mark.parametrize("case", ["no reference and no query (co-embedding)", "reference only (loop closure)",
+                                  "reference and query (the demo)"])
+def test_a_runs_own_config_reads_back_as_the_same_config(tmp_path, route, case):
+    """The config.yaml a run writes (every key, absent sections as null) is a config placeloc
+    reads again: `placeloc localize RUN/config.yaml` must work. Before, a run without a
+    reference (UMap on panoramas, co-embedding) wrote `reference: null`, which the loader
+    refused."""
+    from placeloc.core.runner import write_run_config
+
+    if case.startswith("no reference"):
+        cfg = load_config(ROOT_CONFIGS / "coembed-abcd.yaml")
+        assert cfg["reference"] is None and cfg["query"] is None
+    elif case.startswith("reference only"):
+        cfg = load_config(data={"method": "seqslam", "reference": {"images": "reference"}}, base_dir=route)
+    else:
+        cfg = load_config(ROOT_CONFIGS / "demo.yaml")
+    write_run_config(tmp_path, cfg)
+    assert load_config(tmp_path / "config.yaml") == cfg
+
+
+def test_a_method_that_needs_a_reference_says_so_when_it_is_null(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("method: seqslam\nreference: null\n")
+    with pytest.raises(ConfigError, match="reference.images is missing"):
+        load_config(p)

@@ -63,8 +63,10 @@ def read_yaml_file(path: Path, what: str = "config file") -> Any:
         return load_yaml(text, f"{what} {path}")
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from exc
-# Sections a user may leave out entirely (their absence means something).
-OPTIONAL_SECTIONS = ("query",)
+# Sections a user may leave out entirely (their absence means something). A run's own
+# config.yaml writes an absent one as null, so null reads as absent (a method that needs the
+# section says so by name).
+OPTIONAL_SECTIONS = ("query", "reference")
 
 
 def load_config(

@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from placeloc.core.artifacts import atomic_open, read_strings, write_tree
+from placeloc.core.artifacts import atomic_open, read_mapped, read_strings, write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
@@ -299,7 +299,7 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
                 bins, int(pp.orientation_spread) if bins > 1 else -1):
             raise _stage_error(ValueError("the index's chamfer spectra were built for another umap.panorama."
                                           "orientation_bins or orientation_spread than localize's: re-run index (--force)"))
-        database = {"spectra": idx["spectra"][()]}
+        database = {"spectra": read_mapped(idx["spectra"])}  # about 1 GB: mapped, not copied
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
     return search_panoramas(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,

@@ -496,3 +496,21 @@ def test_no_fault_case_measures_the_clock():
                     and node.value.id == "time":
                 offenders.append(f"{path.name}:{node.lineno}")
     assert offenders == [], offenders
+
+
+def test_hidden_files_are_never_frames(route):
+    """macOS leaves "._NAME" beside every file it copies to a foreign disk; some are valid
+    images. Listed, "._frame1.png" would sort first and shift every frame's index against the
+    ground truth in silence. A folder lists as a glob does: hidden files are not frames."""
+    import shutil
+
+    from placeloc.core.images import list_images
+
+    before = list_images(route / "query").names
+    shutil.copy(route / "query" / "frame1.png", route / "query" / "._frame1.png")  # a valid image
+    (route / "query" / "._frame2.png").write_bytes(b"\x00\x05\x16\x07" + bytes(60))  # AppleDouble bytes
+    (route / "query" / ".thumb.jpg").write_bytes(b"\xff\xd8\xff")
+    listed = list_images(route / "query")
+    assert listed.names == before and listed.not_read == [] and listed.skipped == []
+    assert {"._frame1.png", "._frame2.png", ".thumb.jpg"} <= set(listed.others)
+    assert list_images(str(route / "query" / "*.png")).names == before  # the glob agrees

@@ -53,7 +53,7 @@ class ImageSet:
     skipped: list[str] = field(default_factory=list)
     # Files in the folder (or matched by the glob) that are not listed, with the reason:
     # (name, reason) for images of a format placeloc does not read and files that look like
-    # images under another name; other files (CSV, notes) are in ``others``.
+    # images under another name; other files (CSV, notes, hidden files) are in ``others``.
     not_read: list[tuple[str, str]] = field(default_factory=list)
     others: list[str] = field(default_factory=list)
     # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
@@ -160,6 +160,13 @@ def _list_images(spec: str, on_error: str, fingerprint: str) -> ImageSet:
         """Listed as an image; when not, say why in ``not_read`` (an image placeloc does not
         read) or ``others`` (not an image). The suffix is read off the name: a Path made for
         every entry cost 0.05 s a listing of 3576 images."""
+        if name.startswith("."):
+            # Hidden files are never frames, as a shell's `*` (and glob) skips them: macOS
+            # leaves a "._frame1.png" beside every file it copies to a foreign disk, some
+            # of them valid images; listed, each would shift every later frame's index
+            # against the ground truth, in silence.
+            others.append(name)
+            return False
         if os.path.splitext(name)[1].lower() in IMAGE_EXTENSIONS:
             if not is_utf8(name):
                 return refuse(f"{folder}/{shown_name(name)}: the file name is not valid UTF-8 text (its "

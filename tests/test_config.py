@@ -129,3 +129,20 @@ def test_a_method_that_needs_a_reference_says_so_when_it_is_null(tmp_path):
     p.write_text("method: seqslam\nreference: null\n")
     with pytest.raises(ConfigError, match="reference.images is missing"):
         load_config(p)
+
+
+def test_a_key_given_twice_is_refused_with_both_lines(tmp_path):
+    """YAML forbids a key twice in one mapping, but PyYAML keeps the last in silence: a
+    second `seqslam:` section would drop the first one's settings (here ds: 10)."""
+    p = tmp_path / "c.yaml"
+    p.write_text("method: seqslam\nreference: {images: r}\nseqslam:\n  ds: 10\nseqslam:\n  comparison: sad\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(p)
+    assert str(info.value) == (f"{p}: not valid YAML: line 5: the key 'seqslam' is given twice (first on line 3); "
+                               "YAML keeps only the last, so the first one's settings would be lost: merge them into one")
+    with pytest.raises(ConfigError, match=r"^--set 'seqslam=\{ds: 5, ds: 6\}': line 1: the key 'ds' is given twice"):
+        load_config(data={"method": "seqslam"}, overrides=["seqslam={ds: 5, ds: 6}"])
+    # the same key in different mappings, and a merge key's override, are fine
+    from placeloc.core.safe_io import load_yaml
+
+    assert load_yaml("a: 1\nb: {a: 2}\nc: {<<: {d: 1}, d: 2}\n") == {"a": 1, "b": {"a": 2}, "c": {"d": 2}}

@@ -28,7 +28,7 @@ import yaml
 from placeloc.core import params as P
 from placeloc.core.common_params import CommonParams
 from placeloc.core.errors import ConfigError  # noqa: F401 - re-exported: placeloc.core.config.ConfigError
-from placeloc.core.safe_io import MAX_YAML_DEPTH, load_yaml  # noqa: F401 - re-exported: the one YAML parser
+from placeloc.core.safe_io import MAX_YAML_DEPTH, DuplicateKeyError, load_yaml  # noqa: F401 - re-exported: the one YAML parser
 from placeloc.core.shared_data import SHARED_PREFIX, resolve_shared
 
 # A config larger than this is not a hand-written preset; refuse it before parsing.
@@ -103,6 +103,8 @@ def apply_override(data: dict, item: str) -> None:
     except yaml.YAMLError as exc:
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         shown = item if len(item) <= 80 else f"{item[:60]}... ({len(item):,} characters)"
+        if isinstance(exc, DuplicateKeyError):
+            raise ConfigError(f"--set {shown!r}: {exc}") from None
         raise ConfigError(f"--set {shown!r}: the value is not valid YAML ({problem}); close brackets and quotes, "
                           f"e.g. --set {key.strip()}=[1, 2] or --set {key.strip()}='text'") from exc
     node = data

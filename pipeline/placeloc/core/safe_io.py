@@ -76,9 +76,33 @@ def _kind(mode: int) -> str:
 MAX_YAML_DEPTH = 64
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A key given twice in one YAML mapping (the message names both lines)."""
+
+
 class _BoundedLoader(yaml.SafeLoader):
     """SafeLoader that refuses aliases (a tiny file could expand without bound: the
-    "billion laughs") and nesting deeper than :data:`MAX_YAML_DEPTH`."""
+    "billion laughs"), nesting deeper than :data:`MAX_YAML_DEPTH` and a key given twice in
+    one mapping (YAML forbids it, but PyYAML keeps the last in silence: a second
+    ``seqslam:`` section would drop every setting of the first)."""
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # "<<" merges on purpose
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:
+                    continue  # an unhashable key: SafeLoader's own error names it
+                if first is not key_node:
+                    raise DuplicateKeyError(
+                        f"line {key_node.start_mark.line + 1}: the key {key!r} is given twice (first on line "
+                        f"{first.start_mark.line + 1}); YAML keeps only the last, so the first one's settings would "
+                        "be lost: merge them into one")
+        return super().construct_mapping(node, deep=deep)
 
     def __init__(self, stream: Any) -> None:
         super().__init__(stream)

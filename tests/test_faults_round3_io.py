@@ -681,3 +681,38 @@ def test_damaged_metrics_json_is_one_line_in_show(small_run, content):
     result = _cli(["show", str(run), "-q"])
     assert result.exit_code == 2, result.output
     assert "metrics.json" in _err(result).splitlines()[-1]
+
+
+@pytest.mark.parametrize("code", ["ENOLCK", "EOPNOTSUPP"])
+def test_a_run_folder_on_a_file_system_without_locks_runs_with_a_warning(route, tmp_path, monkeypatch, caplog, code):
+    """Older NFS without lockd, SMB mounts and sshfs have no file locks: flock fails with
+    ENOLCK or EOPNOTSUPP. The run used to stop with "error: [Errno 37] No locks available",
+    naming neither the folder nor a way out; it now runs, and says what is unguarded. Any
+    other failure of the lock is still an error."""
+    import errno
+    import logging
+
+    import placeloc.core.runner as runner
+
+    def no_locks(fd, op):
+        raise OSError(getattr(errno, code), os.strerror(getattr(errno, code)))
+
+    monkeypatch.setattr(runner.fcntl, "flock", no_locks)
+    run = tmp_path / "run"
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        res = _cli(["run", str(route / "config.yaml"), "--run-dir", str(run), "-q", "--set", "plots=false"])
+    assert res.exit_code == 0, res.output
+    monkeypatch.undo()
+    locked = _cli(["run", str(route / "config.yaml"), "--run-dir", str(tmp_path / "locked"), "-q", "--set", "plots=false"])
+    assert locked.exit_code == 0, locked.output
+    recall = [json.loads((d / "metrics.json").read_text())["recall_at_1"] for d in (run, tmp_path / "locked")]
+    assert recall[0] == recall[1]  # the same run, the lock aside
+    assert any(f"{run}: its file system has no file locks" in r.getMessage() for r in caplog.records)
+
+    def broken(fd, op):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(runner.fcntl, "flock", broken)
+    with pytest.raises(OSError, match="Input/output error"):
+        with runner.lock_run_dir(tmp_path / "run"):
+            pass

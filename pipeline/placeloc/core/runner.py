@@ -8,6 +8,7 @@ or ``force`` is set. Each stage's function gets a :class:`StageContext`.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -403,6 +404,11 @@ def write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
         fh.write(CONFIG_HEADER + to_yaml(config))
 
 
+# flock's errors where a file system has no locks (not: another process holds the lock)
+_NO_LOCKS = frozenset(getattr(errno, name) for name in ("ENOLCK", "EOPNOTSUPP", "ENOTSUP", "ENOSYS", "EINVAL")
+                      if hasattr(errno, name))
+
+
 @contextlib.contextmanager
 def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
     """Hold an exclusive lock on RUN_DIR/.lock (released by the OS if the process dies)."""
@@ -423,6 +429,14 @@ def lock_run_dir(run_dir: Path, wait: bool = False) -> Iterator[None]:
                                   "or pass --wait to queue behind it, or choose another --run-dir") from None
             log.info("waiting for placeloc pid %s to finish with %s", holder, run_dir)
             fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:
+            if exc.errno not in _NO_LOCKS:
+                raise
+            # Some network and FUSE file systems (older NFS without lockd, SMB mounts, sshfs)
+            # have no locks at all: the run goes on unguarded rather than not at all.
+            log.warning("%s: its file system has no file locks (%s), so nothing stops a second placeloc run "
+                        "from writing into this folder at the same time: start one at a time", run_dir,
+                        os.strerror(exc.errno))
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield

@@ -168,6 +168,49 @@ def test_sweep_runs_every_combination_and_resumes(route, tmp_path):
         parse_grid(["seqslam.ds"])
 
 
+def test_a_sweep_links_the_stages_its_points_share_and_computes_the_rest(route, tmp_path):
+    """Points that differ in a localize key share extract (the same stamp): it is computed
+    once and hard-linked into the other points' folders, and each point's figures are those
+    of a run of its own. A key that extract reads gives each its own extract."""
+    import yaml
+
+    from placeloc.api import run
+    from placeloc.experiments.sweep import parse_grid, run_sweep
+
+    raw = yaml.safe_load((route / "config.yaml").read_text())
+    raw["plots"] = False
+    run_sweep(raw, route, parse_grid(["seqslam.ds=5,10"]), tmp_path / "sw")
+    a, b = (tmp_path / "sw" / f"seqslam.ds={ds}" for ds in (5, 10))
+    assert (a / "extract.h5").stat().st_ino == (b / "extract.h5").stat().st_ino
+    assert (a / "localize.h5").stat().st_ino != (b / "localize.h5").stat().st_ino
+    assert f"extract: the same as {a / 'extract.h5'} (linked, not computed again)" in (b / "log.txt").read_text()
+    alone = run(load_config(data={**raw, "seqslam": {**raw.get("seqslam", {}), "ds": 10}}, base_dir=route),
+                tmp_path / "alone")
+    assert json.loads((b / "metrics.json").read_text())["recall_at_1"] == \
+        json.loads((alone.parent / "metrics.json").read_text())["recall_at_1"]
+    # re-running one point with --force leaves the other's linked file as it was
+    before = (a / "extract.h5").read_bytes()
+    run(load_config(data={**raw, "seqslam": {**raw.get("seqslam", {}), "ds": 10}}, base_dir=route), b, force=True)
+    assert (a / "extract.h5").read_bytes() == before and (a / "extract.h5").stat().st_ino != (b / "extract.h5").stat().st_ino
+
+    run_sweep(raw, route, parse_grid(["seqslam.thumbnail=[32,16],[16,8]"]), tmp_path / "thumbs")
+    inodes = {p.stat().st_ino for p in (tmp_path / "thumbs").glob("*/extract.h5")}
+    assert len(inodes) == 2  # extract reads the thumbnail size: one each
+
+
+def test_a_sweep_table_shows_each_methods_own_figures():
+    from placeloc.experiments.sweep import TABLE_KEYS, split_values, table_keys
+
+    pose = {"within_1m_30deg": 0.95, "median_error_m": 0.03, "n_frames": 20,
+            "headline": ["within_1m_30deg", "median_error_m", "seconds_per_frame"]}
+    assert table_keys([pose, pose]) == ["within_1m_30deg", "median_error_m"]  # not nine columns of n/a
+    ranked = {"recall_at_1": 0.8, "auc_pr": 0.7, "n_queries": 81, "seconds_per_frame": 0.001,
+              "headline": ["recall_at_1", "auc_pr", "seconds_per_frame"]}
+    assert table_keys([ranked]) == ["recall_at_1", "auc_pr", "n_queries", "seconds_per_frame"]
+    assert table_keys([{}, {}]) == list(TABLE_KEYS)  # no ground truth: the usual columns, n/a
+    assert split_values("10,[64, 32],{a: 1, b: 2},'x,y'") == ["10", "[64, 32]", "{a: 1, b: 2}", "'x,y'"]
+
+
 def test_recall_at_n_list_comes_from_the_config(route, tmp_path):
     """ground_truth.recall_at sets the N of Recall@N; the per-query ranks agree with it."""
     from placeloc.core.config import ConfigError

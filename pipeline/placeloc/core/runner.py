@@ -17,7 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, Sequence
 
 import h5py
 
@@ -34,6 +34,7 @@ from placeloc.core.artifacts import (
     read_stamp,
     read_write_id,
     remove_stale_tmp,
+    tmp_path_for,
 )
 from placeloc.core.common_params import CommonParams
 from placeloc.core.config import MAX_CONFIG_BYTES, config_hash, to_yaml
@@ -237,12 +238,17 @@ def _path_fingerprint(path: Path) -> str:
 
 
 def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bool = False,
-              quiet: bool = False, force_all: bool = False, wait: bool = False) -> Path:
+              quiet: bool = False, force_all: bool = False, wait: bool = False,
+              reuse: Sequence[str | Path] = ()) -> Path:
     """Bring ``stage`` (and every stage before it) up to date; return its artifact path.
 
     ``force`` re-runs ``stage`` even when up to date; ``force_all`` every stage up to it.
     The run directory is locked for the whole call: a second run on it stops at once
     (``wait=False``, naming the holder) or waits for the first to finish.
+
+    ``reuse``: other run directories (a sweep's other points) whose artifacts this run may
+    take instead of computing them, where one has exactly the stamp this stage would have
+    (so the same inputs, parameters and parents) and no side outputs (:func:`_reuse`).
     """
     stage = normalise_stage(stage)
     run_dir = Path(run_dir)
@@ -251,7 +257,7 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
     with lock_run_dir(run_dir, wait=wait), run_log(run_dir):
         log.info("run: %s up to %s in %s (placeloc %s, pid %d)", config["method"], stage, run_dir, __version__, os.getpid())
         try:
-            path = _run_locked(config, run_dir, stage, force, quiet, force_all)
+            path = _run_locked(config, run_dir, stage, force, quiet, force_all, [Path(d) for d in reuse])
         except BaseException as exc:
             log.debug("failed: %s: %s", type(exc).__name__, exc)
             _log_to_file_only(run_dir, f"failed: {type(exc).__name__}: {' '.join(str(exc).split())}")
@@ -260,7 +266,8 @@ def run_stage(config: dict[str, Any], run_dir: str | Path, stage: str, force: bo
         return path
 
 
-def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, quiet: bool, force_all: bool) -> Path:
+def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, quiet: bool, force_all: bool,
+                reuse: Sequence[Path] = ()) -> Path:
     remove_stale_tmp(run_dir)
     remove_stale_shared()
     method = get_method(config["method"])
@@ -279,6 +286,13 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 log.info("%s: up to date (%s), skipped", name, path)
                 parent_stamp = _parent_token(stamp, path)
                 continue
+            if reuse and not forced:
+                _remove_previous_outputs(path, stamp)
+                donor = _reuse(path, stamp, reuse)
+                if donor is not None:
+                    log.info("%s: the same as %s (linked, not computed again)", name, donor)
+                    parent_stamp = _parent_token(stamp, path)
+                    continue
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
                 check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
@@ -290,6 +304,47 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
         if executor is not None:
             executor.close()
     return run_dir / f"{stage}.h5"
+
+
+def _reuse(path: Path, stamp: str, donors: Sequence[Path]) -> Path | None:
+    """Hard-link the artifact of the first donor run directory whose ``path.name`` has
+    exactly ``stamp`` and records no side outputs into ``path``; return it, or None.
+
+    Why: the points of a sweep differ in a few keys, so most share their first stages
+    (SeqSLAM's extract; UMap's build-dictionary and its index, 0.75-1 GB and seconds of
+    renders at a home's size). The stamp covers everything a stage depends on, parents
+    included (their write ids too, which a link keeps), so an equal stamp is the same
+    result. A link, not a copy: no time, no second copy on disk, and safe because an
+    artifact is never changed in place (a re-run renames a new file over its own name,
+    which leaves the other directory's link as it was). Artifacts with side outputs (CSV,
+    PNG) are not shared: those files could be edited in place. Where links cannot be made
+    (another file system), the stage is computed as usual."""
+    for donor in donors:
+        src = donor / path.name
+        try:
+            if src.resolve() == path.resolve() or not src.is_file():
+                continue
+        except OSError:
+            continue
+        if read_stamp(src) != stamp or _recorded_side_outputs(src) != {}:
+            continue
+        tmp = tmp_path_for(path)
+        try:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            os.link(src, tmp)
+            os.replace(tmp, path)
+        except OSError as exc:
+            log.debug("%s: not linked from %s (%s)", path.name, src, exc)
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            continue
+        if read_stamp(path) != stamp:  # the donor's file was replaced in between: compute it
+            with contextlib.suppress(OSError):
+                path.unlink()
+            continue
+        return src
+    return None
 
 
 def _parent_token(stamp: str, path: Path) -> str:

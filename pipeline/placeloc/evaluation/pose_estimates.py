@@ -357,23 +357,28 @@ def _plt():  # noqa: ANN202
     return plt
 
 
-def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
-    """Share of frames within each error, on a log axis with plain-number ticks, the 0.5 m
-    and 1 m marks labelled with their shares."""
+def _error_axis(ax: Any, largest: float) -> None:
+    """A log error axis from 1 cm with plain-number ticks, to past ``largest`` (at least 2 m)."""
     from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
 
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 4))
-    e = np.sort(np.maximum(np.asarray(err, float), 0.01))
-    ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, color="tab:blue")
     ax.set_xscale("log")
-    lo, hi = 0.01, max(2.0, float(e.max()) * 1.5)
+    lo, hi = 0.01, max(2.0, float(largest) * 1.5)
     ax.set_xlim(lo, hi)
     ticks = [t for t in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100) if lo <= t <= hi]
     ax.xaxis.set_major_locator(FixedLocator(ticks))
     ax.xaxis.set_minor_locator(NullLocator())
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.set_ylim(0, 1.02)
+
+
+def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
+    """Share of frames within each error, on a log axis with plain-number ticks, the 0.5 m
+    and 1 m marks labelled with their shares."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    e = np.sort(np.maximum(np.asarray(err, float), 0.01))
+    ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, color="tab:blue")
+    _error_axis(ax, e.max())
     for mark, colour in ((0.5, "tab:green"), (1.0, "tab:orange")):
         share = float(np.mean(np.asarray(err) <= mark))
         ax.axvline(mark, color=colour, ls="--", lw=1.2)
@@ -382,6 +387,35 @@ def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
     ax.set_ylabel("share of frames")
     ax.set_title(f"Cumulative position error, {mode} ({len(e)} frames)")
     ax.grid(True, which="major", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_error_cdfs(path: Path, errors: dict[str, np.ndarray], title: str) -> None:
+    """Several runs' cumulative position errors on one log axis (a sweep's ``sweep.png``),
+    each labelled with its share within 1 m and its median, the 1 m mark dashed. Runs with
+    the same curve draw over each other: the legend says so by their equal figures."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    largest = 0.0
+    styles = ("-", "--", "-.", ":")
+    for i, (label, err) in enumerate(errors.items()):
+        err = np.asarray(err, float)
+        err = err[np.isfinite(err)]
+        if not len(err):
+            continue
+        e = np.sort(np.maximum(err, 0.01))
+        largest = max(largest, float(e.max()))
+        ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, ls=styles[i % 4], color=f"C{i % 10}",
+                label=f"{label}: {np.mean(err <= 1.0):.0%} within 1 m, median {np.median(err):.2f} m")
+    _error_axis(ax, largest)
+    ax.axvline(1.0, color="0.4", ls="--", lw=1)
+    ax.set_xlabel("position error [m] (log scale)")
+    ax.set_ylabel("share of frames")
+    ax.set_title(title)
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -682,10 +682,14 @@ def show(run_dir: Path = typer.Argument(..., help="A run directory (after locali
 
 @app.command()
 def sweep(config: Path = ConfigArg,
-          grid: List[str] = typer.Option(..., "--grid", "-g", help="key=v1,v2,... (repeatable), e.g. --grid seqslam.ds=10,20"),
+          grid: List[str] = typer.Option(..., "--grid", "-g", help="key=v1,v2,... (repeatable), e.g. --grid seqslam.ds=10,20 or "
+                                                                  "--grid seqslam.thumbnail=[64,32],[32,16]"),
           out: Path | None = typer.Option(None, "--out", "-o", help="Sweep folder (default runs/<config name>-sweep)."),
           set: List[str] | None = SetOpt, force: bool = ForceOpt, quiet: bool = QuietOpt) -> None:
     """Run every combination of the grid (each its own run directory, resumable); one table and one plot.
+
+    A stage the combinations share (the same inputs and keys: extract when only a localize
+    key varies) is computed once and linked into the other folders.
 
     Each run draws its own pictures; --set plots=false leaves them out (on small runs they
     cost more than the method) and the table, sweep.png and each run's metrics are the same."""

@@ -198,6 +198,21 @@ def test_a_sweep_links_the_stages_its_points_share_and_computes_the_rest(route, 
     assert len(inodes) == 2  # extract reads the thumbnail size: one each
 
 
+def test_show_on_a_sweep_folder_names_its_runs(tmp_path):
+    """A sweep's folder holds one run per subfolder: show says so and names one, instead of
+    "holds no localize result; run placeloc localize ..."."""
+    from placeloc.evaluation.show import ShowError, show_run
+
+    for name in ("seqslam.ds=5", "seqslam.ds=10"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "localize.h5").write_bytes(b"")
+    (tmp_path / "sweep.md").write_text("# Sweep\n")
+    with pytest.raises(ShowError) as info:
+        show_run(tmp_path)
+    assert str(info.value) == (f"{tmp_path}: holds 2 runs, one per folder (their table: {tmp_path / 'sweep.md'}); "
+                               f"show one of them, e.g. placeloc show {tmp_path / 'seqslam.ds=10'}")
+
+
 def test_a_sweep_table_shows_each_methods_own_figures():
     from placeloc.experiments.sweep import TABLE_KEYS, split_values, table_keys
 

@@ -344,6 +344,11 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
     if res is None:
+        runs = sorted(p.parent.name for p in run_dir.glob("*/localize.h5"))
+        if runs:  # a sweep's or a comparison's folder: one run per subfolder
+            table = next((n for n in ("sweep.md", "table.md") if (run_dir / n).is_file()), None)
+            raise ShowError(f"{run_dir}: holds {len(runs)} runs, one per folder{f' (their table: {run_dir / table})' if table else ''}; "
+                            f"show one of them, e.g. placeloc show {run_dir / runs[0]}")
         raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
     mod = contract(res.kind)
     staging = run_dir / f".show{TMP_MARK}{os.getpid()}"

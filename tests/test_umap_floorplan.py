@@ -136,3 +136,27 @@ def test_grid_from_the_model_by_default():
     # no camera height anywhere: the caller is told to give one
     with pytest.raises(ValueError, match=r"no camera height \(camera_z\)"):
         plan_grid(floor_plan_model({**THICK, "camera_z": None}))
+
+
+def test_a_door_or_window_on_no_wall_is_warned_about(caplog):
+    """A door 5 cm off its wall (a rounded coordinate) cuts no wall, yet its doorway counts as
+    free space: the loader names it, how far off it is and the fix; elements on their walls
+    (within 1 cm) say nothing."""
+    import copy
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        floor_plan_model(PLAN, "plan.yaml")
+    assert not [r for r in caplog.records if "lies on no room's edge" in r.getMessage()]
+    plan = copy.deepcopy(PLAN)
+    plan["doors"] = [{"from": [4.05, 1.2], "to": [4.05, 1.9], "height": 2.0}]
+    plan["windows"].append({"from": [2, 3.3], "to": [3, 3.3], "sill": 1.0, "top": 2.0})
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        m = floor_plan_model(plan, "plan2.yaml")
+    said = [r.getMessage() for r in caplog.records if "lies on no room's edge" in r.getMessage()]
+    assert said == [
+        "plan2.yaml: doors[0] [4.05, 1.2] -> [4.05, 1.9] lies on no room's edge (its ends are at best 0.05 m from one; "
+        "both must be within 0.01 m): it cuts no wall and its doorway still counts as free space; move it onto its wall",
+        "plan2.yaml: windows[1] [2, 3.3] -> [3, 3.3] lies on no room's edge (its ends are at best 0.30 m from one; "
+        "both must be within 0.01 m): it cuts no wall; move it onto its wall"]
+    assert len(m.gaps) == 2  # the plan loads as it is

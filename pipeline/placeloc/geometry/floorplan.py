@@ -341,9 +341,45 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
             for a, b in zip(poly_in, np.roll(poly_in, -1, axis=0)):
                 segs += [[a[0], a[1], zf, a[0], a[1], zc], [a[0], a[1], zc, b[0], b[1], zc], [a[0], a[1], zf, b[0], b[1], zf]]
                 faces.append([a[0], a[1], b[0], b[1], zf, zc])
+    _warn_unattached(source, plan, polys, openings, windows)
     gaps = np.array([[*p, *q] for p, q, _h in openings], float).reshape(-1, 4)
     return Model(np.asarray(segs, float), np.asarray(faces, float).reshape(-1, 6), polygons=polys, source=source, rooms=True,
                  camera_z=camera_z, gaps=gaps, internal=internal)
+
+
+_WARNED: set[tuple[Any, ...]] = set()  # each element of each plan warned about once a process
+
+
+def _warn_unattached(source: str, plan: dict[str, Any], polys: list[np.ndarray], openings: list[Any],
+                     windows: list[Any]) -> None:
+    """Warn (once per element) about each door, opening or window that lies on no room's
+    edge (both ends within 1 cm of one edge, as the walls are cut): it cuts no wall, draws
+    no frame, and a door's or opening's doorway still counts as free space for the grid. A
+    hand-drawn plan's door a few centimetres off its wall (a rounded coordinate, x and y
+    swapped) otherwise goes unnoticed. Not an error: the plan still loads as it is."""
+    import logging
+
+    edges = [(a, b) for poly in polys for a, b in zip(poly, np.roll(poly, -1, axis=0))]
+    named = [*((f"doors[{i}]", o) for i, o in enumerate(plan.get("doors") or [])),
+             *((f"openings[{i}]", o) for i, o in enumerate(plan.get("openings") or []))]
+    items = [(name, p, q) for (name, _), (p, q, _h) in zip(named, openings)]
+    items += [(f"windows[{i}]", p, q) for i, (p, q, _s, _t) in enumerate(windows)]
+    for name, p, q in items:
+        key = (source, name, *p, *q)
+        if key in _WARNED or any(_on_edge(p, q, a, b) is not None for a, b in edges):
+            continue
+        _WARNED.add(key)
+        off = min(max(_point_edge_distance(p, a, b), _point_edge_distance(q, a, b)) for a, b in edges)
+        logging.getLogger("placeloc").warning(
+            "%s: %s [%g, %g] -> [%g, %g] lies on no room's edge (its ends are at best %.2f m from one; both must be "
+            "within 0.01 m): it cuts no wall%s; move it onto its wall", source, name, *p, *q, off,
+            "" if name.startswith("windows") else " and its doorway still counts as free space")
+
+
+def _point_edge_distance(r: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    e = b - a
+    t = float(np.clip((r - a) @ e / max(float(e @ e), 1e-18), 0.0, 1.0))
+    return float(np.hypot(*(r - (a + t * e))))
 
 
 def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -218,3 +218,21 @@ def test_the_plan_picture_names_the_worst_wrong_answers_first():
     assert worst_wrong(err, wrong) == [4, 2, 1]
     assert worst_wrong(err, wrong, limit=2) == [4, 2]
     assert worst_wrong(err, ~right_answers(err, None)) == [4, 2]
+
+
+def test_true_positions_off_the_map_are_named_with_the_likely_unit():
+    """Poses in centimetres (or another frame) show only as errors of hundreds of metres:
+    evaluate says so when most true positions lie more than 1 m outside the map's walls."""
+    from placeloc.evaluation.pose_estimates import truth_off_the_map
+
+    walls = np.array([[0, 0, 10, 0], [10, 0, 10, 8], [10, 8, 0, 8], [0, 8, 0, 0]], float)
+    truth = np.array([[1.0, 1.0], [9.0, 7.0], [5.0, 4.0], [2.5, 6.0]])
+    assert truth_off_the_map(truth, walls) is None
+    assert truth_off_the_map(truth, None) is None
+    assert truth_off_the_map(np.vstack([truth[:2], truth[2:] + 50]), walls) is None  # half on the map
+    said = truth_off_the_map(truth * 100, walls)
+    assert said == ("4 of 4 true positions lie outside the map (x 0.0 to 10.0, y 0.0 to 8.0 m; the truth spans x 100.0 "
+                    "to 900.0, y 100.0 to 700.0) (their spread is 78 times the map's: centimetres?); give the poses in "
+                    "metres in the map's frame")
+    shifted = truth_off_the_map(truth + [100.0, 0.0], walls)
+    assert shifted.startswith("4 of 4 true positions lie outside the map") and "times the map's" not in shifted

@@ -235,7 +235,36 @@ def evaluate(ctx: Any, res: Result) -> PoseEvaluation:
         raise StageError("ground_truth.kind is none: evaluate needs the true poses (ground_truth.kind: poses); "
                          "`placeloc show RUN_DIR` draws the estimates without it")
     gt, rows = _truth(section, res["names"])
-    return score(res, gt, rows)
+    ev = score(res, gt, rows)
+    problem = truth_off_the_map(ev.truth, res.get("plan_segments"))
+    if problem is not None:
+        import logging
+
+        logging.getLogger("placeloc").warning("%s: %s", section["path"], problem)
+    return ev
+
+
+def truth_off_the_map(truth: np.ndarray, plan_segments: np.ndarray | None, margin_m: float = 1.0) -> str | None:
+    """A sentence when most true positions lie more than ``margin_m`` outside the extent of
+    the map's walls (``plan_segments`` x0 y0 x1 y1): poses in centimetres or millimetres, or
+    in another frame than the map's, which otherwise show only as errors of hundreds of
+    metres. None when at least half lie on the map, or without a map."""
+    if plan_segments is None or not len(plan_segments) or not len(truth):
+        return None
+    pts = np.vstack([plan_segments[:, :2], plan_segments[:, 2:4]])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    t = np.asarray(truth, float)
+    off = np.any((t < lo - margin_m) | (t > hi + margin_m), axis=1)
+    if off.sum() * 2 <= len(t):
+        return None
+    span_map = float(np.hypot(*(hi - lo)))
+    span_truth = float(np.hypot(*(t.max(axis=0) - t.min(axis=0))))
+    ratio = span_truth / max(span_map, 1e-9)
+    unit = next((f" (their spread is {ratio:.0f} times the map's: {name}?)" for name, k in
+                 (("centimetres", 100), ("millimetres", 1000), ("feet", 3.28)) if 0.7 * k <= ratio <= 1.4 * k), "")
+    return (f"{int(off.sum())} of {len(t)} true positions lie outside the map (x {lo[0]:.1f} to {hi[0]:.1f}, y {lo[1]:.1f} "
+            f"to {hi[1]:.1f} m; the truth spans x {t[:, 0].min():.1f} to {t[:, 0].max():.1f}, y {t[:, 1].min():.1f} to "
+            f"{t[:, 1].max():.1f}){unit}; give the poses in metres in the map's frame")
 
 
 def score(res: Result, gt: Any, rows: np.ndarray) -> PoseEvaluation:

@@ -146,3 +146,18 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path):
     from placeloc.core.safe_io import load_yaml
 
     assert load_yaml("a: 1\nb: {a: 2}\nc: {<<: {d: 1}, d: 2}\n") == {"a": 1, "b": {"a": 2}, "c": {"d": 2}}
+
+
+def test_a_folder_named_from_the_working_directory_is_pointed_out(route, tmp_path, monkeypatch):
+    """`--set query.images=query` typed in the shell is read from the config's folder, like
+    every relative path of a config; where that is wrong but the working directory has the
+    folder, the error says where it would be."""
+    cfg_dir = tmp_path / "configs"
+    cfg_dir.mkdir()
+    (cfg_dir / "c.yaml").write_text(f"method: seqslam\nreference: {{images: {route / 'reference'}}}\n")
+    monkeypatch.chdir(route)
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg_dir / "c.yaml", ["query.images=query"])
+    assert str(info.value) == (f"query.images: {cfg_dir / 'query'} is neither a folder nor a glob that matches files; fix "
+                               f"the path (relative paths start at the config's folder, {cfg_dir}); from the working "
+                               f"directory it would be {route / 'query'}: give that (an absolute path)")

@@ -15,6 +15,7 @@ one.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import glob
 import hashlib
@@ -159,7 +160,7 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
             raise ConfigError(f"{role}.images is missing: give the folder (or glob) of the {role} images")
     for role in ("reference", "query"):
         if config[role] is not None and config[role]["images"] is not None:
-            _check_image_source(config[role]["images"], f"{role}.images")
+            _check_image_source(config[role]["images"], f"{role}.images", base_dir)
     gt = config["ground_truth"]
     if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
@@ -365,13 +366,24 @@ def _resolve_path(config: dict, dotted: str, base_dir: Path) -> None:
     node[leaf] = str(p if p.is_absolute() else (base_dir / p).resolve())
 
 
-def _check_image_source(spec: str, key: str) -> None:
-    p = Path(spec)
-    if p.is_dir():
+def _check_image_source(spec: str, key: str, base_dir: Path | None = None) -> None:
+    def found(path: str) -> bool:
+        return Path(path).is_dir() or (any(ch in path for ch in "*?[") and bool(glob.glob(path)))
+
+    if found(spec):
         return
-    if any(ch in spec for ch in "*?[") and glob.glob(spec):
-        return
-    raise ConfigError(f"{key}: {spec} is neither a folder nor a glob that matches files; fix the path (relative paths start at the config's folder)")
+    hint = ""
+    # A relative path typed in the shell (--set query.images=my/query) is read from the
+    # config's folder too; where it names a folder from the working directory, say so.
+    if base_dir is not None:
+        base = Path(base_dir).resolve()
+        here = Path.cwd().resolve()
+        with contextlib.suppress(ValueError):
+            there = here / Path(spec).relative_to(base)
+            if here != base and found(str(there)):
+                hint = f"; from the working directory it would be {there}: give that (an absolute path)"
+    raise ConfigError(f"{key}: {spec} is neither a folder nor a glob that matches files; fix the path (relative paths "
+                      f"start at the config's folder{f', {base_dir}' if base_dir is not None else ''}){hint}")
 
 
 def config_hash(obj: Any) -> str:

@@ -22,7 +22,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -165,7 +165,8 @@ def validate(data: dict, base_dir: Path) -> dict[str, Any]:
     if gt["kind"] in ("csv", "hdf5", "poses", "matrix") and gt["path"] is None:
         raise ConfigError(f"ground_truth.path is missing: kind {gt['kind']!r} reads a file; set ground_truth.path")
     if gt["path"] is not None and gt["kind"] != "none" and not Path(gt["path"]).exists():
-        raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the config's folder)")
+        raise ConfigError(f"ground_truth.path: {gt['path']} does not exist; fix the path (relative paths start at the "
+                          f"config's folder, {base_dir}){_from_here(gt['path'], base_dir, lambda q: Path(q).exists())}")
     method.check(config)
     from placeloc.core.limits import config_problems
 
@@ -372,18 +373,23 @@ def _check_image_source(spec: str, key: str, base_dir: Path | None = None) -> No
 
     if found(spec):
         return
-    hint = ""
-    # A relative path typed in the shell (--set query.images=my/query) is read from the
-    # config's folder too; where it names a folder from the working directory, say so.
-    if base_dir is not None:
-        base = Path(base_dir).resolve()
-        here = Path.cwd().resolve()
-        with contextlib.suppress(ValueError):
-            there = here / Path(spec).relative_to(base)
-            if here != base and found(str(there)):
-                hint = f"; from the working directory it would be {there}: give that (an absolute path)"
     raise ConfigError(f"{key}: {spec} is neither a folder nor a glob that matches files; fix the path (relative paths "
-                      f"start at the config's folder{f', {base_dir}' if base_dir is not None else ''}){hint}")
+                      f"start at the config's folder{f', {base_dir}' if base_dir is not None else ''})"
+                      f"{_from_here(spec, base_dir, found)}")
+
+
+def _from_here(spec: str, base_dir: Path | None, found: Callable[[str], bool]) -> str:
+    """A relative path typed in the shell (``--set query.images=my/query``) is read from the
+    config's folder, as every relative path of a config is; where that finds nothing but
+    the working directory has it, the words that say so (else "")."""
+    if base_dir is None:
+        return ""
+    base, here = Path(base_dir).resolve(), Path.cwd().resolve()
+    with contextlib.suppress(ValueError):
+        there = here / Path(spec).relative_to(base)
+        if here != base and found(str(there)):
+            return f"; from the working directory it would be {there}: give that (an absolute path)"
+    return ""
 
 
 def config_hash(obj: Any) -> str:

@@ -278,3 +278,22 @@ def test_shared_settings_have_one_home():
     assert list(metrics.DEFAULT_RECALL_N) == gt["recall_at"]
     # a section without a tolerance scores like the validated config's default
     assert GroundTruth.from_config({"kind": "synchronous"}, 5, 5).tolerance == gt["tolerance"]
+
+
+def test_headings_in_degrees_under_a_radians_name_are_warned_about(tmp_path, caplog):
+    """`heading` and `yaw` are radians; a column of them reaching 350 is degrees (read as
+    radians, every yaw error would be noise): the reader says which name to use."""
+    import logging
+
+    p = tmp_path / "poses.csv"
+    p.write_text("image,x,y,yaw\nframe0.png,0,0,10\nframe1.png,1,0,350\n")
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        read_poses(p)
+    assert [r.getMessage() for r in caplog.records] == [
+        f"poses: {p}: the yaw column is read in radians, but its values reach 350, more than a turn: if they are "
+        "degrees, name the column yaw_deg"]
+    caplog.clear()
+    p.write_text("image,x,y,yaw\nframe0.png,0,0,0.1\nframe1.png,1,0,-3.1\n")
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        poses = read_poses(p)
+    assert caplog.records == [] and poses.heading[1] == -3.1

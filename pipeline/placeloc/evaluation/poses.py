@@ -169,6 +169,15 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
     if not np.isfinite(xy).all():
         bad = int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
         raise PoseError(f"{what}: {path}:{bad + 2}: position is not finite")
+    if head_col and head_scale == 1.0 and len(rows) and np.nanmax(np.abs(heading)) > 2 * math.pi + 0.01:
+        # `heading`/`yaw` are radians; values past a turn are almost always degrees (a wound-up
+        # odometry angle is the rare exception), and read as radians every yaw error is noise
+        big = float(np.nanmax(np.abs(heading)))
+        import logging
+
+        logging.getLogger("placeloc").warning(
+            "%s: %s: the %s column is read in radians, but its values reach %g, more than a turn: if they are "
+            "degrees, name the column %s_deg", what, path, head_col, big, head_col.strip().lower())
     zone = None
     if latlon_cols is not None:
         bad_lat = np.flatnonzero((np.abs(xy[:, 0]) > 84) | (xy[:, 0] < -80) | (np.abs(xy[:, 1]) > 180))

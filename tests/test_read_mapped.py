@@ -64,3 +64,18 @@ def test_a_replaced_artifact_leaves_the_map_on_the_old_bytes(tmp_path):
     assert np.array_equal(held, old)
     with h5py.File(path, "r") as f:
         assert np.array_equal(read_mapped(f["spectra"]), new)
+
+
+def test_a_file_system_that_cannot_map_is_read_as_usual(tmp_path, monkeypatch):
+    path = tmp_path / "index.h5"
+    data = _values((3, 4, 8), "<c8")
+    with atomic_h5(path, {"stamp": "s"}) as f:
+        f.create_dataset("spectra", data=data)
+
+    def no_mmap(*args, **kwargs):
+        raise OSError(19, "No such device")  # ENODEV: what mmap says where a FUSE mount cannot map
+
+    monkeypatch.setattr(np, "memmap", no_mmap)
+    with h5py.File(path, "r") as f:
+        got = read_mapped(f["spectra"])
+    assert np.array_equal(got, data) and got.flags.owndata

@@ -397,7 +397,10 @@ def read_mapped(ds: h5py.Dataset) -> np.ndarray:
     dtype = ds.dtype
     if offset is None or dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
         return ds[()]
-    mapped = np.memmap(ds.file.filename, dtype=dtype, mode="r", offset=offset, shape=ds.shape)
+    try:
+        mapped = np.memmap(ds.file.filename, dtype=dtype, mode="r", offset=offset, shape=ds.shape)
+    except (OSError, ValueError):  # a file system that cannot map files (some FUSE mounts): read it
+        return ds[()]
     # the bytes are what HDF5 would give (byte order, padding): a few values at both ends checked
     n = ds.shape[-1]
     first = (0,) * (ds.ndim - 1) + (slice(0, min(n, 64)),)

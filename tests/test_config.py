@@ -114,14 +114,19 @@ def test_a_runs_own_config_reads_back_as_the_same_config(tmp_path, route, case):
     from placeloc.core.runner import write_run_config
 
     if case.startswith("no reference"):
-        cfg = load_config(ROOT_CONFIGS / "coembed-abcd.yaml")
-        assert cfg["reference"] is None and cfg["query"] is None
+        from placeloc.synth.coembed import generate
+
+        generate(tmp_path / "data", seed=0, steps=200)  # writes bearing.yaml beside its CSVs
+        cfg = load_config(tmp_path / "data" / "bearing.yaml")
+        assert cfg["method"] == "coembed" and cfg["reference"] is None and cfg["query"] is None
     elif case.startswith("reference only"):
         cfg = load_config(data={"method": "seqslam", "reference": {"images": "reference"}}, base_dir=route)
     else:
         cfg = load_config(ROOT_CONFIGS / "demo.yaml")
-    write_run_config(tmp_path, cfg)
-    assert load_config(tmp_path / "config.yaml") == cfg
+    run = tmp_path / "run"
+    run.mkdir()
+    write_run_config(run, cfg)
+    assert load_config(run / "config.yaml") == cfg
 
 
 def test_a_method_that_needs_a_reference_says_so_when_it_is_null(tmp_path):

@@ -72,6 +72,10 @@ def _check(config: dict[str, Any]) -> None:
                                                                          or pp["chamfer_chance"] != "none"):
         raise ConfigError("umap.panorama.orientation_bins > 1 (the oriented chamfer score) needs umap.panorama.score "
                           "chamfer and chamfer_chance none; set orientation_bins: 1 for the others")
+    if p["query_kind"] == "panorama" and pp["coarse_candidates"] > 0 and (pp["score"] != "chamfer"
+                                                                          or pp["chamfer_chance"] != "none"):
+        raise ConfigError("umap.panorama.coarse_candidates > 0 (candidates by a tolerant chamfer score) needs "
+                          "umap.panorama.score chamfer and chamfer_chance none; set coarse_candidates: 0 for the others")
     try:
         c = p["camera"]
         Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
@@ -490,6 +494,7 @@ METHOD = Method(
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",
+                                          "panorama.coarse_candidates", "panorama.coarse_tau_px", "panorama.coarse_blur_px",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",

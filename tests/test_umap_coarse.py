@@ -10,7 +10,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, _render_all
+from test_umap_panorama import PLAN, H, W, _render_all
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
@@ -23,6 +23,7 @@ from placeloc.umap.panorama import (
     precision_rows,
     row_weights,
     search_panoramas,
+    tolerant_bands,
     tolerant_chamfer_table,
 )
 from placeloc.umap.params import PanoramaParams
@@ -62,6 +63,14 @@ def test_coarse_to_fine_candidates_by_hand():
     # (0, 6, 2, 4; 5 is 0.25 m from 4), and no place of the tolerant order is 0.3 m from all of them
     got = coarse_to_fine_candidates(exact, tolerant, xy, count=9, coarse=3, min_separation_m=0.3)
     assert got.tolist() == [0, 6, 2, 4]
+
+
+def test_tolerant_bands_by_hand():
+    # 144 columns: 8 px -> 144 / 8 = 18 cycles, 19 frequencies with 0; 3 px -> 49 of 73; a
+    # tolerance under 2 px would keep more than there are: all
+    assert tolerant_bands(144, 8.0) == 19
+    assert tolerant_bands(144, 3.0) == 49
+    assert tolerant_bands(144, 1.5) == 73
 
 
 def _close_to(lines, tau):
@@ -128,6 +137,12 @@ def test_tolerant_table_equals_the_pixel_loop(bins, spread):
         table = tolerant_chamfer_table(spectra, queries, recall_tau_px=recall_tau, blur_px=blur, weights=weights,
                                        precision_rows=prows, spread=spread)[0]
         assert np.abs(table - ref).max() < 1e-5, (recall_tau, blur)
+        # the lowest 4 column frequencies only: the reference low-passed over the shifts
+        low = np.fft.rfft(ref, axis=1)
+        low[:, 4:] = 0
+        banded = tolerant_chamfer_table(spectra, queries, recall_tau_px=recall_tau, blur_px=blur, weights=weights,
+                                        precision_rows=prows, spread=spread, bands=4)[0]
+        assert np.abs(banded - np.fft.irfft(low, n=w, axis=1)).max() < 1e-5, (recall_tau, blur)
     # the exact score's own tolerance and no blur: the exact table
     exact = chamfer_table(spectra, queries, tau_px=3.0, weights=weights, chance="none", precision_rows=prows,
                           spread=spread)
@@ -143,7 +158,8 @@ def test_the_tolerant_choice_finds_the_truth_s_cell_the_exact_one_misses():
     # (its views there move the near wall's lines by several pixels). At the truth T (4.8,
     # 2.78), heading 168 deg, the exact table ranks T's cell (the grid point (5.1, 3.1), 0.44 m
     # away) 5th, below four places in the room's west half (x 1.1 and 3.1); the tolerant table
-    # (8 px, blur 2 px: the defaults of coarse_tau_px and coarse_blur_px) ranks it 2nd.
+    # (8 px, blur 2 px: the defaults of coarse_tau_px and coarse_blur_px; 19 bands, as the
+    # search computes it) ranks it 2nd.
     # Measured: with 2 candidates, both by the exact table, the answer is 3.92 m off at a
     # heading 178 deg away; with the 2nd, or both, by the tolerant table, 0.017 m off.
     m = floor_plan_model(PLAN)
@@ -156,7 +172,7 @@ def test_the_tolerant_choice_finds_the_truth_s_cell_the_exact_one_misses():
     db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
     exact = chamfer_table(db["spectra"], q, tau_px=pp.chamfer_tau_px, weights=wts, chance="none", precision_rows=prows)[0]
     tolerant = tolerant_chamfer_table(db["spectra"], q, recall_tau_px=pp.coarse_tau_px, blur_px=pp.coarse_blur_px,
-                                      weights=wts, precision_rows=prows)[0]
+                                      weights=wts, precision_rows=prows, bands=tolerant_bands(W, pp.coarse_tau_px))[0]
     cell = int(np.flatnonzero(np.abs(poses[:, :2] - truth[0, :2]).max(axis=1) <= 0.5)[0])   # the grid point whose cell holds T
 
     def rank_of_cell(table):

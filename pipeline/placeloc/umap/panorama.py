@@ -753,9 +753,23 @@ def box_blur(images: np.ndarray, radius_px: int) -> np.ndarray:
     return out.reshape(images.shape)
 
 
+def tolerant_bands(width: int, recall_tau_px: float) -> int:
+    """The column frequencies :func:`search_panoramas` keeps of the tolerant table
+    (:func:`tolerant_chamfer_table`'s ``bands``): 0 to ``width / recall_tau_px`` cycles around
+    the panorama, at most all ``width // 2 + 1``.
+
+    Why: the recall half correlates the map's lines with the query's closeness, a cone
+    ``recall_tau_px`` pixels in half-width along a row, whose spectrum (a squared sinc) first
+    falls to zero at ``width / recall_tau_px`` cycles; the precision half's blur is a low
+    pass too. Above that the table holds mostly the heading's fine detail, and the search
+    takes only each position's best over all headings from it; the products are one per
+    frequency, so 19 of 73 (8 px at 144 columns) cost a quarter."""
+    return int(min(width // 2 + 1, math.floor(width / recall_tau_px) + 1))
+
+
 def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_tau_px: float, blur_px: int,
                            weights: np.ndarray, precision_rows: np.ndarray | None = None,
-                           spread: int | None = None) -> np.ndarray:
+                           spread: int | None = None, bands: int | None = None) -> np.ndarray:
     """A more tolerant chamfer score (chance ``none``) of a batch of query line images
     against the same ``spectra`` as :func:`chamfer_table` (built with its ``tau_px``), at
     every position and column shift: (N, P, W) float32. Only the query's side changes, so
@@ -785,7 +799,12 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     a true pose score like many other places (docs/umap.md, "Candidates by a tolerant
     score"). With tolerance wider than the lines' move over half a step, the truth's
     nearest grid point keeps much of its score and ranks among the places a search
-    refines; the answer itself is still scored with the exact score."""
+    refines; the answer itself is still scored with the exact score.
+
+    ``bands``: only the column frequencies 0 .. bands - 1 of each row's correlation are
+    multiplied (:func:`tolerant_bands`), so the table is the full one low-passed over the
+    column shifts (tested): a heading blurred, for bands / (W / 2 + 1) of the products'
+    cost; None: all."""
     queries = np.asarray(queries)
     if spread is None:
         queries = queries.reshape(-1, 1, *queries.shape[-2:])            # one channel: the plain score
@@ -802,8 +821,9 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     wr = np.asarray(weights, np.float32)[None, None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
     x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
-    qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1).astype(np.complex64).transpose(2, 1, 0))
-    prod = _batch_products(spectra, qs)                                   # (F, P, N)
+    f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
+    qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1)[..., :f].astype(np.complex64).transpose(2, 1, 0))
+    prod = _batch_products(spectra[:f], qs)                               # (f, P, N); the rest are zero
     return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
 
 
@@ -1250,7 +1270,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     def tolerant_tables(ks: np.ndarray) -> np.ndarray:
         return tolerant_chamfer_table(database["spectra"], queries[ks], recall_tau_px=pp.coarse_tau_px,
-                                      blur_px=pp.coarse_blur_px, weights=weights, precision_rows=prows, spread=spread)
+                                      blur_px=pp.coarse_blur_px, weights=weights, precision_rows=prows, spread=spread,
+                                      bands=tolerant_bands(w, pp.coarse_tau_px))
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:

@@ -1263,10 +1263,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                    else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
     prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
 
-    # candidates by a tolerant score (coarse_candidates): only its ranks are used
-    coarse = chamfer and pp.coarse_candidates > 0 and pp.refine_candidates > 0
-    if coarse and pp.chamfer_chance != "none":
-        raise ValueError(f"coarse_candidates > 0 needs chamfer_chance none, not {pp.chamfer_chance!r}")
+    # candidates by a tolerant score (coarse_candidates), only its ranks used; the plain
+    # halves only (a chance-corrected tolerant score is not derived: every candidate exact)
+    coarse = chamfer and pp.chamfer_chance == "none" and pp.coarse_candidates > 0 and pp.refine_candidates > 0
 
     def tolerant_tables(ks: np.ndarray) -> np.ndarray:
         return tolerant_chamfer_table(database["spectra"], queries[ks], recall_tau_px=pp.coarse_tau_px,

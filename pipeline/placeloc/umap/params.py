@@ -111,12 +111,12 @@ class PanoramaParams(Params):
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
-    coarse_candidates: int = param(0, min=0, help="of the refine_candidates, how many are chosen by a tolerant score "
+    coarse_candidates: int = param(8, min=0, help="of the refine_candidates, how many are chosen by a tolerant score "
                                                   "(chamfer, chance none: the query's closeness at coarse_tau_px, its "
                                                   "line pixels blurred by coarse_blur_px), after the rest by the exact "
                                                   "one, so that a peak narrower than the grid step still has its grid "
                                                   "point among them; the search after the choice scores exactly (0: "
-                                                  "all by the exact score)")
+                                                  "all by the exact score, as with the IoU score or a chamfer_chance other than none)")
     coarse_tau_px: float = param(8.0, min=0.0, min_exclusive=True,
                                  help="coarse_candidates: the tolerant score's truncation, in pixels, of the query's "
                                       "closeness (the recall half)")

@@ -72,10 +72,6 @@ def _check(config: dict[str, Any]) -> None:
                                                                          or pp["chamfer_chance"] != "none"):
         raise ConfigError("umap.panorama.orientation_bins > 1 (the oriented chamfer score) needs umap.panorama.score "
                           "chamfer and chamfer_chance none; set orientation_bins: 1 for the others")
-    if p["query_kind"] == "panorama" and pp["coarse_candidates"] > 0 and (pp["score"] != "chamfer"
-                                                                          or pp["chamfer_chance"] != "none"):
-        raise ConfigError("umap.panorama.coarse_candidates > 0 (candidates by a tolerant chamfer score) needs "
-                          "umap.panorama.score chamfer and chamfer_chance none; set coarse_candidates: 0 for the others")
     try:
         c = p["camera"]
         Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))

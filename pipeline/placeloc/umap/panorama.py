@@ -1217,8 +1217,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     ``pp.refine_candidates``, a local search off the grid (``pp``: the ``umap.panorama``
     parameters):
 
-    1. the cell stage: the ``refine_candidates`` best distinct grid positions (each at its
-       best yaw) each sample the 8 points a third of a grid step around them, so that every
+    1. the cell stage: ``refine_candidates`` distinct grid positions (each at its best yaw;
+       with the chamfer score and chance none the last ``coarse_candidates`` of them by a
+       tolerant score, :func:`coarse_to_fine_candidates`, the rest the best by the exact
+       one) each sample the 8 points a third of a grid step around them, so that every
        plan point of their cells lies within a sixth of a step (0.06 m diagonally at 0.25 m)
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;

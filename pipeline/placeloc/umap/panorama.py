@@ -734,6 +734,99 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     return (0.5 * (np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1) - offset[:, :, None])).astype(np.float32)
 
 
+def box_blur(images: np.ndarray, radius_px: int) -> np.ndarray:
+    """(..., H, W) float32 images, each pixel the mean of the (2r + 1)-pixel square around it,
+    wrapping around horizontally (a panorama has no left edge) and zero beyond the poles, so
+    that what lies on the image is kept (a pixel's mass spread over its square; mass past a
+    pole is lost). ``radius_px`` 0: the images as float32."""
+    images = np.asarray(images, np.float32)
+    r = int(radius_px)
+    if r <= 0:
+        return images.copy()
+    h, w = images.shape[-2:]
+    flat = images.reshape(-1, h, w)
+    out = np.empty_like(flat)
+    for i, img in enumerate(flat):
+        wide = np.concatenate([img[:, w - r:], img, img[:, :r]], axis=1)
+        out[i] = cv2.boxFilter(wide, -1, (2 * r + 1, 2 * r + 1), normalize=True,
+                               borderType=cv2.BORDER_CONSTANT)[:, r:r + w]
+    return out.reshape(images.shape)
+
+
+def tolerant_bands(width: int, recall_tau_px: float) -> int:
+    """The column frequencies :func:`search_panoramas` keeps of the tolerant table
+    (:func:`tolerant_chamfer_table`'s ``bands``): 0 to ``width / recall_tau_px`` cycles around
+    the panorama, at most all ``width // 2 + 1``.
+
+    Why: the recall half correlates the map's lines with the query's closeness, a cone
+    ``recall_tau_px`` pixels in half-width along a row, whose spectrum (a squared sinc) first
+    falls to zero at ``width / recall_tau_px`` cycles; the precision half's blur is a low
+    pass too. Above that the table holds mostly the heading's fine detail, and the search
+    takes only each position's best over all headings from it; the products are one per
+    frequency, so 19 of 73 (8 px at 144 columns) cost a quarter."""
+    return int(min(width // 2 + 1, math.floor(width / recall_tau_px) + 1))
+
+
+def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_tau_px: float, blur_px: int,
+                           weights: np.ndarray, precision_rows: np.ndarray | None = None,
+                           spread: int | None = None, bands: int | None = None) -> np.ndarray:
+    """A more tolerant chamfer score (chance ``none``) of a batch of query line images
+    against the same ``spectra`` as :func:`chamfer_table` (built with its ``tau_px``), at
+    every position and column shift: (N, P, W) float32. Only the query's side changes, so
+    it needs no second index; with ``recall_tau_px`` equal to the spectra's tau and
+    ``blur_px`` 0 it is :func:`chamfer_table` (tested).
+
+    What each half becomes (m the map's line image, q the query's times the precision
+    rows, w the row weights, tau the spectra's truncation, x + k the query pixel a map pixel
+    x falls on at shift k):
+
+    - recall: ``sum_x w m(x) c'(x + k) / sum_x w m(x)`` with ``c'`` the query's closeness
+      ``max(0, 1 - d / tau')`` at ``tau' = recall_tau_px`` instead of tau. Since ``c' >= c``
+      and a map line moved by delta pixels loses at most ``delta / tau'`` of its closeness
+      (``delta / tau`` in the exact score), the half falls off tau' / tau times more slowly
+      as the pose moves away from where the lines fall;
+    - precision: ``sum_y w (K * q)(y) g(y - k) / sum_y w (K * q)(y)``, ``g`` the map's
+      closeness at tau (the stored spectra) and ``K * q`` the query's line image blurred by
+      the normalised (2 b + 1)-pixel square ``K``, b = ``blur_px`` (:func:`box_blur`). As
+      K is symmetric, the numerator is ``sum_y q(y) sum_d K(d) w(y + d) g(y + d - k)``:
+      each query line pixel scores the map's closeness averaged over the square around it
+      (the row weights varying little across it). The average of the cone ``max(0, 1 -
+      d / tau)`` over the square reaches tau + b pixels, so a detected line up to tau + b
+      pixels off a map line still earns, where the exact half gives nothing beyond tau.
+
+    Why: near a wall a few centimetres move the nearby wall's lines by several pixels, so
+    the exact score's peak there is narrower than the grid step, and the grid points around
+    a true pose score like many other places (docs/umap.md, "Candidates by a tolerant
+    score"). With tolerance wider than the lines' move over half a step, the truth's
+    nearest grid point keeps much of its score and ranks among the places a search
+    refines; the answer itself is still scored with the exact score.
+
+    ``bands``: only the column frequencies 0 .. bands - 1 of each row's correlation are
+    multiplied (:func:`tolerant_bands`), so the table is the full one low-passed over the
+    column shifts (tested): a heading blurred, for bands / (W / 2 + 1) of the products'
+    cost; None: all."""
+    queries = np.asarray(queries)
+    if spread is None:
+        queries = queries.reshape(-1, 1, *queries.shape[-2:])            # one channel: the plain score
+    n_q, b, h, w = queries.shape
+    q = queries.astype(np.float32)                                        # a float query: weighted
+    source = q if queries.dtype.kind == "f" else queries
+    if spread is None:
+        q_close = closeness(source[:, 0], recall_tau_px)
+    else:
+        q_close = stack_channels(oriented_closeness(source, recall_tau_px, spread))
+    if precision_rows is not None:                                        # the precision half's rows only
+        q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
+    q = box_blur(q, blur_px)
+    wr = np.asarray(weights, np.float32)[None, None, :, None]
+    nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
+    x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
+    f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
+    qs = np.ascontiguousarray(np.fft.rfft(x, axis=-1)[..., :f].astype(np.complex64).transpose(2, 1, 0))
+    prod = _batch_products(spectra[:f], qs)                               # (f, P, N); the rest are zero
+    return (0.5 * np.fft.irfft(prod.transpose(2, 1, 0), n=w, axis=-1)).astype(np.float32)
+
+
 def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
     """(position row, column shift, score) of the best entry of a (P, W) score table."""
     i, k = np.unravel_index(int(np.argmax(scores)), scores.shape)
@@ -790,8 +883,13 @@ class PanoramaAnswers(NamedTuple):
 # ------------------------------------------------------------------ local refinement
 
 @njit(cache=True)
-def _distinct(order: np.ndarray, xy: np.ndarray, count: int, min_separation_m: float, out: np.ndarray) -> int:
-    n = 0
+def _distinct(order: np.ndarray, xy: np.ndarray, count: int, min_separation_m: float, out: np.ndarray,
+              taken: int = 0) -> int:
+    """Fills ``out[taken:count]`` with rows of ``order`` at least ``min_separation_m`` from
+    every row in ``out`` so far (its first ``taken`` given); returns how many ``out`` holds."""
+    n = taken
+    if n >= count:
+        return n
     for i in order:
         ok = True
         for m in range(n):
@@ -814,6 +912,24 @@ def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_s
     order = np.argsort(-scores.max(axis=1), kind="stable")
     out = np.zeros(max(count, 0), dtype=np.int64)
     n = _distinct(order.astype(np.int64), np.ascontiguousarray(xy, np.float64), count, float(min_separation_m), out)
+    return out[:n]
+
+
+def coarse_to_fine_candidates(scores: np.ndarray, tolerant: np.ndarray, xy: np.ndarray, *, count: int, coarse: int,
+                              min_separation_m: float) -> np.ndarray:
+    """Rows of ``count`` distinct places (:func:`distinct_candidates`): the best
+    ``count - coarse`` by the exact ``scores`` first, then places by the ``tolerant`` table
+    (:func:`tolerant_chamfer_table`, each position at its best yaw) in its order, each at
+    least ``min_separation_m`` from every place taken, until there are ``count``.
+    ``coarse`` >= ``count``: every candidate by the tolerant table."""
+    count = max(int(count), 0)
+    exact = max(count - max(int(coarse), 0), 0)
+    out = np.zeros(count, dtype=np.int64)
+    pts = np.ascontiguousarray(xy, np.float64)
+    n = _distinct(np.argsort(-scores.max(axis=1), kind="stable").astype(np.int64), pts, exact,
+                  float(min_separation_m), out)
+    n = _distinct(np.argsort(-tolerant.max(axis=1), kind="stable").astype(np.int64), pts, count,
+                  float(min_separation_m), out, n)
     return out[:n]
 
 
@@ -1101,8 +1217,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     ``pp.refine_candidates``, a local search off the grid (``pp``: the ``umap.panorama``
     parameters):
 
-    1. the cell stage: the ``refine_candidates`` best distinct grid positions (each at its
-       best yaw) each sample the 8 points a third of a grid step around them, so that every
+    1. the cell stage: ``refine_candidates`` distinct grid positions (each at its best yaw;
+       with the chamfer score and chance none the last ``coarse_candidates`` of them by a
+       tolerant score, :func:`coarse_to_fine_candidates`, the rest the best by the exact
+       one) each sample the 8 points a third of a grid step around them, so that every
        plan point of their cells lies within a sixth of a step (0.06 m diagonally at 0.25 m)
        of a sampled point: a peak 0.1 m wide between grid points is seen wherever the grid
        falls;
@@ -1146,6 +1264,15 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         queries = (texture_weights(lines, pp.texture_radius_px) if spread is None
                    else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
     prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
+
+    # candidates by a tolerant score (coarse_candidates), only its ranks used; the plain
+    # halves only (a chance-corrected tolerant score is not derived: every candidate exact)
+    coarse = chamfer and pp.chamfer_chance == "none" and pp.coarse_candidates > 0 and pp.refine_candidates > 0
+
+    def tolerant_tables(ks: np.ndarray) -> np.ndarray:
+        return tolerant_chamfer_table(database["spectra"], queries[ks], recall_tau_px=pp.coarse_tau_px,
+                                      blur_px=pp.coarse_blur_px, weights=weights, precision_rows=prows, spread=spread,
+                                      bands=tolerant_bands(w, pp.coarse_tau_px))
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
@@ -1198,7 +1325,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     def scored() -> Iterable:
         for s in range(0, n, PANORAMA_BATCH):
             ks = np.arange(s, min(n, s + PANORAMA_BATCH))
-            yield from zip(ks, tables(ks))
+            yield from zip(ks, tables(ks), tolerant_tables(ks) if coarse else [None] * len(ks))
 
     def move(k: int, xy: np.ndarray, col: np.ndarray, sc: np.ndarray, step: float, floor_d: np.ndarray,
              q_close: np.ndarray | None, offsets: np.ndarray = NEIGHBOURS) -> None:
@@ -1254,15 +1381,20 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     # shared cores they cost 3-5x the CPU time of the search; bench-umap)
     limiter = threadpool_limits(limits=1, user_api="blas")
     try:
-        for k, table in progress(scored()):
+        for k, table, tolerant in progress(scored()):
             best[k], shift, score[k] = best_pose(table)
             heading[k] = shift * 360.0 / w
             seen_xy.clear()
             seen_score.clear()
             answer_xy, answer_col = poses[best[k], :2], shift
-            cands = (distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                         min_separation_m=pp.refine_separation_m) if pp.refine_candidates > 0
-                     else np.zeros(0, np.int64))
+            if pp.refine_candidates <= 0:
+                cands = np.zeros(0, np.int64)
+            elif tolerant is not None:
+                cands = coarse_to_fine_candidates(table, tolerant, poses[:, :2], count=pp.refine_candidates,
+                                                  coarse=pp.coarse_candidates, min_separation_m=pp.refine_separation_m)
+            else:
+                cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                            min_separation_m=pp.refine_separation_m)
             if not len(cands):
                 rival[k] = rival_score(table, poses[:, :2], np.zeros((0, 2)), np.zeros(0), answer_xy, answer_col,
                                        distance_m=pp.margin_distance_m, yaw_cols=rival_cols)

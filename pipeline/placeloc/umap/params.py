@@ -111,6 +111,18 @@ class PanoramaParams(Params):
                                                    "(8 points a third of a grid step around each), for either score (0: "
                                                    "grid only)")
     refine_separation_m: float = param(0.3, min=0.0, help="least distance between two refined candidates")
+    coarse_candidates: int = param(8, min=0, help="of the refine_candidates, how many are chosen by a tolerant score "
+                                                  "(chamfer, chance none: the query's closeness at coarse_tau_px, its "
+                                                  "line pixels blurred by coarse_blur_px), after the rest by the exact "
+                                                  "one, so that a peak narrower than the grid step still has its grid "
+                                                  "point among them; the search after the choice scores exactly (0: "
+                                                  "all by the exact score, as with the IoU score or a chamfer_chance other than none)")
+    coarse_tau_px: float = param(8.0, min=0.0, min_exclusive=True,
+                                 help="coarse_candidates: the tolerant score's truncation, in pixels, of the query's "
+                                      "closeness (the recall half)")
+    coarse_blur_px: int = param(2, min=0, max=8, help="coarse_candidates: the tolerant score's precision half counts "
+                                                      "each query line pixel spread over the (2r + 1)-pixel square "
+                                                      "around it")
     refine_top: int = param(0, min=0, help="the best grid positions by the table's own rank (each at its best yaw) "
                                            "that a pose of the beam kept out of the candidates (within "
                                            "refine_separation_m of it) get their cell stage after the beam is chosen; "

@@ -490,6 +490,7 @@ METHOD = Method(
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",
+                                          "panorama.coarse_candidates", "panorama.coarse_tau_px", "panorama.coarse_blur_px",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",

@@ -89,6 +89,61 @@ def occluded(px: float, py: float, pz: float, qx: float, qy: float, qz: float, f
 
 
 @njit(cache=True)
+def face_terms(px: float, py: float, faces: np.ndarray, out: np.ndarray) -> None:
+    """The quantities of :func:`ray_segment` that depend on the ray's origin (px, py) and a
+    face but not on the ray's direction, for every face: ``out[f]`` = (ex, ey, wx, wy, tn),
+    the face's direction, the vector origin -> its first end and the crossing parameter's
+    numerator, each computed by the same operations as there (so the same doubles)."""
+    for f in range(faces.shape[0]):
+        ex = faces[f, 2] - faces[f, 0]
+        ey = faces[f, 3] - faces[f, 1]
+        wx = faces[f, 0] - px
+        wy = faces[f, 1] - py
+        out[f, 0] = ex
+        out[f, 1] = ey
+        out[f, 2] = wx
+        out[f, 3] = wy
+        out[f, 4] = wx * ey - wy * ex
+
+
+@njit(cache=True)
+def occluded_terms(px: float, py: float, pz: float, qx: float, qy: float, qz: float, faces: np.ndarray,
+                   terms: np.ndarray, candidates: np.ndarray, n_candidates: int) -> bool:
+    """:func:`occluded` with the origin's face quantities computed once (``terms``: see
+    :func:`face_terms` for this p), the same answer for every input: each face is tested
+    with the same doubles, and a face whose crossing parameter has the wrong sign is passed
+    over before the division, which there gives t <= 0 and a rejection."""
+    dx = qx - px
+    dy = qy - py
+    length = math.sqrt(dx * dx + dy * dy)
+    if length < 1e-9:
+        return False
+    tmax = 1.0 - 0.005 / length
+    for k in range(n_candidates):
+        f = candidates[k]
+        ex = terms[f, 0]
+        ey = terms[f, 1]
+        den = dx * ey - dy * ex
+        if abs(den) < 1e-12:
+            continue
+        tn = terms[f, 4]
+        # t = tn / den: a quotient of operands of opposite signs (or a zero numerator) is
+        # negative or zero after rounding too, so t <= 1e-9 rejects it there
+        if tn == 0.0 or (tn < 0.0) != (den < 0.0):
+            continue
+        t = tn / den
+        if t <= 1e-9 or t >= tmax:
+            continue
+        u = (terms[f, 2] * dy - terms[f, 3] * dx) / den
+        if u < 0.0 or u > 1.0:
+            continue
+        z = pz + t * (qz - pz)
+        if faces[f, 4] <= z <= faces[f, 5]:
+            return True
+    return False
+
+
+@njit(cache=True)
 def _first_hits(xy: np.ndarray, dx: float, dy: float, walls: np.ndarray, out: np.ndarray) -> None:
     for i in range(xy.shape[0]):
         best = math.inf

@@ -232,3 +232,29 @@ def test_occlusion_with_face_terms_equals_the_plain_test():
             one = every[k:k + 1]
             assert occluded_terms(*p, *q, faces, terms, one, 1) == occluded(*p, *q, faces, one, 1)
         assert occluded_terms(*p, *q, faces, terms, every, len(every)) == occluded(*p, *q, faces, every, len(every))
+
+
+def test_whole_segment_test_over_the_first_ends_column_equals_every_face():
+    # the renderer runs the whole-segment hidden test over the faces listed for the column of
+    # the segment's first end; over a generated home's grid and headings it must answer as
+    # over every face, and skip segments often enough to matter
+    from placeloc.geometry.floorplan import plan_grid
+    from placeloc.geometry.panorama import _segment_hidden, _segment_hidden_among, column_faces
+    from placeloc.synth.home import plan as home_plan
+
+    fp, _ = home_plan(np.random.default_rng(0), 3)
+    m = floor_plan_model({**fp, "camera_z": 1.5})
+    faces = np.ascontiguousarray(m.faces, np.float64)
+    hidden = 0
+    for i, (px, py, pz, _) in enumerate(plan_grid(m, step_m=0.7)[0]):
+        head = math.radians(37.5 * i)
+        counts = np.zeros(W, np.int64)
+        lists = np.empty((W, len(faces)), np.int64)
+        column_faces(faces, px, py, head, W, counts, lists)
+        for s in m.segments:
+            a = (s[0] - px, s[1] - py, s[2], s[3] - px, s[4] - py, s[5])
+            col = _col_of(a[0], a[1], head, W)
+            whole = _segment_hidden(*a, faces, px, py, pz)
+            assert _segment_hidden_among(*a, faces, px, py, pz, lists[col], counts[col]) == whole
+            hidden += whole
+    assert hidden > 500

@@ -45,7 +45,14 @@ CULL_M = 1e-6          # metres, beyond the 5 mm clearance of the per-sample tes
 @njit(cache=True)
 def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray, px: float,
                     py: float, pz: float) -> bool:
-    """True when one wall face hides the whole segment a -> b (plan coordinates relative to
+    """:func:`_segment_hidden_among` every face."""
+    return _segment_hidden_among(ax, ay, az, bx, by, bz, faces, px, py, pz, np.arange(faces.shape[0]), faces.shape[0])
+
+
+@njit(cache=True)
+def _segment_hidden_among(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray,
+                          px: float, py: float, pz: float, candidates: np.ndarray, n_candidates: int) -> bool:
+    """True when one wall face (of the first ``n_candidates`` in ``candidates``) hides the whole segment a -> b (plan coordinates relative to
     the camera at (px, py, pz); heights absolute) from the camera: the face spans the line of
     sight's heights (from the camera's to the segment's), the segment lies wholly on the far
     side of the face's line, more than the per-sample test's 5 mm clearance beyond it, and
@@ -53,14 +60,17 @@ def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: f
     :func:`placeloc.geometry.rays.occluded`'s test only by being hidden (that test finds this
     face in its column list: the list covers the face's span and a column more), so skipping
     the segment draws the same pixels. Wedge and distance are convex: testing the two ends
-    covers the points between."""
+    covers the points between. The renderer passes the faces listed for the column of a: a
+    face that hides the segment holds a inside its wedge, so it is listed there, and the
+    answer is the one over every face."""
     z_lo = min(pz, az, bz)
     z_hi = max(pz, az, bz)
     la = math.sqrt(ax * ax + ay * ay)
     lb = math.sqrt(bx * bx + by * by)
     if la < 1e-9 or lb < 1e-9:
         return False
-    for f in range(faces.shape[0]):
+    for k in range(n_candidates):
+        f = candidates[k]
         if faces[f, 4] > z_lo or faces[f, 5] < z_hi:
             continue
         cx = faces[f, 0] - px
@@ -151,6 +161,27 @@ def orientation_bit_fast(du: float, dv: float, bins: int, bound_cos: np.ndarray,
 EDGE_SIN = 1e-9
 EDGE_HEAD_MAX = 1e3
 EDGE_MOVES = 4          # pixels a certified test may step from the previous sample's
+
+
+@njit(cache=True)
+def column_faces(faces: np.ndarray, px: float, py: float, head: float, width: int, counts: np.ndarray,
+                 lists: np.ndarray) -> None:
+    """The faces that can hide a point seen in each column from (px, py) at heading ``head``
+    (radians): ``lists[c, :counts[c]]`` (``counts`` zeros, ``lists`` (width, F)), each face
+    listed in the columns of its angular span and one more on either side."""
+    for f in range(faces.shape[0]):
+        a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
+        a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
+        c0 = _angle_to_col(a0, width)
+        c1 = _angle_to_col(a1, width)
+        lo = min(c0, c1)
+        hi = max(c0, c1)
+        if hi - lo > width / 2.0:  # the span wraps around the seam
+            lo, hi = hi, lo + width
+        for c in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 2):
+            cc = c % width
+            lists[cc, counts[cc]] = f
+            counts[cc] += 1
 
 
 @njit(cache=True)
@@ -258,19 +289,7 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
         terms = np.empty((max(nf, 1), 5))
         if hidden:
             face_terms(px, py, faces, terms)
-            for f in range(nf):
-                a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
-                a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
-                c0 = _angle_to_col(a0, width)
-                c1 = _angle_to_col(a1, width)
-                lo = min(c0, c1)
-                hi = max(c0, c1)
-                if hi - lo > width / 2.0:  # the span wraps around the seam
-                    lo, hi = hi, lo + width
-                for c in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 2):
-                    cc = c % width
-                    lists[cc, counts[cc]] = f
-                    counts[cc] += 1
+            column_faces(faces, px, py, head, width, counts, lists)
         for s in range(segs.shape[0]):
             if which == 1 and not vertical[s]:
                 continue
@@ -285,7 +304,11 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
             ll = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ll < 1e-9:
                 continue
-            if hidden and _segment_hidden(ax, ay, segs[s, 2], ax + ex, ay + ey, segs[s, 5], faces, px, py, pz):
+            # the column of the segment's first end: where its whole-segment hidden test finds
+            # every face that could hide it whole, and where the certified tests start
+            ia = _col_of(ax, ay, head, width)
+            if hidden and _segment_hidden_among(ax, ay, segs[s, 2], ax + ex, ay + ey, segs[s, 5], faces, px, py, pz,
+                                                lists[ia], counts[ia]):
                 continue
             # closest distance camera -> segment bounds the angular speed along it
             t0 = -(ax * ex + ay * ey + az * ez) / (ll * ll)
@@ -295,7 +318,7 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
             czp = az + t0 * ez
             dmin = max(math.sqrt(cxp * cxp + cyp * cyp + czp * czp), 0.05)
             n = min(int(math.ceil(2.0 * ll / dmin / step)) + 1, 20000)
-            iu = -1   # the previous sample's pixel: where the certified tests start
+            iu = ia   # the previous sample's pixel: where the certified tests start
             iv = -1
             for i in range(n + 1):
                 t = i / n

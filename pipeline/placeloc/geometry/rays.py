@@ -112,13 +112,12 @@ def occluded_terms(px: float, py: float, pz: float, qx: float, qy: float, qz: fl
     """:func:`occluded` with the origin's face quantities computed once (``terms``: see
     :func:`face_terms` for this p), the same answer for every input: each face is tested
     with the same doubles, and a face whose crossing parameter has the wrong sign is passed
-    over before the division, which there gives t <= 0 and a rejection."""
+    over before the division, which there gives t <= 0 and a rejection (so the ray's length
+    is needed only when a face gets that far)."""
     dx = qx - px
     dy = qy - py
-    length = math.sqrt(dx * dx + dy * dy)
-    if length < 1e-9:
-        return False
-    tmax = 1.0 - 0.005 / length
+    tmax = 0.0
+    have_tmax = False   # the ray's length is read at the first face that needs it: most are passed over before
     for k in range(n_candidates):
         f = candidates[k]
         ex = terms[f, 0]
@@ -131,6 +130,12 @@ def occluded_terms(px: float, py: float, pz: float, qx: float, qy: float, qz: fl
         # negative or zero after rounding too, so t <= 1e-9 rejects it there
         if tn == 0.0 or (tn < 0.0) != (den < 0.0):
             continue
+        if not have_tmax:
+            length = math.sqrt(dx * dx + dy * dy)
+            if length < 1e-9:   # (occluded returns False before any face)
+                return False
+            tmax = 1.0 - 0.005 / length
+            have_tmax = True
         t = tn / den
         if t <= 1e-9 or t >= tmax:
             continue

@@ -165,11 +165,12 @@ EDGE_MOVES = 4          # pixels a certified test may step from the previous sam
 
 @njit(cache=True)
 def column_faces(faces: np.ndarray, px: float, py: float, head: float, width: int, counts: np.ndarray,
-                 lists: np.ndarray) -> None:
+                 lists: np.ndarray, order: np.ndarray) -> None:
     """The faces that can hide a point seen in each column from (px, py) at heading ``head``
     (radians): ``lists[c, :counts[c]]`` (``counts`` zeros, ``lists`` (width, F)), each face
-    listed in the columns of its angular span and one more on either side."""
-    for f in range(faces.shape[0]):
+    listed in the columns of its angular span and one more on either side, each list in the
+    faces' order in ``order``."""
+    for f in order:
         a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
         a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
         c0 = _angle_to_col(a0, width)
@@ -286,10 +287,11 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
         # faces per column: a face can only hide points whose azimuth lies in its angular span
         counts = np.zeros(width, dtype=np.int64)
         lists = np.empty((width, max(nf, 1)), dtype=np.int64)
-        terms = np.empty((max(nf, 1), 5))
+        terms = np.empty((max(nf, 1), 6))
         if hidden:
             face_terms(px, py, faces, terms)
-            column_faces(faces, px, py, head, width, counts, lists)
+            # nearest first: the hidden-line test stops at the first face beyond the point
+            column_faces(faces, px, py, head, width, counts, lists, np.argsort(terms[:nf, 5]))
         for s in range(segs.shape[0]):
             if which == 1 and not vertical[s]:
                 continue

@@ -52,11 +52,12 @@ def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: f
 @njit(cache=True)
 def _segment_hidden_among(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray,
                           px: float, py: float, pz: float, candidates: np.ndarray, n_candidates: int) -> bool:
-    """True when one wall face (of the first ``n_candidates`` in ``candidates``) hides the whole segment a -> b (plan coordinates relative to
-    the camera at (px, py, pz); heights absolute) from the camera: the face spans the line of
-    sight's heights (from the camera's to the segment's), the segment lies wholly on the far
-    side of the face's line, more than the per-sample test's 5 mm clearance beyond it, and
-    inside the wedge of directions the face covers. Every sample of the segment then fails
+    """True when one wall face (of the first ``n_candidates`` in ``candidates``) hides the
+    whole segment a -> b (plan coordinates relative to the camera at (px, py, pz); heights
+    absolute) from the camera: the face spans the line of sight's heights (from the camera's
+    to the segment's), the segment lies wholly on the far side of the face's line, more than
+    the per-sample test's 5 mm clearance beyond it, and inside the wedge of directions the
+    face covers. Every sample of the segment then fails
     :func:`placeloc.geometry.rays.occluded`'s test only by being hidden (that test finds this
     face in its column list: the list covers the face's span and a column more), so skipping
     the segment draws the same pixels. Wedge and distance are convex: testing the two ends

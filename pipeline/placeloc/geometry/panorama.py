@@ -19,7 +19,7 @@ from numba import njit, prange
 
 from placeloc.geometry import Camera, equirect_to_pinhole
 from placeloc.geometry.bitimage import n_words, pack_into
-from placeloc.geometry.rays import occluded
+from placeloc.geometry.rays import face_terms, occluded_terms
 
 
 def detect_segments(gray: np.ndarray) -> np.ndarray:
@@ -45,22 +45,33 @@ CULL_M = 1e-6          # metres, beyond the 5 mm clearance of the per-sample tes
 @njit(cache=True)
 def _segment_hidden(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray, px: float,
                     py: float, pz: float) -> bool:
-    """True when one wall face hides the whole segment a -> b (plan coordinates relative to
-    the camera at (px, py, pz); heights absolute) from the camera: the face spans the line of
-    sight's heights (from the camera's to the segment's), the segment lies wholly on the far
-    side of the face's line, more than the per-sample test's 5 mm clearance beyond it, and
-    inside the wedge of directions the face covers. Every sample of the segment then fails
+    """:func:`_segment_hidden_among` every face."""
+    return _segment_hidden_among(ax, ay, az, bx, by, bz, faces, px, py, pz, np.arange(faces.shape[0]), faces.shape[0])
+
+
+@njit(cache=True)
+def _segment_hidden_among(ax: float, ay: float, az: float, bx: float, by: float, bz: float, faces: np.ndarray,
+                          px: float, py: float, pz: float, candidates: np.ndarray, n_candidates: int) -> bool:
+    """True when one wall face (of the first ``n_candidates`` in ``candidates``) hides the
+    whole segment a -> b (plan coordinates relative to the camera at (px, py, pz); heights
+    absolute) from the camera: the face spans the line of sight's heights (from the camera's
+    to the segment's), the segment lies wholly on the far side of the face's line, more than
+    the per-sample test's 5 mm clearance beyond it, and inside the wedge of directions the
+    face covers. Every sample of the segment then fails
     :func:`placeloc.geometry.rays.occluded`'s test only by being hidden (that test finds this
     face in its column list: the list covers the face's span and a column more), so skipping
     the segment draws the same pixels. Wedge and distance are convex: testing the two ends
-    covers the points between."""
+    covers the points between. The renderer passes the faces listed for the column of a: a
+    face that hides the segment holds a inside its wedge, so it is listed there, and the
+    answer is the one over every face."""
     z_lo = min(pz, az, bz)
     z_hi = max(pz, az, bz)
     la = math.sqrt(ax * ax + ay * ay)
     lb = math.sqrt(bx * bx + by * by)
     if la < 1e-9 or lb < 1e-9:
         return False
-    for f in range(faces.shape[0]):
+    for k in range(n_candidates):
+        f = candidates[k]
         if faces[f, 4] > z_lo or faces[f, 5] < z_hi:
             continue
         cx = faces[f, 0] - px
@@ -138,6 +149,112 @@ def orientation_bit_fast(du: float, dv: float, bins: int, bound_cos: np.ndarray,
     return 1 << (k % bins)
 
 
+# The renderer reads a sample's pixel off the directions of the pixel edges around it,
+# without its two arctangents, where that is certain to give the pixel the arctangents give:
+# the sample's direction lies more than EDGE_SIN (sine of an angle) inside the edges of the
+# pixel of the sample before it (or of a neighbour a few steps away). The arctangent path
+# maps an angle to a column or row by a chain of rounded operations, each monotone and off
+# the exact map by far less than 1e-11 pixel (headings up to EDGE_HEAD_MAX radians, the
+# rounding of ``azimuth - heading`` included), and the library's arctangent is within a few
+# units in the last place; an angle 1e-9 inside an edge is 2e-8 pixel (144 columns) inside,
+# so both paths give the same pixel. Samples nearer an edge, and every sample of a heading
+# beyond EDGE_HEAD_MAX, take the arctangent path.
+EDGE_SIN = 1e-9
+EDGE_HEAD_MAX = 1e3
+EDGE_MOVES = 4          # pixels a certified test may step from the previous sample's
+
+
+@njit(cache=True)
+def column_faces(faces: np.ndarray, px: float, py: float, head: float, width: int, counts: np.ndarray,
+                 lists: np.ndarray, order: np.ndarray) -> None:
+    """The faces that can hide a point seen in each column from (px, py) at heading ``head``
+    (radians): ``lists[c, :counts[c]]`` (``counts`` zeros, ``lists`` (width, F)), each face
+    listed in the columns of its angular span and one more on either side, each list in the
+    faces' order in ``order``."""
+    for f in order:
+        a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
+        a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
+        c0 = _angle_to_col(a0, width)
+        c1 = _angle_to_col(a1, width)
+        lo = min(c0, c1)
+        hi = max(c0, c1)
+        if hi - lo > width / 2.0:  # the span wraps around the seam
+            lo, hi = hi, lo + width
+        for c in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 2):
+            cc = c % width
+            lists[cc, counts[cc]] = f
+            counts[cc] += 1
+
+
+@njit(cache=True)
+def _col_of(qx: float, qy: float, head: float, width: int) -> int:
+    """The column of the plan direction (qx, qy) at heading ``head`` (radians): the
+    arctangent path."""
+    azm = math.atan2(qy, qx) - head
+    fu = _angle_to_col(azm, width)
+    return int(math.floor(fu + 0.5)) % width
+
+
+@njit(cache=True)
+def _row_of(qz: float, r: float, height: int) -> int:
+    """The row of the direction at height ``qz`` over plan distance ``r``: the arctangent
+    path."""
+    el = math.atan2(qz, r)
+    iv = int(math.floor((math.pi / 2.0 - el) / math.pi * height - 0.5 + 0.5))
+    return min(max(iv, 0), height - 1)
+
+
+@njit(cache=True, inline="always")
+def _col_certified(qx: float, qy: float, r: float, k: int, edge_x: np.ndarray, edge_y: np.ndarray, width: int) -> int:
+    """The column of the plan direction (qx, qy) of length ``r`` when it lies more than
+    EDGE_SIN inside the edges of column ``k`` or of one at most EDGE_MOVES columns from it,
+    else -1. Column c spans the directions from edge c + 1 (``(edge_x, edge_y)[c + 1]``,
+    clockwise) to edge c: the direction is inside when it is clockwise of edge c and
+    anticlockwise of edge c + 1 (cross products; the span is narrower than a half turn)."""
+    m = EDGE_SIN * r
+    for _ in range(EDGE_MOVES + 1):
+        hi = edge_x[k] * qy - edge_y[k] * qx
+        if hi < -m:
+            lo = edge_x[k + 1] * qy - edge_y[k + 1] * qx
+            if lo > m:
+                return k
+            if lo < -m:
+                k = k + 1 if k + 1 < width else 0
+                continue
+            return -1
+        if hi > m:
+            k = k - 1 if k > 0 else width - 1
+            continue
+        return -1
+    return -1
+
+
+@njit(cache=True, inline="always")
+def _row_certified(qz: float, r: float, j: int, edge_x: np.ndarray, edge_y: np.ndarray, height: int) -> int:
+    """The row of the direction (r, qz) (plan distance, height) when it lies more than
+    EDGE_SIN inside the edges of row ``j`` or of one at most EDGE_MOVES rows from it, else
+    -1; row j spans the elevations from edge j + 1 to edge j, the first and last row to the
+    poles."""
+    m = EDGE_SIN * (r + abs(qz))
+    for _ in range(EDGE_MOVES + 1):
+        if j > 0:
+            hi = edge_x[j] * qz - edge_y[j] * r
+            if not hi < -m:
+                if hi > m:
+                    j -= 1
+                    continue
+                return -1
+        if j < height - 1:
+            lo = edge_x[j + 1] * qz - edge_y[j + 1] * r
+            if not lo > m:
+                if lo < -m:
+                    j += 1
+                    continue
+                return -1
+        return j
+    return -1
+
+
 @njit(parallel=True, cache=True)
 def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
                      hidden: bool, which: int, bins: int, out: np.ndarray, masks: np.ndarray) -> None:
@@ -149,29 +266,33 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
     bound = (np.arange(max(bins, 1)) + 0.5) * math.pi / max(bins, 1)
     bound_cos = np.cos(bound)
     bound_sin = np.sin(bound)
+    # pixel edges' directions: column edge k at azimuth pi - 2 pi k / W from the heading (edge
+    # W is edge 0), row edge j at elevation pi / 2 - pi j / H
+    col_angle = math.pi - 2.0 * math.pi * np.arange(width + 1) / width
+    col_cos = np.cos(col_angle)
+    col_sin = np.sin(col_angle)
+    row_angle = math.pi / 2.0 - math.pi * np.arange(height + 1) / height
+    row_x = np.cos(row_angle)
+    row_y = np.sin(row_angle)
     for v in prange(poses.shape[0]):
         px = poses[v, 0]
         py = poses[v, 1]
         pz = poses[v, 2]
         head = math.radians(poses[v, 3])
+        certify_cols = abs(head) <= EDGE_HEAD_MAX
+        ch = math.cos(head)
+        sh = math.sin(head)
+        edge_x = col_cos * ch - col_sin * sh
+        edge_y = col_sin * ch + col_cos * sh
         img = np.zeros(height * width, dtype=np.uint8)
         # faces per column: a face can only hide points whose azimuth lies in its angular span
         counts = np.zeros(width, dtype=np.int64)
         lists = np.empty((width, max(nf, 1)), dtype=np.int64)
+        terms = np.empty((max(nf, 1), 6))
         if hidden:
-            for f in range(nf):
-                a0 = math.atan2(faces[f, 1] - py, faces[f, 0] - px) - head
-                a1 = math.atan2(faces[f, 3] - py, faces[f, 2] - px) - head
-                c0 = _angle_to_col(a0, width)
-                c1 = _angle_to_col(a1, width)
-                lo = min(c0, c1)
-                hi = max(c0, c1)
-                if hi - lo > width / 2.0:  # the span wraps around the seam
-                    lo, hi = hi, lo + width
-                for c in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 2):
-                    cc = c % width
-                    lists[cc, counts[cc]] = f
-                    counts[cc] += 1
+            face_terms(px, py, faces, terms)
+            # nearest first: the hidden-line test stops at the first face beyond the point
+            column_faces(faces, px, py, head, width, counts, lists, np.argsort(terms[:nf, 5]))
         for s in range(segs.shape[0]):
             if which == 1 and not vertical[s]:
                 continue
@@ -186,7 +307,11 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
             ll = math.sqrt(ex * ex + ey * ey + ez * ez)
             if ll < 1e-9:
                 continue
-            if hidden and _segment_hidden(ax, ay, segs[s, 2], ax + ex, ay + ey, segs[s, 5], faces, px, py, pz):
+            # the column of the segment's first end: where its whole-segment hidden test finds
+            # every face that could hide it whole, and where the certified tests start
+            ia = _col_of(ax, ay, head, width)
+            if hidden and _segment_hidden_among(ax, ay, segs[s, 2], ax + ex, ay + ey, segs[s, 5], faces, px, py, pz,
+                                                lists[ia], counts[ia]):
                 continue
             # closest distance camera -> segment bounds the angular speed along it
             t0 = -(ax * ex + ay * ey + az * ez) / (ll * ll)
@@ -196,18 +321,24 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
             czp = az + t0 * ez
             dmin = max(math.sqrt(cxp * cxp + cyp * cyp + czp * czp), 0.05)
             n = min(int(math.ceil(2.0 * ll / dmin / step)) + 1, 20000)
+            iu = ia   # the previous sample's pixel: where the certified tests start
+            iv = -1
             for i in range(n + 1):
                 t = i / n
                 qx = ax + t * ex
                 qy = ay + t * ey
                 qz = az + t * ez
                 r = math.sqrt(qx * qx + qy * qy)
-                azm = math.atan2(qy, qx) - head
-                el = math.atan2(qz, r)
-                fu = _angle_to_col(azm, width)
-                iu = int(math.floor(fu + 0.5)) % width
-                iv = int(math.floor((math.pi / 2.0 - el) / math.pi * height - 0.5 + 0.5))
-                iv = min(max(iv, 0), height - 1)
+                if certify_cols and iu >= 0:
+                    iu = _col_certified(qx, qy, r, iu, edge_x, edge_y, width)
+                else:
+                    iu = -1
+                if iu < 0:
+                    iu = _col_of(qx, qy, head, width)
+                if iv >= 0:
+                    iv = _row_certified(qz, r, iv, row_x, row_y, height)
+                if iv < 0:
+                    iv = _row_of(qz, r, height)
                 pix = iv * width + iu
                 bit = 1
                 if bins > 1:
@@ -220,7 +351,7 @@ def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, 
                 if img[pix] & bit:
                     continue
                 if hidden and counts[iu] > 0:
-                    if occluded(px, py, pz, px + qx, py + qy, pz + qz, faces, lists[iu], counts[iu]):
+                    if occluded_terms(px, py, pz, px + qx, py + qy, pz + qz, faces, terms, lists[iu], counts[iu]):
                         continue
                 img[pix] |= bit
         if bins >= 1:

@@ -10,7 +10,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, W, _render_all
+from test_umap_panorama import PLAN, H, W, _render_all, search_answer
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
@@ -183,10 +183,7 @@ def test_the_tolerant_choice_finds_the_truth_s_cell_the_exact_one_misses():
     assert rank_of_cell(exact) == 5 and rank_of_cell(tolerant) == 2
 
     def answer(coarse):
-        found = search_panoramas(q, poses, m.segments, m.faces, db, replace(pp, coarse_candidates=coarse), tolerance_px=2,
-                                 wall_margin_m=0.1, hidden=True)
-        return (float(np.hypot(*(found.xy[0] - truth[0, :2]))), float((found.heading[0] - 168.0 + 180) % 360 - 180),
-                float(found.score[0]))
+        return search_answer(q, poses, m, db, replace(pp, coarse_candidates=coarse), truth[0], 168.0)
 
     off, yaw, before = answer(0)
     assert off > 3.0 and abs(yaw) > 90

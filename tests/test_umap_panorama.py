@@ -332,6 +332,17 @@ def _render_all(m, poses):
     return unpack(render_panoramas(m.segments, m.faces, np.asarray(poses, float), width=W, height=H, hidden=True), H, W)
 
 
+def search_answer(q, poses, m, db, pp, truth_xy, truth_heading_deg):
+    """The first query's answer by :func:`search_panoramas` on a small plan (tolerance 2 px,
+    walls kept 0.1 m off, hidden lines): (metres off ``truth_xy``, signed degrees off
+    ``truth_heading_deg``, its score)."""
+    from placeloc.umap.panorama import search_panoramas
+
+    found = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    return (float(np.hypot(*(found.xy[0] - np.asarray(truth_xy)[:2]))),
+            float((found.heading[0] - truth_heading_deg + 180) % 360 - 180), float(found.score[0]))
+
+
 def test_segments_skipped_whole_are_hidden_at_every_point():
     # The renderer skips a segment that one wall face hides whole; each of its points must
     # then be hidden by the per-point test (with every face a candidate), on a generated

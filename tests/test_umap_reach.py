@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from test_umap_panorama import PLAN, H, W, _render_all
+from test_umap_panorama import PLAN, H, W, _render_all, search_answer
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
@@ -16,7 +16,6 @@ from placeloc.umap.panorama import (
     distinct_candidates,
     precision_rows,
     row_weights,
-    search_panoramas,
     suppressed_neighbours,
 )
 from placeloc.umap.params import PanoramaParams
@@ -94,10 +93,7 @@ def test_a_peak_in_the_cell_of_a_suppressed_grid_point_is_found():
     assert rows.tolist() == [g] and cands[owner[0]] == a
 
     def answer(top):
-        found = search_panoramas(q, poses, m.segments, m.faces, db, replace(pp, refine_top=top), tolerance_px=2,
-                                 wall_margin_m=0.1, hidden=True)
-        return (float(np.hypot(*(found.xy[0] - truth[0, :2]))), float((found.heading[0] - 40.0 + 180) % 360 - 180),
-                float(found.score[0]))
+        return search_answer(q, poses, m, db, replace(pp, refine_top=top), truth[0], 40.0)
 
     off, _, before = answer(0)
     assert off > 3.5

@@ -369,32 +369,30 @@ def _warn_unattached(source: str, plan: dict[str, Any], polys: list[np.ndarray],
         if key in _WARNED or any(_on_edge(p, q, a, b) is not None for a, b in edges):
             continue
         _WARNED.add(key)
-        off = min(max(_point_edge_distance(p, a, b), _point_edge_distance(q, a, b)) for a, b in edges)
+        off = float(segment_distances(np.array([p, q]), np.array([[*a, *b] for a, b in edges])).max(axis=0).min())
         logging.getLogger("placeloc").warning(
             "%s: %s [%g, %g] -> [%g, %g] lies on no room's edge (its ends are at best %.2f m from one; both must be "
             "within 0.01 m): it cuts no wall%s; move it onto its wall", source, name, *p, *q, off,
             "" if name.startswith("windows") else " and its doorway still counts as free space")
 
 
-def _point_edge_distance(r: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+def segment_distances(xy: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """(points, segments) plan distances from each point to each segment (rows x0 y0 x1 y1 ...)."""
+    a, b = segments[:, 0:2], segments[:, 2:4]
     e = b - a
-    t = float(np.clip((r - a) @ e / max(float(e @ e), 1e-18), 0.0, 1.0))
-    return float(np.hypot(*(r - (a + t * e))))
+    ee = np.maximum((e * e).sum(1), 1e-12)
+    p = np.asarray(xy, float)[:, None, :]
+    t = np.clip(((p - a) * e).sum(2) / ee, 0, 1)
+    return np.hypot(*(p - (a + t[..., None] * e)).transpose(2, 0, 1))
 
 
 def wall_distance(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Plan distance from each point to the nearest wall face (``faces`` rows x0 y0 x1 y1 ...)."""
     if len(faces) == 0:
         return np.full(len(xy), np.inf)
-    a, b = faces[:, 0:2], faces[:, 2:4]
-    e = b - a
-    ee = np.maximum((e * e).sum(1), 1e-12)
     out = np.full(len(xy), np.inf)
     for s in range(0, len(xy), 8192):  # chunks keep the (points x walls) temporaries small
-        p = xy[s:s + 8192, None, :]
-        t = np.clip(((p - a) * e).sum(2) / ee, 0, 1)
-        d = np.hypot(*(p - (a + t[..., None] * e)).transpose(2, 0, 1))
-        out[s:s + 8192] = d.min(1)
+        out[s:s + 8192] = segment_distances(xy[s:s + 8192], faces).min(1)
     return out
 
 

@@ -180,6 +180,13 @@ class ConfidenceCurve:
     def precision(self) -> np.ndarray:
         return self.right / np.maximum(self.kept, 1)
 
+    @property
+    def last_all_right(self) -> int:
+        """The last run whose kept answers are all right (-1: the first run holds a wrong one).
+        The runs at 100 % precision lead: once a wrong answer is kept it stays kept."""
+        perfect = np.flatnonzero(self.right == self.kept)
+        return int(perfect[-1]) if len(perfect) and perfect[0] == 0 else -1
+
 
 def confidence_curve(confidence: np.ndarray, right: np.ndarray) -> ConfidenceCurve:
     """:class:`ConfidenceCurve` of answers with ``confidence`` (NaN: ranked below every
@@ -211,9 +218,7 @@ def confidence_metrics(confidence: np.ndarray, right: np.ndarray) -> dict[str, A
       confidence is one value for all; None when no answer is right;
     - ``n_without_confidence``: frames whose confidence is NaN."""
     curve = confidence_curve(confidence, right)
-    perfect = np.flatnonzero(curve.right == curve.kept)
-    # the points at 100 % precision are a leading run: once a wrong answer is kept it stays kept
-    best = int(perfect[-1]) if len(perfect) and perfect[0] == 0 else -1
+    best = curve.last_all_right
     threshold = float(curve.threshold[best]) if best >= 0 else float("nan")
     n_right = int(curve.right[-1]) if len(curve.right) else 0
     added = np.diff(np.r_[0, curve.right])
@@ -323,7 +328,7 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
         plot_kept_precision(ctx.output("confidence.png"), curve.kept, curve.right, curve.n,
                             confidence_label=_confidence_label(res), label=label,
                             right_means="within 1 m and 30°" if ev.yaw_err is not None else "within 1 m",
-                            kept_at_100=round(ev.metrics["kept_at_100_precision"] * curve.n),
+                            kept_at_100=int(curve.kept[curve.last_all_right]) if curve.last_all_right >= 0 else 0,
                             threshold=ev.metrics["confidence_threshold_at_100_precision"])
 
 

@@ -169,7 +169,7 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
     if not np.isfinite(xy).all():
         bad = int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])
         raise PoseError(f"{what}: {path}:{bad + 2}: position is not finite")
-    if head_col and head_scale == 1.0 and len(rows) and np.nanmax(np.abs(heading)) > 2 * math.pi + 0.01:
+    if head_col and head_scale == 1.0 and np.nanmax(np.abs(heading)) > 2 * math.pi + 0.01:
         # `heading`/`yaw` are radians; values past a turn are almost always degrees (a wound-up
         # odometry angle is the rare exception), and read as radians every yaw error is noise
         big = float(np.nanmax(np.abs(heading)))

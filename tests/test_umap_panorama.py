@@ -191,6 +191,32 @@ def test_chamfer_spectra_equal_the_pixel_loop_and_weights_drop_rows():
         assert np.abs(weighted - plain).max() < 1e-5
 
 
+def test_score_table_is_the_same_to_the_bit_for_any_thread_count_and_batch(monkeypatch):
+    # the search computes its tables with BLAS and the transforms on every core, and in
+    # batches of PANORAMA_BATCH queries: none of that may change a score's last bit
+    from threadpoolctl import threadpool_limits
+
+    import placeloc.umap.panorama as pano
+    from placeloc.umap.panorama import chamfer_spectra, chamfer_table, orientation_channels, row_weights
+
+    rng = np.random.default_rng(11)
+    db = (rng.random((700, H, W)) < 0.03).astype(np.uint8)
+    qs = (rng.random((5, H, W)) < 0.03).astype(np.uint8)
+    wts = row_weights(H, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
+    for spread, make in ((None, lambda x: x), (1, lambda x: orientation_channels(x, 4))):
+        spectra = chamfer_spectra(make(db), tau_px=3.0, weights=wts, spread=spread)
+        tables = []
+        for threads in (1, 2, 4):
+            monkeypatch.setattr(pano, "usable_cores", lambda t=threads: t)
+            with threadpool_limits(limits=threads, user_api="blas"):
+                tables.append(chamfer_table(spectra, make(qs), tau_px=3.0, weights=wts, chance="none", spread=spread))
+                alone = [chamfer_table(spectra, make(qs[i:i + 1]), tau_px=3.0, weights=wts, chance="none", spread=spread)
+                         for i in range(2)]
+            assert all(np.array_equal(a[0], tables[-1][i]) for i, a in enumerate(alone))
+        assert all(np.array_equal(t, tables[0]) for t in tables[1:])
+        assert np.array_equal(chamfer_spectra(make(db), tau_px=3.0, weights=wts, spread=spread), spectra)
+
+
 def test_chance_levels_by_hand():
     # one map row of 10 columns, tau 2: map lines at columns 0 and 5 -> closeness 1, .5, 0, 0, .5, 1, .5, 0, 0, .5
     # (wrapping), i.e. it averages 0.4 over the image; the query has one line pixel at column 1

@@ -48,6 +48,31 @@ def test_patch_normalise_minmax_stretches_each_patch_and_zscore_standardises():
     assert (patch_normalise(flat, 8, "minmax") == 0).all()
 
 
+def test_zscore_blocks_equal_a_per_block_loop_and_the_nan_mean_to_the_bit():
+    # whole blocks take the plain mean, edge blocks the NaN-padded one: both agree with a loop
+    # over blocks, and whole blocks give the NaN-aware mean's bits (what was computed before)
+    rng = np.random.default_rng(7)
+    for shape in ((4, 32, 64), (3, 30, 50)):
+        img = rng.integers(0, 256, shape, dtype=np.uint8)
+        img[0, :8, :8] = 9  # a flat block: zero
+        z = patch_normalise(img, 8, "zscore")
+        for i in range(shape[0]):
+            for y in range(0, shape[1], 8):
+                for x in range(0, shape[2], 8):
+                    blk = img[i, y:y + 8, x:x + 8].astype(np.float64)
+                    sd = blk.std()
+                    want = np.zeros_like(blk) if sd <= 1e-6 else (blk - blk.mean()) / sd
+                    np.testing.assert_allclose(z[i, y:y + 8, x:x + 8], want, rtol=0, atol=2e-6)
+        assert (z[0, :8, :8] == 0).all()
+    img_whole = rng.integers(0, 256, (5, 32, 64), dtype=np.uint8)
+    blocks = img_whole.astype(np.float32).reshape(5, 4, 8, 8, 8)
+    mean = np.nanmean(blocks, axis=(2, 4), keepdims=True)
+    sd = np.sqrt(np.nanmean((blocks - mean) ** 2, axis=(2, 4), keepdims=True))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        before = np.where(sd > 1e-6, (blocks - mean) / sd, np.float32(0.0)).astype(np.float32).reshape(5, 32, 64)
+    assert np.array_equal(patch_normalise(img_whole, 8, "zscore"), before)
+
+
 def test_zncc_is_invariant_to_gain_and_offset():
     img = _img(3)
     brighter = np.clip(img.astype(np.float32) * 1.2 + 30, 0, 255).astype(np.uint8)

@@ -6,6 +6,8 @@
 #   2. the same with the Nordland preset, the flexible search (preset-cores);
 #   3. SeqSLAM's stages over executor.workers 1, 2, 4, ..., nproc on every core (seqslam-workers);
 #   4. SeqSLAM's per-image work over threads, by image size (image-threads);
+#   4b. where the preset's localize numerics spend their wall time on 1, 2, ..., nproc cores,
+#      part by part (seqslam-timeline);
 #   5. UMap's whole-panorama search over numba threads (umap);
 #   6. co-embedding's sparse solve over cores (coembed);
 #   7. PIRF's default index over faiss threads (pirf; skipped without faiss).
@@ -23,7 +25,7 @@ OUT=${OUT:-runs/many-cores}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD/pipeline${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 N=${N:-3576}
-TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads umap coembed pirf}
+TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads seqslam-timeline umap coembed pirf}
 exec > >(tee -a "$OUT/all.log") 2>&1
 
 "$PY" - <<'EOF'
@@ -55,6 +57,7 @@ table seqslam-cores 130 "$PY" bench/scaling.py --n "$N" --repeat 2 --cores --out
 table preset-cores 150 "$PY" bench/scaling.py --n "$N" --repeat 1 --cores --preset --out "$OUT/preset-cores.md"
 table seqslam-workers 100 "$PY" bench/scaling.py --n "$N" --repeat 2 --no-kernels --out "$OUT/seqslam-workers.md"
 table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
+table seqslam-timeline 90 "$PY" bench/bench_seqslam_timeline.py --frames "$N"
 table umap 60 "$PY" bench/bench_umap.py --panorama-only
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then

@@ -1,0 +1,101 @@
+"""Where the Nordland preset's localize numerics spend their wall time on k cores: a timeline of parts.
+
+    python bench/bench_seqslam_timeline.py                  # 1, 2, 4, ..., nproc cores
+    python bench/bench_seqslam_timeline.py --cores 16,1 --frames 3576
+
+localize's numerics (``sequence_match`` with the settings of ``configs/nordland.yaml``, as
+``bench_seqslam_full.py`` runs them) on the rows of ``bench_seqslam_full.features``, this
+process pinned to the first k cores (``sched_setaffinity``). Every call of each part (the
+difference blocks, the enhancement, the flexible search's forward and backward families,
+``collapse_stops``' search, ``standing_runs``, the ranking, the single-image baseline) is
+timed on the thread that runs it. Per part, for the last of ``--repeat`` runs: its calls,
+the threads that ran them, the span from the first start to the last end (seconds from the
+run's start) and the summed seconds over threads. A part whose summed time grows with the
+cores while its work does not is waiting on something shared (memory, a lock); a span with
+one thread is work the others wait for. The first run of a process also loads the compiled
+kernels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "pipeline"))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_seqslam_full import features, localize  # noqa: E402
+from scaling import counts_from  # noqa: E402
+
+from placeloc.seqslam import matching, search  # noqa: E402
+
+events: list[tuple[str, int, float, float]] = []  # (part, thread, start, end)
+
+
+def recorded(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn``, each call's start and end recorded under ``name`` with its thread."""
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        t = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            events.append((name, threading.get_ident(), t, time.perf_counter()))
+    return wrapper
+
+
+def instrument() -> None:
+    flexible = search._flexible_scores
+
+    def families(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray, *a: Any, **k: Any) -> Any:
+        name = "flexible search, backward family" if np.max(vels) <= 0 else "flexible search, forward family"
+        return recorded(name, flexible)(et, rows, t_off, vels, *a, **k)
+
+    search._flexible_scores = families
+    search._top_k = recorded("ranking", search._top_k)
+    matching.difference_job = recorded("difference blocks", matching.difference_job)
+    matching.enhance_t = recorded("enhancement", matching.enhance_t)
+    matching._single_best_into = recorded("single image", matching._single_best_into)
+    matching.standing_runs = recorded("standing_runs", matching.standing_runs)
+    if hasattr(matching, "CollapsedSearch"):
+        matching.CollapsedSearch._search = recorded("collapse_stops' search", matching.CollapsedSearch._search)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=3576, help="frames per traverse")
+    ap.add_argument("--cores", default=None, help="comma-separated core counts (default 1, 2, 4, ..., nproc)")
+    ap.add_argument("--repeat", type=int, default=2, help="runs per core count; the last one's timeline is printed")
+    args = ap.parse_args()
+    instrument()
+    ref, query = features(args.frames)
+    everyone = sorted(os.sched_getaffinity(0))
+    try:
+        for k in counts_from(args.cores, len(everyone)):
+            os.sched_setaffinity(0, everyone[:k])
+            for run in range(args.repeat):
+                events.clear()
+                t0 = time.perf_counter()
+                wall, cpu, _ = localize(ref, query, None)
+                print(f"{k} cores, run {run + 1}: {wall:.2f} s wall, {cpu:.2f} s CPU, load {os.getloadavg()[0]:.1f}")
+            parts: dict[str, list[tuple[float, float, int]]] = defaultdict(list)
+            for name, thread, start, end in events:
+                parts[name].append((start - t0, end - t0, thread))
+            for name, calls in sorted(parts.items(), key=lambda kv: min(c[0] for c in kv[1])):
+                print(f"    {name:34s} {len(calls):4d} calls on {len({c[2] for c in calls}):2d} threads, "
+                      f"span {min(c[0] for c in calls):6.2f}-{max(c[1] for c in calls):6.2f} s, "
+                      f"summed {sum(c[1] - c[0] for c in calls):6.2f} s")
+    finally:
+        os.sched_setaffinity(0, everyone)
+
+
+if __name__ == "__main__":
+    main()

@@ -72,7 +72,10 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
     # frequencies x 2h rows of complex64 (x the direction bins), written 1024 positions at a
     # time (that block and its FFT temporaries: measured 257 and 441 MB for blocks of 770 and
-    # 1024 positions of 144 x 72, about 4-5 blocks of spectra) and read whole by localize
+    # 1024 positions of 144 x 72, about 4-5 blocks of spectra). Localize maps them rather
+    # than copying (core.artifacts.read_mapped), but every batch of panoramas reads them all:
+    # where they do not fit in memory with the rest, each batch would read them from disk, so
+    # they still count whole
     spectra = views * (w // 2 + 1) * 2 * bins * h * 8 if chamfer else 0
     what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
         ("" if panorama else f", {len(g['headings'])} headings") + ")"

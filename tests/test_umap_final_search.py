@@ -65,7 +65,7 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
             origin = 0.1 + frac * 0.3
             poses, _ = plan_grid(m, x=[origin, 6.0, 0.3], y=[origin, 7.0, 0.3], z=1.4, headings=[0.0])
             db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
-            _, xy, _, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+            _, xy, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
                                            hidden=True)
             out.append(xy)
         answers[final, start] = np.array(out)             # (origins, cameras, 2)
@@ -79,6 +79,6 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
     assert apart(answers[0.0, 0.0]).max() > 0.05
     assert apart(answers[0.01, 0.0]).max() <= 0.03 and off(answers[0.01, 0.0]) <= 0.031
     assert apart(answers[0.01, 0.08]).max() <= 0.01 and off(answers[0.01, 0.08]) <= 0.01
-    # shipped off (it moves no answer by 0.1 m or more and takes the search past 0.1 s a panorama);
-    # its first step, when on, is the plan's lattice measured here
-    assert PanoramaParams().refine_final_m == 0.0 and PanoramaParams().refine_final_start_m == 0.08
+    # on by default, from the plan's lattice measured here (docs/umap.md, "The final search on
+    # by default")
+    assert PanoramaParams().refine_final_m == 0.01 and PanoramaParams().refine_final_start_m == 0.08

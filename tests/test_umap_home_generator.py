@@ -104,6 +104,21 @@ def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
     assert choose(results) == square16
     results[square16] = [0.975 - 2 * NOISE] * 9               # two panoramas below: the best
     assert choose(results) == square32
+    # within one panorama, the answers that move least with the grid's origin come first
+    # (more than 0.1 m, then more than 0.05 m), before the cost
+    results[square16] = [0.975 - NOISE] * 9
+    moves = {square32: (2, 9), texture_square32: (1, 9), square16: (2, 3), climb32: (0, 0)}
+    assert choose(results, moves) == texture_square32
+    moves[texture_square32] = (2, 9)
+    assert choose(results, moves) == square16                 # equal beyond 0.1 m: fewer beyond 0.05 m
+
+
+def test_answer_moves_by_hand():
+    from placeloc.experiments.umap_homes import answer_moves
+
+    # frame a: 0.06 m apart at most; b: 0.12 m (3-4-5 triangle scaled); c: one origin only
+    positions = {"a": [(0, 0), (0.06, 0), (0.03, 0)], "b": [(0, 0), (0.072, 0.096)], "c": [(5, 5)]}
+    assert answer_moves(positions) == (1, 2)
 
 
 def _with_things(seed):

@@ -205,7 +205,7 @@ def test_oriented_search_finds_off_grid_cameras_wherever_the_grid_falls():
         poses, _ = plan_grid(m, x=[start, 6.0, 0.3], y=[start, 7.0, 0.3], z=1.4, headings=[0.0])
         db = {"spectra": chamfer_spectra(_oriented(m, poses, bins), tau_px=pp.chamfer_tau_px, weights=wts,
                                          spread=pp.orientation_spread)}
-        _, xy, hd, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+        _, xy, hd, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
                                         hidden=True)
         assert np.hypot(*(xy - truth[:, :2]).T).max() <= 0.05, frac
         assert np.abs((hd - truth[:, 3] + 180) % 360 - 180).max() <= 2.5, frac

@@ -123,11 +123,13 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score, bins):
     for r, t in zip(rows, truth):
         assert abs((float(r["heading_deg"]) - t[3] + 180) % 360 - 180) <= 2.5
         # the L-shaped room has no look-alike: each answer beats every other place and heading,
-        # and the margin is its score minus its rival's
+        # and the margin is its score minus its rival's, the score taken before the final
+        # search's polish of the last centimetres (at most a few hundredths)
         assert float(r["rival_score"]) < float(r["score"])
         # doubtful_margin is in the chamfer score's units (the IoU's margins here are 0.016-0.03)
         assert score == "iou" or r["doubtful"] == "false"
-        assert float(r["margin"]) == pytest.approx(float(r["score"]) - float(r["rival_score"]), abs=2e-5)
+        ahead = float(r["score"]) - float(r["rival_score"])
+        assert ahead - 0.02 <= float(r["margin"]) <= ahead + 2e-5
     # the margin reaches evaluate as the poses contract's confidence
     assert m["kept_at_100_precision"] == 1.0 and m["confidence_average_precision"] == 1.0
     scored = list(csv.DictReader(open(tmp_path / "run" / "per_query.csv")))
@@ -347,7 +349,7 @@ def test_search_finds_a_narrow_peak_wherever_the_grid_falls():
         poses, _ = plan_grid(m, x=[start, 6.0, step], y=[start, 7.0, step], z=1.4, headings=[0.0])
         imgs = _render_all(m, poses)
         db = {"spectra": chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=wts)}
-        _, xy, hd, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+        _, xy, hd, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1, hidden=True)
         assert np.hypot(*(xy - truth[:, :2]).T).max() <= 0.05, frac
         assert np.abs((hd - truth[:, 3] + 180) % 360 - 180).max() <= 2.5, frac
         answers.append(xy)
@@ -689,7 +691,7 @@ def test_every_candidate_climbing_makes_the_answer_independent_of_the_grid_origi
             start = 0.1 + frac * 0.3
             poses, _ = plan_grid(m, x=[start, 6.0, 0.3], y=[start, 7.0, 0.3], z=1.4, headings=[0.0])
             db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
-            _, xy, _, _, _ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+            _, xy, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
                                            hidden=True)
             answers[climb].append(xy)
     climbed = np.array(answers[1])

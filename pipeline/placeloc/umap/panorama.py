@@ -890,11 +890,16 @@ class PanoramaAnswers(NamedTuple):
     heading: np.ndarray   # (N,) degrees
     score: np.ndarray     # (N,) the answer's score
     rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_score`)
+    # (N,) the best score before the final search (refine_final_m), None: the score itself
+    before_final: np.ndarray | None = None
 
     @property
     def margin(self) -> np.ndarray:
-        """score - rival: how far the answer is ahead of the best different answer (NaN: no rival)."""
-        return self.score - self.rival
+        """How far the answer is ahead of the best different answer (NaN: no rival): its
+        score before the final search minus the rival's. Why not the final score: the final
+        search polishes the winner alone, to the centimetre, and no rival gets that polish,
+        so a twin room's spot, as good as the answer, would seem 0.01 behind it."""
+        return (self.score if self.before_final is None else self.before_final) - self.rival
 
 
 # ------------------------------------------------------------------ local refinement
@@ -1336,6 +1341,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     window = np.arange(-pp.refine_yaw_cols, pp.refine_yaw_cols + 1)
     square = square_offsets(pp.refine_square)
     refined_xy = np.full((n, 2), np.nan)
+    before_final = np.full(n, np.nan)   # the best score before the final search (PanoramaAnswers.margin)
     final_start = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
     rival_cols = pp.margin_yaw_deg * w / 360.0
 
@@ -1454,6 +1460,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                     move(int(k), xy, col, sc, step, floor_d, q_close, square)
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
+            before_final[k] = max(score[k], float(sc[j]))                         # the margin's score
             if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
                 scorer = final_scorer(int(k), float(floor_d[j]), q_close)
                 x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
@@ -1479,4 +1486,4 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]
-    return PanoramaAnswers(best, est, heading, score, rival)
+    return PanoramaAnswers(best, est, heading, score, rival, np.where(np.isnan(before_final), score, before_final))

@@ -61,25 +61,31 @@ def enclosing(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def instrument() -> None:
+Wrap = Callable[[str, Callable[..., Any]], Callable[..., Any]]
+
+
+def instrument(wrap: Wrap = timed, enclose: Wrap = enclosing) -> None:
+    """Replace each part of localize's numerics with ``wrap(name, fn)`` (``collapse_stops``'
+    search with ``enclose``, whose parts count as within it): this script's CPU per part,
+    or ``bench_seqslam_timeline.py``'s calls per thread."""
     flexible = search._flexible_scores
 
     def families(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray, *a: Any, **k: Any) -> Any:
         name = "flexible search, backward family" if np.max(vels) <= 0 else "flexible search, forward family"
-        return timed(name, flexible)(et, rows, t_off, vels, *a, **k)
+        return wrap(name, flexible)(et, rows, t_off, vels, *a, **k)
 
     search._flexible_scores = families
-    search.trajectory_scores = timed("straight-line search", search.trajectory_scores)
-    search._top_k = timed("ranking", search._top_k)
-    matching.difference_job = timed("difference matrix", matching.difference_job)
-    matching.difference_block_t = timed("difference blocks of its own", matching.difference_block_t)
-    matching.enhance_t = timed("enhancement", matching.enhance_t)
-    matching._single_best_into = timed("single image", matching._single_best_into)
-    matching.standing_runs = timed("standing_runs", matching.standing_runs)
+    search.trajectory_scores = wrap("straight-line search", search.trajectory_scores)
+    search._top_k = wrap("ranking", search._top_k)
+    matching.difference_job = wrap("difference matrix", matching.difference_job)
+    matching.difference_block_t = wrap("difference blocks of its own", matching.difference_block_t)
+    matching.enhance_t = wrap("enhancement", matching.enhance_t)
+    matching._single_best_into = wrap("single image", matching._single_best_into)
+    matching.standing_runs = wrap("standing_runs", matching.standing_runs)
     if hasattr(matching, "CollapsedSearch"):  # its searches run as the blocks pass, and at the end
-        matching.CollapsedSearch._search = enclosing("collapse_stops' search", matching.CollapsedSearch._search)
+        matching.CollapsedSearch._search = enclose("collapse_stops' search", matching.CollapsedSearch._search)
     else:
-        matching.collapsed_answers = enclosing("collapse_stops' search", matching.collapsed_answers)
+        matching.collapsed_answers = enclose("collapse_stops' search", matching.collapsed_answers)
 
 
 def main() -> None:

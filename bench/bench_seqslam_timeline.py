@@ -27,16 +27,13 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_seqslam_full import features, localize  # noqa: E402
+from bench_seqslam_parts import instrument  # noqa: E402
 from scaling import counts_from  # noqa: E402
-
-from placeloc.seqslam import matching, search  # noqa: E402
 
 events: list[tuple[str, int, float, float]] = []  # (part, thread, start, end)
 
@@ -52,30 +49,13 @@ def recorded(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def instrument() -> None:
-    flexible = search._flexible_scores
-
-    def families(et: np.ndarray, rows: tuple[int, int], t_off: np.ndarray, vels: np.ndarray, *a: Any, **k: Any) -> Any:
-        name = "flexible search, backward family" if np.max(vels) <= 0 else "flexible search, forward family"
-        return recorded(name, flexible)(et, rows, t_off, vels, *a, **k)
-
-    search._flexible_scores = families
-    search._top_k = recorded("ranking", search._top_k)
-    matching.difference_job = recorded("difference blocks", matching.difference_job)
-    matching.enhance_t = recorded("enhancement", matching.enhance_t)
-    matching._single_best_into = recorded("single image", matching._single_best_into)
-    matching.standing_runs = recorded("standing_runs", matching.standing_runs)
-    if hasattr(matching, "CollapsedSearch"):
-        matching.CollapsedSearch._search = recorded("collapse_stops' search", matching.CollapsedSearch._search)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=3576, help="frames per traverse")
     ap.add_argument("--cores", default=None, help="comma-separated core counts (default 1, 2, 4, ..., nproc)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per core count; the last one's timeline is printed")
     args = ap.parse_args()
-    instrument()
+    instrument(recorded, recorded)
     ref, query = features(args.frames)
     everyone = sorted(os.sched_getaffinity(0))
     try:

@@ -35,7 +35,6 @@ from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
-import scipy.fft
 from numba import njit, prange
 from threadpoolctl import threadpool_limits
 
@@ -665,13 +664,18 @@ def _rfft(x: np.ndarray) -> np.ndarray:
     usable core. Why SciPy's: NumPy's float32 transform took 98 ms for a batch of 20 oriented
     queries (20 x 864 rows of 144) against SciPy's 4 ms on two cores; SciPy's differs from
     it in the last bits only (1.5e-5 on values of hundreds). Each row is its own transform,
-    the same to the bit whatever the thread count."""
+    the same to the bit whatever the thread count. SciPy's FFT is imported here, not with
+    the module: it costs a process 0.12-0.2 s, which UMap's evaluate and extract never use."""
+    import scipy.fft
+
     return scipy.fft.rfft(x, axis=-1, workers=usable_cores())
 
 
 def _irfft(x: np.ndarray, n: int) -> np.ndarray:
     """The inverse of :func:`_rfft` along the last axis, ``n`` samples, on every usable core
     (the same to the bit as NumPy's for these arrays)."""
+    import scipy.fft
+
     return scipy.fft.irfft(x, n=n, axis=-1, workers=usable_cores())
 
 

@@ -8,7 +8,8 @@
 #   4. SeqSLAM's per-image work over threads, by image size (image-threads);
 #   4b. where the preset's localize numerics spend their wall time on 1, 2, ..., nproc cores,
 #      part by part (seqslam-timeline);
-#   5. UMap's whole-panorama search over numba threads (umap);
+#   5. UMap's whole-panorama search over numba threads (umap), and UMap's localize on a
+#      generated home as a user runs it, pinned to 1, 2, ..., nproc cores (umap-home);
 #   6. co-embedding's sparse solve over cores (coembed);
 #   7. PIRF's default index over faiss threads (pirf; skipped without faiss).
 # Each table has its own time limit, so one that runs long costs only itself. Tables go to
@@ -25,7 +26,7 @@ OUT=${OUT:-runs/many-cores}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD/pipeline${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 N=${N:-3576}
-TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads seqslam-timeline umap coembed pirf}
+TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads seqslam-timeline umap umap-home coembed pirf}
 exec > >(tee -a "$OUT/all.log") 2>&1
 
 "$PY" - <<'EOF'
@@ -59,6 +60,7 @@ table seqslam-workers 100 "$PY" bench/scaling.py --n "$N" --repeat 2 --no-kernel
 table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
 table seqslam-timeline 90 "$PY" bench/bench_seqslam_timeline.py --frames "$N"
 table umap 60 "$PY" bench/bench_umap.py --panorama-only
+table umap-home 150 "$PY" bench/bench_umap_home.py --repeat 2
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then
     PIRF_CACHE=$(mktemp -d -t placeloc-pirf-XXXXXX)

@@ -29,6 +29,8 @@ help:
 	@echo "make bench-scaling      per-stage SeqSLAM table over workers 1, 2, 4, 8, 16 (3576 x 3576; OUT=dir writes scaling.md)"
 	@echo "make bench-scaling-preset  the Nordland preset (flexible search) pinned to 1, 2, 4, ..., nproc cores"
 	@echo "make bench-many-cores   every scaling table in one go, about 5 minutes on 16 cores (OUT=dir keeps them)"
+	@echo "make bench-seqslam-timeline  where the preset's localize spends its wall time on 1, 2, ..., nproc cores"
+	@echo "make bench-umap-home    UMap localize on a generated home pinned to 1, 2, ..., nproc cores"
 	@echo "make faults             the fault tests alone, one table row per case (outcome, rc, seconds, last line)"
 
 $(STAMP): pyproject.toml

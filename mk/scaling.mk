@@ -18,3 +18,15 @@ bench-scaling-preset: $(STAMP)
 .PHONY: bench-many-cores
 bench-many-cores: $(STAMP)
 	PYTHON=$(BIN)/python bench/many_cores.sh
+
+# Where the preset's localize numerics spend their wall time on 1, 2, 4, ..., nproc cores,
+# part by part (the difference blocks, the flexible search's families, ...).
+.PHONY: bench-seqslam-timeline
+bench-seqslam-timeline: $(STAMP)
+	$(BIN)/python bench/bench_seqslam_timeline.py
+
+# UMap's localize on a generated home (experiment umap-homes' seed 21, 1,494 positions) as
+# a user runs it, pinned to 1, 2, 4, ..., nproc cores.
+.PHONY: bench-umap-home
+bench-umap-home: $(STAMP)
+	$(BIN)/python bench/bench_umap_home.py

@@ -661,9 +661,10 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
 
 def _rfft(x: np.ndarray) -> np.ndarray:
     """The spectra of the rows of ``x`` (last axis; float32 in, complex64 out), on every
-    usable core. Why SciPy's: NumPy's float32 transform took 98 ms for a batch of 20 oriented
-    queries (20 x 864 rows of 144) against SciPy's 4 ms on two cores; SciPy's differs from
-    it in the last bits only (1.5e-5 on values of hundreds). Each row is its own transform,
+    usable core. Why SciPy's: for a batch of 20 oriented queries (20 x 864 rows of 144),
+    NumPy's float32 transform took 10-11 ms, SciPy's 2.6-2.8 ms on one thread and 1.4-1.5 ms
+    on two (best and median of 7, warm). SciPy's differs from NumPy's in the last bits only
+    (1.5e-5 on values of hundreds). Each row is its own transform,
     the same to the bit whatever the thread count. SciPy's FFT is imported here, not with
     the module: it costs a process 0.12-0.2 s, which UMap's evaluate and extract never use."""
     import scipy.fft

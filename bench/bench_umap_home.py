@@ -17,6 +17,7 @@ the process's wall time.
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import tempfile
 import time
@@ -50,10 +51,20 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=21, help="the generated home (experiment umap-homes' seeds)")
     ap.add_argument("--cores", default=None, help="comma-separated core counts (default 1, 2, 4, ..., nproc)")
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--work", type=Path, default=None, help="folder for the home and its run (default: a temporary one)")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="folder for the home and its run, kept (default: a temporary one, removed at the end)")
     args = ap.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="placeloc-umap-home-"))
     work.mkdir(parents=True, exist_ok=True)
+    try:
+        run_table(args, work)
+    finally:
+        if args.work is None:  # the index alone is about 0.75 GB
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def run_table(args: argparse.Namespace, work: Path) -> None:
+    """The home in ``work`` (generated there unless it is), its artifacts, then the table."""
     t0 = time.perf_counter()
     data = _home(work, args.seed)
     cfg = home_config(data, work / f"home{args.seed}.yaml")

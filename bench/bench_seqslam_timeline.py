@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_seqslam_full import features, localize  # noqa: E402
 from bench_seqslam_parts import instrument  # noqa: E402
-from scaling import counts_from  # noqa: E402
+from scaling import counts_from, on_first_cores  # noqa: E402
 
 events: list[tuple[str, int, float, float]] = []  # (part, thread, start, end)
 
@@ -57,25 +57,20 @@ def main() -> None:
     args = ap.parse_args()
     instrument(recorded, recorded)
     ref, query = features(args.frames)
-    everyone = sorted(os.sched_getaffinity(0))
-    try:
-        for k in counts_from(args.cores, len(everyone)):
-            os.sched_setaffinity(0, everyone[:k])
+    for k in counts_from(args.cores, len(os.sched_getaffinity(0))):
+        with on_first_cores(k):
             for run in range(args.repeat):
                 events.clear()
                 t0 = time.perf_counter()
                 wall, cpu, _ = localize(ref, query, None)
                 print(f"{k} cores, run {run + 1}: {wall:.2f} s wall, {cpu:.2f} s CPU, load {os.getloadavg()[0]:.1f}")
-            parts: dict[str, list[tuple[float, float, int]]] = defaultdict(list)
-            for name, thread, start, end in events:
-                parts[name].append((start - t0, end - t0, thread))
-            for name, calls in sorted(parts.items(), key=lambda kv: min(c[0] for c in kv[1])):
-                print(f"    {name:34s} {len(calls):4d} calls on {len({c[2] for c in calls}):2d} threads, "
-                      f"span {min(c[0] for c in calls):6.2f}-{max(c[1] for c in calls):6.2f} s, "
-                      f"summed {sum(c[1] - c[0] for c in calls):6.2f} s")
-    finally:
-        os.sched_setaffinity(0, everyone)
-
+        parts: dict[str, list[tuple[float, float, int]]] = defaultdict(list)
+        for name, thread, start, end in events:
+            parts[name].append((start - t0, end - t0, thread))
+        for name, calls in sorted(parts.items(), key=lambda kv: min(c[0] for c in kv[1])):
+            print(f"    {name:34s} {len(calls):4d} calls on {len({c[2] for c in calls}):2d} threads, "
+                  f"span {min(c[0] for c in calls):6.2f}-{max(c[1] for c in calls):6.2f} s, "
+                  f"summed {sum(c[1] - c[0] for c in calls):6.2f} s")
 
 if __name__ == "__main__":
     main()

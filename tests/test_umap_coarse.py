@@ -7,10 +7,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import cv2
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, W, _render_all, search_answer
+from test_umap_panorama import PLAN, H, W, _closeness_by_transform, _render_all, search_answer
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
@@ -73,16 +72,6 @@ def test_tolerant_bands_by_hand():
     assert tolerant_bands(144, 1.5) == 73
 
 
-def _close_to(lines, tau):
-    """max(0, 1 - d / tau), d OpenCV's 5 x 5 chamfer distance to the nearest line pixel, on
-    three copies side by side (the panorama wraps around)."""
-    h, w = lines.shape
-    if not lines.any():
-        return np.zeros((h, w))
-    d = cv2.distanceTransform(np.tile((lines == 0).astype(np.uint8), (1, 3)), cv2.DIST_L2, 5)[:, w:2 * w]
-    return np.maximum(0.0, 1.0 - d / tau)
-
-
 def _blur_by_hand(img, r):
     """The mean over the (2r + 1)-pixel square, columns wrapping, zero beyond the rows."""
     h, w = img.shape
@@ -108,10 +97,10 @@ def _tolerant_reference(db, q, *, tau, recall_tau, blur, weights, prows, spread)
     wr = weights[:, None]
     out = np.zeros((len(db), w))
     for p, m in enumerate(db):
-        m_near = [_close_to(compatible_lines(m, spread)[c], tau) for c in range(b)]
+        m_near = _closeness_by_transform(compatible_lines(m, spread), tau)
         for k in range(w):
             qk = np.roll(q, -k, axis=2)               # the query taken at heading k, turned back to heading 0
-            q_near = [_close_to(compatible_lines(qk, spread)[c], recall_tau) for c in range(b)]
+            q_near = _closeness_by_transform(compatible_lines(qk, spread), recall_tau)
             rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
             qb = [_blur_by_hand(qk[c] * prows[:, None], blur) * wr for c in range(b)]
             pre = sum((qb[c] * m_near[c]).sum() for c in range(b)) / max(sum(x.sum() for x in qb), 1e-9)

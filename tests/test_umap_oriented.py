@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, W, _grey_panorama
+from test_umap_panorama import PLAN, H, W, _closeness_by_transform, _grey_panorama
 
 from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.geometry.panorama import orientation_bit, panorama_line_image, render_panoramas
@@ -111,22 +110,16 @@ def test_oriented_score_by_hand(bins, spread, expected):
 
 def _reference(db, q, *, tau, weights, prows, spread):
     """The oriented score pixel by pixel: each element's distance to the other side's lines of
-    compatible bins by OpenCV's 5 x 5 chamfer transform on three copies side by side (the
-    panorama wraps around), each query shift by rolling its columns."""
-    def close_to(lines):
-        h, w = lines.shape
-        tiled = np.tile((lines == 0).astype(np.uint8), (1, 3))
-        d = cv2.distanceTransform(tiled, cv2.DIST_L2, 5)[:, w:2 * w]
-        return np.maximum(0.0, 1.0 - d / tau) if lines.any() else np.zeros((h, w))
-
+    compatible bins by OpenCV's 5 x 5 chamfer transform, wrapped around
+    (``_closeness_by_transform``), each query shift by rolling its columns."""
     b, h, w = q.shape
     out = np.zeros((len(db), w))
     wr = weights[:, None]
     for p, m in enumerate(db):
-        m_near = [close_to(compatible_lines(m, spread)[c]) for c in range(b)]
+        m_near = _closeness_by_transform(compatible_lines(m, spread), tau)
         for k in range(w):
             qk = np.roll(q, -k, axis=2)      # the query taken at heading k, turned back to heading 0
-            q_near = [close_to(compatible_lines(qk, spread)[c]) for c in range(b)]
+            q_near = _closeness_by_transform(compatible_lines(qk, spread), tau)
             rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
             qw = qk * (wr * prows[:, None])
             pre = sum((qw[c] * m_near[c]).sum() for c in range(b)) / max(qw.sum(), 1e-9)

@@ -29,6 +29,7 @@ import numpy as np
 
 from placeloc.core.config import load_config
 from placeloc.core.runner import read_metrics, run_all
+from placeloc.core.safe_io import read_run_table
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap import home_table
 from placeloc.geometry.floorplan import model_bounds
@@ -177,8 +178,7 @@ def choose(results: dict[str, list[float]], moves: dict[str, tuple[int, ...]] | 
 
 def _answers(run_dir: Path) -> dict[str, tuple[float, float]]:
     """frame -> the answered plan position, from a run's per_query.csv."""
-    with open(run_dir / "per_query.csv", newline="") as f:
-        return {r["frame"]: (float(r["x"]), float(r["y"])) for r in csv.DictReader(f)}
+    return {r["frame"]: (float(r["x"]), float(r["y"])) for r in csv.DictReader(read_run_table(run_dir, "per_query.csv"))}
 
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:

@@ -42,9 +42,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-
-def usable_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+from placeloc.core.executor import usable_cores  # noqa: E402  (re-exported: the bench scripts' core count)
 
 
 def counts_from(spec: str | None, top: int | None = None) -> list[int]:

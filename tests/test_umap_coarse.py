@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, W, _closeness_by_transform, _render_all, search_answer
+from test_umap_panorama import PLAN, H, W, _chamfer_reference, _render_all, search_answer
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
@@ -17,7 +17,6 @@ from placeloc.umap.panorama import (
     chamfer_spectra,
     chamfer_table,
     coarse_to_fine_candidates,
-    compatible_lines,
     distinct_candidates,
     precision_rows,
     row_weights,
@@ -72,42 +71,6 @@ def test_tolerant_bands_by_hand():
     assert tolerant_bands(144, 1.5) == 73
 
 
-def _blur_by_hand(img, r):
-    """The mean over the (2r + 1)-pixel square, columns wrapping, zero beyond the rows."""
-    h, w = img.shape
-    out = np.zeros((h, w))
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            moved = np.zeros((h, w))
-            src = np.roll(img, dx, axis=1)            # out[y, x] += img[y - dy, x - dx]
-            if dy >= 0:
-                moved[dy:] = src[:h - dy]
-            else:
-                moved[:h + dy] = src[-dy:]
-            out += moved
-    return out / (2 * r + 1) ** 2
-
-
-def _tolerant_reference(db, q, *, tau, recall_tau, blur, weights, prows, spread):
-    """The tolerant score pixel by pixel: (P, B, H, W) map channels, (B, H, W) query channels
-    (B = 1: the plain score); the recall half's query closeness at ``recall_tau``, the
-    precision half's query pixels (times the precision rows) blurred, each against the map's
-    closeness at ``tau``; every query shift by rolling its columns."""
-    b, h, w = q.shape
-    wr = weights[:, None]
-    out = np.zeros((len(db), w))
-    for p, m in enumerate(db):
-        m_near = _closeness_by_transform(compatible_lines(m, spread), tau)
-        for k in range(w):
-            qk = np.roll(q, -k, axis=2)               # the query taken at heading k, turned back to heading 0
-            q_near = _closeness_by_transform(compatible_lines(qk, spread), recall_tau)
-            rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
-            qb = [_blur_by_hand(qk[c] * prows[:, None], blur) * wr for c in range(b)]
-            pre = sum((qb[c] * m_near[c]).sum() for c in range(b)) / max(sum(x.sum() for x in qb), 1e-9)
-            out[p, k] = 0.5 * (rec + pre)
-    return out
-
-
 @pytest.mark.parametrize("bins,spread", [(1, None), (4, 1), (3, 0)])
 def test_tolerant_table_equals_the_pixel_loop(bins, spread):
     rng = np.random.default_rng(7 + bins)
@@ -121,7 +84,7 @@ def test_tolerant_table_equals_the_pixel_loop(bins, spread):
     spectra = chamfer_spectra(db[:, 0] if plain else db, tau_px=3.0, weights=weights, spread=spread)
     queries = q if plain else q[None]                  # plain: (1, H, W); oriented: (1, B, H, W)
     for recall_tau, blur in ((5.5, 2), (8.0, 1), (3.0, 3)):
-        ref = _tolerant_reference(db, q, tau=3.0, recall_tau=recall_tau, blur=blur, weights=weights, prows=prows,
+        ref = _chamfer_reference(db, q, tau=3.0, recall_tau=recall_tau, blur=blur, weights=weights, prows=prows,
                                   spread=0 if plain else spread)
         table = tolerant_chamfer_table(spectra, queries, recall_tau_px=recall_tau, blur_px=blur, weights=weights,
                                        precision_rows=prows, spread=spread)[0]

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from test_umap_panorama import PLAN, H, W, _closeness_by_transform, _grey_panorama
+from test_umap_panorama import PLAN, H, W, _chamfer_reference, _grey_panorama
 
 from placeloc.geometry.floorplan import floor_plan_model
 from placeloc.geometry.panorama import orientation_bit, panorama_line_image, render_panoramas
@@ -108,25 +108,6 @@ def test_oriented_score_by_hand(bins, spread, expected):
     assert table[0, 0, 0] == pytest.approx(expected, abs=1e-5)
 
 
-def _reference(db, q, *, tau, weights, prows, spread):
-    """The oriented score pixel by pixel: each element's distance to the other side's lines of
-    compatible bins by OpenCV's 5 x 5 chamfer transform, wrapped around
-    (``_closeness_by_transform``), each query shift by rolling its columns."""
-    b, h, w = q.shape
-    out = np.zeros((len(db), w))
-    wr = weights[:, None]
-    for p, m in enumerate(db):
-        m_near = _closeness_by_transform(compatible_lines(m, spread), tau)
-        for k in range(w):
-            qk = np.roll(q, -k, axis=2)      # the query taken at heading k, turned back to heading 0
-            q_near = _closeness_by_transform(compatible_lines(qk, spread), tau)
-            rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
-            qw = qk * (wr * prows[:, None])
-            pre = sum((qw[c] * m_near[c]).sum() for c in range(b)) / max(qw.sum(), 1e-9)
-            out[p, k] = 0.5 * (rec + pre)
-    return out
-
-
 @pytest.mark.parametrize("bins,spread", [(4, 1), (6, 1), (3, 0)])
 def test_oriented_table_and_shifts_equal_the_pixel_loop(bins, spread):
     rng = np.random.default_rng(bins)
@@ -135,7 +116,7 @@ def test_oriented_table_and_shifts_equal_the_pixel_loop(bins, spread):
     q = (rng.random((bins, h, w)) < 0.04).astype(np.uint8)
     weights = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
     prows = precision_rows(h, 75.0)
-    ref = _reference(db, q, tau=3.0, weights=weights, prows=prows, spread=spread)
+    ref = _chamfer_reference(db, q, tau=3.0, weights=weights, prows=prows, spread=spread)
     table = chamfer_table(chamfer_spectra(db, tau_px=3.0, weights=weights, spread=spread), q[None], tau_px=3.0,
                           weights=weights, chance="none", precision_rows=prows, spread=spread)[0]
     assert np.abs(table - ref).max() < 1e-5

@@ -17,6 +17,7 @@ from placeloc.umap.panorama import (
     best_pose,
     chamfer_yaw_scores,
     closeness,
+    compatible_lines,
     iou_yaw_scores,
 )
 
@@ -296,6 +297,46 @@ def _closeness_by_transform(lines, tau_px):
         if wrapped.any():
             d = cv2.distanceTransform((wrapped == 0).astype(np.uint8), cv2.DIST_L2, 5)[:, pad:pad + w]
             out[i] = np.maximum(0.0, 1.0 - d / tau_px)
+    return out
+
+
+def _blur_by_hand(img, r):
+    """The mean over the (2r + 1)-pixel square, columns wrapping, zero beyond the rows."""
+    h, w = img.shape
+    out = np.zeros((h, w))
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            moved = np.zeros((h, w))
+            src = np.roll(img, dx, axis=1)            # out[y, x] += img[y - dy, x - dx]
+            if dy >= 0:
+                moved[dy:] = src[:h - dy]
+            else:
+                moved[:h + dy] = src[-dy:]
+            out += moved
+    return out / (2 * r + 1) ** 2
+
+
+def _chamfer_reference(db, q, *, tau, weights, prows, spread, recall_tau=None, blur=0):
+    """The chamfer score (chance none) pixel by pixel, for the oriented and the tolerant
+    tables: (P, B, H, W) map channels, (B, H, W) query channels (B = 1: the plain score),
+    each element's closeness to the other side's lines of compatible bins
+    (:func:`_closeness_by_transform`); the recall half's query closeness at ``recall_tau``
+    (None: ``tau``), the precision half's query pixels (times the precision rows) blurred
+    over ``blur`` pixels, each against the map's closeness at ``tau``; every query shift by
+    rolling its columns."""
+    recall_tau = tau if recall_tau is None else recall_tau
+    b, h, w = q.shape
+    wr = weights[:, None]
+    out = np.zeros((len(db), w))
+    for p, m in enumerate(db):
+        m_near = _closeness_by_transform(compatible_lines(m, spread), tau)
+        for k in range(w):
+            qk = np.roll(q, -k, axis=2)               # the query taken at heading k, turned back to heading 0
+            q_near = _closeness_by_transform(compatible_lines(qk, spread), recall_tau)
+            rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
+            qb = [_blur_by_hand(qk[c] * prows[:, None], blur) * wr for c in range(b)]
+            pre = sum((qb[c] * m_near[c]).sum() for c in range(b)) / max(sum(x.sum() for x in qb), 1e-9)
+            out[p, k] = 0.5 * (rec + pre)
     return out
 
 

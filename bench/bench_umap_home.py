@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "pipeline"))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from scaling import _run_stage, counts_from, markdown, scaling_table, usable_cores  # noqa: E402
+from scaling import counts_from, markdown, scaling_table, stage_process, usable_cores  # noqa: E402
 
 from placeloc.experiments.umap_homes import PANORAMAS, shifted_grid  # noqa: E402
 from placeloc.synth import generate  # noqa: E402
@@ -74,14 +74,14 @@ def run_table(args: argparse.Namespace, work: Path) -> None:
         generate("home", data, seed=args.seed, panoramas=args.panoramas)
     cfg = home_config(data, work / f"home{args.seed}.yaml")
     run = work / f"run-home{args.seed}"
-    _run_stage(cfg, run, "extract", usable_cores(), pin=True)  # the artifacts, once, on every core
+    stage_process(cfg, run, "extract", usable_cores(), pin=True)  # the artifacts, once, on every core
     for stage in ("build-dictionary", "index"):
-        _run_stage(cfg, run, stage, usable_cores(), pin=True)
+        stage_process(cfg, run, stage, usable_cores(), pin=True)
     with h5py.File(run / "index.h5", "r") as f:
         positions = len(f["poses"])
 
     def measure(k: int) -> dict[str, float]:
-        own, wall = _run_stage(cfg, run, "localize", k, pin=True)
+        own, wall = stage_process(cfg, run, "localize", k, pin=True)
         n = args.panoramas
         return {f"localize, {n} panoramas (stage)": own, "a panorama (stage)": own / n, "localize (process)": wall,
                 "a panorama (process)": wall / n}

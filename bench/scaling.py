@@ -18,7 +18,7 @@ the page cache), and the speed-up of each worker count over one worker. Wall-clo
 on a shared machine include waiting for other processes: the load average is printed with
 them.
 
-The helpers (:func:`worker_counts`, :func:`scaling_table`, :func:`markdown`) are what the
+The helpers (:func:`worker_counts`, :func:`scaling_table`, :func:`markdown`, :func:`stage_process`) are what the
 other bench scripts use to print their own tables.
 """
 
@@ -111,7 +111,7 @@ def markdown(table: dict[str, dict[int, float]], title: str, note: str = "", uni
     return "\n".join(lines)
 
 
-def _run_stage(cfg: Path, run_dir: Path, stage: str, count: int, pin: bool) -> tuple[float, float]:
+def stage_process(cfg: Path, run_dir: Path, stage: str, count: int, pin: bool) -> tuple[float, float]:
     """One stage as its own process: (the stage's own seconds, the process's wall seconds).
     ``pin``: the process pinned to the first ``count`` usable cores (as ``taskset -c
     0..count-1``) with the default workers; else ``executor.workers=count`` on every core."""
@@ -144,7 +144,7 @@ def seqslam_stages(n: int, counts: list[int], repeat: int, work: Path, stages: t
     def measure(k: int) -> dict[str, float]:
         out = {}
         for stage in stages:
-            own, wall = _run_stage(cfg, work / "run", stage, k, pin)
+            own, wall = stage_process(cfg, work / "run", stage, k, pin)
             out[f"{stage} (stage)"], out[f"{stage} (process)"] = own, wall
         if "extract" in stages and "localize" in stages:
             out["extract + localize (stage)"] = out["extract (stage)"] + out["localize (stage)"]

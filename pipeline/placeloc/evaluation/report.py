@@ -17,6 +17,7 @@ import yaml
 
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.safe_io import load_json, read_run_file
+from placeloc.evaluation.contracts import format_value
 
 log = logging.getLogger("placeloc")
 
@@ -36,14 +37,6 @@ img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin
 background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
 
 
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.4f}"
-    if v is None:
-        return "n/a"
-    return str(v)
-
-
 def _flatten(d: dict, prefix: str = "") -> list[tuple[str, Any]]:
     out: list[tuple[str, Any]] = []
     for k, v in d.items():
@@ -56,7 +49,7 @@ def _flatten(d: dict, prefix: str = "") -> list[tuple[str, Any]]:
 
 def _table(rows: list[tuple[str, Any]], head: tuple[str, str]) -> str:
     body = "".join(f"<tr><td>{html.escape(k)}</td><td class='{'num' if isinstance(v, (int, float)) else ''}'>"
-                   f"{html.escape(_fmt(v))}</td></tr>" for k, v in rows)
+                   f"{html.escape(format_value(v))}</td></tr>" for k, v in rows)
     return f"<table><tr><th>{head[0]}</th><th>{head[1]}</th></tr>{body}</table>"
 
 
@@ -167,7 +160,7 @@ def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
     if not figures:
         what = f"result: {kind}; " if kind else ""
         return f"<h2>Headline</h2><p>{html.escape(what)}not evaluated (no ground truth, or evaluate has not run).</p>"
-    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(_fmt(v))}</div><div class='k'>{html.escape(k)}</div>"
+    cells = "".join(f"<div class='fig'><div class='v'>{html.escape(format_value(v))}</div><div class='k'>{html.escape(k)}</div>"
                     "</div>" for k, v in figures)
     return (f"<h2>Headline</h2><p class='muted'>result contract: <b>{html.escape(kind or '?')}</b> "
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
@@ -224,7 +217,7 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
         # a value the method chose at run time (co-embedding's alpha by alpha_select) beside the config's
         section = cfg[method]
         chosen = {k for k in section if section.get(f"{k}_select") not in (None, "none", "fixed", False)}
-        rows = [(k, f"{_fmt(v)} in the config; {_fmt(metrics[k])} chosen by {k}_select (metrics.json)"
+        rows = [(k, f"{format_value(v)} in the config; {format_value(metrics[k])} chosen by {k}_select (metrics.json)"
                  if k in chosen and k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
                 for k, v in _flatten(section)]
         parts.append(_table(rows, (f"{method} parameter", "value")))

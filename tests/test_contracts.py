@@ -22,6 +22,7 @@ from placeloc.core.config import load_config
 from placeloc.core.runner import run_all
 from placeloc.evaluation import show as show_mod
 from placeloc.evaluation.contracts import ContractError, contract, headline, read_result, validate
+from placeloc.evaluation.report import format_value
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,7 +111,7 @@ def test_show_and_report_for_every_contract(run):
     cells = _headline_cells(report)
     assert list(cells) == [k for k, _ in figures]
     for k, v in figures:
-        assert cells[k] == ("n/a" if v is None else f"{v:.4f}" if isinstance(v, float) else str(v))
+        assert cells[k] == format_value(v)   # tests/test_reports.py holds the formatter to hand-written strings
     assert f"method</td><td class=''>{name}" in report
     for p in PICTURES[res.kind]:
         assert f"alt='{p}'" in report
@@ -150,7 +151,7 @@ def test_run_prints_the_headline_figures(tmp_path):
     assert proc.returncode == 0, proc.stderr
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     for k in m["headline"]:
-        assert f"  {k}: {m[k]:.4f}" in proc.stdout
+        assert f"  {k}: {format_value(m[k])}" in proc.stdout
     assert f"report: {tmp_path / 'r' / 'report.html'}" in proc.stdout
 
 

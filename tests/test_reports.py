@@ -130,8 +130,8 @@ def test_report_shows_a_value_the_method_chose_beside_the_configs_only(tmp_path)
 def test_a_setting_too_small_for_four_decimals_reads_as_itself_not_as_zero():
     """UMap's AKAZE threshold (3e-05) showed as 0.0000 in report.html's config table; the
     report and the command line share one formatter."""
-    from placeloc.evaluation.report import _table
+    from placeloc.evaluation.report import _table, format_value
 
-    assert [contracts.format_value(v) for v in (3e-05, -2e-06, 0.0, 0.02, 0.0005, 1234.5, None)] == \
+    assert [format_value(v) for v in (3e-05, -2e-06, 0.0, 0.02, 0.0005, 1234.5, None)] == \
         ["3e-05", "-2e-06", "0.0000", "0.0200", "0.0005", "1234.5000", "n/a"]
     assert ">3e-05<" in _table([("ca.akaze_threshold", 3e-05)], ("key", "value"))

@@ -356,7 +356,8 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
         typer.echo(f"evaluate: skipped, no ground truth to score against (ground_truth.kind: none); the answers are in "
                    f"{out}; `placeloc show {out}` draws them")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
-        from placeloc.evaluation.contracts import format_value, headline
+        from placeloc.evaluation.contracts import headline
+        from placeloc.evaluation.report import format_value
 
         for key, value in headline(path.parent):
             typer.echo(f"  {key}: {format_value(value)}")

@@ -444,14 +444,3 @@ def _reported(doc_key: str, metrics: dict[str, Any]) -> bool:
 def headline_of(kind: str, metrics: dict[str, Any]) -> list[tuple[str, Any]]:
     """The headline figures (name, value) of ``metrics`` for a result of ``kind``."""
     return [(k, metrics[k]) for k in contract(kind).headline(metrics) if k in metrics]
-
-
-def format_value(v: Any) -> str:
-    """A figure or setting as the report and the command line show it: four decimals, or
-    three significant digits for a number too small for them (an AKAZE threshold of 3e-05
-    shown as 0.0000 read as zero)."""
-    if v is None:
-        return "n/a"
-    if isinstance(v, float):
-        return f"{v:.3g}" if v != 0.0 and abs(v) < 5e-4 else f"{v:.4f}"
-    return str(v)

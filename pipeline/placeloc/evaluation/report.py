@@ -17,7 +17,6 @@ import yaml
 
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.safe_io import load_json, read_run_file
-from placeloc.evaluation.contracts import format_value
 
 log = logging.getLogger("placeloc")
 
@@ -35,6 +34,17 @@ img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin
 .cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}
 .headline{display:flex;gap:14px;flex-wrap:wrap;margin:10px 0 6px}.fig{border:1px solid #ccd;border-radius:6px;padding:8px 14px;
 background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
+
+
+def format_value(v: Any) -> str:
+    """A figure or setting as the report and the command line show it: four decimals, or
+    three significant digits for a number too small for them (an AKAZE threshold of 3e-05
+    shown as 0.0000 read as zero)."""
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.3g}" if v != 0.0 and abs(v) < 5e-4 else f"{v:.4f}"
+    return str(v)
 
 
 def _flatten(d: dict, prefix: str = "") -> list[tuple[str, Any]]:

@@ -73,6 +73,28 @@ def test_zscore_blocks_equal_a_per_block_loop_and_the_nan_mean_to_the_bit():
     assert np.array_equal(patch_normalise(img_whole, 8, "zscore"), before)
 
 
+def test_minmax_blocks_equal_a_per_block_loop_and_the_general_route_to_the_bit():
+    # the uint8 whole-block route (in place, a scale per block) against a loop over blocks
+    # in float32, and against the general route (a float image: the padded path with
+    # np.where), including a flat block and ranges of 1 and 2 (halves: rint to even)
+    rng = np.random.default_rng(11)
+    img = rng.integers(0, 256, (6, 32, 64), dtype=np.uint8)
+    img[0, :8, :8] = 9
+    img[1, :8, :8] = rng.integers(40, 42, (8, 8))
+    img[2, 8:16, :8] = rng.integers(40, 43, (8, 8))
+    out = patch_normalise(img, 8, "minmax")
+    for i in range(6):
+        for y in range(0, 32, 8):
+            for x in range(0, 64, 8):
+                blk = img[i, y:y + 8, x:x + 8]
+                lo, r = blk.min(), np.float32(blk.max() - blk.min())
+                want = (np.zeros_like(blk) if r == 0 else
+                        np.rint((blk.astype(np.float32) - np.float32(lo)) * (np.float32(255.0) / r)).astype(np.uint8))
+                assert np.array_equal(out[i, y:y + 8, x:x + 8], want), (i, y, x)
+    assert (out[0, :8, :8] == 0).all() and set(np.unique(out[2, 8:16, :8])) <= {0, 128, 255}
+    assert np.array_equal(out, patch_normalise(img.astype(np.float32), 8, "minmax"))
+
+
 def test_zncc_is_invariant_to_gain_and_offset():
     img = _img(3)
     brighter = np.clip(img.astype(np.float32) * 1.2 + 30, 0, 255).astype(np.uint8)

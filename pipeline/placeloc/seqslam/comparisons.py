@@ -84,16 +84,22 @@ def patch_normalise(img: np.ndarray, patch: int, mode: str) -> np.ndarray:
     shape = (*lead, ph // patch, patch, pw // patch, patch)
     axes = (len(lead) + 1, len(lead) + 3)
     if mode == "minmax" and (ph, pw) == (h, w) and img.dtype == np.uint8:
-        # The common case: blocks gathered contiguously, min/max taken exactly in uint8.
+        # The common case: blocks gathered contiguously, min/max taken exactly in uint8. The
+        # scale is per block (0 for a flat block, whose pixels less its minimum are all 0) and
+        # the pixels are worked in place: the same float32 operations as the general route
+        # below, so the same bits (tested), at 0.57x its time (64 frames of 64 x 32: 436 us
+        # against 764 us, with np.where over every pixel)
         n = int(np.prod(lead)) if lead else 1
         b = img.reshape(n, h // patch, patch, w // patch, patch).transpose(0, 1, 3, 2, 4)
         b = b.reshape(n, h // patch, w // patch, patch * patch)
         lo = b.min(axis=3, keepdims=True)
         rng = (b.max(axis=3, keepdims=True) - lo).astype(np.float32)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = np.where(rng > 0, (b.astype(np.float32) - lo.astype(np.float32)) * (np.float32(255.0) / rng),
-                           np.float32(0.0))
-        out = np.rint(out).astype(np.uint8).reshape(n, h // patch, w // patch, patch, patch).transpose(0, 1, 3, 2, 4)
+        scale = np.zeros_like(rng)
+        np.divide(np.float32(255.0), rng, out=scale, where=rng > 0)
+        x = b.astype(np.float32)
+        x -= lo
+        x *= scale
+        out = np.rint(x, out=x).astype(np.uint8).reshape(n, h // patch, w // patch, patch, patch).transpose(0, 1, 3, 2, 4)
         return np.ascontiguousarray(out).reshape(*lead, h, w)
     if mode == "minmax":
         # Edge padding repeats pixels of the same (smaller) edge block: its min/max stay.

@@ -12,34 +12,36 @@ import numpy as np
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.geometry.panorama import render_panoramas
 from placeloc.umap.bits import unpack
-from placeloc.umap.panorama import chamfer_spectra, rival_score, row_weights, search_panoramas
+from placeloc.umap.panorama import chamfer_spectra, rival_pose, row_weights, search_panoramas
 from placeloc.umap.params import PanoramaParams
 
 W, H = 144, 72
 
 
-def test_rival_score_by_hand():
+def test_rival_pose_by_hand():
     # 4 grid positions on a line, 8 columns (45 deg each); the answer at position 0, column 1.
     table = np.array([[0.90, 0.95, 0.70, 0.10, 0.80, 0.20, 0.30, 0.60],    # x = 0: the answer's place
                       [0.40, 0.50, 0.20, 0.20, 0.75, 0.20, 0.20, 0.20],    # x = 0.5: near
                       [0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.65],    # x = 1.5: far
                       [0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10, 0.10]])   # x = 3: far
     xy = np.array([[0.0, 0.0], [0.5, 0.0], [1.5, 0.0], [3.0, 0.0]])
-    none = (np.zeros((0, 2)), np.zeros(0))
+    none = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64))
     # within 1 m, rivals face more than one column (45 deg) from column 1: columns 3-7 (column 7
     # wraps to 2 columns away); best 0.80 at (x = 0, column 4); far: 0.70 at x = 1.5
-    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == np.float32(0.80)
+    assert rival_pose(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == (np.float32(0.80), 0.0, 0.0, 4)
     # every heading within 90 deg (2 columns) is the answer's: near rivals only in columns 4-6
     # (0.80 at x = 0 column 4); with a tolerance of 3 columns only column 5 (0.20), so the far 0.70 wins
-    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=3) == np.float32(0.70)
-    # every place within 2 m is the answer's, any heading within 180 deg too: only x = 3 (0.10)
-    assert rival_score(table, xy, *none, np.zeros(2), 1, distance_m=2.0, yaw_cols=4) == np.float32(0.10)
+    assert rival_pose(table, xy, *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=3) == (np.float32(0.70), 1.5, 0.0, 6)
+    # every place within 2 m is the answer's, any heading within 180 deg too: only x = 3
+    # (0.10 at every column: the first)
+    assert rival_pose(table, xy, *none, np.zeros(2), 1, distance_m=2.0, yaw_cols=4) == (np.float32(0.10), 3.0, 0.0, 0)
     # an off-grid point the local search scored 1.2 m away outscores the grid; one 0.9 m away
     # (nearer than the distance) does not count, however high
-    seen_xy, seen = np.array([[0.9, 0.0], [0.0, 1.2]]), np.array([0.99, 0.85])
-    assert rival_score(table, xy, seen_xy, seen, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == 0.85
-    # no rival at all: NaN
-    assert math.isnan(rival_score(table[:2], xy[:2], *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=4))
+    seen = (np.array([[0.9, 0.0], [0.0, 1.2]]), np.array([0.99, 0.85]), np.array([1, 5]))
+    assert rival_pose(table, xy, *seen, np.zeros(2), 1, distance_m=1.0, yaw_cols=1) == (0.85, 0.0, 1.2, 5)
+    # no rival at all: NaN, column -1
+    r = rival_pose(table[:2], xy[:2], *none, np.zeros(2), 1, distance_m=1.0, yaw_cols=4)
+    assert math.isnan(r.score) and math.isnan(r.x) and math.isnan(r.y) and r.col == -1
 
 
 # two identical rooms 4 x 3 m, 6 m apart (their walls hide each other), each with a door
@@ -73,6 +75,11 @@ def test_margin_is_zero_in_a_twin_room_and_clear_in_a_room_of_its_own():
     twins = _answers(TWINS, truth)
     assert np.all(np.isfinite(twins.rival))
     assert np.abs(twins.margin).max() <= 1e-4, twins.margin
+    # the rival is the same spot in the other room, facing the same way: the answer's
+    # alternative is the twin's (one of the two is the truth)
+    twin_of = twins.xy + np.where(twins.xy[:, :1] < 5.0, 6.0, -6.0) * np.array([1.0, 0.0])
+    assert np.hypot(*(twins.rival_xy - twin_of).T).max() <= 0.1, (twins.rival_xy, twins.xy)
+    assert np.abs((twins.rival_heading - twins.heading + 180.0) % 360.0 - 180.0).max() <= 5.0
     odd = _answers(ODD, truth)
     assert np.hypot(*(odd.xy - truth[:, :2]).T).max() <= 0.05
     assert odd.margin.min() >= 0.05, odd.margin
@@ -81,8 +88,11 @@ def test_margin_is_zero_in_a_twin_room_and_clear_in_a_room_of_its_own():
 
 def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog):
     # Through the pipeline: a panorama taken in one of two identical rooms is marked doubtful
-    # in estimates.csv and named in the log; in the home where room b differs, it is not.
+    # in estimates.csv and named in the log, its rival is the same spot in the other room
+    # (estimates.csv, and the poses contract's alternative), and evaluate counts the answer
+    # or its rival right; in the home where room b differs, none of that.
     import csv
+    import json
     import logging
 
     import cv2
@@ -90,6 +100,7 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
 
     from placeloc.core.config import load_config
     from placeloc.core.runner import run_stage
+    from placeloc.evaluation.contracts import read_result
 
     truth = (1.37, 1.12, 1.4, 40.0)
     for name, plan in (("twins", TWINS), ("odd", ODD)):
@@ -101,7 +112,9 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
                        256, 512)[0]
         cv2.imwrite(str(d / "q" / "p0.png"), np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190)
                     .astype(np.uint8))
+        (d / "poses.csv").write_text(f"frame,x,y,heading_deg\np0.png,{truth[0]:.2f},{truth[1]:.2f},{truth[3]:.1f}\n")
         cfg = load_config(data={"method": "umap", "query": {"images": str(d / "q")},
+                                "ground_truth": {"kind": "poses", "path": str(d / "poses.csv")},
                                 "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
                                          "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4,
                                                   "headings": [0.0]},
@@ -109,9 +122,23 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
                                 "plots": False}, base_dir=d)
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="placeloc"):
-            run_stage(cfg, d / "run", "localize", quiet=True)
+            run_stage(cfg, d / "run", "evaluate", quiet=True)
         (row,) = list(csv.DictReader(open(d / "run" / "estimates.csv")))
         doubtful = name == "twins"
         assert row["doubtful"] == ("true" if doubtful else "false"), row
         assert (float(row["margin"]) < 0.02) == doubtful
         assert ("1 of 1 answers are doubtful" in caplog.text) == doubtful
+        est, rival = np.array([float(row["x"]), float(row["y"])]), np.array([float(row["rival_x"]), float(row["rival_y"])])
+        alternative = read_result(d / "run" / "localize.h5").get("alternative")
+        metrics = json.loads((d / "run" / "metrics.json").read_text())
+        if doubtful:
+            # the rival is the answer's spot moved into the other room, and is the contract's alternative
+            assert np.hypot(*(rival - est - [6.0 if est[0] < 5.0 else -6.0, 0.0])) <= 0.1, row
+            assert np.allclose(alternative, [[round(v, 3) for v in rival]], atol=1e-3)
+            # one of the two is where the camera stood
+            assert (metrics["doubtful_answers"], metrics["within_1m_30deg_or_rival"]) == (1, 1.0)
+            assert metrics["doubtful_wrong"] == metrics["doubtful_wrong_rival_right"] == int(est[0] > 5.0)
+        else:
+            assert np.isnan(alternative).all()
+            assert (metrics["doubtful_answers"], metrics["doubtful_wrong"]) == (0, 0)
+            assert metrics["within_1m_30deg_or_rival"] == metrics["within_1m_30deg"] == 1.0

@@ -18,7 +18,10 @@ headings also ``median_yaw_error_deg``, ``yaw_within_10deg``, ``yaw_within_30deg
 
 An optional ``confidence`` (Q, higher = more trusted, NaN: the method could not tell) says
 which answers to trust; its ``confidence_label`` attribute names it in pictures. Results
-without it are scored exactly as before it existed.
+without it are scored exactly as before it existed. An optional ``alternative`` (Q x 2,
+metres; NaN rows: none) is a second place the method could not rule out for a doubtful
+answer (UMap: the rival of an answer whose margin is below ``doubtful_margin``), drawn on
+the plan beside the answer; it is not scored here.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ SCHEMA = {
     "score": Field("float", ("Q",)),
     "plan_segments": Field("float", ("S", "4"), optional=True),
     "confidence": Field("float", ("Q",), optional=True),
+    "alternative": Field("float", ("Q", "2"), optional=True),
 }
 
 METRICS_DOC = {
@@ -64,10 +68,12 @@ COUNTS = ("n_frames",)
 
 def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
           z: np.ndarray | None = None, plan_segments: np.ndarray | None = None, label: str = "estimates",
-          confidence: np.ndarray | None = None, confidence_label: str = "confidence") -> None:
+          confidence: np.ndarray | None = None, confidence_label: str = "confidence",
+          alternative: np.ndarray | None = None) -> None:
     """Write the contract into ``ctx.out/result``; ``label`` names the estimates in pictures.
     ``confidence`` (per frame, higher = more trusted, NaN = cannot tell), when given, is
-    named by ``confidence_label`` (e.g. "score margin over the best rival pose")."""
+    named by ``confidence_label`` (e.g. "score margin over the best rival pose");
+    ``alternative`` (Q, 2) a doubtful answer's second place (NaN rows: none)."""
     attrs = {"label": label}
     if confidence is not None:
         attrs["confidence_label"] = confidence_label
@@ -76,7 +82,8 @@ def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, headi
         "z": None if z is None else np.asarray(z, np.float64), "heading_deg": np.asarray(heading_deg, np.float64),
         "score": np.asarray(score, np.float64),
         "plan_segments": None if plan_segments is None else np.asarray(plan_segments, np.float64).reshape(-1, 4),
-        "confidence": None if confidence is None else np.asarray(confidence, np.float64)},
+        "confidence": None if confidence is None else np.asarray(confidence, np.float64),
+        "alternative": None if alternative is None else np.asarray(alternative, np.float64).reshape(-1, 2)},
         attrs=attrs)
 
 
@@ -319,7 +326,7 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
     label = ev.label
     plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
     plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
-                           ev.truth_heading, res["heading_deg"], names=res["names"])
+                           ev.truth_heading, res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
     if confidence is not None:
         from placeloc.evaluation.plots import plot_kept_precision
 
@@ -372,7 +379,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
                 truth_heading = np.array([float(rows[n]["true_heading_deg"]) for n in res["names"]])
     path = out_dir / "estimates_on_plan.png"
     plot_estimates_on_plan(path, truth, est, [], _segments6(res), str(res.attrs.get("label", "estimates")), truth_heading,
-                           res["heading_deg"], names=res["names"])
+                           res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
     return [path]
 
 
@@ -463,10 +470,12 @@ ARROW_INCHES = 0.12
 
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
                            mode: str, truth_heading_deg: np.ndarray | None = None,
-                           est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None) -> None:
+                           est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None,
+                           alternative: np.ndarray | None = None) -> None:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
     positions joined by error lines, headings as short arrows of a fixed length on the page
-    (drawn under the dots). With the truth and ``names``, the wrong answers (more than 1 m
+    (drawn under the dots); a doubtful answer's ``alternative`` (Q x 2, NaN rows: none) as
+    a hollow ring joined to its answer by a dotted line. With the truth and ``names``, the wrong answers (more than 1 m
     off, or more than 30 degrees where both headings are known; at most
     :data:`NAMED_WRONG`, the worst first) are named at their true position, so that the
     frame to look at is read off the picture. A long plan (a corridor) is cut into up to four pieces along its
@@ -501,6 +510,8 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     yaw_err = (yaw_errors(est_heading_deg, truth_heading_deg)
                if truth_heading_deg is not None and est_heading_deg is not None else None)
     wrong = ~right_answers(err, yaw_err) if known and names is not None else np.zeros(len(err), bool)
+    alt = np.full((len(est), 2), np.nan) if alternative is None else np.asarray(alternative, float).reshape(-1, 2)
+    has_alt = np.isfinite(alt).all(axis=1)
     named = worst_wrong(err, wrong)
     for k, ax in enumerate(axes.ravel()):
         if polys:
@@ -521,6 +532,11 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         if known:
             ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=4.5, zorder=4, label="true position")
         ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=5.5, mew=1.4, zorder=5, label=f"{mode} estimate")
+        for e, a in zip(est[has_alt], alt[has_alt]):
+            ax.plot([e[0], a[0]], [e[1], a[1]], ":", color="tab:orange", lw=1.2, zorder=4)
+        if has_alt.any():
+            ax.plot(alt[has_alt, 0], alt[has_alt, 1], "o", mfc="none", mec="tab:orange", ms=7, mew=1.4, zorder=5,
+                    label=f"doubtful answer's alternative ({int(has_alt.sum())})")
         for j in named:
             ax.annotate(str(names[j]), truth[j], textcoords="offset points", xytext=(5, 5), fontsize=8,
                         color="tab:blue", zorder=6, annotation_clip=True)

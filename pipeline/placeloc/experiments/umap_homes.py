@@ -223,6 +223,11 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     table += home_table(homes)
     table += ["", "Per test home, share within 1 m and 30 deg at each origin: "
               + "; ".join(f"{s}: {' / '.join(f'{x:.0%}' for x in v)}" for s, v in per_home.items())]
+    # what a user who checks both places of every doubtful answer finds (docs/umap.md)
+    either = {s: [m.get("within_1m_30deg_or_rival", float("nan")) for k, m in homes.items() if k.startswith(f"home{s}-")]
+              for s in per_home}
+    table += ["", "Per test home, the answer or (doubtful answers) its rival within 1 m and 30 deg: "
+              + "; ".join(f"{s}: {' / '.join(f'{x:.0%}' for x in v)}" for s, v in either.items())]
     (out_dir / "table.md").write_text("\n".join(table) + "\n")
     if not quiet:
         print("\n".join(table))

@@ -856,35 +856,56 @@ def best_pose(scores: np.ndarray) -> tuple[int, int, float]:
 
 
 
-def rival_score(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, seen_score: np.ndarray,
-                answer_xy: np.ndarray, answer_col: int, *, distance_m: float, yaw_cols: float) -> float:
-    """The best score of a *rival* of an answer: a pose that would be a different answer,
-    i.e. more than ``distance_m`` from ``answer_xy`` at any heading, or within it at a
-    heading more than ``yaw_cols`` columns (circularly) from ``answer_col``.
+class Rival(NamedTuple):
+    """The best *rival* of an answer (:func:`rival_pose`): its score, plan position and
+    heading column; NaN score and position, column -1, where no pose scored is a rival."""
+
+    score: float
+    x: float
+    y: float
+    col: int
+
+
+def rival_pose(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, seen_score: np.ndarray,
+               seen_col: np.ndarray, answer_xy: np.ndarray, answer_col: int, *, distance_m: float,
+               yaw_cols: float) -> Rival:
+    """The best *rival* of an answer: a pose that would be a different answer, i.e. more
+    than ``distance_m`` from ``answer_xy`` at any heading, or within it at a heading more
+    than ``yaw_cols`` columns (circularly) from ``answer_col``.
 
     Looked for among every (grid position, shift) of the (P, W) score ``table`` and among
-    the off-grid plan points the local search scored (``seen_xy``, ``seen_score``: each
-    point's best over the shifts it was scored at, all within a few columns of its
-    candidate's heading, so they only give rivals by distance). NaN when no pose scored is a
-    rival (a model smaller than ``distance_m``). The answer's score minus this is its
-    margin: how much better the answer is than the best place or heading that would make it
-    wrong, by the same score the search ranks with."""
-    best = -np.inf
-    far = np.hypot(*(np.asarray(grid_xy, float) - answer_xy).T) > distance_m
-    if far.any():
+    the off-grid plan points the local search scored (``seen_xy``, ``seen_score``,
+    ``seen_col``: each point's best over the shifts it was scored at and that shift, all
+    within a few columns of its candidate's heading, so they only give rivals by distance).
+    The first of equal scores wins: the grid's far poses, then its turned ones, then the
+    points scored off the grid. The answer's score minus the rival's is its margin: how much
+    better the answer is than the best place or heading that would make it wrong, by the
+    same score the search ranks with; the rival's pose is where a doubtful answer's
+    alternative lies (a twin room's same spot)."""
+    best = Rival(-np.inf, math.nan, math.nan, -1)
+    grid_xy = np.asarray(grid_xy, float)
+    far = np.flatnonzero(np.hypot(*(grid_xy - answer_xy).T) > distance_m)
+    if len(far):
         # each position's best shift first: one pass over the table, no copy of its far rows
-        best = float(table.max(axis=1)[far].max())
+        per_position = table.max(axis=1)
+        i = far[int(np.argmax(per_position[far]))]
+        best = Rival(float(per_position[i]), float(grid_xy[i, 0]), float(grid_xy[i, 1]), int(np.argmax(table[i])))
     w = table.shape[1]
     cols = np.abs((np.arange(w) - int(answer_col) + w // 2) % w - w // 2)   # circular distance in columns
     turned = np.flatnonzero(cols > yaw_cols + 1e-9)
-    near = np.flatnonzero(~far)
+    near = np.setdiff1d(np.arange(len(grid_xy)), far)
     if len(near) and len(turned):
-        best = max(best, float(table[np.ix_(near, turned)].max()))
+        sub = table[np.ix_(near, turned)]
+        i, k = np.unravel_index(int(np.argmax(sub)), sub.shape)
+        if float(sub[i, k]) > best.score:
+            best = Rival(float(sub[i, k]), float(grid_xy[near[i], 0]), float(grid_xy[near[i], 1]), int(turned[k]))
     if len(seen_xy):
-        far_seen = np.hypot(*(np.asarray(seen_xy, float) - answer_xy).T) > distance_m
-        if far_seen.any():
-            best = max(best, float(np.max(seen_score[far_seen])))
-    return best if np.isfinite(best) else math.nan
+        far_seen = np.flatnonzero(np.hypot(*(np.asarray(seen_xy, float) - answer_xy).T) > distance_m)
+        if len(far_seen):
+            i = far_seen[int(np.argmax(seen_score[far_seen]))]
+            if float(seen_score[i]) > best.score:
+                best = Rival(float(seen_score[i]), float(seen_xy[i, 0]), float(seen_xy[i, 1]), int(seen_col[i]))
+    return best if np.isfinite(best.score) else Rival(math.nan, math.nan, math.nan, -1)
 
 
 class PanoramaAnswers(NamedTuple):
@@ -894,9 +915,12 @@ class PanoramaAnswers(NamedTuple):
     xy: np.ndarray        # (N, 2) plan position, refined off the grid
     heading: np.ndarray   # (N,) degrees
     score: np.ndarray     # (N,) the answer's score
-    rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_score`)
+    rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_pose`)
     # (N,) the best score before the final search (refine_final_m), None: the score itself
     before_final: np.ndarray | None = None
+    # (N, 2) and (N,) degrees: where that rival stands and faces (NaN: no rival), None: not kept
+    rival_xy: np.ndarray | None = None
+    rival_heading: np.ndarray | None = None
 
     @property
     def margin(self) -> np.ndarray:
@@ -1237,7 +1261,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                      progress: Callable[[Iterable], Iterable] = lambda it: it) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
-    image, and the best score of a rival answer (:func:`rival_score`, ``pp.margin_distance_m``
+    image, and the best score of a rival answer (:func:`rival_pose`, ``pp.margin_distance_m``
     and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
     and yaw scored (``database``: ``spectra`` for the chamfer score, :func:`chamfer_spectra`;
     ``bits`` and ``counts`` for eq. (1)); then, with
@@ -1281,6 +1305,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     spread = int(pp.orientation_spread) if bins > 1 else None
     n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score, rival = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n), np.full(n, np.nan)
+    rival_xy, rival_heading = np.full((n, 2), np.nan), np.full(n, np.nan)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
     if spread is not None and not chamfer:
@@ -1322,6 +1347,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     # the rivals off the grid
     seen_xy: list[np.ndarray] = []
     seen_score: list[np.ndarray] = []
+    seen_col: list[np.ndarray] = []
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
@@ -1338,7 +1364,15 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             out = np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
         seen_xy.append(pts)
         seen_score.append(out.max(axis=1))
+        seen_col.append(np.take_along_axis(cols, out.argmax(axis=1)[:, None], axis=1)[:, 0] % w)
         return out
+
+    def keep_rival(k: int, table: np.ndarray, answer_xy: np.ndarray, answer_col: int) -> None:
+        seen = (np.concatenate(seen_xy), np.concatenate(seen_score), np.concatenate(seen_col)) if seen_xy else \
+            (np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64))
+        r = rival_pose(table, poses[:, :2], *seen, answer_xy, answer_col, distance_m=pp.margin_distance_m,
+                       yaw_cols=rival_cols)
+        rival[k], rival_xy[k], rival_heading[k] = r.score, (r.x, r.y), (r.col * 360.0 / w if r.col >= 0 else np.nan)
 
     walls = blocking_faces(faces, float(poses[0, 2])) if len(poses) else faces
     cell = grid_step(poses[:, :2]) / 3.0 if len(poses) else 0.0
@@ -1420,6 +1454,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             heading[k] = shift * 360.0 / w
             seen_xy.clear()
             seen_score.clear()
+            seen_col.clear()
             answer_xy, answer_col = poses[best[k], :2], shift
             if pp.refine_candidates <= 0:
                 cands = np.zeros(0, np.int64)
@@ -1430,8 +1465,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
                                             min_separation_m=pp.refine_separation_m)
             if not len(cands):
-                rival[k] = rival_score(table, poses[:, :2], np.zeros((0, 2)), np.zeros(0), answer_xy, answer_col,
-                                       distance_m=pp.margin_distance_m, yaw_cols=rival_cols)
+                keep_rival(int(k), table, answer_xy, answer_col)
                 continue
             q_close = None
             if chamfer:
@@ -1484,11 +1518,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]
                 refined_xy[k] = xy[j]
                 answer_xy, answer_col = xy[j], int(col[j])
-            rival[k] = rival_score(table, poses[:, :2], np.concatenate(seen_xy), np.concatenate(seen_score), answer_xy,
-                                   answer_col, distance_m=pp.margin_distance_m, yaw_cols=rival_cols)
+            keep_rival(int(k), table, answer_xy, answer_col)
     finally:
         limiter.restore_original_limits()
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]
-    return PanoramaAnswers(best, est, heading, score, rival, np.where(np.isnan(before_final), score, before_final))
+    return PanoramaAnswers(best, est, heading, score, rival, np.where(np.isnan(before_final), score, before_final),
+                           rival_xy, rival_heading)

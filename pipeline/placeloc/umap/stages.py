@@ -25,6 +25,7 @@ from placeloc.core.config import ConfigError
 from placeloc.core.imagework import ImageStream, ImageWork, write_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import PoseEvaluation
+from placeloc.evaluation.pose_estimates import right_answers, yaw_errors
 from placeloc.geometry import Camera
 from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.umap import resources as umap_resources
@@ -387,35 +388,43 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
     est = np.column_stack([found.xy, poses[found.best, 2:]])
     heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
     nan = np.full(n, np.nan)
-    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin)
-    write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
-                         "score": score, "rival_score": rival, "margin": margin, "ca_distance_m": nan,
-                         "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
-                         "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
-    ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
+    rival_xy = found.rival_xy if found.rival_xy is not None else np.full((n, 2), np.nan)
+    rival_heading = found.rival_heading if found.rival_heading is not None else nan
     # NaN (no rival scored) is not doubtful: nothing else was a candidate
     doubtful = margin < ctx.params.panorama.doubtful_margin
+    _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin,
+                  np.where(doubtful[:, None], rival_xy, np.nan))
+    write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
+                         "score": score, "rival_score": rival, "margin": margin, "doubtful": doubtful,
+                         "rival_x": rival_xy[:, 0], "rival_y": rival_xy[:, 1], "rival_heading_deg": rival_heading,
+                         "ca_distance_m": nan, "search_radius_m": nan, "ca_matches": np.zeros(n, np.int64),
+                         "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
+    ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
     if doubtful.any():
         log.warning("%d of %d answers are doubtful (margin below umap.panorama.doubtful_margin %g: another place or "
-                    "heading scores nearly as well): %s", int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
+                    "heading scores nearly as well; estimates.csv gives each one's rival as rival_x, rival_y, rival_heading_deg): %s",
+                    int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
                     ", ".join(names[k] for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin", "doubtful"])
+        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y",
+                    "rival_heading_deg"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}",
-                        _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false"])
+                        _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
+                        _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1)])
 
 
-def _csv_number(x: float) -> str:
-    """A score in estimates.csv (empty for NaN: no rival was scored)."""
-    return "" if math.isnan(x) else f"{x:.5f}"
+def _csv_number(x: float, decimals: int = 5) -> str:
+    """A number in estimates.csv (empty for NaN: no rival was scored)."""
+    return "" if math.isnan(x) else f"{x:.{decimals}f}"
 
 
 def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, heading: np.ndarray, score: np.ndarray,
-                  margin: np.ndarray | None = None) -> None:
+                  margin: np.ndarray | None = None, alternative: np.ndarray | None = None) -> None:
     """The ``poses`` contract, with the plan's walls (room outlines, else the wireframe seen from above), and
-    for panoramas each answer's margin over its rival as the confidence."""
+    for panoramas each answer's margin over its rival as the confidence and the doubtful answers' rivals as
+    their alternatives."""
     from placeloc.evaluation import pose_estimates
 
     plan = ctx.artifact("build-dictionary")
@@ -426,20 +435,42 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
         segments = plan["segments"][()][:, [0, 1, 3, 4]]
     pose_estimates.write(ctx, names=names, x=x, y=y, heading_deg=heading, score=score, plan_segments=segments,
                          label=str(ctx.params.mode), confidence=margin,
-                         confidence_label="score margin over the best rival pose")
+                         confidence_label="score margin over the best rival pose", alternative=alternative)
 
 
 # ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds
 
 def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
-    """UMap's own figures: the mode in metrics.json and, for panoramas, each panorama's
-    lines against the map rendered at the estimate and at the truth."""
+    """UMap's own figures: the mode in metrics.json, for panoramas with true headings how
+    often a doubtful answer's rival is where the camera stood (:func:`rival_metrics`), and
+    each panorama's lines against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
     ev.metrics["mode"] = str(loc.attrs["mode"])
     ev.label = ev.metrics["mode"]
+    if "rival_x" in loc and ev.yaw_err is not None:
+        ev.metrics.update(rival_metrics(ev, loc["doubtful"][()], loc["rival_x"][()], loc["rival_y"][()],
+                                        loc["rival_heading_deg"][()]))
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
         _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)
+
+
+def rival_metrics(ev: PoseEvaluation, doubtful: np.ndarray, rival_x: np.ndarray, rival_y: np.ndarray,
+                  rival_heading_deg: np.ndarray) -> dict[str, Any]:
+    """What the doubtful answers' rivals are worth, against the truth: ``doubtful_answers``
+    (margin below ``doubtful_margin``), ``doubtful_wrong`` (of those, not within 1 m and 30
+    deg), ``doubtful_wrong_rival_right`` (of those, the rival within 1 m and 30 deg: a twin
+    room's spot where the camera stood) and ``within_1m_30deg_or_rival`` (the share of
+    frames whose answer is right, or doubtful with its rival right: the share a user who
+    checks both places of every doubtful answer finds). A rival of NaN is never right."""
+    right = right_answers(ev.err, ev.yaw_err)
+    with np.errstate(invalid="ignore"):
+        rival_err = np.hypot(rival_x - ev.truth[:, 0], rival_y - ev.truth[:, 1])
+        rival_right = right_answers(rival_err, yaw_errors(rival_heading_deg, ev.truth_heading)) & np.isfinite(rival_err)
+    doubtful = np.asarray(doubtful, bool)
+    return {"doubtful_answers": int(doubtful.sum()), "doubtful_wrong": int((doubtful & ~right).sum()),
+            "doubtful_wrong_rival_right": int((doubtful & ~right & rival_right).sum()),
+            "within_1m_30deg_or_rival": float(np.mean(right | (doubtful & rival_right))) if len(right) else math.nan}
 
 
 # pictures of the first panoramas only: one PNG each

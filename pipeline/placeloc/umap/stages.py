@@ -450,6 +450,9 @@ def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
     if "rival_x" in loc and ev.yaw_err is not None:
         ev.metrics.update(rival_metrics(ev, loc["doubtful"][()], loc["rival_x"][()], loc["rival_y"][()],
                                         loc["rival_heading_deg"][()]))
+        # in the headline beside the share it qualifies: what checking both places of the doubtful answers finds
+        head = ev.metrics["headline"]
+        head.insert(head.index("within_1m_30deg") + 1 if "within_1m_30deg" in head else 0, "within_1m_30deg_or_rival")
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
         _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)

@@ -135,3 +135,7 @@ def test_a_setting_too_small_for_four_decimals_reads_as_itself_not_as_zero():
     assert [format_value(v) for v in (3e-05, -2e-06, 0.0, 0.02, 0.0005, 1234.5, None)] == \
         ["3e-05", "-2e-06", "0.0000", "0.0200", "0.0005", "1234.5000", "n/a"]
     assert ">3e-05<" in _table([("ca.akaze_threshold", 3e-05)], ("key", "value"))
+    # a list of numbers: six significant digits, integers and other lists as they are
+    assert format_value([-4.163040570086148, 4.859999999999999, 0.25]) == "[-4.16304, 4.86, 0.25]"
+    assert format_value([45.0, 135.0]) == "[45, 135]" and format_value([64, 32]) == "[64, 32]"
+    assert format_value(["a", 1]) == "['a', 1]" and format_value([]) == "[]" and format_value([True]) == "[True]"

@@ -39,11 +39,14 @@ background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px
 def format_value(v: Any) -> str:
     """A figure or setting as the report and the command line show it: four decimals, or
     three significant digits for a number too small for them (an AKAZE threshold of 3e-05
-    shown as 0.0000 read as zero)."""
+    shown as 0.0000 read as zero); a list's numbers to six significant digits (a grid's
+    computed bounds showed as 4.859999999999999)."""
     if v is None:
         return "n/a"
     if isinstance(v, float):
         return f"{v:.3g}" if v != 0.0 and abs(v) < 5e-4 else f"{v:.4f}"
+    if isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        return "[" + ", ".join(f"{x:.6g}" if isinstance(x, float) else str(x) for x in v) + "]"
     return str(v)
 
 

@@ -61,6 +61,11 @@ METRICS_DOC = {
     "kept_at_100_precision": "largest share of all frames a confidence threshold keeps with every kept answer right",
     "confidence_threshold_at_100_precision": "the lowest confidence kept at that point (n/a: none can be kept)",
     "seconds_per_frame": "wall seconds of every stage before evaluate (extraction included) per frame",
+    "within_1m_30deg_or_rival": "share of frames whose answer is right, or doubtful with its rival (the alternative "
+                                "ringed on the plan) right: what checking both places of each doubtful answer finds (UMap)",
+    "doubtful_answers / doubtful_wrong / doubtful_wrong_rival_right": "answers whose margin is below doubtful_margin; of "
+                                                                      "those, the wrong ones; of those, the ones whose "
+                                                                      "rival is right (UMap)",
 }
 # counts (kept apart from the scores in metrics.json)
 COUNTS = ("n_frames",)

@@ -41,8 +41,11 @@ encoded vectors, which is why their features are stored encoded.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
+
+# OpenCV is imported where an image is worked (extract), not with the module: localize and
+# evaluate import these comparisons for their difference blocks and never call OpenCV, and
+# its import cost each of their processes 20 ms
 
 COMPARISONS = ("sad", "histeq", "zncc", "abs_zncc", "isc", "isc_ext", "ocm", "ocm_ext")
 # the comparisons whose difference is the mean absolute difference of the feature rows
@@ -64,6 +67,8 @@ def thumbnail(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     w, h = int(size[0]), int(size[1])
     if gray.shape[1] == w and gray.shape[0] == h:
         return gray
+    import cv2
+
     return cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA)
 
 
@@ -141,6 +146,8 @@ def increment_signs(img: np.ndarray) -> np.ndarray:
 
 def orientation_codes(img: np.ndarray, epsilon: float) -> np.ndarray:
     """OCM codes 0..15 (22.5 deg bins of the gradient angle); 16 where |grad| < epsilon."""
+    import cv2
+
     x = img.astype(np.float32)
     gx = cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3)
@@ -161,6 +168,8 @@ def _unit_centred(thumb: np.ndarray) -> np.ndarray:
 def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 0:
         return img.astype(np.float32)
+    import cv2
+
     return cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
 
 
@@ -181,6 +190,8 @@ def prepare_many(thumbs: np.ndarray, *, comparison: str, patch: int, normalisati
     if comparison == "sad":
         return patch_normalise(thumbs, int(patch), normalisation).reshape(len(thumbs), -1)
     if comparison == "histeq":
+        import cv2
+
         return np.stack([cv2.equalizeHist(t).ravel() for t in thumbs]).reshape(len(thumbs), -1)
     if comparison in ("zncc", "abs_zncc"):
         return np.stack([_unit_centred(t) for t in thumbs]).reshape(len(thumbs), -1)

@@ -409,3 +409,23 @@ def test_a_polyline_keeps_one_point_an_output_pixel_and_its_last():
     precision = np.cumsum(rng.random(100_000) < 0.8) / np.arange(1, 100_001)
     kx, _ = _one_point_a_pixel(recall * 1800, (1 - precision) * 1500, 3)
     assert len(kx) < 2_000
+
+
+def test_seqslam_localize_and_evaluate_run_without_importing_opencv(route, tmp_path):
+    """OpenCV's import costs a process 20 ms: SeqSLAM's localize and evaluate (pictures
+    off, as a sweep runs them) never decode an image, so their processes do without it."""
+    import subprocess
+    import sys
+
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_stage
+
+    config = route / "config.yaml"
+    run_stage(load_config(config), tmp_path / "run", "extract", quiet=True)
+    code = ("import sys; from placeloc.core.config import load_config; from placeloc.core.runner import run_stage; "
+            f"cfg = load_config({str(config)!r}, overrides=['plots=false']); "
+            f"[run_stage(cfg, {str(tmp_path / 'run')!r}, s, quiet=True) for s in ('localize', 'evaluate')]; "
+            "print('cv2' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    assert out.strip().splitlines()[-1] == "False"
+    assert (tmp_path / "run" / "metrics.json").is_file()

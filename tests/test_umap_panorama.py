@@ -218,6 +218,12 @@ def test_score_table_is_the_same_to_the_bit_for_any_thread_count_and_batch(monke
             assert all(np.array_equal(a[0], tables[-1][i]) for i, a in enumerate(alone))
         assert all(np.array_equal(t, tables[0]) for t in tables[1:])
         assert np.array_equal(chamfer_spectra(make(db), tau_px=3.0, weights=wts, spread=spread), spectra)
+        # the spectra are made SPECTRA_BLOCK positions at a time, and the index stage writes them
+        # so: any cut of the positions (here across block edges) gives each one's to the bit
+        for cut in (1, pano.SPECTRA_BLOCK - 1, pano.SPECTRA_BLOCK + 3, 333):
+            parts = [chamfer_spectra(make(db[a:b]), tau_px=3.0, weights=wts, spread=spread)
+                     for a, b in ((0, cut), (cut, len(db)))]
+            assert np.array_equal(np.concatenate(parts, axis=1), spectra), cut
 
 
 def test_chance_levels_by_hand():

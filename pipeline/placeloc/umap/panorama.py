@@ -46,6 +46,7 @@ from placeloc.geometry.panorama import (  # noqa: F401  (re-exported: the map re
     render_panoramas,
 )
 from placeloc.umap.bits import _popcount64, pack, popcount_rows, unpack
+from placeloc.umap.resources import SPECTRA_BLOCK
 
 # ------------------------------------------------------------------ scores over every yaw
 
@@ -638,24 +639,24 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
         b = lines.shape[1]
         w = np.tile(np.asarray(weights, np.float32), b)[None, :, None]
         out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * b * lines.shape[-2]), np.complex64)
-        for s in range(0, len(lines), 512):
-            img = stack_channels(lines[s:s + 512]).astype(np.float32) * w
+        for s in range(0, len(lines), SPECTRA_BLOCK):
+            img = stack_channels(lines[s:s + SPECTRA_BLOCK]).astype(np.float32) * w
             n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
-            close = stack_channels(oriented_closeness(lines[s:s + 512], tau_px, spread))
+            close = stack_channels(oriented_closeness(lines[s:s + SPECTRA_BLOCK], tau_px, spread))
             x = np.concatenate([img / n, close * w], axis=1)
-            out[:, s:s + 512] = np.conj(_rfft(x)).transpose(2, 0, 1)
+            out[:, s:s + SPECTRA_BLOCK] = np.conj(_rfft(x)).transpose(2, 0, 1)
         return out
     lines = np.asarray(lines).reshape(-1, *lines.shape[-2:])
     w = np.asarray(weights, np.float32)[None, :, None]
     out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * lines.shape[-2]), np.complex64)
-    for s in range(0, len(lines), 512):  # blocks keep the float temporaries small
-        img = lines[s:s + 512].astype(np.float32) * w
+    for s in range(0, len(lines), SPECTRA_BLOCK):  # blocks keep the float temporaries small
+        img = lines[s:s + SPECTRA_BLOCK].astype(np.float32) * w
         n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
-        close = closeness(lines[s:s + 512], tau_px)
+        close = closeness(lines[s:s + SPECTRA_BLOCK], tau_px)
         if clutter_share is not None:
             close = likelihood_image(close, weights, clutter_share)
         x = np.concatenate([img / n, close * w], axis=1)
-        out[:, s:s + 512] = np.conj(_rfft(x)).transpose(2, 0, 1)
+        out[:, s:s + SPECTRA_BLOCK] = np.conj(_rfft(x)).transpose(2, 0, 1)
     return out
 
 

@@ -20,6 +20,18 @@ BASE_MEMORY: dict[str, int] = {
 }
 
 
+# positions whose spectra are made at a time (and the index stage writes at a time). Why so
+# few: a position's temporaries are about 2.5 MB at 144 x 72 with 6 direction bins (5.1
+# times its 0.5 MB of spectra: its oriented channels, their closeness and both spectra), and
+# blocks of 512-1024 positions allocated over a gigabyte afresh each time, which the kernel
+# zeroes page by page. The index of generated home 21 (1,494 positions; three runs
+# alternating with the tree before) took 2.69-4.30 s of its own, 1.55-3.18 s of system time
+# and a 1.69 GB peak, against 2.07-2.13 s, 0.91-0.97 s and 0.41 GB with 64 (128: the same
+# time, 0.49 GB; 32: 2.2 s). Every position's spectra are its own, the same to the bit in
+# any block (tested)
+SPECTRA_BLOCK = 64
+
+
 def _plan_grid_size(p: dict[str, Any], step: float) -> tuple[int, int, float] | None:
     """(x points, y points, share inside the plan) of the grid over ``umap.model``'s plan
     bounds at ``step`` (None when the model cannot be read)."""
@@ -70,9 +82,10 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     pooled = 0 if panorama else views * (((w // 8) * (h // 8) + 63) // 64) * 8
     block = min(int(p.get("block", 2048)), views)
     # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
-    # frequencies x 2h rows of complex64 (x the direction bins), written 1024 positions at a
-    # time (that block and its FFT temporaries: measured 257 and 441 MB for blocks of 770 and
-    # 1024 positions of 144 x 72, about 4-5 blocks of spectra). Localize maps them rather
+    # frequencies x 2h rows of complex64 (x the direction bins), made and written
+    # SPECTRA_BLOCK positions at a time (that block and its FFT temporaries: measured 257 and
+    # 441 MB for blocks of 770 and 1024 positions of 144 x 72, and 157 MB for 64 positions
+    # with 6 direction bins, 5.1 blocks of spectra: tracemalloc). Localize maps them rather
     # than copying (core.artifacts.read_mapped), but every batch of panoramas reads them all:
     # where they do not fit in memory with the rest, each batch would read them from disk, so
     # they still count whole
@@ -92,7 +105,7 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
                   disk=db + pooled + 48 * views + (1 << 20)),
              Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views
-                  + 11 * min(spectra, 1024 * (w // 2 + 1) * 2 * bins * h * 8) // 2,
+                  + 11 * min(spectra, SPECTRA_BLOCK * (w // 2 + 1) * 2 * bins * h * 8) // 2,
                   disk=(db if panorama else 0) + 48 * views + spectra),
              Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
     return [n for n in needs if n.stage in stages] + decode_need(config, images, 16, "decoding", stages)

@@ -31,6 +31,7 @@ from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
+    SPECTRA_BLOCK,
     PanoramaAnswers,
     chamfer_spectra,
     render_oriented_block,
@@ -210,7 +211,7 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     spread = int(pp.orientation_spread) if bins > 1 else None
     spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * bins * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
-    block = 1024
+    block = SPECTRA_BLOCK   # positions made and written at a time (placeloc.umap.panorama)
     for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
         words = np.ascontiguousarray(db[s:s + block])
         imgs = unpack(words, h, w) if bins == 1 else unpack(words.reshape(len(words), bins, -1), h, w)

@@ -254,3 +254,32 @@ def test_poses_file_lacking_a_query_frame_is_refused_before_any_stage(tmp_path):
     cv2.imwrite(str(tmp_path / "q" / "f8.png"), cv2.imread(str(tmp_path / "q" / "f0.png")))
     with pytest.raises(ConfigError, match=r"poses.csv: no pose for 1 of 9 query frames \(first: f8.png\)"):
         _config(tmp_path)
+
+
+def test_panorama_overlay_draws_each_image_column_at_its_azimuth(tmp_path):
+    """plot_panorama_overlay: detected lines grey, the map at the estimate red, at the truth
+    green, both brown, image column c at its place across the axes (fixed margins: 7 % to
+    98 % of the 1000 px width)."""
+    from PIL import Image
+
+    from placeloc.umap.plots import plot_panorama_overlay
+
+    h, w = 72, 144
+    query, at_est, at_truth = (np.zeros((h, w), np.uint8) for _ in range(3))
+    query[:, 10] = 1
+    at_est[:, 60] = at_est[:, 100] = 1
+    at_truth[:, 100] = at_truth[:, 130] = 1
+    plot_panorama_overlay(tmp_path / "p.png", query, at_est, at_truth, "pano.png: error 0.10 m")
+    img = np.asarray(Image.open(tmp_path / "p.png").convert("RGB")).astype(int)
+    assert img.shape[:2] == (560, 1000)
+    row = img[280]
+
+    def colour_at(col: int) -> np.ndarray:
+        return row[int(round(70 + (col + 0.5) / w * 910))]
+
+    for col, rgb in ((10, (0.55, 0.55, 0.55)),    # grey: detected
+                     (60, (0.85, 0.1, 0.1)),      # red: the map at the estimate
+                     (130, (0.1, 0.65, 0.1)),     # green: at the truth
+                     (100, (0.55, 0.35, 0.0)),    # brown: both
+                     (30, (1.0, 1.0, 1.0))):      # nothing
+        assert np.abs(colour_at(col) - 255 * np.array(rgb)).max() <= 1, (col, colour_at(col))

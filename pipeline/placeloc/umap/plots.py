@@ -23,8 +23,13 @@ def _plt():
 def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray, at_truth: np.ndarray | None,
                           title: str) -> None:
     """One panorama's detected lines (grey) with the map's lines rendered at the estimated
-    pose (red) and at the true pose (green): where they differ shows why a query failed."""
-    plt = _plt()
+    pose (red) and at the true pose (green): where they differ shows why a query failed.
+
+    Drawn on a figure of its own (not pyplot's) with fixed margins: tight_layout drew each
+    picture twice, 126 against 81 ms a picture here, and evaluate draws twelve."""
+    _plt()   # the Agg backend
+    from matplotlib.figure import Figure
+
     h, w = query.shape
     img = np.ones((h, w, 3))
     img[query > 0] = (0.55, 0.55, 0.55)
@@ -33,11 +38,11 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     img[at_estimate > 0] = (0.85, 0.1, 0.1)
     if at_truth is not None:
         img[(at_truth > 0) & (at_estimate > 0)] = (0.55, 0.35, 0.0)
-    fig, ax = plt.subplots(figsize=(10, 5.6))
+    fig = Figure(figsize=(10, 5.6))
+    ax = fig.subplots()
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.1, top=0.9)
     ax.imshow(img, interpolation="nearest", extent=(180, -180, -90, 90), aspect="auto")
     ax.set_xlabel("azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)")
     ax.set_ylabel("elevation [deg]")
     ax.set_title(title + "\ngrey: detected lines; red: map at the estimate; green: map at the truth; brown: both", fontsize=9)
-    fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)

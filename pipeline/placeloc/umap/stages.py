@@ -487,6 +487,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
     z = float(ctx.artifact("index")["poses"][0, 2])
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
+    doubtful = loc["doubtful"][()] if "doubtful" in loc else np.zeros(len(names), bool)
     for k in range(min(len(names), PANORAMA_PICTURES)):
         query = unpack(ex["lines"][k], h, w).max(axis=0)   # oriented channels: their union
         est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
@@ -497,8 +498,10 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
             true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
             at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
         # each render is in the frame of a camera at its own heading, as the query is in its own
+        doubt = (f"; doubtful (margin {loc['margin'][k]:.3f}), its rival at ({loc['rival_x'][k]:.2f}, "
+                 f"{loc['rival_y'][k]:.2f}) m, {loc['rival_heading_deg'][k]:.1f} deg" if doubtful[k] else "")
         plot_panorama_overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), query, at_est, at_truth,
-                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg")
+                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{doubt}")
 
 
 # Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).

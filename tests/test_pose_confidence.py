@@ -236,3 +236,18 @@ def test_true_positions_off_the_map_are_named_with_the_likely_unit():
                     "metres in the map's frame")
     shifted = truth_off_the_map(truth + [100.0, 0.0], walls)
     assert shifted.startswith("4 of 4 true positions lie outside the map") and "times the map's" not in shifted
+
+
+def test_plan_title_counts_what_a_look_at_both_places_finds():
+    # 4 frames: two right (0.3 and 0.9 m off), one 3 m off whose alternative lies 0.5 m from
+    # the truth, one 5 m off whose alternative is 2 m off; NaN rows have no alternative
+    from placeloc.evaluation.pose_estimates import plan_title
+
+    truth = np.zeros((4, 2))
+    est = np.array([[0.3, 0.0], [0.0, 0.9], [3.0, 0.0], [0.0, 5.0]])
+    alt = np.array([[np.nan, np.nan], [np.nan, np.nan], [0.0, 0.5], [2.0, 0.0]])
+    assert plan_title("umap", truth, est, alt) == ("umap: 2 of 4 frames within 1 m, 3 counting the ringed alternatives "
+                                                   "(median error 1.95 m)")
+    # without alternatives (or all NaN) the count stands alone
+    assert plan_title("umap", truth, est) == plan_title("umap", truth, est, np.full((4, 2), np.nan)) == \
+        "umap: 2 of 4 frames within 1 m (median error 1.95 m)"

@@ -119,3 +119,23 @@ def test_equirect_cut_looks_the_right_way():
         assert math.isclose(centre, heading, abs_tol=1.0)
         # to the right of the centre lies a smaller azimuth (azimuth grows counter-clockwise)
         assert view[24, 50] < view[24, 10]
+
+
+def test_pinhole_views_from_kept_maps_equal_views_from_fresh_ones():
+    # equirect_to_pinhole keeps its sampling maps per panorama size, heading, pitch and camera:
+    # interleaved sizes, headings and cameras give what maps built afresh for each call give
+    import placeloc.geometry as geometry
+
+    rng = np.random.default_rng(3)
+    panos = [rng.integers(0, 256, (64, 128), dtype=np.uint8), rng.integers(0, 256, (96, 192), dtype=np.uint8)]
+    calls = [(p, hd, cam, pitch) for p in panos for hd in (0.0, 37.5) for cam in (Camera(32, 24, 60.0), Camera(40, 40, 90.0))
+             for pitch in (0.0, -90.0)]
+    fresh = []
+    for p, hd, cam, pitch in calls:
+        geometry._pinhole_maps.cache_clear()
+        fresh.append(equirect_to_pinhole(p, hd, cam, pitch))
+    kept = [equirect_to_pinhole(p, hd, cam, pitch) for p, hd, cam, pitch in calls + calls[::-1]]
+    assert all(np.array_equal(a, b) for a, b in zip(fresh + fresh[::-1], kept))
+    assert len({a.tobytes() for a in fresh}) == len(calls)   # every call's view is its own
+    map_x, _ = geometry._pinhole_maps(64, 128, 0.0, Camera(32, 24, 60.0), 0.0)
+    assert not map_x.flags.writeable

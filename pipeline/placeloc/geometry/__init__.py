@@ -10,6 +10,7 @@ Pixel (u, v) has its centre at integer coordinates, so the principal point is
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -109,6 +110,16 @@ def equirect_to_pinhole(pano: np.ndarray, heading_deg: float, cam: Camera, pitch
     row 0 is straight up. Bilinear sampling, wrapping around horizontally.
     """
     ph, pw = pano.shape[:2]
+    map_x, map_y = _pinhole_maps(int(ph), int(pw), float(heading_deg), cam, float(pitch_deg))
+    return cv2.remap(pano, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+
+
+@functools.lru_cache(maxsize=32)
+def _pinhole_maps(ph: int, pw: int, heading_deg: float, cam: Camera, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equirect_to_pinhole`'s sampling maps (float32, read-only), kept for the next
+    panorama of the same size: every panorama of a run is cut into the same six cube faces,
+    and building the maps took 2.2 ms of each face's 4.7 (a 256-pixel face of a 1024 x 512
+    panorama), a quarter of UMap's panorama extract."""
     u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
     X = (u - cam.cx) / cam.focal
     Y = (v - cam.cy) / cam.focal
@@ -118,6 +129,8 @@ def equirect_to_pinhole(pano: np.ndarray, heading_deg: float, cam: Camera, pitch
     up = np.sin(p) - Y * np.cos(p)
     az = math.radians(heading_deg) - np.arctan2(X, fz)
     el = np.arctan2(up, np.hypot(X, fz))
-    map_x = ((math.pi - az) / (2 * math.pi) % 1.0) * pw - 0.5
-    map_y = (math.pi / 2 - el) / math.pi * ph - 0.5
-    return cv2.remap(pano, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    map_x = (((math.pi - az) / (2 * math.pi) % 1.0) * pw - 0.5).astype(np.float32)
+    map_y = ((math.pi / 2 - el) / math.pi * ph - 0.5).astype(np.float32)
+    map_x.setflags(write=False)
+    map_y.setflags(write=False)
+    return map_x, map_y

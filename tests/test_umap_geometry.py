@@ -132,10 +132,19 @@ def test_pinhole_views_from_kept_maps_equal_views_from_fresh_ones():
              for pitch in (0.0, -90.0)]
     fresh = []
     for p, hd, cam, pitch in calls:
-        geometry._pinhole_maps.cache_clear()
+        geometry._MAPS.clear()
         fresh.append(equirect_to_pinhole(p, hd, cam, pitch))
     kept = [equirect_to_pinhole(p, hd, cam, pitch) for p, hd, cam, pitch in calls + calls[::-1]]
     assert all(np.array_equal(a, b) for a, b in zip(fresh + fresh[::-1], kept))
     assert len({a.tobytes() for a in fresh}) == len(calls)   # every call's view is its own
     map_x, _ = geometry._pinhole_maps(64, 128, 0.0, Camera(32, 24, 60.0), 0.0)
     assert not map_x.flags.writeable
+    # kept within their budget: the oldest go first, the newest stays
+    budget = geometry.PINHOLE_MAPS_BYTES
+    try:
+        geometry.PINHOLE_MAPS_BYTES = 3 * 2 * 32 * 24 * 4
+        for hd in range(10):
+            equirect_to_pinhole(panos[0], float(hd), Camera(32, 24, 60.0))
+        assert [k[2] for k in geometry._MAPS] == [7.0, 8.0, 9.0]
+    finally:
+        geometry.PINHOLE_MAPS_BYTES = budget

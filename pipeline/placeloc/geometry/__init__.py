@@ -10,8 +10,9 @@ Pixel (u, v) has its centre at integer coordinates, so the principal point is
 
 from __future__ import annotations
 
-import functools
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
@@ -114,12 +115,33 @@ def equirect_to_pinhole(pano: np.ndarray, heading_deg: float, cam: Camera, pitch
     return cv2.remap(pano, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
 
 
-@functools.lru_cache(maxsize=32)
+# equirect_to_pinhole's maps kept, newest last, at most this many bytes (a 256-pixel cube
+# face's pair is 0.5 MB: a run's six faces many times over)
+PINHOLE_MAPS_BYTES = 64 << 20
+_MAPS: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_MAPS_LOCK = threading.Lock()
+
+
 def _pinhole_maps(ph: int, pw: int, heading_deg: float, cam: Camera, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`equirect_to_pinhole`'s sampling maps (float32, read-only), kept for the next
-    panorama of the same size: every panorama of a run is cut into the same six cube faces,
-    and building the maps took 2.2 ms of each face's 4.7 (a 256-pixel face of a 1024 x 512
-    panorama), a quarter of UMap's panorama extract."""
+    panorama of the same size (:data:`PINHOLE_MAPS_BYTES`): every panorama of a run is cut
+    into the same six cube faces, and building the maps took 2.2 ms of each face's 4.7 (a
+    256-pixel face of a 1024 x 512 panorama), a quarter of UMap's panorama extract."""
+    key = (ph, pw, heading_deg, cam, pitch_deg)
+    with _MAPS_LOCK:
+        maps = _MAPS.get(key)
+        if maps is not None:
+            _MAPS.move_to_end(key)
+            return maps
+    maps = _build_pinhole_maps(ph, pw, heading_deg, cam, pitch_deg)
+    with _MAPS_LOCK:
+        _MAPS[key] = maps
+        while len(_MAPS) > 1 and sum(a.nbytes + b.nbytes for a, b in _MAPS.values()) > PINHOLE_MAPS_BYTES:
+            _MAPS.popitem(last=False)
+    return maps
+
+
+def _build_pinhole_maps(ph: int, pw: int, heading_deg: float, cam: Camera, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
     u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
     X = (u - cam.cx) / cam.focal
     Y = (v - cam.cy) / cam.focal

@@ -148,3 +148,50 @@ def test_pinhole_views_from_kept_maps_equal_views_from_fresh_ones():
         assert [k[2] for k in geometry._MAPS] == [7.0, 8.0, 9.0]
     finally:
         geometry.PINHOLE_MAPS_BYTES = budget
+
+
+def _face_line_image_by_segment(segs, cam, hd, pitch, width, height, bins):
+    """The reference: one segment at a time, as the query's line image was drawn before."""
+    import math
+
+    from placeloc.geometry.panorama import _face_rays, orientation_bits
+
+    img = np.zeros((height, width), np.uint8)
+    for x0, y0, x1, y1 in segs:
+        n = int(math.ceil(2.0 * math.hypot(x1 - x0, y1 - y0))) + 1
+        t = np.linspace(0.0, 1.0, n)
+        az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, hd, pitch)
+        fu = ((math.pi - az) / (2 * math.pi) % 1.0) * width
+        fv = (math.pi / 2 - el) / math.pi * height
+        u = np.floor(fu).astype(np.int64) % width
+        v = np.clip(np.floor(fv).astype(np.int64), 0, height - 1)
+        if bins >= 1:
+            du = np.gradient(np.unwrap(fu, period=width)) if n > 1 else np.zeros(1)
+            dv = np.gradient(fv) if n > 1 else np.zeros(1)
+            np.bitwise_or.at(img, (v, u), orientation_bits(du, dv, bins))
+        else:
+            img[v, u] = 1
+    return img
+
+
+def test_face_samples_all_at_once_equal_one_segment_at_a_time():
+    # random segments on every cube face, the back face's (heading 180) crossing the
+    # panorama's seam, short ones (one to three samples) among them: the same pixels and
+    # orientation bits as the loop over segments
+    from placeloc.geometry.panorama import CUBE_FACES, face_samples, orientation_bits
+
+    rng = np.random.default_rng(5)
+    cam = Camera(256, 256, 90.0)
+    for hd, pitch in CUBE_FACES:
+        segs = rng.uniform(0, 255, (60, 4))
+        segs[:5, 2:] = segs[:5, :2] + rng.uniform(-0.6, 0.6, (5, 2))    # one to three samples
+        segs[5:10] = [[20, 128, 240, 130], [128, 10, 128, 250], [0, 0, 255, 255], [127.5, 0, 127.5, 255], [255, 0, 0, 255]]
+        for bins in (6, 0):
+            want = _face_line_image_by_segment(segs, cam, hd, pitch, 144, 72, bins)
+            v, u, du, dv = face_samples(segs, cam, hd, pitch, 144, 72)
+            got = np.zeros((72, 144), np.uint8)
+            if bins:
+                np.bitwise_or.at(got, (v, u), orientation_bits(du, dv, bins))
+            else:
+                got[v, u] = 1
+            assert np.array_equal(got, want), (hd, pitch, bins)

@@ -188,7 +188,8 @@ def test_face_samples_all_at_once_equal_one_segment_at_a_time():
         segs[5:10] = [[20, 128, 240, 130], [128, 10, 128, 250], [0, 0, 255, 255], [127.5, 0, 127.5, 255], [255, 0, 0, 255]]
         for bins in (6, 0):
             want = _face_line_image_by_segment(segs, cam, hd, pitch, 144, 72, bins)
-            v, u, du, dv = face_samples(segs, cam, hd, pitch, 144, 72)
+            v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, 144, 72)
+            assert np.array_equal(np.bincount(seg, minlength=len(segs)), [int(np.ceil(2 * np.hypot(*(s[2:] - s[:2])))) + 1 for s in segs])
             got = np.zeros((72, 144), np.uint8)
             if bins:
                 np.bitwise_or.at(got, (v, u), orientation_bits(du, dv, bins))

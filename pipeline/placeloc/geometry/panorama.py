@@ -423,11 +423,22 @@ def panorama_lines(pano: np.ndarray, *, face_px: int, min_length: float) -> list
     return out
 
 
+def _world_vertical(seg: np.ndarray, pitch_deg: float, face_px: int) -> bool:
+    """Whether a cube face's segment is a vertical line of the world: vertical in the image
+    on an upright face, through the image centre on the up and down faces."""
+    x0, y0, x1, y1 = (float(c) for c in seg)
+    if pitch_deg == 0.0:
+        return abs(x1 - x0) <= math.tan(math.radians(10.0)) * abs(y1 - y0)
+    c = (face_px - 1) / 2.0
+    dx, dy = x1 - x0, y1 - y0
+    return abs(dx * (c - y0) - dy * (c - x0)) / max(math.hypot(dx, dy), 1e-9) <= 0.05 * face_px
+
+
 def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: float, width: int,
-                 height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The equirectangular samples of a cube face's LSD segments (``segs`` (N, 4) face
-    pixels, N >= 1), all at once: their pixel rows and columns and the curve's tangent
-    (columns, rows) at each. Each segment is sampled at ``ceil(2 length) + 1`` points, as
+    pixels, N >= 1), all at once: their pixel rows and columns, the curve's tangent
+    (columns, rows) at each, and the segment each belongs to. Each segment is sampled at ``ceil(2 length) + 1`` points, as
     ``np.linspace(0, 1, n)`` spaces them, its columns unwrapped across the seam
     (``np.unwrap``, period ``width``) and differentiated (``np.gradient``) within the
     segment alone: the same operations as one segment at a time, the same numbers (tested
@@ -462,7 +473,7 @@ def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: f
     for j in np.unique(seg[1:][correct != 0.0]):
         a, b = starts[j], ends[j]
         unwrapped[a + 1:b] = fu[a + 1:b] + np.cumsum(correct[a:b - 1])
-    return v, u, _segment_gradient(unwrapped, starts, ends), _segment_gradient(fv, starts, ends)
+    return v, u, _segment_gradient(unwrapped, starts, ends), _segment_gradient(fv, starts, ends), seg
 
 
 def _segment_gradient(f: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -492,37 +503,14 @@ def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: i
     bins = int(orientation_bins)
     img = np.zeros((2 if split else 1, height, width), np.uint8)
     for (hd, pitch), segs in zip(CUBE_FACES, panorama_lines(pano, face_px=face_px, min_length=min_length)):
-        if not split:
-            if len(segs):
-                v, u, du, dv = face_samples(segs, cam, hd, pitch, width, height)
-                if bins >= 1:
-                    np.bitwise_or.at(img[0], (v, u), orientation_bits(du, dv, bins))
-                else:
-                    img[0, v, u] = 1
+        if not len(segs):
             continue
-        for x0, y0, x1, y1 in segs:
-            n = int(math.ceil(2.0 * math.hypot(x1 - x0, y1 - y0))) + 1
-            t = np.linspace(0.0, 1.0, n)
-            az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, hd, pitch)
-            fu = ((math.pi - az) / (2 * math.pi) % 1.0) * width
-            fv = (math.pi / 2 - el) / math.pi * height
-            u = np.floor(fu).astype(np.int64) % width
-            v = np.clip(np.floor(fv).astype(np.int64), 0, height - 1)
-            if bins >= 1 and not split:
-                # the curve's tangent in image pixels; columns unwrapped across the seam
-                du = np.gradient(np.unwrap(fu, period=width)) if n > 1 else np.zeros(1)
-                dv = np.gradient(fv) if n > 1 else np.zeros(1)
-                np.bitwise_or.at(img[0], (v, u), orientation_bits(du, dv, bins))
-                continue
-            ch = 0
-            if split:
-                if pitch == 0.0:  # upright face: vertical world lines are vertical in the image
-                    vert = abs(x1 - x0) <= math.tan(math.radians(10.0)) * abs(y1 - y0)
-                else:  # up/down face: vertical world lines run through the image centre
-                    c = (face_px - 1) / 2.0
-                    dx, dy = x1 - x0, y1 - y0
-                    dist = abs(dx * (c - y0) - dy * (c - x0)) / max(math.hypot(dx, dy), 1e-9)
-                    vert = dist <= 0.05 * face_px
-                ch = 0 if vert else 1
-            img[ch, v, u] = 1
+        v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, width, height)
+        if split:
+            vertical = np.array([_world_vertical(s, pitch, face_px) for s in segs], bool)
+            img[np.where(vertical[seg], 0, 1), v, u] = 1
+        elif bins >= 1:
+            np.bitwise_or.at(img[0], (v, u), orientation_bits(du, dv, bins))
+        else:
+            img[0, v, u] = 1
     return img if split else img[0]

@@ -438,12 +438,15 @@ def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: f
                  height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The equirectangular samples of a cube face's LSD segments (``segs`` (N, 4) face
     pixels, N >= 1), all at once: their pixel rows and columns, the curve's tangent
-    (columns, rows) at each, and the segment each belongs to. Each segment is sampled at ``ceil(2 length) + 1`` points, as
-    ``np.linspace(0, 1, n)`` spaces them, its columns unwrapped across the seam
-    (``np.unwrap``, period ``width``) and differentiated (``np.gradient``) within the
-    segment alone: the same operations as one segment at a time, the same numbers (tested
-    against that loop; the same line images on 360 generated panoramas), at a third of its
-    time (34 -> 13 ms a 1024 x 512 panorama: the loop was 170 segments of Python)."""
+    (columns, rows) at each, and the segment each belongs to.
+
+    Each segment is sampled at ``ceil(2 length) + 1`` points as ``np.linspace(0, 1, n)``
+    spaces them, its columns unwrapped across the seam (``np.unwrap``, period ``width``) and
+    differentiated (``np.gradient``) within the segment alone: the same operations as one
+    segment at a time, so the same numbers (tested against that loop; the same line images
+    on 360 generated panoramas). Why: the loop was about 170 segments of Python a
+    panorama, held the GIL, and took a 1024 x 512 panorama's line image 19.5 ms against
+    12.6 now."""
     n = np.array([int(math.ceil(2.0 * math.hypot(x1 - x0, y1 - y0))) + 1 for x0, y0, x1, y1 in segs], np.int64)
     ends = np.cumsum(n)
     starts = ends - n

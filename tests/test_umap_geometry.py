@@ -196,3 +196,15 @@ def test_face_samples_all_at_once_equal_one_segment_at_a_time():
             else:
                 got[v, u] = 1
             assert np.array_equal(got, want), (hd, pitch, bins)
+
+
+def test_rooms_at_names_the_room_of_each_point():
+    from placeloc.geometry.floorplan import floor_plan_model, rooms_at
+
+    plan = {"floor_z": 0.0, "ceiling_z": 2.5,
+            "rooms": [{"name": "kitchen", "polygon": [[0, 0], [4, 0], [4, 3], [0, 3]]},
+                      {"polygon": [[4, 0], [7, 0], [7, 3], [4, 3]]}]}
+    m = floor_plan_model(plan)
+    assert m.room_names == ["kitchen", "room 1"]   # a room without a name is named by its place in the list
+    pts = np.array([[1.0, 1.0], [5.5, 2.0], [9.0, 1.0], [np.nan, 1.0]])
+    assert rooms_at(pts, m.polygons, m.room_names) == ["kitchen", "room 1", "", ""]

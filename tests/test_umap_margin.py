@@ -132,6 +132,9 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
         alternative = read_result(d / "run" / "localize.h5").get("alternative")
         metrics = json.loads((d / "run" / "metrics.json").read_text())
         if doubtful:
+            # the answer and its rival are in the two rooms, named as the plan names them
+            assert {row["room"], row["rival_room"]} == {"a", "b"}, row
+            assert f"p0.png ({row['room']}, or {row['rival_room']})" in caplog.text
             # the rival is the answer's spot moved into the other room, and is the contract's alternative
             assert np.hypot(*(rival - est - [6.0 if est[0] < 5.0 else -6.0, 0.0])) <= 0.1, row
             assert np.allclose(alternative, [[round(v, 3) for v in rival]], atol=1e-3)

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import yaml
@@ -81,6 +81,7 @@ class Model:
     camera_z: float | None = None   # the camera height the plan was drawn for (importer, generator), if known
     gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (G, 4) door/opening ends x0 y0 x1 y1
     internal: list[np.ndarray] = field(default_factory=list)            # wall blocks inside rooms (ZInD "internal")
+    room_names: list[str] = field(default_factory=list)                 # a multi-room plan's, one per polygon
 
     def inside(self, xy: np.ndarray) -> np.ndarray:
         """True for plan points inside the outline and outside every obstacle, or inside any
@@ -289,12 +290,14 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
     segs: list[list[float]] = []
     faces: list[list[float]] = []
     polys = []
+    names = []
     internal = []
     for r, room in enumerate(rooms):
         what = f"rooms[{r}]" + (f" ({room.get('name')})" if isinstance(room, dict) and room.get("name") else "")
         if not isinstance(room, dict) or "polygon" not in room:
             raise ModelError(f"{source}: {what} needs a polygon: [[x, y], ...]")
         poly = _poly(room["polygon"], source, f"{what}.polygon")
+        names.append(str(room.get("name") or f"room {r}"))
         zf = _num(room, "floor_z", zf0, source, what)
         zc = _num(room, "ceiling_z", zc0, source, what)
         if zc <= zf:
@@ -344,7 +347,23 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
     _warn_unattached(source, plan, polys, openings, windows)
     gaps = np.array([[*p, *q] for p, q, _h in openings], float).reshape(-1, 4)
     return Model(np.asarray(segs, float), np.asarray(faces, float).reshape(-1, 6), polygons=polys, source=source, rooms=True,
-                 camera_z=camera_z, gaps=gaps, internal=internal)
+                 camera_z=camera_z, gaps=gaps, internal=internal, room_names=names)
+
+
+def rooms_at(xy: np.ndarray, polygons: Sequence[np.ndarray], names: Sequence[str]) -> list[str]:
+    """The name of the room each plan point (P, 2) lies in (the first whose polygon holds
+    it; "" outside every room or at NaN): how a person reads an answer off a floor plan."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    out = [""] * len(xy)
+    ok = np.isfinite(xy).all(axis=1)
+    for poly, name in zip(polygons, names):
+        inside = np.zeros(len(xy), bool)
+        if ok.any():
+            inside[ok] = point_in_polygon(xy[ok], np.asarray(poly, float))
+        for i in np.flatnonzero(inside):
+            if not out[i]:
+                out[i] = str(name)
+    return out
 
 
 _WARNED: set[tuple[Any, ...]] = set()  # each element of each plan warned about once a process

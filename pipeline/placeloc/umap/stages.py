@@ -27,7 +27,7 @@ from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import PoseEvaluation
 from placeloc.evaluation.pose_estimates import right_answers, yaw_errors
 from placeloc.geometry import Camera
-from placeloc.geometry.floorplan import ModelError, load_model, plan_grid
+from placeloc.geometry.floorplan import ModelError, load_model, plan_grid, rooms_at
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
@@ -145,6 +145,8 @@ def build_dictionary(ctx: Any) -> None:
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
+    if model.room_names:  # polygon_i's room (a multi-room plan): answers are read off the plan by room
+        write_tree(ctx.out, {"room_names": list(model.room_names)})
     ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
                          kind="panorama" if p.query_kind == "panorama" else "pinhole",
                          dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px), orientation_bins=bins)
@@ -393,6 +395,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
     rival_heading = found.rival_heading if found.rival_heading is not None else nan
     # NaN (no rival scored) is not doubtful: nothing else was a candidate
     doubtful = margin < ctx.params.panorama.doubtful_margin
+    room, rival_room = _rooms(ctx, est[:, :2]), _rooms(ctx, rival_xy)
     _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin,
                   np.where(doubtful[:, None], rival_xy, np.nan))
     write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
@@ -402,18 +405,34 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                          "umap_x": est[:, 0], "umap_y": est[:, 1], "umap_score": score})
     ctx.out.attrs.update(mode=ctx.params.mode, anchor=-1)
     if doubtful.any():
+        def either(k: int) -> str:   # "pano_013.png (bedroom1, or bedroom2)" where the plan names its rooms
+            places = [r for r in (room[k], rival_room[k]) if r]
+            return names[k] + (f" ({places[0]}, or {places[1]})" if len(places) == 2 else "")
+
         log.warning("%d of %d answers are doubtful (margin below umap.panorama.doubtful_margin %g: another place or "
-                    "heading scores nearly as well; estimates.csv gives each one's rival as rival_x, rival_y, rival_heading_deg): %s",
-                    int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
-                    ", ".join(names[k] for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
+                    "heading scores nearly as well; estimates.csv gives each one's rival as rival_x, rival_y, "
+                    "rival_heading_deg and rival_room): %s", int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
+                    ", ".join(either(k) for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y",
-                    "rival_heading_deg"])
+                    "rival_heading_deg", "room", "rival_room"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}",
                         _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
-                        _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1)])
+                        _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1),
+                        room[k], rival_room[k]])
+
+
+def _rooms(ctx: Any, xy: np.ndarray) -> list[str]:
+    """The plan's room name at each point ("" outside every room, or where the plan names
+    none: a wireframe, or a build-dictionary of before room names were kept)."""
+    src = ctx.artifact("build-dictionary")
+    if "room_names" not in src or "plan" not in src:
+        return [""] * len(xy)
+    names = read_strings(src["room_names"])
+    polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
+    return rooms_at(xy, polygons, names)
 
 
 def _csv_number(x: float, decimals: int = 5) -> str:

@@ -479,11 +479,9 @@ def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.nd
     count before it."""
     err = np.hypot(*(np.asarray(est, float) - truth).T)
     either = ""
-    alt = None if alternative is None else np.asarray(alternative, float).reshape(-1, 2)
-    if alt is not None and np.isfinite(alt).all(axis=1).any():
-        has = np.isfinite(alt).all(axis=1)
-        near = np.zeros(len(err), bool)
-        near[has] = np.hypot(*(alt[has] - truth[has]).T) <= 1.0
+    if alternative is not None and np.isfinite(alternative).all(axis=1).any():
+        with np.errstate(invalid="ignore"):   # NaN rows: no alternative, never near
+            near = np.hypot(*(np.asarray(alternative, float).reshape(-1, 2) - truth).T) <= 1.0
         either = f", {int(np.sum((err <= 1.0) | near))} counting the ringed alternatives"
     return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either} (median error {np.median(err):.2f} m)"
 

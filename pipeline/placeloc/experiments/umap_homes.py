@@ -217,17 +217,20 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
             homes[f"home{seed}-origin{i}-panorama-chamfer"] = _run(out_dir, f"home{seed}-origin{i}", data, SWEEP[chosen], frac,
                                                                    quiet)
     write_summary(out_dir, {**runs, **homes, "chosen": {"setting": chosen}})
-    per_home = {s: [m["within_1m_30deg"] for k, m in homes.items() if k.startswith(f"home{s}-")]
-                for s in (TEST_SEEDS[:2] if quick else TEST_SEEDS)}
-    table = lines + ["", "Test homes (seeds " + ", ".join(map(str, per_home)) + "), the chosen setting, each grid origin:", ""]
+    seeds = TEST_SEEDS[:2] if quick else TEST_SEEDS
+
+    def per_home(key: str, missing: float | None = None) -> str:
+        """Each test home's ``key`` share at each origin (``missing``, if given, where a run
+        has none: runs from before the rival metrics)."""
+        return "; ".join(f"{s}: " + " / ".join(f"{m[key] if missing is None else m.get(key, missing):.0%}"
+                                                for k, m in homes.items() if k.startswith(f"home{s}-")) for s in seeds)
+
+    table = lines + ["", "Test homes (seeds " + ", ".join(map(str, seeds)) + "), the chosen setting, each grid origin:", ""]
     table += home_table(homes)
-    table += ["", "Per test home, share within 1 m and 30 deg at each origin: "
-              + "; ".join(f"{s}: {' / '.join(f'{x:.0%}' for x in v)}" for s, v in per_home.items())]
+    table += ["", "Per test home, share within 1 m and 30 deg at each origin: " + per_home("within_1m_30deg")]
     # what a user who checks both places of every doubtful answer finds (docs/umap.md)
-    either = {s: [m.get("within_1m_30deg_or_rival", float("nan")) for k, m in homes.items() if k.startswith(f"home{s}-")]
-              for s in per_home}
     table += ["", "Per test home, the answer or (doubtful answers) its rival within 1 m and 30 deg: "
-              + "; ".join(f"{s}: {' / '.join(f'{x:.0%}' for x in v)}" for s, v in either.items())]
+              + per_home("within_1m_30deg_or_rival", float("nan"))]
     (out_dir / "table.md").write_text("\n".join(table) + "\n")
     if not quiet:
         print("\n".join(table))

@@ -917,11 +917,10 @@ class PanoramaAnswers(NamedTuple):
     heading: np.ndarray   # (N,) degrees
     score: np.ndarray     # (N,) the answer's score
     rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_pose`)
+    rival_xy: np.ndarray  # (N, 2) where that rival stands (NaN: no rival)
+    rival_heading: np.ndarray  # (N,) and the way it faces, degrees
     # (N,) the best score before the final search (refine_final_m), None: the score itself
     before_final: np.ndarray | None = None
-    # (N, 2) and (N,) degrees: where that rival stands and faces (NaN: no rival), None: not kept
-    rival_xy: np.ndarray | None = None
-    rival_heading: np.ndarray | None = None
 
     @property
     def margin(self) -> np.ndarray:
@@ -1525,5 +1524,5 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     est = poses[best, :2].copy()
     ok = ~np.isnan(refined_xy[:, 0])
     est[ok] = refined_xy[ok]
-    return PanoramaAnswers(best, est, heading, score, rival, np.where(np.isnan(before_final), score, before_final),
-                           rival_xy, rival_heading)
+    return PanoramaAnswers(best, est, heading, score, rival, rival_xy, rival_heading,
+                           np.where(np.isnan(before_final), score, before_final))

@@ -31,7 +31,6 @@ from placeloc.geometry.floorplan import ModelError, load_model, plan_grid, rooms
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
-    SPECTRA_BLOCK,
     PanoramaAnswers,
     chamfer_spectra,
     render_oriented_block,
@@ -213,7 +212,7 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     spread = int(pp.orientation_spread) if bins > 1 else None
     spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * bins * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
-    block = SPECTRA_BLOCK   # positions made and written at a time (placeloc.umap.panorama)
+    block = umap_resources.SPECTRA_BLOCK   # positions made and written at a time (its why: there)
     for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
         words = np.ascontiguousarray(db[s:s + block])
         imgs = unpack(words, h, w) if bins == 1 else unpack(words.reshape(len(words), bins, -1), h, w)
@@ -391,11 +390,10 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
     est = np.column_stack([found.xy, poses[found.best, 2:]])
     heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
     nan = np.full(n, np.nan)
-    rival_xy = found.rival_xy if found.rival_xy is not None else np.full((n, 2), np.nan)
-    rival_heading = found.rival_heading if found.rival_heading is not None else nan
+    rival_xy, rival_heading = found.rival_xy, found.rival_heading
     # NaN (no rival scored) is not doubtful: nothing else was a candidate
     doubtful = margin < ctx.params.panorama.doubtful_margin
-    room, rival_room = _rooms(ctx, est[:, :2]), _rooms(ctx, rival_xy)
+    room, rival_room = _rooms(ctx, est[:, :2], rival_xy)
     _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin,
                   np.where(doubtful[:, None], rival_xy, np.nan))
     write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
@@ -424,15 +422,16 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                         room[k], rival_room[k]])
 
 
-def _rooms(ctx: Any, xy: np.ndarray) -> list[str]:
-    """The plan's room name at each point ("" outside every room, or where the plan names
-    none: a wireframe, or a build-dictionary of before room names were kept)."""
+def _rooms(ctx: Any, *points: np.ndarray) -> list[list[str]]:
+    """The plan's room name at each point of each (P, 2) array ("" outside every room, or
+    where the plan names none: a wireframe, or a build-dictionary of before room names were
+    kept); the plan read once for all."""
     src = ctx.artifact("build-dictionary")
     if "room_names" not in src or "plan" not in src:
-        return [""] * len(xy)
+        return [[""] * len(xy) for xy in points]
     names = read_strings(src["room_names"])
     polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
-    return rooms_at(xy, polygons, names)
+    return [rooms_at(xy, polygons, names) for xy in points]
 
 
 def _csv_number(x: float, decimals: int = 5) -> str:

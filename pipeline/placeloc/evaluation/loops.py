@@ -349,20 +349,29 @@ def finish(ctx: Any, ev: LoopEvaluation, plots: bool = True) -> None:
                f"frames close a loop; pairs < {m['exclude_recent']} frames apart never count)",
          xlabel="recall (share of the frames that close a loop, closed correctly)")
     if "seconds" in res and "map_size" in res and len(res["seconds"]):
-        plot_time_per_frame(ctx.output("time_per_frame.png"), res["map_size"], res["seconds"], ev.label)
+        draw(plot_time_per_frame, ctx.output("time_per_frame.png"), res["map_size"], res["seconds"], ev.label)
 
 
 def plot_time_per_frame(path: Path, map_size: np.ndarray, seconds: np.ndarray, label: str) -> Path:
-    from placeloc.evaluation.plots import _save, plt
+    """Each frame's loop-closure time against the map's size when it arrived: does the
+    method slow down as the map grows. Drawn in pixels (:mod:`.raster`)."""
+    from placeloc.evaluation import raster as R
 
-    fig, ax = plt.subplots(figsize=(6.0, 4.0))
-    ax.plot(map_size, np.asarray(seconds) * 1e3, ".", ms=3, alpha=0.6, label=label)
-    ax.set_xlabel("map size when the frame arrived")
-    ax.set_ylabel("time per frame [ms]")
-    ax.set_title("Loop-closure time per frame against the size of the map", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    x = np.asarray(map_size, np.float64)
+    ms = np.asarray(seconds, np.float64) * 1e3
+    ok = np.isfinite(x) & np.isfinite(ms)
+    xhi = float(x[ok].max()) if ok.any() else 1.0
+    yhi = float(ms[ok].max()) if ok.any() else 1.0
+    xlim, ylim = (0.0, max(xhi, 1.0) * 1.03), (0.0, max(yhi, 1e-3) * 1.05)
+    c = R.Canvas(660, 440)
+    ax = R.Axes(c, (80, 36, 640, 376), xlim, ylim)
+    ax.frame(R.nice_ticks(*xlim, most=7), R.nice_ticks(*ylim, most=7), size=12)
+    ax.labels("map size when the frame arrived", "time per frame [ms]",
+              "Loop-closure time per frame against the size of the map", size=13, title_size=14)
+    ax.markers(x[ok], ms[ok], R.CYCLE[0], "o", 4.0)
+    ax.legend([R.LegendEntry(f"{label} ({int(ok.sum())} frames)", R.CYCLE[0], marker="o", marker_size=5)],
+              "upper left", size=12)
+    return c.save(path)
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:

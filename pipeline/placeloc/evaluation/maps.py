@@ -167,7 +167,9 @@ def finish(ctx: Any, ev: MapEvaluation, plots: bool = True) -> None:
         for f, e, t in zip(ev.eval_ids, ev.est, ev.truth):
             w.writerow([int(f), *(f"{v:.6g}" for v in e), *(f"{v:.6g}" for v in t), f"{np.linalg.norm(e - t):.6g}"])
     if plots:
-        draw(ctx.output("map.png"), ev)
+        from placeloc.evaluation.pictures import draw as draw_on_thread  # beside the stage's other work
+
+        draw_on_thread(draw, ctx.output("map.png"), ev)
 
 
 def draw(path: Path, ev: MapEvaluation) -> Path:
@@ -220,36 +222,54 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
 
 def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
              path_truth: np.ndarray | None, title: str, units: str) -> Path:
-    """Top view of the map: a 3-D map is drawn from above (first and last axis: x and depth)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
+    """Top view of the map: a 3-D map is drawn from above (first and last axis: x and
+    depth). Equal scales unless that would squash the picture into a strip (a forward-looking
+    camera: depth >> width), which the y label then says. Drawn in pixels (:mod:`.raster`)."""
+    from placeloc.evaluation import raster as R
 
     ax0, ax1 = 0, truth.shape[1] - 1
     names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    if path_truth is not None:
-        ax.plot(path_truth[:, 0], path_truth[:, 1], color="0.25", lw=1.3, label="true path", zorder=3)
-    if path_est is not None:
-        ax.plot(path_est[:, 0], path_est[:, 1], color="tab:orange", lw=0.7, alpha=0.7, label="estimated path", zorder=2)
-    segs = np.stack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]], axis=1)
-    ax.add_collection(LineCollection(segs, colors="tab:green", lw=0.8, label="error (estimate to truth)"))
-    ax.scatter(truth[:, ax0], truth[:, ax1], s=14, facecolors="none", edgecolors="0.4", lw=0.7, label="true position")
-    ax.scatter(est[:, ax0], est[:, ax1], s=10, color="tab:blue", label="estimated position")
-    ax.scatter(landmarks[:, ax0], landmarks[:, ax1], s=40, marker="s", color="tab:red", label="landmark (known)")
-    pts = np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]]])
-    span = np.ptp(pts, axis=0) + 1e-12
-    # Equal scales unless that would squash the figure into a strip (a forward-looking camera: depth >> width).
+    pts = np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]].reshape(-1, 2)]
+                    + [p[:, :2] for p in (path_est, path_truth) if p is not None and len(p)])
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(2), np.ones(2))
+    span = np.maximum(hi - lo, 1e-9)
     to_scale = max(span) / min(span) < 3.0
-    if to_scale:
-        ax.set_aspect("equal")
-    ax.set_xlabel(f"{names[0]} ({units})")
-    ax.set_ylabel(f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"))
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
-    from placeloc.evaluation.plots import _save
-
-    return _save(fig, path, dpi=120)
+    lo, hi = lo - 0.05 * span, hi + 0.05 * span
+    span = hi - lo
+    box_w, box_h = 620.0, 620.0
+    if to_scale:  # the longer side takes the whole box
+        box_w, box_h = (box_w, box_w * span[1] / span[0]) if span[0] >= span[1] else (box_h * span[0] / span[1], box_h)
+    grey, orange, green, blue, red = (64, 64, 64), R.CYCLE[1], R.CYCLE[2], R.CYCLE[0], R.CYCLE[3]
+    entries = ([R.LegendEntry("true path", grey, line_width=1.8)] if path_truth is not None else []) + (
+        [R.LegendEntry("estimated path", orange, line_width=1.2)] if path_est is not None else []) + [
+        R.LegendEntry("error (estimate to truth)", green, line_width=1.2),
+        R.LegendEntry("true position", (102, 102, 102), marker="O", marker_size=6.5),
+        R.LegendEntry("estimated position", blue, marker="o", marker_size=5.5),
+        R.LegendEntry("landmark (known)", red, marker="s", marker_size=9)]
+    lines = title.split("\n")
+    width = int(max(box_w + 110, max(R.text_width(t, 13) for t in lines) + 40, 560))
+    rows = R.legend_rows(entries, width - 40, size=12)
+    top = 20.0 + 17.0 * len(lines)
+    c = R.Canvas(width, int(top + box_h + 56 + R.legend_row_height(12) * len(rows) + 8))
+    left = round(80 + max(0.0, (width - 110 - box_w) / 2))
+    box = (left, round(top), round(left + box_w), round(top + box_h))
+    ax = R.Axes(c, box, (lo[0], hi[0]), (lo[1], hi[1]))
+    xt = R.nice_ticks(lo[0], hi[0], most=7)
+    yt = R.nice_ticks(lo[1], hi[1], most=7)
+    ax.frame(xt, yt, size=11)
+    ax.labels(f"{names[0]} ({units})", f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"), size=12)
+    for i, t in enumerate(lines):
+        c.text(width / 2, 24 + 17 * i, t, 13, anchor="ms")
+    if path_est is not None:
+        ax.line(path_est[:, 0], path_est[:, 1], orange, 1.2)
+    if path_truth is not None:
+        ax.line(path_truth[:, 0], path_truth[:, 1], grey, 1.8)
+    ax.segments(est[:, ax0], est[:, ax1], truth[:, ax0], truth[:, ax1], green, 1.2)
+    ax.markers(truth[:, ax0], truth[:, ax1], (102, 102, 102), "O", 6.5, edge=1.2)
+    ax.markers(est[:, ax0], est[:, ax1], blue, "o", 5.5)
+    if len(landmarks):
+        ax.markers(landmarks[:, ax0], landmarks[:, ax1], red, "s", 9)
+    ax.box()
+    R.draw_legend_rows(c, rows, box[3] + 50, size=12)
+    return c.save(path)

@@ -1,9 +1,10 @@
 """Plots a person would rather look at than read (PNG).
 
 The pictures evaluate draws on every run (precision-recall, Recall@N, the difference
-matrices) are drawn with :mod:`placeloc.evaluation.raster` (Pillow), in milliseconds;
-the rarer ones (sweeps, the other contracts' figures through :func:`_save`) with
-matplotlib's Agg backend, imported only when one of them is drawn.
+matrices here; the poses, map and loop-closure contracts' and the methods' own beside
+them) are drawn with :mod:`placeloc.evaluation.raster` (Pillow), in milliseconds. Only a
+sweep's summary (:func:`plot_sweep`, once a sweep) uses matplotlib's Agg backend,
+imported when it is drawn.
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from placeloc.core.safe_io import read_run_table
+from placeloc.evaluation import raster as R
 from placeloc.evaluation.contracts import Field, PoseEvaluation, Result, write_result
 
 # common config sections the evaluate stage reads
@@ -328,16 +329,18 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
                        + ([] if confidence is None else ["" if np.isnan(confidence[k]) else f"{confidence[k]:.5f}"]))
     if not plots:
         return
+    from placeloc.evaluation.pictures import draw  # on threads beside the stage's other work (pictures.py)
+
     label = ev.label
-    plot_error_cdf(ctx.output("error_cdf.png"), ev.err, label)
-    plot_estimates_on_plan(ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
-                           ev.truth_heading, res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
+    draw(plot_error_cdf, ctx.output("error_cdf.png"), ev.err, label)
+    draw(plot_estimates_on_plan, ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
+         ev.truth_heading, res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
     if confidence is not None:
         from placeloc.evaluation.plots import plot_kept_precision
 
         right = right_answers(ev.err, ev.yaw_err)
         curve = confidence_curve(confidence, right)
-        plot_kept_precision(ctx.output("confidence.png"), curve.kept, curve.right, curve.n,
+        draw(plot_kept_precision, ctx.output("confidence.png"), curve.kept, curve.right, curve.n,
                             confidence_label=_confidence_label(res), label=label,
                             right_means="within 1 m and 30°" if ev.yaw_err is not None else "within 1 m",
                             kept_at_100=int(curve.kept[curve.last_all_right]) if curve.last_all_right >= 0 else 0,
@@ -394,83 +397,74 @@ def worst_wrong(err_m: np.ndarray, wrong: np.ndarray, limit: int = NAMED_WRONG) 
     return [int(k) for k in np.argsort(-np.asarray(err_m, float), kind="stable") if wrong[k]][:limit]
 
 
-def _plt():  # noqa: ANN202
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+# the error axis' ticks, where they fall within it: plain numbers on a log scale
+ERROR_TICKS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
+GREEN, ORANGE, BLUE, RED = R.CYCLE[2], R.CYCLE[1], R.CYCLE[0], R.CYCLE[3]
 
 
-def _error_axis(ax: Any, largest: float) -> None:
-    """A log error axis from 1 cm with plain-number ticks, to past ``largest`` (at least 2 m)."""
-    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
-
-    ax.set_xscale("log")
+def _error_axes(c: R.Canvas, box: tuple[float, float, float, float], largest: float, title: str) -> R.Axes:
+    """A log error axis from 1 cm to past ``largest`` (at least 2 m) with plain-number
+    ticks, shares 0 to 1 up the side, framed and labelled."""
     lo, hi = 0.01, max(2.0, float(largest) * 1.5)
-    ax.set_xlim(lo, hi)
-    ticks = [t for t in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100) if lo <= t <= hi]
-    ax.xaxis.set_major_locator(FixedLocator(ticks))
-    ax.xaxis.set_minor_locator(NullLocator())
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    ax.set_ylim(0, 1.02)
+    ax = R.Axes(c, box, (lo, hi), (0.0, 1.02), xlog=True)
+    ticks = [t for t in ERROR_TICKS if lo <= t <= hi]
+    shares = np.round(np.arange(0, 1.01, 0.2), 1)
+    ax.frame(ticks, shares, xlabels=[f"{t:g}" for t in ticks], size=12)
+    ax.labels("position error [m] (log scale)", "share of frames", title, size=13, title_size=14)
+    return ax
 
 
-def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> None:
+def _cdf_steps(err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cumulative share of ``err`` (floored at 1 cm for the log axis) as the corners of
+    its steps: at each sorted error the share rises to include it."""
+    e = np.sort(np.maximum(np.asarray(err, float), 0.01))
+    share = np.arange(1, len(e) + 1) / len(e)
+    return np.repeat(e, 2)[1:], np.repeat(share, 2)[:-1]
+
+
+def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> Path:
     """Share of frames within each error, on a log axis with plain-number ticks, the 0.5 m
     and 1 m marks labelled with their shares."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 4))
-    e = np.sort(np.maximum(np.asarray(err, float), 0.01))
-    ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, color="tab:blue")
-    _error_axis(ax, e.max())
-    for mark, colour in ((0.5, "tab:green"), (1.0, "tab:orange")):
-        share = float(np.mean(np.asarray(err) <= mark))
-        ax.axvline(mark, color=colour, ls="--", lw=1.2)
-        ax.text(mark * 1.05, 0.05 if mark < 1 else 0.15, f"{share:.0%} within {mark:g} m", color=colour, fontsize=9)
-    ax.set_xlabel("position error [m] (log scale)")
-    ax.set_ylabel("share of frames")
-    ax.set_title(f"Cumulative position error, {mode} ({len(e)} frames)")
-    ax.grid(True, which="major", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    err = np.asarray(err, float)
+    c = R.Canvas(720, 480)
+    ax = _error_axes(c, (70, 36, 700, 416), float(np.max(err, initial=0.0)),
+                     f"Cumulative position error, {mode} ({len(err)} frames)")
+    if len(err):
+        ax.line(*_cdf_steps(err), BLUE, 2.5)
+    for mark, colour, height in ((0.5, GREEN, 0.05), (1.0, ORANGE, 0.15)):
+        share = float(np.mean(err <= mark)) if len(err) else 0.0
+        ax.line(np.array([mark, mark]), np.array([0.0, 1.02]), colour, 1.6, "--")
+        x, y = ax._x(mark * 1.05), ax._y(height)
+        c.text(float(x), float(y), f"{share:.0%} within {mark:g} m", 12, fill=colour, anchor="ls", box=(255, 255, 255))
+    return c.save(path)
 
 
-def plot_error_cdfs(path: Path, errors: dict[str, np.ndarray], title: str) -> None:
+def plot_error_cdfs(path: Path, errors: dict[str, np.ndarray], title: str) -> Path:
     """Several runs' cumulative position errors on one log axis (a sweep's ``sweep.png``),
     each labelled with its share within 1 m and its median, the 1 m mark dashed. Runs with
     the same curve draw over each other: the legend says so by their equal figures."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.6))
-    largest = 0.0
-    styles = ("-", "--", "-.", ":")
-    for i, (label, err) in enumerate(errors.items()):
-        err = np.asarray(err, float)
-        err = err[np.isfinite(err)]
-        if not len(err):
-            continue
-        e = np.sort(np.maximum(err, 0.01))
-        largest = max(largest, float(e.max()))
-        ax.step(e, np.arange(1, len(e) + 1) / len(e), where="post", lw=2, ls=styles[i % 4], color=f"C{i % 10}",
-                label=f"{label}: {np.mean(err <= 1.0):.0%} within 1 m, median {np.median(err):.2f} m")
-    _error_axis(ax, largest)
-    ax.axvline(1.0, color="0.4", ls="--", lw=1)
-    ax.set_xlabel("position error [m] (log scale)")
-    ax.set_ylabel("share of frames")
-    ax.set_title(title)
-    ax.grid(True, which="major", alpha=0.3)
-    ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    runs = {label: np.asarray(e, float)[np.isfinite(np.asarray(e, float))] for label, e in errors.items()}
+    runs = {label: e for label, e in runs.items() if len(e)}
+    largest = max((float(e.max()) for e in runs.values()), default=0.0)
+    c = R.Canvas(900, 560)
+    ax = _error_axes(c, (70, 36, 880, 496), largest, title)
+    ax.line(np.array([1.0, 1.0]), np.array([0.0, 1.02]), (102, 102, 102), 1.3, "--")
+    entries = []
+    for i, (label, e) in enumerate(runs.items()):
+        colour, style = R.CYCLE[i % len(R.CYCLE)], R.DASHES_CYCLE[i % len(R.DASHES_CYCLE)]
+        ax.line(*_cdf_steps(e), colour, 2.5, style)
+        entries.append(R.LegendEntry(f"{label}: {np.mean(e <= 1.0):.0%} within 1 m, median {np.median(e):.2f} m",
+                                     colour, line_width=2.5, style=style))
+    ax.legend(entries, "lower right", size=11)
+    return c.save(path)
 
 
 # a plan longer than this many times its width is cut into pieces drawn one above the other
 PLAN_PIECE_RATIO = 3.5
-# heading arrows: this long on the page whatever the plan's size, so they never hide an error line
-ARROW_INCHES = 0.12
+# heading arrows: this long on the page (output pixels) whatever the plan's size, so they never hide an error line
+ARROW_PX = 15.0
+# the panels of the plan picture fill at most this many output pixels across and down
+PLAN_AREA_PX = (1240.0, 980.0)
 
 
 def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.ndarray | None = None) -> str:
@@ -486,103 +480,143 @@ def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.nd
     return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either} (median error {np.median(err):.2f} m)"
 
 
+def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """The part of a plan a picture of ``points`` (N x 2: frames, answers, alternatives)
+    shows, as (lo, hi) corners: the points' extent with a margin of ``margin_m`` (or 5 % of
+    the extent, if more), widened to take in the walls (M x 4: x0, y0, x1, y1) that pass
+    through that box, each as far as ``reach`` margins beyond it: a frame in a room's corner
+    shows its room's far walls, and frames in one wing of a long building do not show the
+    whole building. Then a pad of 2 % and 0.4 m, so that a corridor keeps its width."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    margin = np.maximum(0.05 * (hi - lo), margin_m)
+    wlo, whi = lo - margin, hi + margin
+    w = np.asarray(walls, float).reshape(-1, 4)
+    w = w[np.isfinite(w).all(axis=1)]
+    if len(w):
+        a, b = w[:, :2], w[:, 2:]
+        # the walls whose bounding box meets the box (a wall crossing it with both ends outside included)
+        meets = np.all((np.minimum(a, b) <= whi) & (np.maximum(a, b) >= wlo), axis=1)
+        if meets.any():
+            ends = np.clip(np.vstack([a[meets], b[meets]]), lo - reach * margin, hi + reach * margin)
+            lo, hi = np.minimum(lo, ends.min(axis=0)), np.maximum(hi, ends.max(axis=0))
+    pad = 0.02 * (hi - lo) + 0.4
+    return lo - pad, hi + pad
+
+
+def _pale(colour: R.Colour) -> R.Colour:
+    """``colour`` half way to white: what half-opaque ink on a white page shows."""
+    return tuple((np.asarray(colour) + 255) // 2)  # type: ignore[return-value]
+
+
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
                            mode: str, truth_heading_deg: np.ndarray | None = None,
                            est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None,
-                           alternative: np.ndarray | None = None) -> None:
+                           alternative: np.ndarray | None = None) -> Path:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
-    positions joined by error lines, headings as short arrows of a fixed length on the page
+    positions joined by error lines, headings as pale arrows of a fixed length on the page
     (drawn under the dots); a doubtful answer's ``alternative`` (Q x 2, NaN rows: none) as
-    a hollow ring joined to its answer by a dotted line. With the truth and ``names``, the wrong answers (more than 1 m
-    off, or more than 30 degrees where both headings are known; at most
-    :data:`NAMED_WRONG`, the worst first) are named at their true position, so that the
-    frame to look at is read off the picture. A long plan (a corridor) is cut into up to four pieces along its
-    length, stacked (or side by side when it runs up the page), each to scale, so that it
-    fills the figure instead of a thin strip in white space; the view covers the part of the
-    plan the frames visit."""
-    plt = _plt()
-    truth = est if truth is None else truth  # estimates only (no ground truth): no error lines
+    a hollow ring joined to its answer by a dotted line. With the truth and ``names``, the
+    wrong answers (more than 1 m off, or more than 30 degrees where both headings are known;
+    at most :data:`NAMED_WRONG`, the worst first) are named at their true position, so that
+    the frame to look at is read off the picture. A long plan (a corridor) is cut into up to
+    four pieces along its length, stacked (or side by side when it runs up the page), each
+    to scale, so that it fills the picture instead of a thin strip in white space; the view
+    covers the part of the plan the frames visit. Drawn in pixels (:mod:`.raster`)."""
+    est = np.asarray(est, float)
+    truth = est if truth is None else np.asarray(truth, float)  # estimates only (no ground truth): no error lines
     known = truth is not est
-    frames = np.vstack([truth, est])
-    plan = np.vstack(polys) if polys else np.vstack([segments[:, [0, 1]], segments[:, [3, 4]]])
-    # the frames' extent (the part of the plan they visit) with a margin, and the plan's walls there
-    lo, hi = frames.min(axis=0), frames.max(axis=0)
-    margin = np.maximum(0.05 * (hi - lo), 2.0)
-    near = np.all((plan >= lo - margin) & (plan <= hi + margin), axis=1)
-    if near.any():
-        lo, hi = np.minimum(lo, plan[near].min(axis=0)), np.maximum(hi, plan[near].max(axis=0))
-    pad = 0.02 * (hi - lo) + 0.4  # per axis: a corridor keeps its width
-    lo, hi = lo - pad, hi + pad
+    alt = np.full((len(est), 2), np.nan) if alternative is None else np.asarray(alternative, float).reshape(-1, 2)
+    has_alt = np.isfinite(alt).all(axis=1)
+    frames = np.vstack([truth, est, alt[has_alt]])
+    frames = frames[np.isfinite(frames).all(axis=1)]
+    if not len(frames):
+        frames = np.zeros((1, 2))
+    if polys:
+        walls = np.vstack([np.column_stack([p, np.roll(p, -1, axis=0)]) for p in polys])
+    else:
+        walls = np.asarray(segments, float).reshape(-1, 6)[:, [0, 1, 3, 4]]
+    lo, hi = plan_view(frames, walls)
     span = hi - lo
     along = 0 if span[0] >= span[1] else 1  # the plan's long axis
     pieces = int(np.clip(np.ceil(span[along] / span[1 - along] / PLAN_PIECE_RATIO), 1, 4))
     piece = span[along] / pieces
-    width = 11.0
+    extent = (piece, span[1]) if along == 0 else (span[0], piece)  # one panel's metres across and down
+    # one scale (pixels a metre) for every panel and both axes: to scale, as large as the area allows
+    gap = 34.0 if along == 0 else 64.0  # between panels: the upper one's x ticks, or the right one's y ticks
     if along == 0:
-        panel_h = float(np.clip(0.9 * width * span[1] / piece, 1.0, 9.0 / pieces))
-        fig, axes = plt.subplots(pieces, 1, figsize=(width, pieces * panel_h + 1.0), squeeze=False)
+        scale = min(PLAN_AREA_PX[0] / extent[0], (PLAN_AREA_PX[1] - gap * (pieces - 1)) / (pieces * extent[1]))
     else:
-        panel_w = float(np.clip(9.0 * span[0] / piece, 1.2, width / pieces))
-        fig, axes = plt.subplots(1, pieces, figsize=(pieces * panel_w + 2.5, 9.5), squeeze=False)
+        scale = min((PLAN_AREA_PX[0] - gap * (pieces - 1)) / (pieces * extent[0]), PLAN_AREA_PX[1] / extent[1])
+    bw, bh = max(1, round(extent[0] * scale)), max(1, round(extent[1] * scale))
+    content_w = bw if along == 0 else pieces * bw + (pieces - 1) * gap
+    content_h = bh * pieces + gap * (pieces - 1) if along == 0 else bh
+
     err = np.hypot(*(est - truth).T)
     yaw_err = (yaw_errors(est_heading_deg, truth_heading_deg)
                if truth_heading_deg is not None and est_heading_deg is not None else None)
     wrong = ~right_answers(err, yaw_err) if known and names is not None else np.zeros(len(err), bool)
-    alt = np.full((len(est), 2), np.nan) if alternative is None else np.asarray(alternative, float).reshape(-1, 2)
-    has_alt = np.isfinite(alt).all(axis=1)
     named = worst_wrong(err, wrong)
-    for k, ax in enumerate(axes.ravel()):
+    grey = (115, 115, 115)
+    entries = ([R.LegendEntry("true position", BLUE, marker="o", marker_size=7.5)] if known else []) + [
+        R.LegendEntry(f"{mode} estimate", RED, marker="x", marker_size=9)]
+    if has_alt.any():
+        entries.append(R.LegendEntry(f"doubtful answer's alternative ({int(has_alt.sum())})", ORANGE, marker="O",
+                                     marker_size=12))
+    if known:
+        entries.append(R.LegendEntry("error (truth to estimate)", grey, line_width=1.5))
+    if truth_heading_deg is not None or est_heading_deg is not None:
+        entries.append(R.LegendEntry("heading", (77, 77, 77), line_width=1.5, marker=">", marker_size=8))
+    if named:
+        entries.append(R.LegendEntry("wrong answer, named at its truth" + (f" ({len(named)} worst of {int(wrong.sum())})"
+                                                                           if wrong.sum() > len(named) else ""),
+                                     BLUE, text="ab"))
+    cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
+    title = (plan_title(mode, truth, est, alt) if known else f"{mode}: {len(est)} estimates (no ground truth)") + cut
+
+    left, top, right = 70.0, 44.0, 24.0
+    width = int(max(left + content_w + right, R.text_width(title, 14) + 40, 640))
+    rows = R.legend_rows(entries, width - 40, size=12)
+    bottom = 50.0 + R.legend_row_height(12) * len(rows) + 8
+    c = R.Canvas(width, int(top + content_h + bottom))
+    x_start = round(left + max(0.0, (width - left - right - content_w) / 2))
+    c.text(width / 2, 28, title, 14, anchor="ms")
+    k = c.ss
+    for p in range(pieces):
+        a0, a1 = lo[along] + p * piece, lo[along] + (p + 1) * piece
+        xlim, ylim = ((a0, a1), (lo[1], hi[1])) if along == 0 else ((lo[0], hi[0]), (a0, a1))
+        if along == 0:
+            bx, by = x_start, round(top + p * (bh + gap))
+        else:
+            bx, by = round(x_start + p * (bw + gap)), round(top)
+        # the panel drawn on its own canvas and pasted: what lies outside its piece is cut off
+        panel = R.Canvas(bw, bh)
+        ax = R.Axes(panel, (0, 0, bw, bh), xlim, ylim)
         if polys:
             for poly in polys:
                 q = np.vstack([poly, poly[:1]])
-                ax.plot(q[:, 0], q[:, 1], "k-", lw=0.9)
-        else:
-            for sgm in segments:
-                ax.plot([sgm[0], sgm[3]], [sgm[1], sgm[4]], "k-", lw=0.4)
-        for t, e in zip(truth, est) if known else ():
-            ax.plot([t[0], e[0]], [t[1], e[1]], "-", color="0.45", lw=0.9, zorder=2)
-        for xy, hd, colour in ((truth, truth_heading_deg, "tab:blue"), (est, est_heading_deg, "tab:red")):
-            if hd is None:
-                continue
-            r = np.radians(np.asarray(hd, float))
-            ax.quiver(xy[:, 0], xy[:, 1], np.cos(r), np.sin(r), color=colour, angles="xy", scale_units="inches",
-                      scale=1.0 / ARROW_INCHES, width=0.002, alpha=0.5, zorder=3)
+                ax.segments(q[:-1, 0], q[:-1, 1], q[1:, 0], q[1:, 1], R.BLACK, 1.3)
+        elif len(segments):
+            ax.segments(segments[:, 0], segments[:, 1], segments[:, 3], segments[:, 4], R.BLACK, 0.8)
         if known:
-            ax.plot(truth[:, 0], truth[:, 1], "o", color="tab:blue", ms=4.5, zorder=4, label="true position")
-        ax.plot(est[:, 0], est[:, 1], "x", color="tab:red", ms=5.5, mew=1.4, zorder=5, label=f"{mode} estimate")
+            ax.segments(truth[:, 0], truth[:, 1], est[:, 0], est[:, 1], grey, 1.5)
+        for xy, hd, colour in ((truth, truth_heading_deg, BLUE), (est, est_heading_deg, RED)):
+            if hd is not None:
+                ax.arrows(xy[:, 0], xy[:, 1], np.asarray(hd, float), _pale(colour), ARROW_PX, 1.3)
+        if known:
+            ax.markers(truth[:, 0], truth[:, 1], BLUE, "o", 7.5)
         for e, a in zip(est[has_alt], alt[has_alt]):
-            ax.plot([e[0], a[0]], [e[1], a[1]], ":", color="tab:orange", lw=1.2, zorder=4)
-        if has_alt.any():
-            ax.plot(alt[has_alt, 0], alt[has_alt, 1], "o", mfc="none", mec="tab:orange", ms=7, mew=1.4, zorder=5,
-                    label=f"doubtful answer's alternative ({int(has_alt.sum())})")
+            ax.line(np.array([e[0], a[0]]), np.array([e[1], a[1]]), ORANGE, 1.8, ":")
+        ax.markers(est[:, 0], est[:, 1], RED, "x", 9, edge=2.2)
+        ax.markers(alt[has_alt, 0], alt[has_alt, 1], ORANGE, "O", 12, edge=2.0)
         for j in named:
-            ax.annotate(str(names[j]), truth[j], textcoords="offset points", xytext=(5, 5), fontsize=8,
-                        color="tab:blue", zorder=6, annotation_clip=True)
-        a0, a1 = lo[along] + k * piece, lo[along] + (k + 1) * piece
-        lims = ((a0, a1), (lo[1], hi[1])) if along == 0 else ((lo[0], hi[0]), (a0, a1))
-        ax.set_xlim(*lims[0])
-        ax.set_ylim(*lims[1])
-        ax.set_aspect("equal")
-        ax.set_xlabel("x [m]", fontsize=8)
-        ax.set_ylabel("y [m]", fontsize=8)
-        ax.tick_params(labelsize=7)
-    handles, labels = axes.ravel()[0].get_legend_handles_labels()
-    if known:
-        handles.append(plt.Line2D([], [], color="0.45", lw=0.9))
-        labels.append("error (truth to estimate)")
-    if truth_heading_deg is not None or est_heading_deg is not None:
-        handles.append(plt.Line2D([], [], color="0.3", lw=0, marker=r"$\rightarrow$", ms=10))
-        labels.append("heading")
-    if named:
-        handles.append(plt.Line2D([], [], color="tab:blue", lw=0, marker=r"$\mathrm{ab}$", ms=12))
-        labels.append("wrong answer, named at its truth" + (f" ({len(named)} worst of {int(wrong.sum())})"
-                                                            if wrong.sum() > len(named) else ""))
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
-    cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
-    if known:
-        fig.suptitle(plan_title(mode, truth, est, alt) + cut, fontsize=10)
-    else:
-        fig.suptitle(f"{mode}: {len(est)} estimates (no ground truth){cut}", fontsize=10)
-    fig.tight_layout(rect=(0, 0.05, 1, 0.97))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+            px, py = ax._x(truth[j, 0]), ax._y(truth[j, 1])
+            panel.text(float(px) + 6, float(py) - 6, str(names[j]), 12, fill=BLUE, anchor="ls")
+        c.image.paste(panel.image, (bx * k, by * k))
+        frame = R.Axes(c, (bx, by, bx + bw, by + bh), xlim, ylim)
+        xt = R.nice_ticks(*xlim, most=max(3, int(bw / 90)))
+        yt = R.nice_ticks(*ylim, most=max(3, int(bh / 70)))
+        frame.frame(xt, yt, grid=False, size=11)
+        last = p == pieces - 1
+        frame.labels("x [m]" if along == 1 or last else "", "y [m]" if along == 0 or p == 0 else "", size=12)
+    R.draw_legend_rows(c, rows, top + content_h + 50.0, size=12)
+    return c.save(path)

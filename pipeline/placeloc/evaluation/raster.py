@@ -25,6 +25,7 @@ CYCLE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103
          (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 # dash patterns (on, off, ...) in units of the line's width, after matplotlib's "-", "--", "-.", ":"
 DASHES: dict[str, tuple[float, ...]] = {"-": (), "--": (3.7, 1.6), "-.": (6.4, 1.6, 1.0, 1.6), ":": (1.0, 1.65)}
+DASHES_CYCLE = ("-", "--", "-.", ":")  # the styles of several curves, in turn
 BLACK, GRID = (0, 0, 0), (222, 222, 222)
 STAMP_FROM = 64  # markers: more than this many are stamped as one mask (Axes._stamp), fewer drawn one by one
 Colour = tuple[int, int, int]
@@ -245,7 +246,8 @@ class Axes:
 
     def markers(self, x: np.ndarray, y: np.ndarray, colour: Colour, shape: str = "o", size: float = 7.0,
                 edge: float = 2.0) -> None:
-        """``shape``: o s ^ D v x + | (``size``: output pixels across; ``edge``: the width of x, + and |)."""
+        """``shape``: o s ^ D v > x + | O (``size``: output pixels across; ``edge``: the width of
+        x, +, | and of the hollow ring O)."""
         px, py = self.xy(x, y)
         ok = np.isfinite(px) & np.isfinite(py)
         r = size * self.c.ss / 2
@@ -259,9 +261,12 @@ class Axes:
                 d.ellipse((cx - r, cy - r, cx + r, cy + r), fill=colour)
             elif shape == "s":
                 d.rectangle((cx - r * 0.9, cy - r * 0.9, cx + r * 0.9, cy + r * 0.9), fill=colour)
-            elif shape in "^vD":
+            elif shape == "O":
+                d.ellipse((cx - r, cy - r, cx + r, cy + r), outline=colour, width=w)
+            elif shape in "^vD>":
                 pts = {"^": [(cx, cy - r), (cx + r, cy + r * 0.8), (cx - r, cy + r * 0.8)],
                        "v": [(cx, cy + r), (cx + r, cy - r * 0.8), (cx - r, cy - r * 0.8)],
+                       ">": [(cx + r, cy), (cx - r * 0.8, cy - r), (cx - r * 0.8, cy + r)],
                        "D": [(cx, cy - r), (cx + r * 0.8, cy), (cx, cy + r), (cx - r * 0.8, cy)]}[shape]
                 d.polygon(pts, fill=colour)
             elif shape == "x":
@@ -293,6 +298,40 @@ class Axes:
         mask = np.zeros((int(cy.max()) - y0 + k + 1, int(cx.max()) - x0 + k + 1), np.uint8)
         mask[(cy[:, None] - y0 + oy[None, :] - k).ravel(), (cx[:, None] - x0 + ox[None, :] - k).ravel()] = 255
         self.c.image.paste(colour, (x0, y0), Image.fromarray(mask, "L"))
+
+    def segments(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray, colour: Colour,
+                 width: float = 1.0) -> None:
+        """Unjoined straight segments (x0, y0) to (x1, y1), solid: walls, error lines. One
+        drawing call each, after one transform of all of them (a polyline per segment through
+        :meth:`line` cost 20 times more for a plan's thousand walls)."""
+        ax0, ay0 = self.xy(x0, y0)
+        ax1, ay1 = self.xy(x1, y1)
+        ok = np.isfinite(ax0) & np.isfinite(ay0) & np.isfinite(ax1) & np.isfinite(ay1)
+        w = max(1, round(width * self.c.ss))
+        line = self.c.draw.line
+        for a, b, c, d in zip(ax0[ok].tolist(), ay0[ok].tolist(), ax1[ok].tolist(), ay1[ok].tolist()):
+            line([(a, b), (c, d)], fill=colour, width=w)
+
+    def arrows(self, x: np.ndarray, y: np.ndarray, angle_deg: np.ndarray, colour: Colour, length: float,
+               width: float = 1.0) -> None:
+        """Arrows of ``length`` output pixels from each (x, y) at ``angle_deg`` (counter-
+        clockwise from +x, on the page as in the data: y up unless ``y_down``), whatever the
+        data's scale: a heading, not a distance."""
+        px, py = self.xy(x, y)
+        t = np.radians(np.asarray(angle_deg, np.float64))
+        k = self.c.ss
+        dx, dy = np.cos(t) * length * k, (np.sin(t) if self.y_down else -np.sin(t)) * length * k
+        ok = np.isfinite(px) & np.isfinite(py) & np.isfinite(dx)
+        w = max(1, round(width * k))
+        head = max(3.0 * k, length * k * 0.38)  # the head's length along the shaft
+        d = self.c.draw
+        for cx, cy, ux, uy in zip(px[ok].tolist(), py[ok].tolist(), dx[ok].tolist(), dy[ok].tolist()):
+            tx, ty = cx + ux, cy + uy
+            n = float(np.hypot(ux, uy)) or 1.0
+            bx, by = ux / n * head, uy / n * head  # back along the shaft from the tip
+            d.line([(cx, cy), (tx - bx * 0.5, ty - by * 0.5)], fill=colour, width=w)
+            d.polygon([(tx, ty), (tx - bx - by * 0.45, ty - by + bx * 0.45), (tx - bx + by * 0.45, ty - by - bx * 0.45)],
+                      fill=colour)
 
     def fill_between(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray, colour: Colour, alpha: float) -> None:
         """The region between two curves over ``x``, ``alpha`` opaque."""
@@ -329,21 +368,68 @@ class Axes:
         self.c.rectangle((x0, y0, x0 + width, y0 + height), outline=(204, 204, 204), fill=(255, 255, 255), width=1)
         for i, e in enumerate(entries):
             cy = y0 + pad / 2 + row_h * (i + 0.5)
-            sx0, sx1 = x0 + pad, x0 + pad + sample_w
-            if e.line_width:
-                _line_in_pixels(self.c, [sx0, sx1], [cy, cy], e.colour, e.line_width, e.style)
-            if e.marker:
-                _marker_in_pixels(self.c, (sx0 + sx1) / 2, cy, e.colour, e.marker, e.marker_size)
-            self.c.text(sx1 + pad, cy, e.label, size, anchor="lm")
+            _sample(self.c, x0 + pad, x0 + pad + sample_w, cy, e, size)
+            self.c.text(x0 + 2 * pad + sample_w, cy, e.label, size, anchor="lm")
 
 
 class LegendEntry:
-    """One row of a legend: a line sample (``line_width`` > 0) and/or a marker, and its label."""
+    """One row of a legend: a line sample (``line_width`` > 0) and/or a marker, or a short
+    ``text`` in the colour (how a picture writes names), and its label."""
 
     def __init__(self, label: str, colour: Colour, *, line_width: float = 0.0, style: str = "-", marker: str = "",
-                 marker_size: float = 7.0) -> None:
+                 marker_size: float = 7.0, text: str = "") -> None:
         self.label, self.colour, self.line_width, self.style = label, colour, line_width, style
-        self.marker, self.marker_size = marker, marker_size
+        self.marker, self.marker_size, self.text = marker, marker_size, text
+
+
+def _sample(c: Canvas, x0: float, x1: float, cy: float, e: LegendEntry, size: float) -> None:
+    """A legend entry's sample between x0 and x1 (output pixels) on the row centred at cy."""
+    if e.line_width:
+        _line_in_pixels(c, [x0, x1], [cy, cy], e.colour, e.line_width, e.style)
+    if e.marker:
+        _marker_in_pixels(c, (x0 + x1) / 2, cy, e.colour, e.marker, e.marker_size)
+    if e.text:
+        c.text((x0 + x1) / 2, cy, e.text, size * 1.15, fill=e.colour, anchor="mm")
+
+
+def legend_rows(entries: Sequence[LegendEntry], width: float, size: float = 11) -> list[list[LegendEntry]]:
+    """The entries of a legend laid in rows across ``width`` output pixels, in order, as
+    many to a row as fit (at least one)."""
+    rows: list[list[LegendEntry]] = []
+    used = width + 1.0
+    for e in entries:
+        w = _entry_width(e, size)
+        if rows and used + w <= width:
+            rows[-1].append(e)
+            used += w
+        else:
+            rows.append([e])
+            used = w
+    return rows
+
+
+def _entry_width(e: LegendEntry, size: float) -> float:
+    return LEGEND_SAMPLE + LEGEND_PAD + text_width(e.label, size) + LEGEND_GAP
+
+
+LEGEND_SAMPLE, LEGEND_PAD, LEGEND_GAP = 30.0, 6.0, 22.0  # a row legend's sample, its gap to the label, between entries
+
+
+def legend_row_height(size: float = 11) -> float:
+    return size * 1.6
+
+
+def draw_legend_rows(c: Canvas, rows: Sequence[Sequence[LegendEntry]], top: float, size: float = 11) -> None:
+    """Rows from :func:`legend_rows`, each centred on the canvas, the first at ``top``:
+    a legend under the panels, out of the data's way."""
+    for i, row in enumerate(rows):
+        total = sum(_entry_width(e, size) for e in row) - LEGEND_GAP
+        x = (c.width - total) / 2
+        cy = top + legend_row_height(size) * (i + 0.5)
+        for e in row:
+            _sample(c, x, x + LEGEND_SAMPLE, cy, e, size)
+            c.text(x + LEGEND_SAMPLE + LEGEND_PAD, cy, e.label, size, anchor="lm")
+            x += _entry_width(e, size)
 
 
 def _line_in_pixels(c: Canvas, xs: Sequence[float], ys: Sequence[float], colour: Colour, width: float, style: str) -> None:

@@ -32,6 +32,7 @@ from placeloc.core.images import ImageError, ImageSet, list_images, read_gray
 from placeloc.core.imagework import ImageResult, ImageStream, ImageWork, extract_images
 from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import LoopEvaluation
+from placeloc.evaluation.pictures import draw
 from placeloc.evaluation.poses import PoseError
 from placeloc.pirf import resources as pirf_resources
 from placeloc.pirf.ann import AnnIndex
@@ -409,15 +410,16 @@ def evaluate_extra(ctx: Any, ev: LoopEvaluation) -> None:
     ev.label = f"PIRF-nav2 ({p.update})"
     if ctx.config.get("plots", True) and correct is not None:
         if r_xy is not None:
-            plot_loop_closures(ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
+            draw(plot_loop_closures, ctx.output("loop_closures.png"), r_xy, lc_f, lc_n, correct, radius)
         else:
             truth = ev.truth.tocoo()
-            plot_loop_closure_pairs(ctx.output("loop_closures.png"), lc_f, lc_n, correct, truth.row, truth.col,
-                                    len(r_names), ev.tolerance, _local(r_index))
+            draw(plot_loop_closure_pairs, ctx.output("loop_closures.png"), lc_f, lc_n, correct, truth.row, truth.col,
+                 len(r_names), ev.tolerance, _local(r_index))
         _wrong_strips(ctx, r_xy, lc_f[~correct], lc_n[~correct], radius, ev)
         if metrics.get("accuracy_gap0") is not None:
             bf = [metrics[f"accuracy_gap{g}_bf"] for g in range(3)] if metrics.get("accuracy_gap0_bf") is not None else None
-            plot_accuracy_gap(ctx.output("accuracy_gap.png"), [metrics[f"accuracy_gap{g}"] for g in range(3)], bf, backend, radius)
+            draw(plot_accuracy_gap, ctx.output("accuracy_gap.png"), [metrics[f"accuracy_gap{g}"] for g in range(3)], bf,
+                 backend, radius)
 
 
 def _local(index: np.ndarray) -> np.ndarray:
@@ -473,7 +475,7 @@ def _wrong_strips(ctx: Any, r_xy: np.ndarray | None, frames: np.ndarray, nodes: 
             titles.append((f"frame {t} (closed the loop)", f"matched node {c}: no loop in the truth",
                            f"true earlier frame {k}" if k >= 0 else "(the truth has no earlier frame)"))
     rule = f"within {radius:g} m" if r_xy is not None else f"the truth matrix, tolerance {ev.tolerance} frames"
-    plot_closure_strips(path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = {rule})")
+    draw(plot_closure_strips, path, imgs, titles, f"wrong loop closures ({len(pick)} of {len(frames)} shown; correct = {rule})")
 
 
 METHOD = Method(

@@ -1,0 +1,157 @@
+"""The poses, map and loop-closure contracts' pictures and PIRF-nav2's, drawn in pixels
+(no matplotlib): where a known point must land, and what a picture must and must not show."""
+
+from __future__ import annotations
+
+import numpy as np
+
+BLUE, RED, ORANGE = (31, 119, 180), (214, 39, 40), (255, 127, 14)
+
+
+def _pixels(path):
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB")).astype(int)
+
+
+def _near(img: np.ndarray, colour: tuple[int, int, int], tol: int = 40) -> np.ndarray:
+    return np.abs(img - np.array(colour)).sum(axis=2) <= tol
+
+
+def _lines(mask: np.ndarray, axis: int, share: float) -> list[int]:
+    """Rows (axis 1) or columns (axis 0) where more than ``share`` of the pixels are set,
+    runs of neighbours merged to their middle."""
+    full = np.flatnonzero(mask.mean(axis=axis) > share)
+    runs = np.split(full, np.flatnonzero(np.diff(full) > 1) + 1)
+    return [int(round(r.mean())) for r in runs if len(r)]
+
+
+def test_plan_picture_puts_each_answer_where_it_stands_to_scale(tmp_path):
+    """A 4 x 4 m room, one frame at (1, 3) answered right there: the red cross lands a
+    quarter across and a quarter down the room's walls, and the room is as wide as high.
+    A doubtful answer's alternative is an orange ring at its place; none without one."""
+    from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
+
+    walls = np.array([[0, 0, 0, 4, 0, 0], [4, 0, 0, 4, 4, 0], [4, 4, 0, 0, 4, 0], [0, 4, 0, 0, 0, 0]], float)
+    truth = np.array([[1.0, 3.0]])
+    plain = plot_estimates_on_plan(tmp_path / "a.png", truth, truth.copy(), [], walls, "m")
+    ringed = plot_estimates_on_plan(tmp_path / "b.png", truth, truth.copy(), [], walls, "m",
+                                    alternative=np.array([[3.0, 1.0]]))
+    img = _pixels(plain)
+    black = img.sum(axis=2) < 500  # dark: a line of one pixel falls on two, half grey
+    # columns and rows nearly all black over the picture's middle: the axes' frame, then the walls
+    xs = _lines(black[img.shape[0] // 4: 3 * img.shape[0] // 4], 0, 0.4)
+    ys = _lines(black[:, img.shape[1] // 4: 3 * img.shape[1] // 4], 1, 0.4)
+    assert len(xs) == 4 and len(ys) == 4, (xs, ys)
+    (left, right), (top, bottom) = xs[1:3], ys[1:3]
+    assert abs((right - left) - (bottom - top)) <= 2  # to scale: a square room is square
+    red = np.argwhere(_near(img[:bottom + 10], RED))  # not the legend's sample below
+    cy, cx = red.mean(axis=0)
+    assert abs(cx - (left + 0.25 * (right - left))) <= 1.5 and abs(cy - (top + 0.25 * (bottom - top))) <= 1.5
+    assert not _near(img[:bottom + 10], ORANGE).any()
+    ring = _near(_pixels(ringed), ORANGE, tol=120)
+    cx, cy = round(left + 0.75 * (right - left)), round(top + 0.75 * (bottom - top))
+    # a ring of 12 pixels across there, 2 wide: orange 4 to 6 pixels out on all four sides, hollow (the dotted
+    # line from the answer ends in its middle)
+    for dx, dy in ((5, 0), (-5, 0), (0, 5), (0, -5)):
+        assert ring[cy + dy - 1: cy + dy + 2, cx + dx - 1: cx + dx + 2].any(), (dx, dy)
+    assert ring[cy - 2: cy + 3, cx - 2: cx + 3].mean() < 0.5
+
+
+def test_a_long_plan_is_cut_into_pieces_stacked_each_to_scale(tmp_path):
+    """A 40 x 2 m corridor comes in four panels one above the other, each a quarter of its
+    length, not one thin strip: twelve frames evenly along it fall in four bands of rows,
+    three frames to a band."""
+    from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
+
+    walls = np.array([[0, 0, 0, 40, 0, 0], [40, 0, 0, 40, 2, 0], [40, 2, 0, 0, 2, 0], [0, 2, 0, 0, 0, 0]], float)
+    truth = np.column_stack([np.linspace(1, 39, 12), np.full(12, 1.0)])
+    img = _pixels(plot_estimates_on_plan(tmp_path / "c.png", truth, truth.copy(), [], walls, "m"))
+    assert img.shape[0] > img.shape[1] * 0.6  # not a strip
+    red = _near(img, RED)
+    red[-60:] = False  # the legend's sample
+    rows = np.flatnonzero(red.any(axis=1))
+    bands = np.split(rows, np.flatnonzero(np.diff(rows) > 20) + 1)
+    assert len(bands) == 4
+    for band in bands:  # three crosses a band: three runs of red columns
+        cols = np.flatnonzero(red[band].any(axis=0))
+        assert len(np.split(cols, np.flatnonzero(np.diff(cols) > 1) + 1)) == 3
+
+
+def test_error_cdf_rises_at_each_error_on_its_log_axis(tmp_path):
+    """Errors 0.1 m and 10 m: the curve is at a half from 0.1 m to 10 m, at one after."""
+    from placeloc.evaluation.pose_estimates import plot_error_cdf
+
+    img = _pixels(plot_error_cdf(tmp_path / "cdf.png", np.array([0.1, 10.0]), "m"))
+    blue = _near(img, BLUE)
+    # the axes: 70..700 across for 0.01..15 m (log), 416 (0) .. 36 (1.02) down
+    def px(err: float, share: float) -> tuple[int, int]:
+        x = 70 + (np.log10(err) - np.log10(0.01)) / (np.log10(15.0) - np.log10(0.01)) * 630
+        return round(416 - share / 1.02 * 380), round(x)
+
+    for err, share in ((0.3, 0.5), (3.0, 0.5)):
+        y, x = px(err, share)
+        assert blue[y - 2: y + 3, x].any(), (err, share)
+    y, x = px(3.0, 1.0)
+    assert not blue[y - 2: y + 3, x].any()  # not yet at one before 10 m
+
+
+def test_pose_map_and_loop_pictures_import_no_matplotlib(tmp_path):
+    """The pictures every evaluate of these contracts draws cost milliseconds, not
+    matplotlib's import (0.4 s, more than a small run's localize)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from placeloc.evaluation.pose_estimates import plot_error_cdf, plot_estimates_on_plan\n"
+        "from placeloc.evaluation.maps import plot_map\n"
+        "from placeloc.evaluation.loops import plot_time_per_frame\n"
+        f"d = {str(tmp_path)!r}\n"
+        "t = np.array([[0.0, 0.0], [1.0, 2.0]]); w = np.array([[0, 0, 0, 2, 0, 0.0]])\n"
+        "plot_error_cdf(d + '/a.png', np.array([0.1, 2.0]), 'm')\n"
+        "plot_estimates_on_plan(d + '/b.png', t, t + 0.1, [], w, 'm', np.zeros(2), np.ones(2), names=['a', 'b'])\n"
+        "plot_map(d + '/c.png', t, t + 0.1, t[:1], t, t, 'map', 'units')\n"
+        "plot_time_per_frame(d + '/d.png', np.arange(5), np.ones(5) * 1e-3, 'm')\n"
+        "from placeloc.pirf.plots import plot_accuracy_gap, plot_closure_strips, plot_loop_closure_pairs, plot_loop_closures\n"
+        "ok = np.array([True, False])\n"
+        "plot_loop_closures(d + '/e.png', np.array([[0, 0], [1, 0], [1, 1.0]]), np.array([2, 2]), np.array([0, 1]), ok, 1.0)\n"
+        "plot_loop_closure_pairs(d + '/f.png', np.array([3, 4]), np.array([0, 2]), ok, np.array([3]), np.array([0]), 5, 1, np.arange(5))\n"
+        "plot_accuracy_gap(d + '/g.png', [0.5, 0.6, 0.7], [0.5, 0.6, 0.8], 'hnsw', 1.0)\n"
+        "plot_closure_strips(d + '/h.png', [(np.zeros((20, 40)), np.ones((20, 40)))], [('a', 'b')], 'strips')\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))\n")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"
+    assert all((tmp_path / f"{n}.png").stat().st_size > 1000 for n in "abcdefgh")
+
+
+def test_accuracy_bars_stand_as_high_as_their_values(tmp_path):
+    """Bars of 0.25 and 0.75 (one series): the second's top stands three times as high
+    above the axis as the first's."""
+    from placeloc.pirf.plots import plot_accuracy_gap
+
+    img = _pixels(plot_accuracy_gap(tmp_path / "g.png", [0.25, 0.75], None, "hnsw", 1.0))
+    blue = _near(img, BLUE, tol=20)
+    blue[-60:] = False  # the legend's square below the axes
+    cols = np.flatnonzero(blue.sum(axis=0) > 20)  # the bars' columns
+    runs = np.split(cols, np.flatnonzero(np.diff(cols) > 1) + 1)
+    assert len(runs) == 2
+    bottom = max(int(np.flatnonzero(blue[:, r].any(axis=1)).max()) for r in runs)
+    heights = [bottom + 1 - int(np.flatnonzero(blue[:, r].any(axis=1)).min()) for r in runs]
+    assert abs(heights[1] / heights[0] - 3.0) < 0.05
+
+
+def test_closure_strips_show_each_frame_under_its_title(tmp_path):
+    """A black frame beside a white one, 40 x 20 pixels: scaled to the cell's 320 pixels
+    (160 high), black at the left cell's middle and white at the right's."""
+    from placeloc.pirf.plots import plot_closure_strips
+
+    img = _pixels(plot_closure_strips(tmp_path / "s.png", [(np.zeros((20, 40)), np.full((20, 40), 255.0))],
+                                      [("closed", "matched")], "strips"))
+    assert img.shape[0] == 40 + 18 + 160 + 8
+    # cells 320 wide with gaps of 8 from the left at (width - 656) / 2 + 8, images below a title of 18
+    x0 = (img.shape[1] - 2 * 328 + 8) / 2
+    y = 40 + 18 + 80
+    assert img[y, round(x0 + 160)].tolist() == [0, 0, 0]
+    assert img[y, round(x0 + 328 + 160)].tolist() == [255, 255, 255]
+    assert img[y, round(x0 + 324)].tolist() == [255, 255, 255]  # the gap between them: the page

@@ -97,8 +97,8 @@ def test_error_cdf_rises_at_each_error_on_its_log_axis(tmp_path):
 
 
 def test_pose_map_and_loop_pictures_import_no_matplotlib(tmp_path):
-    """The pictures every evaluate of these contracts draws cost milliseconds, not
-    matplotlib's import (0.4 s, more than a small run's localize)."""
+    """The pictures every evaluate of these contracts draws, and a sweep's, cost
+    milliseconds, not matplotlib's import (0.4 s, more than a small run's localize)."""
     import subprocess
     import sys
 
@@ -119,10 +119,12 @@ def test_pose_map_and_loop_pictures_import_no_matplotlib(tmp_path):
         "plot_loop_closure_pairs(d + '/f.png', np.array([3, 4]), np.array([0, 2]), ok, np.array([3]), np.array([0]), 5, 1, np.arange(5))\n"
         "plot_accuracy_gap(d + '/g.png', [0.5, 0.6, 0.7], [0.5, 0.6, 0.8], 'hnsw', 1.0)\n"
         "plot_closure_strips(d + '/h.png', [(np.zeros((20, 40)), np.ones((20, 40)))], [('a', 'b')], 'strips')\n"
+        "from placeloc.evaluation.plots import plot_sweep\n"
+        "plot_sweep({'a': (np.array([0.5, 1.0]), np.array([1.0, 0.5]))}, {'a': ([1, 5], [0.5, 0.8])}, d + '/i.png')\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))\n")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
-    assert all((tmp_path / f"{n}.png").stat().st_size > 1000 for n in "abcdefgh")
+    assert all((tmp_path / f"{n}.png").stat().st_size > 1000 for n in "abcdefghi")
 
 
 def test_accuracy_bars_stand_as_high_as_their_values(tmp_path):
@@ -155,3 +157,16 @@ def test_closure_strips_show_each_frame_under_its_title(tmp_path):
     assert img[y, round(x0 + 160)].tolist() == [0, 0, 0]
     assert img[y, round(x0 + 328 + 160)].tolist() == [255, 255, 255]
     assert img[y, round(x0 + 324)].tolist() == [255, 255, 255]  # the gap between them: the page
+
+
+def test_an_experiment_that_draws_says_how_to_get_matplotlib_where_it_is_missing():
+    """matplotlib is optional (the experiments' figures only): without it the experiment
+    stops at once with the command that installs it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['matplotlib'] = None\n"
+            "from placeloc.experiments import pyplot\n"
+            "try:\n    pyplot()\nexcept RuntimeError as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
+    assert "pip install 'placeloc[experiments]'" in out

@@ -2,61 +2,21 @@
 
 The pictures evaluate draws on every run (precision-recall, Recall@N, the difference
 matrices here; the poses, map and loop-closure contracts' and the methods' own beside
-them) are drawn with :mod:`placeloc.evaluation.raster` (Pillow), in milliseconds. Only a
-sweep's summary (:func:`plot_sweep`, once a sweep) uses matplotlib's Agg backend,
-imported when it is drawn.
+them) and a sweep's summary are drawn with :mod:`placeloc.evaluation.raster` (Pillow), in
+milliseconds; matplotlib's import alone took 0.4 s. Only the experiments' figures for the
+docs use matplotlib (an optional dependency).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from placeloc.evaluation import raster as R
 
-
-def __getattr__(name: str) -> Any:
-    """``plt`` (matplotlib.pyplot on the Agg backend) on first use, not on import."""
-    if name == "plt":
-        return _pyplot()
-    raise AttributeError(name)
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig: Any, path: Path, dpi: int = 110, photo: bool = False, tight: bool = True) -> Path:
-    """Save a matplotlib figure under a temporary name and rename, so a killed run never
-    leaves half a PNG; a failed save (a full disk) leaves no temporary file either.
-    ``photo``: pictures of images or matrices, which zlib hardly shrinks: the fastest
-    compression (level 1 took a fifth of level 6's time on the strips, for files about a
-    tenth larger). ``tight``: crop to the drawn content (a second layout pass; a figure
-    laid out by ``layout="constrained"`` or placed by hand needs none)."""
-    from placeloc.core.artifacts import tmp_path_for
-
-    path = Path(path)
-    tmp = tmp_path_for(path)
-    try:
-        fmt = path.suffix.lstrip(".") or "png"
-        extra = {"pil_kwargs": {"compress_level": 1}} if photo and fmt == "png" else {}
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight" if tight else None, format=fmt, **extra)
-        tmp.replace(path)
-    finally:
-        _pyplot().close(fig)
-        tmp.unlink(missing_ok=True)
-    return path
-
-
 LINE_STYLES = ("-", "--", "-.", ":")
-MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 # the raster charts' markers (Pillow draws these shapes)
 RASTER_MARKERS = ("o", "s", "^", "D", "v", "x", "+")
 PT = 110 / 72  # output pixels per typographic point at the pictures' 110 dpi
@@ -257,37 +217,54 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
 
 def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[str, tuple[Sequence[int], Sequence[float | None]]],
                path: Path, title: str = "Sweep") -> Path:
-    """PR curves (AUC in the legend) and standard Recall@N of every run of a sweep, side by side."""
-    fig, (ax_pr, ax_rn) = _pyplot().subplots(1, 2, figsize=(12.5, 5.0), layout="constrained")
+    """PR curves (AUC in the legend) and standard Recall@N of every run of a sweep, side by
+    side, each run in the same colour, line style and marker in both panels."""
     labels = list(dict.fromkeys([*curves, *recalls]))
-    style = {k: (f"C{i % 10}", LINE_STYLES[i % 4], MARKERS[i % 8]) for i, k in enumerate(labels)}  # same look in both panels
+    look = {k: (R.CYCLE[i % len(R.CYCLE)], LINE_STYLES[i % len(LINE_STYLES)], RASTER_MARKERS[i % len(RASTER_MARKERS)])
+            for i, k in enumerate(labels)}
+    extra = 17 * title.count("\n")
+    c = R.Canvas(1380, 560 + extra)
+    c.text(c.width / 2, 22, title, 14, anchor="ms")
+    # precision-recall, left
+    ax = R.Axes(c, (70, 50 + extra, 660, 490 + extra), (-0.01, 1.01), (0.0, 1.03))
+    ticks = np.round(np.arange(0, 1.01, 0.2), 1)
+    ax.frame(ticks, ticks)
+    ax.labels("recall (share of all queries)", "precision", "precision-recall")
+    entries: list[R.LegendEntry] = []
     order = sorted(curves, key=lambda k: -_auc(*curves[k]))
-    for i, label in enumerate(order):
+    for label in reversed(order):  # the best drawn last, on top
         rec, prec = curves[label]
         if len(rec):
+            colour, style, marker = look[label]
             x, y = np.r_[0.0, rec], np.r_[prec[0], prec]
-            c, ls, mk = style[label]
-            ax_pr.plot(x, y, ls, color=c, marker=mk, markevery=max(1, len(x) // 6), ms=4, lw=1.8,
-                       label=f"{label} (AUC {_auc(rec, prec):.3f})", zorder=20 - i)
-    ax_pr.set(xlim=(-0.01, 1.01), ylim=(0, 1.03), xlabel="recall (share of all queries)", ylabel="precision",
-              title="precision-recall")
-    ax_pr.grid(alpha=0.3)
-    all_n: set[int] = set()
-    for label, (ns, vals) in recalls.items():
-        pts = [(n, v) for n, v in zip(ns, vals) if v is not None]
+            ax.line(x, y, colour, 1.8 * PT, style)
+            every = max(1, len(x) // 6)
+            ax.markers(x[::every], y[::every], colour, marker, 4.5 * PT)
+    for label in order:
+        rec, prec = curves[label]
+        if len(rec):
+            colour, style, marker = look[label]
+            entries.append(R.LegendEntry(f"{label} (AUC {_auc(rec, prec):.3f})", colour, line_width=1.8 * PT, style=style,
+                                         marker=marker, marker_size=4.5 * PT))
+    ax.legend(entries, "lower left", size=10)
+    # Recall@N, right, log N
+    pts_of = {label: [(int(n), float(v)) for n, v in zip(ns, vals) if v is not None] for label, (ns, vals) in recalls.items()}
+    all_n = sorted({n for pts in pts_of.values() for n, _ in pts}) or [1]
+    lo, hi = min(all_n), max(all_n)
+    if hi == lo:
+        lo, hi = lo / 1.5, hi * 1.5
+    pad = (np.log10(hi) - np.log10(lo)) * 0.05
+    ax = R.Axes(c, (770, 50 + extra, 1360, 490 + extra), (10 ** (np.log10(lo) - pad), 10 ** (np.log10(hi) + pad)), (0.0, 1.05),
+                xlog=True)
+    ax.frame(all_n, ticks, xlabels=[str(n) for n in all_n])
+    ax.labels("N", "standard recall@N (all queries)", "Recall@N")
+    entries = []
+    for label, pts in pts_of.items():
         if pts:
-            x, y = zip(*pts)
-            all_n.update(x)
-            c, ls, mk = style[label]
-            ax_rn.plot(x, y, ls, color=c, marker=mk, ms=5, lw=1.8, label=label)
-    ax_rn.set_xscale("log")
-    ticks = sorted(all_n) or [1]
-    ax_rn.set_xticks(ticks, [str(t) for t in ticks])
-    ax_rn.minorticks_off()
-    ax_rn.set(ylim=(0, 1.05), xlabel="N", ylabel="standard recall@N (all queries)", title="Recall@N")
-    ax_rn.grid(alpha=0.3)
-    for ax in (ax_pr, ax_rn):
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc="lower left" if ax is ax_pr else "lower right", framealpha=0.9)
-    fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+            colour, style, marker = look[label]
+            x, y = (np.array(v, np.float64) for v in zip(*pts))
+            ax.line(x, y, colour, 1.8 * PT, style)
+            ax.markers(x, y, colour, marker, 5.5 * PT)
+            entries.append(R.LegendEntry(label, colour, line_width=1.8 * PT, style=style, marker=marker, marker_size=5.5 * PT))
+    ax.legend(entries, "lower right", size=10)
+    return c.save(path)

@@ -16,6 +16,22 @@ from placeloc.core.artifacts import atomic_open
 from placeloc.core.shared_data import shared_data_dir  # noqa: F401 - the one lookup, re-exported for experiments
 
 
+def pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend, for the figures some experiments draw for the
+    docs. matplotlib is an optional dependency (no stage or sweep needs it): without it
+    this says how to install it, and an experiment that draws calls this before its runs so
+    that it stops at once rather than after them."""
+    try:
+        import matplotlib
+    except ImportError as exc:
+        raise RuntimeError("this experiment draws its figures with matplotlib, which is not installed: "
+                           "pip install 'placeloc[experiments]' (or pip install matplotlib)") from exc
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def _discover() -> dict[str, str]:
     """Experiment name -> module: every module of this package that defines
     ``main(out_dir, quick=, quiet=)`` at top level (found by reading the files, nothing

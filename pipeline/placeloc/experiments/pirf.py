@@ -23,7 +23,7 @@ import numpy as np
 
 from placeloc.api import load_config, read_metrics, run
 from placeloc.evaluation import write_metrics
-from placeloc.experiments import say, write_summary
+from placeloc.experiments import pyplot, say, write_summary
 from placeloc.pirf.ann import BACKENDS, AnnIndex
 from placeloc.pirf.mapping import node_vector
 from placeloc.pirf.metrics import PAPER_RADIUS_M, set_agreement
@@ -114,6 +114,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, spec: dict[str
     """The paper's tables on generated data. ``spec``/``backends``/``timing_backends``
     override the size and the index backends (see ``experiment_large``); ``hnsw_mapping``
     also maps each update with the incremental HNSW graph (``pirf.map_search``) for Table 2."""
+    pyplot()  # its figures need matplotlib: stop now, not after the runs, where it is missing
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     spec = spec or (QUICK if quick else FULL)
@@ -182,11 +183,7 @@ def _f(v: Any, nd: int = 4) -> str:
 
 
 def _write_outputs(out: Path, runs: dict[str, dict[str, Any]], t3: list[dict[str, Any]], fig_rows: list[dict[str, Any]]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     p, i = runs[f"omni-plain-{DEFAULT_INDEX}"], runs[f"omni-improved-{DEFAULT_INDEX}"]
     from placeloc.pirf.results import loop_closure_count
 

@@ -63,7 +63,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from placeloc.api import load_config, run
-from placeloc.experiments import say, write_summary
+from placeloc.experiments import pyplot, say, write_summary
 from placeloc.pirf.mapping import PirfMapper, improved_insert, ratio_ok
 from placeloc.pirf.params import PirfParams
 from placeloc.pirf.results import read_pirfs
@@ -488,11 +488,7 @@ def _seam_table(pr: Property, entries: list[dict[str, Any]]) -> list[str]:
 
 
 def _plot(path: Path, table: list[dict[str, Any]], units: dict[str, Property]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     names = list(dict.fromkeys(e["property"] for e in table))
     # one panel alone (one property run) still needs room for the title and the legend
     fig, axes = plt.subplots(1, len(names), figsize=(max(5.5 * len(names), 8.0), 4.4 if len(names) > 1 else 5.0), squeeze=False, sharey=True)
@@ -526,6 +522,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False, seeds: tuple[i
          properties: tuple[Property, ...] | None = None) -> Path:
     """Every (property, level, seed) video; rows are cached in ``rows.json`` so a re-run only
     measures what is missing. ``quick``: seed 0 only, each property's absent and largest level."""
+    pyplot()  # its figures need matplotlib: stop now, not after the runs, where it is missing
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     seeds = seeds or ((0,) if quick else SEEDS)

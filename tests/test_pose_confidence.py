@@ -251,3 +251,7 @@ def test_plan_title_counts_what_a_look_at_both_places_finds():
     # without alternatives (or all NaN) the count stands alone
     assert plan_title("umap", truth, est) == plan_title("umap", truth, est, np.full((4, 2), np.nan)) == \
         "umap: 2 of 4 frames within 1 m (median error 1.95 m)"
+    # a frame without an answer (NaN) is counted as not within 1 m, named, and left out of the median
+    est[2] = np.nan
+    assert plan_title("umap", truth, est) == "umap: 2 of 4 frames within 1 m (median error 0.90 m; 1 without an answer)"
+    assert plan_title("umap", truth, np.full((4, 2), np.nan)) == "umap: 0 of 4 frames within 1 m (4 without an answer)"

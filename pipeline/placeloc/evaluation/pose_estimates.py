@@ -477,7 +477,11 @@ def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.nd
         with np.errstate(invalid="ignore"):   # NaN rows: no alternative, never near
             near = np.hypot(*(np.asarray(alternative, float).reshape(-1, 2) - truth).T) <= 1.0
         either = f", {int(np.sum((err <= 1.0) | near))} counting the ringed alternatives"
-    return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either} (median error {np.median(err):.2f} m)"
+    answered = np.isfinite(err)  # NaN: a frame the method gave no position for
+    notes = ([f"median error {np.median(err[answered]):.2f} m"] if answered.any() else []) + (
+        [f"{int(np.sum(~answered))} without an answer"] if not answered.all() else [])
+    median = f" ({'; '.join(notes)})" if notes else ""
+    return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either}{median}"
 
 
 def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 4.0) -> tuple[np.ndarray, np.ndarray]:

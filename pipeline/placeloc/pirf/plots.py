@@ -93,7 +93,7 @@ def plot_loop_closure_pairs(path: Path, frames: np.ndarray, nodes: np.ndarray, c
     ti, tj = local[truth_i[ok]], local[truth_j[ok]]
     keep = (ti >= 0) & (tj >= 0)
     good, bad = correct, ~correct
-    lim = (-0.5, n_frames - 0.5)
+    lim = (-0.5, max(n_frames, 1) - 0.5)  # no frames: an empty square, not a range of nothing
     prec = f"{correct.mean():.3f}" if len(correct) else "none to judge"
     entries = ([R.LegendEntry(f"true pair (frame, earlier frame): {int(keep.sum())}", PAIR_GREY, marker="s",
                               marker_size=5)] if keep.any() else []) + [

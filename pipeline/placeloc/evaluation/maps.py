@@ -247,20 +247,8 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
         R.LegendEntry("true position", (102, 102, 102), marker="O", marker_size=6.5),
         R.LegendEntry("estimated position", blue, marker="o", marker_size=5.5),
         R.LegendEntry("landmark (known)", red, marker="s", marker_size=9)]
-    lines = title.split("\n")
-    width = int(max(box_w + 110, max(R.text_width(t, 13) for t in lines) + 40, 560))
-    rows = R.legend_rows(entries, width - 40, size=12)
-    top = 20.0 + 17.0 * len(lines)
-    c = R.Canvas(width, int(top + box_h + 56 + R.legend_row_height(12) * len(rows) + 8))
-    left = round(80 + max(0.0, (width - 110 - box_w) / 2))
-    box = (left, round(top), round(left + box_w), round(top + box_h))
-    ax = R.Axes(c, box, (lo[0], hi[0]), (lo[1], hi[1]))
-    xt = R.nice_ticks(lo[0], hi[0], most=7)
-    yt = R.nice_ticks(lo[1], hi[1], most=7)
-    ax.frame(xt, yt, size=11)
-    ax.labels(f"{names[0]} ({units})", f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"), size=12)
-    for i, t in enumerate(lines):
-        c.text(width / 2, 24 + 17 * i, t, 13, anchor="ms")
+    c, ax, rows = R.titled_chart(title, box_w, box_h, entries, (lo[0], hi[0]), (lo[1], hi[1]), f"{names[0]} ({units})",
+                                 f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"))
     if path_est is not None:
         ax.line(path_est[:, 0], path_est[:, 1], orange, 1.2)
     if path_truth is not None:
@@ -271,5 +259,5 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     if len(landmarks):
         ax.markers(landmarks[:, ax0], landmarks[:, ax1], red, "s", 9)
     ax.box()
-    R.draw_legend_rows(c, rows, box[3] + 50, size=12)
+    R.legend_below(c, ax, rows)
     return c.save(path)

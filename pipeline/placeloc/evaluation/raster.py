@@ -481,6 +481,35 @@ def _dash_runs(px: np.ndarray, py: np.ndarray, pattern: Sequence[float]) -> list
     return runs
 
 
+def titled_chart(title: str, box_w: float, box_h: float, entries: Sequence[LegendEntry], xlim: tuple[float, float],
+                  ylim: tuple[float, float], xlabel: str, ylabel: str, *, xticks: Sequence[float] | None = None,
+                  xtick_labels: Sequence[str] | None = None,
+                  yticks: Sequence[float] | None = None) -> tuple[Canvas, Axes, list[list[LegendEntry]]]:
+    """A canvas with one data box of ``box_w`` x ``box_h`` pixels under a title of one or
+    more lines, its legend in rows below (drawn by :func:`legend_below` once the data are
+    in); the box framed with ticks (round ones unless given)
+    and labels. Returns the canvas, the axes and the legend's rows."""
+    lines = title.split("\n")
+    width = int(max(box_w + 120, max(text_width(t, 14) for t in lines) + 40, 520))
+    rows = legend_rows(entries, width - 40, size=12)
+    top = 18.0 + 18.0 * len(lines)
+    c = Canvas(width, int(top + box_h + 54 + legend_row_height(12) * len(rows) + 6))
+    left = round(84 + max(0.0, (width - 120 - box_w) / 2))
+    ax = Axes(c, (left, round(top), round(left + box_w), round(top + box_h)), xlim, ylim)
+    ax.frame(nice_ticks(*xlim, most=max(3, int(box_w / 90))) if xticks is None else xticks,
+             nice_ticks(*ylim, most=max(3, int(box_h / 70))) if yticks is None else yticks, xlabels=xtick_labels,
+             size=12)
+    ax.labels(xlabel, ylabel, size=13)
+    for i, t in enumerate(lines):
+        c.text(width / 2, 26 + 18 * i, t, 14, anchor="ms")
+    return c, ax, rows
+
+
+def legend_below(c: Canvas, ax: Axes, rows: Sequence[Sequence[LegendEntry]]) -> None:
+    """The legend rows of :func:`titled_chart` under its box, clear of the x label."""
+    draw_legend_rows(c, rows, ax.bottom + 48, size=12)
+
+
 def percentiles(values: np.ndarray, qs: Sequence[float]) -> tuple[float, ...]:
     """``np.percentile(values, qs)`` (linear between the two nearest ranks) by partition:
     np.percentile's np.unique would import numpy.ma (20 ms) for a colour scale's two ends."""

@@ -5,7 +5,7 @@ took 0.4 s of a small run's evaluate."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -30,29 +30,6 @@ def _square_limits(lo: np.ndarray, hi: np.ndarray, w: float, h: float) -> tuple[
     return (c[0] - per_px * w / 2, c[0] + per_px * w / 2), (c[1] - per_px * h / 2, c[1] + per_px * h / 2)
 
 
-def _framed_panel(title: str, box_w: float, box_h: float, entries: list[R.LegendEntry], xlim: tuple[float, float],
-                  ylim: tuple[float, float], xlabel: str, ylabel: str, *, xticks: Sequence[float] | None = None,
-                  xtick_labels: Sequence[str] | None = None,
-                  yticks: Sequence[float] | None = None) -> tuple[R.Canvas, R.Axes, list]:
-    """A canvas with one data box of ``box_w`` x ``box_h`` pixels under a title of one or
-    more lines, its legend in rows below; the box framed with ticks (round ones unless
-    given) and labels."""
-    lines = title.split("\n")
-    width = int(max(box_w + 120, max(R.text_width(t, 14) for t in lines) + 40, 520))
-    rows = R.legend_rows(entries, width - 40, size=12)
-    top = 18.0 + 18.0 * len(lines)
-    c = R.Canvas(width, int(top + box_h + 54 + R.legend_row_height(12) * len(rows) + 6))
-    left = round(84 + max(0.0, (width - 120 - box_w) / 2))
-    ax = R.Axes(c, (left, round(top), round(left + box_w), round(top + box_h)), xlim, ylim)
-    ax.frame(R.nice_ticks(*xlim, most=max(3, int(box_w / 90))) if xticks is None else xticks,
-             R.nice_ticks(*ylim, most=max(3, int(box_h / 70))) if yticks is None else yticks, xlabels=xtick_labels,
-             size=12)
-    ax.labels(xlabel, ylabel, size=13)
-    for i, t in enumerate(lines):
-        c.text(width / 2, 26 + 18 * i, t, 14, anchor="ms")
-    return c, ax, rows
-
-
 def plot_loop_closures(path: Path, r_xy: np.ndarray, frames: np.ndarray, nodes: np.ndarray, correct: np.ndarray,
                        radius: float) -> Path:
     """The mapping path with each loop closure drawn at the frame that closed it, green when
@@ -71,7 +48,7 @@ def plot_loop_closures(path: Path, r_xy: np.ndarray, frames: np.ndarray, nodes: 
                R.LegendEntry(f"correct loop closure ({len(good)})", GREEN, marker="o", marker_size=6),
                R.LegendEntry(f"wrong loop closure ({len(bad)}), line to match", RED, marker="x", marker_size=8),
                R.LegendEntry("start", R.BLACK, marker="^", marker_size=10)]
-    c, ax, rows = _framed_panel(f"PIRF-nav2 loop closures: {len(frames)}, precision {prec}\n"
+    c, ax, rows = R.titled_chart(f"PIRF-nav2 loop closures: {len(frames)}, precision {prec}\n"
                                 f"(correct = matched node within {radius:g} m)", w, h, entries, xlim, ylim, "x (m)", "y (m)")
     ax.line(r_xy[:, 0], r_xy[:, 1], PATH_GREY, 1.5)
     ax.markers(r_xy[good, 0], r_xy[good, 1], GREEN, "o", 6)
@@ -79,7 +56,7 @@ def plot_loop_closures(path: Path, r_xy: np.ndarray, frames: np.ndarray, nodes: 
     ax.segments(r_xy[bad, 0], r_xy[bad, 1], r_xy[n_bad, 0], r_xy[n_bad, 1], (230, 140, 140), 1.0)
     ax.markers(r_xy[bad, 0], r_xy[bad, 1], RED, "x", 8)
     ax.markers(r_xy[:1, 0], r_xy[:1, 1], R.BLACK, "^", 10)
-    R.draw_legend_rows(c, rows, ax.bottom + 48, size=12)
+    R.legend_below(c, ax, rows)
     return c.save(path)
 
 
@@ -99,14 +76,14 @@ def plot_loop_closure_pairs(path: Path, frames: np.ndarray, nodes: np.ndarray, c
                               marker_size=5)] if keep.any() else []) + [
         R.LegendEntry(f"correct loop closure ({int(good.sum())})", GREEN, marker="o", marker_size=6),
         R.LegendEntry(f"wrong loop closure ({int(bad.sum())})", RED, marker="x", marker_size=8)]
-    c, ax, rows = _framed_panel(f"PIRF-nav2 loop closures: {len(frames)}, precision {prec}\n(correct = a one in the "
+    c, ax, rows = R.titled_chart(f"PIRF-nav2 loop closures: {len(frames)}, precision {prec}\n(correct = a one in the "
                                 f"truth matrix within {tolerance} frames)", 560, 560, entries, lim, lim,
                                 "frame that closed the loop", "earlier frame it matched")
     if keep.any():
         ax.markers(ti[keep], tj[keep], PAIR_GREY, "s", 1.5)
     ax.markers(frames[good], nodes[good], GREEN, "o", 6)
     ax.markers(frames[bad], nodes[bad], RED, "x", 8)
-    R.draw_legend_rows(c, rows, ax.bottom + 48, size=12)
+    R.legend_below(c, ax, rows)
     return c.save(path)
 
 
@@ -116,7 +93,7 @@ def plot_accuracy_gap(path: Path, ann: list[float], bf: list[float] | None, back
     gaps = np.arange(len(ann))
     series = [(f"ANN ({backend})", ann, BLUE)] + ([("brute force", bf, ORANGE)] if bf is not None else [])
     entries = [R.LegendEntry(label, colour, marker="s", marker_size=11) for label, _, colour in series]
-    c, ax, rows = _framed_panel(f"localization of the unseen run\n(correct: matched node within gap nodes of one "
+    c, ax, rows = R.titled_chart(f"localization of the unseen run\n(correct: matched node within gap nodes of one "
                                 f"within {radius:g} m)", 420, 300, entries, (-0.6, len(ann) - 0.4), (0.0, 1.0),
                                 "gap tolerance (nodes)", "localization accuracy", xticks=gaps,
                                 xtick_labels=[str(int(g)) for g in gaps], yticks=np.round(np.arange(0, 1.01, 0.2), 1))
@@ -129,7 +106,7 @@ def plot_accuracy_gap(path: Path, ann: list[float], bf: list[float] | None, back
             c.draw.rectangle((px0, py1, px1, py0), fill=colour)
             c.text(float(ax._x(x0 + width / 2)), float(ax._y(v)) - 3, f"{v:.2f}", 11, anchor="md")
     ax.box()
-    R.draw_legend_rows(c, rows, ax.bottom + 48, size=12)
+    R.legend_below(c, ax, rows)
     return c.save(path)
 
 

@@ -427,7 +427,7 @@ def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> Path:
     and 1 m marks labelled with their shares."""
     err = np.asarray(err, float)
     c = R.Canvas(720, 480)
-    ax = _error_axes(c, (70, 36, 700, 416), float(np.max(err, initial=0.0)),
+    ax = _error_axes(c, (70, 36, 700, 416), float(np.max(err[np.isfinite(err)], initial=0.0)),
                      f"Cumulative position error, {mode} ({len(err)} frames)")
     if len(err):
         ax.line(*_cdf_steps(err), BLUE, 2.5)

@@ -392,6 +392,9 @@ def _sample(c: Canvas, x0: float, x1: float, cy: float, e: LegendEntry, size: fl
         c.text((x0 + x1) / 2, cy, e.text, size * 1.15, fill=e.colour, anchor="mm")
 
 
+LEGEND_SAMPLE, LEGEND_PAD, LEGEND_GAP = 30.0, 6.0, 22.0  # a row legend's sample, its gap to the label, between entries
+
+
 def legend_rows(entries: Sequence[LegendEntry], width: float, size: float = 11) -> list[list[LegendEntry]]:
     """The entries of a legend laid in rows across ``width`` output pixels, in order, as
     many to a row as fit (at least one)."""
@@ -410,9 +413,6 @@ def legend_rows(entries: Sequence[LegendEntry], width: float, size: float = 11) 
 
 def _entry_width(e: LegendEntry, size: float) -> float:
     return LEGEND_SAMPLE + LEGEND_PAD + text_width(e.label, size) + LEGEND_GAP
-
-
-LEGEND_SAMPLE, LEGEND_PAD, LEGEND_GAP = 30.0, 6.0, 22.0  # a row legend's sample, its gap to the label, between entries
 
 
 def legend_row_height(size: float = 11) -> float:

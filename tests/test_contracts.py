@@ -106,8 +106,11 @@ def test_show_and_report_for_every_contract(run):
     for p in PICTURES[res.kind]:
         assert (run_dir / p).stat().st_size > 5000, p
     report = (run_dir / "report.html").read_text()
-    # the report opens with the headline figures (equal to metrics.json), then the config
-    assert report.index("<h2>Headline</h2>") < report.index("<h2>Configuration</h2>") < report.index("<h2>Metrics</h2>")
+    # the report opens with the headline figures (equal to metrics.json), then the short config, then the
+    # pictures; the method's many parameters are folded, and the full metrics table comes last
+    assert (report.index("<h2>Headline</h2>") < report.index("<h2>Configuration</h2>") < report.index("<h2>Pictures</h2>")
+            < report.index("<h2>Metrics</h2>"))
+    assert report.index("<details><summary>all ") < report.index(f"<th>{name} parameter</th>") < report.index("</details>")
     cells = _headline_cells(report)
     assert list(cells) == [k for k, _ in figures]
     for k, v in figures:

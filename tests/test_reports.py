@@ -121,6 +121,8 @@ def test_report_shows_a_value_the_method_chose_beside_the_configs_only(tmp_path)
     cfg = {"method": "coembed", "coembed": {"alpha": 1000.0, "alpha_select": "loo", "beta": 1.0}}
     html = write_report(tmp_path, config=cfg).read_text()
     assert "1000.0000 in the config; 10000.0000 chosen by alpha_select (metrics.json)" in html
+    # and in the short table, outside the folded parameters: a chosen value is a result too
+    assert html.index("<td>coembed.alpha</td>") < html.index("<details>")
     # beta has no *_select: metrics.json's value (from an earlier run, say) never relabels the config's
     assert "<td>beta</td><td class='num'>1.0000</td>" in html
     cfg["coembed"]["alpha_select"] = "fixed"

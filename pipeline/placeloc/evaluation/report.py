@@ -32,6 +32,7 @@ table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;pad
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
 .cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}
+details{margin:8px 0 20px}summary{cursor:pointer;color:#336;font-size:13px}
 .headline{display:flex;gap:14px;flex-wrap:wrap;margin:10px 0 6px}.fig{border:1px solid #ccd;border-radius:6px;padding:8px 14px;
 background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
 
@@ -225,21 +226,20 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     else:
         summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
             f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
-    parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")))
+    params = ""
     if isinstance(cfg.get(method), dict):
-        # a value the method chose at run time (co-embedding's alpha by alpha_select) beside the config's
+        # a value the method chose at run time (co-embedding's alpha by alpha_select) beside the config's,
+        # in the short table too: it is a result as much as a setting
         section = cfg[method]
         chosen = {k for k in section if section.get(f"{k}_select") not in (None, "none", "fixed", False)}
         rows = [(k, f"{format_value(v)} in the config; {format_value(metrics[k])} chosen by {k}_select (metrics.json)"
                  if k in chosen and k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
                 for k, v in _flatten(section)]
-        parts.append(_table(rows, (f"{method} parameter", "value")))
-    parts.append("</div>")
-    if metrics:
-        main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
-        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc) + _table(main, ("metric", "value")))
-    else:
-        parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
+        summary += [(f"{method}.{k}", v) for k, v in rows if isinstance(v, str) and " chosen by " in v]
+        # every parameter, folded: a method has tens of them, and the pictures should not wait below them
+        params = (f"<details><summary>all {len(rows)} {html.escape(method)} parameters</summary>"
+                  + _table(rows, (f"{method} parameter", "value")) + "</details>")
+    parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")) + params + "</div>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}
     pngs = sorted(found.values(), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
     parts.append("<h2>Pictures</h2>")
@@ -253,6 +253,12 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
         parts.append(f"<h3>{html.escape(png.name)}</h3><img alt='{html.escape(png.name)}' src='data:image/png;base64,{data}'>")
     if not embedded:
         parts.append("<p>No pictures in this run directory (plots: false?).</p>")
+    # every figure of metrics.json after the pictures: the headline above holds the few to look at first
+    if metrics:
+        main = [(k, v) for k, v in metrics.items() if not isinstance(v, (dict, list))]
+        parts.append("<h2>Metrics</h2>" + _metrics_doc(metrics_doc) + _table(main, ("metric", "value")))
+    else:
+        parts.append("<h2>Metrics</h2><p>No metrics.json (no ground truth, or evaluate has not run).</p>")
     parts.append("</body></html>")
     path = out_dir / REPORT
     with atomic_open(path) as fh:

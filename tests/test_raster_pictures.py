@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 BLUE, RED, ORANGE = (31, 119, 180), (214, 39, 40), (255, 127, 14)
 
@@ -170,3 +171,21 @@ def test_an_experiment_that_draws_says_how_to_get_matplotlib_where_it_is_missing
             "try:\n    pyplot()\nexcept RuntimeError as e:\n    print(e)\n")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     assert "pip install 'placeloc[experiments]'" in out
+
+
+def test_plan_view_takes_in_the_room_around_the_frames_not_the_whole_corridor():
+    """The picture's view, by hand: the frames' extent, a margin of 2 m (or 5 %), the walls
+    through that box as far as 1.5 margins beyond the frames, then a pad of 2 % + 0.4 m."""
+    from placeloc.evaluation.pose_estimates import plan_view
+
+    room = np.array([[0, 0, 4, 0], [4, 0, 4, 4], [4, 4, 0, 4], [0, 4, 0, 0]], float)
+    lo, hi = plan_view(np.array([[1.0, 3.0]]), room)
+    # the walls reach x 0..4 and y 0..4 (within 3 m of the frame): the view is the room, padded
+    assert lo == pytest.approx([0 - 0.48, 0 - 0.48]) and hi == pytest.approx([4 + 0.48, 4 + 0.48])
+    corridor = np.array([[0, 0, 90, 0], [0, 2.4, 90, 2.4]], float)
+    frames = np.column_stack([np.linspace(8, 59, 30), np.full(30, 1.6)])
+    lo, hi = plan_view(frames, corridor)
+    # margin 5 % of 51 m = 2.55 m; the corridor's walls clipped 1.5 margins (3.825 m) beyond the frames
+    span = np.array([51 + 2 * 3.825, 2.4])
+    assert lo == pytest.approx([8 - 3.825 - (0.02 * span[0] + 0.4), 0 - (0.02 * 2.4 + 0.4)])
+    assert hi == pytest.approx([59 + 3.825 + (0.02 * span[0] + 0.4), 2.4 + (0.02 * 2.4 + 0.4)])

@@ -484,13 +484,14 @@ def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.nd
     return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either}{median}"
 
 
-def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
     """The part of a plan a picture of ``points`` (N x 2: frames, answers, alternatives)
     shows, as (lo, hi) corners: the points' extent with a margin of ``margin_m`` (or 5 % of
     the extent, if more), widened to take in the walls (M x 4: x0, y0, x1, y1) that pass
-    through that box, each as far as ``reach`` margins beyond it: a frame in a room's corner
-    shows its room's far walls, and frames in one wing of a long building do not show the
-    whole building. Then a pad of 2 % and 0.4 m, so that a corridor keeps its width."""
+    through that box, each as far as ``reach`` margins beyond the points' extent (3 m by
+    default): a frame in a room's corner shows the room's far walls up to 3 m away, and
+    frames along part of a 90 m corridor do not show the whole of it. Then a pad of 2 % and
+    0.4 m, so that a corridor keeps its width."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     margin = np.maximum(0.05 * (hi - lo), margin_m)
     wlo, whi = lo - margin, hi + margin

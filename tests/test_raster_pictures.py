@@ -189,3 +189,31 @@ def test_plan_view_takes_in_the_room_around_the_frames_not_the_whole_corridor():
     span = np.array([51 + 2 * 3.825, 2.4])
     assert lo == pytest.approx([8 - 3.825 - (0.02 * span[0] + 0.4), 0 - (0.02 * 2.4 + 0.4)])
     assert hi == pytest.approx([59 + 3.825 + (0.02 * span[0] + 0.4), 2.4 + (0.02 * 2.4 + 0.4)])
+
+
+def test_names_the_bundled_font_lacks_are_drawn_with_an_installed_font():
+    """Pillow's bundled font has no accented letters ("Zürich_01.png" showed a box for the ü):
+    such a text is drawn with the first installed fallback font that has every character, and
+    ASCII stays with the bundled one."""
+    from PIL import Image, ImageDraw
+
+    from placeloc.evaluation import raster as R
+
+    if not R._installed_fallbacks():
+        pytest.skip("none of raster.FALLBACK_FONTS is installed here")
+    assert R._missing("frame_01.png") == "" and R._missing("Zürich_ü.png") == "ü"
+    assert R.font_for("frame_01.png", 24) is R.font(24)
+    fallback = R.font_for("Zürich_01.png", 24)
+    assert fallback is not R.font(24) and R._has_glyphs(fallback, "ü") and not R._has_glyphs(R.font(24), "ü")
+
+    def ink(text: str, f) -> np.ndarray:
+        img = Image.new("L", (60, 40), 0)
+        ImageDraw.Draw(img).text((5, 5), text, font=f, fill=255)
+        return np.asarray(img)
+
+    # drawn through a canvas: the fallback's ü, not the bundled font's missing-glyph box
+    c = R.Canvas(60, 40, ss=1)
+    c.text(5, 5, "ü", 24)
+    got = np.asarray(c.result().convert("L")) < 128
+    assert got.any() and np.array_equal(ink("ü", fallback) > 127, got)
+    assert not np.array_equal(ink("ü", R.font(24)) > 127, got)

@@ -5,7 +5,9 @@ more than a small run's whole localize. The pictures evaluate draws each time ar
 an axes box with ticks, labels and a title; lines, markers and a legend; an image with a
 colour bar. Drawn here, each costs milliseconds. Charts are drawn at ``SS`` times the
 size and reduced by a box filter, which smooths lines and markers; text is Pillow's own
-FreeType font (Aileron), so no system font is needed.
+FreeType font (Aileron), so no system font is needed, except for characters it lacks
+(accented letters, Cyrillic, CJK in frame names): those texts take an installed font
+(:data:`FALLBACK_FONTS`) where there is one.
 
 Coordinates given to :class:`Canvas` are output pixels; :class:`Axes` maps data to them.
 """
@@ -46,9 +48,91 @@ def font(pixels: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
     return fonts[pixels]
 
 
+# Fonts for text Pillow's bundled font cannot draw: it covers ASCII and a few signs (degree,
+# micro), not accented letters, Cyrillic or CJK, so a frame named "Zürich_01.png" or
+# "写真_01.png" showed boxes. The first installed one that has every missing character draws
+# the whole text (one font a text: no mixed baselines). File names, searched for below FONT_DIRS.
+FALLBACK_FONTS = ("DejaVuSans.ttf", "NotoSans-Regular.ttf", "NotoSansCJK-Regular.ttc", "NotoSansCJKjp-Regular.otf",
+                  "NotoSansJP-Regular.otf", "SourceHanSans-Regular.otc", "ipagp.ttf", "ipag.ttf", "ipaexg.ttf",
+                  "Arial Unicode.ttf", "arialuni.ttf", "YuGothM.ttc", "meiryo.ttc", "msgothic.ttc", "Arial.ttf", "arial.ttf",
+                  "segoeui.ttf")
+FONT_DIRS = ("/usr/share/fonts", "/usr/local/share/fonts", "~/.local/share/fonts", "~/.fonts", "/Library/Fonts",
+             "/System/Library/Fonts", "C:/Windows/Fonts")
+_FALLBACK_LOCK = threading.Lock()
+_fallback_paths: list[str] | None = None
+_covering: dict[str, str | None] = {}  # a text's missing characters -> the font file that has them all (None: none)
+
+
+def _installed_fallbacks() -> list[str]:
+    """The :data:`FALLBACK_FONTS` found on this machine, in that order (looked for once)."""
+    global _fallback_paths
+    if _fallback_paths is None:
+        import os
+
+        wanted = {name.lower(): i for i, name in enumerate(FALLBACK_FONTS)}
+        found: dict[int, str] = {}
+        for top in FONT_DIRS:
+            for root, _, files in os.walk(os.path.expanduser(top)):
+                for f in files:
+                    i = wanted.get(f.lower())
+                    if i is not None and i not in found:
+                        found[i] = os.path.join(root, f)
+        _fallback_paths = [found[i] for i in sorted(found)]
+    return _fallback_paths
+
+
+def _has_glyphs(f: ImageFont.FreeTypeFont | ImageFont.ImageFont, chars: str) -> bool:
+    """Whether ``f`` draws every character of ``chars`` as itself, not as its missing-glyph box."""
+    def ink(ch: str) -> tuple:
+        m = f.getmask(ch)
+        return (m.size, bytes(np.asarray(m, np.uint8).ravel()) if m.size[0] * m.size[1] else b"")
+
+    missing = ink("\uffff")  # a non-character: every font draws its missing-glyph box for it
+    return all(ink(ch) != missing for ch in chars)
+
+
+_lacks: dict[str, bool] = {}  # a character -> whether the bundled font lacks it (asked once each)
+
+
+def _missing(text: str) -> str:
+    """The characters of ``text`` the bundled font lacks, each once, in order ("" for ASCII)."""
+    if text.isascii():
+        return ""
+    out = []
+    for ch in dict.fromkeys(text):
+        if ch.isascii() or ch.isspace():
+            continue
+        if ch not in _lacks:
+            _lacks[ch] = not _has_glyphs(font(24), ch)
+        if _lacks[ch]:
+            out.append(ch)
+    return "".join(out)
+
+
+def font_for(text: str, pixels: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    """The font that draws ``text``: Pillow's bundled one, or for characters it lacks the first
+    installed :data:`FALLBACK_FONTS` that has them all (if none has, the bundled one: boxes)."""
+    lacking = _missing(text)
+    if not lacking:
+        return font(pixels)
+    with _FALLBACK_LOCK:
+        if lacking not in _covering:
+            _covering[lacking] = next((path for path in _installed_fallbacks()
+                                       if _has_glyphs(ImageFont.truetype(path, 24), lacking)), None)
+        path = _covering[lacking]
+    if path is None:
+        return font(pixels)
+    fonts = getattr(_FONTS, "by_file", None)
+    if fonts is None:
+        fonts = _FONTS.by_file = {}
+    if (path, pixels) not in fonts:
+        fonts[path, pixels] = ImageFont.truetype(path, pixels)
+    return fonts[path, pixels]
+
+
 def text_width(text: str, size: float) -> float:
     """Width of ``text`` in output pixels."""
-    return float(font(size * SS).getlength(text)) / SS
+    return float(font_for(text, size * SS).getlength(text)) / SS
 
 
 def save_png(image: Image.Image, path: str | Path, *, photo: bool = False) -> Path:
@@ -108,14 +192,14 @@ class Canvas:
             return
         xy = (x * self.ss, y * self.ss)
         if box is not None:
-            left, top, right, bottom = self.draw.textbbox(xy, text, font=font(round(size * self.ss)), anchor=anchor)
+            left, top, right, bottom = self.draw.textbbox(xy, text, font=font_for(text, round(size * self.ss)), anchor=anchor)
             p = pad * self.ss
             self.draw.rectangle((left - p, top - p, right + p, bottom + p), fill=box)
-        self.draw.text(xy, text, font=font(round(size * self.ss)), fill=fill, anchor=anchor)
+        self.draw.text(xy, text, font=font_for(text, round(size * self.ss)), fill=fill, anchor=anchor)
 
     def vertical_text(self, x: float, y: float, text: str, size: float = 11, fill: Colour = BLACK) -> None:
         """``text`` turned a quarter left (read bottom to top), centred on (x, y)."""
-        f = font(round(size * self.ss))
+        f = font_for(text, round(size * self.ss))
         left, top, right, bottom = f.getbbox(text)
         mask = Image.new("L", (int(right - left) + 2, int(bottom - top) + 2), 0)
         ImageDraw.Draw(mask).text((1 - left, 1 - top), text, font=f, fill=255)

@@ -226,6 +226,42 @@ def test_score_table_is_the_same_to_the_bit_for_any_thread_count_and_batch(monke
             assert np.array_equal(np.concatenate(parts, axis=1), spectra), cut
 
 
+def test_spectra_are_the_plain_formula_to_the_bit():
+    """chamfer_spectra writes each half into one buffer and conjugates straight into its
+    output (the index is memory-bound); the same bits as the formula written array by array:
+    [weighted lines / their weighted sum, weighted closeness (or likelihood)], row spectra,
+    conjugated, frequency first."""
+    from placeloc.umap.panorama import (
+        _rfft,
+        chamfer_spectra,
+        closeness,
+        likelihood_image,
+        orientation_channels,
+        oriented_closeness,
+        row_weights,
+        stack_channels,
+    )
+
+    rng = np.random.default_rng(5)
+    db = (rng.random((70, H, W)) < 0.03).astype(np.uint8)
+    wts = row_weights(H, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
+
+    def formula(lines: np.ndarray, close: np.ndarray, w: np.ndarray) -> np.ndarray:
+        img = lines.astype(np.float32) * w
+        n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
+        return np.conj(_rfft(np.concatenate([img / n, close * w], axis=1))).transpose(2, 0, 1)
+
+    w = np.asarray(wts, np.float32)[None, :, None]
+    for lines in (db, db.astype(bool)):
+        assert np.array_equal(chamfer_spectra(lines, tau_px=3.0, weights=wts), formula(lines, closeness(lines, 3.0), w))
+    like = likelihood_image(closeness(db, 3.0), wts, 0.5)
+    assert np.array_equal(chamfer_spectra(db, tau_px=3.0, weights=wts, clutter_share=0.5), formula(db, like, w))
+    ch = orientation_channels(db, 4)
+    w4 = np.tile(np.asarray(wts, np.float32), 4)[None, :, None]
+    assert np.array_equal(chamfer_spectra(ch, tau_px=3.0, weights=wts, spread=1),
+                          formula(stack_channels(ch), stack_channels(oriented_closeness(ch, 3.0, 1)), w4))
+
+
 def test_chance_levels_by_hand():
     # one map row of 10 columns, tau 2: map lines at columns 0 and 5 -> closeness 1, .5, 0, 0, .5, 1, .5, 0, 0, .5
     # (wrapping), i.e. it averages 0.4 over the image; the query has one line pixel at column 1

@@ -640,24 +640,37 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
         w = np.tile(np.asarray(weights, np.float32), b)[None, :, None]
         out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * b * lines.shape[-2]), np.complex64)
         for s in range(0, len(lines), SPECTRA_BLOCK):
-            img = stack_channels(lines[s:s + SPECTRA_BLOCK]).astype(np.float32) * w
-            n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
-            close = stack_channels(oriented_closeness(lines[s:s + SPECTRA_BLOCK], tau_px, spread))
-            x = np.concatenate([img / n, close * w], axis=1)
-            out[:, s:s + SPECTRA_BLOCK] = np.conj(_rfft(x)).transpose(2, 0, 1)
+            block = lines[s:s + SPECTRA_BLOCK]
+            _spectra_rows(stack_channels(block), stack_channels(oriented_closeness(block, tau_px, spread)), w,
+                          out[:, s:s + SPECTRA_BLOCK])
         return out
     lines = np.asarray(lines).reshape(-1, *lines.shape[-2:])
     w = np.asarray(weights, np.float32)[None, :, None]
     out = np.empty((lines.shape[-1] // 2 + 1, len(lines), 2 * lines.shape[-2]), np.complex64)
     for s in range(0, len(lines), SPECTRA_BLOCK):  # blocks keep the float temporaries small
-        img = lines[s:s + SPECTRA_BLOCK].astype(np.float32) * w
-        n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
         close = closeness(lines[s:s + SPECTRA_BLOCK], tau_px)
         if clutter_share is not None:
             close = likelihood_image(close, weights, clutter_share)
-        x = np.concatenate([img / n, close * w], axis=1)
-        out[:, s:s + SPECTRA_BLOCK] = np.conj(_rfft(x)).transpose(2, 0, 1)
+        _spectra_rows(lines[s:s + SPECTRA_BLOCK], close, w, out[:, s:s + SPECTRA_BLOCK])
     return out
+
+
+def _spectra_rows(lines: np.ndarray, close: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """One block of :func:`chamfer_spectra`: (P, R, W) line images and their (P, R, W) float32
+    closeness (or likelihood) images, row weights ``w`` (1, R, 1) -> ``out`` (F, P, 2R), the
+    conjugate spectra of [weighted lines / their sum, weighted closeness]. Each half is
+    written once into one buffer and the spectra conjugated straight into ``out``: the
+    same operations, in the same order, as making each array apart and joining them
+    (the same bits: tested), with four fewer passes over a block (the index is
+    memory-bound: these elementwise passes were most of its time)."""
+    p, r, width = lines.shape
+    x = np.empty((p, 2 * r, width), np.float32)
+    img = x[:, :r]
+    np.multiply(lines, w, out=img, dtype=np.float32)                  # the lines as float32, weighted
+    n = np.maximum(img.sum(axis=(1, 2)), 1e-9)[:, None, None]
+    np.divide(img, n, out=img)
+    np.multiply(close, w, out=x[:, r:])
+    np.conjugate(_rfft(x).transpose(2, 0, 1), out=out)
 
 
 def _rfft(x: np.ndarray) -> np.ndarray:

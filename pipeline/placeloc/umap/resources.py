@@ -28,7 +28,10 @@ BASE_MEMORY: dict[str, int] = {
 # alternating with the tree before) took 2.69-4.30 s of its own, 1.55-3.18 s of system time
 # and a 1.69 GB peak, against 2.07-2.13 s, 0.91-0.97 s and 0.41 GB with 64 (128: the same
 # time, 0.49 GB; 32: 2.2 s). Every position's spectra are its own, the same to the bit in
-# any block (tested)
+# any block (tested). Since each block's halves are written into one buffer and conjugated
+# straight into place (panorama._spectra_rows), a block's temporaries are 3.5 times its
+# spectra, not 5.1, and the index 1.61-1.73 s of its own (three runs alternating with the
+# tree before, 2.33-2.59 s there), peak 0.33 GB
 SPECTRA_BLOCK = 64
 
 
@@ -83,9 +86,9 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     block = min(int(p.get("block", 2048)), views)
     # the chamfer score's index: per position both map images' row spectra, (w // 2 + 1)
     # frequencies x 2h rows of complex64 (x the direction bins), made and written
-    # SPECTRA_BLOCK positions at a time (that block and its FFT temporaries: measured 257 and
-    # 441 MB for blocks of 770 and 1024 positions of 144 x 72, and 157 MB for 64 positions
-    # with 6 direction bins, 5.1 blocks of spectra: tracemalloc). Localize maps them rather
+    # SPECTRA_BLOCK positions at a time (that block and its temporaries: 107 MB for 64
+    # positions of 144 x 72 with 6 direction bins, 3.5 blocks of spectra, tracemalloc; counted
+    # as 4). Localize maps them rather
     # than copying (core.artifacts.read_mapped), but every batch of panoramas reads them all:
     # where they do not fit in memory with the rest, each batch would read them from disk, so
     # they still count whole
@@ -105,7 +108,7 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     needs = [Need(what, key, stage="build-dictionary", memory=256 * views + db * 2 // 5 + pool,
                   disk=db + pooled + 48 * views + (1 << 20)),
              Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views
-                  + 11 * min(spectra, SPECTRA_BLOCK * (w // 2 + 1) * 2 * bins * h * 8) // 2,
+                  + 4 * min(spectra, SPECTRA_BLOCK * (w // 2 + 1) * 2 * bins * h * 8),
                   disk=(db if panorama else 0) + 48 * views + spectra),
              Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
     return [n for n in needs if n.stage in stages] + decode_need(config, images, 16, "decoding", stages)

@@ -54,8 +54,8 @@ def font(pixels: float) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
 # the whole text (one font a text: no mixed baselines). File names, searched for below FONT_DIRS.
 FALLBACK_FONTS = ("DejaVuSans.ttf", "NotoSans-Regular.ttf", "NotoSansCJK-Regular.ttc", "NotoSansCJKjp-Regular.otf",
                   "NotoSansJP-Regular.otf", "SourceHanSans-Regular.otc", "ipagp.ttf", "ipag.ttf", "ipaexg.ttf",
-                  "Arial Unicode.ttf", "arialuni.ttf", "YuGothM.ttc", "meiryo.ttc", "msgothic.ttc", "Arial.ttf", "arial.ttf",
-                  "segoeui.ttf")
+                  "Arial Unicode.ttf", "arialuni.ttf", "ヒラギノ角ゴシック W3.ttc", "Hiragino Sans GB.ttc", "YuGothM.ttc",
+                  "meiryo.ttc", "msgothic.ttc", "Arial.ttf", "arial.ttf", "segoeui.ttf")
 FONT_DIRS = ("/usr/share/fonts", "/usr/local/share/fonts", "~/.local/share/fonts", "~/.fonts", "/Library/Fonts",
              "/System/Library/Fonts", "C:/Windows/Fonts")
 _FALLBACK_LOCK = threading.Lock()

@@ -217,3 +217,21 @@ def test_names_the_bundled_font_lacks_are_drawn_with_an_installed_font():
     got = np.asarray(c.result().convert("L")) < 128
     assert got.any() and np.array_equal(ink("ü", fallback) > 127, got)
     assert not np.array_equal(ink("ü", R.font(24)) > 127, got)
+
+
+def test_a_broken_font_file_is_passed_over(tmp_path, monkeypatch):
+    """A file named like a fallback font that is not one (empty, cut short) is skipped: the
+    text is drawn with the next font that opens, or the bundled one; no error."""
+    from placeloc.evaluation import raster as R
+
+    empty = tmp_path / "broken-font.ttf"  # a name Pillow finds nowhere else (it looks a missing file up by name)
+    empty.write_bytes(b"")
+    monkeypatch.setattr(R, "_fallback_paths", [str(empty)] + list(R._installed_fallbacks()))
+    monkeypatch.setattr(R, "_covering", {})
+    f = R.font_for("Zürich.png", 24)
+    assert f is R.font(24) or R._has_glyphs(f, "ü")
+    c = R.Canvas(80, 30)
+    c.text(2, 2, "Zürich.png", 11)  # draws, whichever font it got
+    monkeypatch.setattr(R, "_fallback_paths", [str(empty)])
+    monkeypatch.setattr(R, "_covering", {})
+    assert R.font_for("Zürich.png", 24) is R.font(24)

@@ -94,6 +94,16 @@ def _has_glyphs(f: ImageFont.FreeTypeFont | ImageFont.ImageFont, chars: str) -> 
 _lacks: dict[str, bool] = {}  # a character -> whether the bundled font lacks it (asked once each)
 
 
+def _opens_with(path: str, chars: str) -> bool:
+    """Whether the font file at ``path`` opens and has every character of ``chars``; a file
+    that is not a font (empty, cut short, unreadable) is passed over, never an error: a
+    picture's name tag is not worth a failed evaluate."""
+    try:
+        return _has_glyphs(ImageFont.truetype(path, 24), chars)
+    except (OSError, ValueError):
+        return False
+
+
 def _missing(text: str) -> str:
     """The characters of ``text`` the bundled font lacks, each once, in order ("" for ASCII)."""
     if text.isascii():
@@ -117,8 +127,7 @@ def font_for(text: str, pixels: float) -> ImageFont.FreeTypeFont | ImageFont.Ima
         return font(pixels)
     with _FALLBACK_LOCK:
         if lacking not in _covering:
-            _covering[lacking] = next((path for path in _installed_fallbacks()
-                                       if _has_glyphs(ImageFont.truetype(path, 24), lacking)), None)
+            _covering[lacking] = next((path for path in _installed_fallbacks() if _opens_with(path, lacking)), None)
         path = _covering[lacking]
     if path is None:
         return font(pixels)

@@ -932,8 +932,8 @@ class PanoramaAnswers(NamedTuple):
     rival: np.ndarray     # (N,) the best score of a pose that would be another answer (:func:`rival_pose`)
     rival_xy: np.ndarray  # (N, 2) where that rival stands (NaN: no rival)
     rival_heading: np.ndarray  # (N,) and the way it faces, degrees
-    # (N,) the best score before the final search (refine_final_m), None: the score itself
-    before_final: np.ndarray | None = None
+    # (N,) the best score before the final search (refine_final_m; the score itself where none ran)
+    before_final: np.ndarray
 
     @property
     def margin(self) -> np.ndarray:
@@ -941,7 +941,7 @@ class PanoramaAnswers(NamedTuple):
         score before the final search minus the rival's. Why not the final score: the final
         search polishes the winner alone, to the centimetre, and no rival gets that polish,
         so a twin room's spot, as good as the answer, would seem 0.01 behind it."""
-        return (self.score if self.before_final is None else self.before_final) - self.rival
+        return self.before_final - self.rival
 
 
 # ------------------------------------------------------------------ local refinement

@@ -236,10 +236,8 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     span = np.maximum(hi - lo, 1e-9)
     to_scale = max(span) / min(span) < 3.0
     lo, hi = lo - 0.05 * span, hi + 0.05 * span
-    span = hi - lo
-    box_w, box_h = 620.0, 620.0
-    if to_scale:  # the longer side takes the whole box
-        box_w, box_h = (box_w, box_w * span[1] / span[0]) if span[0] >= span[1] else (box_h * span[0] / span[1], box_h)
+    # to scale, the longer side takes the whole box (its shorter side is more than a third of it here)
+    box_w, box_h = R.to_scale_box(lo, hi, 620.0) if to_scale else (620.0, 620.0)
     grey, orange, green, blue, red = (64, 64, 64), R.CYCLE[1], R.CYCLE[2], R.CYCLE[0], R.CYCLE[3]
     entries = ([R.LegendEntry("true path", grey, line_width=1.8)] if path_truth is not None else []) + (
         [R.LegendEntry("estimated path", orange, line_width=1.2)] if path_est is not None else []) + [

@@ -574,6 +574,15 @@ def _dash_runs(px: np.ndarray, py: np.ndarray, pattern: Sequence[float]) -> list
     return runs
 
 
+def to_scale_box(lo: np.ndarray, hi: np.ndarray, most: float) -> tuple[float, float]:
+    """The width and height in pixels of a data box from ``lo`` to ``hi`` (x, y) drawn to
+    scale, its longer side ``most`` pixels (and its shorter at least a fifth of that: the
+    caller widens the short side's limits to keep the scale)."""
+    span = np.maximum(np.asarray(hi, float) - np.asarray(lo, float), 1e-9)
+    s = most / float(span.max())
+    return max(span[0] * s, most / 5), max(span[1] * s, most / 5)
+
+
 def titled_chart(title: str, box_w: float, box_h: float, entries: Sequence[LegendEntry], xlim: tuple[float, float],
                   ylim: tuple[float, float], xlabel: str, ylabel: str, *, xticks: Sequence[float] | None = None,
                   xtick_labels: Sequence[str] | None = None,

@@ -15,14 +15,6 @@ GREEN, RED, BLUE, ORANGE = R.CYCLE[2], R.CYCLE[3], R.CYCLE[0], R.CYCLE[1]
 PATH_GREY, PAIR_GREY = (191, 191, 191), (153, 153, 153)
 
 
-def _to_scale_box(lo: np.ndarray, hi: np.ndarray, most: float) -> tuple[float, float]:
-    """The width and height in pixels of a data box from ``lo`` to ``hi`` drawn to scale,
-    its longer side ``most`` pixels (and its shorter at least a fifth of that)."""
-    span = np.maximum(hi - lo, 1e-9)
-    s = most / float(span.max())
-    return max(span[0] * s, most / 5), max(span[1] * s, most / 5)
-
-
 def _square_limits(lo: np.ndarray, hi: np.ndarray, w: float, h: float) -> tuple[tuple[float, float], tuple[float, float]]:
     """Limits around ``lo``..``hi`` widened on the short side so that a ``w`` x ``h`` box shows both axes to scale."""
     c, span = (lo + hi) / 2, np.maximum(hi - lo, 1e-9)
@@ -41,7 +33,7 @@ def plot_loop_closures(path: Path, r_xy: np.ndarray, frames: np.ndarray, nodes: 
     lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(2), np.ones(2))
     pad = 0.04 * np.maximum(hi - lo, 1e-9).max()
     lo, hi = lo - pad, hi + pad
-    w, h = _to_scale_box(lo, hi, 620.0)
+    w, h = R.to_scale_box(lo, hi, 620.0)
     xlim, ylim = _square_limits(lo, hi, w, h)
     prec = f"{correct.mean():.3f}" if len(correct) else "n/a"
     entries = [R.LegendEntry("mapping path", PATH_GREY, line_width=1.5),

@@ -24,7 +24,9 @@
    bins, spread 1 are the defaults: the same queries with their directions, the clutter's
    at random), its index and search against the plain score's in the same run, and with the
    final pattern search of the beam's best pose (``refine_final_m``, ``--final-m``) against
-   it in the same run.
+   it in the same run, and that search from the best lattice point within
+   ``refine_final_radius_m`` (the defaults) against it from the lattice point nearest the
+   beam's pose.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -234,8 +236,8 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
     err = np.hypot(*(res[1] - truth[:, :2]).T)
     for start_m in final_starts if final_m > 0 else []:
         # the final pattern search of the beam's best pose (refine_final_m, first step
-        # refine_final_start_m) on and off, timed in the same run (the defaults are one of the two)
-        on = replace(pp, refine_final_m=final_m, refine_final_start_m=start_m)
+        # refine_final_start_m, from the lattice point nearest the beam's pose) on and off, timed in the same run
+        on = replace(pp, refine_final_m=final_m, refine_final_start_m=start_m, refine_final_radius_m=0.0)
         off = replace(pp, refine_final_m=0.0)
         timed = {}
         for name, p in (("on", on), ("off", off)):
@@ -248,6 +250,20 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
               f"{con / n * 1e3:.0f} ms CPU per panorama against {toff / n * 1e3:.0f} ms wall, {coff / n * 1e3:.0f} ms CPU "
               f"without: {ton / toff:.2f}x wall, {con / coff:.2f}x CPU; median error {np.median(eon):.3f} m against "
               f"{np.median(eoff):.3f} m, within 0.05 m {np.mean(eon <= 0.05):.0%} against {np.mean(eoff <= 0.05):.0%}")
+    if final_m > 0 and pp.refine_final_radius_m > 0:
+        # the final search from the best point of the plan's lattice within refine_final_radius_m
+        # (the defaults) against it from the lattice point nearest the beam's pose, in the same run
+        near = replace(pp, refine_final_m=final_m, refine_final_radius_m=0.0)
+        disk = replace(pp, refine_final_m=final_m)
+        (rn, tn_, cn_), (rd, td, cd) = (((res, t, c) if p == pp else
+                                         _timed(search_panoramas, qo, poses, model.segments, model.faces, db, p,
+                                                tolerance_px=2, wall_margin_m=0.1, hidden=True)) for p in (near, disk))
+        en, ed = (np.hypot(*(r[1] - truth[:, :2]).T) for r in (rn, rd))
+        print(f"oriented score, {bins} bins, the final search from the best lattice point within "
+              f"{pp.refine_final_radius_m} m (refine_final_radius_m): {td / n * 1e3:.0f} ms wall, {cd / n * 1e3:.0f} ms "
+              f"CPU per panorama against {tn_ / n * 1e3:.0f} ms wall, {cn_ / n * 1e3:.0f} ms CPU from the lattice point "
+              f"nearest the beam's pose: {td / tn_:.2f}x wall, {cd / cn_:.2f}x CPU; median error {np.median(ed):.3f} m "
+              f"against {np.median(en):.3f} m")
     ti, ci, tn, cn = default_times
     print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
           f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "

@@ -11,7 +11,14 @@ import pytest
 from test_umap_panorama import PLAN, H, _render_all
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
-from placeloc.umap.panorama import FINAL_MOVES, chamfer_spectra, pattern_search, row_weights, search_panoramas
+from placeloc.umap.panorama import (
+    FINAL_MOVES,
+    chamfer_spectra,
+    lattice_disk,
+    pattern_search,
+    row_weights,
+    search_panoramas,
+)
 from placeloc.umap.params import PanoramaParams
 
 
@@ -50,15 +57,18 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
     # and 0.77 (off it). Without the final search a camera's answers lie up to 0.056 m apart
     # between origins (measured). From the beam's best pose (refine_final_start_m 0) they still
     # lie up to 0.028 m apart, each within 0.030 m of the truth; from the plan's own lattice of
-    # 0.08 m (the defaults) at most 0.0085 m apart, each within 0.0081 m of the truth.
+    # 0.08 m at most 0.0085 m apart, each within 0.0081 m of the truth; from the best point of
+    # the plan's lattice of 0.04 m within 0.24 m of the beam's pose (the defaults) the same
+    # answer at every origin, to the bit, within 0.0081 m of the truth.
     m = floor_plan_model(PLAN)
     truth = np.array([[5.653, 1.374, 1.4, 117.5], [0.347, 5.516, 1.4, 250.0], [3.207, 0.404, 1.4, 30.0],
                       [1.803, 6.617, 1.4, 200.0], [1.234, 2.871, 1.4, 75.0], [4.71, 3.13, 1.4, 300.0]])
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
     answers = {}
-    for final, start in ((0.0, 0.0), (0.01, 0.0), (0.01, 0.08)):
-        pp = replace(PanoramaParams(), orientation_bins=1, refine_final_m=final, refine_final_start_m=start)
+    for final, start, radius in ((0.0, 0.0, 0.0), (0.01, 0.0, 0.0), (0.01, 0.08, 0.0), (0.01, 0.08, 0.24)):
+        pp = replace(PanoramaParams(), orientation_bins=1, refine_final_m=final, refine_final_start_m=start,
+                     refine_final_radius_m=radius)
         wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
         out = []
         for frac in (0.0, 1 / 3, 2 / 3, 0.1, 0.77):
@@ -68,7 +78,7 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
             _, xy, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
                                            hidden=True)
             out.append(xy)
-        answers[final, start] = np.array(out)             # (origins, cameras, 2)
+        answers[final, start, radius] = np.array(out)             # (origins, cameras, 2)
 
     def apart(a):                                         # per camera, the largest distance between two origins
         return np.hypot(*(a[:, None] - a[None]).transpose(3, 0, 1, 2)).max(axis=(0, 1))
@@ -76,9 +86,32 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
     def off(a):
         return np.hypot(*(a - truth[None, :, :2]).transpose(2, 0, 1)).max()
 
-    assert apart(answers[0.0, 0.0]).max() > 0.05
-    assert apart(answers[0.01, 0.0]).max() <= 0.03 and off(answers[0.01, 0.0]) <= 0.031
-    assert apart(answers[0.01, 0.08]).max() <= 0.01 and off(answers[0.01, 0.08]) <= 0.01
+    assert apart(answers[0.0, 0.0, 0.0]).max() > 0.05
+    assert apart(answers[0.01, 0.0, 0.0]).max() <= 0.03 and off(answers[0.01, 0.0, 0.0]) <= 0.031
+    assert apart(answers[0.01, 0.08, 0.0]).max() <= 0.01 and off(answers[0.01, 0.08, 0.0]) <= 0.01
+    assert apart(answers[0.01, 0.08, 0.24]).max() == 0.0 and off(answers[0.01, 0.08, 0.24]) <= 0.01
     # on by default, from the plan's lattice measured here (docs/umap.md, "The final search on
     # by default")
-    assert PanoramaParams().refine_final_m == 0.01 and PanoramaParams().refine_final_start_m == 0.08
+    defaults = PanoramaParams()
+    assert (defaults.refine_final_m, defaults.refine_final_start_m, defaults.refine_final_radius_m) == (0.01, 0.08, 0.24)
+
+
+def test_lattice_disk_by_hand():
+    # the plan's lattice of 0.04 m within 0.1 m of (1.01, 2.0): x in 0.92..1.08, y in
+    # 1.92..2.08; by hand, of that 5 x 5 square the columns x = 0.92 and 1.08 (0.09 and
+    # 0.07 m off) keep only y = 1.96..2.04: 3 + 5 + 5 + 5 + 3 = 21 points
+    disk = lattice_disk(np.array([1.01, 2.0]), 0.04, 0.1)
+    assert np.all(np.hypot(disk[:, 0] - 1.01, disk[:, 1] - 2.0) <= 0.1 + 1e-9)
+    assert np.allclose(np.round(disk / 0.04), disk / 0.04)          # multiples of the spacing
+    expect = [(x, y) for x in (0.92, 0.96, 1.0, 1.04, 1.08) for y in (1.92, 1.96, 2.0, 2.04, 2.08)
+              if np.hypot(x - 1.01, y - 2.0) <= 0.1]
+    assert len(disk) == len(expect) == 21
+    assert np.allclose(disk, expect)                                  # row by row, x then y
+    # two centres 0.07 m apart share the points of the overlap, in the same order
+    other = lattice_disk(np.array([1.08, 2.0]), 0.04, 0.1)
+    shared = [tuple(p) for p in np.round(disk / 0.04).astype(int) if tuple(p) in
+              {tuple(q) for q in np.round(other / 0.04).astype(int)}]
+    assert shared == [tuple(q) for q in np.round(other / 0.04).astype(int) if tuple(q) in set(shared)]
+    assert len(shared) >= 6
+    # a radius too small to hold a lattice point: the one nearest the centre
+    assert np.allclose(lattice_disk(np.array([1.01, 2.03]), 0.04, 0.005), [[1.0, 2.04]])

@@ -86,7 +86,7 @@ def test_line_agreement_by_hand():
 
 def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
     # placeloc experiment umap-homes: highest mean share over the development runs; among
-    # settings within one panorama of the 180 of it, the fewest candidate cells, then the
+    # settings within one panorama of the 300 of it, the fewest candidate cells, then the
     # earlier (plainer) in the sweep
     from placeloc.experiments.umap_homes import NOISE, SWEEP, choose
 

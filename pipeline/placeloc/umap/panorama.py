@@ -1079,6 +1079,20 @@ def pattern_search(score_at: Callable[[np.ndarray, Any], tuple[np.ndarray, Any]]
     return xy, value, state
 
 
+def lattice_disk(centre: np.ndarray, spacing_m: float, radius_m: float) -> np.ndarray:
+    """The points of the plan's own lattice of ``spacing_m`` (multiples of it from the plan's
+    origin, whatever the grid's) within ``radius_m`` of ``centre``, row by row in increasing
+    x then y: two centres near each other share the points of their disks' overlap, in the
+    same order. A radius too small to hold a point gives the lattice point nearest ``centre``."""
+    centre = np.asarray(centre, float)
+    lo = np.ceil((centre - radius_m) / spacing_m - 1e-9).astype(np.int64)
+    hi = np.floor((centre + radius_m) / spacing_m + 1e-9).astype(np.int64)
+    ix, iy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+    pts = np.column_stack([ix.ravel(), iy.ravel()]) * spacing_m
+    pts = pts[np.hypot(*(pts - centre).T) <= radius_m + 1e-9]
+    return pts if len(pts) else (np.round(centre / spacing_m) * spacing_m)[None]
+
+
 def grid_step(xy: np.ndarray) -> float:
     """The spacing of a plan grid: the smallest gap between its distinct x or y values."""
     gaps = [np.diff(np.unique(np.round(xy[:, a], 6))) for a in (0, 1)]
@@ -1300,11 +1314,15 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        that a pose of the beam kept out of the candidates are sampled as in the cell stage,
        and each that beats its pose joins the beam (:func:`suppressed_neighbours`).
 
-    4. with ``refine_final_m`` (chamfer only), the best of the beam climbs on by
-       :func:`pattern_search` from ``refine_final_start_m`` (from the nearest point of the
-       plan's lattice of that step; 0: from the beam's finest step, where it is), halving down
-       to ``refine_final_m`` metres, so that its end point does not keep the grid's phase;
-       kept where it scores higher.
+    4. with ``refine_final_m`` (chamfer only), a :func:`pattern_search` from
+       ``refine_final_start_m`` halving down to ``refine_final_m`` metres, so that the answer
+       does not keep the grid's phase. With ``refine_final_radius_m`` it starts from the best
+       point of the plan's own lattice of half the first step within that radius of the
+       beam's best pose (:func:`lattice_disk`), and its end is the answer: the grid's origin
+       then changes no answer whose beams end within the radius of each other. Without, it
+       climbs from the beam's best pose (from the nearest point of the plan's lattice of the
+       first step; ``refine_final_start_m`` 0: from the beam's finest step, where it is) and
+       is kept where it scores higher.
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
@@ -1513,20 +1531,37 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 move(int(k), xy, col, sc, step, floor_d, q_close)
             j = int(np.argmax(sc))
             before_final[k] = max(score[k], float(sc[j]))                         # the margin's score
+            final = False                                                         # the final search's end taken
             if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
                 scorer = final_scorer(int(k), float(floor_d[j]), q_close)
-                x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
-                if pp.refine_final_start_m > 0:
-                    # from the nearest point of the plan's own lattice of the first step (not the
-                    # grid's): two grid origins whose beams end near each other start alike
-                    x0 = np.round(xy[j] / final_start) * final_start
-                    s, c = scorer(x0[None], c0)
-                    s0, c0 = float(s[0]), int(c[0])
-                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start,
-                                            finest_m=min(pp.refine_final_m, final_start))
-                if fs > sc[j]:
-                    xy[j], sc[j], col[j] = fx, fs, fc
-            if sc[j] > score[k]:
+                finest = min(pp.refine_final_m, final_start)
+                if pp.refine_final_start_m > 0 and pp.refine_final_radius_m > 0:
+                    # from the best point of the plan's own lattice (not the grid's) of half
+                    # the first step within the radius: two grid origins whose beams end on
+                    # neighbouring bumps of the score, within the radius of each other, score
+                    # the same points and start from the same one. Half the first step (0.04
+                    # m): a peak 0.1 m wide has a point within 0.03 m of its top (at 0.08 m
+                    # one was missed, docs/umap.md). Its end is the answer even where the
+                    # beam's own pose scored higher (by a median 0.001 on generated homes):
+                    # that pose keeps the grid's phase
+                    disk = lattice_disk(xy[j], final_start / 2.0, pp.refine_final_radius_m)
+                    s, c = scorer(disk, int(col[j]))
+                    i0 = int(np.argmax(s))
+                    if np.isfinite(s[i0]):
+                        xy[j], sc[j], col[j] = pattern_search(scorer, disk[i0], float(s[i0]), int(c[i0]),
+                                                              start_m=final_start, finest_m=finest)
+                        final = True
+                else:
+                    x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
+                    if pp.refine_final_start_m > 0:
+                        # from the nearest point of the plan's own lattice of the first step
+                        x0 = np.round(xy[j] / final_start) * final_start
+                        s, c = scorer(x0[None], c0)
+                        s0, c0 = float(s[0]), int(c[0])
+                    fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start, finest_m=finest)
+                    if fs > sc[j]:                                                # kept where higher
+                        xy[j], sc[j], col[j] = fx, fs, fc
+            if final or sc[j] > score[k]:
                 # the grid row stays that of the candidate; the position is the refined one
                 best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]
                 refined_xy[k] = xy[j]

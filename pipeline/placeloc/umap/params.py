@@ -138,14 +138,21 @@ class PanoramaParams(Params):
                                                      "whole grid cell; 1: only its 8 neighbours); chamfer score only")
     refine_step_m: float = param(0.02, min=0.0, min_exclusive=True, help="the local search's finest step")
     refine_final_m: float = param(0.01, min=0.0, help="the finest step, in metres, of a pattern search (8 neighbours a "
-                                                      "move, the step halved) that the best pose of the beam makes last, "
-                                                      "kept where it scores higher (chamfer score only; 0: off). It "
-                                                      "steadies answers against the grid's origin (generated homes 0-12 "
-                                                      "at five origins: answers moving by more than 0.05 m 69 -> 22) for "
-                                                      "about 1.12x the search's time")
+                                                      "move, the step halved) made last, near the beam's best pose "
+                                                      "(chamfer score only; 0: off). It steadies answers against the "
+                                                      "grid's origin (generated homes 0-12 at five origins: answers "
+                                                      "moving by more than 0.05 m 69 -> 22, and 2 with "
+                                                      "refine_final_radius_m)")
     refine_final_start_m: float = param(0.08, min=0.0, help="refine_final_m > 0: that search's first step in metres, "
                                                             "started from the nearest point of the plan's own lattice of "
                                                             "it (0: the beam's finest step, from the beam's best pose)")
+    refine_final_radius_m: float = param(0.24, min=0.0, help="refine_final_start_m > 0: that search starts from the best "
+                                                           "point of the plan's own lattice of half its first step "
+                                                           "(0.04 m) within this many metres of the beam's best pose, "
+                                                           "and its end is the answer, so that the grid's origin moves "
+                                                           "no answer between bumps of the score closer than this "
+                                                           "(about 110 renders a panorama at 0.24 m; 0: from the "
+                                                           "lattice point nearest the beam's pose, kept where higher)")
     refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
                                                 "local pose")
     margin_distance_m: float = param(1.0, min=0.0, min_exclusive=True,

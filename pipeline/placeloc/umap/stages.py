@@ -549,7 +549,8 @@ METHOD = Method(
                                           "panorama.coarse_candidates", "panorama.coarse_tau_px", "panorama.coarse_blur_px",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
-                                          "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_yaw_cols",
+                                          "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_final_radius_m",
+                                          "panorama.refine_yaw_cols",
                                           "panorama.margin_distance_m", "panorama.margin_yaw_deg",
                                           "panorama.doubtful_margin", "hidden_lines",
                                           "grid.wall_margin_m")

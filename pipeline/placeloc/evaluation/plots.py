@@ -66,8 +66,7 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     # where each curve ends (every match accepted): visible even under a curve that goes further
     for x_end, y_end, colour, i in ends:
         ax.markers(np.array([x_end]), np.array([y_end]), colour, "|", 16 * PT, edge=2.5 * PT)
-        px, py = float(ax._x(np.array(x_end))), float(ax._y(np.array(y_end)))
-        c.text(px, py + (16 + 11 * i) * PT, f"{x_end:.3f}", 11, fill=colour, anchor="md")
+        ax.text(x_end, y_end, f"{x_end:.3f}", 11, dy=(16 + 11 * i) * PT, fill=colour, anchor="md")
     return c.save(path)
 
 
@@ -142,10 +141,8 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
         ax.markers(x, y, colour, marker, 6 * PT)
         entries.append(R.LegendEntry(label, colour, line_width=2 * PT, style=style, marker=marker, marker_size=6 * PT))
         for xi, yi in pts:  # values in the line's colour, first curve above its points, second below
-            px, py = float(ax._x(np.array(xi))), float(ax._y(np.array(yi)))
             above = i % 2 == 0
-            c.text(px, py - 8 * PT if above else py + 8 * PT, f"{yi:.2f}", 11, fill=colour,
-                   anchor="md" if above else "ma")
+            ax.text(xi, yi, f"{yi:.2f}", 11, dy=-8 * PT if above else 8 * PT, fill=colour, anchor="md" if above else "ma")
     ax.labels("N (candidates considered per query)", "recall@N", title)
     ax.legend(entries, "lower right", size=11)
     return c.save(path)

@@ -434,8 +434,7 @@ def plot_error_cdf(path: Path, err: np.ndarray, mode: str) -> Path:
     for mark, colour, height in ((0.5, GREEN, 0.05), (1.0, ORANGE, 0.15)):
         share = float(np.mean(err <= mark)) if len(err) else 0.0
         ax.line(np.array([mark, mark]), np.array([0.0, 1.02]), colour, 1.6, "--")
-        x, y = ax._x(mark * 1.05), ax._y(height)
-        c.text(float(x), float(y), f"{share:.0%} within {mark:g} m", 12, fill=colour, anchor="ls", box=(255, 255, 255))
+        ax.text(mark * 1.05, height, f"{share:.0%} within {mark:g} m", 12, fill=colour, anchor="ls", box=(255, 255, 255))
     return c.save(path)
 
 
@@ -614,8 +613,7 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         ax.markers(est[:, 0], est[:, 1], RED, "x", 9, edge=2.2)
         ax.markers(alt[has_alt, 0], alt[has_alt, 1], ORANGE, "O", 12, edge=2.0)
         for j in named:
-            px, py = ax._x(truth[j, 0]), ax._y(truth[j, 1])
-            panel.text(float(px) + 6, float(py) - 6, str(names[j]), 12, fill=BLUE, anchor="ls")
+            ax.text(truth[j, 0], truth[j, 1], str(names[j]), 12, dx=6, dy=-6, fill=BLUE, anchor="ls")
         c.image.paste(panel.image, (bx * k, by * k))
         frame = R.Axes(c, (bx, by, bx + bw, by + bh), xlim, ylim)
         xt = R.nice_ticks(*xlim, most=max(3, int(bw / 90)))

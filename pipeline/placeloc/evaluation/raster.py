@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
@@ -283,6 +283,14 @@ class Axes:
     def xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Data to supersampled canvas pixels."""
         return self._x(x) * self.c.ss, self._y(y) * self.c.ss
+
+    def text(self, x: float, y: float, text: str, size: float = 11, *, dx: float = 0.0, dy: float = 0.0,
+             **kwargs: Any) -> None:
+        """``text`` at the data point (x, y), moved ``dx``, ``dy`` output pixels (y down the
+        page): a value beside its bar or point, a name at a position. ``kwargs``: as
+        :meth:`Canvas.text` (fill, anchor, box)."""
+        self.c.text(float(self._x(np.asarray(x, np.float64))) + dx, float(self._y(np.asarray(y, np.float64))) + dy, text,
+                    size, **kwargs)
 
     # ----------------------------------------------------------------- frame, ticks, labels
     def frame(self, xticks: Sequence[float], yticks: Sequence[float], *, xlabels: Sequence[str] | None = None,

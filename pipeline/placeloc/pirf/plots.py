@@ -96,7 +96,7 @@ def plot_accuracy_gap(path: Path, ann: list[float], bf: list[float] | None, back
             x0 = g - 0.4 + s * width
             (px0, px1), (py0, py1) = ax.xy(np.array([x0, x0 + width]), np.array([0.0, v]))
             c.draw.rectangle((px0, py1, px1, py0), fill=colour)
-            c.text(float(ax._x(x0 + width / 2)), float(ax._y(v)) - 3, f"{v:.2f}", 11, anchor="md")
+            ax.text(x0 + width / 2, v, f"{v:.2f}", 11, dy=-3, anchor="md")
     ax.box()
     R.legend_below(c, ax, rows)
     return c.save(path)

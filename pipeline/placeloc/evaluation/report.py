@@ -232,10 +232,12 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
         # in the short table too: it is a result as much as a setting
         section = cfg[method]
         chosen = {k for k in section if section.get(f"{k}_select") not in (None, "none", "fixed", False)}
+        values = _flatten(section)
+        picked = {k for k, v in values if k in chosen and k in metrics and not isinstance(metrics[k], (dict, list))
+                  and metrics[k] != v}
         rows = [(k, f"{format_value(v)} in the config; {format_value(metrics[k])} chosen by {k}_select (metrics.json)"
-                 if k in chosen and k in metrics and not isinstance(metrics[k], (dict, list)) and metrics[k] != v else v)
-                for k, v in _flatten(section)]
-        summary += [(f"{method}.{k}", v) for k, v in rows if isinstance(v, str) and " chosen by " in v]
+                 if k in picked else v) for k, v in values]
+        summary += [(f"{method}.{k}", v) for k, v in rows if k in picked]
         # every parameter, folded: a method has tens of them, and the pictures should not wait below them
         params = (f"<details><summary>all {len(rows)} {html.escape(method)} parameters</summary>"
                   + _table(rows, (f"{method} parameter", "value")) + "</details>")

@@ -898,7 +898,8 @@ def rival_pose(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, seen
     alternative lies (a twin room's same spot)."""
     best = Rival(-np.inf, math.nan, math.nan, -1)
     grid_xy = np.asarray(grid_xy, float)
-    far = np.flatnonzero(np.hypot(*(grid_xy - answer_xy).T) > distance_m)
+    is_far = np.hypot(*(grid_xy - answer_xy).T) > distance_m
+    far = np.flatnonzero(is_far)
     if len(far):
         # each position's best shift first: one pass over the table, no copy of its far rows
         per_position = table.max(axis=1)
@@ -907,7 +908,7 @@ def rival_pose(table: np.ndarray, grid_xy: np.ndarray, seen_xy: np.ndarray, seen
     w = table.shape[1]
     cols = np.abs((np.arange(w) - int(answer_col) + w // 2) % w - w // 2)   # circular distance in columns
     turned = np.flatnonzero(cols > yaw_cols + 1e-9)
-    near = np.setdiff1d(np.arange(len(grid_xy)), far)
+    near = np.flatnonzero(~is_far)
     if len(near) and len(turned):
         sub = table[np.ix_(near, turned)]
         i, k = np.unravel_index(int(np.argmax(sub)), sub.shape)

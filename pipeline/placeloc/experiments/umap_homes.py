@@ -14,6 +14,9 @@ homes by a stated rule, then reported on other homes, each for several grid orig
    same five origins; worst, median and best share within 1 m and 30 degrees over the
    25 runs, the worst origin per home, the answers that move with the origin, and the line
    statistics beside the real home's.
+3. Why each wrong test answer at the first origin is wrong (:func:`wrong_answer_causes`):
+   the search again over the grid within 1 m of the truth only; where its best pose scores
+   below the answer the score prefers the wrong place, else the search missed the truth.
 
 Writes ``OUT/dev.md``, ``OUT/table.md`` and ``OUT/summary.json``.
 """
@@ -185,6 +188,65 @@ def choose(results: dict[str, list[float]], moves: dict[str, tuple[int, ...]] | 
                                     list(SWEEP).index(k)))
 
 
+NEAR_TRUTH_M = 1.0   # a wrong answer's search again: the grid within this of the truth only
+
+
+def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> list[tuple[str, float, float]]:
+    """Each wrong answer (beyond 1 m or 30 deg) of a run of home ``data`` with the panorama
+    settings ``panorama``: (frame, the answer's score, the best score the search finds over
+    the grid within :data:`NEAR_TRUTH_M` of the truth, :func:`placeloc.umap.panorama.search_near`).
+    The second below the first: the score prefers the wrong place (a score failure); above:
+    the search missed a better pose near the truth (a search failure)."""
+    from dataclasses import replace
+
+    import h5py
+
+    from placeloc.umap.bits import unpack
+    from placeloc.umap.panorama import search_near
+    from placeloc.umap.params import PanoramaParams, UMapParams
+
+    rows = list(csv.DictReader(read_run_table(run_dir, "per_query.csv")))
+    wrong = [r for r in rows if not (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0)]
+    if not wrong:
+        return []
+    up = UMapParams()
+    pp = replace(PanoramaParams(), **panorama)
+    model = load_model(str(data / "floor_plan.yaml"))
+    with h5py.File(run_dir / "extract.h5", "r") as ex:
+        h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+        names = [n.decode() if isinstance(n, bytes) else str(n) for n in ex["names"][()]]
+        packed = ex["lines"][()]
+    out = []
+    for r in wrong:
+        k = names.index(r["frame"])
+        lines = unpack(packed[k:k + 1, 0], h, w) if int(pp.orientation_bins) == 1 else unpack(packed[k:k + 1], h, w)
+        near = search_near(lines, np.array([float(r["true_x"]), float(r["true_y"])]), model, pp, radius_m=NEAR_TRUTH_M,
+                           step_m=GRID_STEP_M, z=None, tolerance_px=int(up.tolerance_px),
+                           wall_margin_m=float(up.grid.wall_margin_m), hidden=bool(up.hidden_lines))
+        out.append((r["frame"], float(r["score"]), float(near.score[0])))
+    return out
+
+
+def cause_line(causes: dict[int, list[tuple[str, float, float]]], origin: float) -> str:
+    """One line of the table: how many wrong test answers are score failures (the best pose
+    near the truth scores below the answer), and by how much."""
+    every = [(seed, f, a, b) for seed, c in causes.items() for f, a, b in c]
+    if not every:
+        return f"Wrong test answers at grid origin {origin:g}: none."
+    score = [(seed, f, a - b) for seed, f, a, b in every if b < a]
+    text = (f"Wrong test answers at grid origin {origin:g}, searched again over the grid within {NEAR_TRUTH_M:g} m of "
+            f"the truth: {len(score)} of {len(every)} are the score's (the best pose there scores below the "
+            f"answer")
+    if score:
+        gaps = [g for *_, g in score]
+        text += f", by {min(gaps):.4f}-{max(gaps):.4f}: " + ", ".join(f"home {s} {f}" for s, f, _ in score)
+    search = [(seed, f) for seed, f, a, b in every if b >= a]
+    text += ")"
+    if search:
+        text += "; the search's (a better pose near the truth was missed): " + ", ".join(f"home {s} {f}" for s, f in search)
+    return text + "."
+
+
 def _answers(run_dir: Path) -> dict[str, tuple[float, float]]:
     """frame -> the answered plan position, from a run's per_query.csv."""
     return {r["frame"]: (float(r["x"]), float(r["y"])) for r in csv.DictReader(read_run_table(run_dir, "per_query.csv"))}
@@ -228,7 +290,12 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                                                                    quiet)
             for frame, xy in _answers(out_dir / f"home{seed}-origin{i}").items():
                 test_answers.setdefault((seed, frame), []).append(xy)
-    write_summary(out_dir, {**runs, **homes, "chosen": {"setting": chosen}})
+    # why the test homes' wrong answers are wrong (at the first origin): the score or the search
+    causes = {seed: wrong_answer_causes(out_dir / f"home{seed}-origin0", _home(out_dir, seed), SWEEP[chosen])
+              for seed in (TEST_SEEDS[:2] if quick else TEST_SEEDS)}
+    write_summary(out_dir, {**runs, **homes, "chosen": {"setting": chosen},
+                            "wrong_answer_causes": {str(s): [{"frame": f, "score": a, "best_near_truth": b}
+                                                             for f, a, b in c] for s, c in causes.items()}})
     seeds = TEST_SEEDS[:2] if quick else TEST_SEEDS
 
     def per_home(key: str, missing: float | None = None) -> str:
@@ -246,6 +313,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     table += ["", f"Test frames whose answers move with the grid's origin by more than "
               f"{' / '.join(f'{x:g}' for x in MOVE_LIMITS_M)} m: "
               f"{' / '.join(map(str, answer_moves(test_answers)))} of {len(test_answers)}"]
+    table += ["", cause_line(causes, origin=origins[0])]
     (out_dir / "table.md").write_text("\n".join(table) + "\n")
     if not quiet:
         print("\n".join(table))

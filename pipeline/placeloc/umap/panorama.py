@@ -1575,3 +1575,44 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     est[ok] = refined_xy[ok]
     return PanoramaAnswers(best, est, heading, score, rival, rival_xy, rival_heading,
                            np.where(np.isnan(before_final), score, before_final))
+
+
+def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, radius_m: float, step_m: float,
+                z: float | None, tolerance_px: int, wall_margin_m: float, hidden: bool) -> PanoramaAnswers:
+    """The search of :func:`search_panoramas` for (N, ...) query line images over a grid of
+    ``step_m`` within ``radius_m`` of the plan ``point`` only (free space of ``model``, at
+    camera height ``z``; None: the model's), its database drawn on the spot: what the method
+    finds near a place, and its score. The diagnostic that tells a score failure from a
+    search failure: where the best pose near the truth scores below a wrong answer, the
+    score prefers the wrong place (no search fixes that); where above, the search missed it.
+    Raises ValueError where no grid position lies within the radius."""
+    from placeloc.geometry.floorplan import plan_grid
+
+    point = np.asarray(point, float).reshape(2)
+    r = float(radius_m)
+    where = (f"no free grid position of {model.source or 'the model'} within {r:g} m of ({point[0]:.2f}, "
+             f"{point[1]:.2f}) at {step_m:g} m")
+    try:
+        poses, _ = plan_grid(model, x=[point[0] - r, point[0] + r, step_m], y=[point[1] - r, point[1] + r, step_m],
+                             z=z, headings=[0.0], wall_margin_m=wall_margin_m)
+    except ValueError as exc:   # its message names the config's grid keys, which play no part here
+        raise ValueError(where) from exc
+    poses = poses[np.hypot(*(poses[:, :2] - point).T) <= r + 1e-9]
+    if not len(poses):
+        raise ValueError(where)
+    h, w = lines.shape[-2:]
+    bins = int(pp.orientation_bins)
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    if pp.score != "chamfer":
+        raise ValueError("search_near scores with the chamfer score only (umap.panorama.score chamfer)")
+    if bins > 1:
+        masks = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden,
+                                 orientation_bins=bins)
+        spectra = chamfer_spectra(orientation_channels(masks, bins), tau_px=pp.chamfer_tau_px, weights=weights,
+                                  spread=int(pp.orientation_spread))
+    else:
+        imgs = unpack(render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden), h, w)
+        spectra = chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=weights,
+                                  clutter_share=float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None)
+    return search_panoramas(lines, poses, model.segments, model.faces, {"spectra": spectra}, pp,
+                            tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden)

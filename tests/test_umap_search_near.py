@@ -57,3 +57,32 @@ def test_cause_line_by_hand():
                     "home 21 pano_016.png, home 24 pano_015.png); the search's (a better pose near the truth was "
                     "missed): home 24 pano_003.png.")
     assert cause_line({20: [], 21: []}, origin=0.0) == "Wrong test answers at grid origin 0: none."
+    assert "by 0.0147: home 21" in cause_line({21: [("pano_016.png", 0.3867, 0.3720)]}, origin=0.0)
+
+
+def test_the_quick_homes_experiment_explains_its_wrong_answers_and_drops_its_indexes(tmp_path):
+    # `placeloc experiment umap-homes --quick`: one development home at one origin, two test
+    # homes. Every wrong test answer at the first origin is in summary.json with the best
+    # score near its truth, the table's line counts them, and no run folder keeps its index
+    import csv
+    import json
+
+    from placeloc.experiments.umap_homes import main
+
+    summary = json.loads(main(tmp_path, quick=True, quiet=True).read_text())
+    causes = summary["wrong_answer_causes"]
+    for seed, listed in causes.items():
+        with open(tmp_path / f"home{seed}-origin0" / "per_query.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        wrong = {r["frame"]: float(r["score"]) for r in rows
+                 if not (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0)}
+        assert {c["frame"]: c["score"] for c in listed} == wrong
+    every = [c for listed in causes.values() for c in listed]
+    table = (tmp_path / "table.md").read_text()
+    if every:
+        n_score = sum(c["best_near_truth"] < c["score"] for c in every)
+        assert f"{n_score} of {len(every)} are the score's" in table
+    else:
+        assert "Wrong test answers at grid origin 0: none." in table
+    assert list(tmp_path.glob("*/index.h5")) == []
+    assert len(list(tmp_path.glob("*/localize.h5"))) == 3

@@ -18,7 +18,10 @@ homes by a stated rule, then reported on other homes, each for several grid orig
    the search again over the grid within 1 m of the truth only; where its best pose scores
    below the answer the score prefers the wrong place, else the search missed the truth.
 
-Writes ``OUT/dev.md``, ``OUT/table.md`` and ``OUT/summary.json``.
+Writes ``OUT/dev.md``, ``OUT/table.md`` and ``OUT/summary.json``. Each run folder's
+``index.h5`` (the map spectra, about 1.2 GB a home) is deleted once every setting has run at
+its home and origin: kept, the 40 folders of a full run held 28 GB (a run here stopped on a
+full disk after 13 minutes). A re-run draws an index again where it needs one.
 """
 
 from __future__ import annotations
@@ -238,13 +241,18 @@ def cause_line(causes: dict[int, list[tuple[str, float, float]]], origin: float)
             f"the truth: {len(score)} of {len(every)} are the score's (the best pose there scores below the "
             f"answer")
     if score:
-        gaps = [g for *_, g in score]
-        text += f", by {min(gaps):.4f}-{max(gaps):.4f}: " + ", ".join(f"home {s} {f}" for s, f, _ in score)
+        lo, hi = f"{min(g for *_, g in score):.4f}", f"{max(g for *_, g in score):.4f}"
+        text += f", by {lo if lo == hi else f'{lo}-{hi}'}: " + ", ".join(f"home {s} {f}" for s, f, _ in score)
     search = [(seed, f) for seed, f, a, b in every if b >= a]
     text += ")"
     if search:
         text += "; the search's (a better pose near the truth was missed): " + ", ".join(f"home {s} {f}" for s, f in search)
     return text + "."
+
+
+def _drop_index(run_dir: Path) -> None:
+    """Delete a finished run folder's index (module docstring: the disk it takes)."""
+    (run_dir / "index.h5").unlink(missing_ok=True)
 
 
 def _answers(run_dir: Path) -> dict[str, tuple[float, float]]:
@@ -268,6 +276,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                 dev.setdefault(name, []).append(m["within_1m_30deg"])
                 for frame, xy in _answers(out_dir / f"dev-home{seed}-origin{i}").items():
                     answers.setdefault(name, {}).setdefault((seed, frame), []).append(xy)
+            _drop_index(out_dir / f"dev-home{seed}-origin{i}")
     moves = {name: answer_moves(a) for name, a in answers.items()}
     chosen = choose(dev, moves)
     lines = ["Development homes (seeds " + ", ".join(map(str, DEV_SEEDS)) + "), grid origins shifted by "
@@ -290,6 +299,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                                                                    quiet)
             for frame, xy in _answers(out_dir / f"home{seed}-origin{i}").items():
                 test_answers.setdefault((seed, frame), []).append(xy)
+            _drop_index(out_dir / f"home{seed}-origin{i}")
     # why the test homes' wrong answers are wrong (at the first origin): the score or the search
     causes = {seed: wrong_answer_causes(out_dir / f"home{seed}-origin0", _home(out_dir, seed), SWEEP[chosen])
               for seed in (TEST_SEEDS[:2] if quick else TEST_SEEDS)}

@@ -41,12 +41,18 @@ def test_search_near_the_truth_ends_where_the_whole_search_does():
     assert np.hypot(*(away.xy[0] - truth[0, :2])) > 1.0 and away.score[0] < whole.score[0] - 0.05
 
 
-def test_search_near_a_point_off_the_plan_names_it():
+def test_search_near_names_what_is_wrong_with_its_input():
     m = floor_plan_model(PLAN)
     q = _render_all(m, np.array([[1.0, 1.0, 1.4, 0.0]]))
-    with pytest.raises(ValueError, match=r"within 1 m of \(20.00, 20.00\)"):
-        search_near(q, np.array([20.0, 20.0]), m, replace(PanoramaParams(), orientation_bins=1), radius_m=1.0,
-                    step_m=0.25, z=1.4, tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    pp = replace(PanoramaParams(), orientation_bins=1)
+    kw = {"radius_m": 1.0, "step_m": 0.25, "tolerance_px": 2, "wall_margin_m": 0.1, "hidden": True}
+    with pytest.raises(ValueError, match=r"no free grid position .* within 1 m of \(20.00, 20.00\) at 0.25 m"):
+        search_near(q, np.array([20.0, 20.0]), m, pp, z=1.4, **kw)
+    assert m.camera_z is None                            # the plan gives no camera height
+    with pytest.raises(ValueError, match=r"no camera height \(camera_z\): pass z"):
+        search_near(q, np.array([1.0, 1.0]), m, pp, z=None, **kw)
+    with pytest.raises(ValueError, match=r"camera height 3.0 m lies outside the storey .* ceiling 2.6 m"):
+        search_near(q, np.array([1.0, 1.0]), m, pp, z=3.0, **kw)
 
 
 def test_cause_line_by_hand():

@@ -1585,21 +1585,28 @@ def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, ra
     finds near a place, and its score. The diagnostic that tells a score failure from a
     search failure: where the best pose near the truth scores below a wrong answer, the
     score prefers the wrong place (no search fixes that); where above, the search missed it.
-    Raises ValueError where no grid position lies within the radius."""
-    from placeloc.geometry.floorplan import plan_grid
+    Raises ValueError where no grid position lies within the radius, or where the camera
+    height is not given (no ``z``, no ``camera_z`` in the model) or lies outside the storey."""
+    from placeloc.geometry import pose_grid
+    from placeloc.geometry.floorplan import free_space_mask
 
     point = np.asarray(point, float).reshape(2)
     r = float(radius_m)
-    where = (f"no free grid position of {model.source or 'the model'} within {r:g} m of ({point[0]:.2f}, "
-             f"{point[1]:.2f}) at {step_m:g} m")
-    try:
-        poses, _ = plan_grid(model, x=[point[0] - r, point[0] + r, step_m], y=[point[1] - r, point[1] + r, step_m],
-                             z=z, headings=[0.0], wall_margin_m=wall_margin_m)
-    except ValueError as exc:   # its message names the config's grid keys, which play no part here
-        raise ValueError(where) from exc
-    poses = poses[np.hypot(*(poses[:, :2] - point).T) <= r + 1e-9]
+    name = model.source or "the model"
+    if z is None:
+        if model.camera_z is None:
+            raise ValueError(f"{name} gives no camera height (camera_z): pass z, the camera's height in metres")
+        z = float(model.camera_z)
+    if len(model.faces) and not float(model.faces[:, 4].min()) < z < float(model.faces[:, 5].max()):
+        raise ValueError(f"camera height {z} m lies outside the storey of {name} (floor {model.faces[:, 4].min()} m, "
+                         f"ceiling {model.faces[:, 5].max()} m)")
+    # the grid keeps the model's free space as the localize grid does (plan_grid's test)
+    poses = pose_grid([point[0] - r, point[0] + r, step_m], [point[1] - r, point[1] + r, step_m], z, [0.0])
+    keep = free_space_mask(poses[:, :2], model, inside_only=True, wall_margin_m=wall_margin_m, z=z)[0]
+    poses = poses[keep & (np.hypot(*(poses[:, :2] - point).T) <= r + 1e-9)]
     if not len(poses):
-        raise ValueError(where)
+        raise ValueError(f"no free grid position of {name} within {r:g} m of ({point[0]:.2f}, {point[1]:.2f}) at "
+                         f"{step_m:g} m")
     h, w = lines.shape[-2:]
     bins = int(pp.orientation_bins)
     weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)

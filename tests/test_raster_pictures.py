@@ -235,3 +235,51 @@ def test_a_broken_font_file_is_passed_over(tmp_path, monkeypatch):
     monkeypatch.setattr(R, "_fallback_paths", [str(empty)])
     monkeypatch.setattr(R, "_covering", {})
     assert R.font_for("Zürich.png", 24) is R.font(24)
+
+
+def test_a_home_is_shown_whole_with_its_doors_and_room_names(tmp_path):
+    """Someone who located one photo in a 12 x 8 m home sees the whole home, not 2 m around
+    the answer: the plan's walls reach every side of the view. A door is a white gap in its
+    wall with its two ends marked; a room's name is written in grey where it is given; the
+    answer is named beside its cross; the title counts one estimate, not "1 estimates"."""
+    from PIL import Image
+
+    from placeloc.evaluation.pose_estimates import plan_view, plot_estimates_on_plan
+
+    home = np.array([[0, 0, 12, 0], [12, 0, 12, 8], [12, 8, 0, 8], [0, 8, 0, 0], [6, 0, 6, 8]], float)
+    lo, hi = plan_view(np.array([[1.0, 1.0]]), home)
+    pad = 0.02 * np.array([12.0, 8.0]) + 0.4
+    assert lo == pytest.approx(-pad) and hi == pytest.approx([12, 8] + pad)
+    # past 30 m across only the part around the frames (the corridor of the test above)
+    lo, _ = plan_view(np.array([[1.0, 1.0]]), home * [3, 1, 3, 1])
+    assert lo[0] > -1.0 and _[0] < 20.0
+
+    walls6 = np.column_stack([home[:, 0], home[:, 1], np.zeros(5), home[:, 2], home[:, 3], np.zeros(5)])
+    door = np.array([[6.0, 3.0, 6.0, 5.0]])                 # in the middle wall, y 3..5
+    path = plot_estimates_on_plan(tmp_path / "home.png", None, np.array([[3.0, 4.0]]), [], walls6, "umap",
+                                  None, np.array([90.0]), names=["photo.png"], openings=door,
+                                  labels=["kitchen"], label_xy=np.array([[9.0, 4.0]]))
+    img = _pixels(path)
+    dark = img.sum(axis=2) < 400
+    # the middle wall: the dark column between the outer walls, at x = 6 of 0..12
+    xs = _lines(dark[img.shape[0] // 5: img.shape[0] // 2], 0, 0.3)   # rows of y 8..~5 m: wall, no door
+    assert len(xs) == 5, xs                                          # frame, wall, middle wall, wall, frame
+    mid = xs[2]
+    ys = _lines(dark[:, img.shape[1] // 8: img.shape[1] // 3], 1, 0.4)
+    top, bottom = ys[1], ys[2]                                        # y = 8 and y = 0
+    at = lambda y_m: round(bottom + (top - bottom) * y_m / 8.0)       # noqa: E731
+    assert dark[at(4.0) - 3: at(4.0) + 4, mid - 1: mid + 2].sum() == 0     # the door's middle: white
+    assert dark[at(1.5) - 3: at(1.5) + 4, mid - 1: mid + 2].any(axis=1).all()  # the wall below it: drawn
+    # the room's name in grey from its top left corner at (9, 4) (right of it and below, not left of it); the
+    # answer's name in red to the right of its cross
+    grey = _near(img, (140, 140, 140), tol=60)
+    x9 = round(xs[1] + (xs[3] - xs[1]) * 9.0 / 12.0)
+    assert grey[at(4.0): at(4.0) + 20, x9: x9 + 60].sum() > 30
+    assert grey[at(4.0): at(4.0) + 20, x9 - 60: x9 - 2].sum() == 0
+    red = _near(img[:bottom], RED, tol=90)
+    x3 = round(xs[1] + (xs[3] - xs[1]) * 3.0 / 12.0)
+    assert red[at(4.0) - 25: at(4.0), x3 + 8: x3 + 90].sum() > 40   # "photo.png" beside the cross
+    title = np.asarray(Image.open(path).convert("L"))[:40]
+    assert (title < 128).any()
+    from placeloc.evaluation import raster as R
+    assert R.text_width("umap: 1 estimate (no ground truth)", 14) < R.text_width("umap: 1 estimates (no ground truth)", 14)

@@ -160,3 +160,18 @@ def test_a_door_or_window_on_no_wall_is_warned_about(caplog):
         "plan2.yaml: windows[1] [2, 3.3] -> [3, 3.3] lies on no room's edge (its ends are at best 0.30 m from one; "
         "both must be within 0.01 m): it cuts no wall; move it onto its wall"]
     assert len(m.gaps) == 2  # the plan loads as it is
+
+
+def test_label_points_by_hand():
+    """Where a room's name is written: the highest, then leftmost, point of the 0.1 m lattice
+    at least 0.25 m inside (a 4 x 3 m room: (0.3, 2.7); a hall 1.4 m wide: its left end; an
+    L: the top of its upright arm); a polygon too thin for that: its point farthest from the
+    edges (the first of equals)."""
+    from placeloc.geometry.floorplan import label_points
+
+    room = np.array([[0, 0], [4, 0], [4, 3], [0, 3]], float)
+    hall = np.array([[0, 0], [10, 0], [10, 1.4], [0, 1.4]], float)
+    ell = np.array([[0, 0], [6, 0], [6, 2], [2, 2], [2, 6], [0, 6]], float)
+    thin = np.array([[0, 0], [5, 0], [5, 0.3], [0, 0.3]], float)
+    assert np.allclose(label_points([room, hall, ell, thin]), [[0.3, 2.7], [0.3, 1.1], [0.3, 5.7], [0.1, 0.1]])
+    assert np.allclose(label_points([room + [6, 0]]), [[6.3, 2.7]])

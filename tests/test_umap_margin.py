@@ -8,6 +8,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.geometry.panorama import render_panoramas
@@ -129,7 +130,14 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
         assert (float(row["margin"]) < 0.02) == doubtful
         assert ("1 of 1 answers are doubtful" in caplog.text) == doubtful
         est, rival = np.array([float(row["x"]), float(row["y"])]), np.array([float(row["rival_x"]), float(row["rival_y"])])
-        alternative = read_result(d / "run" / "localize.h5").get("alternative")
+        result = read_result(d / "run" / "localize.h5")
+        alternative = result.get("alternative")
+        # what the plan picture draws: the openings as gaps, each room's name inside it from its top left
+        assert np.allclose(result["plan_openings"], [[1, 0, 1.9, 0], [7, 0, 7.9, 0]])
+        assert result["plan_labels"] == ["a", "b"]
+        x0 = {"a": 0.0, "b": 6.0}
+        for label, (lx, ly) in zip(result["plan_labels"], result["plan_label_xy"]):
+            assert 0.25 <= lx - x0[label] <= 0.35 and ly == pytest.approx(2.7), (label, lx, ly)
         metrics = json.loads((d / "run" / "metrics.json").read_text())
         if doubtful:
             # the answer and its rival are in the two rooms, named as the plan names them

@@ -3,7 +3,9 @@
 ``localize.h5/result``: ``names`` (Q) image file names, ``x``, ``y`` (Q) metres, optional
 ``z``, ``heading_deg`` (Q, NaN: not estimated), ``score`` (Q, the method's score of the
 estimate), optional ``plan_segments`` (S x 4: x0, y0, x1, y1 in metres, the walls drawn
-under the estimates). Scored against a poses CSV (``ground_truth.kind: poses``; frame
+under the estimates), ``plan_openings`` (G x 4: the ends of doors and openings, drawn as
+gaps in those walls) and ``plan_labels`` with ``plan_label_xy`` (L and L x 2: names of
+places, such as rooms, written on the plan there). Scored against a poses CSV (``ground_truth.kind: poses``; frame
 name, x, y[, heading]; :func:`placeloc.evaluation.poses.read_poses`), which must hold a
 row for every query image: checked before any stage runs.
 
@@ -49,6 +51,9 @@ SCHEMA = {
     "heading_deg": Field("float", ("Q",)),
     "score": Field("float", ("Q",)),
     "plan_segments": Field("float", ("S", "4"), optional=True),
+    "plan_openings": Field("float", ("G", "4"), optional=True),
+    "plan_labels": Field("str", ("L",), optional=True),
+    "plan_label_xy": Field("float", ("L", "2"), optional=True),
     "confidence": Field("float", ("Q",), optional=True),
     "alternative": Field("float", ("Q", "2"), optional=True),
 }
@@ -75,11 +80,17 @@ COUNTS = ("n_frames",)
 def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, heading_deg: np.ndarray, score: np.ndarray,
           z: np.ndarray | None = None, plan_segments: np.ndarray | None = None, label: str = "estimates",
           confidence: np.ndarray | None = None, confidence_label: str = "confidence",
-          alternative: np.ndarray | None = None) -> None:
+          alternative: np.ndarray | None = None, plan_openings: np.ndarray | None = None,
+          plan_labels: Sequence[str] | None = None, plan_label_xy: np.ndarray | None = None) -> None:
     """Write the contract into ``ctx.out/result``; ``label`` names the estimates in pictures.
     ``confidence`` (per frame, higher = more trusted, NaN = cannot tell), when given, is
     named by ``confidence_label`` (e.g. "score margin over the best rival pose");
-    ``alternative`` (Q, 2) a doubtful answer's second place (NaN rows: none)."""
+    ``alternative`` (Q, 2) a doubtful answer's second place (NaN rows: none);
+    ``plan_openings`` (G, 4) door and opening ends; ``plan_labels`` names written on the
+    plan at ``plan_label_xy`` (L, 2)."""
+    if (plan_labels is None) != (plan_label_xy is None) or (
+            plan_labels is not None and len(plan_labels) != len(np.asarray(plan_label_xy).reshape(-1, 2))):
+        raise ValueError("plan_labels and plan_label_xy go together, one position a label")
     attrs = {"label": label}
     if confidence is not None:
         attrs["confidence_label"] = confidence_label
@@ -89,7 +100,10 @@ def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, headi
         "score": np.asarray(score, np.float64),
         "plan_segments": None if plan_segments is None else np.asarray(plan_segments, np.float64).reshape(-1, 4),
         "confidence": None if confidence is None else np.asarray(confidence, np.float64),
-        "alternative": None if alternative is None else np.asarray(alternative, np.float64).reshape(-1, 2)},
+        "alternative": None if alternative is None else np.asarray(alternative, np.float64).reshape(-1, 2),
+        "plan_openings": None if plan_openings is None else np.asarray(plan_openings, np.float64).reshape(-1, 4),
+        "plan_labels": None if plan_labels is None else [str(n) for n in plan_labels],
+        "plan_label_xy": None if plan_label_xy is None else np.asarray(plan_label_xy, np.float64).reshape(-1, 2)},
         attrs=attrs)
 
 
@@ -334,7 +348,7 @@ def finish(ctx: Any, ev: PoseEvaluation, plots: bool = True) -> None:
     label = ev.label
     draw(plot_error_cdf, ctx.output("error_cdf.png"), ev.err, label)
     draw(plot_estimates_on_plan, ctx.output("estimates_on_plan.png"), ev.truth, ev.est, [], _segments6(res), label,
-         ev.truth_heading, res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
+         ev.truth_heading, res["heading_deg"], names=res["names"], alternative=res.get("alternative"), **_plan_marks(res))
     if confidence is not None:
         from placeloc.evaluation.plots import plot_kept_precision
 
@@ -358,6 +372,11 @@ def _segments6(res: Result) -> np.ndarray:
         return np.zeros((0, 6))
     z = np.zeros(len(s))
     return np.column_stack([s[:, 0], s[:, 1], z, s[:, 2], s[:, 3], z])
+
+
+def _plan_marks(res: Result) -> dict[str, Any]:
+    """The plan picture's doors and place names from a result (absent: none)."""
+    return {"openings": res.get("plan_openings"), "labels": res.get("plan_labels"), "label_xy": res.get("plan_label_xy")}
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:
@@ -387,7 +406,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
                 truth_heading = np.array([float(rows[n]["true_heading_deg"]) for n in res["names"]])
     path = out_dir / "estimates_on_plan.png"
     plot_estimates_on_plan(path, truth, est, [], _segments6(res), str(res.attrs.get("label", "estimates")), truth_heading,
-                           res["heading_deg"], names=res["names"], alternative=res.get("alternative"))
+                           res["heading_deg"], names=res["names"], alternative=res.get("alternative"), **_plan_marks(res))
     return [path]
 
 
@@ -460,8 +479,12 @@ def plot_error_cdfs(path: Path, errors: dict[str, np.ndarray], title: str) -> Pa
 
 # a plan longer than this many times its width is cut into pieces drawn one above the other
 PLAN_PIECE_RATIO = 3.5
-# heading arrows: this long on the page (output pixels) whatever the plan's size, so they never hide an error line
+# heading arrows: this long on the page (output pixels) whatever the plan's size, so they never hide an error line;
+# twice as long where a picture has at most NAMED_WRONG frames (a few photos: which way each faced is what is read)
 ARROW_PX = 15.0
+# a plan no larger than this (metres, across and down) is shown whole: a home, where whoever located a photo wants to
+# see where in the home it is; a larger one (a building's corridors) only around the frames (plan_view)
+PLAN_WHOLE_M = 30.0
 # the panels of the plan picture fill at most this many output pixels across and down
 PLAN_AREA_PX = (1240.0, 980.0)
 
@@ -483,20 +506,25 @@ def plan_title(mode: str, truth: np.ndarray, est: np.ndarray, alternative: np.nd
     return f"{mode}: {int(np.sum(err <= 1.0))} of {len(err)} frames within 1 m{either}{median}"
 
 
-def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+def plan_view(points: np.ndarray, walls: np.ndarray, *, margin_m: float = 2.0, reach: float = 1.5,
+              whole_m: float = PLAN_WHOLE_M) -> tuple[np.ndarray, np.ndarray]:
     """The part of a plan a picture of ``points`` (N x 2: frames, answers, alternatives)
-    shows, as (lo, hi) corners: the points' extent with a margin of ``margin_m`` (or 5 % of
-    the extent, if more), widened to take in the walls (M x 4: x0, y0, x1, y1) that pass
-    through that box, each as far as ``reach`` margins beyond the points' extent (3 m by
-    default): a frame in a room's corner shows the room's far walls up to 3 m away, and
-    frames along part of a 90 m corridor do not show the whole of it. Then a pad of 2 % and
-    0.4 m, so that a corridor keeps its width."""
+    shows, as (lo, hi) corners. A plan whose walls (M x 4: x0, y0, x1, y1) span at most
+    ``whole_m`` metres across and down (a home) is shown whole, with the points. A larger
+    one: the points' extent with a margin of ``margin_m`` (or 5 % of the extent, if more),
+    widened to take in the walls that pass through that box, each as far as ``reach``
+    margins beyond the points' extent (3 m by default): a frame in a room's corner shows the
+    room's far walls up to 3 m away, and frames along part of a 90 m corridor do not show
+    the whole of it. Then a pad of 2 % and 0.4 m, so that a corridor keeps its width."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     margin = np.maximum(0.05 * (hi - lo), margin_m)
     wlo, whi = lo - margin, hi + margin
     w = np.asarray(walls, float).reshape(-1, 4)
     w = w[np.isfinite(w).all(axis=1)]
-    if len(w):
+    ends = np.vstack([w[:, :2], w[:, 2:]])
+    if len(w) and np.all(ends.max(axis=0) - ends.min(axis=0) <= whole_m):
+        lo, hi = np.minimum(lo, ends.min(axis=0)), np.maximum(hi, ends.max(axis=0))
+    elif len(w):
         a, b = w[:, :2], w[:, 2:]
         # the walls whose bounding box meets the box (a wall crossing it with both ends outside included)
         meets = np.all((np.minimum(a, b) <= whi) & (np.maximum(a, b) >= wlo), axis=1)
@@ -515,7 +543,8 @@ def _pale(colour: R.Colour) -> R.Colour:
 def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray, polys: list[np.ndarray], segments: np.ndarray,
                            mode: str, truth_heading_deg: np.ndarray | None = None,
                            est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None,
-                           alternative: np.ndarray | None = None) -> Path:
+                           alternative: np.ndarray | None = None, openings: np.ndarray | None = None,
+                           labels: Sequence[str] | None = None, label_xy: np.ndarray | None = None) -> Path:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
     positions joined by error lines, headings as pale arrows of a fixed length on the page
     (drawn under the dots); a doubtful answer's ``alternative`` (Q x 2, NaN rows: none) as
@@ -525,7 +554,11 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     the frame to look at is read off the picture. A long plan (a corridor) is cut into up to
     four pieces along its length, stacked (or side by side when it runs up the page), each
     to scale, so that it fills the picture instead of a thin strip in white space; the view
-    covers the part of the plan the frames visit. Drawn in pixels (:mod:`.raster`)."""
+    covers the part of the plan the frames visit (a home: the whole plan, :func:`plan_view`).
+    ``openings`` (G x 4: door and opening ends) are drawn as gaps in the walls, and ``labels``
+    (room names) in grey from ``label_xy`` (their top left corner), under everything else. With no truth and a few
+    frames (at most :data:`NAMED_WRONG`) each answer is named where it lies and the heading
+    arrows are twice as long. Drawn in pixels (:mod:`.raster`)."""
     est = np.asarray(est, float)
     truth = est if truth is None else np.asarray(truth, float)  # estimates only (no ground truth): no error lines
     known = truth is not est
@@ -575,7 +608,10 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                                                                            if wrong.sum() > len(named) else ""),
                                      BLUE, text="ab"))
     cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
-    title = (plan_title(mode, truth, est, alt) if known else f"{mode}: {len(est)} estimates (no ground truth)") + cut
+    title = (plan_title(mode, truth, est, alt) if known else
+             f"{mode}: {len(est)} estimate{'' if len(est) == 1 else 's'} (no ground truth)") + cut
+    few = len(est) <= NAMED_WRONG
+    arrow_px = 2.0 * ARROW_PX if few else ARROW_PX
 
     left, top, right = 70.0, 44.0, 24.0
     width = int(max(left + content_w + right, R.text_width(title, 14) + 40, 640))
@@ -601,11 +637,20 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                 ax.segments(q[:-1, 0], q[:-1, 1], q[1:, 0], q[1:, 1], R.BLACK, 1.3)
         elif len(segments):
             ax.segments(segments[:, 0], segments[:, 1], segments[:, 3], segments[:, 4], R.BLACK, 0.8)
+        if openings is not None and len(openings):
+            # a door's span in white over its wall, then its jambs: a gap a reader sees as a way through
+            o = np.asarray(openings, float).reshape(-1, 4)
+            ax.segments(o[:, 0], o[:, 1], o[:, 2], o[:, 3], (255, 255, 255), 4.0)
+            for ends in (o[:, :2], o[:, 2:]):
+                ax.markers(ends[:, 0], ends[:, 1], R.BLACK, "o", 2.5)
+        if labels is not None and label_xy is not None:
+            for name, (lx, ly) in zip(labels, np.asarray(label_xy, float).reshape(-1, 2)):
+                ax.text(lx, ly, str(name), 13, fill=(140, 140, 140), anchor="la")   # from the room's top left
         if known:
             ax.segments(truth[:, 0], truth[:, 1], est[:, 0], est[:, 1], grey, 1.5)
         for xy, hd, colour in ((truth, truth_heading_deg, BLUE), (est, est_heading_deg, RED)):
             if hd is not None:
-                ax.arrows(xy[:, 0], xy[:, 1], np.asarray(hd, float), _pale(colour), ARROW_PX, 1.3)
+                ax.arrows(xy[:, 0], xy[:, 1], np.asarray(hd, float), _pale(colour), arrow_px, 1.3)
         if known:
             ax.markers(truth[:, 0], truth[:, 1], BLUE, "o", 7.5)
         for e, a in zip(est[has_alt], alt[has_alt]):
@@ -614,6 +659,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         ax.markers(alt[has_alt, 0], alt[has_alt, 1], ORANGE, "O", 12, edge=2.0)
         for j in named:
             ax.text(truth[j, 0], truth[j, 1], str(names[j]), 12, dx=6, dy=-6, fill=BLUE, anchor="ls")
+        if not known and few and names is not None:  # no truth, a few photos: each answer named where it lies
+            for j in np.flatnonzero(np.isfinite(est).all(axis=1)):
+                ax.text(est[j, 0], est[j, 1], str(names[j]), 12, dx=8, dy=-8, fill=RED, anchor="ls")
         c.image.paste(panel.image, (bx * k, by * k))
         frame = R.Axes(c, (bx, by, bx + bw, by + bh), xlim, ylim)
         xt = R.nice_ticks(*xlim, most=max(3, int(bw / 90)))

@@ -350,6 +350,33 @@ def rooms_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
                  camera_z=camera_z, gaps=gaps, internal=internal, room_names=names)
 
 
+def label_points(polygons: Sequence[np.ndarray], inset_m: float = 0.25, step_m: float = 0.1) -> np.ndarray:
+    """(R, 2): for each polygon the highest, then leftmost, point of a ``step_m`` lattice over
+    it that lies inside at least ``inset_m`` from its edges (a polygon too thin for that:
+    its lattice point farthest from the edges; none inside: its bounding box's centre):
+    where a room's name is written on a plan, from its top left corner. Why there and not
+    in the middle: the middle of a room is where cameras stand, and a name written there
+    runs into their crosses and names.
+    """
+    out = np.zeros((len(polygons), 2))
+    for i, poly in enumerate(polygons):
+        poly = np.asarray(poly, float).reshape(-1, 2)
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        out[i] = (lo + hi) / 2
+        gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + step_m / 2, step_m), np.arange(lo[1], hi[1] + step_m / 2, step_m))
+        pts = np.column_stack([gx.ravel(), gy.ravel()])
+        pts = pts[point_in_polygon(pts, poly)]
+        if not len(pts):
+            continue
+        d = segment_distances(pts, np.column_stack([poly, np.roll(poly, -1, axis=0)])).min(axis=1)
+        ok = pts[d >= inset_m]
+        if len(ok):
+            out[i] = ok[np.lexsort((ok[:, 0], -ok[:, 1]))[0]]
+        else:
+            out[i] = pts[int(np.argmax(d))]
+    return out
+
+
 def rooms_at(xy: np.ndarray, polygons: Sequence[np.ndarray], names: Sequence[str]) -> list[str]:
     """The name of the room each plan point (P, 2) lies in (the first whose polygon holds
     it; "" outside every room or at NaN): how a person reads an answer off a floor plan."""

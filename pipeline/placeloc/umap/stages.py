@@ -27,7 +27,7 @@ from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import PoseEvaluation
 from placeloc.evaluation.pose_estimates import right_answers, yaw_errors
 from placeloc.geometry import Camera
-from placeloc.geometry.floorplan import ModelError, load_model, plan_grid, rooms_at
+from placeloc.geometry.floorplan import ModelError, label_points, load_model, plan_grid, rooms_at
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
@@ -146,6 +146,8 @@ def build_dictionary(ctx: Any) -> None:
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
     if model.room_names:  # polygon_i's room (a multi-room plan): answers are read off the plan by room
         write_tree(ctx.out, {"room_names": list(model.room_names)})
+    if len(model.gaps):   # doors and openings, drawn as gaps on the plan picture
+        write_tree(ctx.out, {"plan_gaps": np.asarray(model.gaps, np.float64).reshape(-1, 4)})
     ctx.out.attrs.update(width=cam.width, height=cam.height, hfov_deg=cam.hfov_deg, n_views=len(poses), model=model.source,
                          kind="panorama" if p.query_kind == "panorama" else "pinhole",
                          dilated_px=-1 if p.query_kind == "panorama" else int(p.tolerance_px), orientation_bins=bins)
@@ -447,14 +449,23 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
     from placeloc.evaluation import pose_estimates
 
     plan = ctx.artifact("build-dictionary")
+    labels = label_xy = None
     if "plan" in plan:
-        walls = [np.column_stack([q, np.roll(q, -1, axis=0)]) for q in (plan["plan"][k][()] for k in sorted(plan["plan"].keys()))]
+        # polygon_0, polygon_1, ..., polygon_10 in the order written (room_names follows it)
+        keys = sorted(plan["plan"].keys(), key=lambda k: int(k.rsplit("_", 1)[1]))
+        polygons = [plan["plan"][k][()] for k in keys]
+        walls = [np.column_stack([q, np.roll(q, -1, axis=0)]) for q in polygons]
         segments = np.concatenate(walls) if walls else np.zeros((0, 4))
+        if "room_names" in plan and polygons:  # each room's name written inside it on the plan picture
+            labels = read_strings(plan["room_names"])[:len(polygons)]
+            label_xy = label_points(polygons[:len(labels)])
     else:
         segments = plan["segments"][()][:, [0, 1, 3, 4]]
     pose_estimates.write(ctx, names=names, x=x, y=y, heading_deg=heading, score=score, plan_segments=segments,
                          label=str(ctx.params.mode), confidence=margin,
-                         confidence_label="score margin over the best rival pose", alternative=alternative)
+                         confidence_label="score margin over the best rival pose", alternative=alternative,
+                         plan_openings=plan["plan_gaps"][()] if "plan_gaps" in plan else None, plan_labels=labels,
+                         plan_label_xy=label_xy)
 
 
 # ------------------------------------------------------------------ evaluate: the poses contract scores; UMap adds

@@ -141,3 +141,25 @@ def test_a_setting_too_small_for_four_decimals_reads_as_itself_not_as_zero():
     assert format_value([-4.163040570086148, 4.859999999999999, 0.25]) == "[-4.16304, 4.86, 0.25]"
     assert format_value([45.0, 135.0]) == "[45, 135]" and format_value([64, 32]) == "[64, 32]"
     assert format_value(["a", 1]) == "['a', 1]" and format_value([]) == "[]" and format_value([True]) == "[True]"
+
+
+def test_a_run_not_evaluated_shows_its_answers_under_the_headline(tmp_path):
+    """A photo located without ground truth: report.html shows estimates.csv's rows (every
+    one when few, the first 20 of more, names escaped), above the configuration; once the
+    run is evaluated, metrics.json's headline takes their place."""
+    import json
+
+    from placeloc.evaluation.report import write_report
+
+    cfg = {"method": "umap"}
+    (tmp_path / "estimates.csv").write_text('frame,x,y,room\n"a<b>,1.png",7.000,0.040,hall\n')
+    html = write_report(tmp_path, config=cfg).read_text()
+    assert "<h2>Answers</h2>" in html and "every answer, from <code>estimates.csv</code>" in html
+    assert "<td>a&lt;b&gt;,1.png</td><td>7.000</td><td>0.040</td><td>hall</td>" in html
+    assert html.index("<h2>Answers</h2>") < html.index("<h2>Configuration</h2>")
+    rows = "".join(f"f{i}.png,{i},0\n" for i in range(30))
+    (tmp_path / "estimates.csv").write_text("frame,x,y\n" + rows)
+    html = write_report(tmp_path, config=cfg).read_text()
+    assert "the first 20, from" in html and "<td>f19.png</td>" in html and "f20.png" not in html
+    (tmp_path / "metrics.json").write_text(json.dumps({"within_1m": 1.0}))
+    assert "<h2>Answers</h2>" not in write_report(tmp_path, config=cfg).read_text()

@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 
 from placeloc.core.artifacts import atomic_open
-from placeloc.core.safe_io import load_json, read_run_file
+from placeloc.core.safe_io import MAX_RUN_TABLE_BYTES, load_json, open_run_file, read_run_file
 
 log = logging.getLogger("placeloc")
 
@@ -27,6 +27,10 @@ MAX_METRICS_BYTES = 16 << 20
 # Pictures first that say most; any other PNG follows in name order.
 ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "map.png", "recall_at_n.png", "pr_curve.png",
          "error_cdf.png", "confidence.png", "time_per_frame.png", "difference_matrix.png")
+# the answers a localize stage writes beside its result (UMap's poses; the ranked contract's matches): a run not
+# evaluated (no ground truth: a photo located in one's own home) shows the first of them under its headline
+ANSWERS = {"estimates.csv": "docs/umap.md", "matches.csv": "docs/evaluation.md"}   # and where their columns are told
+ANSWER_ROWS = 20
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
@@ -180,6 +184,35 @@ def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
+def _answers_html(run_dir: Path) -> str:
+    """The first :data:`ANSWER_ROWS` rows of the run's answers file (:data:`ANSWERS`, the
+    first there) as a table, or "" where there is none. Only its head is read: a file of
+    35,768 matches is a few MB."""
+    import csv
+    import io
+
+    for name in ANSWERS:
+        if not (run_dir / name).is_file():
+            continue
+        fd = open_run_file(run_dir, name, os.O_RDONLY, max_bytes=MAX_RUN_TABLE_BYTES)
+        with os.fdopen(fd, "rb") as fh:
+            head = fh.read(1 << 18)
+        rows = []
+        for row in csv.reader(io.StringIO(head.decode("utf-8", "replace"), newline="")):
+            rows.append(row)
+            if len(rows) > ANSWER_ROWS + 1:   # one more than shown: whether there are more
+                break
+        if len(rows) < 2:
+            continue
+        more = len(rows) > ANSWER_ROWS + 1
+        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:ANSWER_ROWS + 1])
+        what = f"the first {ANSWER_ROWS}" if more else "every answer"
+        return (f"<h2>Answers</h2><p class='muted'>{what}, from <code>{html.escape(name)}</code> (its columns: "
+                f"{ANSWERS[name]})</p><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
+                + f"</tr>{body}</table>")
+    return ""
+
+
 def _metrics_doc(doc: dict[str, str] | None) -> str:
     items = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(v)}</li>" for k, v in (doc or {}).items())
     return f"<ul class='muted'>{items}</ul>" if items else ""
@@ -211,6 +244,8 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
              f"<h1>{html.escape(title or f'placeloc run: {run_dir.name}')}</h1>",
              f"<p class='muted'>{html.escape(str(run_dir.resolve()))}</p>"]
     parts.append(_headline_html(result_kind, headline or []))
+    if not metrics:   # not evaluated: what the method answered is the result
+        parts.append(_answers_html(run_dir))
     summary = [("method", method)]
     for role in ("reference", "query"):
         if cfg.get(role):

@@ -163,3 +163,27 @@ def test_a_run_not_evaluated_shows_its_answers_under_the_headline(tmp_path):
     assert "the first 20, from" in html and "<td>f19.png</td>" in html and "f20.png" not in html
     (tmp_path / "metrics.json").write_text(json.dumps({"within_1m": 1.0}))
     assert "<h2>Answers</h2>" not in write_report(tmp_path, config=cfg).read_text()
+
+
+def test_the_terminal_shows_the_first_answers_of_a_run_not_evaluated(tmp_path):
+    """`placeloc run` without ground truth prints the first answers: a pose with its room,
+    the rival's room only where the answer is doubtful; matches with the unmatched queries
+    counted, not shown; a pointer to the file when there are more."""
+    from placeloc.evaluation.report import answer_lines
+
+    (tmp_path / "estimates.csv").write_text(
+        "frame,x,y,heading_deg,score,doubtful,room,rival_room\n"
+        "a.png,7.000,0.040,307.5,0.6,false,hall,hall\nb.png,1.000,2.000,90.0,0.5,true,bedroom1,bedroom2\n")
+    assert answer_lines(tmp_path) == ["a.png: x 7.000, y 0.040, heading_deg 307.5, room hall, doubtful false",
+                                      "b.png: x 1.000, y 2.000, heading_deg 90.0, room bedroom1, doubtful true, "
+                                      "rival_room bedroom2"]
+    other = tmp_path / "ranked"
+    other.mkdir()
+    (other / "matches.csv").write_text("query,reference,confidence,query_image,reference_image\n0,,,q0.png,\n"
+                                       + "".join(f"{i},{i},0.5,q{i}.png,r{i}.png\n" for i in range(1, 9)))
+    assert answer_lines(other, most=2) == ["q1.png: reference_image r1.png, confidence 0.5",
+                                           "q2.png: reference_image r2.png, confidence 0.5",
+                                           "(1 query up to here without an answer)", f"... more in {other / 'matches.csv'}"]
+    (other / "matches.csv").write_text("query,reference,confidence,query_image,reference_image\n0,,,q0.png,\n")
+    assert answer_lines(other) == ["(none of the first 1 queries has an answer)"]
+    assert answer_lines(tmp_path / "nowhere") == []

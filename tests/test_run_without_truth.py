@@ -26,6 +26,11 @@ def test_run_without_ground_truth_stops_after_localize(route: Path, tmp_path: Pa
         span = {int(r["query"]): (int(r["ref_first"]), int(r["ref_last"])) for r in csv.DictReader(fh)}
     matched = [(int(r["query"]), int(r["reference"])) for r in rows if r["reference"] != ""]
     assert len(matched) >= len(rows) // 2
+    # the terminal shows the first five answers, each the query's and the matched reference's image
+    first = [r for r in rows if r["reference"] != ""][:5]
+    for r in first:
+        assert f"  {r['query_image']}: reference_image {r['reference_image']}, confidence {r['confidence']}\n" \
+            in result.output
     inside = sum(span[q][0] <= ref <= span[q][1] for q, ref in matched)
     assert inside >= 0.8 * len(matched), (inside, len(matched))
 

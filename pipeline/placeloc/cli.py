@@ -353,6 +353,10 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
                      wait=wait)
     typer.echo(f"{stage}: {path}")
     if all_stages and stage != "evaluate":
+        from placeloc.evaluation.report import answer_lines
+
+        for line in answer_lines(out):
+            typer.echo(f"  {line}")
         typer.echo(f"evaluate: skipped, no ground truth to score against (ground_truth.kind: none); the answers are in "
                    f"{out}; `placeloc show {out}` draws them")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():

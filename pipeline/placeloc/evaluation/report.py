@@ -31,6 +31,9 @@ ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "m
 # evaluated (no ground truth: a photo located in one's own home) shows the first of them under its headline
 ANSWERS = {"estimates.csv": "docs/umap.md", "matches.csv": "docs/evaluation.md"}   # and where their columns are told
 ANSWER_ROWS = 20
+# what the terminal shows of each answer (the first column names it)
+ANSWER_COLUMNS = {"estimates.csv": ("frame", "x", "y", "heading_deg", "room", "doubtful", "rival_room"),
+                  "matches.csv": ("query_image", "reference_image", "confidence")}
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}
 th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
@@ -184,10 +187,10 @@ def _headline_html(kind: str | None, figures: list[tuple[str, Any]]) -> str:
             f"(docs/evaluation.md explains every figure)</p><div class='headline'>{cells}</div>")
 
 
-def _answers_html(run_dir: Path) -> str:
-    """The first :data:`ANSWER_ROWS` rows of the run's answers file (:data:`ANSWERS`, the
-    first there) as a table, or "" where there is none. Only its head is read: a file of
-    35,768 matches is a few MB."""
+def answer_rows(run_dir: Path, most: int = ANSWER_ROWS) -> tuple[str, list[str], list[list[str]], bool] | None:
+    """The head of the run's answers file (:data:`ANSWERS`, the first there): its name, its
+    header, its first ``most`` rows and whether there are more; None where there is none.
+    Only the file's first 256 kB are read: a file of 35,768 matches is a few MB."""
     import csv
     import io
 
@@ -197,20 +200,58 @@ def _answers_html(run_dir: Path) -> str:
         fd = open_run_file(run_dir, name, os.O_RDONLY, max_bytes=MAX_RUN_TABLE_BYTES)
         with os.fdopen(fd, "rb") as fh:
             head = fh.read(1 << 18)
-        rows = []
+        rows: list[list[str]] = []
         for row in csv.reader(io.StringIO(head.decode("utf-8", "replace"), newline="")):
             rows.append(row)
-            if len(rows) > ANSWER_ROWS + 1:   # one more than shown: whether there are more
+            if len(rows) > most + 1:   # one more than kept: whether there are more
                 break
-        if len(rows) < 2:
+        if len(rows) >= 2:
+            return name, rows[0], rows[1:most + 1], len(rows) > most + 1
+    return None
+
+
+def answer_lines(run_dir: Path, most: int = 5) -> list[str]:
+    """The first ``most`` answers of a run, one line each, for the terminal: the columns of
+    :data:`ANSWER_COLUMNS` that the row fills (a ``rival_*`` column only where the answer is
+    doubtful). Rows without an answer (a query a sequence search leaves unmatched) are
+    counted, not shown; only the file's first 200 rows are looked at."""
+    found = answer_rows(run_dir, 200)
+    if found is None:
+        return []
+    name, header, rows, more = found
+    cols = [header.index(c) for c in ANSWER_COLUMNS.get(name, tuple(header)) if c in header]
+    doubtful = header.index("doubtful") if "doubtful" in header else -1
+    out, unanswered, shown = [], 0, 0
+    for row in rows:
+        cells = [(header[i], row[i]) for i in cols if i < len(row) and row[i] != ""
+                 and not (header[i].startswith("rival_") and (doubtful < 0 or row[doubtful] != "true"))]
+        if len(cells) < 2:
+            unanswered += 1
             continue
-        more = len(rows) > ANSWER_ROWS + 1
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:ANSWER_ROWS + 1])
-        what = f"the first {ANSWER_ROWS}" if more else "every answer"
-        return (f"<h2>Answers</h2><p class='muted'>{what}, from <code>{html.escape(name)}</code> (its columns: "
-                f"{ANSWERS[name]})</p><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
-                + f"</tr>{body}</table>")
-    return ""
+        if shown == most:
+            more = True
+            break
+        out.append(f"{cells[0][1]}: " + ", ".join(f"{k} {v}" for k, v in cells[1:]))
+        shown += 1
+    if unanswered:
+        out.append(f"({unanswered} {'query' if unanswered == 1 else 'queries'} up to here without an answer)"
+                   if out else f"(none of the first {unanswered} queries has an answer)")
+    if more:
+        out.append(f"... more in {run_dir / name}")
+    return out
+
+
+def _answers_html(run_dir: Path) -> str:
+    """:func:`answer_rows` as a table, or "" where there is none."""
+    found = answer_rows(run_dir)
+    if found is None:
+        return ""
+    name, header, rows, more = found
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    what = f"the first {ANSWER_ROWS}" if more else "every answer"
+    return (f"<h2>Answers</h2><p class='muted'>{what}, from <code>{html.escape(name)}</code> (its columns: "
+            f"{ANSWERS[name]})</p><table><tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in header)
+            + f"</tr>{body}</table>")
 
 
 def _metrics_doc(doc: dict[str, str] | None) -> str:

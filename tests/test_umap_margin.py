@@ -153,3 +153,40 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
             assert np.isnan(alternative).all()
             assert (metrics["doubtful_answers"], metrics["doubtful_wrong"]) == (0, 0)
             assert metrics["within_1m_30deg_or_rival"] == metrics["within_1m_30deg"] == 1.0
+
+
+def test_show_of_a_photo_without_truth_draws_its_lines_against_the_map_at_the_answer(tmp_path):
+    # `placeloc show` of a panorama located without ground truth: its detected lines against
+    # the map at its answer (red), and where the answer is doubtful (the twin rooms) at its
+    # rival too (green); report.html lists the answer. A home whose rooms differ: no green.
+    import cv2
+    import yaml
+
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_stage
+    from placeloc.evaluation.show import show_run
+
+    truth = (1.37, 1.12, 1.4, 40.0)
+    for name, plan in (("twins", TWINS), ("odd", ODD)):
+        d = tmp_path / name
+        (d / "q").mkdir(parents=True)
+        (d / "plan.yaml").write_text(yaml.safe_dump(plan))
+        m = floor_plan_model(plan)
+        lines = unpack(render_panoramas(m.segments, m.faces, np.array([truth]), width=512, height=256, hidden=True),
+                       256, 512)[0]
+        cv2.imwrite(str(d / "q" / "my photo.png"),
+                    np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190).astype(np.uint8))
+        cfg = load_config(data={"method": "umap", "query": {"images": str(d / "q")},
+                                "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
+                                         "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4,
+                                                  "headings": [0.0]},
+                                         "panorama": {"orientation_bins": 1}}}, base_dir=d)
+        run_stage(cfg, d / "run", "localize", quiet=True)
+        pictures, report = show_run(d / "run")
+        assert sorted(p.name for p in pictures) == ["estimates_on_plan.png", "panorama_my photo.png"]
+        img = np.asarray(cv2.imread(str(d / "run" / "panorama_my photo.png")))[..., ::-1].astype(int)
+        red = (np.abs(img - [217, 26, 26]).sum(axis=2) < 40).sum()
+        green = (np.abs(img - [26, 166, 26]).sum(axis=2) < 40).sum()
+        assert red > 500
+        assert (green > 500) == (name == "twins"), (name, green)
+        assert "<td>my photo.png</td>" in report.read_text()

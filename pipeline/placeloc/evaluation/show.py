@@ -367,12 +367,28 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
                                 str(run_dir / "metrics.json"))
             if not isinstance(metrics, dict):
                 raise ShowError(f"{run_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
+        if metrics is None:   # not evaluated: the method's own pictures of its answers, where it has some
+            drawn += _method_pictures(run_dir, res, staging)
         write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
         placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     pictures = [placed[p.name] for p in drawn if p.name in placed]
     return pictures, placed[REPORT]
+
+
+def _method_pictures(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
+    """The run's method's ``show_extra`` pictures (:class:`placeloc.core.methods.Method`), drawn
+    into ``out_dir``; none where the method has no such hook or the run names no method."""
+    from placeloc.core.methods import get_method
+    from placeloc.evaluation.report import run_config
+
+    name = run_config(run_dir).get("method")
+    try:
+        method = get_method(name) if isinstance(name, str) else None
+    except KeyError:   # a config naming no method this placeloc knows: the contract's pictures only
+        method = None
+    return list(method.show_extra(run_dir, res, out_dir)) if method is not None and method.show_extra else []
 
 
 def recorded_side_outputs(run_dir: Path) -> dict[str, str]:

@@ -12,9 +12,11 @@ from placeloc.evaluation.pose_estimates import plot_error_cdf, plot_estimates_on
 
 
 def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray, at_truth: np.ndarray | None,
-                          title: str) -> None:
+                          title: str, second: str = "the truth") -> None:
     """One panorama's detected lines (grey) with the map's lines rendered at the estimated
     pose (red) and at the true pose (green): where they differ shows why a query failed.
+    ``second`` names the green pose in the legend (a doubtful answer's rival, where there is
+    no truth).
 
     Drawn straight into pixels (:mod:`placeloc.evaluation.raster`), as the ranked results'
     pictures are: with matplotlib (``tight_layout`` drawing it twice) a picture took 126 ms
@@ -36,6 +38,7 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     ax.image(np.round(img * 255).astype(np.uint8))
     ax.box()
     ax.labels("azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)", "elevation [deg]",
-              title + "\ngrey: detected lines; red: map at the estimate; green: map at the truth; brown: both",
+              title + "\ngrey: detected lines; red: map at the estimate"
+              + (f"; green: map at {second}; brown: both" if at_truth is not None else ""),
               size=12, title_size=11)
     canvas.save(path)

@@ -533,6 +533,63 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
                               f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{doubt}")
 
 
+def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
+    """``placeloc show`` of a panorama run not evaluated (a photo located without ground
+    truth): for each of the first :data:`PANORAMA_PICTURES` panoramas its detected lines
+    against the map rendered at its answer, and, where the answer is doubtful, at its rival
+    too, so that whoever took the photo sees which lines the answer explains. Pinhole runs:
+    none."""
+    import h5py
+
+    run_dir = Path(run_dir)
+    with h5py.File(run_dir / "extract.h5", "r") as ex, h5py.File(run_dir / "build-dictionary.h5", "r") as plan, \
+            h5py.File(run_dir / "localize.h5", "r") as loc:
+        if str(ex.attrs.get("query_kind", "")) != "panorama":
+            return []
+        h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+        segs, faces = plan["segments"][()], plan["faces"][()]
+        z = float(plan["poses"][0, 2])
+        names = read_strings(loc["names"])
+        x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
+        doubtful = loc["doubtful"][()] if "doubtful" in loc else np.zeros(len(names), bool)
+        rival = (np.column_stack([loc["rival_x"][()], loc["rival_y"][()], loc["rival_heading_deg"][()]])
+                 if "rival_x" in loc else np.full((len(names), 3), np.nan))
+        margin = loc["margin"][()] if "margin" in loc else np.full(len(names), np.nan)
+        lines = ex["lines"][:min(len(names), PANORAMA_PICTURES)]
+    rooms = _rooms_of(run_dir, np.column_stack([x, y]))
+    out = []
+    for k in range(len(lines)):
+        query = unpack(lines[k], h, w).max(axis=0)   # oriented channels: their union
+        at_est = unpack(render_panoramas(segs, faces, np.array([[x[k], y[k], z, heading[k]]]), width=w, height=h,
+                                         hidden=True), h, w)[0]
+        at_rival, doubt = None, ""
+        if doubtful[k] and np.isfinite(rival[k]).all():
+            at_rival = unpack(render_panoramas(segs, faces, np.array([[rival[k, 0], rival[k, 1], z, rival[k, 2]]]),
+                                               width=w, height=h, hidden=True), h, w)[0]
+            doubt = (f"; doubtful (margin {margin[k]:.3f}), its rival at ({rival[k, 0]:.2f}, {rival[k, 1]:.2f}) m, "
+                     f"{rival[k, 2]:.1f} deg")
+        where = f" in the {rooms[k]}" if rooms[k] else ""
+        path = out_dir / f"panorama_{Path(names[k]).stem}.png"
+        plot_panorama_overlay(path, query, at_est, at_rival,
+                              f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg{doubt}",
+                              second="the rival")
+        out.append(path)
+    return out
+
+
+def _rooms_of(run_dir: Path, xy: np.ndarray) -> list[str]:
+    """The plan's room of each point (:func:`placeloc.geometry.floorplan.rooms_at`; "" where
+    the plan names no rooms)."""
+    import h5py
+
+    with h5py.File(Path(run_dir) / "build-dictionary.h5", "r") as src:
+        if "room_names" not in src or "plan" not in src:
+            return [""] * len(xy)
+        names = read_strings(src["room_names"])
+        polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
+    return rooms_at(xy, polygons, names)
+
+
 # Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).
 LOCALIZE_CA_KEYS = tuple(f"ca.{k}" for k in (
     "formula", "wall_side", "phi_deg", "error_mean_m", "error_std_m", "bin_px", "min_matches", "fallback_radius_m", "anchor",
@@ -569,6 +626,7 @@ METHOD = Method(
     },
     result="poses",
     evaluate_extra=evaluate_extra,
+    show_extra=show_extra,
     required_images=("query",),
     checker=_check,
     citation="K. Takahashi, J. Takahashi, T. Kaneko and Y. Tobe, \"Improving pre-map indoor localization by comparing "

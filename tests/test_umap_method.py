@@ -283,3 +283,22 @@ def test_panorama_overlay_draws_each_image_column_at_its_azimuth(tmp_path):
                      (100, (0.55, 0.35, 0.0)),    # brown: both
                      (30, (1.0, 1.0, 1.0))):      # nothing
         assert np.abs(colour_at(col) - 255 * np.array(rgb)).max() <= 1, (col, colour_at(col))
+
+
+def test_a_query_image_of_the_wrong_shape_is_named_with_its_fix():
+    """A 4000 x 3000 photo given as a panorama: the error names the file, its size and
+    aspect, what a panorama needs and the setting for ordinary photos; a second image of
+    another size than the first names both sizes."""
+    from pathlib import Path
+
+    from placeloc.core.images import ImageError
+    from placeloc.geometry import Camera
+    from placeloc.umap.lines import check_query_size
+
+    cam = Camera(640, 480, 90.0)
+    with pytest.raises(ImageError, match=r"IMG_1\.jpg: query image is 4000x3000 \(aspect 1\.333\); an equirectangular "
+                                         r"panorama needs width = 2 x height .*set umap\.query_kind: pinhole"):
+        check_query_size(Path("IMG_1.jpg"), (3000, 4000, 3), None, cam, "equirect")
+    check_query_size(Path("p.jpg"), (2880, 5760, 3), None, cam, "equirect")          # 2:1: fine
+    with pytest.raises(ImageError, match=r"is 5760x2880 but the first query image is 4096x2048"):
+        check_query_size(Path("p.jpg"), (2880, 5760, 3), (2048, 4096), cam, "equirect")

@@ -87,6 +87,32 @@ def test_margin_is_zero_in_a_twin_room_and_clear_in_a_room_of_its_own():
     assert np.all(odd.rival < odd.score)
 
 
+def _photo_config(d, plan: dict, truth: tuple, photo: str, with_truth: bool):
+    """A folder ``d`` holding ``plan``, one grey panorama ``photo`` of its lines seen from
+    ``truth`` (x, y, z, heading) and, ``with_truth``, its poses.csv; the UMap config over it
+    (a 0.25 m grid, the plain score)."""
+    import cv2
+    import yaml
+
+    from placeloc.core.config import load_config
+
+    (d / "q").mkdir(parents=True)
+    (d / "plan.yaml").write_text(yaml.safe_dump(plan))
+    m = floor_plan_model(plan)
+    lines = unpack(render_panoramas(m.segments, m.faces, np.array([truth]), width=512, height=256, hidden=True),
+                   256, 512)[0]
+    cv2.imwrite(str(d / "q" / photo), np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190)
+                .astype(np.uint8))
+    data = {"method": "umap", "query": {"images": str(d / "q")},
+            "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
+                     "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4, "headings": [0.0]},
+                     "panorama": {"orientation_bins": 1}}}
+    if with_truth:
+        (d / "poses.csv").write_text(f"frame,x,y,heading_deg\n{photo},{truth[0]:.2f},{truth[1]:.2f},{truth[3]:.1f}\n")
+        data.update({"ground_truth": {"kind": "poses", "path": str(d / "poses.csv")}, "plots": False})
+    return load_config(data=data, base_dir=d)
+
+
 def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog):
     # Through the pipeline: a panorama taken in one of two identical rooms is marked doubtful
     # in estimates.csv and named in the log, its rival is the same spot in the other room
@@ -96,31 +122,13 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
     import json
     import logging
 
-    import cv2
-    import yaml
-
-    from placeloc.core.config import load_config
     from placeloc.core.runner import run_stage
     from placeloc.evaluation.contracts import read_result
 
     truth = (1.37, 1.12, 1.4, 40.0)
     for name, plan in (("twins", TWINS), ("odd", ODD)):
         d = tmp_path / name
-        (d / "q").mkdir(parents=True)
-        (d / "plan.yaml").write_text(yaml.safe_dump(plan))
-        m = floor_plan_model(plan)
-        lines = unpack(render_panoramas(m.segments, m.faces, np.array([truth]), width=512, height=256, hidden=True),
-                       256, 512)[0]
-        cv2.imwrite(str(d / "q" / "p0.png"), np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190)
-                    .astype(np.uint8))
-        (d / "poses.csv").write_text(f"frame,x,y,heading_deg\np0.png,{truth[0]:.2f},{truth[1]:.2f},{truth[3]:.1f}\n")
-        cfg = load_config(data={"method": "umap", "query": {"images": str(d / "q")},
-                                "ground_truth": {"kind": "poses", "path": str(d / "poses.csv")},
-                                "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
-                                         "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4,
-                                                  "headings": [0.0]},
-                                         "panorama": {"orientation_bins": 1}},
-                                "plots": False}, base_dir=d)
+        cfg = _photo_config(d, plan, truth, "p0.png", with_truth=True)
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="placeloc"):
             run_stage(cfg, d / "run", "evaluate", quiet=True)
@@ -160,27 +168,14 @@ def test_show_of_a_photo_without_truth_draws_its_lines_against_the_map_at_the_an
     # the map at its answer (red), and where the answer is doubtful (the twin rooms) at its
     # rival too (green); report.html lists the answer. A home whose rooms differ: no green.
     import cv2
-    import yaml
 
-    from placeloc.core.config import load_config
     from placeloc.core.runner import run_stage
     from placeloc.evaluation.show import show_run
 
     truth = (1.37, 1.12, 1.4, 40.0)
     for name, plan in (("twins", TWINS), ("odd", ODD)):
         d = tmp_path / name
-        (d / "q").mkdir(parents=True)
-        (d / "plan.yaml").write_text(yaml.safe_dump(plan))
-        m = floor_plan_model(plan)
-        lines = unpack(render_panoramas(m.segments, m.faces, np.array([truth]), width=512, height=256, hidden=True),
-                       256, 512)[0]
-        cv2.imwrite(str(d / "q" / "my photo.png"),
-                    np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190).astype(np.uint8))
-        cfg = load_config(data={"method": "umap", "query": {"images": str(d / "q")},
-                                "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
-                                         "grid": {"x": [0.25, 10.0, 0.25], "y": [0.25, 3.0, 0.25], "z": 1.4,
-                                                  "headings": [0.0]},
-                                         "panorama": {"orientation_bins": 1}}}, base_dir=d)
+        cfg = _photo_config(d, plan, truth, "my photo.png", with_truth=False)
         run_stage(cfg, d / "run", "localize", quiet=True)
         pictures, report = show_run(d / "run")
         assert sorted(p.name for p in pictures) == ["estimates_on_plan.png", "panorama_my photo.png"]

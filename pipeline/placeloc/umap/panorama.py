@@ -1607,19 +1607,19 @@ def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, ra
     if not len(poses):
         raise ValueError(f"no free grid position of {name} within {r:g} m of ({point[0]:.2f}, {point[1]:.2f}) at "
                          f"{step_m:g} m")
-    h, w = lines.shape[-2:]
-    bins = int(pp.orientation_bins)
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     if pp.score != "chamfer":
         raise ValueError("search_near scores with the chamfer score only (umap.panorama.score chamfer)")
-    if bins > 1:
-        masks = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden,
-                                 orientation_bins=bins)
-        spectra = chamfer_spectra(orientation_channels(masks, bins), tau_px=pp.chamfer_tau_px, weights=weights,
-                                  spread=int(pp.orientation_spread))
-    else:
-        imgs = unpack(render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden), h, w)
-        spectra = chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=weights,
-                                  clutter_share=float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None)
+    h, w = lines.shape[-2:]
+    bins = int(pp.orientation_bins)
+    # the map side as the index stage makes it: oriented channels with a spread, or the plain
+    # images with the likelihood score's clutter share
+    rendered = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden,
+                                orientation_bins=bins if bins > 1 else 0)
+    spectra = chamfer_spectra(orientation_channels(rendered, bins) if bins > 1 else unpack(rendered, h, w),
+                              tau_px=pp.chamfer_tau_px,
+                              weights=row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight,
+                                                  solid_angle=pp.solid_angle),
+                              clutter_share=float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None,
+                              spread=int(pp.orientation_spread) if bins > 1 else None)
     return search_panoramas(lines, poses, model.segments, model.faces, {"spectra": spectra}, pp,
                             tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden)

@@ -395,7 +395,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
     rival_xy, rival_heading = found.rival_xy, found.rival_heading
     # NaN (no rival scored) is not doubtful: nothing else was a candidate
     doubtful = margin < ctx.params.panorama.doubtful_margin
-    room, rival_room = _rooms(ctx, est[:, :2], rival_xy)
+    room, rival_room = _rooms(ctx.artifact("build-dictionary"), est[:, :2], rival_xy)
     _write_result(ctx, names, est[:, 0], est[:, 1], heading, score, margin,
                   np.where(doubtful[:, None], rival_xy, np.nan))
     write_tree(ctx.out, {"names": names, "best_index": found.best, "x": est[:, 0], "y": est[:, 1], "heading_deg": heading,
@@ -424,11 +424,10 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                         room[k], rival_room[k]])
 
 
-def _rooms(ctx: Any, *points: np.ndarray) -> list[list[str]]:
+def _rooms(src: Any, *points: np.ndarray) -> list[list[str]]:
     """The plan's room name at each point of each (P, 2) array ("" outside every room, or
     where the plan names none: a wireframe, or a build-dictionary of before room names were
-    kept); the plan read once for all."""
-    src = ctx.artifact("build-dictionary")
+    kept), from the build-dictionary artifact ``src``; the plan read once for all."""
     if "room_names" not in src or "plan" not in src:
         return [[""] * len(xy) for xy in points]
     names = read_strings(src["room_names"])
@@ -516,21 +515,14 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
     z = float(ctx.artifact("index")["poses"][0, 2])
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
-    doubtful = loc["doubtful"][()] if "doubtful" in loc else np.zeros(len(names), bool)
     for k in range(min(len(names), PANORAMA_PICTURES)):
-        query = unpack(ex["lines"][k], h, w).max(axis=0)   # oriented channels: their union
-        est_pose = np.array([[loc["x"][k], loc["y"][k], z, est_h[k]]])
-        at_est = unpack(render_panoramas(segs, faces, est_pose, width=w, height=h, hidden=True), h, w)[0]
-        at_truth = None
+        true_pose = None
         if gt.heading is not None:
             tz = float(gt.z[rows[k]]) if gt.z is not None else z
-            true_pose = np.array([[*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]])]])
-            at_truth = unpack(render_panoramas(segs, faces, true_pose, width=w, height=h, hidden=True), h, w)[0]
-        # each render is in the frame of a camera at its own heading, as the query is in its own
-        doubt = (f"; doubtful (margin {loc['margin'][k]:.3f}), its rival at ({loc['rival_x'][k]:.2f}, "
-                 f"{loc['rival_y'][k]:.2f}) m, {loc['rival_heading_deg'][k]:.1f} deg" if doubtful[k] else "")
-        plot_panorama_overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), query, at_est, at_truth,
-                              f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{doubt}")
+            true_pose = (*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]]))
+        _overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), ex["lines"][k], (h, w), segs, faces,
+                 (loc["x"][k], loc["y"][k], z, est_h[k]), true_pose,
+                 f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_doubt_note(loc, k)}")
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
@@ -542,52 +534,52 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
     import h5py
 
     run_dir = Path(run_dir)
+    out = []
     with h5py.File(run_dir / "extract.h5", "r") as ex, h5py.File(run_dir / "build-dictionary.h5", "r") as plan, \
             h5py.File(run_dir / "localize.h5", "r") as loc:
         if str(ex.attrs.get("query_kind", "")) != "panorama":
             return []
-        h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+        size = (int(ex.attrs["height"]), int(ex.attrs["width"]))
         segs, faces = plan["segments"][()], plan["faces"][()]
         z = float(plan["poses"][0, 2])
         names = read_strings(loc["names"])
         x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
-        doubtful = loc["doubtful"][()] if "doubtful" in loc else np.zeros(len(names), bool)
-        rival = (np.column_stack([loc["rival_x"][()], loc["rival_y"][()], loc["rival_heading_deg"][()]])
-                 if "rival_x" in loc else np.full((len(names), 3), np.nan))
-        margin = loc["margin"][()] if "margin" in loc else np.full(len(names), np.nan)
-        lines = ex["lines"][:min(len(names), PANORAMA_PICTURES)]
-    rooms = _rooms_of(run_dir, np.column_stack([x, y]))
-    out = []
-    for k in range(len(lines)):
-        query = unpack(lines[k], h, w).max(axis=0)   # oriented channels: their union
-        at_est = unpack(render_panoramas(segs, faces, np.array([[x[k], y[k], z, heading[k]]]), width=w, height=h,
-                                         hidden=True), h, w)[0]
-        at_rival, doubt = None, ""
-        if doubtful[k] and np.isfinite(rival[k]).all():
-            at_rival = unpack(render_panoramas(segs, faces, np.array([[rival[k, 0], rival[k, 1], z, rival[k, 2]]]),
-                                               width=w, height=h, hidden=True), h, w)[0]
-            doubt = (f"; doubtful (margin {margin[k]:.3f}), its rival at ({rival[k, 0]:.2f}, {rival[k, 1]:.2f}) m, "
-                     f"{rival[k, 2]:.1f} deg")
-        where = f" in the {rooms[k]}" if rooms[k] else ""
-        path = out_dir / f"panorama_{Path(names[k]).stem}.png"
-        plot_panorama_overlay(path, query, at_est, at_rival,
-                              f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg{doubt}",
-                              second="the rival")
-        out.append(path)
+        (rooms,) = _rooms(plan, np.column_stack([x, y]))
+        for k in range(min(len(names), PANORAMA_PICTURES)):
+            doubt = _doubt_note(loc, k)
+            rival = (loc["rival_x"][k], loc["rival_y"][k], z, loc["rival_heading_deg"][k]) if doubt else None
+            where = f" in the {rooms[k]}" if rooms[k] else ""
+            path = out_dir / f"panorama_{Path(names[k]).stem}.png"
+            _overlay(path, ex["lines"][k], size, segs, faces, (x[k], y[k], z, heading[k]),
+                     rival if rival is not None and np.isfinite(rival).all() else None,
+                     f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg{doubt}",
+                     second="the rival")
+            out.append(path)
     return out
 
 
-def _rooms_of(run_dir: Path, xy: np.ndarray) -> list[str]:
-    """The plan's room of each point (:func:`placeloc.geometry.floorplan.rooms_at`; "" where
-    the plan names no rooms)."""
-    import h5py
+def _overlay(path: Path, words: np.ndarray, size: tuple[int, int], segs: np.ndarray, faces: np.ndarray, pose: tuple,
+             second_pose: tuple | None, title: str, second: str = "the truth") -> None:
+    """One panorama's picture (:func:`plot_panorama_overlay`): its packed oriented line
+    channels ``words`` of ``size`` (H, W) (their union drawn) against the map rendered at
+    ``pose`` and at ``second_pose`` (x, y, z, heading in degrees; None: none), each render in
+    the frame of a camera at its own heading, as the query is in its own."""
+    h, w = size
 
-    with h5py.File(Path(run_dir) / "build-dictionary.h5", "r") as src:
-        if "room_names" not in src or "plan" not in src:
-            return [""] * len(xy)
-        names = read_strings(src["room_names"])
-        polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
-    return rooms_at(xy, polygons, names)
+    def at(q: tuple) -> np.ndarray:
+        return unpack(render_panoramas(segs, faces, np.array([q], float), width=w, height=h, hidden=True), h, w)[0]
+
+    plot_panorama_overlay(path, unpack(words, h, w).max(axis=0), at(pose), None if second_pose is None else at(second_pose),
+                          title, second=second)
+
+
+def _doubt_note(loc: Any, k: int) -> str:
+    """The pictures' words for answer ``k`` of a localize artifact where it is doubtful: its
+    margin and its rival's pose ("" where it is not)."""
+    if "doubtful" not in loc or not loc["doubtful"][k]:
+        return ""
+    return (f"; doubtful (margin {loc['margin'][k]:.3f}), its rival at ({loc['rival_x'][k]:.2f}, "
+            f"{loc['rival_y'][k]:.2f}) m, {loc['rival_heading_deg'][k]:.1f} deg")
 
 
 # Exactly the CA parameters the localize stage reads (akaze_threshold belongs to extract).

@@ -204,9 +204,10 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
 
     import h5py
 
-    from placeloc.umap.bits import unpack
+    from placeloc.core.artifacts import read_strings
     from placeloc.umap.panorama import search_near
     from placeloc.umap.params import PanoramaParams, UMapParams
+    from placeloc.umap.stages import query_line_images
 
     rows = list(csv.DictReader(read_run_table(run_dir, "per_query.csv")))
     wrong = [r for r in rows if not (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0)]
@@ -216,13 +217,11 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     pp = replace(PanoramaParams(), **panorama)
     model = load_model(str(data / "floor_plan.yaml"))
     with h5py.File(run_dir / "extract.h5", "r") as ex:
-        h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
-        names = [n.decode() if isinstance(n, bytes) else str(n) for n in ex["names"][()]]
-        packed = ex["lines"][()]
+        names = read_strings(ex["names"])
+        queries = [query_line_images(ex, int(pp.orientation_bins), slice(k, k + 1))
+                   for k in (names.index(r["frame"]) for r in wrong)]
     out = []
-    for r in wrong:
-        k = names.index(r["frame"])
-        lines = unpack(packed[k:k + 1, 0], h, w) if int(pp.orientation_bins) == 1 else unpack(packed[k:k + 1], h, w)
+    for r, lines in zip(wrong, queries):
         near = search_near(lines, np.array([float(r["true_x"]), float(r["true_y"])]), model, pp, radius_m=NEAR_TRUTH_M,
                            step_m=GRID_STEP_M, z=None, tolerance_px=int(up.tolerance_px),
                            wall_margin_m=float(up.grid.wall_margin_m), hidden=bool(up.hidden_lines))

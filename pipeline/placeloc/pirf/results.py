@@ -12,6 +12,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from placeloc.core.artifacts import read_strings
+
 
 def _open(run_dir: str | Path, stage: str) -> h5py.File:
     path = Path(run_dir) / f"{stage}.h5"
@@ -29,7 +31,7 @@ def read_pirfs(run_dir: str | Path, role: str) -> tuple[np.ndarray, np.ndarray]:
 def read_frame_names(run_dir: str | Path, role: str) -> list[str]:
     """Image file name of every frame kept for ``role`` (skipped images are left out)."""
     with _open(run_dir, "extract") as f:
-        return [n.decode() if isinstance(n, bytes) else str(n) for n in f[f"{role}/names"][()]]
+        return read_strings(f[f"{role}/names"])
 
 
 def read_dictionary(run_dir: str | Path) -> np.ndarray:

@@ -25,7 +25,7 @@ from typing import Any, Callable
 import h5py
 import numpy as np
 
-from placeloc.core.artifacts import write_tree
+from placeloc.core.artifacts import read_strings, write_tree
 from placeloc.core.config import ConfigError
 from placeloc.core.errors import StageError
 from placeloc.core.images import ImageError, ImageSet, list_images, read_gray
@@ -134,8 +134,7 @@ def _pirfs(f: h5py.File, role: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _frames(f: h5py.File, role: str) -> tuple[list[str], np.ndarray, int]:
     g = f[role]
-    names = [n.decode() if isinstance(n, bytes) else str(n) for n in g["names"][()]]
-    return names, g["index"][()], int(g.attrs["n_listed"])
+    return read_strings(g["names"]), g["index"][()], int(g.attrs["n_listed"])
 
 
 # -- build-dictionary -----------------------------------------------------------------

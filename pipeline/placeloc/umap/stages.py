@@ -280,16 +280,24 @@ def _extract_panoramas(ctx: Any) -> None:
 
 # ------------------------------------------------------------------ localize
 
+def query_line_images(ex: Any, bins: int, rows: Any = slice(None)) -> np.ndarray:
+    """The panorama queries' line images of the extract artifact ``ex`` (its ``rows``):
+    (N, H, W) with one orientation bin, else (N, B, H, W) oriented channels, as
+    :func:`placeloc.umap.panorama.search_panoramas` takes them."""
+    h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
+    words = ex["lines"][rows]
+    return unpack(words[:, 0], h, w) if bins == 1 else unpack(words, h, w)
+
+
 def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
     """Best (grid row, plan position, heading, score) of each panorama and its rival's score:
     :func:`placeloc.umap.panorama.search_panoramas` over the index's database."""
     pp = ctx.params.panorama
-    h, w = int(idx.attrs["height"]), int(idx.attrs["width"])
     bins = int(pp.orientation_bins)
     if int(ex.attrs.get("orientation_bins", 1)) != bins:
         raise _stage_error(ValueError("the query line images were extracted with another umap.panorama.orientation_bins "
                                       "than localize's: re-run extract (--force)"))
-    lines = unpack(ex["lines"][()][:, 0], h, w) if bins == 1 else unpack(ex["lines"][()], h, w)
+    lines = query_line_images(ex, bins)   # the size of the index's images: localize checked it
     src = ctx.artifact("build-dictionary")
     if pp.score == "chamfer":
         if "spectra" not in idx:

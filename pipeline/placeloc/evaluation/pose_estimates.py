@@ -556,9 +556,10 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     to scale, so that it fills the picture instead of a thin strip in white space; the view
     covers the part of the plan the frames visit (a home: the whole plan, :func:`plan_view`).
     ``openings`` (G x 4: door and opening ends) are drawn as gaps in the walls, and ``labels``
-    (room names) in grey from ``label_xy`` (their top left corner), under everything else. With no truth and a few
-    frames (at most :data:`NAMED_WRONG`) each answer is named where it lies and the heading
-    arrows are twice as long. Drawn in pixels (:mod:`.raster`)."""
+    (room names) in grey from ``label_xy`` (their top left corner), under everything else.
+    With a few frames (at most :data:`NAMED_WRONG`) the heading arrows are twice as long,
+    and where there is no truth each answer is named where it lies. Drawn in pixels
+    (:mod:`.raster`)."""
     est = np.asarray(est, float)
     truth = est if truth is None else np.asarray(truth, float)  # estimates only (no ground truth): no error lines
     known = truth is not est

@@ -339,7 +339,7 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     from placeloc.core.artifacts import TMP_MARK
     from placeloc.core.safe_io import load_json, read_run_file
     from placeloc.evaluation.contracts import contract, localize_result, report_parts
-    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, evaluate_is_current, write_report
+    from placeloc.evaluation.report import MAX_METRICS_BYTES, REPORT, evaluate_is_current, run_config, write_report
 
     run_dir = Path(run_dir)
     res = localize_result(run_dir)
@@ -357,7 +357,10 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(mode=0o700)
     try:
-        drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging)
+        # the run's config, read once (its chain of artifacts and their stamped YAML) for the
+        # contract's pictures, the method's and the report
+        cfg = run_config(run_dir)
+        drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging, config=cfg)
         metrics = None
         if (run_dir / "metrics.json").is_file() and not evaluate_is_current(run_dir):
             log.warning("%s: evaluate.h5 is from an earlier run (a stage before it re-ran since): its metrics are left "
@@ -368,8 +371,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
             if not isinstance(metrics, dict):
                 raise ShowError(f"{run_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
         if metrics is None:   # not evaluated: the method's own pictures of its answers, where it has some
-            drawn += _method_pictures(run_dir, res, staging)
-        write_report(run_dir, out_dir=staging, **report_parts(res.kind, metrics))
+            drawn += _method_pictures(run_dir, res, staging, cfg)
+        write_report(run_dir, config=cfg, out_dir=staging, **report_parts(res.kind, metrics))
         placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -377,13 +380,13 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     return pictures, placed[REPORT]
 
 
-def _method_pictures(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
-    """The run's method's ``show_extra`` pictures (:class:`placeloc.core.methods.Method`), drawn
-    into ``out_dir``; none where the method has no such hook or the run names no method."""
+def _method_pictures(run_dir: Path, res: Any, out_dir: Path, config: Mapping[str, Any]) -> list[Path]:
+    """The ``show_extra`` pictures (:class:`placeloc.core.methods.Method`) of the method the
+    run's ``config`` names, drawn into ``out_dir``; none where the method has no such hook or
+    the config names no method."""
     from placeloc.core.methods import get_method
-    from placeloc.evaluation.report import run_config
 
-    name = run_config(run_dir).get("method")
+    name = config.get("method")
     try:
         method = get_method(name) if isinstance(name, str) else None
     except KeyError:   # a config naming no method this placeloc knows: the contract's pictures only

@@ -283,3 +283,34 @@ def test_a_home_is_shown_whole_with_its_doors_and_room_names(tmp_path):
     assert (title < 128).any()
     from placeloc.evaluation import raster as R
     assert R.text_width("umap: 1 estimate (no ground truth)", 14) < R.text_width("umap: 1 estimates (no ground truth)", 14)
+
+
+def test_a_strip_cell_is_as_wide_as_its_label_under_square_frames(tmp_path):
+    """Square frames (a fish-eye camera's) give panels 110 pixels wide, narrower than
+    "best 0000103.jpg  conf 0.0537" at 12 pixels: each cell widens to its widest label, so
+    the red label of the best match ends before the next panel's label starts (the page is
+    white in the gap between them), and the frames keep their shape (110 x 110)."""
+    import cv2
+
+    from placeloc.evaluation.raster import text_width
+    from placeloc.evaluation.show import PANEL_HEIGHT_PX, Row, draw_strip_figure
+
+    names = {}
+    for name, value in (("0000106.jpg", 40), ("0000103.jpg", 160), ("0000107.jpg", 90)):
+        names[name] = tmp_path / name
+        cv2.imwrite(str(names[name]), np.full((96, 96, 3), value, np.uint8))
+    rows = [Row("0000106.jpg", "0000103.jpg", 0.0537, False, "0000107.jpg")]
+    img = _pixels(draw_strip_figure(rows, [0], names, names, tmp_path / "s.png", "t"))
+    label = "best 0000103.jpg  conf 0.0537"
+    assert text_width(label, 12) > PANEL_HEIGHT_PX  # the case: a label wider than its frame
+    cell = img.shape[1] // 3
+    assert cell >= text_width(label, 12) + 10
+    # the label row (above the frames): red ink only inside the middle cell
+    red = _near(img, (220, 0, 0), 60)
+    label_rows = red[50:50 + 22]
+    cols = np.flatnonzero(label_rows.any(axis=0))
+    assert cols.min() >= cell and cols.max() < 2 * cell
+    # the middle frame keeps its square shape: the grey of 0000103 spans 110 columns in its row
+    y = 50 + 26 + PANEL_HEIGHT_PX // 2
+    grey = np.flatnonzero(np.abs(img[y] - 160).sum(axis=1) <= 6)
+    assert abs(len(grey) - PANEL_HEIGHT_PX) <= 2

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import math
 import os
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -229,7 +230,10 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path]
     ph = PANEL_HEIGHT_PX
     pw = int(np.clip(round(ph * first.shape[1] / max(1, first.shape[0])), ph * 3 // 4, ph * 4))
     label_h, gap = 26, 10
-    cell_w, cell_h = pw + gap, ph + label_h + gap
+    # a cell is as wide as its widest label: under a narrow (4:3, fish-eye) image the best
+    # match's "best NAME  conf X" ran on under the next panel's label
+    label_w = max(R.text_width(label, 12) for panels in strip for _, label, _ in panels)
+    cell_w, cell_h = max(pw, math.ceil(label_w) + 4) + gap, ph + label_h + gap
     canvas = np.full((len(picks) * cell_h, cols * cell_w, 3), 255, np.uint8)
     colours = {"black": (0, 0, 0), "grey": (128, 128, 128), "limegreen": (50, 205, 50), "red": (220, 0, 0),
                "royalblue": (65, 105, 225)}

@@ -314,3 +314,26 @@ def test_a_strip_cell_is_as_wide_as_its_label_under_square_frames(tmp_path):
     y = 50 + 26 + PANEL_HEIGHT_PX // 2
     grey = np.flatnonzero(np.abs(img[y] - 160).sum(axis=1) <= 6)
     assert abs(len(grey) - PANEL_HEIGHT_PX) <= 2
+
+
+def test_a_map_whose_features_fill_a_corner_gets_a_close_up_beside_it(tmp_path):
+    """Ten features in a 1 x 1 square and landmarks 40 away (tears-of-steel's shape: its
+    features 5-8 m deep, landmarks to 50 m): the features fill 2.5 % of the whole along each
+    axis, so a second chart beside the whole map draws them alone, and there they spread
+    over most of the box (blue in at least half of its columns' span), where the whole
+    map's chart squeezes them into a few dozen pixels. With the landmarks beside them, one
+    chart only."""
+    from placeloc.evaluation.maps import plot_map
+
+    rng = np.random.default_rng(0)
+    feats = rng.uniform(0, 1, (10, 2))
+    far = _pixels(plot_map(tmp_path / "far.png", feats, feats, np.array([[0.0, 40.0], [40.0, 40.0]]), None, None,
+                           "map", "m"))
+    near = _pixels(plot_map(tmp_path / "near.png", feats, feats, np.array([[0.0, 1.0], [1.0, 1.0]]), None, None,
+                            "map", "m"))
+    assert far.shape[1] > near.shape[1] + 500           # a second chart beside the first
+    blue = _near(far, (31, 119, 180), 60)[:-90]   # the data, not the legends below them
+    half = far.shape[1] // 2
+    left_cols, right_cols = np.flatnonzero(blue[:, :half].any(axis=0)), np.flatnonzero(blue[:, half:].any(axis=0))
+    assert left_cols.max() - left_cols.min() < 40       # squeezed into the corner of the whole map
+    assert right_cols.max() - right_cols.min() > 300    # the close-up: spread over its 620-pixel box

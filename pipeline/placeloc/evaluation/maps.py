@@ -220,22 +220,69 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     return [path]
 
 
+# The unknown features get a close-up beside the whole map where they fill less than this
+# share of the whole map's extent along both axes: landmarks far from them (tears-of-steel's
+# lie 45 m deep, its features 5-8 m) squeezed them into a corner where no error was visible.
+CLOSE_UP_SHARE = 0.25
+
+
 def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
              path_truth: np.ndarray | None, title: str, units: str) -> Path:
     """Top view of the map: a 3-D map is drawn from above (first and last axis: x and
     depth). Equal scales unless that would squash the picture into a strip (a forward-looking
-    camera: depth >> width), which the y label then says. Drawn in pixels (:mod:`.raster`)."""
+    camera: depth >> width), which the y label then says. Where the unknown features fill
+    less than :data:`CLOSE_UP_SHARE` of the whole along both axes, a second chart beside it
+    shows them close up (the whole map's chart frames that region in grey). Drawn in pixels
+    (:mod:`.raster`)."""
+    from placeloc.evaluation import raster as R
+
+    ax0, ax1 = 0, truth.shape[1] - 1
+    paths = [p[:, :2] for p in (path_est, path_truth) if p is not None and len(p)]
+    whole = _extent(np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]].reshape(-1, 2)] + paths))
+    near = _extent(np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]]))
+    close = near is not None and whole is not None and bool(
+        np.all((near[1] - near[0]) < CLOSE_UP_SHARE * np.maximum(whole[1] - whole[0], 1e-12)))
+    c, _ = _map_chart(est, truth, landmarks, path_est, path_truth, title, units, whole,
+                      frame=_padded(*near) if close else None)
+    if not close:
+        return c.save(path)
+    zoom, _ = _map_chart(est, truth, landmarks, path_est, path_truth,
+                         f"the {len(est)} unknown features close up\n(the grey frame on the left)", units, near)
+    left, right = np.asarray(c.result()), np.asarray(zoom.result())
+    page = R.Canvas(left.shape[1] + right.shape[1], max(left.shape[0], right.shape[0]), ss=1)
+    page.paste(left, 0, 0)
+    page.paste(right, left.shape[1], 0)
+    return page.save(path)
+
+
+def _extent(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    return (pts.min(axis=0), pts.max(axis=0)) if len(pts) else None
+
+
+def _padded(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    span = np.maximum(hi - lo, 1e-9)
+    return lo - 0.05 * span, hi + 0.05 * span
+
+
+def _map_chart(est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
+               path_truth: np.ndarray | None, title: str, units: str,
+               extent: tuple[np.ndarray, np.ndarray] | None,
+               frame: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Any, Any]:
+    """One chart of :func:`plot_map` over ``extent`` (lo, hi of the two drawn axes; what
+    lies outside is left out), with ``frame`` (lo, hi) outlined in grey: the close-up's region."""
     from placeloc.evaluation import raster as R
 
     ax0, ax1 = 0, truth.shape[1] - 1
     names = ("x", "y") if truth.shape[1] == 2 else ("X", "Z (depth)")
-    pts = np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]], landmarks[:, [ax0, ax1]].reshape(-1, 2)]
-                    + [p[:, :2] for p in (path_est, path_truth) if p is not None and len(p)])
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(2), np.ones(2))
+    lo, hi = extent if extent is not None else (np.zeros(2), np.ones(2))
     span = np.maximum(hi - lo, 1e-9)
     to_scale = max(span) / min(span) < 3.0
-    lo, hi = lo - 0.05 * span, hi + 0.05 * span
+    lo, hi = _padded(lo, hi)
+
+    def inside(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+
     # to scale, the longer side takes the whole box (its shorter side is more than a third of it here)
     box_w, box_h = R.to_scale_box(lo, hi, 620.0) if to_scale else (620.0, 620.0)
     grey, orange, green, blue, red = (64, 64, 64), R.CYCLE[1], R.CYCLE[2], R.CYCLE[0], R.CYCLE[3]
@@ -247,15 +294,23 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
         R.LegendEntry("landmark (known)", red, marker="s", marker_size=9)]
     c, ax, rows = R.titled_chart(title, box_w, box_h, entries, (lo[0], hi[0]), (lo[1], hi[1]), f"{names[0]} ({units})",
                                  f"{names[1]} ({units})" + ("" if to_scale else ", axes not to scale"))
-    if path_est is not None:
-        ax.line(path_est[:, 0], path_est[:, 1], orange, 1.2)
-    if path_truth is not None:
-        ax.line(path_truth[:, 0], path_truth[:, 1], grey, 1.8)
+    for line, colour, width in ((path_est, orange, 1.2), (path_truth, grey, 1.8)):
+        if line is None:
+            continue
+        keep = inside(line[:, 0], line[:, 1])
+        # each run of points inside the chart on its own: a line across a gap would be made up
+        for run in np.split(np.arange(len(line)), np.flatnonzero(np.diff(keep.astype(np.int8)) != 0) + 1):
+            if len(run) > 1 and keep[run[0]]:
+                ax.line(line[run, 0], line[run, 1], colour, width)
     ax.segments(est[:, ax0], est[:, ax1], truth[:, ax0], truth[:, ax1], green, 1.2)
     ax.markers(truth[:, ax0], truth[:, ax1], (102, 102, 102), "O", 6.5, edge=1.2)
     ax.markers(est[:, ax0], est[:, ax1], blue, "o", 5.5)
-    if len(landmarks):
-        ax.markers(landmarks[:, ax0], landmarks[:, ax1], red, "s", 9)
+    lm = landmarks[inside(landmarks[:, ax0], landmarks[:, ax1])] if len(landmarks) else landmarks
+    if len(lm):
+        ax.markers(lm[:, ax0], lm[:, ax1], red, "s", 9)
+    if frame is not None:
+        (x0, y0), (x1, y1) = frame
+        ax.line(np.array([x0, x1, x1, x0, x0]), np.array([y0, y0, y1, y1, y0]), (150, 150, 150), 1.2)
     ax.box()
     R.legend_below(c, ax, rows)
-    return c.save(path)
+    return c, ax

@@ -242,3 +242,27 @@ def test_recall_at_n_list_comes_from_the_config(route, tmp_path):
     n = len(ranks)
     assert m["recall_at_3"] == pytest.approx(sum(1 for r in ranks if 1 <= r <= 3) / n)
     assert m["recall_at_1"] == pytest.approx(sum(1 for r in ranks if r == 1) / n)
+
+
+def test_queries_the_ground_truth_leaves_out_are_counted_and_said(route, tmp_path, caplog):
+    """A ranges file that lists only the first 40 of the route's 81 queries: the other 41
+    have no true match, so recall_at_1 over every query is the right matches among the 40
+    over 81, recall_at_1_with_positive the same over 40, and the log says how many queries
+    have none and what that does to the figures (before, nothing said it)."""
+    import logging
+
+    full = (route / "ground_truth.csv").read_text().splitlines()
+    (tmp_path / "half.csv").write_text("\n".join(full[:41]) + "\n")
+    run = tmp_path / "run"
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_stage(load_config(route / "config.yaml", ["plots=false", f"ground_truth.path={tmp_path / 'half.csv'}"]),
+                  run, "evaluate", quiet=True)
+    m = json.loads((run / "metrics.json").read_text())
+    with open(run / "per_query.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    right = sum(1 for r in rows[:40] if r["correct"] == "1")
+    assert m["n_queries"] == 81 and m["queries_with_ground_truth"] == 40
+    assert m["recall_at_1"] == pytest.approx(right / 81) and m["recall_at_1_with_positive"] == pytest.approx(right / 40)
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ground truth:")]
+    assert said == [f"ground truth: 41 of 81 queries have no true match in {tmp_path / 'half.csv'}; their matches count "
+                    "as wrong in auc_pr and recall_at_100_precision, and recall_at_N_with_positive leaves them out"]

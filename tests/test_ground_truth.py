@@ -60,6 +60,9 @@ def test_every_listed_positive_counts(tmp_path):
     ("query,ref_first,ref_last\n0,5,2\n", "ref_first 5 > ref_last 2"),
     ("query,reference\n0,nosuch.png\n", r"pairs.csv:2: reference 'nosuch.png' is not an index"),
     ("q,r\n0,1\n", "header must be 'query,reference'"),
+    ("query;reference\n0;1\n", r"got \['query;reference'\] \(this file separates its columns by semicolons: save it "
+                                 r"comma-separated\)"),
+    ("query\treference\n0\t1\n", "separates its columns by tabs"),
     ("query,reference,soft\n0,1,maybe\n", "soft is 'maybe'"),
 ])
 def test_bad_csv_names_file_row_and_fix(tmp_path, text, match):

@@ -37,6 +37,9 @@ def test_image_names_and_utm_columns(tmp_path):
     ("frame,x,y\n0,1,oops\n", r"poses.csv:2: positions must be numbers"),
     ("frame,x,y\n0,1,2\n0,3,4\n", "lists frame '0' twice"),
     ("frame,x,y\n", "no rows"),
+    # a short row, and a lone carriage return splitting one ("0.0\r,0": csv ends the row there)
+    ("frame,x,y\n0,1\n", r"poses.csv:2: 2 values where the header has 3 \(frame,x,y\); complete the row"),
+    ("frame,x,y\n0,1.0\r,2\n", r"poses.csv:2: 2 values where the header has 3"),
 ])
 def test_bad_pose_files_name_the_file_line_and_fix(tmp_path, text, match):
     p = tmp_path / "poses.csv"

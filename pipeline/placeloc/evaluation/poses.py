@@ -154,6 +154,12 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
             if t not in TRAVERSE_NAMES:
                 raise PoseError(f"{what}: {path}:{line}: {trav_col} is {r[trav_col]!r}; write reference or query")
             traverse.append(TRAVERSE_NAMES[t])
+        if any(r[c] is None for c in (key_col, *pos_cols, z_col, head_col) if c):
+            # csv.DictReader fills a short row's missing values with None: say so, not
+            # "float() argument must be ... not 'NoneType'"
+            raise PoseError(f"{what}: {path}:{line}: {len([v for k, v in r.items() if k is not None and v is not None])} "
+                            f"values where the header has {len(fields)} ({','.join(fields)}); complete the row (a "
+                            "line break inside a value, a lone carriage return, splits a row in two)")
         try:
             keys.append(str(r[key_col]).strip())
             xy[i] = float(r[pos_cols[0]]), float(r[pos_cols[1]])

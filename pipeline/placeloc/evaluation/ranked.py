@@ -22,6 +22,7 @@ Scored against any image-matching ground truth (synchronous, csv, hdf5, poses + 
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -166,7 +167,16 @@ def evaluate(ctx: Any, res: Result) -> RankedEvaluation:
     ref_names = _full_names(ctx, res, "reference")
     q_names = _full_names(ctx, res, "query")
     gt = GroundTruth.from_config(section, len(ref_names), len(q_names), ref_names=ref_names, query_names=q_names)
-    return score(res, gt, ns=tuple(int(n) for n in section["recall_at"]), ref_names=ref_names, q_names=q_names)
+    ev = score(res, gt, ns=tuple(int(n) for n in section["recall_at"]), ref_names=ref_names, q_names=q_names)
+    n_q, n_gt = int(ev.metrics["n_queries"]), int(ev.metrics["queries_with_ground_truth"])
+    if n_gt < n_q:
+        # said, not only counted: a ground-truth file that lists only some queries (half a
+        # route labelled) silently turned every match of the others into a false positive
+        where = f" in {section['path']}" if section.get("path") else ""
+        logging.getLogger("placeloc").info(
+            "ground truth: %d of %d queries have no true match%s; their matches count as wrong in auc_pr and "
+            "recall_at_100_precision, and recall_at_N_with_positive leaves them out", n_q - n_gt, n_q, where)
+    return ev
 
 
 def score(res: Result, gt: Any, *, ns: Sequence[int], ref_names: list[str], q_names: list[str]) -> RankedEvaluation:

@@ -84,3 +84,20 @@ def test_params_lists_every_setting_with_default_range_and_help():
     assert recall == [["pirf.index_recall", "0.97", "(>=", "0.0,", "<=", "1.0)"]]
     res = CliRunner().invoke(cli.app, ["params", "nope"])
     assert res.exit_code == 2 and "'nope' is not a method" in (res.stderr if hasattr(res, "stderr") else res.output)
+
+
+def test_a_command_the_cli_suggests_can_be_pasted_with_spaces_in_the_path(route: Path, tmp_path: Path,
+                                                                         restore_logging):
+    """A run folder "run é 1" (a space, an accent): the `placeloc show` the run suggests
+    is quoted for the shell, so pasting it shows that folder, not the folders "run", "é", "1"."""
+    import shlex
+
+    cfg = tmp_path / "nogt.yaml"  # no ground truth: the run ends by suggesting `placeloc show`
+    cfg.write_text(f"method: seqslam\nreference: {{images: {route / 'reference'}}}\nquery: {{images: {route / 'query'}}}\n"
+                   "plots: false\n")
+    run = tmp_path / "run é 1"
+    res = CliRunner().invoke(cli.app, ["run", str(cfg), "-o", str(run), "-q"])
+    assert res.exit_code == 0, res.output
+    line = next(ln for ln in res.output.splitlines() if "draws them" in ln)
+    command = line.split("`")[1]
+    assert shlex.split(command) == ["placeloc", "show", str(run)]

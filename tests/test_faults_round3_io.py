@@ -715,3 +715,39 @@ def test_a_run_folder_on_a_file_system_without_locks_runs_with_a_warning(route, 
     with pytest.raises(OSError, match="Input/output error"):
         with runner.lock_run_dir(tmp_path / "run"):
             pass
+
+
+def test_an_artifact_that_cannot_be_used_is_named_with_why_before_its_stage_runs_again(route, tmp_path, caplog):
+    """extract.h5 cut to its first 3000 bytes (a copy that stopped), index.h5 replaced by
+    text and localize.h5 by a link: each stage runs again, and the log first says which file
+    and why, in words (the byte counts of the truncated file from its own superblock); a
+    missing artifact needs no such line. ``placeloc inspect`` says the same of the cut file."""
+    import logging
+
+    from placeloc.core.artifacts import unusable_reason
+    from placeloc.core.runner import run_stage
+
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run = tmp_path / "run"
+    run_stage(cfg, run, "localize", quiet=True)
+    whole = (run / "extract.h5").stat().st_size
+    (run / "cut.h5").write_bytes((run / "extract.h5").read_bytes()[:3000])
+    shutil.copy(run / "cut.h5", run / "extract.h5")
+    (run / "index.h5").write_text("not hdf5\n")
+    (run / "elsewhere.h5").write_bytes((run / "localize.h5").read_bytes())
+    (run / "localize.h5").unlink()
+    (run / "localize.h5").symlink_to(run / "elsewhere.h5")
+    assert unusable_reason(run / "missing.h5") is None
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_stage(cfg, run, "localize", quiet=True)
+    said = [r.getMessage() for r in caplog.records if "cannot be used" in r.getMessage()]
+    assert said == [
+        f"extract: {run / 'extract.h5'} cannot be used: truncated, 3,000 of its {whole:,} bytes (a copy that did not "
+        "finish, or a full disk); the stage runs again",
+        f"index: {run / 'index.h5'} cannot be used: not a readable HDF5 file: file signature not found; the stage runs again",
+        f"localize: {run / 'localize.h5'} cannot be used: a symbolic link, which placeloc never writes; the stage runs again"]
+    assert (run / "extract.h5").stat().st_size == whole and not (run / "localize.h5").is_symlink()
+    res = _cli(["inspect", str(run / "cut.h5")])
+    assert _one_error_line(_err(res)) == (
+        f"error: {run / 'cut.h5'}: cannot be read as a placeloc artifact: truncated, 3,000 of its {whole:,} bytes (a copy "
+        "that did not finish, or a full disk); run its stage again (placeloc STAGE CONFIG -o RUN_DIR -f)")

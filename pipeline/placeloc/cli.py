@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import shlex
 import sys
 import traceback
 from pathlib import Path
@@ -327,7 +328,7 @@ def _say_written(folder: Path, names: tuple[str, ...], runs: str) -> None:
     """The last lines of sweep and compare: where the table, figure and runs are."""
     wrote = [n for n in names if (folder / n).is_file()]
     typer.echo(f"wrote {', '.join(str(folder / n) for n in wrote)}")
-    typer.echo(f"runs: {folder}/ ({runs}; open one with placeloc show {folder}/RUN)")
+    typer.echo(f"runs: {folder}/ ({runs}; open one with placeloc show {shlex.quote(str(folder))}/RUN)")
 
 
 def _fail(exc: Exception) -> None:
@@ -358,7 +359,7 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
         for line in answer_lines(out):
             typer.echo(f"  {line}")
         typer.echo(f"evaluate: skipped, no ground truth to score against (ground_truth.kind: none); the answers are in "
-                   f"{out}; `placeloc show {out}` draws them")
+                   f"{out}; `placeloc show {shlex.quote(str(out))}` draws them")
     if stage == "evaluate" and (path.parent / "metrics.json").is_file():
         from placeloc.evaluation.contracts import headline
         from placeloc.evaluation.report import format_value
@@ -450,8 +451,11 @@ def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by 
     except (IsADirectoryError, FileNotFoundError):
         raise
     except OSError as exc:
-        # h5py's text alone does not name the file.
-        raise ValueError(f"{file}: cannot be read as a placeloc artifact ({_one_line(exc)})") from exc
+        from placeloc.core.artifacts import unusable_reason
+
+        # h5py's text alone does not name the file, nor say what a truncated one means
+        raise ValueError(f"{file}: cannot be read as a placeloc artifact: {unusable_reason(file) or _one_line(exc)}; "
+                         "run its stage again (placeloc STAGE CONFIG -o RUN_DIR -f)") from exc
 
 
 @app.command()

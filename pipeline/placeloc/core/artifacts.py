@@ -360,6 +360,42 @@ def read_stamp(path: Path) -> str | None:
     return str(stamp) if stamp is not None else None
 
 
+def unusable_reason(path: Path) -> str | None:
+    """Why an artifact that is there has no stamp :func:`read_stamp` accepts, in a few words
+    (None where it is missing): what the log says before its stage runs again, so that a
+    stage re-running unasked (an hour of extract, say) is never a mystery."""
+    from placeloc.core.safe_io import UnsafeInputError, foreign_storage
+
+    if path.is_symlink():
+        return "a symbolic link, which placeloc never writes"
+    if not path.exists():
+        return None
+    if not path.is_file():
+        return "not a regular file"
+    try:
+        with h5py.File(path, "r") as f:
+            if foreign_storage(f):
+                return "its data are stored in other files"
+            if f.attrs.get("stamp") is None:
+                return "it has no placeloc stamp"
+    except UnsafeInputError as exc:
+        return str(exc)
+    except OSError as exc:
+        import re
+
+        text = " ".join(str(exc).split())
+        if "truncated file" in text:  # h5py: "... eof = 3000, sblock->base_addr = 0, stored_eof = 1679552"
+            eof, stored = re.search(r"\beof = (\d+)", text), re.search(r"stored_eof = (\d+)", text)
+            if eof and stored:
+                return (f"truncated, {int(eof.group(1)):,} of its {int(stored.group(1)):,} bytes (a copy that did not "
+                        "finish, or a full disk)")
+            return "truncated (a copy that did not finish, or a full disk)"
+        # h5py: "Unable to synchronously open file (file signature not found)": the part in brackets
+        inner = re.search(r"\(([^()]*)\)\s*$", text)
+        return f"not a readable HDF5 file: {(inner.group(1) if inner else text)[:160]}"
+    return None
+
+
 def write_tree(group: h5py.Group, data: dict[str, Any], compress_over: int = 1 << 16) -> None:
     """Store a nested dict of arrays/scalars/strings; big arrays are chunked + compressed."""
     for key, value in data.items():

@@ -15,6 +15,7 @@ import csv
 import logging
 import math
 import os
+import shlex
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,7 +137,7 @@ def _folders(run_dir: Path, within_reference: bool = False,
     # for it (four HDF5 files and their stamped YAML) took 40 ms of the demo's evaluate
     cfg = run_config(run_dir) if config is None else config
     if not cfg:
-        raise ShowError(f"{run_dir}: holds no placeloc artifact; run `placeloc localize CONFIG -o {run_dir}` first")
+        raise ShowError(f"{run_dir}: holds no placeloc artifact; run `placeloc localize CONFIG -o {shlex.quote(str(run_dir))}` first")
 
     def images(role: str) -> Mapping[str, Path] | None:
         section = cfg.get(role) or {}
@@ -352,8 +353,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
         if runs:  # a sweep's or a comparison's folder: one run per subfolder
             table = next((n for n in ("sweep.md", "table.md") if (run_dir / n).is_file()), None)
             raise ShowError(f"{run_dir}: holds {len(runs)} runs, one per folder{f' (their table: {run_dir / table})' if table else ''}; "
-                            f"show one of them, e.g. placeloc show {run_dir / runs[0]}")
-        raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {run_dir}` first")
+                            f"show one of them, e.g. placeloc show {shlex.quote(str(run_dir / runs[0]))}")
+        raise ShowError(f"{run_dir}: holds no localize result; run `placeloc localize CONFIG -o {shlex.quote(str(run_dir))}` first")
     mod = contract(res.kind)
     staging = run_dir / f".show{TMP_MARK}{os.getpid()}"
     if staging.is_symlink():  # a predictable name: whatever was planted there goes

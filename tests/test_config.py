@@ -30,14 +30,16 @@ def test_loop_closure_when_query_omitted(route):
 @pytest.mark.parametrize(
     "patch, message",
     [
-        ({"seqslam": {"dss": 3}}, "unknown key 'seqslam.dss'"),
+        ({"seqslam": {"dss": 3}}, "unknown key 'seqslam.dss' in seqslam; did you mean 'seqslam.ds'\\? known keys: "),
+        ({"seqslam": {"enhance_windows": 3}}, "did you mean 'seqslam.enhance_window'\\?"),
+        ({"plot": False}, "unknown key 'plot' in the top level; did you mean 'plots'\\?"),
         ({"seqslam": {"ds": "ten"}}, "seqslam.ds must be an integer"),
         ({"seqslam": {"comparison": "foo"}}, "seqslam.comparison: 'foo' is not allowed"),
         ({"seqslam": {"thumbnail": [64]}}, "a list of 2 items"),
         ({"method": "nope"}, "not known"),
         ({"reference": {"images": "missing-folder"}}, "reference.images"),
         ({"ground_truth": {"kind": "csv"}}, "ground_truth.path is missing"),
-        ({"colour": 1}, "unknown key 'colour'"),
+        ({"colour": 1}, "unknown key 'colour' in the top level; known keys: "),  # nothing near it: no guess
     ],
 )
 def test_bad_configs_name_the_key(route, patch, message):

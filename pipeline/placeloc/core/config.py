@@ -204,7 +204,11 @@ def _merge(schema: dict, data: dict, prefix: str, choices: dict, types: dict | N
         if key not in schema:
             where = prefix.rstrip(".") or "the top level"
             known = ", ".join(sorted(schema))
-            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; known keys: {known} "
+            import difflib  # here: only a wrong key needs it
+
+            near = difflib.get_close_matches(str(key), [str(k) for k in schema], n=1)
+            guess = f"did you mean '{prefix}{near[0]}'? " if near else ""
+            raise ConfigError(f"unknown key '{prefix}{key}' in {where}; {guess}known keys: {known} "
                               "(placeloc params [METHOD] lists each with its default and meaning)")
     for key, default in schema.items():
         dotted = f"{prefix}{key}"

@@ -48,3 +48,38 @@ def test_plan_of_the_wrong_shape_asks_for_rooms(tmp_path: Path) -> None:
     path.write_text("room:\n  - {name: kitchen, polygon: [[0, 0], [4, 0], [4, 3]]}\n")
     with pytest.raises(ModelError, match=r"plan\.yaml: expected a floor plan with 'rooms:' .*docs/umap\.md"):
         load_model(path)
+
+
+@pytest.mark.parametrize("sep, said", [(";", "semicolons"), ("\t", "tabs")])
+def test_a_csv_separated_otherwise_is_named_with_the_fix(tmp_path: Path, sep: str, said: str) -> None:
+    """A spreadsheet's export in a comma-decimal locale separates by ';' (another by tabs):
+    the observations, the intrinsics and the poses say so, where each named only the
+    columns it missed."""
+    from placeloc.coembed.camera import read_intrinsics
+    from placeloc.evaluation.poses import PoseError, read_poses
+
+    fix = f"(this file separates its columns by {said}: save it comma-separated)"
+    obs = tmp_path / "obs.csv"
+    obs.write_text(sep.join(["image", "track", "x", "y"]) + "\n" + sep.join(["1", "0", "380", "437"]) + "\n")
+    with pytest.raises(ObservationError, match=r"needs a header row with at least 3 columns " + fix.replace("(", r"\(")
+                       .replace(")", r"\)")):
+        read_observations_csv(obs)
+    intr = tmp_path / "intrinsics.csv"
+    intr.write_text(sep.join(["f", "cx", "cy"]) + "\n" + sep.join(["600", "320", "240"]) + "\n")
+    with pytest.raises(ObservationError, match=r"missing 'f' \(this file separates"):
+        read_intrinsics(intr)
+    poses = tmp_path / "poses.csv"
+    poses.write_text(sep.join(["frame", "x", "y"]) + "\n" + sep.join(["0", "1", "2"]) + "\n")
+    with pytest.raises(PoseError, match=f"separates its columns by {said}"):
+        read_poses(poses)
+
+
+def test_intrinsics_with_a_byte_order_mark_before_f_are_read(tmp_path: Path) -> None:
+    """Excel writes a byte-order mark: before 'f' as the first column it made the key
+    '\\ufefff' and the file "missing 'f'"."""
+    from placeloc.coembed.camera import read_intrinsics
+
+    intr = tmp_path / "intrinsics.csv"
+    intr.write_text("\ufefff,cx,cy,k1\n600,320,240,0.1\n", encoding="utf-8")
+    got = read_intrinsics(intr)
+    assert (got.f, got.cx, got.cy, got.dist[0]) == (600.0, 320.0, 240.0, 0.1)

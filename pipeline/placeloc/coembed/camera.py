@@ -31,8 +31,10 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
     path = Path(path)
     if not path.is_file():
         raise ObservationError(f"coembed.intrinsics: {path} does not exist")
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    with path.open(newline="", encoding="utf-8-sig") as fh:  # a BOM is not part of the first column's name
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+        header = list(reader.fieldnames or [])
     if len(rows) != 1:
         raise ObservationError(f"coembed.intrinsics: {path} must hold exactly one camera row (it has {len(rows)})")
     row = {k.strip().lower(): v for k, v in rows[0].items() if k}
@@ -40,7 +42,10 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
         f, cx, cy = float(row["f"]), float(row["cx"]), float(row["cy"])
         dist = tuple(float(row.get(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3"))
     except KeyError as exc:
-        raise ObservationError(f"coembed.intrinsics: {path} needs columns f, cx, cy (optionally k1, k2, k3, p1, p2); missing {exc}") from None
+        from placeloc.core.safe_io import separator_hint
+
+        raise ObservationError(f"coembed.intrinsics: {path} needs columns f, cx, cy (optionally k1, k2, k3, p1, p2); "
+                               f"missing {exc}{separator_hint(header)}") from None
     except ValueError as exc:
         raise ObservationError(f"coembed.intrinsics: {path}:2: values must be numbers ({exc})") from None
     if f <= 0:

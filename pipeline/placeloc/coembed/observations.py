@@ -114,7 +114,10 @@ def _read_numeric_csv(path: str | Path, min_cols: int, what: str) -> tuple[list[
         reader = csv.reader(fh)
         header = next(reader, None)
         if header is None or len(header) < min_cols:
-            raise ObservationError(f"{what}: {path} needs a header row with at least {min_cols} columns")
+            from placeloc.core.safe_io import separator_hint
+
+            raise ObservationError(f"{what}: {path} needs a header row with at least {min_cols} columns"
+                                   f"{separator_hint(header or [])}")
         values = array("d")  # 8 bytes a number: a list of float rows would take ~6x the memory
         for row in reader:
             if not any(field.strip() for field in row) or row[0].lstrip().startswith("#"):

@@ -33,7 +33,7 @@ import stat
 import time
 import zipfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import yaml
 
@@ -198,6 +198,17 @@ def memory_budget() -> int:
     if math.isfinite(value) and 0 <= value <= ENV_MEGABYTES_MAX:
         return int(value * 2**20)
     return mem_available()
+
+
+def separator_hint(header: Sequence[str]) -> str:
+    """What to say of a CSV header that came out as one column holding another separator: a
+    spreadsheet's export in a comma-decimal locale separates by ';', another by tabs. ``''``
+    where the header is not such."""
+    cells = [str(c) for c in header]
+    if len(cells) != 1:
+        return ""
+    other = next((name for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "'|'")) if sep in cells[0]), None)
+    return f" (this file separates its columns by {other}: save it comma-separated)" if other else ""
 
 
 def load_json(text: str, what: str) -> Any:

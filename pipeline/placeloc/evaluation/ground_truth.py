@@ -152,12 +152,10 @@ class GroundTruth:
             body, first_line = rows[1:], 2
         ranges = "ref_first" in cols and "ref_last" in cols
         if "query" not in cols or not (ranges or "reference" in cols):
-            # a spreadsheet's export in a comma-decimal locale separates by ';', another by tabs
-            other = next((name for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "'|'"))
-                          if len(rows[0]) == 1 and sep in rows[0][0]), None)
-            hint = f" (this file separates its columns by {other}: save it comma-separated)" if other else ""
+            from placeloc.core.safe_io import separator_hint
+
             raise GroundTruthError(f"{path}:1: header must be 'query,reference' (pairs) or 'query,ref_first,ref_last' "
-                                   f"(ranges), optionally with a 'soft' column; got {rows[0]}{hint}")
+                                   f"(ranges), optionally with a 'soft' column; got {rows[0]}{separator_hint(rows[0])}")
         q_lookup = _Lookup(query_names, n_query, "query", path)
         r_lookup = _Lookup(ref_names, n_ref, "reference", path)
         soft_col = cols.get("soft")

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from placeloc.core.safe_io import UnsafeInputError, read_input_text
+from placeloc.core.safe_io import UnsafeInputError, read_input_text, separator_hint
 
 KEY_COLUMNS = ("frame", "t", "step", "index", "image", "name", "file", "filename")
 XY_COLUMNS = (("x", "y"), ("easting", "northing"), ("utm_e", "utm_n"))
@@ -136,7 +136,8 @@ def read_poses(path: str | Path, *, what: str = "poses") -> Poses:
                             if (ca := _column(fields, (a,))) and (co := _column(fields, (b,)))), None)
     if key_col is None or (xy_cols is None and latlon_cols is None):
         raise PoseError(f"{what}: {path} needs a header with a frame column ({', '.join(KEY_COLUMNS[:4])} or image) "
-                        f"and positions (x,y / easting,northing / utm_e,utm_n / lat,lon); it has {fields}")
+                        f"and positions (x,y / easting,northing / utm_e,utm_n / lat,lon); it has {fields}"
+                        f"{separator_hint(fields)}")
     trav_col = _column(fields, TRAVERSE_COLUMNS)
     if not rows:
         raise PoseError(f"{what}: {path} has a header but no rows")

@@ -337,3 +337,20 @@ def test_a_map_whose_features_fill_a_corner_gets_a_close_up_beside_it(tmp_path):
     left_cols, right_cols = np.flatnonzero(blue[:, :half].any(axis=0)), np.flatnonzero(blue[:, half:].any(axis=0))
     assert left_cols.max() - left_cols.min() < 40       # squeezed into the corner of the whole map
     assert right_cols.max() - right_cols.min() > 300    # the close-up: spread over its 620-pixel box
+
+
+def test_the_slowest_frame_is_not_hidden_under_a_legend(tmp_path):
+    """Frames at map sizes 0-99 taking 1 ms, and one at map size 5 taking 10 ms: the top
+    left of the chart, where a legend box stood and covered it (PIRF-nav2's smoke run). Its
+    dot is drawn: blue pixels in the chart's top twentieth, near its left edge."""
+    from placeloc.evaluation.loops import plot_time_per_frame
+
+    x = np.arange(100.0)
+    s = np.full(100, 1e-3)
+    s[5] = 10e-3
+    img = _pixels(plot_time_per_frame(tmp_path / "t.png", x, s, "method"))
+    blue = _near(img, (31, 119, 180), 60)
+    # the box spans x 80-640, y 54-394 of the canvas; 10 ms sits at 1/1.05 of its height
+    top = 54 + round((394 - 54) * (1 - 1 / 1.05))
+    assert blue[top - 6:top + 7, 80:130].any()
+    assert blue[394 - round(340 / 10.5) - 6:394 - round(340 / 10.5) + 7, 80:640].sum() > 100  # and the others at 1 ms

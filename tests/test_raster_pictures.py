@@ -354,3 +354,26 @@ def test_the_slowest_frame_is_not_hidden_under_a_legend(tmp_path):
     top = 54 + round((394 - 54) * (1 - 1 / 1.05))
     assert blue[top - 6:top + 7, 80:130].any()
     assert blue[394 - round(340 / 10.5) - 6:394 - round(340 / 10.5) + 7, 80:640].sum() > 100  # and the others at 1 ms
+
+
+@pytest.mark.parametrize("data_corner, expected_side", [("lower left", "right"), ("lower right", "left")])
+def test_a_legend_given_corners_takes_the_first_that_covers_no_data(tmp_path, data_corner, expected_side):
+    """Points packed into one lower corner of a 0-1 box: a legend offered lower left, then
+    lower right, stands in the lower corner the points leave free (its white box framed in
+    light grey), and with no data drawn it takes the first corner offered."""
+    from placeloc.evaluation import raster as R
+
+    def legend_side(points: bool) -> str:
+        c = R.Canvas(400, 300, ss=1)
+        ax = R.Axes(c, (40, 20, 380, 280), (0.0, 1.0), (0.0, 1.0))
+        if points:
+            xs = np.linspace(0.02, 0.3, 12) if data_corner == "lower left" else np.linspace(0.7, 0.98, 12)
+            ax.markers(np.repeat(xs, 12), np.tile(np.linspace(0.02, 0.3, 12), 12), (0, 0, 0), "o", 4)
+        ax.legend([R.LegendEntry("a curve", (255, 0, 0), line_width=2)], ("lower left", "lower right"))
+        img = _pixels(c.save(tmp_path / "l.png"))
+        frame = _near(img, (204, 204, 204), 6)
+        cols = np.flatnonzero(frame[150:].any(axis=0))
+        return "left" if cols.mean() < 200 else "right"
+
+    assert legend_side(points=True) == expected_side
+    assert legend_side(points=False) == "left"

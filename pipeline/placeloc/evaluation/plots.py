@@ -60,13 +60,16 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
                                      marker=marker, marker_size=5 * PT))
         ends.append((float(x[-1]), float(y[-1]), colour, i))
     ax.labels(xlabel, "precision", title)
-    # lower left, unless every curve ends before half the recall: then the right half is empty
-    # and the lower left holds the curves' ends and their labels
-    ax.legend(entries, "lower right" if ends and max(e[0] for e in ends) <= 0.5 else "lower left", size=11)
     # where each curve ends (every match accepted): visible even under a curve that goes further
     for x_end, y_end, colour, i in ends:
         ax.markers(np.array([x_end]), np.array([y_end]), colour, "|", 16 * PT, edge=2.5 * PT)
         ax.text(x_end, y_end, f"{x_end:.3f}", 11, dy=(16 + 11 * i) * PT, fill=colour, anchor="md")
+    # lower left, unless every curve ends before half the recall: then the right half is empty
+    # and the lower left holds the curves' ends and their labels; the other corners where
+    # that one would cover a curve (a curve falling to low precision at low recall)
+    first = "lower right" if ends and max(e[0] for e in ends) <= 0.5 else "lower left"
+    ax.legend(entries, (first, *(c for c in ("lower left", "lower right", "upper right", "upper left") if c != first)),
+              size=11)
     return c.save(path)
 
 
@@ -108,7 +111,7 @@ def plot_kept_precision(path: Path, kept: np.ndarray, right: np.ndarray, n_frame
     else:
         entries.append(R.LegendEntry("no threshold keeps only right answers", R.BLACK))
     # lower left: a confidence worth having keeps its first answers right, so the curve starts high there
-    ax.legend(entries, "lower left", size=13)
+    ax.legend(entries, ("lower left", "lower right", "upper right", "upper left"), size=13)
     return c.save(path)
 
 
@@ -144,7 +147,7 @@ def plot_recall_at_n(curves: dict[str, tuple[Sequence[int], Sequence[float | Non
             above = i % 2 == 0
             ax.text(xi, yi, f"{yi:.2f}", 11, dy=-8 * PT if above else 8 * PT, fill=colour, anchor="md" if above else "ma")
     ax.labels("N (candidates considered per query)", "recall@N", title)
-    ax.legend(entries, "lower right", size=11)
+    ax.legend(entries, ("lower right", "lower left", "upper left", "upper right"), size=11)
     return c.save(path)
 
 
@@ -205,7 +208,7 @@ def plot_difference_matrices(panels: dict[str, np.ndarray], path: Path, *, match
         ax.frame(xt, yt, grid=False, size=12)
         ax.labels("query frame", "reference frame", name, size=13, title_size=13)
         # lower left: below the diagonal, where neither a route band nor a loop closure (an earlier frame) lies
-        ax.legend(entries, "lower left", size=11)
+        ax.legend(entries, ("lower left", "upper right", "lower right", "upper left"), size=11)
         R.colour_bar(c, (x0 + 612, 60 + extra, x0 + 630, height - 58), vmin, vmax, f"{name} (lower = more alike)", size=11)
     if title:
         c.text(c.width / 2, 10, title, 14, anchor="ma")
@@ -243,7 +246,7 @@ def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[s
             colour, style, marker = look[label]
             entries.append(R.LegendEntry(f"{label} (AUC {_auc(rec, prec):.3f})", colour, line_width=1.8 * PT, style=style,
                                          marker=marker, marker_size=4.5 * PT))
-    ax.legend(entries, "lower left", size=10)
+    ax.legend(entries, ("lower left", "lower right", "upper right", "upper left"), size=10)
     # Recall@N, right, log N
     pts_of = {label: [(int(n), float(v)) for n, v in zip(ns, vals) if v is not None] for label, (ns, vals) in recalls.items()}
     all_n = sorted({n for pts in pts_of.values() for n, _ in pts}) or [1]
@@ -263,5 +266,5 @@ def plot_sweep(curves: dict[str, tuple[np.ndarray, np.ndarray]], recalls: dict[s
             ax.line(x, y, colour, 1.8 * PT, style)
             ax.markers(x, y, colour, marker, 5.5 * PT)
             entries.append(R.LegendEntry(label, colour, line_width=1.8 * PT, style=style, marker=marker, marker_size=5.5 * PT))
-    ax.legend(entries, "lower right", size=10)
+    ax.legend(entries, ("lower right", "lower left", "upper left", "upper right"), size=10)
     return c.save(path)

@@ -473,7 +473,7 @@ def plot_error_cdfs(path: Path, errors: dict[str, np.ndarray], title: str) -> Pa
         ax.line(*_cdf_steps(e), colour, 2.5, style)
         entries.append(R.LegendEntry(f"{label}: {np.mean(e <= 1.0):.0%} within 1 m, median {np.median(e):.2f} m",
                                      colour, line_width=2.5, style=style))
-    ax.legend(entries, "lower right", size=11)
+    ax.legend(entries, ("lower right", "upper left", "lower left", "upper right"), size=11)
     return c.save(path)
 
 

@@ -265,6 +265,9 @@ class Axes:
         self.left, self.top, self.right, self.bottom = (float(v) for v in box)
         self.xlim, self.ylim, self.xlog, self.y_down = xlim, ylim, xlog, y_down
         self.ytick_width = 0.0  # the widest y tick label, set by frame(): where the y label goes
+        # where lines and markers were drawn (output pixels, a point every few pixels along
+        # a line): what a legend placed "best" keeps clear of
+        self._drawn: list[np.ndarray] = []
 
     def _x(self, x: np.ndarray) -> np.ndarray:
         """Data x to output pixels."""
@@ -335,6 +338,7 @@ class Axes:
         px, py = self.xy(x, y)
         ok = np.isfinite(px) & np.isfinite(py)
         px, py = _one_point_a_pixel(px[ok], py[ok], self.c.ss)
+        self._record(px, py, joined=True)
         if len(px) < 2:
             return
         w = max(1, round(width * self.c.ss))
@@ -351,6 +355,7 @@ class Axes:
         x, +, | and of the hollow ring O)."""
         px, py = self.xy(x, y)
         ok = np.isfinite(px) & np.isfinite(py)
+        self._record(px[ok], py[ok])
         r = size * self.c.ss / 2
         w = max(1, round(edge * self.c.ss))
         if ok.sum() > STAMP_FROM and shape in "os+x|":
@@ -408,6 +413,8 @@ class Axes:
         ax0, ay0 = self.xy(x0, y0)
         ax1, ay1 = self.xy(x1, y1)
         ok = np.isfinite(ax0) & np.isfinite(ay0) & np.isfinite(ax1) & np.isfinite(ay1)
+        for t in np.linspace(0.0, 1.0, 5):  # each segment's ends and three points between
+            self._record(ax0[ok] + t * (ax1[ok] - ax0[ok]), ay0[ok] + t * (ay1[ok] - ay0[ok]))
         w = max(1, round(width * self.c.ss))
         line = self.c.draw.line
         for a, b, c, d in zip(ax0[ok].tolist(), ay0[ok].tolist(), ax1[ok].tolist(), ay1[ok].tolist()):
@@ -457,20 +464,52 @@ class Axes:
         resized = cv2.resize(np.ascontiguousarray(rgb), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_NEAREST)
         self.c.image.paste(Image.fromarray(resized, "RGB"), (round(self.left * self.c.ss), round(self.top * self.c.ss)))
 
-    def legend(self, entries: Sequence[LegendEntry], loc: str = "lower left", size: float = 11) -> None:
-        """A framed legend in a corner of the box (``loc``: "lower left", "lower right", "upper left", "upper right")."""
+    def _record(self, px: np.ndarray, py: np.ndarray, joined: bool = False) -> None:
+        """Note drawn points (supersampled pixels in), for :meth:`legend`'s "best"; a
+        ``joined`` polyline gets a point every 4 output pixels along each piece."""
+        x, y = np.asarray(px, np.float64) / self.c.ss, np.asarray(py, np.float64) / self.c.ss
+        if joined and len(x) > 1:
+            steps = np.maximum(1, np.ceil(np.hypot(np.diff(x), np.diff(y)) / 4.0)).astype(np.int64)
+            if int(steps.sum()) <= 200_000:
+                at = np.repeat(np.arange(len(x) - 1), steps)
+                t = (np.arange(len(at)) - np.repeat(np.cumsum(steps) - steps, steps)) / np.repeat(steps, steps)
+                x, y = np.append(x[at] + t * (x[at + 1] - x[at]), x[-1]), np.append(y[at] + t * (y[at + 1] - y[at]), y[-1])
+        self._drawn.append(np.column_stack([x, y]))
+
+    def legend(self, entries: Sequence[LegendEntry], loc: str | Sequence[str] = "lower left", size: float = 11) -> None:
+        """A framed legend in a corner of the box (``loc``: "lower left", "lower right",
+        "upper left", "upper right"; or several in order of preference, or "best": all four,
+        upper right first): of several, the corner whose box covers the fewest of the points
+        and lines drawn so far, the first such in the order given (matplotlib's "best")."""
         if not entries:
             return
         sample_w, pad, row_h = 30.0, 6.0, size * 1.45
         width = sample_w + 3 * pad + max(text_width(e.label, size) for e in entries)
         height = row_h * len(entries) + pad
-        x0 = self.left + 8 if "left" in loc else self.right - 8 - width
-        y0 = self.bottom - 8 - height if "lower" in loc else self.top + 8
+
+        def corner(where: str) -> tuple[float, float]:
+            return (self.left + 8 if "left" in where else self.right - 8 - width,
+                    self.bottom - 8 - height if "lower" in where else self.top + 8)
+
+        corners = list(LEGEND_CORNERS) if loc == "best" else [loc] if isinstance(loc, str) else list(loc)
+        x0, y0 = corner(corners[0])
+        if len(corners) > 1:
+            pts = np.concatenate(self._drawn) if self._drawn else np.zeros((0, 2))
+
+            def covered(where: str) -> int:
+                cx, cy = corner(where)
+                return int(np.count_nonzero((pts[:, 0] >= cx - 3) & (pts[:, 0] <= cx + width + 3) &
+                                            (pts[:, 1] >= cy - 3) & (pts[:, 1] <= cy + height + 3)))
+
+            x0, y0 = corner(min(corners, key=covered))  # min keeps the first of equal counts
         self.c.rectangle((x0, y0, x0 + width, y0 + height), outline=(204, 204, 204), fill=(255, 255, 255), width=1)
         for i, e in enumerate(entries):
             cy = y0 + pad / 2 + row_h * (i + 0.5)
             _sample(self.c, x0 + pad, x0 + pad + sample_w, cy, e, size)
             self.c.text(x0 + 2 * pad + sample_w, cy, e.label, size, anchor="lm")
+
+
+LEGEND_CORNERS = ("upper right", "upper left", "lower left", "lower right")  # "best" tries them in this order
 
 
 class LegendEntry:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NamedTuple
 
 import cv2
@@ -943,6 +943,46 @@ class PanoramaAnswers(NamedTuple):
         search polishes the winner alone, to the centimetre, and no rival gets that polish,
         so a twin room's spot, as good as the answer, would seem 0.01 behind it."""
         return self.before_final - self.rival
+
+
+def best_over_heights(found: Sequence[PanoramaAnswers], offsets: Sequence[int], *, distance_m: float,
+                      yaw_deg: float) -> PanoramaAnswers:
+    """Each panorama's answer over the grid's layers of several camera heights
+    (``umap.grid.heights``), each searched alone (``found[j]``, its grid rows from
+    ``offsets[j]``): the layer whose answer scores highest (the first of equal scores), its
+    grid row made global, so that the answer's height is the row's. Its rival is the best
+    pose any layer's search saw that would be another answer: the chosen layer's own rival,
+    and another layer's answer (its score before the final search, as the margin compares)
+    or rival where it lies more than ``distance_m`` from the answer or faces more than
+    ``yaw_deg`` away (:func:`rival_pose`'s rule); the same place at another height is no
+    rival."""
+    score = np.stack([f.score for f in found])
+    pick = np.argmax(score, axis=0)
+    n = score.shape[1]
+    take = np.arange(n)
+
+    def field(name: str) -> np.ndarray:
+        return np.stack([getattr(f, name) for f in found])[pick, take]
+
+    best = np.stack([f.best + int(o) for f, o in zip(found, offsets)])[pick, take]
+    xy, heading = field("xy"), field("heading")
+    rival, rival_xy, rival_heading = field("rival").copy(), field("rival_xy").copy(), field("rival_heading").copy()
+
+    def apart(k: int, other_xy: np.ndarray, other_heading: float) -> bool:
+        if not (np.isfinite(other_xy).all() and np.isfinite(other_heading)):
+            return False
+        turned = abs((float(other_heading) - float(heading[k]) + 180.0) % 360.0 - 180.0)
+        return bool(np.hypot(*(other_xy - xy[k])) > distance_m or turned > yaw_deg)
+
+    for k in range(n):
+        for j, f in enumerate(found):
+            if j == pick[k]:
+                continue
+            for value, where, facing in ((f.before_final[k], f.xy[k], f.heading[k]),
+                                         (f.rival[k], f.rival_xy[k], f.rival_heading[k])):
+                if np.isfinite(value) and apart(k, where, facing) and not value <= rival[k]:
+                    rival[k], rival_xy[k], rival_heading[k] = value, where, facing
+    return PanoramaAnswers(best, xy, heading, field("score"), rival, rival_xy, rival_heading, field("before_final"))
 
 
 # ------------------------------------------------------------------ local refinement

@@ -29,6 +29,11 @@ class GridParams(Params):
     step_m: float = param(0.25, min=0.0, min_exclusive=True, help="grid spacing where x or y is left to the model")
     z: float | None = param(None, help="camera height in metres (none: the plan's camera_z, which the ZInD importer and "
                                        "the home generator write)")
+    heights: tuple[float, ...] = param([], help="panoramas: camera heights in metres to search, for a camera whose "
+                                               "height is not known (a phone held by hand, 1.2-1.7 m up): the grid is "
+                                               "rendered at each and every panorama's answer is the best over them, "
+                                               "with the height found in estimates.csv; localize costs as many times "
+                                               "more ([] = the one height z)")
     headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
     wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "

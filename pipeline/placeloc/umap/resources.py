@@ -72,7 +72,9 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
         axes.append(math.floor((stop - start) / step + 1e-9) + 1)
     panorama = p.get("query_kind") == "panorama"
     positions = max(1, math.ceil(axes[0] * axes[1] * inside_share))
-    views = positions if panorama else positions * max(1, len(g["headings"]))
+    # panoramas: a layer of the grid per camera height searched (umap.grid.heights)
+    layers = max(1, len(g.get("heights") or [])) if panorama else 1
+    views = positions * layers if panorama else positions * max(1, len(g["headings"]))
     size = p.get("panorama" if panorama else "camera") or {}
     w, h = int(size.get("width", 160)), int(size.get("height", 120))
     words = (w * h + 63) // 64
@@ -94,8 +96,8 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     # they still count whole
     spectra = views * (w // 2 + 1) * 2 * bins * h * 8 if chamfer else 0
     what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
-        ("" if panorama else f", {len(g['headings'])} headings") + ")"
-    key = "umap.grid (a larger step or a smaller range) or the camera size"
+        ("" if panorama else f", {len(g['headings'])} headings") + (f", {layers} heights" if layers > 1 else "") + ")"
+    key = "umap.grid (a larger step or a smaller range" + (", fewer heights" if layers > 1 else "") + ") or the camera size"
     # build-dictionary: the grid (poses, the free-space test) and what HDF5 and the
     # renderer hold of the database as it is written: measured 80, 85 and 199 MB for 46,000
     # and 182,000 views of 160x120 and 182,000 of 40x30, i.e. 40 MB + 204 bytes a view +
@@ -110,5 +112,6 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
              Need(what, key, stage="index", memory=(2 * db if panorama else 0) + 24 * views
                   + 4 * min(spectra, SPECTRA_BLOCK * (w // 2 + 1) * 2 * bins * h * 8),
                   disk=(db if panorama else 0) + 48 * views + spectra),
-             Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra, disk=1 << 20)]
+             # each height's layer is searched alone: its rows of the spectra at a time
+             Need(what, key, stage="localize", memory=db + pooled + 160 * views + spectra // layers, disk=1 << 20)]
     return [n for n in needs if n.stage in stages] + decode_need(config, images, 16, "decoding", stages)

@@ -32,6 +32,7 @@ from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
     PanoramaAnswers,
+    best_over_heights,
     chamfer_spectra,
     render_oriented_block,
     render_panorama_block,
@@ -68,6 +69,9 @@ def _check(config: dict[str, Any]) -> None:
     if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
         raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
                           "one by one: set umap.mode: umap for umap.query_kind: panorama")
+    if p["grid"]["heights"] and p["query_kind"] != "panorama":
+        raise ConfigError("umap.grid.heights searches the camera height of whole panoramas (umap.query_kind: panorama); "
+                          "for pinhole images give the one height as umap.grid.z")
     pp = p["panorama"]
     if p["query_kind"] == "panorama" and pp["orientation_bins"] > 1 and (pp["score"] != "chamfer"
                                                                          or pp["chamfer_chance"] != "none"):
@@ -95,18 +99,23 @@ def build_dictionary(ctx: Any) -> None:
     except ModelError as exc:
         raise _stage_error(exc) from exc
     g = p.grid
-    try:
-        poses, notes = plan_grid(model, x=g.x, y=g.y, step_m=g.step_m, z=g.z, headings=g.headings,
-                                 inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
-    except ValueError as exc:
-        raise ConfigError(f"umap.grid: {exc}") from exc
-    for note in notes:
-        log.warning("umap.%s", note)
+    layers = []
+    for z in (g.heights or [g.z]):   # one layer of the grid per camera height searched
+        try:
+            poses, notes = plan_grid(model, x=g.x, y=g.y, step_m=g.step_m, z=z, headings=g.headings,
+                                     inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
+        except ValueError as exc:
+            raise ConfigError(f"umap.grid{'.heights' if g.heights else ''}: {exc}") from exc
+        for note in notes:
+            log.warning("umap.%s", note)
+        layers.append(poses)
     block = int(p.block)
+    poses = layers[0]
     if p.query_kind == "panorama":
-        # one panoramic line image per grid position, rendered at heading 0: the yaw is searched
-        poses = poses[np.unique(poses[:, :2], axis=0, return_index=True)[1]]
-        poses = poses[np.lexsort((poses[:, 1], poses[:, 0]))]
+        # one panoramic line image per grid position, rendered at heading 0: the yaw is searched;
+        # the layers of several heights one after another (localize searches each alone)
+        unique = [q[np.unique(q[:, :2], axis=0, return_index=True)[1]] for q in layers]
+        poses = np.concatenate([q[np.lexsort((q[:, 1], q[:, 0]))] for q in unique])
         poses[:, 3] = 0.0
         pw, ph = int(p.panorama.width), int(p.panorama.height)
         bins = int(p.panorama.orientation_bins)
@@ -315,10 +324,25 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
         database = {"spectra": read_mapped(idx["spectra"])}  # about 1 GB: mapped, not copied
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
-    return search_panoramas(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
-                            tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                            hidden=bool(ctx.params.hidden_lines),
-                            progress=lambda it: ctx.progress(it, total=len(lines), desc="panorama search"))
+    poses, segments, faces = idx["poses"][()], src["segments"][()], src["faces"][()]
+    # the grid's layers, one per camera height (umap.grid.heights; build-dictionary wrote them
+    # one after another), each searched alone, over its own rows of the mapped database
+    starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
+    bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
+    found = []
+    for lo, hi in bounds:
+        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
+        # the spectra hold positions on their second axis (frequency first), the rest on their first
+        layer = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
+        found.append(search_panoramas(lines, poses[lo:hi], segments, faces, layer, pp,
+                                      tolerance_px=int(ctx.params.tolerance_px),
+                                      wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                                      hidden=bool(ctx.params.hidden_lines),
+                                      progress=lambda it, what=what: ctx.progress(it, total=len(lines), desc=what)))
+    if len(found) == 1:
+        return found[0]
+    return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),
+                             yaw_deg=float(pp.margin_yaw_deg))
 
 
 def localize(ctx: Any) -> None:
@@ -421,12 +445,20 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                     "heading scores nearly as well; estimates.csv gives each one's rival as rival_x, rival_y, "
                     "rival_heading_deg and rival_room): %s", int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
                     ", ".join(either(k) for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
+    # the camera height each answer was found at, where several were searched (umap.grid.heights)
+    heights = len(np.unique(poses[:, 2])) > 1
+    if heights:
+        ctx.out.create_dataset("height_m", data=est[:, 2])
+        found_at = np.unique(est[:, 2], return_counts=True)
+        log.info("camera heights found (umap.grid.heights): %s",
+                 ", ".join(f"{z:.2f} m for {c} of {n}" for z, c in zip(*found_at)))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y",
-                    "rival_heading_deg", "room", "rival_room"])
+        w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []), "score", "rival_score", "margin",
+                    "doubtful", "rival_x", "rival_y", "rival_heading_deg", "room", "rival_room"])
         for k in range(n):
-            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}", f"{score[k]:.5f}",
+            w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}",
+                        *([f"{est[k, 2]:.2f}"] if heights else []), f"{score[k]:.5f}",
                         _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
                         _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1),
                         room[k], rival_room[k]])
@@ -520,16 +552,16 @@ PANORAMA_PICTURES = 12
 def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
     h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
     segs, faces = plan["segments"][()], plan["faces"][()]
-    z = float(ctx.artifact("index")["poses"][0, 2])
+    zs = _answer_heights(loc, float(ctx.artifact("index")["poses"][0, 2]))
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
     for k in range(min(len(names), PANORAMA_PICTURES)):
         true_pose = None
         if gt.heading is not None:
-            tz = float(gt.z[rows[k]]) if gt.z is not None else z
+            tz = float(gt.z[rows[k]]) if gt.z is not None else zs[k]
             true_pose = (*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]]))
         _overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), ex["lines"][k], (h, w), segs, faces,
-                 (loc["x"][k], loc["y"][k], z, est_h[k]), true_pose,
+                 (loc["x"][k], loc["y"][k], zs[k], est_h[k]), true_pose,
                  f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_doubt_note(loc, k)}")
 
 
@@ -549,21 +581,27 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
             return []
         size = (int(ex.attrs["height"]), int(ex.attrs["width"]))
         segs, faces = plan["segments"][()], plan["faces"][()]
-        z = float(plan["poses"][0, 2])
+        zs = _answer_heights(loc, float(plan["poses"][0, 2]))
         names = read_strings(loc["names"])
         x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
         (rooms,) = _rooms(plan, np.column_stack([x, y]))
         for k in range(min(len(names), PANORAMA_PICTURES)):
             doubt = _doubt_note(loc, k)
-            rival = (loc["rival_x"][k], loc["rival_y"][k], z, loc["rival_heading_deg"][k]) if doubt else None
+            rival = (loc["rival_x"][k], loc["rival_y"][k], zs[k], loc["rival_heading_deg"][k]) if doubt else None
             where = f" in the {rooms[k]}" if rooms[k] else ""
             path = out_dir / f"panorama_{Path(names[k]).stem}.png"
-            _overlay(path, ex["lines"][k], size, segs, faces, (x[k], y[k], z, heading[k]),
+            _overlay(path, ex["lines"][k], size, segs, faces, (x[k], y[k], zs[k], heading[k]),
                      rival if rival is not None and np.isfinite(rival).all() else None,
                      f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg{doubt}",
                      second="the rival")
             out.append(path)
     return out
+
+
+def _answer_heights(loc: Any, z: float) -> np.ndarray:
+    """Each answer's camera height: the one found (``height_m``, where umap.grid.heights
+    searched several), else the grid's ``z``."""
+    return loc["height_m"][()] if "height_m" in loc else np.full(len(loc["x"]), z)
 
 
 def _overlay(path: Path, words: np.ndarray, size: tuple[int, int], segs: np.ndarray, faces: np.ndarray, pose: tuple,

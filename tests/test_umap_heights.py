@@ -41,13 +41,22 @@ def test_best_over_heights_by_hand():
     found[2] = _answers(5, (1.0, 1.0), 210.0, 0.58)
     got = best_over_heights(found, [0, 100, 200], distance_m=1.0, yaw_deg=30.0)
     assert got.rival.tolist() == [0.58] and got.rival_heading.tolist() == [210.0]
+    # a layer that did not search this panorama (height_layers) is never its answer, nor its rival
+    from placeloc.umap.panorama import scatter_answers, unsearched
+
+    skipped = scatter_answers(unsearched(2), np.array([1]), _answers(9, (5.0, 5.0), 0.0, 0.9))
+    assert skipped.score[0] == -np.inf and np.isnan(skipped.xy[0]).all() and skipped.best[1] == 9
+    first = _answers(4, (1.0, 1.0), 0.0, 0.5)
+    got = best_over_heights([PanoramaAnswers(*(np.concatenate([a, a]) for a in first)), skipped], [0, 50],
+                            distance_m=1.0, yaw_deg=30.0)
+    assert got.best.tolist() == [4, 59] and np.isnan(got.rival[0]) and got.rival[1] == 0.5
     # equal scores: the first layer's answer
     got = best_over_heights([_answers(1, (0, 0), 0, 0.5), _answers(2, (3, 3), 0, 0.5)], [0, 10], distance_m=1.0,
                             yaw_deg=30.0)
     assert got.best.tolist() == [1] and got.rival.tolist() == [0.5]
 
 
-def _photo_run(d, z_camera: float, grid: dict, truth_xy=(1.3, 2.2), heading=75.0):
+def _photo_run(d, z_camera: float, grid: dict, truth_xy=(1.3, 2.2), heading=75.0, panorama=None):
     """A grey panorama of the L-shaped room's lines seen from ``truth_xy`` at height
     ``z_camera`` and the run config over it with ``grid``."""
     import cv2
@@ -70,7 +79,7 @@ def _photo_run(d, z_camera: float, grid: dict, truth_xy=(1.3, 2.2), heading=75.0
                              "ground_truth": {"kind": "poses", "path": str(d / "poses.csv")},
                              "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
                                       "grid": {"x": [0.15, 6.0, 0.3], "y": [0.15, 7.0, 0.3], "headings": [0.0], **grid},
-                                      "panorama": {"orientation_bins": 1}},
+                                      "panorama": {"orientation_bins": 1, **(panorama or {})}},
                              "plots": False}, base_dir=d)
 
 
@@ -90,6 +99,13 @@ def test_a_photo_taken_lower_than_the_grid_is_found_at_its_own_height(tmp_path, 
         (runs[name],) = list(csv.DictReader(open(d / "run" / "estimates.csv")))
         said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("camera heights found")]
         assert said == (["camera heights found (umap.grid.heights): 1.10 m for 1 of 1"] if name == "three" else [])
+    # searched whole only in the layer whose grid table scores it best: the same answer
+    d = tmp_path / "best-layer"
+    run_stage(_photo_run(d, 1.1, {"z": 1.5, "heights": [1.1, 1.3, 1.5]}, panorama={"height_layers": 1}), d / "run",
+              "localize", quiet=True)
+    (best_layer,) = list(csv.DictReader(open(d / "run" / "estimates.csv")))
+    keys = ("x", "y", "heading_deg", "height_m", "score")
+    assert {k: best_layer[k] for k in keys} == {k: runs["three"][k] for k in keys}
     one, three = runs["one"], runs["three"]
     assert "height_m" not in one and three["height_m"] == "1.10"
     assert np.hypot(float(three["x"]) - 1.3, float(three["y"]) - 2.2) <= 0.05, three

@@ -957,7 +957,7 @@ def best_over_heights(found: Sequence[PanoramaAnswers], offsets: Sequence[int], 
     ``yaw_deg`` away (:func:`rival_pose`'s rule); the same place at another height is no
     rival."""
     score = np.stack([f.score for f in found])
-    pick = np.argmax(score, axis=0)
+    pick = np.argmax(score, axis=0)   # a layer that did not search a panorama holds -inf there (unsearched)
     n = score.shape[1]
     take = np.arange(n)
 
@@ -983,6 +983,25 @@ def best_over_heights(found: Sequence[PanoramaAnswers], offsets: Sequence[int], 
                 if np.isfinite(value) and apart(k, where, facing) and not value <= rival[k]:
                     rival[k], rival_xy[k], rival_heading[k] = value, where, facing
     return PanoramaAnswers(best, xy, heading, field("score"), rival, rival_xy, rival_heading, field("before_final"))
+
+
+def unsearched(n: int) -> PanoramaAnswers:
+    """The answers of a layer that searched none of ``n`` panoramas: no score (-inf, never
+    :func:`best_over_heights`' pick), no pose, no rival."""
+    nan = np.full(n, np.nan)
+    return PanoramaAnswers(np.zeros(n, np.int64), np.full((n, 2), np.nan), nan, np.full(n, -np.inf), nan,
+                           np.full((n, 2), np.nan), nan, nan)
+
+
+def scatter_answers(into: PanoramaAnswers, rows: np.ndarray, found: PanoramaAnswers) -> PanoramaAnswers:
+    """``into`` with the answers of panoramas ``rows`` replaced by ``found`` (searched for them only)."""
+    return PanoramaAnswers(*(_put(a, rows, b) for a, b in zip(into, found)))
+
+
+def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = a.copy()
+    out[rows] = b
+    return out
 
 
 # ------------------------------------------------------------------ local refinement
@@ -1325,6 +1344,42 @@ class RenderCache:
         return out
 
 
+def _query_side(lines: np.ndarray, pp: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int | None]:
+    """What every score of the queries ``lines`` takes (``pp``: the ``umap.panorama``
+    parameters): the queries (line pixels weighted down inside dense texture for the chamfer
+    score), the row weights, the precision half's rows (None: all) and the orientation
+    spread (None: one bin)."""
+    spread = int(pp.orientation_spread) if int(pp.orientation_bins) > 1 else None
+    chamfer = pp.score == "chamfer"
+    if spread is not None and not chamfer:
+        raise ValueError("orientation_bins > 1 needs the chamfer score")
+    h = lines.shape[-2]
+    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    queries = lines
+    if chamfer and pp.texture_radius_px > 0:
+        queries = (texture_weights(lines, pp.texture_radius_px) if spread is None
+                   else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
+    prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
+    return queries, weights, prows, spread
+
+
+def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarray:
+    """(N,) each query's best chamfer score over every grid position and yaw of ``spectra``
+    (the search's first step, :func:`chamfer_table`, without the local search): how well a
+    layer of the grid at one camera height explains each panorama, to choose the layers
+    worth searching whole (``umap.panorama.height_layers``)."""
+    queries, weights, prows, spread = _query_side(lines, pp)
+    out = np.full(len(lines), -np.inf)
+    with threadpool_limits(limits=usable_cores(), user_api="blas"):
+        for s in range(0, len(lines), PANORAMA_BATCH):
+            table = chamfer_table(spectra, queries[s:s + PANORAMA_BATCH], tau_px=pp.chamfer_tau_px, weights=weights,
+                                  chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share,
+                                  spread=spread)
+            if table.shape[1]:
+                out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
+    return out
+
+
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                      progress: Callable[[Iterable], Iterable] = lambda it: it) -> PanoramaAnswers:
@@ -1374,20 +1429,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     built with the same bins and ``orientation_spread``, and the local poses are rendered
     with their directions."""
     bins = int(pp.orientation_bins)
-    spread = int(pp.orientation_spread) if bins > 1 else None
     n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score, rival = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n), np.full(n, np.nan)
     rival_xy, rival_heading = np.full((n, 2), np.nan), np.full(n, np.nan)
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
     chamfer = pp.score == "chamfer"
-    if spread is not None and not chamfer:
-        raise ValueError("orientation_bins > 1 needs the chamfer score")
-    # the chamfer score's query side: line pixels weighted down inside dense texture
-    queries = lines
-    if chamfer and pp.texture_radius_px > 0:
-        queries = (texture_weights(lines, pp.texture_radius_px) if spread is None
-                   else lines * texture_weights(lines.max(axis=1), pp.texture_radius_px)[:, None])
-    prows = precision_rows(h, pp.precision_polar_deg) if pp.precision_polar_deg < 90.0 else None
+    queries, weights, prows, spread = _query_side(lines, pp)
 
     # candidates by a tolerant score (coarse_candidates), only its ranks used; the plain
     # halves only (a chance-corrected tolerant score is not derived: every candidate exact)

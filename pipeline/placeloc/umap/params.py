@@ -170,6 +170,9 @@ class PanoramaParams(Params):
                                                         "0.02 flags 5 % of the right answers of the default chamfer "
                                                         "score on generated homes, docs/umap.md; the IoU score's "
                                                         "margins are smaller: set your own)")
+    height_layers: int = param(0, min=0, help="with several umap.grid.heights (chamfer score): each panorama is "
+                                              "searched whole in only this many layers, those whose grid table "
+                                              "(every position and yaw) scores it best (0: every layer)")
 
 
 @dataclass(frozen=True)

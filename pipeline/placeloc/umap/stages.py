@@ -34,11 +34,14 @@ from placeloc.umap.panorama import (
     PanoramaAnswers,
     best_over_heights,
     chamfer_spectra,
+    grid_table_best,
     render_oriented_block,
     render_panorama_block,
     render_panoramas,
     row_weights,
+    scatter_answers,
     search_panoramas,
+    unsearched,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_panorama_overlay
@@ -329,16 +332,28 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
     # one after another), each searched alone, over its own rows of the mapped database
     starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
+    # the spectra hold positions on their second axis (frequency first), the rest on their first
+    layers = [{k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()} for lo, hi in bounds]
+    n = len(lines)
+    searched = np.ones((len(bounds), n), bool)   # [layer, panorama]: searched whole there
+    keep = int(pp.height_layers)
+    if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
+        # each panorama's best layers by the grid table alone (a fifth of a search's cost):
+        # the search off the grid, most of it, runs there only
+        table = np.stack([grid_table_best(lines, layer["spectra"], pp) for layer in layers])
+        order = np.argsort(-table, axis=0, kind="stable")[:keep]
+        searched[:] = False
+        searched[order, np.arange(n)[None, :]] = True
     found = []
-    for lo, hi in bounds:
+    for (lo, hi), layer, rows in zip(bounds, layers, searched):
+        ks = np.flatnonzero(rows)
         what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
-        # the spectra hold positions on their second axis (frequency first), the rest on their first
-        layer = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
-        found.append(search_panoramas(lines, poses[lo:hi], segments, faces, layer, pp,
-                                      tolerance_px=int(ctx.params.tolerance_px),
-                                      wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                                      hidden=bool(ctx.params.hidden_lines),
-                                      progress=lambda it, what=what: ctx.progress(it, total=len(lines), desc=what)))
+        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
+                                   tolerance_px=int(ctx.params.tolerance_px),
+                                   wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                                   hidden=bool(ctx.params.hidden_lines),
+                                   progress=lambda it, what=what, m=len(ks): ctx.progress(it, total=m, desc=what))
+        found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
     if len(found) == 1:
         return found[0]
     return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),

@@ -673,7 +673,7 @@ METHOD = Method(
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_final_radius_m",
                                           "panorama.refine_yaw_cols",
                                           "panorama.margin_distance_m", "panorama.margin_yaw_deg",
-                                          "panorama.doubtful_margin", "hidden_lines",
+                                          "panorama.doubtful_margin", "panorama.height_layers", "hidden_lines",
                                           "grid.wall_margin_m")
                           + LOCALIZE_CA_KEYS),
     },

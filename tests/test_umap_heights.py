@@ -108,6 +108,9 @@ def test_a_photo_taken_lower_than_the_grid_is_found_at_its_own_height(tmp_path, 
     assert {k: best_layer[k] for k in keys} == {k: runs["three"][k] for k in keys}
     one, three = runs["one"], runs["three"]
     assert "height_m" not in one and three["height_m"] == "1.10"
+    from placeloc.evaluation.report import answer_lines
+
+    assert ", height_m 1.10, doubtful " in answer_lines(tmp_path / "three" / "run")[0]   # what `placeloc run` prints
     assert np.hypot(float(three["x"]) - 1.3, float(three["y"]) - 2.2) <= 0.05, three
     assert float(three["score"]) > float(one["score"]) + 0.05, (one, three)
 

@@ -208,7 +208,9 @@ def test_sidecar_fingerprint_lists_the_files_beside_the_images_in_name_order(tmp
 
 def test_pr_legend_moves_right_when_every_curve_ends_early(tmp_path):
     """Curves that end before half the recall leave the right half empty: the legend goes
-    there, off their ends and the labels under them; a curve reaching further keeps it left."""
+    there, off their ends and the labels under them; a curve reaching further keeps it left,
+    unless curves lie in the lower left (low precision at low recall), which it would hide:
+    then it takes the lower right, which they leave free."""
     from PIL import Image
 
     from placeloc.evaluation.plots import plot_pr_curves
@@ -219,8 +221,10 @@ def test_pr_legend_moves_right_when_every_curve_ends_early(tmp_path):
         return "right" if frame[330:].sum() > frame[:330].sum() else "left"
 
     short = {"a": (np.array([0.1, 0.26]), np.array([0.4, 0.26])), "b": (np.array([0.05, 0.13]), np.array([0.2, 0.13]))}
+    far = {"c": (np.array([0.5, 0.9]), np.array([1.0, 0.8]))}
     assert legend_side(short) == "right"
-    assert legend_side({**short, "c": (np.array([0.5, 0.9]), np.array([1.0, 0.8]))}) == "left"
+    assert legend_side(far) == "left"
+    assert legend_side({**short, **far}) == "right"
 
 
 def test_pictures_drawn_on_threads_are_all_waited_for_and_the_first_error_raised():

@@ -63,7 +63,10 @@ def plot_pr_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path,
     # where each curve ends (every match accepted): visible even under a curve that goes further
     for x_end, y_end, colour, i in ends:
         ax.markers(np.array([x_end]), np.array([y_end]), colour, "|", 16 * PT, edge=2.5 * PT)
-        ax.text(x_end, y_end, f"{x_end:.3f}", 11, dy=(16 + 11 * i) * PT, fill=colour, anchor="md")
+        # under the end, or over it where under would cross the x axis (an end at low precision)
+        low = y_end < 0.15
+        ax.text(x_end, y_end, f"{x_end:.3f}", 11, dy=(-(10 + 11 * i) if low else (16 + 11 * i)) * PT, fill=colour,
+                anchor="md")
     # lower left, unless every curve ends before half the recall: then the right half is empty
     # and the lower left holds the curves' ends and their labels; the other corners where
     # that one would cover a curve (a curve falling to low precision at low recall)

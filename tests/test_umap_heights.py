@@ -122,6 +122,8 @@ def test_heights_are_for_panoramas_only(tmp_path):
     cfg = _photo_run(tmp_path / "p", 1.1, {"z": 1.5, "heights": [1.1, 1.5]})
     with pytest.raises(ConfigError, match=r"umap.grid.heights searches the camera height of whole panoramas"):
         load_config(data={**cfg, "umap": {**cfg["umap"], "query_kind": "pinhole"}}, base_dir=tmp_path / "p")
+    with pytest.raises(ConfigError, match=r"umap.grid.heights lists 1.3 more than once; give each height once"):
+        _photo_run(tmp_path / "d", 1.1, {"heights": [1.1, 1.3, 1.3]})
     cfg = _photo_run(tmp_path / "q", 1.1, {"heights": [1.1, 3.0]})
     with pytest.raises(ConfigError, match=r"umap.grid.heights: grid z 3.0 m lies outside the storey"):
         run_stage(cfg, tmp_path / "q" / "run", "build-dictionary", quiet=True)

@@ -72,9 +72,13 @@ def _check(config: dict[str, Any]) -> None:
     if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
         raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
                           "one by one: set umap.mode: umap for umap.query_kind: panorama")
-    if p["grid"]["heights"] and p["query_kind"] != "panorama":
+    heights = list(p["grid"]["heights"] or [])
+    if heights and p["query_kind"] != "panorama":
         raise ConfigError("umap.grid.heights searches the camera height of whole panoramas (umap.query_kind: panorama); "
                           "for pinhole images give the one height as umap.grid.z")
+    twice = sorted({h for h in heights if heights.count(h) > 1})
+    if twice:   # two layers at one height would be searched as one layer of every position twice
+        raise ConfigError(f"umap.grid.heights lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
     pp = p["panorama"]
     if p["query_kind"] == "panorama" and pp["orientation_bins"] > 1 and (pp["score"] != "chamfer"
                                                                          or pp["chamfer_chance"] != "none"):

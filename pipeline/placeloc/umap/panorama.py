@@ -1004,6 +1004,43 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
+                  database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
+                  progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it) -> PanoramaAnswers:
+    """:func:`search_panoramas` over a grid of one or more layers, one per camera height
+    (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
+    writes them): each layer searched alone over its own rows of ``database``, each
+    panorama's answer the best over them (:func:`best_over_heights`). With
+    ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
+    table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
+    total)`` wraps each layer's loop over its panoramas."""
+    starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
+    bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
+    # the spectra hold positions on their second axis (frequency first), the rest on their first
+    layers = [{k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()} for lo, hi in bounds]
+    n = len(lines)
+    searched = np.ones((len(bounds), n), bool)   # [layer, panorama]: searched whole there
+    keep = int(pp.height_layers)
+    if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
+        # each panorama's best layers by the grid table alone (a fifth of a search's cost):
+        # the search off the grid, most of it, runs there only
+        table = np.stack([grid_table_best(lines, layer["spectra"], pp) for layer in layers])
+        searched[:] = False
+        searched[np.argsort(-table, axis=0, kind="stable")[:keep], np.arange(n)[None, :]] = True
+    found = []
+    for (lo, hi), layer, rows in zip(bounds, layers, searched):
+        ks = np.flatnonzero(rows)
+        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
+        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
+                                   tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
+                                   progress=lambda it, what=what, m=len(ks): progress(it, what, m))
+        found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
+    if len(found) == 1:
+        return found[0]
+    return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),
+                             yaw_deg=float(pp.margin_yaw_deg))
+
+
 # ------------------------------------------------------------------ local refinement
 
 @njit(cache=True)

@@ -32,16 +32,12 @@ from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
     PanoramaAnswers,
-    best_over_heights,
     chamfer_spectra,
-    grid_table_best,
     render_oriented_block,
     render_panorama_block,
     render_panoramas,
     row_weights,
-    scatter_answers,
-    search_panoramas,
-    unsearched,
+    search_layers,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_panorama_overlay
@@ -331,37 +327,10 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
         database = {"spectra": read_mapped(idx["spectra"])}  # about 1 GB: mapped, not copied
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
-    poses, segments, faces = idx["poses"][()], src["segments"][()], src["faces"][()]
-    # the grid's layers, one per camera height (umap.grid.heights; build-dictionary wrote them
-    # one after another), each searched alone, over its own rows of the mapped database
-    starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
-    bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
-    # the spectra hold positions on their second axis (frequency first), the rest on their first
-    layers = [{k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()} for lo, hi in bounds]
-    n = len(lines)
-    searched = np.ones((len(bounds), n), bool)   # [layer, panorama]: searched whole there
-    keep = int(pp.height_layers)
-    if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
-        # each panorama's best layers by the grid table alone (a fifth of a search's cost):
-        # the search off the grid, most of it, runs there only
-        table = np.stack([grid_table_best(lines, layer["spectra"], pp) for layer in layers])
-        order = np.argsort(-table, axis=0, kind="stable")[:keep]
-        searched[:] = False
-        searched[order, np.arange(n)[None, :]] = True
-    found = []
-    for (lo, hi), layer, rows in zip(bounds, layers, searched):
-        ks = np.flatnonzero(rows)
-        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
-        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
-                                   tolerance_px=int(ctx.params.tolerance_px),
-                                   wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                                   hidden=bool(ctx.params.hidden_lines),
-                                   progress=lambda it, what=what, m=len(ks): ctx.progress(it, total=m, desc=what))
-        found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
-    if len(found) == 1:
-        return found[0]
-    return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),
-                             yaw_deg=float(pp.margin_yaw_deg))
+    return search_layers(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
+                         tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                         hidden=bool(ctx.params.hidden_lines),
+                         progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc))
 
 
 def localize(ctx: Any) -> None:

@@ -550,7 +550,8 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
             true_pose = (*gt.xy[rows[k]], tz, np.degrees(gt.heading[rows[k]]))
         _overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), ex["lines"][k], (h, w), segs, faces,
                  (loc["x"][k], loc["y"][k], zs[k], est_h[k]), true_pose,
-                 f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_doubt_note(loc, k)}")
+                 f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_height_note(loc, k)}"
+                 f"{_doubt_note(loc, k)}")
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
@@ -580,10 +581,16 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
             path = out_dir / f"panorama_{Path(names[k]).stem}.png"
             _overlay(path, ex["lines"][k], size, segs, faces, (x[k], y[k], zs[k], heading[k]),
                      rival if rival is not None and np.isfinite(rival).all() else None,
-                     f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg{doubt}",
+                     f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg"
+                     f"{_height_note(loc, k)}{doubt}",
                      second="the rival")
             out.append(path)
     return out
+
+
+def _height_note(loc: Any, k: int) -> str:
+    """", camera 1.10 m up" where the height was searched (umap.grid.heights), else ""."""
+    return f", camera {float(loc['height_m'][k]):.2f} m up" if "height_m" in loc else ""
 
 
 def _answer_heights(loc: Any, z: float) -> np.ndarray:

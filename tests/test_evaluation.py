@@ -266,3 +266,24 @@ def test_queries_the_ground_truth_leaves_out_are_counted_and_said(route, tmp_pat
     said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ground truth:")]
     assert said == [f"ground truth: 41 of 81 queries have no true match in {tmp_path / 'half.csv'}; their matches count "
                     "as wrong in auc_pr and recall_at_100_precision, and recall_at_N_with_positive leaves them out"]
+
+
+def test_a_confidence_of_zero_is_labelled_with_what_it_means(route, tmp_path):
+    """SeqSLAM's confidence is 0 where no second candidate lies enhance_window + 1 frames or
+    more from the best (the first frames a loop may close): its result says so, and the
+    strips print it beside such a match (a label that widens its cell), not a bare "conf 0"."""
+    from PIL import Image
+
+    from placeloc.evaluation.show import Row, draw_strip_figure, zero_confidence_note
+
+    run = tmp_path / "run"
+    run_stage(load_config(route / "config.yaml", ["plots=false", "seqslam.enhance_window=7"]), run, "localize", quiet=True)
+    note = zero_confidence_note(run)
+    assert note == "no rival 8+ frames away"
+    names = {"frame3.png": route / "reference" / "frame3.png", "frame40.png": route / "query" / "frame40.png"}
+    widths = []
+    for conf in (0.0, 0.25):
+        path = draw_strip_figure([Row("frame40.png", "frame3.png", conf, None, "")], [0], names, names,
+                                 tmp_path / f"s{conf}.png", "t", note)
+        widths.append(Image.open(path).size[0])
+    assert widths[0] > widths[1] + 50   # "conf 0 (no rival 8+ frames away)" against "conf 0.25"

@@ -84,11 +84,13 @@ MATRIX_NAMES = ("truth", "gt", "GT", "GThard", "gt_hard", "ground_truth")
 
 
 def write(ctx: Any, *, frames: Any, match: np.ndarray, confidence: np.ndarray, threshold: float | None,
-          seconds: np.ndarray | None = None, map_size: np.ndarray | None = None) -> None:
+          seconds: np.ndarray | None = None, map_size: np.ndarray | None = None,
+          zero_confidence: str | None = None) -> None:
     """Write the contract into ``ctx.out/result``. ``frames`` is the traverse's group of the
     extract artifact (``index`` and ``names`` as the engine wrote them); ``match`` holds
     LOCAL rows (the earlier frame's row in the traverse's arrays; -1 = none), one per row:
-    the contract stores original indices, with the names."""
+    the contract stores original indices, with the names. ``zero_confidence``: what a
+    confidence of exactly 0 means for the method (the strips print it beside such a match)."""
     from placeloc.core.artifacts import read_strings
     from placeloc.core.imagework import local_to_original
 
@@ -99,6 +101,8 @@ def write(ctx: Any, *, frames: Any, match: np.ndarray, confidence: np.ndarray, t
     attrs: dict[str, Any] = {"n_listed": n_listed}
     if threshold is not None:
         attrs["threshold"] = float(threshold)
+    if zero_confidence:
+        attrs["zero_confidence"] = str(zero_confidence)
     write_result(ctx.out, "loops", {
         "frame_index": np.asarray(frame_index, np.int64), "frame_names": list(frame_names),
         "match": np.asarray(match, np.int64), "confidence": np.asarray(confidence, np.float32),
@@ -386,7 +390,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     closures spread over the traverse (and the most confident wrong ones); from the
     evaluation ``ev`` when evaluate draws them, else from per_query.csv or the result;
     the image folders from ``config`` (the evaluate stage's), else the run's artifacts."""
-    from placeloc.evaluation.show import draw_strips, read_rows
+    from placeloc.evaluation.show import draw_strips, read_rows, zero_confidence_note
 
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
@@ -402,7 +406,7 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
             rows = [r for r in rows if r.confidence >= float(threshold)]
     # "loop closures" also tells draw_strips that the matched frames are in the same traverse
     return draw_strips(run_dir, sample=sample, failures=failures, rows=rows, what="loop closures", out_dir=out_dir,
-                       config=config)
+                       config=config, zero_note=zero_confidence_note(run_dir, ev.result if ev is not None else res))
 
 
 def strip_rows(ev: LoopEvaluation) -> list[Any]:

@@ -64,13 +64,15 @@ METRICS_DOC = {
 
 def write(ctx: Any, *, reference: Any, query: Any, candidates: np.ndarray, scores: np.ndarray, confidence: np.ndarray,
           higher_is_better: bool, separation: int = 0, plain_candidates: np.ndarray | None = None,
-          plain_scores: np.ndarray | None = None) -> None:
+          plain_scores: np.ndarray | None = None, zero_confidence: str | None = None) -> None:
     """Write the contract into ``ctx.out/result`` and ``matches.csv`` (one row per query:
     its best reference). ``reference`` and ``query`` are the traverses' groups of the
     extract artifact (``index`` and ``names`` as the engine wrote them); ``candidates`` and
     ``plain_candidates`` hold LOCAL reference rows (row ``i`` of the reference's arrays;
     -1 = none), one row per query row: the contract stores them as original indices, with
-    the names, so images skipped with ``on_error: skip`` never shift an answer."""
+    the names, so images skipped with ``on_error: skip`` never shift an answer.
+    ``zero_confidence``: what a confidence of exactly 0 means for the method, where it means
+    more than "as unsure as can be" (the strips print it beside such a match)."""
     from placeloc.core.artifacts import read_strings
     from placeloc.core.imagework import local_to_original
 
@@ -87,6 +89,7 @@ def write(ctx: Any, *, reference: Any, query: Any, candidates: np.ndarray, score
         "plain_candidates": None if plain_candidates is None else np.asarray(plain_candidates, np.int64),
         "plain_scores": None if plain_scores is None else np.asarray(plain_scores, np.float32)},
         attrs={"higher_is_better": bool(higher_is_better), "separation": int(separation),
+               **({"zero_confidence": str(zero_confidence)} if zero_confidence else {}),
                "n_reference_listed": int(ctx_listed(ctx, "reference", reference_index)),
                "n_query_listed": int(ctx_listed(ctx, "query", query_index))})
     write_matches_csv(ctx.output("matches.csv"), np.asarray(candidates)[:, 0], np.asarray(confidence),
@@ -241,10 +244,11 @@ def show(run_dir: Path, res: Result | None = None, *, sample: int = 8, failures:
     draws them, else from per_query.csv, else from the result), written into ``out_dir``
     (default ``run_dir``); the image folders from ``config`` (the evaluate stage's), else
     the run's artifacts."""
-    from placeloc.evaluation.show import draw_strips
+    from placeloc.evaluation.show import draw_strips, zero_confidence_note
 
     return draw_strips(run_dir, sample=sample, failures=failures, out_dir=out_dir,
-                       rows=None if ev is None else strip_rows(ev), config=config)
+                       rows=None if ev is None else strip_rows(ev), config=config,
+                       zero_note=zero_confidence_note(run_dir, ev.result if ev is not None else res))
 
 
 def strip_rows(ev: RankedEvaluation) -> list[Any]:

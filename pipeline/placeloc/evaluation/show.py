@@ -196,8 +196,19 @@ def pick_failures(rows: list[Row], count: int) -> list[int]:
 PANEL_HEIGHT_PX = 110
 
 
+def zero_confidence_note(run_dir: Path, res: Any = None) -> str | None:
+    """What a confidence of exactly 0 means for the run's method (the result's
+    ``zero_confidence``; SeqSLAM: no rival outside the enhancement window), or None."""
+    if res is None:
+        from placeloc.evaluation.contracts import localize_result
+
+        res = localize_result(Path(run_dir))
+    note = res.attrs.get("zero_confidence") if res is not None else None
+    return str(note) if note else None
+
+
 def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path], query: Mapping[str, Path], path: Path,
-                      title: str) -> Path | None:
+                      title: str, zero_note: str | None = None) -> Path | None:
     """One row per picked query: query | best match | a true positive, the match framed
     green (right), red (wrong) or grey (no ground truth).
 
@@ -221,7 +232,9 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path]
         shape = q_img.shape[:2]
         panels = [(q_img, f"query {r.query_image}", "black"),
                   (_read(ref.get(r.best_image) if r.best_image else None, shape),
-                   f"best {r.best_image}  conf {r.confidence:.3g}" if r.best_image else "best: none (no full sequence)",
+                   (f"best {r.best_image}  conf {r.confidence:.3g}" + (f" ({zero_note})" if zero_note and r.confidence == 0
+                                                                       else ""))
+                   if r.best_image else "best: none (no full sequence)",
                    "grey" if r.correct is None else ("limegreen" if r.correct else "red"))]
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),
@@ -272,7 +285,7 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path]
 
 def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows: list[Row] | None = None,
                 what: str = "best matches", out_dir: str | Path | None = None,
-                config: Mapping[str, Any] | None = None) -> list[Path]:
+                config: Mapping[str, Any] | None = None, zero_note: str | None = None) -> list[Path]:
     """Write the sample strips (and, with ground truth, the worst failures); return paths.
 
     ``out_dir`` (a stage's ``ctx.output_dir``): where the figures go, and where this stage's
@@ -290,13 +303,14 @@ def draw_strips(run_dir: str | Path, *, sample: int = 8, failures: int = 8, rows
     n_right = sum(1 for r in rows if r.correct)
     verdict = f"{n_right} of {len(rows)} {what} right" if with_gt else f"no ground truth: {what} not judged"
     p = draw_strip_figure(rows, picks, ref, query, out_dir / SAMPLE_PNG,
-                          f"{len(picks)} {what} spread over the traverse ({verdict})")
+                          f"{len(picks)} {what} spread over the traverse ({verdict})", zero_note)
     if p:
         out.append(p)
     fail = pick_failures(rows, failures)
     stale = out_dir / FAILURES_PNG
     if fail:
-        p = draw_strip_figure(rows, fail, ref, query, stale, f"worst failures: the {len(fail)} most confident wrong {what}")
+        p = draw_strip_figure(rows, fail, ref, query, stale, f"worst failures: the {len(fail)} most confident wrong {what}",
+                              zero_note)
         if p:
             out.append(p)
     elif stale.exists():

@@ -180,8 +180,12 @@ def localize(ctx: Any) -> None:
     out.create_dataset("single_confidence", data=m.single_confidence)
     out.attrs["loop_closure"] = loop_closure
     out.attrs["velocities"] = m.velocities
+    # the confidence compares the best score with the best one window + 1 frames or more from
+    # it (search.confidence): 0 where there is none (the first frames a loop may close)
+    no_rival = f"no rival {int(p.enhance_window) + 1}+ frames away"
     if loop_closure:
-        loops.write(ctx, frames=ex["reference"], match=m.candidates[:, 0], confidence=m.confidence, threshold=None)
+        loops.write(ctx, frames=ex["reference"], match=m.candidates[:, 0], confidence=m.confidence, threshold=None,
+                    zero_confidence=no_rival)
         return
     from placeloc.evaluation import ranked
 
@@ -190,7 +194,7 @@ def localize(ctx: Any) -> None:
     ranked.write(ctx, reference=ex["reference"], query=ex["query"], candidates=m.candidates, scores=m.scores,
                  confidence=m.confidence, higher_is_better=False, separation=int(p.enhance_window) + 1,
                  plain_candidates=plain_candidates,
-                 plain_scores=np.where(np.isfinite(plain_scores), plain_scores, np.nan))
+                 plain_scores=np.where(np.isfinite(plain_scores), plain_scores, np.nan), zero_confidence=no_rival)
 
 
 # ---------------------------------------------------------------------------------------

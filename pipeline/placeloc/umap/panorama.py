@@ -1030,6 +1030,9 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
     found = []
     for (lo, hi), layer, rows in zip(bounds, layers, searched):
         ks = np.flatnonzero(rows)
+        if not len(ks):   # no panorama's best layers by the table
+            found.append(unsearched(n))
+            continue
         what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
         answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,

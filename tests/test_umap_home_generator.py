@@ -269,3 +269,26 @@ def test_panoramas_outside_the_kitchen_change_only_through_its_door(tmp_path):
     # byte-identical and bedroom 3's camera sees them through its door and the kitchen's
     assert changed["kitchen"] == 3 and same["kitchen"] == 0
     assert same["elsewhere"] == 4 and changed["elsewhere"] == 1
+
+
+def test_cameras_held_by_hand_each_stand_at_their_own_height(tmp_path):
+    # z_spread 0.25 around 1.45 m: the cameras' heights spread over 1.2-1.7 m (a phone held
+    # by hand) while the plan keeps camera_z 1.45; the default 0.03 is a tripod's, and the same
+    # random draws scaled: the plan, the positions and the headings are the same in both
+    import csv
+
+    import yaml
+
+    from placeloc.synth.home import generate
+
+    kw = {"seed": 3, "panoramas": 8, "width": 128, "stats_width": 64, "z": 1.45}
+    generate(tmp_path / "tripod", **kw)
+    generate(tmp_path / "phone", z_spread=0.25, **kw)
+    rows = {k: list(csv.DictReader(open(tmp_path / k / "poses.csv"))) for k in ("tripod", "phone")}
+    tz, pz = (np.array([float(r["z"]) for r in rows[k]]) for k in ("tripod", "phone"))
+    assert np.all(np.abs(tz - 1.45) <= 0.03) and np.all(np.abs(pz - 1.45) <= 0.25) and np.ptp(pz) > 0.2
+    assert np.allclose((pz - 1.45) / 0.25, (tz - 1.45) / 0.03, atol=0.005)   # poses.csv keeps 4 decimals
+    for a, b in zip(*rows.values()):
+        assert (a["frame"], a["x"], a["y"], a["heading_deg"]) == (b["frame"], b["x"], b["y"], b["heading_deg"])
+    for k in ("tripod", "phone"):
+        assert yaml.safe_load((tmp_path / k / "floor_plan.yaml").read_text())["camera_z"] == 1.45

@@ -659,7 +659,7 @@ def room_name(fp: dict[str, Any], x: float, y: float) -> str:
 def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
              noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
              near_wall_share: float = 0.1, cabinet_share: float = 0.05, kitchen_things: bool = True,
-             **unknown: Any) -> dict[str, Any]:
+             z_spread: float = 0.03, **unknown: Any) -> dict[str, Any]:
     """Write the home, its panoramas, their ground truth and the line statistics under
     ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
     32 cameras within 0.12 m of a door's lintel face), ``near_wall_share`` 0.4-0.6 m from a
@@ -668,10 +668,12 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     generator of their own, so that the other panoramas are those of a home without them);
     ``kitchen_things``: the counters hold appliances, a sink under a window, a dish rack and
     handles on the doors (:func:`_kitchen_things`, from a generator of their own: the poses and
-    the rooms outside the kitchen are those of the home without them)."""
+    the rooms outside the kitchen are those of the home without them). Each camera stands at
+    ``z`` +- ``z_spread`` m (uniform; 0.03: a tripod's; 0.25 around 1.45: photos taken with a
+    phone held by hand, each at its own height), the plan's ``camera_z`` at ``z``."""
     if unknown:
-        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, noise, blur, "
-                        "stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
+        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, noise, "
+                        "blur, stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -705,7 +707,7 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
         w.writerow(["frame", "x", "y", "z", "heading_deg"])
         for i, (x, y) in enumerate(cand):
             heading = float(rng.uniform(0, 360))
-            zz = z + float(rng.uniform(-0.03, 0.03))
+            zz = z + float(rng.uniform(-z_spread, z_spread))
             img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
             # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
             img[int(height * (90 + 78) / 180):] *= 0.45

@@ -187,3 +187,21 @@ def test_the_terminal_shows_the_first_answers_of_a_run_not_evaluated(tmp_path):
     (other / "matches.csv").write_text("query,reference,confidence,query_image,reference_image\n0,,,q0.png,\n")
     assert answer_lines(other) == ["(none of the first 1 queries has an answer)"]
     assert answer_lines(tmp_path / "nowhere") == []
+
+
+def test_the_ground_truth_line_names_only_what_the_contract_reads(tmp_path):
+    """A UMap run's truth is a poses file scored within 1 m and 30 deg: the config's radius
+    (25 m by default, read by ranked matches) is not shown beside it, where it read as if
+    answers within 25 m counted; loop closures show the pairs they never count."""
+    import json
+
+    from placeloc.evaluation.report import write_report
+
+    (tmp_path / "metrics.json").write_text(json.dumps({"within_1m_30deg": 1.0}))
+    gt = {"kind": "poses", "path": "poses.csv", "radius": 25.0, "exclude_recent": 50}
+    poses = write_report(tmp_path, config={"method": "umap", "ground_truth": gt}, result_kind="poses").read_text()
+    assert "<td class=''>kind=poses, path=poses.csv</td>" in poses
+    loops = write_report(tmp_path, config={"method": "pirf", "ground_truth": gt}, result_kind="loops").read_text()
+    assert "<td class=''>kind=poses, path=poses.csv, radius=25.0, exclude_recent=50</td>" in loops
+    ranked = write_report(tmp_path, config={"method": "seqslam", "ground_truth": gt}, result_kind="ranked").read_text()
+    assert "<td class=''>kind=poses, path=poses.csv, radius=25.0</td>" in ranked

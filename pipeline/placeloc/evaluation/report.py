@@ -300,8 +300,13 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
     if gt.get("kind", "none") == "none" and isinstance(own_truth, str) and own_truth:
         summary.append(("ground truth", own_truth))
     else:
+        keys = used.get(gt.get("kind", "none"), ())
+        if result_kind == "poses":   # pose estimates are scored within 1 m and 30 deg: the radius is not read
+            keys = tuple(k for k in keys if k != "radius")
+        elif result_kind == "loops" and "exclude_recent" not in keys:
+            keys = (*keys, "exclude_recent")
         summary.append(("ground truth", ", ".join([f"kind={gt.get('kind', 'none')}"] + [
-            f"{k}={gt[k]}" for k in used.get(gt.get("kind", "none"), ()) if gt.get(k) is not None])))
+            f"{k}={gt[k]}" for k in keys if gt.get(k) is not None])))
     params = ""
     if isinstance(cfg.get(method), dict):
         # a value the method chose at run time (co-embedding's alpha by alpha_select) beside the config's,

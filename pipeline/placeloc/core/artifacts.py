@@ -346,54 +346,54 @@ def read_stamp(path: Path) -> str | None:
     what placeloc writes: a symbolic link (placeloc renames its artifacts into place, so a
     link was put there by someone else), or a file with data stored in other files. Such an
     artifact is never up to date: its stage re-runs and replaces it."""
-    from placeloc.core.safe_io import UnsafeInputError, foreign_storage
-
-    if path.is_symlink() or not path.is_file():
-        return None
-    try:
-        with h5py.File(path, "r") as f:
-            if foreign_storage(f):
-                return None
-            stamp = f.attrs.get("stamp")
-    except (OSError, UnsafeInputError):
-        return None
-    return str(stamp) if stamp is not None else None
+    return stamp_and_reason(path)[0]
 
 
 def unusable_reason(path: Path) -> str | None:
     """Why an artifact that is there has no stamp :func:`read_stamp` accepts, in a few words
-    (None where it is missing): what the log says before its stage runs again, so that a
-    stage re-running unasked (an hour of extract, say) is never a mystery."""
+    (None where it is missing or usable)."""
+    return stamp_and_reason(path)[1]
+
+
+def stamp_and_reason(path: Path) -> tuple[str | None, str | None]:
+    """(the stamp of a usable artifact, None) or (None, why it cannot be used, in a few
+    words; None where it is missing): one look at the file for both, so that the runner
+    says why a stage that was there runs again (an hour of extract, say) without opening
+    the file twice. The rules are :func:`read_stamp`'s."""
     from placeloc.core.safe_io import UnsafeInputError, foreign_storage
 
     if path.is_symlink():
-        return "a symbolic link, which placeloc never writes"
+        return None, "a symbolic link, which placeloc never writes"
     if not path.exists():
-        return None
+        return None, None
     if not path.is_file():
-        return "not a regular file"
+        return None, "not a regular file"
     try:
         with h5py.File(path, "r") as f:
             if foreign_storage(f):
-                return "its data are stored in other files"
-            if f.attrs.get("stamp") is None:
-                return "it has no placeloc stamp"
+                return None, "its data are stored in other files"
+            stamp = f.attrs.get("stamp")
     except UnsafeInputError as exc:
-        return str(exc)
+        return None, str(exc)
     except OSError as exc:
-        import re
+        return None, _unreadable_h5(exc)
+    return (str(stamp), None) if stamp is not None else (None, "it has no placeloc stamp")
 
-        text = " ".join(str(exc).split())
-        if "truncated file" in text:  # h5py: "... eof = 3000, sblock->base_addr = 0, stored_eof = 1679552"
-            eof, stored = re.search(r"\beof = (\d+)", text), re.search(r"stored_eof = (\d+)", text)
-            if eof and stored:
-                return (f"truncated, {int(eof.group(1)):,} of its {int(stored.group(1)):,} bytes (a copy that did not "
-                        "finish, or a full disk)")
-            return "truncated (a copy that did not finish, or a full disk)"
-        # h5py: "Unable to synchronously open file (file signature not found)": the part in brackets
-        inner = re.search(r"\(([^()]*)\)\s*$", text)
-        return f"not a readable HDF5 file: {(inner.group(1) if inner else text)[:160]}"
-    return None
+
+def _unreadable_h5(exc: OSError) -> str:
+    """h5py's OSError on opening a file, in words: a truncated file with its byte counts."""
+    import re
+
+    text = " ".join(str(exc).split())
+    if "truncated file" in text:  # h5py: "... eof = 3000, sblock->base_addr = 0, stored_eof = 1679552"
+        eof, stored = re.search(r"\beof = (\d+)", text), re.search(r"stored_eof = (\d+)", text)
+        if eof and stored:
+            return (f"truncated, {int(eof.group(1)):,} of its {int(stored.group(1)):,} bytes (a copy that did not "
+                    "finish, or a full disk)")
+        return "truncated (a copy that did not finish, or a full disk)"
+    # h5py: "Unable to synchronously open file (file signature not found)": the part in brackets
+    inner = re.search(r"\(([^()]*)\)\s*$", text)
+    return f"not a readable HDF5 file: {(inner.group(1) if inner else text)[:160]}"
 
 
 def write_tree(group: h5py.Group, data: dict[str, Any], compress_over: int = 1 << 16) -> None:

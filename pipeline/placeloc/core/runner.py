@@ -34,8 +34,8 @@ from placeloc.core.artifacts import (
     read_stamp,
     read_write_id,
     remove_stale_tmp,
+    stamp_and_reason,
     tmp_path_for,
-    unusable_reason,
 )
 from placeloc.core.common_params import CommonParams
 from placeloc.core.config import MAX_CONFIG_BYTES, config_hash, to_yaml
@@ -283,12 +283,12 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
             inputs = stage_inputs(config, method, name, images, parent_stamp)
             stamp = config_hash({"version": __version__, "stage": name, "inputs": inputs})
             forced = force_all or (force and name == stage)
-            found = read_stamp(path)
+            found, why = stamp_and_reason(path)
             if found == stamp and side_outputs_intact(path) and not forced:
                 log.info("%s: up to date (%s), skipped", name, path)
                 parent_stamp = _parent_token(stamp, path)
                 continue
-            if found is None and (why := unusable_reason(path)) is not None:
+            if why is not None:
                 log.warning("%s: %s cannot be used: %s; the stage runs again", name, path, why)
             if reuse and not forced:
                 _remove_previous_outputs(path, stamp)

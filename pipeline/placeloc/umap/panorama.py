@@ -1403,6 +1403,16 @@ def _query_side(lines: np.ndarray, pp: Any) -> tuple[np.ndarray, np.ndarray, np.
     return queries, weights, prows, spread
 
 
+def _search_table(spectra: np.ndarray, queries: np.ndarray, weights: np.ndarray, prows: np.ndarray | None,
+                  spread: int | None, pp: Any) -> np.ndarray:
+    """The search's first step for a batch of queries (:func:`_query_side`'s): every grid
+    position and yaw of ``spectra`` by the chamfer score with ``pp``'s settings
+    (:func:`chamfer_table`), one home for both :func:`search_panoramas` and
+    :func:`grid_table_best`, which must score alike."""
+    return chamfer_table(spectra, queries, tau_px=pp.chamfer_tau_px, weights=weights, chance=pp.chamfer_chance,
+                         precision_rows=prows, clutter_share=pp.clutter_share, spread=spread)
+
+
 def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarray:
     """(N,) each query's best chamfer score over every grid position and yaw of ``spectra``
     (the search's first step, :func:`chamfer_table`, without the local search): how well a
@@ -1412,9 +1422,7 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarr
     out = np.full(len(lines), -np.inf)
     with threadpool_limits(limits=usable_cores(), user_api="blas"):
         for s in range(0, len(lines), PANORAMA_BATCH):
-            table = chamfer_table(spectra, queries[s:s + PANORAMA_BATCH], tau_px=pp.chamfer_tau_px, weights=weights,
-                                  chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share,
-                                  spread=spread)
+            table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp)
             if table.shape[1]:
                 out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
     return out
@@ -1486,9 +1494,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
-            return chamfer_table(database["spectra"], queries[ks], tau_px=pp.chamfer_tau_px, weights=weights,
-                                 chance=pp.chamfer_chance, precision_rows=prows, clutter_share=pp.clutter_share,
-                                 spread=spread)
+            return _search_table(database["spectra"], queries[ks], weights, prows, spread, pp)
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     z = float(poses[0, 2]) if len(poses) else 0.0

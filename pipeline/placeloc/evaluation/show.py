@@ -230,11 +230,13 @@ def draw_strip_figure(rows: list[Row], picks: list[int], ref: Mapping[str, Path]
         r = rows[i]
         q_img = _read(query.get(r.query_image), (48, 96))
         shape = q_img.shape[:2]
+        best = "best: none (no full sequence)"
+        if r.best_image:
+            best = f"best {r.best_image}  conf {r.confidence:.3g}"
+            if zero_note and r.confidence == 0:
+                best += f" ({zero_note})"
         panels = [(q_img, f"query {r.query_image}", "black"),
-                  (_read(ref.get(r.best_image) if r.best_image else None, shape),
-                   (f"best {r.best_image}  conf {r.confidence:.3g}" + (f" ({zero_note})" if zero_note and r.confidence == 0
-                                                                       else ""))
-                   if r.best_image else "best: none (no full sequence)",
+                  (_read(ref.get(r.best_image) if r.best_image else None, shape), best,
                    "grey" if r.correct is None else ("limegreen" if r.correct else "red"))]
         if with_gt:
             panels.append((_read(ref.get(r.positive_image) if r.positive_image else None, shape),

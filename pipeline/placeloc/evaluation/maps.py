@@ -242,11 +242,11 @@ def plot_map(path: Path, est: np.ndarray, truth: np.ndarray, landmarks: np.ndarr
     near = _extent(np.vstack([est[:, [ax0, ax1]], truth[:, [ax0, ax1]]]))
     close = near is not None and whole is not None and bool(
         np.all((near[1] - near[0]) < CLOSE_UP_SHARE * np.maximum(whole[1] - whole[0], 1e-12)))
-    c, _ = _map_chart(est, truth, landmarks, path_est, path_truth, title, units, whole,
+    c = _map_chart(est, truth, landmarks, path_est, path_truth, title, units, whole,
                       frame=_padded(*near) if close else None)
     if not close:
         return c.save(path)
-    zoom, _ = _map_chart(est, truth, landmarks, path_est, path_truth,
+    zoom = _map_chart(est, truth, landmarks, path_est, path_truth,
                          f"the {len(est)} unknown features close up\n(the grey frame on the left)", units, near)
     left, right = np.asarray(c.result()), np.asarray(zoom.result())
     page = R.Canvas(left.shape[1] + right.shape[1], max(left.shape[0], right.shape[0]), ss=1)
@@ -268,7 +268,7 @@ def _padded(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _map_chart(est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_est: np.ndarray | None,
                path_truth: np.ndarray | None, title: str, units: str,
                extent: tuple[np.ndarray, np.ndarray] | None,
-               frame: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Any, Any]:
+               frame: tuple[np.ndarray, np.ndarray] | None = None) -> Any:
     """One chart of :func:`plot_map` over ``extent`` (lo, hi of the two drawn axes; what
     lies outside is left out), with ``frame`` (lo, hi) outlined in grey: the close-up's region."""
     from placeloc.evaluation import raster as R
@@ -313,4 +313,4 @@ def _map_chart(est: np.ndarray, truth: np.ndarray, landmarks: np.ndarray, path_e
         ax.line(np.array([x0, x1, x1, x0, x0]), np.array([y0, y0, y1, y1, y0]), (150, 150, 150), 1.2)
     ax.box()
     R.legend_below(c, ax, rows)
-    return c, ax
+    return c

@@ -434,11 +434,131 @@ def _world_vertical(seg: np.ndarray, pitch_deg: float, face_px: int) -> bool:
     return abs(dx * (c - y0) - dy * (c - x0)) / max(math.hypot(dx, dy), 1e-9) <= 0.05 * face_px
 
 
+def directions(az: np.ndarray, el: np.ndarray) -> np.ndarray:
+    """(..., 3) unit vectors of azimuths and elevations (radians): x at azimuth 0, y at 90
+    degrees, z the zenith; the frame :func:`upright_rotation` turns."""
+    c = np.cos(el)
+    return np.stack([c * np.cos(az), c * np.sin(az), np.sin(el)], axis=-1)
+
+
+def _turned(az: np.ndarray, el: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d = directions(az, el) @ rotation.T
+    return np.arctan2(d[..., 1], d[..., 0]), np.arcsin(np.clip(d[..., 2], -1.0, 1.0))
+
+
+# Levelling (:func:`upright_rotation`). The great circles of a panorama's world-vertical lines
+# all pass through its zenith. A floor or ceiling line passes near it only where it runs near
+# the camera's foot, and a family of such lines (planks, a hall runner) passes it at several
+# offsets, not through one point, so the zenith is the point most lines pass near (a vote
+# over candidate points, coarse then fine: LEVEL_VOTES), then the least-squares point of the
+# lines within LEVEL_BAND_DEG of it. A least-squares fit over a wider band was pulled
+# 4.8 degrees off by a plank floor under a level camera (a generated home's hallway).
+LEVEL_BAND_DEG = 1.0
+LEVEL_VOTES = ((1.0, 2.0), (0.25, 1.0))   # (step, band) in degrees: coarse over the whole reach, then fine
+LEVEL_MIN_LINES = 4          # fewest lines through the zenith found to level by
+LEVEL_MIN_SPREAD = 0.05      # least ratio of their normals' scatter, narrowest to widest direction
+# Tilts below this are left as they are: on the 60 level panoramas of the development homes
+# the tilt found scatters up to 0.29 deg (median 0.07), and turning a level panorama by its
+# own noise changes nothing but which of two near-tied places a search ends on.
+LEVEL_MIN_DEG = 0.5
+
+
+def segment_normals(faces: list[np.ndarray], face_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals of the great circles of the four side faces' segments (``faces`` as
+    :func:`panorama_lines` gives them) and the angle each segment spans (radians), in the
+    frame of :func:`directions`; segments spanning less than 0.5 degrees are dropped (their
+    normal is noise). The up and down faces are left out: they hold what lies over and
+    under the camera (a ceiling fan's blades, a lamp, rugs, sunlight stripes, the tripod),
+    whose lines radiate from points near the poles, and world-vertical lines cross the side
+    faces."""
+    cam = Camera(face_px, face_px, 90.0)
+    ends = []
+    for (hd, pitch), segs in zip(CUBE_FACES, faces):
+        if len(segs) and pitch == 0.0:
+            az0, el0 = _face_rays(segs[:, 0], segs[:, 1], cam, hd, pitch)
+            az1, el1 = _face_rays(segs[:, 2], segs[:, 3], cam, hd, pitch)
+            ends.append((directions(az0, el0), directions(az1, el1)))
+    if not ends:
+        return np.zeros((0, 3)), np.zeros(0)
+    n = np.cross(np.concatenate([a for a, _ in ends]), np.concatenate([b for _, b in ends]))
+    sin_span = np.linalg.norm(n, axis=1)
+    keep = sin_span > math.sin(math.radians(0.5))
+    return n[keep] / sin_span[keep, None], np.arcsin(np.minimum(sin_span[keep], 1.0))
+
+
+def upright_rotation(normals: np.ndarray, spans: np.ndarray, *, max_tilt_deg: float) -> tuple[np.ndarray, float]:
+    """The rotation that turns a panorama upright, and its tilt in degrees: the panorama's
+    zenith found as the direction the great circles of its world-vertical lines pass
+    through (``normals``, ``spans`` as :func:`segment_normals` gives them).
+
+    Each candidate zenith (points on the tangent plane of the image's, first 1 degree apart
+    within ``max_tilt_deg``, then 0.25 degrees apart around the best: :data:`LEVEL_VOTES`)
+    earns each line's span times ``1 - (d / band)^2`` for a line whose great circle passes
+    ``d`` < band from it; the best candidate is then polished to the direction least out of the planes
+    of the lines within the band of it (the eigenvector of the least eigenvalue of ``sum w n
+    n^T``, ``w`` the spans), twice. No turn (the identity and 0) where fewer than
+    :data:`LEVEL_MIN_LINES` lines pass within the band, where they do not fix the zenith in
+    both directions (their normals all alike: vertical lines seen in one direction only), or
+    where the tilt is below :data:`LEVEL_MIN_DEG` (a level panorama's own scatter).
+    The rotation is the least one taking the zenith found to (0, 0, 1), which leaves the
+    heading as it was to first order."""
+    if len(normals) < LEVEL_MIN_LINES or max_tilt_deg <= 0.0:
+        return np.eye(3), 0.0
+    centre, reach = np.zeros(2), math.tan(math.radians(max_tilt_deg))
+    for step_deg, band_deg in LEVEL_VOTES:
+        t = np.arange(-reach, reach + 1e-12, math.tan(math.radians(step_deg)))
+        a, b = np.meshgrid(t, t)
+        inside = np.hypot(a, b) <= reach
+        cand = np.stack([a[inside] + centre[0], b[inside] + centre[1], np.ones(int(inside.sum()))], axis=1)
+        off = np.abs(cand @ normals.T) / (np.linalg.norm(cand, axis=1, keepdims=True) * math.sin(math.radians(band_deg)))
+        centre = cand[int(np.argmax((np.clip(1.0 - off * off, 0.0, None) * spans).sum(axis=1))), :2]
+        reach = 1.5 * math.tan(math.radians(step_deg))
+    up = np.array([centre[0], centre[1], 1.0]) / math.hypot(centre[0], centre[1], 1.0)
+    band = math.sin(math.radians(LEVEL_BAND_DEG))
+    for _ in range(2):
+        near = np.abs(normals @ up) < band
+        if int(near.sum()) < LEVEL_MIN_LINES:
+            return np.eye(3), 0.0
+        n, w = normals[near], spans[near]
+        vals, vecs = np.linalg.eigh((n * w[:, None]).T @ n)
+        if vals[1] < LEVEL_MIN_SPREAD * vals[2]:
+            return np.eye(3), 0.0
+        up = vecs[:, 0] if vecs[2, 0] >= 0 else -vecs[:, 0]
+    tilt = math.degrees(math.acos(min(1.0, float(up[2]))))
+    if tilt > max_tilt_deg or tilt < LEVEL_MIN_DEG:
+        return np.eye(3), 0.0
+    return axis_rotation(np.cross(up, [0.0, 0.0, 1.0]), tilt), tilt
+
+
+def axis_rotation(axis: np.ndarray, angle_deg: float) -> np.ndarray:
+    """The 3 x 3 rotation by ``angle_deg`` about ``axis`` (Rodrigues' formula)."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    a = math.radians(angle_deg)
+    return np.eye(3) + math.sin(a) * k + (1.0 - math.cos(a)) * (k @ k)
+
+
+def turn_panorama(img: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """An equirectangular image as a camera turned by ``rotation`` sees it: the pixel of
+    direction d (the frame of :func:`directions`) shows what ``img`` shows at ``rotation @
+    d`` (bilinear, columns wrapping). A level camera's panorama turned by a tilt about a
+    horizontal axis is that of the camera tilted so; :func:`upright_rotation` of the result
+    finds the same rotation back (tested)."""
+    h, w = img.shape[:2]
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    az, el = _turned(math.pi - 2.0 * math.pi * u / w, math.pi / 2.0 - math.pi * v / h, rotation)
+    fu = ((math.pi - az) / (2.0 * math.pi) % 1.0) * w - 0.5
+    fv = (math.pi / 2.0 - el) / math.pi * h - 0.5
+    return cv2.remap(img, fu.astype(np.float32), fv.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+
+
 def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: float, width: int,
-                 height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 height: int, rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                           np.ndarray]:
     """The equirectangular samples of a cube face's LSD segments (``segs`` (N, 4) face
     pixels, N >= 1), all at once: their pixel rows and columns, the curve's tangent
-    (columns, rows) at each, and the segment each belongs to.
+    (columns, rows) at each, and the segment each belongs to. ``rotation`` (3 x 3): each
+    sample's direction turned by it (in the frame of :func:`directions`) before it is drawn.
 
     Each segment is sampled at ``ceil(2 length) + 1`` points as ``np.linspace(0, 1, n)``
     spaces them, its columns unwrapped across the seam (``np.unwrap``, period ``width``) and
@@ -459,6 +579,8 @@ def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: f
     t[ends[n > 1] - 1] = 1.0
     x0, y0, x1, y1 = (segs[seg, i] for i in range(4))
     az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, heading_deg, pitch_deg)
+    if rotation is not None:
+        az, el = _turned(az, el, rotation)
     fu = ((math.pi - az) / (2 * math.pi) % 1.0) * width
     fv = (math.pi / 2 - el) / math.pi * height
     u = np.floor(fu).astype(np.int64) % width
@@ -496,19 +618,30 @@ def _segment_gradient(f: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np
 def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
                         split: bool = False, orientation_bins: int = 0) -> np.ndarray:
     """Binary equirectangular line image (``height`` x ``width``) of a grey panorama's LSD
-    lines (see :func:`panorama_lines`). ``split``: a (2, H, W) pair instead, the lines that
-    are vertical in the world (vertical on an upright face, through the nadir/zenith on the
-    floor/ceiling faces) and the rest. ``orientation_bins`` >= 1: a uint8 image whose pixels
-    hold the bitmask of the :func:`orientation_bit` s of the lines through them, each
-    sample's direction the equirectangular curve's tangent there (central differences along
-    the segment's samples), as :func:`render_panoramas` gives the map's."""
+    lines (see :func:`panorama_lines`; drawn by :func:`draw_line_image`, which says what
+    ``split`` and ``orientation_bins`` give)."""
+    return draw_line_image(panorama_lines(pano, face_px=face_px, min_length=min_length), face_px=face_px, width=width,
+                           height=height, split=split, orientation_bins=orientation_bins)
+
+
+def draw_line_image(faces: list[np.ndarray], *, face_px: int, width: int, height: int, split: bool = False,
+                    orientation_bins: int = 0, rotation: np.ndarray | None = None) -> np.ndarray:
+    """Binary equirectangular line image (``height`` x ``width``) of the cube faces' LSD
+    segments ``faces`` (:func:`panorama_lines`). ``split``: a (2, H, W) pair instead, the
+    lines that are vertical in the world (vertical on an upright face, through the
+    nadir/zenith on the floor/ceiling faces) and the rest. ``orientation_bins`` >= 1: a
+    uint8 image whose pixels hold the bitmask of the :func:`orientation_bit` s of the lines
+    through them, each sample's direction the equirectangular curve's tangent there (central
+    differences along the segment's samples), as :func:`render_panoramas` gives the map's.
+    ``rotation``: every sample's direction turned by it first (:func:`upright_rotation`), so
+    that a tilted panorama's lines are drawn where an upright camera would have seen them."""
     cam = Camera(face_px, face_px, 90.0)
     bins = int(orientation_bins)
     img = np.zeros((2 if split else 1, height, width), np.uint8)
-    for (hd, pitch), segs in zip(CUBE_FACES, panorama_lines(pano, face_px=face_px, min_length=min_length)):
+    for (hd, pitch), segs in zip(CUBE_FACES, faces):
         if not len(segs):
             continue
-        v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, width, height)
+        v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, width, height, rotation)
         if split:
             vertical = np.array([_world_vertical(s, pitch, face_px) for s in segs], bool)
             img[np.where(vertical[seg], 0, 1), v, u] = 1

@@ -71,6 +71,12 @@ class PanoramaParams(Params):
     height: int = param(72, min=4, help="equirectangular line image height in pixels")
     face_px: int = param(256, min=32, help="size of the six cube faces LSD runs on")
     lsd_min_length_px: float = param(8.0, min=0.0, help="shortest LSD line kept, in face pixels")
+    level_max_deg: float = param(20.0, min=0.0, max=45.0,
+                                 help="level each panorama first: its zenith found where the great circles of its "
+                                      "vertical lines meet, within this many degrees of the image's, and its lines "
+                                      "turned upright before they are drawn (a hand-held 360 degree photo is rarely "
+                                      "level, and a few degrees of tilt cost answers; tilts under 0.5 degrees, a level "
+                                      "panorama's own scatter, are left as they are); 0: off, the images taken as level")
     score: str = param("chamfer", choices=("iou", "chamfer"),
                        help="iou: eq. (1) of the paper; chamfer: truncated distance-transform score (clutter and unseen "
                             "map lines cost little)")

@@ -12,10 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from placeloc.geometry import Camera, equirect_to_pinhole
+from placeloc.geometry.panorama import draw_line_image, panorama_lines, segment_normals, upright_rotation
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack
 from placeloc.umap.lines import check_query_size, line_image
-from placeloc.umap.panorama import orientation_channels, panorama_line_image
+from placeloc.umap.panorama import orientation_channels
 
 
 def query_camera(shape: tuple[int, int], camera: tuple[int, int, float], kind: str) -> Camera:
@@ -41,14 +42,17 @@ def query_arrays(gray: np.ndarray, *, camera: tuple[int, int, float], kind: str,
 
 
 def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
-                    orientation_bins: int = 1, path: str = "") -> dict[str, np.ndarray]:
+                    orientation_bins: int = 1, level_max_deg: float = 0.0, path: str = "") -> dict[str, np.ndarray]:
     """One grey equirectangular panorama -> ``lines`` (B, n_words) uint64: its line image, or
     with ``orientation_bins`` B > 1 its B oriented channels
-    (:func:`placeloc.umap.panorama.orientation_channels`)."""
+    (:func:`placeloc.umap.panorama.orientation_channels`), and ``tilt_deg`` (a float32
+    scalar): how far its zenith lay from the image's where ``level_max_deg`` > 0 levelled it
+    (:func:`placeloc.geometry.panorama.upright_rotation`), else 0."""
     check_query_size(path, gray.shape, None, Camera(2, 2, 90.0), "equirect")
-    if orientation_bins > 1:
-        masks = panorama_line_image(gray, width=width, height=height, face_px=face_px, min_length=min_length,
-                                    orientation_bins=orientation_bins)
-        return {"lines": pack(orientation_channels(masks, orientation_bins))}
-    img = panorama_line_image(gray, width=width, height=height, face_px=face_px, min_length=min_length)
-    return {"lines": pack(img[None])}
+    faces = panorama_lines(gray, face_px=face_px, min_length=min_length)
+    rotation, tilt = upright_rotation(*segment_normals(faces, face_px), max_tilt_deg=level_max_deg)
+    drawn = draw_line_image(faces, face_px=face_px, width=width, height=height,
+                            orientation_bins=orientation_bins if orientation_bins > 1 else 0,
+                            rotation=None if tilt == 0.0 else rotation)
+    lines = pack(orientation_channels(drawn, orientation_bins)) if orientation_bins > 1 else pack(drawn[None])
+    return {"lines": lines, "tilt_deg": np.float32(tilt)}

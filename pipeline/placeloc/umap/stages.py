@@ -280,7 +280,8 @@ def _extract_panoramas(ctx: Any) -> None:
     pp = ctx.params.panorama
     work = ImageWork(fn=panorama_arrays, settings={"width": pp.width, "height": pp.height, "face_px": pp.face_px,
                                                    "min_length": pp.lsd_min_length_px,
-                                                   "orientation_bins": int(pp.orientation_bins)},
+                                                   "orientation_bins": int(pp.orientation_bins),
+                                                   "level_max_deg": float(pp.level_max_deg)},
                      same_size=True, with_path=True)
     table = write_images(ctx.out, ImageStream(ctx, ctx.images["query"], work, desc="LSD on cube faces"))
     write_tree(ctx.out, {"view_heading": np.asarray([math.nan]), "kp_pts": np.zeros((0, 2), np.float32),
@@ -344,7 +345,8 @@ def localize(ctx: Any) -> None:
     if str(ex.attrs["query_kind"]) == "panorama" or str(idx.attrs.get("kind", "pinhole")) == "panorama":
         if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
-        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), _localize_panoramas(ctx, idx, ex))
+        tilt = ex["tilt_deg"][()] if "tilt_deg" in ex else None
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), _localize_panoramas(ctx, idx, ex), tilt)
         return
     scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
                     shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
@@ -407,7 +409,8 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
-def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers) -> None:
+def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
+                              tilt: np.ndarray | None = None) -> None:
     n = len(names)
     est = np.column_stack([found.xy, poses[found.best, 2:]])
     heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
@@ -440,13 +443,21 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
         found_at = np.unique(est[:, 2], return_counts=True)
         log.info("camera heights found (umap.grid.heights): %s",
                  ", ".join(f"{z:.2f} m for {c} of {n}" for z, c in zip(*found_at)))
+    # how far each panorama was turned upright (umap.panorama.level_max_deg), where any was
+    levelled = tilt is not None and bool(np.any(tilt > 0))
+    if levelled:
+        ctx.out.create_dataset("tilt_deg", data=np.asarray(tilt, np.float64))
+        log.info("panoramas levelled (umap.panorama.level_max_deg): %d of %d turned upright, by %.1f deg at the median "
+                 "and %.1f at most", int(np.sum(tilt > 0)), n, float(np.median(tilt[tilt > 0])), float(np.max(tilt)))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []), "score", "rival_score", "margin",
-                    "doubtful", "rival_x", "rival_y", "rival_heading_deg", "room", "rival_room"])
+        w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []), *(["tilt_deg"] if levelled else []),
+                    "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y", "rival_heading_deg", "room",
+                    "rival_room"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}",
-                        *([f"{est[k, 2]:.2f}"] if heights else []), f"{score[k]:.5f}",
+                        *([f"{est[k, 2]:.2f}"] if heights else []), *([f"{tilt[k]:.1f}"] if levelled else []),
+                        f"{score[k]:.5f}",
                         _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
                         _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1),
                         room[k], rival_room[k]])
@@ -551,7 +562,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
         _overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), ex["lines"][k], (h, w), segs, faces,
                  (loc["x"][k], loc["y"][k], zs[k], est_h[k]), true_pose,
                  f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_height_note(loc, k)}"
-                 f"{_doubt_note(loc, k)}")
+                 f"{_tilt_note(loc, k)}{_doubt_note(loc, k)}")
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
@@ -582,7 +593,7 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
             _overlay(path, ex["lines"][k], size, segs, faces, (x[k], y[k], zs[k], heading[k]),
                      rival if rival is not None and np.isfinite(rival).all() else None,
                      f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg"
-                     f"{_height_note(loc, k)}{doubt}",
+                     f"{_height_note(loc, k)}{_tilt_note(loc, k)}{doubt}",
                      second="the rival")
             out.append(path)
     return out
@@ -591,6 +602,12 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
 def _height_note(loc: Any, k: int) -> str:
     """", camera 1.10 m up" where the height was searched (umap.grid.heights), else ""."""
     return f", camera {float(loc['height_m'][k]):.2f} m up" if "height_m" in loc else ""
+
+
+def _tilt_note(loc: Any, k: int) -> str:
+    """", levelled by 4.2 deg" where the panorama was turned upright by more than 0.5 deg
+    (umap.panorama.level_max_deg; its lines are drawn levelled), else ""."""
+    return f", levelled by {float(loc['tilt_deg'][k]):.1f} deg" if "tilt_deg" in loc and loc["tilt_deg"][k] > 0.5 else ""
 
 
 def _answer_heights(loc: Any, z: float) -> np.ndarray:
@@ -636,7 +653,8 @@ METHOD = Method(
     stages={
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
-                                        "panorama.lsd_min_length_px", "panorama.orientation_bins")),
+                                        "panorama.lsd_min_length_px", "panorama.orientation_bins",
+                                        "panorama.level_max_deg")),
         "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px",
                                                           "panorama.orientation_bins")),

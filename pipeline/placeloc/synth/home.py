@@ -41,7 +41,7 @@ import yaml
 from numba import njit, prange
 
 from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, free_space_mask, wall_distance
-from placeloc.geometry.panorama import panorama_line_image, render_panoramas
+from placeloc.geometry.panorama import axis_rotation, panorama_line_image, render_panoramas, turn_panorama
 from placeloc.geometry.polygons import point_in_polygon
 from placeloc.geometry.rays import ray_box, ray_segment
 from placeloc.geometry.zind import write_zind
@@ -659,7 +659,7 @@ def room_name(fp: dict[str, Any], x: float, y: float) -> str:
 def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
              noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
              near_wall_share: float = 0.1, cabinet_share: float = 0.05, kitchen_things: bool = True,
-             z_spread: float = 0.03, **unknown: Any) -> dict[str, Any]:
+             z_spread: float = 0.03, tilt_deg: float = 0.0, **unknown: Any) -> dict[str, Any]:
     """Write the home, its panoramas, their ground truth and the line statistics under
     ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
     32 cameras within 0.12 m of a door's lintel face), ``near_wall_share`` 0.4-0.6 m from a
@@ -670,9 +670,14 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     handles on the doors (:func:`_kitchen_things`, from a generator of their own: the poses and
     the rooms outside the kitchen are those of the home without them). Each camera stands at
     ``z`` +- ``z_spread`` m (uniform; 0.03: a tripod's; 0.25 around 1.45: photos taken with a
-    phone held by hand, each at its own height), the plan's ``camera_z`` at ``z``."""
+    phone held by hand, each at its own height), the plan's ``camera_z`` at ``z``.
+    ``tilt_deg`` > 0: each camera tilted by an angle uniform in 0..``tilt_deg`` about a
+    horizontal axis of uniform direction (a hand-held 360 degree photo not quite level),
+    drawn from a generator of its own (0: the level home, the same images), and
+    ``poses.csv`` gains the columns ``tilt_deg`` and ``tilt_axis_deg`` (the axis's plan
+    direction, degrees counterclockwise from the camera's heading)."""
     if unknown:
-        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, noise, "
+        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, tilt_deg, noise, "
                         "blur, stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
@@ -702,21 +707,27 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     sh = stats_width // 2
     on_map, found, below, where = [], [], [], []
     written = []
+    tilt_rng = np.random.default_rng([seed, 3])
     with open(out_dir / "poses.csv", "w", newline="") as fpz:
         w = csv.writer(fpz)
-        w.writerow(["frame", "x", "y", "z", "heading_deg"])
+        w.writerow(["frame", "x", "y", "z", "heading_deg", *(["tilt_deg", "tilt_axis_deg"] if tilt_deg > 0 else [])])
         for i, (x, y) in enumerate(cand):
             heading = float(rng.uniform(0, 360))
             zz = z + float(rng.uniform(-z_spread, z_spread))
             img = render_panorama(np.array([x, y, zz, heading]), scene, width, height)
             # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
             img[int(height * (90 + 78) / 180):] *= 0.45
+            tilt = (float(tilt_rng.uniform(0.0, tilt_deg)), float(tilt_rng.uniform(0.0, 360.0))) if tilt_deg > 0 else None
+            if tilt:   # the camera's frame (azimuths from its heading) turned about a horizontal axis
+                a = math.radians(tilt[1])
+                img = turn_panorama(img, axis_rotation(np.array([math.cos(a), math.sin(a), 0.0]), tilt[0]))
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)
             name = f"pano_{i:03d}.png"
             cv2.imwrite(str(out_dir / "panoramas" / name), img)
-            w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}"])
+            w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}",
+                        *([f"{tilt[0]:.3f}", f"{tilt[1]:.2f}"] if tilt else [])])
             written.append({"frame": name, "x": float(x), "y": float(y), "z": zz, "heading_deg": heading})
             q = panorama_line_image(img, width=stats_width, height=sh, face_px=width // 4, min_length=8.0)
             m = render_panoramas(model.segments, model.faces, np.array([[x, y, zz, heading]]), width=stats_width, height=sh,

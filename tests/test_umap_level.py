@@ -205,5 +205,8 @@ def test_tilted_panoramas_localized_end_to_end(tmp_path):
     assert level["max_error_m"] <= 0.05 and as_is["median_error_m"] > level["median_error_m"]
     assert [float(r["tilt_deg"]) for r in level_rows] == pytest.approx([t for t, _ in tilts], abs=0.5)
     assert "tilt_deg" not in as_is_rows[0]
+    # what `placeloc run` prints of each answer names its tilt
+    from placeloc.evaluation.report import answer_lines
+    assert f", tilt_deg {level_rows[0]['tilt_deg']}, " in answer_lines(tmp_path / "run20")[0]
     for a, b in zip(level_rows, as_is_rows):
         assert float(a["score"]) >= float(b["score"]) + 0.15

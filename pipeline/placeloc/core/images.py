@@ -501,6 +501,67 @@ def exif_orientation(data: bytes) -> int:
     return int(value) if isinstance(value, int) and 1 <= value <= 8 else 1
 
 
+@dataclass(frozen=True)
+class PanoramaCrop:
+    """Where a partial 360 degree photo lies in its whole equirectangular panorama, in the
+    whole panorama's pixels, as Google's Photo Sphere XMP metadata (the GPano namespace)
+    records it: a phone's photo sphere that did not cover the whole sphere is stored
+    cropped to what it covered, with these six numbers beside it."""
+
+    full_width: int
+    full_height: int
+    left: int
+    top: int
+    width: int
+    height: int
+
+
+GPANO_FIELDS = ("FullPanoWidthPixels", "FullPanoHeightPixels", "CroppedAreaLeftPixels", "CroppedAreaTopPixels",
+                "CroppedAreaImageWidthPixels", "CroppedAreaImageHeightPixels")
+XMP_SEARCH_BYTES = 1 << 20       # the XMP packet sits in the file's first segments
+
+
+def _gpano_value(xmp: bytes, name: str) -> str | None:
+    """One GPano property of an XMP packet, written as an attribute (GPano:X="1") or as an
+    element (<GPano:X>1</GPano:X>)."""
+    m = re.search(rb"GPano:" + name.encode() + rb"""\s*=\s*["']([^"']*)["']""", xmp) or \
+        re.search(rb"<GPano:" + name.encode() + rb">\s*([^<]*?)\s*</GPano:" + name.encode() + rb">", xmp)
+    return m.group(1).decode("utf-8", "replace").strip() if m else None
+
+
+def panorama_crop(path: str | Path) -> PanoramaCrop | None:
+    """The Photo Sphere crop of an image file (:class:`PanoramaCrop`), or None where it has
+    no GPano metadata. A projection other than equirectangular, a value that is not a whole
+    number, or a crop that does not fit its whole panorama is an :class:`ImageError` that
+    names the file and the values."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(XMP_SEARCH_BYTES)
+    except OSError as exc:
+        raise ImageError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if b"GPano:" not in head:
+        return None
+    projection = _gpano_value(head, "ProjectionType")
+    if projection is not None and projection.lower() != "equirectangular":
+        raise ImageError(f"{path}: its Photo Sphere metadata says GPano:ProjectionType {projection!r}; only "
+                         "equirectangular panoramas are read: export the photo as an equirectangular image")
+    values = {k: _gpano_value(head, k) for k in GPANO_FIELDS}
+    if any(v is None for v in values.values()):
+        return None
+    try:
+        crop = PanoramaCrop(*(int(float(values[k])) for k in GPANO_FIELDS))   # type: ignore[arg-type]
+    except ValueError:
+        raise ImageError(f"{path}: its Photo Sphere metadata (GPano) holds a value that is not a number: "
+                         f"{', '.join(f'{k}={v}' for k, v in values.items())}") from None
+    fits = (crop.full_width > 0 and crop.full_height > 0 and abs(crop.full_width - 2 * crop.full_height) <= 2
+            and 0 < crop.width <= crop.full_width and 0 < crop.height and 0 <= crop.top
+            and crop.top + crop.height <= crop.full_height and 0 <= crop.left < crop.full_width)
+    if not fits:
+        raise ImageError(f"{path}: its Photo Sphere metadata (GPano) describes a crop that does not fit a 2:1 "
+                         f"panorama: {', '.join(f'{k}={v}' for k, v in values.items())}")
+    return crop
+
+
 def upright(img: np.ndarray, orientation: int) -> np.ndarray:
     """Apply an EXIF orientation to pixels stored as they came off the sensor."""
     if orientation not in _ORIENTATION:

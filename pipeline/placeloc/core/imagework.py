@@ -268,6 +268,8 @@ class ImageStream:
                 self._skip(message)
             if self.work.same_size:
                 res = self._keep_same_size(res, paths, start, skip)
+            elif self.first_shape is None and res.kept:   # the first kept image's size, for the artifact
+                self.first_shape, self.first_path = res.shapes[0], paths[start + res.kept[0]]
             yield [start + i for i in res.kept], res
 
     def _skip(self, message: str) -> None:

@@ -12,11 +12,13 @@ row-major, pixel p in word p >> 6 at bit p & 63.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from numba import njit, prange
 
+from placeloc.core.images import ImageError, PanoramaCrop
 from placeloc.geometry import Camera, equirect_to_pinhole
 from placeloc.geometry.bitimage import n_words, pack_into
 from placeloc.geometry.rays import face_terms, occluded_terms
@@ -397,6 +399,55 @@ def render_panorama_block(item: tuple) -> np.ndarray:
 
 # ------------------------------------------------------------------ the query's line image
 
+@dataclass(frozen=True)
+class Coverage:
+    """The part of an equirectangular panorama its photo covers, as fractions of the
+    panorama's width and height: columns ``left`` .. ``left + width`` (wrapping at 1), rows
+    ``top`` .. ``top + height`` (row 0 straight up). The whole sphere is (0, 0, 1, 1)."""
+
+    left: float
+    top: float
+    width: float
+    height: float
+
+
+WHOLE = Coverage(0.0, 0.0, 1.0, 1.0)
+COVERAGE_MARGIN_DEG = 1.0    # lines within this of a crop's edge are the edge of the fill, not of the scene
+
+
+def whole_panorama(gray: np.ndarray, crop: PanoramaCrop, path: str = "") -> tuple[np.ndarray, Coverage]:
+    """A partial 360 degree photo (a photo sphere stored cropped, ``crop`` from its GPano
+    metadata) placed in its whole equirectangular panorama at the photo's own scale, the
+    rest filled with the photo's mean grey (no edges there), and the part it covers. The
+    photo may have been resized since its metadata was written, if evenly."""
+    h, w = gray.shape[:2]
+    scale = w / crop.width
+    if abs(h - crop.height * scale) > max(2.0, 0.01 * h):
+        raise ImageError(f"{path}: the image is {w}x{h} but its Photo Sphere metadata (GPano) says the crop is "
+                         f"{crop.width}x{crop.height}: it was resized unevenly or cropped again; export it anew")
+    full_w = max(2, int(round(crop.full_width * scale)))
+    full_h = full_w // 2
+    top = min(int(round(crop.top * scale)), max(0, full_h - h))
+    rows = min(h, full_h - top)
+    canvas = np.full((full_h, full_w), int(round(float(gray.mean()))), gray.dtype)
+    cols = (int(round(crop.left * scale)) + np.arange(min(w, full_w))) % full_w
+    canvas[top:top + rows, cols] = gray[:rows, :len(cols)]
+    return canvas, Coverage(crop.left / crop.full_width, crop.top / crop.full_height, crop.width / crop.full_width,
+                            crop.height / crop.full_height)
+
+
+def _covered(az: np.ndarray, el: np.ndarray, coverage: Coverage) -> np.ndarray:
+    """Which directions (the image's azimuth and elevation) lie inside ``coverage`` by more
+    than :data:`COVERAGE_MARGIN_DEG`."""
+    fu = (math.pi - az) / (2.0 * math.pi) % 1.0
+    fv = (math.pi / 2.0 - el) / math.pi
+    mv, mu = COVERAGE_MARGIN_DEG / 180.0, COVERAGE_MARGIN_DEG / 360.0
+    inside = (fv >= coverage.top + mv) & (fv <= coverage.top + coverage.height - mv)
+    if coverage.width < 1.0:
+        inside &= ((fu - coverage.left) % 1.0 >= mu) & ((fu - coverage.left) % 1.0 <= coverage.width - mu)
+    return inside
+
+
 def _face_rays(u: np.ndarray, v: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """World azimuth and elevation of face pixels (the inverse of equirect_to_pinhole's sampling)."""
     X = (u - cam.cx) / cam.focal
@@ -463,11 +514,12 @@ LEVEL_MIN_SPREAD = 0.05      # least ratio of their normals' scatter, narrowest 
 LEVEL_MIN_DEG = 0.5
 
 
-def segment_normals(faces: list[np.ndarray], face_px: int) -> tuple[np.ndarray, np.ndarray]:
+def segment_normals(faces: list[np.ndarray], face_px: int, coverage: Coverage = WHOLE) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals of the great circles of the four side faces' segments (``faces`` as
     :func:`panorama_lines` gives them) and the angle each segment spans (radians), in the
     frame of :func:`directions`; segments spanning less than 0.5 degrees are dropped (their
-    normal is noise). The up and down faces are left out: they hold what lies over and
+    normal is noise), and those with an end outside ``coverage`` (a cropped photo's fill, by
+    :data:`COVERAGE_MARGIN_DEG`). The up and down faces are left out: they hold what lies over and
     under the camera (a ceiling fan's blades, a lamp, rugs, sunlight stripes, the tripod),
     whose lines radiate from points near the poles, and world-vertical lines cross the side
     faces."""
@@ -477,7 +529,8 @@ def segment_normals(faces: list[np.ndarray], face_px: int) -> tuple[np.ndarray, 
         if len(segs) and pitch == 0.0:
             az0, el0 = _face_rays(segs[:, 0], segs[:, 1], cam, hd, pitch)
             az1, el1 = _face_rays(segs[:, 2], segs[:, 3], cam, hd, pitch)
-            ends.append((directions(az0, el0), directions(az1, el1)))
+            inside = _covered(az0, el0, coverage) & _covered(az1, el1, coverage)
+            ends.append((directions(az0[inside], el0[inside]), directions(az1[inside], el1[inside])))
     if not ends:
         return np.zeros((0, 3)), np.zeros(0)
     n = np.cross(np.concatenate([a for a, _ in ends]), np.concatenate([b for _, b in ends]))
@@ -553,12 +606,14 @@ def turn_panorama(img: np.ndarray, rotation: np.ndarray) -> np.ndarray:
 
 
 def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: float, width: int,
-                 height: int, rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                                           np.ndarray]:
+                 height: int, rotation: np.ndarray | None = None,
+                 coverage: Coverage = WHOLE) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The equirectangular samples of a cube face's LSD segments (``segs`` (N, 4) face
     pixels, N >= 1), all at once: their pixel rows and columns, the curve's tangent
     (columns, rows) at each, and the segment each belongs to. ``rotation`` (3 x 3): each
     sample's direction turned by it (in the frame of :func:`directions`) before it is drawn.
+    ``coverage``: only the samples inside it (a cropped photo's fill left out, by
+    :data:`COVERAGE_MARGIN_DEG`), their tangents those of the whole segment.
 
     Each segment is sampled at ``ceil(2 length) + 1`` points as ``np.linspace(0, 1, n)``
     spaces them, its columns unwrapped across the seam (``np.unwrap``, period ``width``) and
@@ -579,6 +634,7 @@ def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: f
     t[ends[n > 1] - 1] = 1.0
     x0, y0, x1, y1 = (segs[seg, i] for i in range(4))
     az, el = _face_rays(x0 + t * (x1 - x0), y0 + t * (y1 - y0), cam, heading_deg, pitch_deg)
+    inside = None if coverage == WHOLE else _covered(az, el, coverage)
     if rotation is not None:
         az, el = _turned(az, el, rotation)
     fu = ((math.pi - az) / (2 * math.pi) % 1.0) * width
@@ -598,7 +654,10 @@ def face_samples(segs: np.ndarray, cam: Camera, heading_deg: float, pitch_deg: f
     for j in np.unique(seg[1:][correct != 0.0]):
         a, b = starts[j], ends[j]
         unwrapped[a + 1:b] = fu[a + 1:b] + np.cumsum(correct[a:b - 1])
-    return v, u, _segment_gradient(unwrapped, starts, ends), _segment_gradient(fv, starts, ends), seg
+    du, dv = _segment_gradient(unwrapped, starts, ends), _segment_gradient(fv, starts, ends)
+    if inside is not None:
+        return v[inside], u[inside], du[inside], dv[inside], seg[inside]
+    return v, u, du, dv, seg
 
 
 def _segment_gradient(f: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -625,7 +684,8 @@ def panorama_line_image(pano: np.ndarray, *, width: int, height: int, face_px: i
 
 
 def draw_line_image(faces: list[np.ndarray], *, face_px: int, width: int, height: int, split: bool = False,
-                    orientation_bins: int = 0, rotation: np.ndarray | None = None) -> np.ndarray:
+                    orientation_bins: int = 0, rotation: np.ndarray | None = None,
+                    coverage: Coverage = WHOLE) -> np.ndarray:
     """Binary equirectangular line image (``height`` x ``width``) of the cube faces' LSD
     segments ``faces`` (:func:`panorama_lines`). ``split``: a (2, H, W) pair instead, the
     lines that are vertical in the world (vertical on an upright face, through the
@@ -634,14 +694,16 @@ def draw_line_image(faces: list[np.ndarray], *, face_px: int, width: int, height
     through them, each sample's direction the equirectangular curve's tangent there (central
     differences along the segment's samples), as :func:`render_panoramas` gives the map's.
     ``rotation``: every sample's direction turned by it first (:func:`upright_rotation`), so
-    that a tilted panorama's lines are drawn where an upright camera would have seen them."""
+    that a tilted panorama's lines are drawn where an upright camera would have seen them.
+    ``coverage``: the part a cropped photo covers (:func:`whole_panorama`); nothing is drawn
+    outside it."""
     cam = Camera(face_px, face_px, 90.0)
     bins = int(orientation_bins)
     img = np.zeros((2 if split else 1, height, width), np.uint8)
     for (hd, pitch), segs in zip(CUBE_FACES, faces):
         if not len(segs):
             continue
-        v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, width, height, rotation)
+        v, u, du, dv, seg = face_samples(segs, cam, hd, pitch, width, height, rotation, coverage)
         if split:
             vertical = np.array([_world_vertical(s, pitch, face_px) for s in segs], bool)
             img[np.where(vertical[seg], 0, 1), v, u] = 1

@@ -35,6 +35,7 @@ def check_query_size(path: Path, shape: tuple[int, ...], first: tuple[int, ...] 
     want = 2.0 if kind == "equirect" else cam.width / cam.height
     if abs(w / h - want) > 0.01 * want:
         what = ("an equirectangular panorama needs width = 2 x height (a 360 degree photo as the camera app exports "
-                "it, not cropped); for ordinary photos set umap.query_kind: pinhole") if kind == "equirect" else (
+                "it, not cropped), or a photo sphere stored cropped with its Photo Sphere metadata (GPano) kept; "
+                "for ordinary photos set umap.query_kind: pinhole") if kind == "equirect" else (
             f"the database camera is {cam.width}x{cam.height}: set umap.camera.width/height to the images' aspect ratio or resize them")
         raise ImageError(f"{path}: query image is {w}x{h} (aspect {w / h:.3f}); {what}")

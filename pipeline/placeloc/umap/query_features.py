@@ -11,8 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from placeloc.core.images import panorama_crop
 from placeloc.geometry import Camera, equirect_to_pinhole
-from placeloc.geometry.panorama import draw_line_image, panorama_lines, segment_normals, upright_rotation
+from placeloc.geometry.panorama import (
+    WHOLE,
+    draw_line_image,
+    panorama_lines,
+    segment_normals,
+    upright_rotation,
+    whole_panorama,
+)
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack
 from placeloc.umap.lines import check_query_size, line_image
@@ -47,12 +55,22 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
     with ``orientation_bins`` B > 1 its B oriented channels
     (:func:`placeloc.umap.panorama.orientation_channels`), and ``tilt_deg`` (a float32
     scalar): how far its zenith lay from the image's where ``level_max_deg`` > 0 levelled it
-    (:func:`placeloc.geometry.panorama.upright_rotation`), else 0."""
+    (:func:`placeloc.geometry.panorama.upright_rotation`), else 0. A photo that is not 2:1
+    but carries Photo Sphere metadata (GPano: a phone's photo sphere stored cropped to what it
+    covered) is placed in its whole panorama first, and only its lines are drawn
+    (:func:`placeloc.geometry.panorama.whole_panorama`)."""
+    coverage = WHOLE
+    h, w = gray.shape[:2]
+    if abs(w / h - 2.0) > 0.02 and path:
+        # not 2:1: a photo sphere stored cropped to what it covered, where its GPano metadata says so
+        crop = panorama_crop(path)
+        if crop is not None:
+            gray, coverage = whole_panorama(gray, crop, path)
     check_query_size(path, gray.shape, None, Camera(2, 2, 90.0), "equirect")
     faces = panorama_lines(gray, face_px=face_px, min_length=min_length)
-    rotation, tilt = upright_rotation(*segment_normals(faces, face_px), max_tilt_deg=level_max_deg)
+    rotation, tilt = upright_rotation(*segment_normals(faces, face_px, coverage), max_tilt_deg=level_max_deg)
     drawn = draw_line_image(faces, face_px=face_px, width=width, height=height,
                             orientation_bins=orientation_bins if orientation_bins > 1 else 0,
-                            rotation=None if tilt == 0.0 else rotation)
+                            rotation=None if tilt == 0.0 else rotation, coverage=coverage)
     lines = pack(orientation_channels(drawn, orientation_bins)) if orientation_bins > 1 else pack(drawn[None])
     return {"lines": lines, "tilt_deg": np.float32(tilt)}

@@ -282,7 +282,7 @@ def _extract_panoramas(ctx: Any) -> None:
                                                    "min_length": pp.lsd_min_length_px,
                                                    "orientation_bins": int(pp.orientation_bins),
                                                    "level_max_deg": float(pp.level_max_deg)},
-                     same_size=True, with_path=True)
+                     with_path=True)   # sizes may differ: each panorama's lines are drawn at one size
     table = write_images(ctx.out, ImageStream(ctx, ctx.images["query"], work, desc="LSD on cube faces"))
     write_tree(ctx.out, {"view_heading": np.asarray([math.nan]), "kp_pts": np.zeros((0, 2), np.float32),
                          "kp_desc": np.zeros((0, 61), np.uint8), "kp_offsets": np.zeros(len(table) + 1, dtype=np.int64)})

@@ -1,0 +1,146 @@
+"""Photo spheres stored cropped: the GPano metadata read from the file, the photo placed in
+its whole panorama, only its own lines drawn, and cropped photos of several sizes localized
+end to end."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from placeloc.core.images import ImageError, PanoramaCrop, panorama_crop
+from placeloc.geometry.panorama import Coverage, draw_line_image, panorama_lines, whole_panorama
+from placeloc.umap.query_features import panorama_arrays
+from tests.test_umap_panorama import PLAN, _grey_panorama, _render
+
+
+def gpano_xmp(crop: PanoramaCrop, *, elements: bool = False, projection: str = "equirectangular") -> bytes:
+    """The XMP packet a phone writes beside a photo sphere (attributes, or elements)."""
+    values = {"ProjectionType": projection, "FullPanoWidthPixels": crop.full_width,
+              "FullPanoHeightPixels": crop.full_height, "CroppedAreaLeftPixels": crop.left,
+              "CroppedAreaTopPixels": crop.top, "CroppedAreaImageWidthPixels": crop.width,
+              "CroppedAreaImageHeightPixels": crop.height}
+    if elements:
+        body = "".join(f"<GPano:{k}>{v}</GPano:{k}>" for k, v in values.items())
+        desc = f'<rdf:Description rdf:about="">{body}</rdf:Description>'
+    else:
+        attrs = " ".join(f'GPano:{k}="{v}"' for k, v in values.items())
+        desc = f'<rdf:Description rdf:about="" {attrs}/>'
+    return ('<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#" '
+            f'xmlns:GPano="http://ns.google.com/photos/1.0/panorama/">{desc}</rdf:RDF></x:xmpmeta>').encode()
+
+
+def write_photo_sphere(path, gray: np.ndarray, xmp: bytes | None) -> None:
+    """A JPEG with the XMP packet in an APP1 segment right after its start marker, as cameras
+    store it."""
+    data = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    if xmp is not None:
+        payload = b"http://ns.adobe.com/xap/1.0/\x00" + xmp
+        data = data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:]
+    path.write_bytes(data)
+
+
+def test_the_crop_is_read_from_attributes_or_elements(tmp_path):
+    crop = PanoramaCrop(8000, 4000, 100, 700, 7900, 2300)
+    gray = np.full((23, 79), 128, np.uint8)
+    for elements in (False, True):
+        write_photo_sphere(tmp_path / "a.jpg", gray, gpano_xmp(crop, elements=elements))
+        assert panorama_crop(tmp_path / "a.jpg") == crop
+    write_photo_sphere(tmp_path / "plain.jpg", gray, None)
+    assert panorama_crop(tmp_path / "plain.jpg") is None
+    write_photo_sphere(tmp_path / "cyl.jpg", gray, gpano_xmp(crop, projection="cylindrical"))
+    with pytest.raises(ImageError, match="cyl.jpg.*ProjectionType 'cylindrical'"):
+        panorama_crop(tmp_path / "cyl.jpg")
+    write_photo_sphere(tmp_path / "off.jpg", gray, gpano_xmp(PanoramaCrop(8000, 4000, 0, 3000, 8000, 2000)))
+    with pytest.raises(ImageError, match="off.jpg.*does not fit"):
+        panorama_crop(tmp_path / "off.jpg")
+
+
+def test_whole_panorama_by_hand():
+    # a 4 x 6 photo from columns 10..15 (wrapping past 11) and rows 1..4 of a 12 x 6 panorama,
+    # stored at half size (2 x 3): placed at the photo's scale, the rest its mean grey
+    photo = np.array([[10, 20, 30], [40, 50, 60]], np.uint8)
+    canvas, cov = whole_panorama(photo, PanoramaCrop(12, 6, 10, 2, 6, 4))
+    assert canvas.shape == (3, 6)
+    assert cov == Coverage(10 / 12, 2 / 6, 6 / 12, 4 / 6)
+    mean = 35
+    assert canvas.tolist() == [[mean] * 6, [20, 30, mean, mean, mean, 10], [50, 60, mean, mean, mean, 40]]
+    with pytest.raises(ImageError, match="resized unevenly"):
+        whole_panorama(np.zeros((5, 3), np.uint8), PanoramaCrop(12, 6, 0, 0, 6, 4))
+
+
+def _line_image(arrays: dict, h: int, w: int) -> np.ndarray:
+    return np.unpackbits(arrays["lines"][0].view(np.uint8), bitorder="little")[:h * w].reshape(h, w)
+
+
+def test_a_cropped_photo_sphere_draws_its_own_lines_only(tmp_path):
+    # the L-shaped room's panorama without its top 40 and bottom 30 degrees (a photo sphere a
+    # phone did not close): stored cropped with its metadata, its lines inside the covered
+    # rows are the whole panorama's; none is drawn outside, not even the crop's own edge
+    pose = [2.1, 5.3, 1.4, 62.5]
+    img = _grey_panorama(pose, np.random.default_rng(1))          # 512 x 256
+    top, bottom = 57, 256 - 43                                     # 40 deg down from the zenith, 30 up from the nadir
+    img[top:top + 12], img[bottom - 12:bottom] = 245, 35           # a bright ceiling and a dark floor at its edges
+    crop = PanoramaCrop(512, 256, 0, top, 512, bottom - top)
+    write_photo_sphere(tmp_path / "sphere.jpg", img[top:bottom], gpano_xmp(crop))
+    write_photo_sphere(tmp_path / "bare.jpg", img[top:bottom], None)
+    w, h = 288, 144
+    kw = {"width": w, "height": h, "face_px": 256, "min_length": 8.0, "level_max_deg": 0.0}
+    gray = cv2.imread(str(tmp_path / "sphere.jpg"), cv2.IMREAD_GRAYSCALE)
+    part = _line_image(panorama_arrays(gray, path=str(tmp_path / "sphere.jpg"), **kw), h, w)
+    whole = _line_image(panorama_arrays(img, **kw), h, w)
+    rows = np.arange(h)
+    inner = (rows >= (top / 256 * h) + 2) & (rows < (bottom / 256 * h) - 2)
+    outer = (rows < top / 256 * h - 1) | (rows >= bottom / 256 * h + 1)
+    assert part[outer].sum() == 0
+    edges = (np.abs(rows - top / 256 * h) <= 1) | (np.abs(rows - bottom / 256 * h) <= 1)
+    assert part[edges].sum() == 0
+    # the fill's edge is strong: drawn as if the photo covered the sphere, it would be there
+    canvas, _ = whole_panorama(gray, crop)
+    naive = draw_line_image(panorama_lines(canvas, face_px=256, min_length=8.0), face_px=256, width=w, height=h)
+    assert naive[edges].sum() > 0.5 * w
+    near = cv2.dilate(whole, np.ones((3, 3), np.uint8))
+    assert (part[inner] & near[inner]).sum() >= 0.95 * part[inner].sum()       # its lines are the whole one's
+    assert part[inner].sum() >= 0.9 * whole[inner].sum()                      # and most of them are there
+    # without its metadata the crop is refused, and the message says what would do
+    with pytest.raises(ImageError, match="bare.jpg.*Photo Sphere metadata"):
+        panorama_arrays(gray, path=str(tmp_path / "bare.jpg"), **kw)
+    # the map's lines of the covered rows are there, and the same is true of the map
+    ref = _render(pose, w, h)
+    assert (cv2.dilate(part, np.ones((3, 3), np.uint8)) & ref)[inner].sum() >= 0.8 * ref[inner].sum()
+
+
+def test_cropped_photo_spheres_of_several_sizes_localized_end_to_end(tmp_path):
+    # three photo spheres of the L-shaped room, each cropped differently (so of three sizes
+    # in one folder), with their metadata: each is placed within 0.1 m and 2.5 deg
+    import yaml
+
+    from placeloc.core.config import load_config
+    from placeloc.core.runner import run_all
+
+    (tmp_path / "plan.yaml").write_text(yaml.safe_dump(PLAN))
+    (tmp_path / "q").mkdir()
+    truth = [(1.2, 1.1, 1.4, 30.0), (4.9, 2.6, 1.4, 200.0), (2.3, 5.8, 1.4, 287.5)]
+    rows = [(40, 210), (20, 236), (57, 200)]                        # of 256: what each covers
+    rng = np.random.default_rng(2)
+    with open(tmp_path / "poses.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "z", "heading_deg"])
+        for k, (pose, (top, bottom)) in enumerate(zip(truth, rows)):
+            img = _grey_panorama(pose, rng)
+            write_photo_sphere(tmp_path / "q" / f"p{k}.jpg", img[top:bottom],
+                               gpano_xmp(PanoramaCrop(512, 256, 0, top, 512, bottom - top)))
+            w.writerow([f"p{k}.jpg", *pose])
+    cfg = load_config(data={"method": "umap", "query": {"images": str(tmp_path / "q")},
+                            "ground_truth": {"kind": "poses", "path": str(tmp_path / "poses.csv")},
+                            "umap": {"model": str(tmp_path / "plan.yaml"), "query_kind": "panorama",
+                                     "grid": {"x": [0.2, 5.8, 0.2], "y": [0.2, 6.8, 0.2], "z": 1.4, "headings": [0.0]}},
+                            "plots": False}, base_dir=tmp_path)
+    run_all(cfg, tmp_path / "run", quiet=True)
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["max_error_m"] <= 0.1
+    for r, t in zip(csv.DictReader(open(tmp_path / "run" / "estimates.csv")), truth):
+        assert abs((float(r["heading_deg"]) - t[3] + 180) % 360 - 180) <= 2.5

@@ -144,3 +144,49 @@ def test_cropped_photo_spheres_of_several_sizes_localized_end_to_end(tmp_path):
     assert m["max_error_m"] <= 0.1
     for r, t in zip(csv.DictReader(open(tmp_path / "run" / "estimates.csv")), truth):
         assert abs((float(r["heading_deg"]) - t[3] + 180) % 360 - 180) <= 2.5
+
+
+@pytest.mark.parametrize("spread", [None, 1])
+def test_the_seen_rows_table_equals_the_scores_with_the_unseen_rows_weighed_zero(spread):
+    # a query that saw rows 3..12 of 16: its table with `seen` counts the map's lines in
+    # those rows only in the recall half, as the pixel path does with the other rows'
+    # weights set to zero (the precision half is the same either way: the query has no
+    # pixels there); the tolerant table likewise equals the table at the same tau and no blur
+    from placeloc.umap.panorama import (
+        chamfer_at_shifts,
+        chamfer_spectra,
+        chamfer_table,
+        precision_rows,
+        row_weights,
+        seen_rows,
+        tolerant_chamfer_table,
+    )
+
+    rng = np.random.default_rng(5)
+    h, w, bins = 16, 24, 4
+    shape = (3, bins, h, w) if spread is not None else (3, h, w)
+    db = (rng.random(shape) < 0.05).astype(np.uint8)
+    q = (rng.random(shape[1:]) < 0.05).astype(np.uint8)
+    seen = np.zeros((1, h), np.float32)
+    seen[0, 3:13] = 1.0
+    q[..., :3, :] = 0
+    q[..., 13:, :] = 0
+    weights = row_weights(h, polar_deg=60.0, polar_weight=1.0, solid_angle=True)
+    prows = precision_rows(h, 75.0)
+    sp = chamfer_spectra(db, tau_px=3.0, weights=weights, spread=spread)
+    table = chamfer_table(sp, q[None], tau_px=3.0, weights=weights, chance="none", precision_rows=prows,
+                          spread=spread, seen=seen)[0]
+    shifts = np.tile(np.arange(w), (3, 1))
+    at = chamfer_at_shifts(db, q, shifts, tau_px=3.0, weights=weights * seen[0], chance="none", precision_rows=prows,
+                           spread=spread)
+    assert np.abs(table - at).max() < 1e-4
+    plain = chamfer_table(sp, q[None], tau_px=3.0, weights=weights, chance="none", precision_rows=prows, spread=spread)[0]
+    assert np.abs(plain - table).max() > 0.01                 # the map's lines outside the rows no longer count
+    tolerant = tolerant_chamfer_table(sp, q[None], recall_tau_px=3.0, blur_px=0, weights=weights,
+                                      precision_rows=prows, spread=spread, seen=seen)[0]
+    assert np.abs(tolerant - table).max() < 1e-4
+    # the rows a coverage gives: row centres inside it by more than the drawing's 1 degree margin
+    rows = seen_rows(np.array([[0.0, 0.25, 1.0, 0.5]]), 8)     # rows 2..5 of 8 (elevations 45 .. -45 deg)
+    assert rows.tolist() == [[0, 0, 1, 1, 1, 1, 0, 0]]
+    # levelled by 20 deg, the band it saw in the levelled frame is 20 deg narrower either side
+    assert seen_rows(np.array([[0.0, 0.25, 1.0, 0.5]]), 8, np.array([20.0])).tolist() == [[0, 0, 0, 1, 1, 0, 0, 0]]

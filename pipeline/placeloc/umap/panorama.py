@@ -41,6 +41,7 @@ from threadpoolctl import threadpool_limits
 from placeloc.core.executor import usable_cores
 from placeloc.geometry.floorplan import blocking_faces, wall_distance
 from placeloc.geometry.panorama import (  # noqa: F401  (re-exported: the map renderer and the query line image)
+    COVERAGE_MARGIN_DEG,
     panorama_line_image,
     render_panorama_block,
     render_panoramas,
@@ -705,9 +706,34 @@ def _batch_products(spectra: np.ndarray, qs: np.ndarray) -> np.ndarray:
     return np.matmul(spectra, np.concatenate([qs, np.zeros_like(qs)], axis=-1))[..., :1]
 
 
+def seen_rows(coverage: np.ndarray, height: int, tilt_deg: np.ndarray | None = None) -> np.ndarray:
+    """(N, height) float32, 1 for the line-image rows whose centre lies inside each query's
+    ``coverage`` (N, 4: left, top, width, height as fractions of the whole panorama, as
+    :class:`placeloc.geometry.panorama.Coverage`) by more than the drawing's margin, else 0:
+    the rows a cropped photo sphere saw. ``tilt_deg`` (N,): how far each was levelled; its
+    rows are drawn turned, so the band it saw is narrowed by as much on either side."""
+    cov = np.asarray(coverage, np.float64).reshape(-1, 4)
+    centre = (np.arange(height) + 0.5) / height
+    tilt = np.zeros(len(cov)) if tilt_deg is None else np.asarray(tilt_deg, np.float64).reshape(-1)
+    margin = ((COVERAGE_MARGIN_DEG + tilt) / 180.0)[:, None]
+    top, bottom = cov[:, 1:2] + margin, cov[:, 1:2] + cov[:, 3:4] - margin
+    return ((centre[None, :] >= top) & (centre[None, :] <= bottom)).astype(np.float32)
+
+
+def _recall_seen(spectra: np.ndarray, qs: np.ndarray, rows: int, seen: np.ndarray) -> np.ndarray:
+    """The recall and precision products of :func:`chamfer_table` (chance none) apart, the
+    recall over the map's line pixels in the rows each query saw only: its product (the
+    query's closeness is zero outside them) over the share of the map's weighted line
+    pixels there, a row's share being its stored spectrum's zero frequency. ``seen`` (N,
+    rows) is :func:`seen_rows`, tiled over the channels. (F, P, N)."""
+    share = np.maximum(seen @ spectra[0, :, :rows].real.T, 1e-6).T.astype(np.float32)   # (P, N)
+    return _batch_products(spectra[:, :, :rows], qs[:, :rows]) / share[None] + \
+        _batch_products(spectra[:, :, rows:], qs[:, rows:])
+
+
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
                   chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
-                  spread: int | None = None) -> np.ndarray:
+                  spread: int | None = None, seen: np.ndarray | None = None) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -723,7 +749,14 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     :func:`likelihood_image` and the product is the plain one.
 
     ``spread`` (the oriented score): ``queries`` are (N, B, H, W) oriented channels (0/1, or
-    weights), ``spectra`` built with the same ``spread``; chance ``none`` only."""
+    weights), ``spectra`` built with the same ``spread``; chance ``none`` only.
+
+    ``seen`` (N, H; :func:`seen_rows`; chance ``none``): the rows each query's photo saw (a
+    photo sphere stored cropped); its recall half counts the map's lines in those rows only
+    (:func:`_recall_seen`), so a pose is not marked down for lines where the photo has no
+    pixels. None: every row."""
+    if seen is not None and chance != "none":
+        seen = None   # the chance-corrected halves are not derived for a part of the sphere
     if spread is not None:
         _check_oriented(chance)
         queries = np.asarray(queries)
@@ -734,9 +767,12 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         if precision_rows is not None:
             q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
+        if seen is not None:
+            q_close = q_close * np.tile(np.asarray(seen, np.float32), b)[:, :, None]
         x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
         qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))
-        prod = _batch_products(spectra, qs)                                       # (F, P, N)
+        prod = (_batch_products(spectra, qs) if seen is None                      # (F, P, N)
+                else _recall_seen(spectra, qs, b * h, np.tile(np.asarray(seen, np.float32), b)))
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
@@ -748,10 +784,13 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     if precision_rows is not None:                                            # the precision half's rows only
         q = q * np.asarray(precision_rows, np.float32)[None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
+    if seen is not None:
+        q_close = q_close * np.asarray(seen, np.float32)[:, :, None]
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
-        prod = _batch_products(spectra, qs)                                   # (F, P, N)
+        prod = (_batch_products(spectra, qs) if seen is None                  # (F, P, N)
+                else _recall_seen(spectra, qs, h, np.asarray(seen, np.float32)))
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
     recall = _batch_products(spectra[:, :, :h], qs[:, :h])                    # (F, P, N) each half
     precision = _batch_products(spectra[:, :, h:], qs[:, h:])
@@ -805,7 +844,8 @@ def tolerant_bands(width: int, recall_tau_px: float) -> int:
 
 def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_tau_px: float, blur_px: int,
                            weights: np.ndarray, precision_rows: np.ndarray | None = None,
-                           spread: int | None = None, bands: int | None = None) -> np.ndarray:
+                           spread: int | None = None, bands: int | None = None,
+                           seen: np.ndarray | None = None) -> np.ndarray:
     """A more tolerant chamfer score (chance ``none``) of a batch of query line images
     against the same ``spectra`` as :func:`chamfer_table` (built with its ``tau_px``), at
     every position and column shift: (N, P, W) float32. Only the query's side changes, so
@@ -840,7 +880,7 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     ``bands``: only the column frequencies 0 .. bands - 1 of each row's correlation are
     multiplied (:func:`tolerant_bands`), so the table is the full one low-passed over the
     column shifts (tested): a heading blurred, for bands / (W / 2 + 1) of the products'
-    cost; None: all."""
+    cost; None: all. ``seen``: as :func:`chamfer_table`'s."""
     queries = np.asarray(queries)
     if spread is None:
         queries = queries.reshape(-1, 1, *queries.shape[-2:])            # one channel: the plain score
@@ -856,10 +896,14 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     q = box_blur(q, blur_px)
     wr = np.asarray(weights, np.float32)[None, None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
+    if seen is not None:
+        seen = np.tile(np.asarray(seen, np.float32), b)
+        q_close = q_close * seen[:, :, None]
     x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
     f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
     qs = np.ascontiguousarray(_rfft(x)[..., :f].astype(np.complex64).transpose(2, 1, 0))
-    prod = _batch_products(spectra[:f], qs)                               # (f, P, N); the rest are zero
+    prod = (_batch_products(spectra[:f], qs) if seen is None              # (f, P, N); the rest are zero
+            else _recall_seen(spectra[:f], qs, b * h, seen))
     return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
 
 
@@ -1006,14 +1050,15 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
-                  progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it) -> PanoramaAnswers:
+                  progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
+                  seen: np.ndarray | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
     (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
     writes them): each layer searched alone over its own rows of ``database``, each
     panorama's answer the best over them (:func:`best_over_heights`). With
     ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
     table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
-    total)`` wraps each layer's loop over its panoramas."""
+    total)`` wraps each layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
     starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
     # the spectra hold positions on their second axis (frequency first), the rest on their first
@@ -1024,7 +1069,7 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
     if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
         # each panorama's best layers by the grid table alone (a fifth of a search's cost):
         # the search off the grid, most of it, runs there only
-        table = np.stack([grid_table_best(lines, layer["spectra"], pp) for layer in layers])
+        table = np.stack([grid_table_best(lines, layer["spectra"], pp, seen) for layer in layers])
         searched[:] = False
         searched[np.argsort(-table, axis=0, kind="stable")[:keep], np.arange(n)[None, :]] = True
     found = []
@@ -1036,7 +1081,8 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
         what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
         answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
-                                   progress=lambda it, what=what, m=len(ks): progress(it, what, m))
+                                   progress=lambda it, what=what, m=len(ks): progress(it, what, m),
+                                   seen=None if seen is None else seen[ks])
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
     if len(found) == 1:
         return found[0]
@@ -1404,16 +1450,16 @@ def _query_side(lines: np.ndarray, pp: Any) -> tuple[np.ndarray, np.ndarray, np.
 
 
 def _search_table(spectra: np.ndarray, queries: np.ndarray, weights: np.ndarray, prows: np.ndarray | None,
-                  spread: int | None, pp: Any) -> np.ndarray:
+                  spread: int | None, pp: Any, seen: np.ndarray | None = None) -> np.ndarray:
     """The search's first step for a batch of queries (:func:`_query_side`'s): every grid
     position and yaw of ``spectra`` by the chamfer score with ``pp``'s settings
     (:func:`chamfer_table`), one home for both :func:`search_panoramas` and
     :func:`grid_table_best`, which must score alike."""
     return chamfer_table(spectra, queries, tau_px=pp.chamfer_tau_px, weights=weights, chance=pp.chamfer_chance,
-                         precision_rows=prows, clutter_share=pp.clutter_share, spread=spread)
+                         precision_rows=prows, clutter_share=pp.clutter_share, spread=spread, seen=seen)
 
 
-def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarray:
+def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None = None) -> np.ndarray:
     """(N,) each query's best chamfer score over every grid position and yaw of ``spectra``
     (the search's first step, :func:`chamfer_table`, without the local search): how well a
     layer of the grid at one camera height explains each panorama, to choose the layers
@@ -1422,7 +1468,8 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarr
     out = np.full(len(lines), -np.inf)
     with threadpool_limits(limits=usable_cores(), user_api="blas"):
         for s in range(0, len(lines), PANORAMA_BATCH):
-            table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp)
+            table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp,
+                                  None if seen is None else seen[s:s + PANORAMA_BATCH])
             if table.shape[1]:
                 out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
     return out
@@ -1430,7 +1477,8 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any) -> np.ndarr
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
-                     progress: Callable[[Iterable], Iterable] = lambda it: it) -> PanoramaAnswers:
+                     progress: Callable[[Iterable], Iterable] = lambda it: it,
+                     seen: np.ndarray | None = None) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image, and the best score of a rival answer (:func:`rival_pose`, ``pp.margin_distance_m``
     and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
@@ -1475,7 +1523,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     With ``pp.orientation_bins`` B > 1 (the oriented score, chamfer only) ``lines`` are
     (N, B, H, W) oriented channels (:func:`orientation_channels`), ``database["spectra"]``
     built with the same bins and ``orientation_spread``, and the local poses are rendered
-    with their directions."""
+    with their directions.
+
+    ``seen`` (N, H; :func:`seen_rows`; chamfer with chance ``none``): the rows each query's
+    photo covered (photo spheres stored cropped): in every score of that query, the tables'
+    and the local search's, the recall half counts the map's lines in those rows only (the
+    local search weighs the other rows zero). None: every row."""
     bins = int(pp.orientation_bins)
     n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score, rival = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n), np.full(n, np.nan)
@@ -1487,14 +1540,20 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     # halves only (a chance-corrected tolerant score is not derived: every candidate exact)
     coarse = chamfer and pp.chamfer_chance == "none" and pp.coarse_candidates > 0 and pp.refine_candidates > 0
 
+    # a photo sphere stored cropped: each score's recall half over the rows it saw
+    # (None: every query saw every row)
+    if seen is not None and (not chamfer or pp.chamfer_chance != "none" or bool(np.all(seen == 1.0))):
+        seen = None
+
     def tolerant_tables(ks: np.ndarray) -> np.ndarray:
         return tolerant_chamfer_table(database["spectra"], queries[ks], recall_tau_px=pp.coarse_tau_px,
                                       blur_px=pp.coarse_blur_px, weights=weights, precision_rows=prows, spread=spread,
-                                      bands=tolerant_bands(w, pp.coarse_tau_px))
+                                      bands=tolerant_bands(w, pp.coarse_tau_px), seen=None if seen is None else seen[ks])
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
-            return _search_table(database["spectra"], queries[ks], weights, prows, spread, pp)
+            return _search_table(database["spectra"], queries[ks], weights, prows, spread, pp,
+                                 None if seen is None else seen[ks])
         return np.stack([iou_yaw_scores(database["bits"], database["counts"], lines[k]) for k in ks])
 
     z = float(poses[0, 2]) if len(poses) else 0.0
@@ -1516,12 +1575,14 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
         an earlier render of the same point) at shifts cols (L, S)."""
+        # the rows the photo saw weigh the map's lines: only those count in the recall half
+        wk = weights if seen is None else weights * seen[k]
         if spread is not None:
-            out = oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=weights,
+            out = oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=wk,
                                      spread=spread, query_close=q_close, precision_rows=prows)
         elif chamfer:
             out = chamfer_at_shifts(unpack(renders(pts), h, w), queries[k], cols, tau_px=pp.chamfer_tau_px,
-                                    weights=weights, chance=pp.chamfer_chance, query_close=q_close,
+                                    weights=wk, chance=pp.chamfer_chance, query_close=q_close,
                                     precision_rows=prows, clutter_share=pp.clutter_share)
         else:
             dil = pack(dilate_lines(unpack(renders(pts), h, w), tolerance_px))

@@ -58,7 +58,8 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
     (:func:`placeloc.geometry.panorama.upright_rotation`), else 0. A photo that is not 2:1
     but carries Photo Sphere metadata (GPano: a phone's photo sphere stored cropped to what it
     covered) is placed in its whole panorama first, and only its lines are drawn
-    (:func:`placeloc.geometry.panorama.whole_panorama`)."""
+    (:func:`placeloc.geometry.panorama.whole_panorama`); ``coverage`` (4,) float32 says what
+    part of the sphere it covers (left, top, width, height as fractions; 0 0 1 1: all)."""
     coverage = WHOLE
     h, w = gray.shape[:2]
     if abs(w / h - 2.0) > 0.02 and path:
@@ -73,4 +74,5 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
                             orientation_bins=orientation_bins if orientation_bins > 1 else 0,
                             rotation=None if tilt == 0.0 else rotation, coverage=coverage)
     lines = pack(orientation_channels(drawn, orientation_bins)) if orientation_bins > 1 else pack(drawn[None])
-    return {"lines": lines, "tilt_deg": np.float32(tilt)}
+    return {"lines": lines, "tilt_deg": np.float32(tilt),
+            "coverage": np.array([coverage.left, coverage.top, coverage.width, coverage.height], np.float32)}

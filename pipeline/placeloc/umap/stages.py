@@ -38,6 +38,7 @@ from placeloc.umap.panorama import (
     render_panoramas,
     row_weights,
     search_layers,
+    seen_rows,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_panorama_overlay
@@ -328,10 +329,16 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
         database = {"spectra": read_mapped(idx["spectra"])}  # about 1 GB: mapped, not copied
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
+    # photo spheres stored cropped: the rows each one saw (the recall half counts the map's lines there only)
+    seen = (seen_rows(ex["coverage"][()], lines.shape[-2], ex["tilt_deg"][()] if "tilt_deg" in ex else None)
+            if "coverage" in ex else None)
+    if seen is not None and not np.all(seen == 1.0):
+        log.info("%d of %d panoramas cover part of the sphere (Photo Sphere metadata): each is scored over the rows "
+                 "it covers", int(np.sum(np.any(seen == 0.0, axis=1))), len(seen))
     return search_layers(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
                          tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
                          hidden=bool(ctx.params.hidden_lines),
-                         progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc))
+                         progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen)
 
 
 def localize(ctx: Any) -> None:

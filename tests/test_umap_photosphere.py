@@ -190,3 +190,27 @@ def test_the_seen_rows_table_equals_the_scores_with_the_unseen_rows_weighed_zero
     assert rows.tolist() == [[0, 0, 1, 1, 1, 1, 0, 0]]
     # levelled by 20 deg, the band it saw in the levelled frame is 20 deg narrower either side
     assert seen_rows(np.array([[0.0, 0.25, 1.0, 0.5]]), 8, np.array([20.0])).tolist() == [[0, 0, 0, 1, 1, 0, 0, 0]]
+
+
+def test_generated_photo_spheres_are_the_whole_panoramas_rows_with_their_metadata(tmp_path):
+    # cover_low_deg / cover_high_deg: the same home and poses, each panorama stored as the
+    # rows between those elevations (JPEG, so within its rounding) with its metadata
+    from placeloc.synth.home import generate
+
+    kw = {"seed": 3, "panoramas": 3, "width": 256, "stats_width": 64}
+    generate(tmp_path / "whole", **kw)
+    generate(tmp_path / "sphere", cover_low_deg=-55.0, cover_high_deg=60.0, **kw)
+    whole = list(csv.DictReader(open(tmp_path / "whole" / "poses.csv")))
+    sphere = list(csv.DictReader(open(tmp_path / "sphere" / "poses.csv")))
+    top, bottom = round(30 / 180 * 128), round(145 / 180 * 128)
+    for a, b in zip(whole, sphere):
+        assert b["frame"] == a["frame"].replace(".png", ".jpg") and (a["x"], a["y"], a["heading_deg"]) == (
+            b["x"], b["y"], b["heading_deg"])
+        assert panorama_crop(tmp_path / "sphere" / "panoramas" / b["frame"]) == PanoramaCrop(256, 128, 0, top, 256,
+                                                                                            bottom - top)
+        full = cv2.imread(str(tmp_path / "whole" / "panoramas" / a["frame"]), cv2.IMREAD_GRAYSCALE)
+        part = cv2.imread(str(tmp_path / "sphere" / "panoramas" / b["frame"]), cv2.IMREAD_GRAYSCALE)
+        assert part.shape == (bottom - top, 256)
+        assert np.abs(part.astype(int) - full[top:bottom]).mean() < 2.0
+    with pytest.raises(ValueError, match="cover_low_deg"):
+        generate(tmp_path / "bad", cover_low_deg=10.0, cover_high_deg=-10.0, **kw)

@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 from numba import njit, prange
 
+from placeloc.core.images import PanoramaCrop
 from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, free_space_mask, wall_distance
 from placeloc.geometry.panorama import axis_rotation, panorama_line_image, render_panoramas, turn_panorama
 from placeloc.geometry.polygons import point_in_polygon
@@ -656,10 +657,27 @@ def room_name(fp: dict[str, Any], x: float, y: float) -> str:
     return str(fp["rooms"][int(np.argmin(d))]["name"])
 
 
+def photo_sphere_jpeg(gray: np.ndarray, crop: PanoramaCrop) -> bytes:
+    """A JPEG (quality 95) of a cropped photo sphere with its Photo Sphere XMP metadata in an
+    APP1 segment right after the start marker, as a phone stores it (the GPano properties
+    :func:`placeloc.core.images.panorama_crop` reads)."""
+    props = {"ProjectionType": "equirectangular", "FullPanoWidthPixels": crop.full_width,
+             "FullPanoHeightPixels": crop.full_height, "CroppedAreaLeftPixels": crop.left,
+             "CroppedAreaTopPixels": crop.top, "CroppedAreaImageWidthPixels": crop.width,
+             "CroppedAreaImageHeightPixels": crop.height}
+    xmp = ('<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+           '<rdf:Description rdf:about="" xmlns:GPano="http://ns.google.com/photos/1.0/panorama/" '
+           + " ".join(f'GPano:{k}="{v}"' for k, v in props.items()) + "/></rdf:RDF></x:xmpmeta>").encode()
+    payload = b"http://ns.adobe.com/xap/1.0/\x00" + xmp
+    data = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    return data[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + data[2:]
+
+
 def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 1024, bedrooms: int = 3, z: float = 1.5,
              noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
              near_wall_share: float = 0.1, cabinet_share: float = 0.05, kitchen_things: bool = True,
-             z_spread: float = 0.03, tilt_deg: float = 0.0, **unknown: Any) -> dict[str, Any]:
+             z_spread: float = 0.03, tilt_deg: float = 0.0, cover_low_deg: float = -90.0, cover_high_deg: float = 90.0,
+             **unknown: Any) -> dict[str, Any]:
     """Write the home, its panoramas, their ground truth and the line statistics under
     ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
     32 cameras within 0.12 m of a door's lintel face), ``near_wall_share`` 0.4-0.6 m from a
@@ -675,10 +693,17 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     horizontal axis of uniform direction (a hand-held 360 degree photo not quite level),
     drawn from a generator of its own (0: the level home, the same images), and
     ``poses.csv`` gains the columns ``tilt_deg`` and ``tilt_axis_deg`` (the axis's plan
-    direction, degrees counterclockwise from the camera's heading)."""
+    direction, degrees counterclockwise from the camera's heading). ``cover_low_deg`` /
+    ``cover_high_deg`` other than -90 / 90: each panorama is stored as a photo sphere that
+    covered only the elevations between them (a phone's sphere without its floor or ceiling
+    cap): cropped to those rows, as JPEG (quality 95) with its Photo Sphere metadata
+    (:func:`photo_sphere_jpeg`), named ``pano_NNN.jpg``."""
     if unknown:
-        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, tilt_deg, noise, "
+        raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, tilt_deg, "
+                        "cover_low_deg, cover_high_deg, noise, "
                         "blur, stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
+    if not -90.0 <= cover_low_deg < cover_high_deg <= 90.0:
+        raise ValueError(f"cover_low_deg {cover_low_deg} and cover_high_deg {cover_high_deg}: need -90 <= low < high <= 90")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -724,8 +749,14 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)
-            name = f"pano_{i:03d}.png"
-            cv2.imwrite(str(out_dir / "panoramas" / name), img)
+            if (cover_low_deg, cover_high_deg) == (-90.0, 90.0):
+                name = f"pano_{i:03d}.png"
+                cv2.imwrite(str(out_dir / "panoramas" / name), img)
+            else:
+                name = f"pano_{i:03d}.jpg"
+                top, bottom = (int(round((90.0 - e) / 180.0 * height)) for e in (cover_high_deg, cover_low_deg))
+                (out_dir / "panoramas" / name).write_bytes(
+                    photo_sphere_jpeg(img[top:bottom], PanoramaCrop(width, height, 0, top, width, bottom - top)))
             w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}",
                         *([f"{tilt[0]:.3f}", f"{tilt[1]:.2f}"] if tilt else [])])
             written.append({"frame": name, "x": float(x), "y": float(y), "z": zz, "heading_deg": heading})

@@ -205,7 +205,7 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     import h5py
 
     from placeloc.core.artifacts import read_strings
-    from placeloc.umap.panorama import search_near
+    from placeloc.umap.panorama import search_near, seen_rows
     from placeloc.umap.params import PanoramaParams, UMapParams
     from placeloc.umap.stages import query_line_images
 
@@ -218,13 +218,16 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     model = load_model(str(data / "floor_plan.yaml"))
     with h5py.File(run_dir / "extract.h5", "r") as ex:
         names = read_strings(ex["names"])
-        queries = [query_line_images(ex, int(pp.orientation_bins), slice(k, k + 1))
-                   for k in (names.index(r["frame"]) for r in wrong)]
+        ks = [names.index(r["frame"]) for r in wrong]
+        queries = [query_line_images(ex, int(pp.orientation_bins), slice(k, k + 1)) for k in ks]
+        # the rows each photo covered, as localize scores them (photo spheres stored cropped)
+        seen = ([seen_rows(ex["coverage"][k], queries[0].shape[-2], ex["tilt_deg"][k:k + 1] if "tilt_deg" in ex else None)
+                 for k in ks] if "coverage" in ex else [None] * len(ks))
     out = []
-    for r, lines in zip(wrong, queries):
+    for r, lines, rows in zip(wrong, queries, seen):
         near = search_near(lines, np.array([float(r["true_x"]), float(r["true_y"])]), model, pp, radius_m=NEAR_TRUTH_M,
                            step_m=GRID_STEP_M, z=None, tolerance_px=int(up.tolerance_px),
-                           wall_margin_m=float(up.grid.wall_margin_m), hidden=bool(up.hidden_lines))
+                           wall_margin_m=float(up.grid.wall_margin_m), hidden=bool(up.hidden_lines), seen=rows)
         out.append((r["frame"], float(r["score"]), float(near.score[0])))
     return out
 

@@ -1771,7 +1771,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
 
 def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, radius_m: float, step_m: float,
-                z: float | None, tolerance_px: int, wall_margin_m: float, hidden: bool) -> PanoramaAnswers:
+                z: float | None, tolerance_px: int, wall_margin_m: float, hidden: bool,
+                seen: np.ndarray | None = None) -> PanoramaAnswers:
     """The search of :func:`search_panoramas` for (N, ...) query line images over a grid of
     ``step_m`` within ``radius_m`` of the plan ``point`` only (free space of ``model``, at
     camera height ``z``; None: the model's), its database drawn on the spot: what the method
@@ -1779,7 +1780,8 @@ def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, ra
     search failure: where the best pose near the truth scores below a wrong answer, the
     score prefers the wrong place (no search fixes that); where above, the search missed it.
     Raises ValueError where no grid position lies within the radius, or where the camera
-    height is not given (no ``z``, no ``camera_z`` in the model) or lies outside the storey."""
+    height is not given (no ``z``, no ``camera_z`` in the model) or lies outside the storey.
+    ``seen``: the rows each query's photo covered, as :func:`search_panoramas` takes them."""
     from placeloc.geometry import pose_grid
     from placeloc.geometry.floorplan import free_space_mask
 
@@ -1815,4 +1817,4 @@ def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, ra
                               clutter_share=float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None,
                               spread=int(pp.orientation_spread) if bins > 1 else None)
     return search_panoramas(lines, poses, model.segments, model.faces, {"spectra": spectra}, pp,
-                            tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden)
+                            tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden, seen=seen)

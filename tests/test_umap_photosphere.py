@@ -214,3 +214,21 @@ def test_generated_photo_spheres_are_the_whole_panoramas_rows_with_their_metadat
         assert np.abs(part.astype(int) - full[top:bottom]).mean() < 2.0
     with pytest.raises(ValueError, match="cover_low_deg"):
         generate(tmp_path / "bad", cover_low_deg=10.0, cover_high_deg=-10.0, **kw)
+
+
+def test_the_picture_shades_the_rows_the_photo_did_not_cover(tmp_path):
+    from placeloc.umap.plots import plot_panorama_overlay
+
+    h, w = 72, 144
+    unseen = np.zeros(h, bool)
+    unseen[:20] = True                                         # the ceiling cap the photo lacks
+    empty = np.zeros((h, w), np.uint8)
+    plot_panorama_overlay(tmp_path / "p.png", empty, empty, None, "a cropped sphere", unseen=unseen)
+    plot_panorama_overlay(tmp_path / "whole.png", empty, empty, None, "a whole sphere")
+    img = cv2.imread(str(tmp_path / "p.png"))[:, :, ::-1]
+    whole = cv2.imread(str(tmp_path / "whole.png"))[:, :, ::-1]
+    # the plot area spans rows 56..504 of the picture for elevations 90..-90: elevation 75 deg
+    # (image row 6 of 72) lies at picture row 56 + 448 * 15 / 180, elevation 0 at the middle
+    top, middle = int(56 + 448 * 15 / 180), 280
+    assert tuple(img[top, 500]) == (219, 227, 242) and tuple(img[middle, 500]) == (255, 255, 255)
+    assert tuple(whole[top, 500]) == (255, 255, 255)

@@ -12,11 +12,12 @@ from placeloc.evaluation.pose_estimates import plot_error_cdf, plot_estimates_on
 
 
 def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray, at_truth: np.ndarray | None,
-                          title: str, second: str = "the truth") -> None:
+                          title: str, second: str = "the truth", unseen: np.ndarray | None = None) -> None:
     """One panorama's detected lines (grey) with the map's lines rendered at the estimated
     pose (red) and at the true pose (green): where they differ shows why a query failed.
     ``second`` names the green pose in the legend (a doubtful answer's rival, where there is
-    no truth).
+    no truth). ``unseen`` (H,) bool: the rows the photo did not cover (a photo sphere stored
+    cropped), shaded, so that the map's lines there read as outside the photo, not missed.
 
     Drawn straight into pixels (:mod:`placeloc.evaluation.raster`), as the ranked results'
     pictures are: with matplotlib (``tight_layout`` drawing it twice) a picture took 126 ms
@@ -25,6 +26,8 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
 
     h, w = query.shape
     img = np.ones((h, w, 3))
+    if unseen is not None:
+        img[np.asarray(unseen, bool)] = (0.86, 0.89, 0.95)
     img[query > 0] = (0.55, 0.55, 0.55)
     if at_truth is not None:
         img[at_truth > 0] = (0.1, 0.65, 0.1)
@@ -39,6 +42,7 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     ax.box()
     ax.labels("azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)", "elevation [deg]",
               title + "\ngrey: detected lines; red: map at the estimate"
-              + (f"; green: map at {second}; brown: both" if at_truth is not None else ""),
+              + (f"; green: map at {second}; brown: both" if at_truth is not None else "")
+              + ("; blue: not in the photo" if unseen is not None and np.any(unseen) else ""),
               size=12, title_size=11)
     canvas.save(path)

@@ -569,7 +569,7 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
         _overlay(ctx.output(f"panorama_{Path(names[k]).stem}.png"), ex["lines"][k], (h, w), segs, faces,
                  (loc["x"][k], loc["y"][k], zs[k], est_h[k]), true_pose,
                  f"{names[k]}: error {err[k]:.2f} m, estimated heading {est_h[k]:.1f} deg{_height_note(loc, k)}"
-                 f"{_tilt_note(loc, k)}{_doubt_note(loc, k)}")
+                 f"{_tilt_note(loc, k)}{_doubt_note(loc, k)}", unseen=_unseen_rows(ex, k, h))
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
@@ -601,7 +601,7 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
                      rival if rival is not None and np.isfinite(rival).all() else None,
                      f"{names[k]}: answer ({x[k]:.2f}, {y[k]:.2f}) m{where}, heading {heading[k]:.1f} deg"
                      f"{_height_note(loc, k)}{_tilt_note(loc, k)}{doubt}",
-                     second="the rival")
+                     second="the rival", unseen=_unseen_rows(ex, k, size[0]))
             out.append(path)
     return out
 
@@ -623,8 +623,18 @@ def _answer_heights(loc: Any, z: float) -> np.ndarray:
     return loc["height_m"][()] if "height_m" in loc else np.full(len(loc["x"]), z)
 
 
+def _unseen_rows(ex: Any, k: int, height: int) -> np.ndarray | None:
+    """The line-image rows panorama ``k`` of the extract artifact ``ex`` did not cover (a
+    photo sphere stored cropped; those its score leaves out, :func:`seen_rows`), or None
+    where it covered them all."""
+    if "coverage" not in ex:
+        return None
+    seen = seen_rows(ex["coverage"][k], height, ex["tilt_deg"][k:k + 1] if "tilt_deg" in ex else None)[0]
+    return None if bool(np.all(seen == 1.0)) else seen == 0.0
+
+
 def _overlay(path: Path, words: np.ndarray, size: tuple[int, int], segs: np.ndarray, faces: np.ndarray, pose: tuple,
-             second_pose: tuple | None, title: str, second: str = "the truth") -> None:
+             second_pose: tuple | None, title: str, second: str = "the truth", unseen: np.ndarray | None = None) -> None:
     """One panorama's picture (:func:`plot_panorama_overlay`): its packed oriented line
     channels ``words`` of ``size`` (H, W) (their union drawn) against the map rendered at
     ``pose`` and at ``second_pose`` (x, y, z, heading in degrees; None: none), each render in
@@ -635,7 +645,7 @@ def _overlay(path: Path, words: np.ndarray, size: tuple[int, int], segs: np.ndar
         return unpack(render_panoramas(segs, faces, np.array([q], float), width=w, height=h, hidden=True), h, w)[0]
 
     plot_panorama_overlay(path, unpack(words, h, w).max(axis=0), at(pose), None if second_pose is None else at(second_pose),
-                          title, second=second)
+                          title, second=second, unseen=unseen)
 
 
 def _doubt_note(loc: Any, k: int) -> str:

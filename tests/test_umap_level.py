@@ -160,6 +160,12 @@ def test_generated_cameras_tilt_as_asked_and_are_levelled(tmp_path):
         found = float(panorama_arrays(gray, width=144, height=72, face_px=128, min_length=4.0,
                                       level_max_deg=20.0)["tilt_deg"])
         assert found == pytest.approx(float(b["tilt_deg"]), abs=1.0), b["frame"]
+    # the line statistics are the scene's at the true pose: the tilted camera's lines levelled
+    # by its known tilt agree with the level camera's (medians within 5 points; 72 / 71 % here)
+    import json
+    stats = {k: json.loads((tmp_path / k / "line_stats.json").read_text()) for k in ("level", "tilted")}
+    for key in ("detected_on_map", "map_detected"):
+        assert stats["tilted"][key] == pytest.approx(stats["level"][key], abs=0.05)
 
 
 def test_tilted_panoramas_localized_end_to_end(tmp_path):

@@ -42,7 +42,13 @@ from numba import njit, prange
 
 from placeloc.core.images import PanoramaCrop
 from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, free_space_mask, wall_distance
-from placeloc.geometry.panorama import axis_rotation, panorama_line_image, render_panoramas, turn_panorama
+from placeloc.geometry.panorama import (
+    axis_rotation,
+    draw_line_image,
+    panorama_lines,
+    render_panoramas,
+    turn_panorama,
+)
 from placeloc.geometry.polygons import point_in_polygon
 from placeloc.geometry.rays import ray_box, ray_segment
 from placeloc.geometry.zind import write_zind
@@ -743,9 +749,11 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             # the tripod's base right under the camera (a dark disk below -78 deg, its rim a circle of lines)
             img[int(height * (90 + 78) / 180):] *= 0.45
             tilt = (float(tilt_rng.uniform(0.0, tilt_deg)), float(tilt_rng.uniform(0.0, 360.0))) if tilt_deg > 0 else None
+            turn = None
             if tilt:   # the camera's frame (azimuths from its heading) turned about a horizontal axis
                 a = math.radians(tilt[1])
-                img = turn_panorama(img, axis_rotation(np.array([math.cos(a), math.sin(a), 0.0]), tilt[0]))
+                turn = axis_rotation(np.array([math.cos(a), math.sin(a), 0.0]), tilt[0])
+                img = turn_panorama(img, turn)
             img = np.clip(img * 255.0 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
             if blur > 0:
                 img = cv2.GaussianBlur(img, (0, 0), blur)
@@ -760,7 +768,9 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
             w.writerow([name, f"{x:.4f}", f"{y:.4f}", f"{zz:.4f}", f"{heading:.2f}",
                         *([f"{tilt[0]:.3f}", f"{tilt[1]:.2f}"] if tilt else [])])
             written.append({"frame": name, "x": float(x), "y": float(y), "z": zz, "heading_deg": heading})
-            q = panorama_line_image(img, width=stats_width, height=sh, face_px=width // 4, min_length=8.0)
+            # the statistics of the scene at the true pose: a tilted camera's lines drawn levelled by its known tilt
+            q = draw_line_image(panorama_lines(img, face_px=width // 4, min_length=8.0), face_px=width // 4,
+                                width=stats_width, height=sh, rotation=turn)
             m = render_panoramas(model.segments, model.faces, np.array([[x, y, zz, heading]]), width=stats_width, height=sh,
                                  hidden=True)
             bits = np.unpackbits(m.view(np.uint8), bitorder="little")[: sh * stats_width].reshape(sh, stats_width)

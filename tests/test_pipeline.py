@@ -229,3 +229,46 @@ def test_a_missing_or_edited_side_output_reruns_its_stage(route, tmp_path):
     run_all(cfg, run, quiet=True)
     assert (run / "matches.csv").read_text().startswith("query,reference")
     assert _mtimes(run)["extract.h5"] == before["extract.h5"]
+
+
+def test_a_change_of_placeloc_s_own_code_reruns_every_stage(route, tmp_path, monkeypatch):
+    # the version number stays between commits; the stamp holds the source's fingerprint, so
+    # an artifact written by other code is not taken as up to date
+    from placeloc.core import runner
+
+    fingerprint = runner.code_fingerprint()
+    assert len(fingerprint) == 64 and runner.code_fingerprint() == fingerprint      # once a process
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run_all(cfg, run, quiet=True)
+    first = _mtimes(run)
+    run_all(cfg, run, quiet=True)
+    assert _mtimes(run) == first
+    monkeypatch.setattr(runner, "code_fingerprint", lambda: "0" * 64)
+    run_all(cfg, run, quiet=True)
+    again = _mtimes(run)
+    assert all(again[k] != first[k] for k in first)
+
+
+def test_the_code_fingerprint_follows_the_source(tmp_path, monkeypatch):
+    # by path and content: a copy of the package fingerprints alike, an edited file does not
+    import shutil
+
+    from placeloc.core import runner
+
+    src = Path(runner.__file__).resolve().parent.parent
+    copy = tmp_path / "placeloc"
+    shutil.copytree(src, copy, ignore=shutil.ignore_patterns("__pycache__"))
+
+    def fingerprint_of(root: Path) -> str:
+        runner.code_fingerprint.cache_clear()
+        monkeypatch.setattr(runner, "__file__", str(root / "core" / "runner.py"))
+        try:
+            return runner.code_fingerprint()
+        finally:
+            runner.code_fingerprint.cache_clear()
+
+    original = fingerprint_of(src)
+    assert fingerprint_of(copy) == original
+    (copy / "core" / "runner.py").write_text((copy / "core" / "runner.py").read_text() + "\n# edited\n")
+    assert fingerprint_of(copy) != original

@@ -26,6 +26,18 @@ def _mtimes(run_dir: Path) -> dict[str, int]:
     return {p.name: p.stat().st_mtime_ns for p in run_dir.glob("*.h5")}
 
 
+def _settled_run(route: Path, tmp_path: Path) -> tuple[dict, Path, dict[str, int]]:
+    """The route's config (no plots) run twice in ``tmp_path/run``: the second run re-runs
+    nothing. Returns the config, the run folder and the artifacts' mtimes."""
+    run = tmp_path / "run"
+    cfg = load_config(route / "config.yaml", ["plots=false"])
+    run_all(cfg, run, quiet=True)
+    first = _mtimes(run)
+    run_all(cfg, run, quiet=True)
+    assert _mtimes(run) == first
+    return cfg, run, first
+
+
 def test_natural_sort_and_empty_folder(tmp_path):
     assert sorted(["img10.png", "img2.png", "img1.png"], key=natural_key) == ["img1.png", "img2.png", "img10.png"]
     (tmp_path / "empty").mkdir()
@@ -214,12 +226,7 @@ def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):
 def test_a_missing_or_edited_side_output_reruns_its_stage(route, tmp_path):
     """metrics.json and the plots belong to evaluate: delete or edit one and evaluate is no
     longer up to date, while the stages before it stay skipped."""
-    run = tmp_path / "run"
-    cfg = load_config(route / "config.yaml", ["plots=false"])
-    run_all(cfg, run, quiet=True)
-    before = _mtimes(run)
-    run_all(cfg, run, quiet=True)
-    assert _mtimes(run) == before
+    cfg, run, before = _settled_run(route, tmp_path)
     (run / "metrics.json").unlink()
     run_all(cfg, run, quiet=True)
     now = _mtimes(run)
@@ -238,12 +245,7 @@ def test_a_change_of_placeloc_s_own_code_reruns_every_stage(route, tmp_path, mon
 
     fingerprint = runner.code_fingerprint()
     assert len(fingerprint) == 64 and runner.code_fingerprint() == fingerprint      # once a process
-    run = tmp_path / "run"
-    cfg = load_config(route / "config.yaml", ["plots=false"])
-    run_all(cfg, run, quiet=True)
-    first = _mtimes(run)
-    run_all(cfg, run, quiet=True)
-    assert _mtimes(run) == first
+    cfg, run, first = _settled_run(route, tmp_path)
     monkeypatch.setattr(runner, "code_fingerprint", lambda: "0" * 64)
     run_all(cfg, run, quiet=True)
     again = _mtimes(run)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -238,7 +239,7 @@ def test_a_missing_or_edited_side_output_reruns_its_stage(route, tmp_path):
     assert _mtimes(run)["extract.h5"] == before["extract.h5"]
 
 
-def test_a_change_of_placeloc_s_own_code_reruns_every_stage(route, tmp_path, monkeypatch):
+def test_a_change_of_placeloc_s_own_code_reruns_every_stage(route, tmp_path, monkeypatch, caplog):
     # the version number stays between commits; the stamp holds the source's fingerprint, so
     # an artifact written by other code is not taken as up to date
     from placeloc.core import runner
@@ -246,8 +247,12 @@ def test_a_change_of_placeloc_s_own_code_reruns_every_stage(route, tmp_path, mon
     fingerprint = runner.code_fingerprint()
     assert len(fingerprint) == 64 and runner.code_fingerprint() == fingerprint      # once a process
     cfg, run, first = _settled_run(route, tmp_path)
+    assert f"placeloc_code: {fingerprint}" in describe(run / "extract.h5")      # placeloc inspect says which code
     monkeypatch.setattr(runner, "code_fingerprint", lambda: "0" * 64)
-    run_all(cfg, run, quiet=True)
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_all(cfg, run, quiet=True)
+    assert f"extract: {run / 'extract.h5'} was written by other placeloc code (source fingerprint {fingerprint[:12]}, " \
+           f"now {'0' * 12}); the stage runs again" in caplog.text
     again = _mtimes(run)
     assert all(again[k] != first[k] for k in first)
 

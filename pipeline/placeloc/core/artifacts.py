@@ -469,7 +469,7 @@ def describe(path: str | Path) -> str:
         lines.append(f"{path}")
         if "stamp" not in a:
             lines.append("  (no provenance: not written by placeloc, or incomplete)")
-        for key in ("stage", "method", "placeloc_version", "created", "stamp", "config_hash", "write_id"):
+        for key in ("stage", "method", "placeloc_version", "placeloc_code", "created", "stamp", "config_hash", "write_id"):
             if key in a:
                 lines.append(f"  {key}: {a[key]}")
         if "note" in a:

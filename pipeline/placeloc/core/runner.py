@@ -292,6 +292,11 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 continue
             if why is not None:
                 log.warning("%s: %s cannot be used: %s; the stage runs again", name, path, why)
+            elif found is not None and found != stamp:
+                other = _written_by_other_code(path)
+                if other:
+                    log.info("%s: %s was written by other placeloc code (source fingerprint %s, now %s); the stage "
+                             "runs again", name, path, other[:12], code_fingerprint()[:12])
             if reuse and not forced:
                 _remove_previous_outputs(path, stamp)
                 donor = _reuse(path, stamp, reuse)
@@ -370,6 +375,19 @@ def code_fingerprint() -> str:
             with open(path, "rb") as f:
                 digest.update(f.read())
     return digest.hexdigest()
+
+
+def _written_by_other_code(path: Path) -> str | None:
+    """The source fingerprint an artifact records where it is not this code's
+    (:func:`code_fingerprint`), else None (the same code, or an artifact from before
+    fingerprints were recorded)."""
+    try:
+        with h5py.File(path, "r") as f:
+            code = f.attrs.get("placeloc_code")
+    except OSError:
+        return None
+    code = code.decode() if isinstance(code, bytes) else code
+    return code if code and code != code_fingerprint() else None
 
 
 def _parent_token(stamp: str, path: Path) -> str:
@@ -572,7 +590,8 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
     fn = declared.run if declared is not None else None
     note = "" if fn is not None else f"{method.name} has no work in {name}: input passed through"
     attrs = provenance_attrs(name, method.name, __version__, to_yaml(config),
-                             config_hash(config), inputs, stamp, passthrough=fn is None, note=note)
+                             config_hash(config), inputs, stamp, passthrough=fn is None, note=note,
+                             placeloc_code=code_fingerprint())
     t0 = time.perf_counter()
     staging = run_dir / f".{name}.outputs{TMP_MARK}{os.getpid()}"
     previous = (_recorded_side_outputs(path) or {}) if path.is_file() else {}

@@ -72,6 +72,17 @@ def test_whole_panorama_by_hand():
         whole_panorama(np.zeros((5, 3), np.uint8), PanoramaCrop(12, 6, 0, 0, 6, 4))
 
 
+def test_metadata_asking_for_a_huge_canvas_is_refused(monkeypatch):
+    # a 100 x 50 photo said to be a 20 x 10 crop of a 20,000 x 10,000 panorama (a damaged or
+    # hostile file) would need a canvas of 100,000 x 50,000 pixels (5 GB): refused with the
+    # file named, as a decode larger than the memory is
+    monkeypatch.setenv("PLACELOC_MEMORY_LIMIT_MB", "512")
+    with pytest.raises(ImageError, match="odd.jpg: its Photo Sphere metadata .* more than a quarter of the memory"):
+        whole_panorama(np.zeros((50, 100), np.uint8), PanoramaCrop(20000, 10000, 0, 0, 20, 10), "odd.jpg")
+    canvas, _ = whole_panorama(np.zeros((50, 100), np.uint8), PanoramaCrop(200, 100, 0, 25, 100, 50), "fine.jpg")
+    assert canvas.shape == (100, 200)
+
+
 def _line_image(arrays: dict, h: int, w: int) -> np.ndarray:
     return np.unpackbits(arrays["lines"][0].view(np.uint8), bitorder="little")[:h * w].reshape(h, w)
 

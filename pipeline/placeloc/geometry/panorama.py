@@ -427,6 +427,15 @@ def whole_panorama(gray: np.ndarray, crop: PanoramaCrop, path: str = "") -> tupl
                          f"{crop.width}x{crop.height}: it was resized unevenly or cropped again; export it anew")
     full_w = max(2, int(round(crop.full_width * scale)))
     full_h = full_w // 2
+    # a crop that is a sliver of its panorama (or metadata that says so) would ask for a canvas
+    # many times the photo: refused as decoding refuses an image larger than the memory
+    from placeloc.core.safe_io import memory_budget
+
+    budget = memory_budget() // 4
+    if full_w * full_h * gray.itemsize > budget:
+        raise ImageError(f"{path}: its Photo Sphere metadata (GPano) places the {w}x{h} photo in a {full_w}x{full_h} "
+                         f"panorama, more than a quarter of the memory available ({budget * 4 / 2**20:.0f} MB); check "
+                         "the metadata (FullPanoWidthPixels, CroppedAreaImageWidthPixels) or resize the photo")
     top = min(int(round(crop.top * scale)), max(0, full_h - h))
     rows = min(h, full_h - top)
     canvas = np.full((full_h, full_w), int(round(float(gray.mean()))), gray.dtype)

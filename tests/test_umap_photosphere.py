@@ -54,6 +54,10 @@ def test_the_crop_is_read_from_attributes_or_elements(tmp_path):
     write_photo_sphere(tmp_path / "cyl.jpg", gray, gpano_xmp(crop, projection="cylindrical"))
     with pytest.raises(ImageError, match="cyl.jpg.*ProjectionType 'cylindrical'"):
         panorama_crop(tmp_path / "cyl.jpg")
+    for bad in ("inf", "nan", "wide"):
+        write_photo_sphere(tmp_path / "bad.jpg", gray, gpano_xmp(crop).replace(b'"8000"', f'"{bad}"'.encode()))
+        with pytest.raises(ImageError, match="bad.jpg.*not a number"):
+            panorama_crop(tmp_path / "bad.jpg")
     write_photo_sphere(tmp_path / "off.jpg", gray, gpano_xmp(PanoramaCrop(8000, 4000, 0, 3000, 8000, 2000)))
     with pytest.raises(ImageError, match="off.jpg.*does not fit"):
         panorama_crop(tmp_path / "off.jpg")

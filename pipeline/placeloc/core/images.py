@@ -550,7 +550,7 @@ def panorama_crop(path: str | Path) -> PanoramaCrop | None:
         return None
     try:
         crop = PanoramaCrop(*(int(float(values[k])) for k in GPANO_FIELDS))   # type: ignore[arg-type]
-    except ValueError:
+    except (ValueError, OverflowError):   # not a number; inf
         raise ImageError(f"{path}: its Photo Sphere metadata (GPano) holds a value that is not a number: "
                          f"{', '.join(f'{k}={v}' for k, v in values.items())}") from None
     fits = (crop.full_width > 0 and crop.full_height > 0 and abs(crop.full_width - 2 * crop.full_height) <= 2

@@ -720,12 +720,16 @@ def seen_rows(coverage: np.ndarray, height: int, tilt_deg: np.ndarray | None = N
     return ((centre[None, :] >= top) & (centre[None, :] <= bottom)).astype(np.float32)
 
 
-def _recall_seen(spectra: np.ndarray, qs: np.ndarray, rows: int, seen: np.ndarray) -> np.ndarray:
-    """The recall and precision products of :func:`chamfer_table` (chance none) apart, the
-    recall over the map's line pixels in the rows each query saw only: its product (the
-    query's closeness is zero outside them) over the share of the map's weighted line
-    pixels there, a row's share being its stored spectrum's zero frequency. ``seen`` (N,
-    rows) is :func:`seen_rows`, tiled over the channels. (F, P, N)."""
+def _table_products(spectra: np.ndarray, qs: np.ndarray, seen: np.ndarray | None) -> np.ndarray:
+    """The products of :func:`chamfer_table` (chance none; :func:`_batch_products`), (F, P,
+    N). With ``seen`` (N, R: :func:`seen_rows` tiled over the channels, R the recall half's
+    rows) the halves apart, the recall over the map's line pixels in the rows each query saw
+    only: its product (the query's closeness is zero outside them) over the share of the
+    map's weighted line pixels there, a row's share being its stored spectrum's zero
+    frequency."""
+    if seen is None:
+        return _batch_products(spectra, qs)
+    rows = seen.shape[1]
     share = np.maximum(seen @ spectra[0, :, :rows].real.T, 1e-6).T.astype(np.float32)   # (P, N)
     return _batch_products(spectra[:, :, :rows], qs[:, :rows]) / share[None] + \
         _batch_products(spectra[:, :, rows:], qs[:, rows:])
@@ -753,7 +757,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
 
     ``seen`` (N, H; :func:`seen_rows`; chance ``none``): the rows each query's photo saw (a
     photo sphere stored cropped); its recall half counts the map's lines in those rows only
-    (:func:`_recall_seen`), so a pose is not marked down for lines where the photo has no
+    (:func:`_table_products`), so a pose is not marked down for lines where the photo has no
     pixels. None: every row."""
     if seen is not None and chance != "none":
         seen = None   # the chance-corrected halves are not derived for a part of the sphere
@@ -768,11 +772,11 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
             q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
         if seen is not None:
-            q_close = q_close * np.tile(np.asarray(seen, np.float32), b)[:, :, None]
+            seen = np.tile(np.asarray(seen, np.float32), b)
+            q_close = q_close * seen[:, :, None]
         x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
         qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))
-        prod = (_batch_products(spectra, qs) if seen is None                      # (F, P, N)
-                else _recall_seen(spectra, qs, b * h, np.tile(np.asarray(seen, np.float32), b)))
+        prod = _table_products(spectra, qs, seen)                                 # (F, P, N)
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
     queries = np.asarray(queries).reshape(-1, *queries.shape[-2:])
     n_q, h, w = queries.shape
@@ -785,12 +789,12 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         q = q * np.asarray(precision_rows, np.float32)[None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
     if seen is not None:
-        q_close = q_close * np.asarray(seen, np.float32)[:, :, None]
+        seen = np.asarray(seen, np.float32)
+        q_close = q_close * seen[:, :, None]
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
-        prod = (_batch_products(spectra, qs) if seen is None                  # (F, P, N)
-                else _recall_seen(spectra, qs, h, np.asarray(seen, np.float32)))
+        prod = _table_products(spectra, qs, seen)                             # (F, P, N)
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
     recall = _batch_products(spectra[:, :, :h], qs[:, :h])                    # (F, P, N) each half
     precision = _batch_products(spectra[:, :, h:], qs[:, h:])
@@ -902,8 +906,7 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
     f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
     qs = np.ascontiguousarray(_rfft(x)[..., :f].astype(np.complex64).transpose(2, 1, 0))
-    prod = (_batch_products(spectra[:f], qs) if seen is None              # (f, P, N); the rest are zero
-            else _recall_seen(spectra[:f], qs, b * h, seen))
+    prod = _table_products(spectra[:f], qs, seen)                         # (f, P, N); the rest are zero
     return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
 
 

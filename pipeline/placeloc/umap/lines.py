@@ -25,6 +25,9 @@ def line_image(gray: np.ndarray, cam: Camera, *, min_length: float, thickness: i
     return img
 
 
+ASPECT_TOLERANCE = 0.01   # a query image's aspect ratio may differ from the one wanted by this share
+
+
 def check_query_size(path: Path, shape: tuple[int, ...], first: tuple[int, ...] | None, cam: Camera, kind: str) -> None:
     """Every query image of a run has one size, with the database camera's aspect ratio
     (pinhole) or 2:1 (equirectangular); the error names the file and the fix."""
@@ -33,7 +36,7 @@ def check_query_size(path: Path, shape: tuple[int, ...], first: tuple[int, ...] 
         raise ImageError(f"{path}: query image is {w}x{h} but the first query image is {first[1]}x{first[0]}; "
                          "all query images of one run must have the same size")
     want = 2.0 if kind == "equirect" else cam.width / cam.height
-    if abs(w / h - want) > 0.01 * want:
+    if abs(w / h - want) > ASPECT_TOLERANCE * want:
         what = ("an equirectangular panorama needs width = 2 x height (a 360 degree photo as the camera app exports "
                 "it, not cropped), or a photo sphere stored cropped with its Photo Sphere metadata (GPano) kept; "
                 "for ordinary photos set umap.query_kind: pinhole") if kind == "equirect" else (

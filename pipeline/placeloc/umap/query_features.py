@@ -23,7 +23,7 @@ from placeloc.geometry.panorama import (
 )
 from placeloc.umap import ca as ca_mod
 from placeloc.umap.bits import pack
-from placeloc.umap.lines import check_query_size, line_image
+from placeloc.umap.lines import ASPECT_TOLERANCE, check_query_size, line_image
 from placeloc.umap.panorama import orientation_channels
 
 
@@ -62,7 +62,7 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
     part of the sphere it covers (left, top, width, height as fractions; 0 0 1 1: all)."""
     coverage = WHOLE
     h, w = gray.shape[:2]
-    if abs(w / h - 2.0) > 0.02 and path:
+    if abs(w / h - 2.0) > ASPECT_TOLERANCE * 2.0 and path:
         # not 2:1: a photo sphere stored cropped to what it covered, where its GPano metadata says so
         crop = panorama_crop(path)
         if crop is not None:

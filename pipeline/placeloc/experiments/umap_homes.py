@@ -205,9 +205,9 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     import h5py
 
     from placeloc.core.artifacts import read_strings
-    from placeloc.umap.panorama import search_near, seen_rows
+    from placeloc.umap.panorama import search_near
     from placeloc.umap.params import PanoramaParams, UMapParams
-    from placeloc.umap.stages import query_line_images
+    from placeloc.umap.stages import query_line_images, query_seen_rows
 
     rows = list(csv.DictReader(read_run_table(run_dir, "per_query.csv")))
     wrong = [r for r in rows if not (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0)]
@@ -221,8 +221,7 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
         ks = [names.index(r["frame"]) for r in wrong]
         queries = [query_line_images(ex, int(pp.orientation_bins), slice(k, k + 1)) for k in ks]
         # the rows each photo covered, as localize scores them (photo spheres stored cropped)
-        seen = ([seen_rows(ex["coverage"][k], queries[0].shape[-2], ex["tilt_deg"][k:k + 1] if "tilt_deg" in ex else None)
-                 for k in ks] if "coverage" in ex else [None] * len(ks))
+        seen = [query_seen_rows(ex, queries[0].shape[-2], slice(k, k + 1)) for k in ks]
     out = []
     for r, lines, rows in zip(wrong, queries, seen):
         near = search_near(lines, np.array([float(r["true_x"]), float(r["true_y"])]), model, pp, radius_m=NEAR_TRUTH_M,

@@ -330,8 +330,7 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
     else:
         database = {"bits": _dilated_bits(ctx, idx), "counts": idx["counts"][()]}
     # photo spheres stored cropped: the rows each one saw (the recall half counts the map's lines there only)
-    seen = (seen_rows(ex["coverage"][()], lines.shape[-2], ex["tilt_deg"][()] if "tilt_deg" in ex else None)
-            if "coverage" in ex else None)
+    seen = query_seen_rows(ex, lines.shape[-2])
     if seen is not None and not np.all(seen == 1.0):
         log.info("%d of %d panoramas cover part of the sphere (Photo Sphere metadata): each is scored over the rows "
                  "it covers", int(np.sum(np.any(seen == 0.0, axis=1))), len(seen))
@@ -623,14 +622,21 @@ def _answer_heights(loc: Any, z: float) -> np.ndarray:
     return loc["height_m"][()] if "height_m" in loc else np.full(len(loc["x"]), z)
 
 
-def _unseen_rows(ex: Any, k: int, height: int) -> np.ndarray | None:
-    """The line-image rows panorama ``k`` of the extract artifact ``ex`` did not cover (a
-    photo sphere stored cropped; those its score leaves out, :func:`seen_rows`), or None
-    where it covered them all."""
+def query_seen_rows(ex: Any, height: int, rows: Any = slice(None)) -> np.ndarray | None:
+    """(N, height) the line-image rows each panorama (``rows``) of the extract artifact ``ex``
+    covered, as its score counts them (:func:`placeloc.umap.panorama.seen_rows`: photo
+    spheres stored cropped, the band narrowed by the tilt levelled), or None for an artifact
+    from before coverage was recorded."""
     if "coverage" not in ex:
         return None
-    seen = seen_rows(ex["coverage"][k], height, ex["tilt_deg"][k:k + 1] if "tilt_deg" in ex else None)[0]
-    return None if bool(np.all(seen == 1.0)) else seen == 0.0
+    return seen_rows(ex["coverage"][rows], height, ex["tilt_deg"][rows] if "tilt_deg" in ex else None)
+
+
+def _unseen_rows(ex: Any, k: int, height: int) -> np.ndarray | None:
+    """The line-image rows panorama ``k`` of the extract artifact ``ex`` did not cover (those
+    its score leaves out), or None where it covered them all."""
+    seen = query_seen_rows(ex, height, slice(k, k + 1))
+    return None if seen is None or bool(np.all(seen == 1.0)) else seen[0] == 0.0
 
 
 def _overlay(path: Path, words: np.ndarray, size: tuple[int, int], segs: np.ndarray, faces: np.ndarray, pose: tuple,

@@ -155,13 +155,16 @@ def shifted_grid(plan: Path, frac: float, step: float = GRID_STEP_M) -> dict[str
             "y": [float(lo[1]) + step * (0.5 + frac), float(hi[1]), step]}
 
 
-def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: float, quiet: bool) -> dict[str, Any]:
+def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: float, quiet: bool,
+         plan: Path | None = None) -> dict[str, Any]:
     # only what a user of a real home gives (the model, the images, the query kind, the
-    # truth) and the grid origin
+    # truth) and the grid origin; ``plan``: another file of the same plan (default the home's
+    # own floor_plan.yaml), so that runs of one home's variants share a map and index
+    plan = plan or data / "floor_plan.yaml"
     cfg = load_config(data={"method": "umap", "query": {"images": str(data / "panoramas")},
                             "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
-                            "umap": {"model": str(data / "floor_plan.yaml"), "query_kind": "panorama", "panorama": panorama,
-                                     "grid": shifted_grid(data / "floor_plan.yaml", frac)},
+                            "umap": {"model": str(plan), "query_kind": "panorama", "panorama": panorama,
+                                     "grid": shifted_grid(plan, frac)},
                             "executor": {"workers": 1}, "plots": False}, base_dir=root)
     run_all(cfg, root / name, quiet=quiet)
     return {**read_metrics(root / name), "line_stats": json.loads((data / "line_stats.json").read_text()), "origin": frac}

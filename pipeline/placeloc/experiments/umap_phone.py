@@ -29,10 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.core.config import load_config
-from placeloc.core.runner import read_metrics, run_all
 from placeloc.experiments import write_summary
-from placeloc.experiments.umap_homes import PANORAMAS, TEST_SEEDS, _drop_index, shifted_grid
+from placeloc.experiments.umap_homes import PANORAMAS, TEST_SEEDS, _drop_index, _run
 from placeloc.synth import generate
 
 log = logging.getLogger("placeloc")
@@ -64,18 +62,6 @@ def _home(root: Path, seed: int, variant: str) -> Path:
     return d
 
 
-def _run(root: Path, name: str, data: Path, plan: Path, panorama: dict[str, Any], frac: float,
-         quiet: bool) -> dict[str, Any]:
-    # the level home's plan for every variant: the same file, so one map and index a folder
-    cfg = load_config(data={"method": "umap", "query": {"images": str(data / "panoramas")},
-                            "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
-                            "umap": {"model": str(plan), "query_kind": "panorama", "panorama": panorama,
-                                     "grid": shifted_grid(plan, frac)},
-                            "executor": {"workers": 1}, "plots": False}, base_dir=root)
-    run_all(cfg, root / name, quiet=quiet)
-    return {**read_metrics(root / name), "origin": frac}
-
-
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     out_dir = Path(out_dir).resolve()
     seeds = TEST_SEEDS[:2] if quick else TEST_SEEDS
@@ -87,7 +73,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
         for i, frac in enumerate(origins):
             folder = f"home{seed}-origin{i}"
             for variant, label, over in SETTINGS:
-                m = _run(out_dir, folder, _home(out_dir, seed, variant), plan, over, frac, quiet)
+                m = _run(out_dir, folder, _home(out_dir, seed, variant), over, frac, quiet, plan=plan)
                 runs[f"{folder}-{label}"] = m
                 shares[label].setdefault(seed, []).append(m["within_1m_30deg"])
             _drop_index(out_dir / folder)

@@ -4,6 +4,7 @@ kitchen clutter at wall height and cameras close to a wall."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from placeloc.geometry.floorplan import blocking_faces, floor_plan_model, wall_distance
 from placeloc.geometry.polygons import point_in_polygon
@@ -292,3 +293,30 @@ def test_cameras_held_by_hand_each_stand_at_their_own_height(tmp_path):
         assert (a["frame"], a["x"], a["y"], a["heading_deg"]) == (b["frame"], b["x"], b["y"], b["heading_deg"])
     for k in ("tripod", "phone"):
         assert yaml.safe_load((tmp_path / k / "floor_plan.yaml").read_text())["camera_z"] == 1.45
+
+
+def test_another_ceiling_changes_only_what_lies_above_the_cameras(tmp_path):
+    # ceiling 2.8 instead of 2.5: the same plan but for ceiling_z, the same poses, and each
+    # panorama the same bytes below the horizon (rays going down never reach the ceiling; the
+    # fans and lamps hang from it), other above it
+    import csv
+
+    import cv2
+    import yaml
+
+    from placeloc.synth.home import generate
+
+    kw = {"seed": 2, "panoramas": 4, "width": 128, "stats_width": 64}
+    generate(tmp_path / "low", **kw)
+    generate(tmp_path / "high", ceiling=2.8, **kw)
+    assert (tmp_path / "low" / "poses.csv").read_bytes() == (tmp_path / "high" / "poses.csv").read_bytes()
+    low, high = (yaml.safe_load((tmp_path / k / "floor_plan.yaml").read_text()) for k in ("low", "high"))
+    assert (low["ceiling_z"], high["ceiling_z"]) == (2.5, 2.8)
+    assert {**low, "ceiling_z": 2.8} == high
+    for row in csv.DictReader(open(tmp_path / "low" / "poses.csv")):
+        a, b = (cv2.imread(str(tmp_path / k / "panoramas" / row["frame"]), cv2.IMREAD_GRAYSCALE) for k in ("low", "high"))
+        h = a.shape[0]
+        assert np.array_equal(a[h // 2 + 3:], b[h // 2 + 3:]), row["frame"]   # 3 rows: the blur's reach
+        assert (a[: h // 2 - 3] != b[: h // 2 - 3]).mean() > 0.05, row["frame"]
+    with pytest.raises(ValueError, match="ceiling 2.1"):
+        generate(tmp_path / "bad", ceiling=2.1, **kw)

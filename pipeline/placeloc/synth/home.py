@@ -62,14 +62,16 @@ FLOOR, CEIL, WALL, BOX, LEAF = 1, 2, 3, 4, 5
 
 
 def plan(rng: np.random.Generator, n_bedrooms: int = 3,
-         things_rng: np.random.Generator | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+         things_rng: np.random.Generator | None = None, ceiling: float = CEILING) -> tuple[dict[str, Any], dict[str, Any]]:
     """A random home: (the floor plan in the multi-room format, the clutter that is not in
     the map). Bedrooms north of an east-west hallway, living room and kitchen south of it.
 
     With ``things_rng``, the kitchen's counters also hold what a real one holds at wall
     height (:func:`_kitchen_things`: appliances, a sink under a window, a dish rack, handles
     on the cabinet doors), drawn from that generator alone, so that everything else (the
-    plan, the other clutter, and the draws of ``rng`` after it) is the home without them."""
+    plan, the other clutter, and the draws of ``rng`` after it) is the home without them.
+    ``ceiling``: every room's ceiling height in metres (the fans hang from it); it draws
+    nothing from ``rng``, so another ceiling gives the same plan and poses."""
     rooms, openings, windows = [], [], []
     bed_w = [round(3.2 + rng.uniform(-0.15, 0.15), 2) for _ in range(n_bedrooms)]
     bed_d = round(3.4 + rng.uniform(-0.1, 0.1), 2)
@@ -95,7 +97,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3,
         bx = x + w / 2 + rng.uniform(-0.3, 0.1)
         clutter["boxes"].append([bx - 0.8, y1 + bed_d - 2.05, 0.0, bx + 0.8, y1 + bed_d - 0.05, 0.55, 0.62 + 0.1 * rng.random(), 0.0])
         if rng.random() < 0.5:
-            _fan(clutter, x + w / 2 + rng.uniform(-0.2, 0.2), y1 + bed_d / 2 + rng.uniform(-0.2, 0.2))
+            _fan(clutter, x + w / 2 + rng.uniform(-0.2, 0.2), y1 + bed_d / 2 + rng.uniform(-0.2, 0.2), ceiling)
         # a chest of drawers against the east wall by the door (drawer lines at 0.3-1.0 m) and a
         # mirror above it (at wall height, where the map's lines are)
         clutter["boxes"].append([x + w - 0.45, y1 + 0.25, 0.0, x + w, y1 + 1.15, 1.0, 0.5, -0.25])
@@ -119,7 +121,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3,
     openings.append({"from": [length, 0.25], "to": [length, 0.25 + door_w], "height": 2.05})
     bwx = length + 0.6 + rng.uniform(0.0, 0.5)
     windows.append({"from": [round(bwx, 3), 0.0], "to": [round(bwx + 2.0, 3), 0.0], "sill": 0.7, "top": 2.2})
-    _fan(clutter, length + bonus_w / 2 + rng.uniform(-0.2, 0.2), bonus_n / 2 + rng.uniform(-0.2, 0.2))
+    _fan(clutter, length + bonus_w / 2 + rng.uniform(-0.2, 0.2), bonus_n / 2 + rng.uniform(-0.2, 0.2), ceiling)
     openings.append({"from": [1.0, 0.0], "to": [2.4, 0.0], "height": 2.3})                          # wide opening
     kd = liv_w + 0.5 + rng.uniform(0, 0.5)
     openings.append({"from": [round(kd, 3), 0.0], "to": [round(kd + door_w, 3), 0.0], "height": 2.05})
@@ -134,7 +136,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3,
     clutter["boxes"].append([0.0, -south + 0.9, 0.0, 0.9, -south + 3.0, 0.8, 0.4, 0.0])
     tx, ty = liv_w / 2 + rng.uniform(-0.5, 0.5), -south / 2 + rng.uniform(-0.3, 0.3)
     clutter["boxes"].append([tx - 0.8, ty - 0.45, 0.72, tx + 0.8, ty + 0.45, 0.76, 0.35, 0.0])
-    _fan(clutter, liv_w / 2 + rng.uniform(-0.4, 0.4), -south / 2 + rng.uniform(-0.4, 0.4))
+    _fan(clutter, liv_w / 2 + rng.uniform(-0.4, 0.4), -south / 2 + rng.uniform(-0.4, 0.4), ceiling)
     clutter["flat"].append([tx - 1.3, ty - 1.0, 0.0, tx + 1.3, ty + 1.0, 0.012, 0.4 + 0.15 * rng.random(), 0.0])   # a rug
     ru = rng.uniform(0.5, length - 3.0)
     clutter["flat"].append([ru, 0.35, 0.0, ru + 2.4, HALL_W - 0.35, 0.012, 0.3 + 0.2 * rng.random(), 0.0])  # a hall runner
@@ -180,7 +182,7 @@ def plan(rng: np.random.Generator, n_bedrooms: int = 3,
     for w in windows:
         if rng.random() < 0.75 or w["from"][0] >= length:   # the bonus room's window always has blinds
             clutter["blinds"].append([*w["from"], *w["to"], w["sill"], w["top"] - rng.uniform(0.0, 0.6)])
-    fp = {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
+    fp = {"floor_z": 0.0, "ceiling_z": ceiling, "rooms": rooms, "openings": openings, "windows": windows}
     return fp, clutter
 
 
@@ -205,13 +207,13 @@ def floor_of_homes(rng: np.random.Generator, homes: int, bedrooms: int) -> dict[
     return {"floor_z": 0.0, "ceiling_z": CEILING, "rooms": rooms, "openings": openings, "windows": windows}
 
 
-def _fan(clutter: dict[str, list], cx: float, cy: float) -> None:
+def _fan(clutter: dict[str, list], cx: float, cy: float, ceiling: float = CEILING) -> None:
     """A ceiling fan: two crossed dark blades 1.2 m long just under the ceiling and its rod
     (boxes: a fan is axis-aligned here, which is all the line detector sees of it)."""
-    z0 = CEILING - 0.32
+    z0 = ceiling - 0.32
     clutter["fans"].append([cx - 0.6, cy - 0.06, z0, cx + 0.6, cy + 0.06, z0 + 0.03, 0.3, 0.0])
     clutter["fans"].append([cx - 0.06, cy - 0.6, z0, cx + 0.06, cy + 0.6, z0 + 0.03, 0.3, 0.0])
-    clutter["fans"].append([cx - 0.02, cy - 0.02, z0, cx + 0.02, cy + 0.02, CEILING, 0.35, 0.0])
+    clutter["fans"].append([cx - 0.02, cy - 0.02, z0, cx + 0.02, cy + 0.02, ceiling, 0.35, 0.0])
 
 
 # things that stand on a kitchen counter: (name, width along the run, depth, height, grey level)
@@ -534,7 +536,7 @@ def render_panorama(pose: np.ndarray, scene: dict[str, np.ndarray], width: int, 
     out = np.zeros((height, width))
     _raycast(np.asarray(pose, float), width, height, scene["faces"], scene["boxes"], scene["leaves"], scene["blinds"],
              scene["windows"], scene["sun"], scene["rooms_floor"], scene["rooms_xy"], scene["rooms_white"], scene["lamps"],
-             CEILING, out)
+             float(scene["ceiling"]), out)
     return out
 
 
@@ -554,7 +556,8 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
             "blinds": np.asarray(clutter["blinds"], float).reshape(-1, 6),
             "windows": np.array([[*w["from"], *w["to"], w["sill"], w["top"]] for w in fp["windows"]], float).reshape(-1, 6),
             "sun": sun, "rooms_floor": rooms_floor, "rooms_xy": rooms_xy, "rooms_white": rooms_white,
-            "lamps": np.asarray(clutter["lamps"], float).reshape(-1, 4)}
+            "lamps": np.asarray(clutter["lamps"], float).reshape(-1, 4),
+            "ceiling": np.float64(fp["ceiling_z"])}
 
 
 # the figures of a real home (a held-out Zillow Indoor Dataset tour, 32 panoramas) the
@@ -683,7 +686,7 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
              noise: float = 2.0, blur: float = 0.7, stats_width: int = 256, doorway_share: float = 0.2,
              near_wall_share: float = 0.1, cabinet_share: float = 0.05, kitchen_things: bool = True,
              z_spread: float = 0.03, tilt_deg: float = 0.0, cover_low_deg: float = -90.0, cover_high_deg: float = 90.0,
-             **unknown: Any) -> dict[str, Any]:
+             ceiling: float = CEILING, **unknown: Any) -> dict[str, Any]:
     """Write the home, its panoramas, their ground truth and the line statistics under
     ``out_dir``; ``doorway_share`` of the panoramas are taken in doorways (real tours: 6 of
     32 cameras within 0.12 m of a door's lintel face), ``near_wall_share`` 0.4-0.6 m from a
@@ -703,17 +706,22 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
     ``cover_high_deg`` other than -90 / 90: each panorama is stored as a photo sphere that
     covered only the elevations between them (a phone's sphere without its floor or ceiling
     cap): cropped to those rows, as JPEG (quality 95) with its Photo Sphere metadata
-    (:func:`photo_sphere_jpeg`), named ``pano_NNN.jpg``."""
+    (:func:`photo_sphere_jpeg`), named ``pano_NNN.jpg``. ``ceiling``: the rooms' ceiling
+    height in metres, 2.3-3.5 (2.5 by default; another gives the same plan, poses and
+    clutter, the fans hung from it)."""
     if unknown:
         raise TypeError(f"unknown home parameter(s) {', '.join(unknown)}; known: panoramas, width, bedrooms, z, z_spread, tilt_deg, "
-                        "cover_low_deg, cover_high_deg, noise, "
+                        "ceiling, cover_low_deg, cover_high_deg, noise, "
                         "blur, stats_width, doorway_share, near_wall_share, cabinet_share, kitchen_things")
     if not -90.0 <= cover_low_deg < cover_high_deg <= 90.0:
         raise ValueError(f"cover_low_deg {cover_low_deg} and cover_high_deg {cover_high_deg}: need -90 <= low < high <= 90")
+    if not 2.3 <= ceiling <= 3.5:   # the doors, windows and wall cabinets reach 2.15-2.2 m
+        raise ValueError(f"ceiling {ceiling}: give a height in metres between 2.3 and 3.5")
     out_dir = Path(out_dir)
     (out_dir / "panoramas").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    fp, clutter = plan(rng, bedrooms, things_rng=np.random.default_rng([seed, 2]) if kitchen_things else None)
+    fp, clutter = plan(rng, bedrooms, things_rng=np.random.default_rng([seed, 2]) if kitchen_things else None,
+                       ceiling=ceiling)
     fp["camera_z"] = z   # the tripod's height, as the ZInD importer writes it
     (out_dir / "floor_plan.yaml").write_text(yaml.safe_dump(fp, sort_keys=False))
     model = floor_plan_model(fp)

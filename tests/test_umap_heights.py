@@ -140,4 +140,4 @@ def test_the_disk_and_memory_a_run_needs_grow_with_the_heights(tmp_path):
     (i1, l1), (i3, l3) = [[n for n in ns if n.stage in ("index", "localize")] for ns in (one, three)]
     assert i3.disk == pytest.approx(3 * i1.disk, rel=0.01)
     assert l3.memory < 2 * l1.memory
-    assert ", 3 heights)" in i3.what and "fewer heights" in i3.key
+    assert ", 3 layers of heights and ceilings)" in i3.what and "fewer heights or ceilings" in i3.key

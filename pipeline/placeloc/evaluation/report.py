@@ -32,7 +32,8 @@ ORDER = ("strips_sample.png", "strips_failures.png", "estimates_on_plan.png", "m
 ANSWERS = {"estimates.csv": "docs/umap.md", "matches.csv": "docs/evaluation.md"}   # and where their columns are told
 ANSWER_ROWS = 20
 # what the terminal shows of each answer (the first column names it)
-ANSWER_COLUMNS = {"estimates.csv": ("frame", "x", "y", "heading_deg", "height_m", "tilt_deg", "room", "doubtful", "rival_room"),
+ANSWER_COLUMNS = {"estimates.csv": ("frame", "x", "y", "heading_deg", "height_m", "ceiling_m", "tilt_deg", "room", "doubtful",
+                                    "rival_room"),
                   "matches.csv": ("query_image", "reference_image", "confidence")}
 CSS = """body{font-family:system-ui,sans-serif;margin:24px;max-width:1300px;color:#222}
 table{border-collapse:collapse;margin:8px 0 20px}td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px;text-align:left}

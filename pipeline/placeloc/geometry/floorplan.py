@@ -127,26 +127,31 @@ def in_gaps(xy: np.ndarray, gaps: np.ndarray, depth_m: float = GAP_DEPTH_M) -> n
     return ok
 
 
-def load_model(path: str | Path, floor: str | None = None) -> Model:
+def load_model(path: str | Path, floor: str | None = None, ceiling: float | None = None) -> Model:
     """The model in a wireframe (.yaml/.json/.obj), a floor plan (.yaml) or a Zillow Indoor
     Dataset ``zind_data.json`` (``floor`` picks one of its floors; see
-    :mod:`placeloc.geometry.zind`)."""
+    :mod:`placeloc.geometry.zind`). ``ceiling``: a floor plan's ceiling height in metres in
+    place of its own, every room's (:func:`with_ceiling`; a wireframe has none to replace)."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
     text = read_input_text(path, "model file")
+    if path.suffix.lower() != ".obj":
+        try:
+            data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
+        except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
+            raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
+        if isinstance(data, dict) and "merger" in data:
+            from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
+
+            return floor_plan_model(with_ceiling(zind_home(path, floor)[0], ceiling), str(path))
+        if isinstance(data, dict) and ("outline" in data or "rooms" in data):
+            return floor_plan_model(with_ceiling(data, ceiling), str(path))
+    if ceiling is not None:
+        raise ModelError(f"{path}: a wireframe has no ceiling height to replace; search ceiling heights with a floor "
+                         "plan (rooms: or outline:), or leave umap.grid.ceilings empty")
     if path.suffix.lower() == ".obj":
         return _load_obj(path, text)
-    try:
-        data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
-    except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
-        raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
-    if isinstance(data, dict) and "merger" in data:
-        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
-
-        return floor_plan_model(zind_home(path, floor)[0], str(path))
-    if isinstance(data, dict) and ("outline" in data or "rooms" in data):
-        return floor_plan_model(data, str(path))
     if isinstance(data, list):
         data = {"segments": data}
     if not isinstance(data, dict) or "segments" not in data:
@@ -212,6 +217,20 @@ def _poly(pts: Any, path: str, key: str) -> np.ndarray:
     if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3:
         raise ModelError(f"{path}: {key} must be a list of at least three [x, y] points")
     return arr
+
+
+def with_ceiling(plan: dict[str, Any], ceiling: float | None) -> dict[str, Any]:
+    """``plan`` with every room's ceiling at ``ceiling`` metres (the plan's ``ceiling_z`` and
+    each room's own), for a plan whose ceiling height is not known: a plan drawn by hand
+    from a listing's drawing, searched over several (``umap.grid.ceilings``). None: the plan
+    as it is."""
+    if ceiling is None or not isinstance(plan, dict):
+        return plan
+    out = {**plan, "ceiling_z": float(ceiling)}
+    if isinstance(plan.get("rooms"), list):
+        out["rooms"] = [{**r, "ceiling_z": float(ceiling)} if isinstance(r, dict) and "ceiling_z" in r else r
+                        for r in plan["rooms"]]
+    return out
 
 
 def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:

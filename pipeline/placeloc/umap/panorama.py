@@ -1054,43 +1054,87 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
 def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                   progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
-                  seen: np.ndarray | None = None) -> PanoramaAnswers:
+                  seen: np.ndarray | None = None, ceiling: np.ndarray | None = None,
+                  models: dict[float, tuple[np.ndarray, np.ndarray]] | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
-    (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
-    writes them): each layer searched alone over its own rows of ``database``, each
-    panorama's answer the best over them (:func:`best_over_heights`). With
-    ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
-    table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
-    total)`` wraps each layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
-    starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
+    (``umap.grid.heights``) and ceiling height (``umap.grid.ceilings``; ``poses`` holds them
+    one after another, as build-dictionary writes them, ``ceiling`` each position's ceiling
+    and ``models`` each ceiling's (segments, faces), else ``segments`` and ``faces`` are
+    every layer's): each layer searched alone over its own rows of ``database``.
+
+    With several ceilings, the home's is the one whose layers score the run's panoramas
+    best (:func:`home_ceiling`): a home has one ceiling height, so every panorama's answer
+    comes from that ceiling's layers. Each panorama's answer is the best over those layers
+    (:func:`best_over_heights`). With ``pp.height_layers`` k, each panorama is searched whole
+    only in the k layers of each ceiling whose grid table scores it best
+    (:func:`grid_table_best`, chamfer only). ``progress(iterable, what, total)`` wraps each
+    layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
+    change = np.diff(poses[:, 2]) != 0
+    if ceiling is not None:
+        change |= np.diff(ceiling) != 0
+    starts = np.flatnonzero(np.r_[True, change]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
+    layer_ceiling = np.zeros(len(bounds)) if ceiling is None else np.asarray(ceiling, np.float64)[starts]
     # the spectra hold positions on their second axis (frequency first), the rest on their first
     layers = [{k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()} for lo, hi in bounds]
     n = len(lines)
     searched = np.ones((len(bounds), n), bool)   # [layer, panorama]: searched whole there
     keep = int(pp.height_layers)
-    if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
-        # each panorama's best layers by the grid table alone (a fifth of a search's cost):
-        # the search off the grid, most of it, runs there only
+    if len(bounds) > 1 and keep > 0 and "spectra" in database:
+        # each panorama's best layers of each ceiling by the grid table alone (a fifth of a
+        # search's cost): the search off the grid, most of it, runs there only
         table = np.stack([grid_table_best(lines, layer["spectra"], pp, seen) for layer in layers])
-        searched[:] = False
-        searched[np.argsort(-table, axis=0, kind="stable")[:keep], np.arange(n)[None, :]] = True
+        for c in np.unique(layer_ceiling):
+            group = np.flatnonzero(layer_ceiling == c)
+            if keep < len(group):
+                searched[group] = False
+                best = group[np.argsort(-table[group], axis=0, kind="stable")[:keep]]
+                searched[best, np.arange(n)[None, :]] = True
     found = []
-    for (lo, hi), layer, rows in zip(bounds, layers, searched):
+    for (lo, hi), layer, rows, c in zip(bounds, layers, searched, layer_ceiling):
         ks = np.flatnonzero(rows)
         if not len(ks):   # no panorama's best layers by the table
             found.append(unsearched(n))
             continue
-        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
-        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
+        segs, fcs = (segments, faces) if models is None or ceiling is None else models[float(c)]
+        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(np.unique(poses[:, 2])) > 1 else "") + (
+            f", ceiling {c:.2f} m" if ceiling is not None and len(np.unique(layer_ceiling)) > 1 else "")
+        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segs, fcs, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
                                    progress=lambda it, what=what, m=len(ks): progress(it, what, m),
                                    seen=None if seen is None else seen[ks])
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
+    offsets = [lo for lo, _ in bounds]
+    if len(np.unique(layer_ceiling)) > 1:   # the home's ceiling: its layers alone answer
+        chosen, _ = home_ceiling(found, layer_ceiling)
+        take = np.flatnonzero(layer_ceiling == chosen)
+        found, offsets = [found[j] for j in take], [offsets[j] for j in take]
     if len(found) == 1:
-        return found[0]
-    return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),
-                             yaw_deg=float(pp.margin_yaw_deg))
+        answers = found[0]
+        return answers._replace(best=answers.best + int(offsets[0]))
+    return best_over_heights(found, offsets, distance_m=float(pp.margin_distance_m), yaw_deg=float(pp.margin_yaw_deg))
+
+
+def home_ceiling(found: Sequence[PanoramaAnswers], layer_ceiling: np.ndarray) -> tuple[float, dict[float, float]]:
+    """The home's ceiling height among those searched (``umap.grid.ceilings``) and each
+    one's mean score: for each ceiling, each panorama's best score over that ceiling's
+    layers (``found[j]``, ceiling ``layer_ceiling[j]``), averaged over the panoramas; the
+    highest mean wins (the lowest ceiling of equal means).
+
+    Why one ceiling for the run, not each panorama its own: a home's rooms share a ceiling
+    height (a hand-drawn plan gives one), and the mean over all the run's panoramas is sharp
+    where one panorama's score is not. On development homes 0-2 the mean peaks at the true
+    height, 0.010-0.013 above the heights 0.1 m either side (docs/umap.md, "A floor plan
+    whose ceiling height is not known"); a panorama left to pick its own ceiling may find
+    a better-scoring wrong place under a wrong ceiling. A panorama no layer of a ceiling
+    searched (``pp.height_layers``) counts its best over the layers that did."""
+    score = np.stack([f.score for f in found])   # [layer, panorama]; -inf where unsearched
+    means = {}
+    for c in np.unique(layer_ceiling):
+        best = np.max(score[layer_ceiling == c], axis=0)
+        best = best[np.isfinite(best)]
+        means[float(c)] = float(np.mean(best)) if len(best) else -math.inf
+    return max(means, key=lambda c: (means[c], -c)), means
 
 
 # ------------------------------------------------------------------ local refinement

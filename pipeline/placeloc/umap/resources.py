@@ -72,8 +72,9 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
         axes.append(math.floor((stop - start) / step + 1e-9) + 1)
     panorama = p.get("query_kind") == "panorama"
     positions = max(1, math.ceil(axes[0] * axes[1] * inside_share))
-    # panoramas: a layer of the grid per camera height searched (umap.grid.heights)
-    layers = max(1, len(g.get("heights") or [])) if panorama else 1
+    # panoramas: a layer of the grid per camera height and ceiling height searched
+    # (umap.grid.heights, umap.grid.ceilings)
+    layers = max(1, len(g.get("heights") or [])) * max(1, len(g.get("ceilings") or [])) if panorama else 1
     views = positions * layers if panorama else positions * max(1, len(g["headings"]))
     size = p.get("panorama" if panorama else "camera") or {}
     w, h = int(size.get("width", 160)), int(size.get("height", 120))
@@ -96,8 +97,9 @@ def needs(config: dict[str, Any], images: dict[str, Any], stages: Sequence[str])
     # they still count whole
     spectra = views * (w // 2 + 1) * 2 * bins * h * 8 if chamfer else 0
     what = f"UMap database of {views:,} views of {w}x{h} (x {g['x'] or 'the plan'}, y {g['y'] or 'the plan'}" + \
-        ("" if panorama else f", {len(g['headings'])} headings") + (f", {layers} heights" if layers > 1 else "") + ")"
-    key = "umap.grid (a larger step or a smaller range" + (", fewer heights" if layers > 1 else "") + ") or the camera size"
+        ("" if panorama else f", {len(g['headings'])} headings") + (f", {layers} layers of heights and ceilings" if layers > 1 else "") + ")"
+    key = "umap.grid (a larger step or a smaller range" + (", fewer heights or ceilings" if layers > 1 else "") + \
+        ") or the camera size"
     # build-dictionary: the grid (poses, the free-space test) and what HDF5 and the
     # renderer hold of the database as it is written: measured 80, 85 and 199 MB for 46,000
     # and 182,000 views of 160x120 and 182,000 of 40x30, i.e. 40 MB + 204 bytes a view +

@@ -76,6 +76,16 @@ def _check(config: dict[str, Any]) -> None:
     twice = sorted({h for h in heights if heights.count(h) > 1})
     if twice:   # two layers at one height would be searched as one layer of every position twice
         raise ConfigError(f"umap.grid.heights lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
+    ceilings = list(p["grid"]["ceilings"] or [])
+    if ceilings and p["query_kind"] != "panorama":
+        raise ConfigError("umap.grid.ceilings searches a floor plan's ceiling height for whole panoramas "
+                          "(umap.query_kind: panorama); for pinhole images give the plan's ceiling_z")
+    twice = sorted({h for h in ceilings if ceilings.count(h) > 1})
+    if twice:
+        raise ConfigError(f"umap.grid.ceilings lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
+    bad = [h for h in ceilings if not (math.isfinite(h) and h > 0)]
+    if bad:
+        raise ConfigError(f"umap.grid.ceilings: {', '.join(f'{h:g}' for h in bad)} is not a height in metres above the floor")
     pp = p["panorama"]
     if p["query_kind"] == "panorama" and pp["orientation_bins"] > 1 and (pp["score"] != "chamfer"
                                                                          or pp["chamfer_chance"] != "none"):
@@ -98,38 +108,54 @@ def _stage_error(exc: Exception) -> Exception:
 
 def build_dictionary(ctx: Any) -> None:
     p = ctx.params
-    try:
-        model = load_model(p.model, p.floor)
-    except ModelError as exc:
-        raise _stage_error(exc) from exc
     g = p.grid
-    layers = []
-    for z in (g.heights or [g.z]):   # one layer of the grid per camera height searched
+    ceilings = list(g.ceilings) or [None]   # a model per ceiling height searched (umap.grid.ceilings)
+    models = []
+    for ceiling in ceilings:
         try:
-            poses, notes = plan_grid(model, x=g.x, y=g.y, step_m=g.step_m, z=z, headings=g.headings,
-                                     inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
-        except ValueError as exc:
-            raise ConfigError(f"umap.grid{'.heights' if g.heights else ''}: {exc}") from exc
-        for note in notes:
-            log.warning("umap.%s", note)
-        layers.append(poses)
+            models.append(load_model(p.model, p.floor, ceiling))
+        except ModelError as exc:
+            raise _stage_error(ModelError(f"{exc}" + (f" (umap.grid.ceilings: {ceiling:g} m)" if ceiling else ""))) from exc
+    model = models[0]
+    layers, layer_models, layer_ceilings, warned = [], [], [], set()
+    for ceiling, layer_model in zip(ceilings, models):
+        for z in (g.heights or [g.z]):   # one layer of the grid per camera height (and ceiling) searched
+            try:
+                poses, notes = plan_grid(layer_model, x=g.x, y=g.y, step_m=g.step_m, z=z, headings=g.headings,
+                                         inside_only=g.inside_only, wall_margin_m=g.wall_margin_m)
+            except ValueError as exc:
+                where = "".join(k for k, on in ((".heights", g.heights), (".ceilings", g.ceilings)) if on)
+                raise ConfigError(f"umap.grid{where}: {exc}" + (f" (ceiling {ceiling:g} m)" if ceiling else "")) from exc
+            for note in notes:
+                if note not in warned:   # once, not once a layer
+                    warned.add(note)
+                    log.warning("umap.%s", note)
+            layers.append(poses)
+            layer_models.append(layer_model)
+            layer_ceilings.append(ceiling)
     block = int(p.block)
     poses = layers[0]
+    pose_ceiling = None
     if p.query_kind == "panorama":
         # one panoramic line image per grid position, rendered at heading 0: the yaw is searched;
-        # the layers of several heights one after another (localize searches each alone)
+        # the layers of several heights and ceilings one after another (localize searches each alone)
         unique = [q[np.unique(q[:, :2], axis=0, return_index=True)[1]] for q in layers]
-        poses = np.concatenate([q[np.lexsort((q[:, 1], q[:, 0]))] for q in unique])
+        unique = [q[np.lexsort((q[:, 1], q[:, 0]))] for q in unique]
+        poses = np.concatenate(unique)
         poses[:, 3] = 0.0
+        if g.ceilings:
+            pose_ceiling = np.repeat(np.asarray(layer_ceilings, np.float64), [len(q) for q in unique])
         pw, ph = int(p.panorama.width), int(p.panorama.height)
         bins = int(p.panorama.orientation_bins)
+        starts = np.cumsum([0] + [len(q) for q in unique])
+        # blocks never span two layers: each is drawn with its layer's model
+        spans = [(s, min(s + block, hi), m) for lo, hi, m in zip(starts[:-1], starts[1:], layer_models)
+                 for s in range(int(lo), int(hi), block)]
         if bins > 1:   # each view's oriented channels, packed one after another
-            items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, bins)
-                     for s in range(0, len(poses), block)]
+            items = [(m.segments, m.faces, poses[s:e], pw, ph, p.hidden_lines, bins) for s, e, m in spans]
             render = render_oriented_block
         else:
-            items = [(model.segments, model.faces, poses[s:s + block], pw, ph, p.hidden_lines, "all")
-                     for s in range(0, len(poses), block)]
+            items = [(m.segments, m.faces, poses[s:e], pw, ph, p.hidden_lines, "all") for s, e, m in spans]
             render = render_panorama_block
         cam = Camera(pw, ph, 90.0)
     else:
@@ -157,6 +183,10 @@ def build_dictionary(ctx: Any) -> None:
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
+    if pose_ceiling is not None:   # the ceiling each position's layer was drawn at, and its model (localize renders it)
+        write_tree(ctx.out, {"ceiling_m": pose_ceiling, "ceiling_models": {
+            f"ceiling_{i}": {"height_m": np.float64(c), "segments": m.segments, "faces": m.faces}
+            for i, (c, m) in enumerate(zip(ceilings, models))}})
     if model.room_names:  # polygon_i's room (a multi-room plan): answers are read off the plan by room
         write_tree(ctx.out, {"room_names": list(model.room_names)})
     if len(model.gaps):   # doors and openings, drawn as gaps on the plan picture
@@ -334,10 +364,32 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
     if seen is not None and not np.all(seen == 1.0):
         log.info("%d of %d panoramas cover part of the sphere (Photo Sphere metadata): each is scored over the rows "
                  "it covers", int(np.sum(np.any(seen == 0.0, axis=1))), len(seen))
-    return search_layers(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
-                         tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                         hidden=bool(ctx.params.hidden_lines),
-                         progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen)
+    ceiling, models = plan_ceilings(src)
+    found = search_layers(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
+                          tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                          hidden=bool(ctx.params.hidden_lines),
+                          progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
+                          ceiling=ceiling, models=models)
+    return found
+
+
+def plan_ceilings(plan: Any) -> tuple[np.ndarray | None, dict[float, tuple[np.ndarray, np.ndarray]] | None]:
+    """The build-dictionary artifact's ceiling of each grid position and each ceiling's
+    (segments, faces), where umap.grid.ceilings searched several; else (None, None): its
+    ``segments`` and ``faces`` are every position's."""
+    if "ceiling_m" not in plan:
+        return None, None
+    models = {float(g["height_m"][()]): (g["segments"][()], g["faces"][()]) for g in plan["ceiling_models"].values()}
+    return plan["ceiling_m"][()], models
+
+
+def _answer_model(plan: Any, loc: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The (segments, faces) the run's answers were found with: the build-dictionary
+    artifact's, at the ceiling height found where umap.grid.ceilings searched several."""
+    _, models = plan_ceilings(plan)
+    if models is None or "ceiling_m" not in loc:
+        return plan["segments"][()], plan["faces"][()]
+    return models[float(loc["ceiling_m"][0])]
 
 
 def localize(ctx: Any) -> None:
@@ -449,6 +501,14 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
         found_at = np.unique(est[:, 2], return_counts=True)
         log.info("camera heights found (umap.grid.heights): %s",
                  ", ".join(f"{z:.2f} m for {c} of {n}" for z, c in zip(*found_at)))
+    # the home's ceiling height, where several were searched (umap.grid.ceilings)
+    ceiling_at, _ = plan_ceilings(ctx.artifact("build-dictionary"))
+    ceilings = ceiling_at is not None and len(np.unique(ceiling_at)) > 1
+    if ceilings:
+        found_ceiling = ceiling_at[found.best]
+        ctx.out.create_dataset("ceiling_m", data=found_ceiling)
+        log.info("ceiling height found (umap.grid.ceilings): %.2f m, the one of %s that scores the %d panoramas best",
+                 float(found_ceiling[0]), ", ".join(f"{c:.2f}" for c in np.unique(ceiling_at)), n)
     # how far each panorama was turned upright (umap.panorama.level_max_deg), where any was
     levelled = tilt is not None and bool(np.any(tilt > 0))
     if levelled:
@@ -457,12 +517,14 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                  "and %.1f at most", int(np.sum(tilt > 0)), n, float(np.median(tilt[tilt > 0])), float(np.max(tilt)))
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []), *(["tilt_deg"] if levelled else []),
+        w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []),
+                    *(["ceiling_m"] if ceilings else []), *(["tilt_deg"] if levelled else []),
                     "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y", "rival_heading_deg", "room",
                     "rival_room"])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}",
-                        *([f"{est[k, 2]:.2f}"] if heights else []), *([f"{tilt[k]:.1f}"] if levelled else []),
+                        *([f"{est[k, 2]:.2f}"] if heights else []), *([f"{found_ceiling[k]:.2f}"] if ceilings else []),
+                        *([f"{tilt[k]:.1f}"] if levelled else []),
                         f"{score[k]:.5f}",
                         _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
                         _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1),
@@ -556,7 +618,7 @@ PANORAMA_PICTURES = 12
 
 def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
     h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
-    segs, faces = plan["segments"][()], plan["faces"][()]
+    segs, faces = _answer_model(plan, loc)
     zs = _answer_heights(loc, float(ctx.artifact("index")["poses"][0, 2]))
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
@@ -586,7 +648,7 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
         if str(ex.attrs.get("query_kind", "")) != "panorama":
             return []
         size = (int(ex.attrs["height"]), int(ex.attrs["width"]))
-        segs, faces = plan["segments"][()], plan["faces"][()]
+        segs, faces = _answer_model(plan, loc)
         zs = _answer_heights(loc, float(plan["poses"][0, 2]))
         names = read_strings(loc["names"])
         x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
@@ -606,8 +668,10 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
 
 
 def _height_note(loc: Any, k: int) -> str:
-    """", camera 1.10 m up" where the height was searched (umap.grid.heights), else ""."""
-    return f", camera {float(loc['height_m'][k]):.2f} m up" if "height_m" in loc else ""
+    """", camera 1.10 m up" where the height was searched (umap.grid.heights), ", ceiling
+    2.40 m" where the ceiling's was (umap.grid.ceilings), else ""."""
+    return (f", camera {float(loc['height_m'][k]):.2f} m up" if "height_m" in loc else "") + (
+        f", ceiling {float(loc['ceiling_m'][k]):.2f} m" if "ceiling_m" in loc else "")
 
 
 def _tilt_note(loc: Any, k: int) -> str:

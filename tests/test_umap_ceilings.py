@@ -1,0 +1,164 @@
+"""Known answers for the search over a floor plan's ceiling height (``umap.grid.ceilings``):
+each ceiling replaces every room's, the grid is drawn at each, and the home's ceiling is the
+one whose layers score the run's panoramas best; every answer comes from its layers."""
+
+from __future__ import annotations
+
+import csv
+import logging
+
+import numpy as np
+import pytest
+import yaml
+
+from placeloc.geometry.floorplan import ModelError, floor_plan_model, load_model, with_ceiling
+from placeloc.umap.panorama import PanoramaAnswers, home_ceiling
+
+# the L-shaped room of tests/test_umap_panorama.py, its ceiling drawn at 2.6 m
+PLAN = {"floor_z": 0.0, "ceiling_z": 2.6, "outline": [[0, 0], [6, 0], [6, 4], [3.5, 4], [3.5, 7], [0, 7]],
+        "doors": [{"from": [2, 0], "to": [2.9, 0], "height": 2.0}, {"from": [0, 5], "to": [0, 5.9], "height": 2.0}]}
+ROOMS = {"floor_z": 0.0, "ceiling_z": 2.5,
+         "rooms": [{"name": "a", "polygon": [[0, 0], [3, 0], [3, 3], [0, 3]], "ceiling_z": 2.7},
+                   {"name": "b", "polygon": [[3, 0], [6, 0], [6, 3], [3, 3]]}],
+         "openings": [{"from": [3, 1], "to": [3, 2], "height": 2.0}]}
+
+
+def test_with_ceiling_replaces_every_rooms_ceiling(tmp_path):
+    assert with_ceiling(PLAN, None) is PLAN
+    assert with_ceiling(PLAN, 2.9)["ceiling_z"] == 2.9 and PLAN["ceiling_z"] == 2.6   # a copy
+    rooms = with_ceiling(ROOMS, 2.4)
+    assert rooms["ceiling_z"] == 2.4 and [r.get("ceiling_z") for r in rooms["rooms"]] == [2.4, None]
+    # the model's ceiling edges all at the height given, its floor edges where they were
+    for plan in (PLAN, ROOMS):
+        path = tmp_path / "plan.yaml"
+        path.write_text(yaml.safe_dump(plan))
+        m = load_model(path, ceiling=2.35)
+        tops = np.unique(np.concatenate([m.segments[:, 2], m.segments[:, 5]]))
+        assert 2.35 in tops and not np.any(tops > 2.35 + 1e-12)
+        assert np.array_equal(m.segments, floor_plan_model(with_ceiling(plan, 2.35)).segments)
+        assert not np.array_equal(m.segments, load_model(path).segments)
+    wire = tmp_path / "wire.yaml"
+    wire.write_text(yaml.safe_dump({"segments": [[0, 0, 0, 1, 0, 0]]}))
+    with pytest.raises(ModelError, match="a wireframe has no ceiling height to replace"):
+        load_model(wire, ceiling=2.5)
+    assert len(load_model(wire).segments) == 1
+
+
+def _answers(scores, best=0):
+    """A layer's answers to len(scores) panoramas, each with the score given."""
+    n = len(scores)
+    s = np.asarray(scores, float)
+    return PanoramaAnswers(np.full(n, best), np.zeros((n, 2)), np.zeros(n), s, np.full(n, np.nan),
+                           np.full((n, 2), np.nan), np.full(n, np.nan), s.copy())
+
+
+def test_the_homes_ceiling_by_hand():
+    # Layers: (2.4 m, one height), (2.4 m, another), (2.6 m), (2.6 m). Per ceiling, each
+    # panorama's best over its layers: 2.4 -> (0.50, 0.62, 0.38), mean 0.5; 2.6 -> (0.55,
+    # 0.52, 0.45), mean 0.5067: 2.6, though panorama 1 alone would pick 2.4.
+    found = [_answers([0.50, 0.60, 0.38]), _answers([0.45, 0.62, 0.30]),
+             _answers([0.55, 0.50, 0.45]), _answers([0.20, 0.52, 0.44])]
+    chosen, means = home_ceiling(found, np.array([2.4, 2.4, 2.6, 2.6]))
+    assert means == pytest.approx({2.4: 0.5, 2.6: (0.55 + 0.52 + 0.45) / 3})
+    assert chosen == 2.6
+    found[0] = _answers([0.50, 0.60, 0.41])   # 2.4: mean 0.51
+    assert home_ceiling(found, np.array([2.4, 2.4, 2.6, 2.6]))[0] == 2.4
+    # equal means: the lower ceiling; a panorama a layer did not search (-inf) is left out
+    found = [_answers([0.5, -np.inf]), _answers([0.5, 0.5])]
+    chosen, means = home_ceiling(found, np.array([2.7, 2.5]))
+    assert chosen == 2.5 and means == {2.5: 0.5, 2.7: 0.5}
+
+
+def _photo_run(d, ceiling_true: float, grid: dict, z_camera: float = 1.5, panorama=None):
+    """Two grey panoramas of the L-shaped room's lines under a ceiling at ``ceiling_true``,
+    taken at ``z_camera``, and the run config over them with the plan's ceiling at 2.6 m."""
+    import cv2
+
+    from placeloc.core.config import load_config
+    from placeloc.geometry.panorama import render_panoramas
+    from placeloc.umap.bits import unpack
+
+    (d / "q").mkdir(parents=True)
+    (d / "plan.yaml").write_text(yaml.safe_dump(PLAN))
+    m = floor_plan_model(with_ceiling(PLAN, ceiling_true))
+    truth = [("a.png", 1.3, 2.2, 75.0), ("b.png", 4.6, 1.9, 200.0)]
+    for name, x, y, heading in truth:
+        lines = unpack(render_panoramas(m.segments, m.faces, np.array([[x, y, z_camera, heading]]), width=512, height=256,
+                                        hidden=True), 256, 512)[0]
+        cv2.imwrite(str(d / "q" / name), np.where(cv2.dilate(lines, np.ones((2, 2), np.uint8)) > 0, 60, 190)
+                    .astype(np.uint8))
+    (d / "poses.csv").write_text("frame,x,y,heading_deg\n" + "".join(f"{n},{x},{y},{h}\n" for n, x, y, h in truth))
+    return load_config(data={"method": "umap", "query": {"images": str(d / "q")},
+                             "ground_truth": {"kind": "poses", "path": str(d / "poses.csv")},
+                             "umap": {"model": str(d / "plan.yaml"), "query_kind": "panorama",
+                                      "grid": {"x": [0.15, 6.0, 0.3], "y": [0.15, 7.0, 0.3], "headings": [0.0],
+                                               "z": 1.5, **grid},
+                                      "panorama": {"orientation_bins": 1, **(panorama or {})}},
+                             "plots": False}, base_dir=d)
+
+
+def test_a_plan_drawn_with_the_wrong_ceiling_is_searched_at_the_right_one(tmp_path, caplog):
+    # The room's ceiling is 2.9 m, the plan says 2.6: with the ceilings 2.3, 2.6 and 2.9
+    # searched, 2.9 is found (estimates.csv's ceiling_m, the log's line), both answers within
+    # 0.05 m, each scoring higher than with the plan's own ceiling, whose estimates.csv has no
+    # ceiling column.
+    from placeloc.core.runner import run_stage
+
+    runs = {}
+    for name, grid in (("plan", {}), ("three", {"ceilings": [2.3, 2.6, 2.9]})):
+        d = tmp_path / name
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="placeloc"):
+            run_stage(_photo_run(d, 2.9, grid), d / "run", "localize", quiet=True)
+        runs[name] = list(csv.DictReader(open(d / "run" / "estimates.csv")))
+        said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ceiling height found")]
+        assert said == (["ceiling height found (umap.grid.ceilings): 2.90 m, the one of 2.30, 2.60, 2.90 that "
+                         "scores the 2 panoramas best"] if name == "three" else [])
+    truth = {"a.png": (1.3, 2.2), "b.png": (4.6, 1.9)}
+    for plan, three in zip(runs["plan"], runs["three"]):
+        assert "ceiling_m" not in plan and three["ceiling_m"] == "2.90"
+        assert np.hypot(float(three["x"]) - truth[three["frame"]][0], float(three["y"]) - truth[three["frame"]][1]) <= 0.05
+        assert float(three["score"]) > float(plan["score"]) + 0.02, (plan, three)
+    from placeloc.evaluation.report import answer_lines
+
+    assert ", ceiling_m 2.90, " in answer_lines(tmp_path / "three" / "run")[0]   # what `placeloc run` prints
+    # with the camera's height searched too (a layer per height and ceiling): both found
+    d = tmp_path / "both"
+    run_stage(_photo_run(d, 2.3, {"heights": [1.2, 1.5], "ceilings": [2.3, 2.6]}, z_camera=1.2), d / "run", "localize",
+              quiet=True)
+    both = list(csv.DictReader(open(d / "run" / "estimates.csv")))
+    assert [(r["height_m"], r["ceiling_m"]) for r in both] == [("1.20", "2.30")] * 2
+    # each panorama searched whole in one layer of each ceiling (height_layers 1): the same
+    d = tmp_path / "one-layer"
+    run_stage(_photo_run(d, 2.3, {"heights": [1.2, 1.5], "ceilings": [2.3, 2.6]}, z_camera=1.2,
+                         panorama={"height_layers": 1}), d / "run", "localize", quiet=True)
+    keys = ("x", "y", "heading_deg", "height_m", "ceiling_m", "score")
+    assert [{k: r[k] for k in keys} for r in csv.DictReader(open(d / "run" / "estimates.csv"))] == \
+        [{k: r[k] for k in keys} for r in both]
+
+
+def test_ceilings_are_checked(tmp_path):
+    from placeloc.core.config import ConfigError, load_config
+    from placeloc.core.runner import run_stage
+
+    cfg = _photo_run(tmp_path / "p", 2.6, {"ceilings": [2.4, 2.6]})
+    with pytest.raises(ConfigError, match=r"umap.grid.ceilings searches a floor plan's ceiling height"):
+        load_config(data={**cfg, "umap": {**cfg["umap"], "query_kind": "pinhole"}}, base_dir=tmp_path / "p")
+    with pytest.raises(ConfigError, match=r"umap.grid.ceilings lists 2.4 more than once"):
+        _photo_run(tmp_path / "d", 2.6, {"ceilings": [2.4, 2.6, 2.4]})
+    with pytest.raises(ConfigError, match=r"umap.grid.ceilings: -1 is not a height"):
+        _photo_run(tmp_path / "n", 2.6, {"ceilings": [-1.0, 2.6]})
+    # a ceiling below the camera: named with the ceiling
+    cfg = _photo_run(tmp_path / "low", 2.6, {"ceilings": [1.4, 2.6]})
+    with pytest.raises(ConfigError, match=r"umap.grid.ceilings: grid z 1.5 m lies outside the storey.*\(ceiling 1.4 m\)"):
+        run_stage(cfg, tmp_path / "low" / "run", "build-dictionary", quiet=True)
+
+
+def test_the_disk_a_run_needs_grows_with_heights_times_ceilings(tmp_path):
+    from placeloc.umap.resources import needs
+
+    one = needs(_photo_run(tmp_path / "a", 2.6, {}), {}, ["index"])
+    six = needs(_photo_run(tmp_path / "b", 2.6, {"heights": [1.2, 1.5], "ceilings": [2.3, 2.6, 2.9]}), {}, ["index"])
+    (i1,), (i6,) = [[n for n in ns if n.stage == "index"] for ns in (one, six)]
+    assert i6.disk == pytest.approx(6 * i1.disk, rel=0.01)
+    assert ", 6 layers of heights and ceilings)" in i6.what and "fewer heights or ceilings" in i6.key

@@ -133,20 +133,9 @@ def load_model(path: str | Path, floor: str | None = None, ceiling: float | None
     :mod:`placeloc.geometry.zind`). ``ceiling``: a floor plan's ceiling height in metres in
     place of its own, every room's (:func:`with_ceiling`; a wireframe has none to replace)."""
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
-    text = read_input_text(path, "model file")
-    if path.suffix.lower() != ".obj":
-        try:
-            data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
-        except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
-            raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
-        if isinstance(data, dict) and "merger" in data:
-            from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
-
-            return floor_plan_model(with_ceiling(zind_home(path, floor)[0], ceiling), str(path))
-        if isinstance(data, dict) and ("outline" in data or "rooms" in data):
-            return floor_plan_model(with_ceiling(data, ceiling), str(path))
+    plan, data, text = _read_model(path, floor)
+    if plan is not None:
+        return floor_plan_model(with_ceiling(plan, ceiling), str(path))
     if ceiling is not None:
         raise ModelError(f"{path}: a wireframe has no ceiling height to replace; search ceiling heights with a floor "
                          "plan (rooms: or outline:), or leave umap.grid.ceilings empty")
@@ -217,6 +206,33 @@ def _poly(pts: Any, path: str, key: str) -> np.ndarray:
     if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3:
         raise ModelError(f"{path}: {key} must be a list of at least three [x, y] points")
     return arr
+
+
+def load_plan(path: str | Path, floor: str | None = None) -> dict[str, Any] | None:
+    """The floor plan in ``path`` as a mapping (a floor plan's YAML, or a ZInD home's floor
+    ``floor`` imported, :func:`placeloc.geometry.zind.zind_home`), or None where the file
+    holds a wireframe: what :func:`floor_plan_model` builds a model from."""
+    return _read_model(Path(path), floor)[0]
+
+
+def _read_model(path: Path, floor: str | None) -> tuple[dict[str, Any] | None, Any, str]:
+    """(the floor plan mapping or None, the parsed file, its text) of a model file."""
+    if not path.is_file():
+        raise ModelError(f"{path}: model file not found; give a wireframe (.yaml/.json/.obj) or floor plan (.yaml)")
+    text = read_input_text(path, "model file")
+    if path.suffix.lower() == ".obj":
+        return None, None, text
+    try:
+        data = load_json(text, str(path)) if path.suffix.lower() == ".json" else load_yaml(text, str(path), max_bytes=MAX_MODEL_BYTES)
+    except (ValueError, yaml.YAMLError) as exc:  # ValueError: JSON syntax or depth
+        raise ModelError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}: {exc}") from exc
+    if isinstance(data, dict) and "merger" in data:
+        from placeloc.geometry.zind import zind_home  # here: ZInD homes are the rarer input
+
+        return zind_home(path, floor)[0], data, text
+    if isinstance(data, dict) and ("outline" in data or "rooms" in data):
+        return data, data, text
+    return None, data, text
 
 
 def with_ceiling(plan: dict[str, Any], ceiling: float | None) -> dict[str, Any]:

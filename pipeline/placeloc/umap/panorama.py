@@ -1054,87 +1054,105 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
 def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                   progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
-                  seen: np.ndarray | None = None, ceiling: np.ndarray | None = None,
-                  models: dict[float, tuple[np.ndarray, np.ndarray]] | None = None) -> PanoramaAnswers:
+                  seen: np.ndarray | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
-    (``umap.grid.heights``) and ceiling height (``umap.grid.ceilings``; ``poses`` holds them
-    one after another, as build-dictionary writes them, ``ceiling`` each position's ceiling
-    and ``models`` each ceiling's (segments, faces), else ``segments`` and ``faces`` are
-    every layer's): each layer searched alone over its own rows of ``database``.
-
-    With several ceilings, the home's is the one whose layers score the run's panoramas
-    best (:func:`home_ceiling`): a home has one ceiling height, so every panorama's answer
-    comes from that ceiling's layers. Each panorama's answer is the best over those layers
-    (:func:`best_over_heights`). With ``pp.height_layers`` k, each panorama is searched whole
-    only in the k layers of each ceiling whose grid table scores it best
-    (:func:`grid_table_best`, chamfer only). ``progress(iterable, what, total)`` wraps each
-    layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
-    change = np.diff(poses[:, 2]) != 0
-    if ceiling is not None:
-        change |= np.diff(ceiling) != 0
-    starts = np.flatnonzero(np.r_[True, change]) if len(poses) else np.zeros(1, np.int64)
+    (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
+    writes them): each layer searched alone over its own rows of ``database``, each
+    panorama's answer the best over them (:func:`best_over_heights`). With
+    ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
+    table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
+    total)`` wraps each layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
+    starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
-    layer_ceiling = np.zeros(len(bounds)) if ceiling is None else np.asarray(ceiling, np.float64)[starts]
     # the spectra hold positions on their second axis (frequency first), the rest on their first
     layers = [{k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()} for lo, hi in bounds]
     n = len(lines)
     searched = np.ones((len(bounds), n), bool)   # [layer, panorama]: searched whole there
     keep = int(pp.height_layers)
-    if len(bounds) > 1 and keep > 0 and "spectra" in database:
-        # each panorama's best layers of each ceiling by the grid table alone (a fifth of a
-        # search's cost): the search off the grid, most of it, runs there only
+    if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
+        # each panorama's best layers by the grid table alone (a fifth of a search's cost):
+        # the search off the grid, most of it, runs there only
         table = np.stack([grid_table_best(lines, layer["spectra"], pp, seen) for layer in layers])
-        for c in np.unique(layer_ceiling):
-            group = np.flatnonzero(layer_ceiling == c)
-            if keep < len(group):
-                searched[group] = False
-                best = group[np.argsort(-table[group], axis=0, kind="stable")[:keep]]
-                searched[best, np.arange(n)[None, :]] = True
+        searched[:] = False
+        searched[np.argsort(-table, axis=0, kind="stable")[:keep], np.arange(n)[None, :]] = True
     found = []
-    for (lo, hi), layer, rows, c in zip(bounds, layers, searched, layer_ceiling):
+    for (lo, hi), layer, rows in zip(bounds, layers, searched):
         ks = np.flatnonzero(rows)
         if not len(ks):   # no panorama's best layers by the table
             found.append(unsearched(n))
             continue
-        segs, fcs = (segments, faces) if models is None or ceiling is None else models[float(c)]
-        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(np.unique(poses[:, 2])) > 1 else "") + (
-            f", ceiling {c:.2f} m" if ceiling is not None and len(np.unique(layer_ceiling)) > 1 else "")
-        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segs, fcs, layer, pp,
+        what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
+        answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
                                    progress=lambda it, what=what, m=len(ks): progress(it, what, m),
                                    seen=None if seen is None else seen[ks])
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
-    offsets = [lo for lo, _ in bounds]
-    if len(np.unique(layer_ceiling)) > 1:   # the home's ceiling: its layers alone answer
-        chosen, _ = home_ceiling(found, layer_ceiling)
-        take = np.flatnonzero(layer_ceiling == chosen)
-        found, offsets = [found[j] for j in take], [offsets[j] for j in take]
     if len(found) == 1:
-        answers = found[0]
-        return answers._replace(best=answers.best + int(offsets[0]))
-    return best_over_heights(found, offsets, distance_m=float(pp.margin_distance_m), yaw_deg=float(pp.margin_yaw_deg))
+        return found[0]
+    return best_over_heights(found, [lo for lo, _ in bounds], distance_m=float(pp.margin_distance_m),
+                             yaw_deg=float(pp.margin_yaw_deg))
 
 
-def home_ceiling(found: Sequence[PanoramaAnswers], layer_ceiling: np.ndarray) -> tuple[float, dict[float, float]]:
-    """The home's ceiling height among those searched (``umap.grid.ceilings``) and each
-    one's mean score: for each ceiling, each panorama's best score over that ceiling's
-    layers (``found[j]``, ceiling ``layer_ceiling[j]``), averaged over the panoramas; the
-    highest mean wins (the lowest ceiling of equal means).
+class CeilingChoice(NamedTuple):
+    """The home's ceiling height found among several searched (``umap.grid.ceilings``)."""
 
-    Why one ceiling for the run, not each panorama its own: a home's rooms share a ceiling
-    height (a hand-drawn plan gives one), and the mean over all the run's panoramas is sharp
-    where one panorama's score is not. On development homes 0-2 the mean peaks at the true
-    height, 0.010-0.013 above the heights 0.1 m either side (docs/umap.md, "A floor plan
-    whose ceiling height is not known"); a panorama left to pick its own ceiling may find
-    a better-scoring wrong place under a wrong ceiling. A panorama no layer of a ceiling
-    searched (``pp.height_layers``) counts its best over the layers that did."""
-    score = np.stack([f.score for f in found])   # [layer, panorama]; -inf where unsearched
-    means = {}
-    for c in np.unique(layer_ceiling):
-        best = np.max(score[layer_ceiling == c], axis=0)
-        best = best[np.isfinite(best)]
+    layer: float              # the ceiling of the grid's layers that score the run's panoramas best
+    height: float             # refined between that layer's neighbours: the ceiling the answers are searched at
+    means: dict[float, float]  # each ceiling's mean over the panoramas of their best grid-table score
+    rows: tuple[int, int]     # the grid rows [lo, hi) of the chosen ceiling's layers
+
+    @property
+    def at_edge(self) -> bool:
+        """The best ceiling is the lowest or the highest searched (with more than one): the
+        home's may lie beyond the list."""
+        return len(self.means) > 1 and self.layer in (min(self.means), max(self.means))
+
+
+def choose_ceiling(lines: np.ndarray, ceiling: np.ndarray, spectra: np.ndarray, pp: Any,
+                   seen: np.ndarray | None = None) -> CeilingChoice:
+    """The home's ceiling among the grid's layers of several ceiling heights (``ceiling``:
+    each grid position's, as build-dictionary writes them, one ceiling's layers contiguous):
+    each panorama's best grid-table score over each ceiling's layers (:func:`grid_table_best`,
+    a fifth of a search's cost), averaged over the panoramas; the highest mean wins (the
+    lowest ceiling of equal means), and the height is refined by the parabola through it and
+    its two neighbours (:func:`parabola_peak`).
+
+    Why one ceiling for the run, and by the grid table: a home's rooms share a ceiling height
+    (a plan drawn by hand gives one), and the mean over a run's panoramas is a smooth curve
+    with one peak where a panorama's own best is not. On development homes 0-2 (ceilings
+    2.37, 2.5 and 2.66 m, searched at 2.3-2.8 every 0.1 m) the table's mean peaks at the layer
+    nearest the truth each time, as the whole search's does, for a fifth of its cost a layer
+    (docs/umap.md, "A floor plan whose ceiling height is not known")."""
+    ceiling = np.asarray(ceiling, np.float64)
+    means, bounds = {}, {}
+    for c in np.unique(ceiling):
+        rows = np.flatnonzero(ceiling == c)
+        lo, hi = int(rows[0]), int(rows[-1]) + 1
+        if hi - lo != len(rows):
+            raise ValueError(f"the grid rows of ceiling {c:g} m are not one block: rebuild build-dictionary (--force)")
+        # over every position of every camera height under this ceiling: each panorama's best over its layers
+        best = grid_table_best(lines, spectra[:, lo:hi], pp, seen)
         means[float(c)] = float(np.mean(best)) if len(best) else -math.inf
-    return max(means, key=lambda c: (means[c], -c)), means
+        bounds[float(c)] = (lo, hi)
+    chosen = max(means, key=lambda c: (means[c], -c))
+    order = sorted(means)
+    k = order.index(chosen)
+    height = chosen
+    if 0 < k < len(order) - 1:
+        height = parabola_peak(order[k - 1:k + 2], [means[c] for c in order[k - 1:k + 2]])
+    return CeilingChoice(chosen, height, means, bounds[chosen])
+
+
+def parabola_peak(x: Sequence[float], y: Sequence[float]) -> float:
+    """Where the parabola through three points (x ascending, the middle one highest or level
+    with the highest) peaks, kept between the outer two: the vertex of a three-point
+    interpolation, for unequal spacing too. A flat or upturned triple gives the middle x."""
+    (x0, x1, x2), (y0, y1, y2) = (float(v) for v in x), (float(v) for v in y)
+    den = (x1 - x0) * (y1 - y2) - (x1 - x2) * (y1 - y0)
+    if not den > 0.0:   # no peak: a line or a valley
+        return x1
+    peak = x1 - 0.5 * ((x1 - x0) ** 2 * (y1 - y2) - (x1 - x2) ** 2 * (y1 - y0)) / den
+    return float(min(max(peak, x0), x2))
 
 
 # ------------------------------------------------------------------ local refinement

@@ -12,6 +12,7 @@ project reads the paper one way or another.
 from __future__ import annotations
 
 import csv
+import json
 import logging
 import math
 from pathlib import Path
@@ -27,12 +28,23 @@ from placeloc.core.methods import Method, Stage
 from placeloc.evaluation.contracts import PoseEvaluation
 from placeloc.evaluation.pose_estimates import right_answers, yaw_errors
 from placeloc.geometry import Camera
-from placeloc.geometry.floorplan import ModelError, label_points, load_model, plan_grid, rooms_at
+from placeloc.geometry.floorplan import (
+    ModelError,
+    floor_plan_model,
+    label_points,
+    load_model,
+    load_plan,
+    plan_grid,
+    rooms_at,
+    with_ceiling,
+)
 from placeloc.umap import resources as umap_resources
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
+    CeilingChoice,
     PanoramaAnswers,
     chamfer_spectra,
+    choose_ceiling,
     render_oriented_block,
     render_panorama_block,
     render_panoramas,
@@ -86,6 +98,9 @@ def _check(config: dict[str, Any]) -> None:
     bad = [h for h in ceilings if not (math.isfinite(h) and h > 0)]
     if bad:
         raise ConfigError(f"umap.grid.ceilings: {', '.join(f'{h:g}' for h in bad)} is not a height in metres above the floor")
+    if len(ceilings) > 1 and p["panorama"]["score"] != "chamfer":
+        raise ConfigError("umap.grid.ceilings chooses the home's ceiling by the chamfer score's grid table: set "
+                          "umap.panorama.score chamfer, or give the one ceiling as the plan's ceiling_z")
     pp = p["panorama"]
     if p["query_kind"] == "panorama" and pp["orientation_bins"] > 1 and (pp["score"] != "chamfer"
                                                                          or pp["chamfer_chance"] != "none"):
@@ -110,12 +125,20 @@ def build_dictionary(ctx: Any) -> None:
     p = ctx.params
     g = p.grid
     ceilings = list(g.ceilings) or [None]   # a model per ceiling height searched (umap.grid.ceilings)
-    models = []
-    for ceiling in ceilings:
-        try:
-            models.append(load_model(p.model, p.floor, ceiling))
-        except ModelError as exc:
-            raise _stage_error(ModelError(f"{exc}" + (f" (umap.grid.ceilings: {ceiling:g} m)" if ceiling else ""))) from exc
+    models, plan = [], None
+    try:
+        if g.ceilings:
+            plan = load_plan(p.model, p.floor)
+            if plan is None:
+                load_model(p.model, p.floor, g.ceilings[0])   # refuses a wireframe, naming the file
+        for ceiling in ceilings:
+            try:
+                models.append(load_model(p.model, p.floor) if ceiling is None
+                              else floor_plan_model(with_ceiling(plan, ceiling), str(p.model)))
+            except ModelError as exc:
+                raise ModelError(f"{exc}" + (f" (umap.grid.ceilings: {ceiling:g} m)" if ceiling else "")) from exc
+    except ModelError as exc:
+        raise _stage_error(exc) from exc
     model = models[0]
     layers, layer_models, layer_ceilings, warned = [], [], [], set()
     for ceiling, layer_model in zip(ceilings, models):
@@ -183,10 +206,10 @@ def build_dictionary(ctx: Any) -> None:
         s += len(bits)
     write_tree(ctx.out, {"poses": poses, "segments": model.segments, "faces": model.faces,
                          "plan": {f"polygon_{i}": poly for i, poly in enumerate(model.polygons)}})
-    if pose_ceiling is not None:   # the ceiling each position's layer was drawn at, and its model (localize renders it)
-        write_tree(ctx.out, {"ceiling_m": pose_ceiling, "ceiling_models": {
-            f"ceiling_{i}": {"height_m": np.float64(c), "segments": m.segments, "faces": m.faces}
-            for i, (c, m) in enumerate(zip(ceilings, models))}})
+    if pose_ceiling is not None:
+        # the ceiling each position's layer was drawn at, and the plan (localize draws it at the ceiling it finds)
+        write_tree(ctx.out, {"ceiling_m": pose_ceiling})
+        ctx.out.attrs["plan_json"] = json.dumps(plan)
     if model.room_names:  # polygon_i's room (a multi-room plan): answers are read off the plan by room
         write_tree(ctx.out, {"room_names": list(model.room_names)})
     if len(model.gaps):   # doors and openings, drawn as gaps on the plan picture
@@ -333,9 +356,10 @@ def query_line_images(ex: Any, bins: int, rows: Any = slice(None)) -> np.ndarray
     return unpack(words[:, 0], h, w) if bins == 1 else unpack(words, h, w)
 
 
-def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, CeilingChoice | None]:
     """Best (grid row, plan position, heading, score) of each panorama and its rival's score:
-    :func:`placeloc.umap.panorama.search_panoramas` over the index's database."""
+    :func:`placeloc.umap.panorama.search_panoramas` over the index's database; and the
+    home's ceiling where umap.grid.ceilings searched several (else None)."""
     pp = ctx.params.panorama
     bins = int(pp.orientation_bins)
     if int(ex.attrs.get("orientation_bins", 1)) != bins:
@@ -364,32 +388,39 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> PanoramaAnswers:
     if seen is not None and not np.all(seen == 1.0):
         log.info("%d of %d panoramas cover part of the sphere (Photo Sphere metadata): each is scored over the rows "
                  "it covers", int(np.sum(np.any(seen == 0.0, axis=1))), len(seen))
-    ceiling, models = plan_ceilings(src)
-    found = search_layers(lines, idx["poses"][()], src["segments"][()], src["faces"][()], database, pp,
+    poses = idx["poses"][()]
+    segments, faces = src["segments"][()], src["faces"][()]
+    choice, lo = None, 0
+    if "ceiling_m" in src and len(np.unique(src["ceiling_m"][()])) > 1:
+        # the home's ceiling by the grid table of every ceiling's layers, then the search
+        # off the grid at that ceiling, refined between the layers, alone
+        choice = choose_ceiling(lines, src["ceiling_m"][()], database["spectra"], pp, seen)
+        lo, hi = choice.rows
+        poses = poses[lo:hi]
+        database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
+        segments, faces = model_at_ceiling(src, choice.height)
+    found = search_layers(lines, poses, segments, faces, database, pp,
                           tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
                           hidden=bool(ctx.params.hidden_lines),
-                          progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
-                          ceiling=ceiling, models=models)
-    return found
+                          progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen)
+    return found._replace(best=found.best + lo), choice
 
 
-def plan_ceilings(plan: Any) -> tuple[np.ndarray | None, dict[float, tuple[np.ndarray, np.ndarray]] | None]:
-    """The build-dictionary artifact's ceiling of each grid position and each ceiling's
-    (segments, faces), where umap.grid.ceilings searched several; else (None, None): its
-    ``segments`` and ``faces`` are every position's."""
-    if "ceiling_m" not in plan:
-        return None, None
-    models = {float(g["height_m"][()]): (g["segments"][()], g["faces"][()]) for g in plan["ceiling_models"].values()}
-    return plan["ceiling_m"][()], models
+def model_at_ceiling(plan: Any, ceiling: float) -> tuple[np.ndarray, np.ndarray]:
+    """(segments, faces) of the build-dictionary artifact ``plan``'s floor plan with every
+    room's ceiling at ``ceiling`` metres (where umap.grid.ceilings searched several; the
+    artifact keeps the plan)."""
+    m = floor_plan_model(with_ceiling(json.loads(str(plan.attrs["plan_json"])), float(ceiling)),
+                         str(plan.attrs.get("model", "floor plan")))
+    return m.segments, m.faces
 
 
 def _answer_model(plan: Any, loc: Any) -> tuple[np.ndarray, np.ndarray]:
     """The (segments, faces) the run's answers were found with: the build-dictionary
     artifact's, at the ceiling height found where umap.grid.ceilings searched several."""
-    _, models = plan_ceilings(plan)
-    if models is None or "ceiling_m" not in loc:
+    if "ceiling_m" not in loc or "plan_json" not in plan.attrs:
         return plan["segments"][()], plan["faces"][()]
-    return models[float(loc["ceiling_m"][0])]
+    return model_at_ceiling(plan, float(loc["ceiling_m"][0]))
 
 
 def localize(ctx: Any) -> None:
@@ -404,7 +435,8 @@ def localize(ctx: Any) -> None:
         if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
         tilt = ex["tilt_deg"][()] if "tilt_deg" in ex else None
-        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), _localize_panoramas(ctx, idx, ex), tilt)
+        found, ceiling = _localize_panoramas(ctx, idx, ex)
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), found, tilt, ceiling)
         return
     scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
                     shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
@@ -468,7 +500,7 @@ def localize(ctx: Any) -> None:
 
 
 def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
-                              tilt: np.ndarray | None = None) -> None:
+                              tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None) -> None:
     n = len(names)
     est = np.column_stack([found.xy, poses[found.best, 2:]])
     heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
@@ -502,13 +534,17 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
         log.info("camera heights found (umap.grid.heights): %s",
                  ", ".join(f"{z:.2f} m for {c} of {n}" for z, c in zip(*found_at)))
     # the home's ceiling height, where several were searched (umap.grid.ceilings)
-    ceiling_at, _ = plan_ceilings(ctx.artifact("build-dictionary"))
-    ceilings = ceiling_at is not None and len(np.unique(ceiling_at)) > 1
+    ceilings = ceiling is not None
     if ceilings:
-        found_ceiling = ceiling_at[found.best]
+        found_ceiling = np.full(n, round(ceiling.height, 2))
         ctx.out.create_dataset("ceiling_m", data=found_ceiling)
-        log.info("ceiling height found (umap.grid.ceilings): %.2f m, the one of %s that scores the %d panoramas best",
-                 float(found_ceiling[0]), ", ".join(f"{c:.2f}" for c in np.unique(ceiling_at)), n)
+        ctx.out.create_dataset("ceiling_grid_means", data=np.array(sorted(ceiling.means.items()), np.float64))
+        log.info("ceiling height found (umap.grid.ceilings): %.2f m; the grid's mean best score at each ceiling "
+                 "searched: %s", found_ceiling[0], ", ".join(f"{c:.2f} m {v:.4f}" for c, v in sorted(ceiling.means.items())))
+        if ceiling.at_edge:
+            log.warning("the ceiling found, %.2f m, is the %s of umap.grid.ceilings: the home's may lie beyond them; "
+                        "search %s ceilings too", ceiling.layer, "lowest" if ceiling.layer == min(ceiling.means) else
+                        "highest", "lower" if ceiling.layer == min(ceiling.means) else "higher")
     # how far each panorama was turned upright (umap.panorama.level_max_deg), where any was
     levelled = tilt is not None and bool(np.any(tilt > 0))
     if levelled:

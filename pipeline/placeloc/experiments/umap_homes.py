@@ -156,15 +156,16 @@ def shifted_grid(plan: Path, frac: float, step: float = GRID_STEP_M) -> dict[str
 
 
 def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: float, quiet: bool,
-         plan: Path | None = None) -> dict[str, Any]:
+         plan: Path | None = None, grid: dict[str, Any] | None = None) -> dict[str, Any]:
     # only what a user of a real home gives (the model, the images, the query kind, the
     # truth) and the grid origin; ``plan``: another file of the same plan (default the home's
-    # own floor_plan.yaml), so that runs of one home's variants share a map and index
+    # own floor_plan.yaml), so that runs of one home's variants share a map and index;
+    # ``grid``: umap.grid settings beside the origin's x and y (the ceilings searched)
     plan = plan or data / "floor_plan.yaml"
     cfg = load_config(data={"method": "umap", "query": {"images": str(data / "panoramas")},
                             "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
                             "umap": {"model": str(plan), "query_kind": "panorama", "panorama": panorama,
-                                     "grid": shifted_grid(plan, frac)},
+                                     "grid": {**shifted_grid(plan, frac), **(grid or {})}},
                             "executor": {"workers": 1}, "plots": False}, base_dir=root)
     run_all(cfg, root / name, quiet=quiet)
     return {**read_metrics(root / name), "line_stats": json.loads((data / "line_stats.json").read_text()), "origin": frac}

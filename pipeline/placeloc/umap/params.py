@@ -36,10 +36,13 @@ class GridParams(Params):
                                                "more ([] = the one height z)")
     ceilings: tuple[float, ...] = param([], help="panoramas with a floor plan: ceiling heights in metres to search, "
                                                 "for a plan whose ceiling height is not known (a plan drawn from a "
-                                                "listing's drawing): each replaces every room's ceiling_z, the grid is "
-                                                "rendered at each, and the one height that scores the run's panoramas "
-                                                "best is the home's, found in estimates.csv; localize and the index "
-                                                "cost as many times more, times the heights ([] = the plan's own)")
+                                                "listing's drawing; e.g. 2.3-3.0 every 0.1): each replaces every "
+                                                "room's ceiling_z and the grid is rendered at each; the home's is the "
+                                                "one whose grid table scores the run's panoramas best, refined between "
+                                                "its neighbours, and only it is searched off the grid (ceiling_m in "
+                                                "estimates.csv). The index costs as many times more, times the "
+                                                "heights; localize about a fifth of a search more per ceiling "
+                                                "([] = the plan's own)")
     headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
     wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "

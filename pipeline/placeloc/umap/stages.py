@@ -209,7 +209,7 @@ def build_dictionary(ctx: Any) -> None:
     if pose_ceiling is not None:
         # the ceiling each position's layer was drawn at, and the plan (localize draws it at the ceiling it finds)
         write_tree(ctx.out, {"ceiling_m": pose_ceiling})
-        ctx.out.attrs["plan_json"] = json.dumps(plan)
+        ctx.out.attrs["plan_json"] = json.dumps(plan, default=str)   # a YAML date or the like: as text
     if model.room_names:  # polygon_i's room (a multi-room plan): answers are read off the plan by room
         write_tree(ctx.out, {"room_names": list(model.room_names)})
     if len(model.gaps):   # doors and openings, drawn as gaps on the plan picture

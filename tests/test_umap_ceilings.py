@@ -117,6 +117,13 @@ def test_a_plan_drawn_with_the_wrong_ceiling_is_searched_at_the_right_one(tmp_pa
     from placeloc.evaluation.report import answer_lines
 
     assert f", ceiling_m {runs['three'][0]['ceiling_m']}, " in answer_lines(tmp_path / "three" / "run")[0]
+    # placeloc show draws the ceilings' means where several were searched, not otherwise
+    from placeloc.umap.stages import show_extra
+
+    for name, drawn in (("three", True), ("plan", False)):
+        pics = show_extra(tmp_path / name / "run", None, tmp_path / name / "run")
+        assert any(p.name == "ceiling_scores.png" for p in pics) == drawn
+        assert (tmp_path / name / "run" / "ceiling_scores.png").is_file() == drawn
     # the ceiling found at the highest searched: the answers are still drawn there, and a
     # warning says the home's may lie above
     d = tmp_path / "edge"
@@ -168,3 +175,18 @@ def test_the_disk_a_run_needs_grows_with_heights_times_ceilings(tmp_path):
     (i1,), (i6,) = [[n for n in ns if n.stage == "index"] for ns in (one, six)]
     assert i6.disk == pytest.approx(6 * i1.disk, rel=0.01)
     assert ", 6 layers of heights and ceilings)" in i6.what and "fewer heights or ceilings" in i6.key
+
+
+def test_the_ceiling_picture_marks_the_ceiling_found(tmp_path):
+    # three ceilings 2.3 / 2.4 / 2.5 m, found at 2.42: the dashed orange line stands where
+    # 2.42 m falls on the x axis (plot box 86-700 px over 2.25-2.55 m: column 434)
+    from PIL import Image
+
+    from placeloc.umap.plots import plot_ceiling_scores
+
+    path = plot_ceiling_scores(tmp_path / "c.png", np.array([[2.3, 0.40], [2.4, 0.50], [2.5, 0.45]]), 2.42, 20)
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    assert img.shape[:2] == (440, 720)
+    orange = np.all(np.abs(img - np.array([255, 127, 14])) <= 40, axis=2)
+    column = int(np.argmax(np.bincount(np.nonzero(orange)[1], minlength=img.shape[1])))
+    assert abs(column - (86 + (2.42 - 2.25) / 0.30 * 614)) <= 2, column

@@ -46,3 +46,35 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
               + ("; blue: not in the photo" if unseen is not None and np.any(unseen) else ""),
               size=12, title_size=11)
     canvas.save(path)
+
+
+def plot_ceiling_scores(path: Path, means: np.ndarray, found: float, panoramas: int) -> Path:
+    """The home's ceiling search (``umap.grid.ceilings``) at a glance: each ceiling searched
+    against its mean over the run's ``panoramas`` of their best grid-table score (``means``:
+    (C, 2) rows of ceiling, mean), the ceiling found marked. A sharp peak says the photos
+    agree on the height; a flat top or a peak at either end says they do not, or that the
+    home's lies outside the heights listed."""
+    from placeloc.evaluation import raster as R
+
+    means = np.asarray(means, np.float64).reshape(-1, 2)
+    x, y = means[:, 0], means[:, 1]
+    pad_x = max(0.05, 0.08 * float(np.ptp(x)))
+    span = max(float(np.ptp(y)), 1e-4)
+    ylim = (float(y.min()) - 0.12 * span, float(y.max()) + 0.22 * span)
+    c = R.Canvas(720, 440)
+    ax = R.Axes(c, (86, 44, 700, 380), (float(x.min()) - pad_x, float(x.max()) + pad_x), ylim)
+    ax.frame(x, R.nice_ticks(*ylim, most=6), xlabels=[f"{v:.2f}" for v in x])
+    blue, orange = R.CYCLE[0], R.CYCLE[1]
+    ax.line(np.array([found, found]), np.array(ylim), orange, 1.6, "--")
+    ax.line(x, y, blue, 2.0)
+    ax.markers(x, y, blue, "o", 8.0)
+    best = int(np.argmax(y))
+    right = found < float(x.min()) + 0.6 * float(np.ptp(x) or 1.0)
+    ax.text(found, ylim[1] - 0.06 * (ylim[1] - ylim[0]), f" ceiling found: {found:.2f} m ", 12, fill=orange,
+            anchor="lm" if right else "rm", box=(255, 255, 255))
+    # the best mean beside its point, on the side away from the dashed line
+    ax.text(x[best], y[best], f"{y[best]:.4f}", 11, dx=-8 if found >= x[best] else 8, dy=-8,
+            anchor="rd" if found >= x[best] else "ld")
+    ax.labels("ceiling height searched [m]", "mean best grid score",
+              f"The home's ceiling: each height's mean best score over the {panoramas} panoramas")
+    return c.save(path)

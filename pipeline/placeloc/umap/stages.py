@@ -53,7 +53,7 @@ from placeloc.umap.panorama import (
     seen_rows,
 )
 from placeloc.umap.params import UMapParams
-from placeloc.umap.plots import plot_panorama_overlay
+from placeloc.umap.plots import plot_ceiling_scores, plot_panorama_overlay
 from placeloc.umap.query_features import panorama_arrays, query_arrays, query_camera
 from placeloc.umap.render import render_grid_block
 from placeloc.umap.scoring import Scorer
@@ -628,6 +628,15 @@ def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
         _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)
+        _ceiling_picture(ctx.output("ceiling_scores.png"), loc)
+
+
+def _ceiling_picture(path: Path, loc: Any) -> Path | None:
+    """ceiling_scores.png where umap.grid.ceilings searched several ceilings (each one's
+    mean grid score, the one found marked), else nothing."""
+    if "ceiling_grid_means" not in loc:
+        return None
+    return plot_ceiling_scores(path, loc["ceiling_grid_means"][()], float(loc["ceiling_m"][0]), len(loc["names"]))
 
 
 def rival_metrics(ev: PoseEvaluation, doubtful: np.ndarray, rival_x: np.ndarray, rival_y: np.ndarray,
@@ -683,6 +692,9 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
             h5py.File(run_dir / "localize.h5", "r") as loc:
         if str(ex.attrs.get("query_kind", "")) != "panorama":
             return []
+        ceiling = _ceiling_picture(out_dir / "ceiling_scores.png", loc)
+        if ceiling is not None:
+            out.append(ceiling)
         size = (int(ex.attrs["height"]), int(ex.attrs["width"]))
         segs, faces = _answer_model(plan, loc)
         zs = _answer_heights(loc, float(plan["poses"][0, 2]))

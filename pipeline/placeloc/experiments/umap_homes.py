@@ -255,6 +255,13 @@ def cause_line(causes: dict[int, list[tuple[str, float, float]]], origin: float)
     return text + "."
 
 
+def homes_scope(out_dir: Path, quick: bool, origins: tuple[float, ...]) -> tuple[Path, tuple[int, ...], tuple[float, ...]]:
+    """What an experiment on the test homes covers: its output folder (absolute), the test
+    seeds and the grid origins; ``quick`` (a smoke run): the first two homes at the first
+    origin."""
+    return Path(out_dir).resolve(), (TEST_SEEDS[:2] if quick else TEST_SEEDS), (origins[:1] if quick else origins)
+
+
 def _drop_index(run_dir: Path) -> None:
     """Delete a finished run folder's index (module docstring: the disk it takes)."""
     (run_dir / "index.h5").unlink(missing_ok=True)

@@ -31,7 +31,7 @@ import numpy as np
 import yaml
 
 from placeloc.experiments import write_summary
-from placeloc.experiments.umap_homes import PANORAMAS, TEST_SEEDS, _drop_index, _run
+from placeloc.experiments.umap_homes import PANORAMAS, _drop_index, _run, homes_scope
 from placeloc.synth import generate
 
 log = logging.getLogger("placeloc")
@@ -62,9 +62,7 @@ def _home(root: Path, seed: int, ceiling: float) -> Path:
 
 
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
-    out_dir = Path(out_dir).resolve()
-    seeds = TEST_SEEDS[:2] if quick else TEST_SEEDS
-    origins = ORIGINS[:1] if quick else ORIGINS
+    out_dir, seeds, origins = homes_scope(out_dir, quick, ORIGINS)
     runs: dict[str, dict[str, Any]] = {}
     shares: dict[tuple[str, float], dict[int, list[float]]] = {(label, c): {} for label, _, _ in SETTINGS
                                                                for c in CEILINGS_M}

@@ -85,3 +85,19 @@ def test_uncalibrated_floor_is_refused(tmp_path):
     p.write_text(json.dumps(data))
     with pytest.raises(ModelError, match="no floor has a scale_meters_per_coordinate"):
         zind_home(p)
+
+
+def test_a_zind_home_searched_over_ceilings_round_trips_through_json(tmp_path):
+    # umap.grid.ceilings keeps the plan as JSON in build-dictionary.h5 and localize draws it
+    # again at the ceiling found: a ZInD home's plan must come back the same model
+    from placeloc.geometry.floorplan import load_model, load_plan, with_ceiling
+
+    path = _write(tmp_path)
+    plan = load_plan(path)
+    back = json.loads(json.dumps(plan, default=str))
+    assert back == plan
+    a = floor_plan_model(with_ceiling(back, 2.7), str(path))
+    b = load_model(path, ceiling=2.7)
+    assert np.array_equal(a.segments, b.segments) and np.array_equal(a.faces, b.faces)
+    # both rooms' ceilings (3.0 m as imported) are at 2.7 m now, the floor where it was
+    assert np.max(b.segments[:, [2, 5]]) == pytest.approx(2.7) and np.min(b.segments[:, [2, 5]]) == 0.0

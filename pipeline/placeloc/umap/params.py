@@ -41,8 +41,10 @@ class GridParams(Params):
                                                 "one whose grid table scores the run's panoramas best, refined between "
                                                 "its neighbours, and only it is searched off the grid (ceiling_m in "
                                                 "estimates.csv). The index costs as many times more, times the "
-                                                "heights; localize about a fifth of a search more per ceiling "
-                                                "([] = the plan's own)")
+                                                "heights; localize about a fifth of a search more per ceiling. "
+                                                "With the camera's height unknown too, search the ceilings first, "
+                                                "then give the one found alone with the heights ([] = the plan's "
+                                                "own)")
     headings: tuple[float, ...] = param([45.0, 135.0, 225.0, 315.0], min_len=1, help="headings in degrees")
     inside_only: bool = param(True, help="keep only grid poses inside the floor plan")
     wall_margin_m: float = param(0.1, min=0.0, help="keep grid poses this far from the walls that span the camera "

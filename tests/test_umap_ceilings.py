@@ -103,8 +103,10 @@ def test_a_plan_drawn_with_the_wrong_ceiling_is_searched_at_the_right_one(tmp_pa
         runs[name] = list(csv.DictReader(open(d / "run" / "estimates.csv")))
         said = [r.getMessage() for r in caplog.records if "ceiling" in r.getMessage()]
         if name == "three":
-            assert len(said) == 1 and said[0].startswith("ceiling height found (umap.grid.ceilings): "), said
+            assert len(said) == 2 and said[0].startswith("ceiling height found (umap.grid.ceilings): "), said
             assert "; the grid's mean best score at each ceiling searched: 2.50 m 0." in said[0]
+            # two photos are few to find a ceiling from: the user is told
+            assert said[1].startswith("the ceiling height was found from 2 panoramas: with fewer than 10 it is often")
         else:
             assert said == []
     truth = {"a.png": (1.3, 2.2), "b.png": (4.6, 1.9)}

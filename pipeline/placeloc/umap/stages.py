@@ -499,6 +499,12 @@ def localize(ctx: Any) -> None:
                         "" if math.isnan(ca_dist[k]) else f"{ca_dist[k]:.3f}", "" if math.isnan(radius[k]) else f"{radius[k]:.3f}"])
 
 
+# fewer panoramas than this choose the home's ceiling (umap.grid.ceilings) with a warning: on
+# test homes 20-22 (8 ft and 9 ft ceilings), 10 random panoramas put it within 0.05 m in 83-96 %
+# of draws, a single one in 31-49 % (docs/umap.md, "How many photos the ceiling needs")
+CEILING_PANORAMAS = 10
+
+
 def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
                               tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None) -> None:
     n = len(names)
@@ -541,6 +547,11 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
         ctx.out.create_dataset("ceiling_grid_means", data=np.array(sorted(ceiling.means.items()), np.float64))
         log.info("ceiling height found (umap.grid.ceilings): %.2f m; the grid's mean best score at each ceiling "
                  "searched: %s", found_ceiling[0], ", ".join(f"{c:.2f} m {v:.4f}" for c, v in sorted(ceiling.means.items())))
+        if n < CEILING_PANORAMAS:
+            log.warning("the ceiling height was found from %d panorama%s: with fewer than %d it is often 0.05 m or "
+                        "more off (docs/umap.md, \"How many photos the ceiling needs\"); give the ceiling if you can "
+                        "measure it, or localize more photos of the home together", n, "" if n == 1 else "s",
+                        CEILING_PANORAMAS)
         if ceiling.at_edge:
             log.warning("the ceiling found, %.2f m, is the %s of umap.grid.ceilings: the home's may lie beyond them; "
                         "search %s ceilings too", ceiling.layer, "lowest" if ceiling.layer == min(ceiling.means) else

@@ -41,7 +41,8 @@ class GridParams(Params):
                                                 "one whose grid table scores the run's panoramas best, refined between "
                                                 "its neighbours, and only it is searched off the grid (ceiling_m in "
                                                 "estimates.csv). The index costs as many times more, times the "
-                                                "heights; localize about a fifth of a search more per ceiling. "
+                                                "heights; localize about a fifth of a search more per ceiling. It "
+                                                "needs about 10 photos of the home (a warning with fewer). "
                                                 "With the camera's height unknown too, search the ceilings first, "
                                                 "then give the one found alone with the heights ([] = the plan's "
                                                 "own)")

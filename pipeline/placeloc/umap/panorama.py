@@ -735,6 +735,18 @@ def _table_products(spectra: np.ndarray, qs: np.ndarray, seen: np.ndarray | None
         _batch_products(spectra[:, :, rows:], qs[:, rows:])
 
 
+def _close_over_seen(q_close: np.ndarray, seen: np.ndarray | None,
+                     channels: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+    """The queries' closeness images (N, C H, W) with the rows each photo did not see
+    (``seen`` (N, H), :func:`seen_rows`) zeroed in every one of its ``channels``, and
+    ``seen`` tiled over them as :func:`_table_products` takes it; ``seen`` None: both as
+    they are."""
+    if seen is None:
+        return q_close, None
+    seen = np.tile(np.asarray(seen, np.float32), channels)
+    return q_close * seen[:, :, None], seen
+
+
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
                   chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
                   spread: int | None = None, seen: np.ndarray | None = None) -> np.ndarray:
@@ -771,9 +783,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         if precision_rows is not None:
             q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
-        if seen is not None:
-            seen = np.tile(np.asarray(seen, np.float32), b)
-            q_close = q_close * seen[:, :, None]
+        q_close, seen = _close_over_seen(q_close, seen, b)
         x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
         qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))
         prod = _table_products(spectra, qs, seen)                                 # (F, P, N)
@@ -788,9 +798,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     if precision_rows is not None:                                            # the precision half's rows only
         q = q * np.asarray(precision_rows, np.float32)[None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2)), 1e-9)[:, None, None]
-    if seen is not None:
-        seen = np.asarray(seen, np.float32)
-        q_close = q_close * seen[:, :, None]
+    q_close, seen = _close_over_seen(q_close, seen)
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
@@ -900,9 +908,7 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     q = box_blur(q, blur_px)
     wr = np.asarray(weights, np.float32)[None, None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
-    if seen is not None:
-        seen = np.tile(np.asarray(seen, np.float32), b)
-        q_close = q_close * seen[:, :, None]
+    q_close, seen = _close_over_seen(q_close, seen, b)
     x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
     f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
     qs = np.ascontiguousarray(_rfft(x)[..., :f].astype(np.complex64).transpose(2, 1, 0))

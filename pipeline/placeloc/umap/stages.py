@@ -85,16 +85,12 @@ def _check(config: dict[str, Any]) -> None:
     if heights and p["query_kind"] != "panorama":
         raise ConfigError("umap.grid.heights searches the camera height of whole panoramas (umap.query_kind: panorama); "
                           "for pinhole images give the one height as umap.grid.z")
-    twice = sorted({h for h in heights if heights.count(h) > 1})
-    if twice:   # two layers at one height would be searched as one layer of every position twice
-        raise ConfigError(f"umap.grid.heights lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
+    _listed_once("umap.grid.heights", heights)   # two layers at one height: every position searched twice
     ceilings = list(p["grid"]["ceilings"] or [])
     if ceilings and p["query_kind"] != "panorama":
         raise ConfigError("umap.grid.ceilings searches a floor plan's ceiling height for whole panoramas "
                           "(umap.query_kind: panorama); for pinhole images give the plan's ceiling_z")
-    twice = sorted({h for h in ceilings if ceilings.count(h) > 1})
-    if twice:
-        raise ConfigError(f"umap.grid.ceilings lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
+    _listed_once("umap.grid.ceilings", ceilings)
     bad = [h for h in ceilings if not (math.isfinite(h) and h > 0)]
     if bad:
         raise ConfigError(f"umap.grid.ceilings: {', '.join(f'{h:g}' for h in bad)} is not a height in metres above the floor")
@@ -111,6 +107,13 @@ def _check(config: dict[str, Any]) -> None:
         Camera(int(c["width"]), int(c["height"]), float(c["hfov_deg"]))
     except ValueError as exc:
         raise ConfigError(f"umap.camera: {exc}") from exc
+
+
+def _listed_once(key: str, heights: list[float]) -> None:
+    """Refuse a list of heights (``key``) that gives one more than once, naming it."""
+    twice = sorted({h for h in heights if heights.count(h) > 1})
+    if twice:
+        raise ConfigError(f"{key} lists {', '.join(f'{h:g}' for h in twice)} more than once; give each height once")
 
 
 def _stage_error(exc: Exception) -> Exception:
@@ -391,10 +394,11 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
     poses = idx["poses"][()]
     segments, faces = src["segments"][()], src["faces"][()]
     choice, lo = None, 0
-    if "ceiling_m" in src and len(np.unique(src["ceiling_m"][()])) > 1:
+    pose_ceiling = src["ceiling_m"][()] if "ceiling_m" in src else None
+    if pose_ceiling is not None and len(np.unique(pose_ceiling)) > 1:
         # the home's ceiling by the grid table of every ceiling's layers, then the search
         # off the grid at that ceiling, refined between the layers, alone
-        choice = choose_ceiling(lines, src["ceiling_m"][()], database["spectra"], pp, seen)
+        choice = choose_ceiling(lines, pose_ceiling, database["spectra"], pp, seen)
         lo, hi = choice.rows
         poses = poses[lo:hi]
         database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
@@ -553,9 +557,10 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                         "measure it, or localize more photos of the home together", n, "" if n == 1 else "s",
                         CEILING_PANORAMAS)
         if ceiling.at_edge:
+            lowest = ceiling.layer == min(ceiling.means)
             log.warning("the ceiling found, %.2f m, is the %s of umap.grid.ceilings: the home's may lie beyond them; "
-                        "search %s ceilings too", ceiling.layer, "lowest" if ceiling.layer == min(ceiling.means) else
-                        "highest", "lower" if ceiling.layer == min(ceiling.means) else "higher")
+                        "search %s ceilings too", ceiling.layer, "lowest" if lowest else "highest",
+                        "lower" if lowest else "higher")
     # how far each panorama was turned upright (umap.panorama.level_max_deg), where any was
     levelled = tilt is not None and bool(np.any(tilt > 0))
     if levelled:

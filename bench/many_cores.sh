@@ -7,9 +7,11 @@
 #   3. SeqSLAM's stages over executor.workers 1, 2, 4, ..., nproc on every core (seqslam-workers);
 #   4. SeqSLAM's per-image work over threads, by image size (image-threads);
 #   4b. where the preset's localize numerics spend their wall time on 1, 2, ..., nproc cores,
-#      part by part (seqslam-timeline);
+#      part by part (seqslam-timeline); the same on nproc, nproc / 2 and 1 cores with the
+#      flexible search's tiles 4096, 1024 and 512 references (preset-tiles);
 #   5. UMap's whole-panorama search over numba threads (umap), and UMap's localize on a
-#      generated home as a user runs it, pinned to 1, 2, ..., nproc cores (umap-home);
+#      generated home as a user runs it, pinned to 1, 2, ..., nproc cores (umap-home;
+#      UMAP_PANORAMAS=32 for the real home's count, UMAP_WORK=dir to keep or reuse the home);
 #   6. co-embedding's sparse solve over cores (coembed);
 #   7. PIRF's default index over faiss threads (pirf; skipped without faiss).
 # Each table has its own time limit, so one that runs long costs only itself. Tables go to
@@ -26,7 +28,7 @@ OUT=${OUT:-runs/many-cores}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD/pipeline${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 N=${N:-3576}
-TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads seqslam-timeline umap umap-home coembed pirf}
+TABLES=${TABLES:-seqslam-cores preset-cores seqslam-workers image-threads seqslam-timeline preset-tiles umap umap-home coembed pirf}
 exec > >(tee -a "$OUT/all.log") 2>&1
 
 "$PY" - <<'EOF'
@@ -59,8 +61,10 @@ table preset-cores 150 "$PY" bench/scaling.py --n "$N" --repeat 1 --cores --pres
 table seqslam-workers 100 "$PY" bench/scaling.py --n "$N" --repeat 2 --no-kernels --out "$OUT/seqslam-workers.md"
 table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
 table seqslam-timeline 90 "$PY" bench/bench_seqslam_timeline.py --frames "$N"
+HALVES=$("$PY" -c "import os; n = len(os.sched_getaffinity(0)); print(','.join(map(str, sorted({n, max(1, n // 2), 1}, reverse=True))))")
+table preset-tiles 200 "$PY" bench/bench_seqslam_timeline.py --frames "$N" --cores "$HALVES" --tiles 4096,1024,512
 table umap 60 "$PY" bench/bench_umap.py --panorama-only
-table umap-home 150 "$PY" bench/bench_umap_home.py --repeat 2
+table umap-home 180 "$PY" bench/bench_umap_home.py --repeat 2 --panoramas "${UMAP_PANORAMAS:-20}" ${UMAP_WORK:+--work "$UMAP_WORK"}
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then
     PIRF_CACHE=$(mktemp -d -t placeloc-pirf-XXXXXX)

@@ -57,7 +57,8 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None,
                     help="folder for the home and its run, kept (default: a temporary one, removed at the end)")
     args = ap.parse_args()
-    work = args.work or Path(tempfile.mkdtemp(prefix="placeloc-umap-home-"))
+    # absolute: the config written there names the home's files, read from the config's folder
+    work = (args.work or Path(tempfile.mkdtemp(prefix="placeloc-umap-home-"))).resolve()
     work.mkdir(parents=True, exist_ok=True)
     try:
         run_table(args, work)

@@ -118,10 +118,13 @@ def stage_process(cfg: Path, run_dir: Path, stage: str, count: int, pin: bool) -
     everyone = sorted(os.sched_getaffinity(0)) if pin else []
     extra = [] if pin else ["--set", f"executor.workers={count}"]
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(run_dir), "-q", "-f", *extra],
-                   check=True, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")},
-                   preexec_fn=(lambda: os.sched_setaffinity(0, everyone[:count])) if pin else None)
+    done = subprocess.run([sys.executable, str(ROOT / "cli.py"), stage, str(cfg), "-o", str(run_dir), "-q", "-f", *extra],
+                          capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "pipeline")},
+                          preexec_fn=(lambda: os.sched_setaffinity(0, everyone[:count])) if pin else None)
     wall = time.perf_counter() - t0
+    if done.returncode != 0:  # the stage's own words, not only its exit status
+        said = (done.stderr.strip() or done.stdout.strip())[-2000:]
+        raise SystemExit(f"placeloc {stage} {cfg} -o {run_dir} failed (exit {done.returncode}):\n{said}")
     with h5py.File(run_dir / f"{stage}.h5", "r") as f:
         return float(f.attrs["seconds"]), wall
 

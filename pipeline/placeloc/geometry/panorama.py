@@ -257,7 +257,7 @@ def _row_certified(qz: float, r: float, j: int, edge_x: np.ndarray, edge_y: np.n
     return -1
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _render_equirect(segs: np.ndarray, vertical: np.ndarray, faces: np.ndarray, poses: np.ndarray, width: int, height: int,
                      hidden: bool, which: int, bins: int, out: np.ndarray, masks: np.ndarray) -> None:
     """``which``: 0 every segment, 1 only vertical ones, 2 only the others. ``bins`` 0: the

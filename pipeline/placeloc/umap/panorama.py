@@ -29,8 +29,10 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections import OrderedDict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import Any, NamedTuple
 
 import cv2
@@ -51,7 +53,7 @@ from placeloc.umap.resources import SPECTRA_BLOCK
 
 # ------------------------------------------------------------------ scores over every yaw
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _and_count_shifts(db: np.ndarray, q: np.ndarray, out: np.ndarray) -> None:
     for i in prange(db.shape[0]):
         for k in range(q.shape[0]):
@@ -109,7 +111,7 @@ def _fold_seam(wide: np.ndarray, out: np.ndarray, r: int) -> None:
                 out[y, x] = wide[y, w + r + c]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _stamp_closeness(lines: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int, out: np.ndarray) -> None:
     h, w = lines.shape[1], lines.shape[2]
     for i in prange(lines.shape[0]):
@@ -198,7 +200,7 @@ def texture_weights(lines: np.ndarray, radius_px: int) -> np.ndarray:
     return out.reshape(lines.shape).astype(np.float32)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _chamfer_shifts(db: np.ndarray, db_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                     q_vals: np.ndarray, width: int, out: np.ndarray) -> None:
     n_q = 0.0
@@ -367,7 +369,7 @@ def _stamp_pixel(wide: np.ndarray, cm: int, y: int, x: int, dy: np.ndarray, dx: 
                     wide[c, yy, xx] = value[j]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: np.ndarray, value: np.ndarray, r: int,
                     out: np.ndarray) -> None:
     """:func:`_stamp_closeness` for orientation bitmask images: each line pixel stamps its
@@ -385,7 +387,7 @@ def _stamp_oriented(masks: np.ndarray, compat: np.ndarray, dy: np.ndarray, dx: n
             _fold_seam(wide[c], out[i, c], r)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _oriented_shifts(masks: np.ndarray, near: np.ndarray, offset: np.ndarray, rank: np.ndarray, levels: np.ndarray,
                      r: int, bins: int, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray, q_vals: np.ndarray,
                      weights: np.ndarray, shifts: np.ndarray, out: np.ndarray) -> None:
@@ -1317,7 +1319,7 @@ def grid_step(xy: np.ndarray) -> float:
     return float(gaps.min()) if len(gaps) else 0.25
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarray, q_rows: np.ndarray, q_cols: np.ndarray,
                        q_vals: np.ndarray, weights: np.ndarray, shifts: np.ndarray, out: np.ndarray,
                        chance_out: np.ndarray, with_levels: bool) -> None:
@@ -1473,32 +1475,112 @@ class RenderCache:
         self.bytes = 0
         self.rendered = 0
         self.reused = 0
+        # queries searched on threads share the cache: the lock covers the look-up and the
+        # keeping, not the render, so renders run side by side (two threads that miss the
+        # same point both render it, to the same bits)
+        self.lock = threading.Lock()
 
     def __call__(self, pts: np.ndarray) -> np.ndarray:
         pts = np.ascontiguousarray(pts, np.float64)
         keys = [row.tobytes() for row in pts]
         new: dict[bytes, int] = {}                   # a point not kept -> its row in the fresh renders
         first: list[int] = []                        # the fresh renders' points, by their first row in pts
-        for i, key in enumerate(keys):
-            if key not in self.kept and key not in new:
-                new[key] = len(new)
-                first.append(i)
+        found: dict[bytes, np.ndarray] = {}          # the kept renders, taken now (another thread may drop them)
+        with self.lock:
+            for i, key in enumerate(keys):
+                if key in new or key in found:
+                    continue
+                img = self.kept.get(key)
+                if img is None:
+                    new[key] = len(new)
+                    first.append(i)
+                else:
+                    found[key] = img
         fresh = self.render(pts[first] if len(new) < len(keys) else pts)
         if len(new) == len(keys):                    # nothing kept: the fresh renders are the answer
             out = fresh
         else:
             out = np.empty((len(keys), *fresh.shape[1:]), fresh.dtype)
             for i, key in enumerate(keys):
-                out[i] = fresh[new[key]] if key in new else self.kept[key]
-        self.rendered += len(new)
-        self.reused += len(keys) - len(new)
-        for key, row in new.items():
-            img = fresh[row].copy()                  # not a view that holds the whole batch
-            self.kept[key] = img
-            self.bytes += img.nbytes
-        while self.bytes > self.max_bytes and self.kept:
-            self.bytes -= self.kept.popitem(last=False)[1].nbytes
+                out[i] = fresh[new[key]] if key in new else found[key]
+        with self.lock:
+            self.rendered += len(new)
+            self.reused += len(keys) - len(new)
+            for key, row in new.items():
+                if key in self.kept:                 # kept meanwhile by another thread: the same bits
+                    continue
+                img = fresh[row].copy()              # not a view that holds the whole batch
+                self.kept[key] = img
+                self.bytes += img.nbytes
+            while self.bytes > self.max_bytes and self.kept:
+                self.bytes -= self.kept.popitem(last=False)[1].nbytes
         return out
+
+
+# queries searched at once by :func:`search_panoramas` (None: :func:`panorama_threads`
+# decides; 1: one after another, each kernel on every usable core)
+PANORAMA_THREADS: int | None = None
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _first_parallel(out: np.ndarray) -> None:
+    """A parallel kernel that does nothing useful: calling it makes numba choose its
+    threading layer, which :func:`panorama_threads` then reads."""
+    for i in prange(out.shape[0]):
+        out[i] = i
+
+
+def panorama_threads(n: int) -> int:
+    """Threads :func:`search_panoramas` searches ``n`` queries on, each query's local search
+    on one thread with its kernels on one core: the usable cores (at most ``n``), or
+    :data:`PANORAMA_THREADS` where set. Why: a step of the local search renders and scores a
+    few dozen poses, too few to keep many cores busy in one kernel, and between its kernels
+    each query runs Python; queries side by side keep the cores busy (the kernels release
+    the GIL). 1 where numba's threading layer is ``workqueue``, which aborts the process
+    when two threads call its kernels at once (``omp`` and ``tbb`` allow it)."""
+    if PANORAMA_THREADS is not None:
+        want = int(PANORAMA_THREADS)
+    else:
+        want = usable_cores()
+    want = max(1, min(want, n))
+    if want == 1:
+        return 1
+    import numba
+
+    _first_parallel(np.zeros(1))
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel kernel has run: cannot tell
+        return 1
+    return want if layer in ("omp", "tbb") else 1
+
+
+def _each_searched(batches: Iterable[list[tuple[int, np.ndarray, np.ndarray | None]]],
+                   search_one: Callable[[int, np.ndarray, np.ndarray | None], None], threads: int) -> Iterator[int]:
+    """``search_one`` on every query of each batch (query, table, tolerant table), a batch
+    at a time: the next batch's tables are made on every core (BLAS's thread count is the
+    process's) once this batch's searches have ended. Yields each query as its search ends.
+    With ``threads`` > 1 the queries of a batch run on that many threads, numba's kernels on
+    one thread in each (its thread count is a thread's own)."""
+    if threads <= 1:
+        for batch in batches:
+            for item in batch:
+                search_one(*item)
+                yield item[0]
+        return
+    import numba
+
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="placeloc-panoramas",
+                            initializer=numba.set_num_threads, initargs=(1,)) as pool:
+        for batch in batches:
+            futures = {pool.submit(search_one, *item): item[0] for item in batch}
+            try:
+                for done in as_completed(futures):
+                    done.result()
+                    yield futures[done]
+            finally:  # stopped (an error, Ctrl-C): the queries not begun are not begun
+                for future in futures:
+                    future.cancel()
 
 
 def _query_side(lines: np.ndarray, pp: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int | None]:
@@ -1638,10 +1720,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
 
     renders = RenderCache(render_local)
     # the plan points the local search scored for the current query, each at its best shift:
-    # the rivals off the grid
-    seen_xy: list[np.ndarray] = []
-    seen_score: list[np.ndarray] = []
-    seen_col: list[np.ndarray] = []
+    # the rivals off the grid. Per thread: a query's whole search runs on one thread
+    # (:func:`panorama_threads`), so each thread's lists are its current query's
+    scored_here = threading.local()
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
         """(L, S) scores of query k at plan points pts (rendered on the spot, or kept from
@@ -1658,14 +1739,14 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         else:
             dil = pack(dilate_lines(unpack(renders(pts), h, w), tolerance_px))
             out = np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)
-        seen_xy.append(pts)
-        seen_score.append(out.max(axis=1))
-        seen_col.append(np.take_along_axis(cols, out.argmax(axis=1)[:, None], axis=1)[:, 0] % w)
+        scored_here.xy.append(pts)
+        scored_here.score.append(out.max(axis=1))
+        scored_here.col.append(np.take_along_axis(cols, out.argmax(axis=1)[:, None], axis=1)[:, 0] % w)
         return out
 
     def keep_rival(k: int, table: np.ndarray, answer_xy: np.ndarray, answer_col: int) -> None:
-        seen = (np.concatenate(seen_xy), np.concatenate(seen_score), np.concatenate(seen_col)) if seen_xy else \
-            (np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64))
+        seen = (np.concatenate(scored_here.xy), np.concatenate(scored_here.score), np.concatenate(scored_here.col)) \
+            if scored_here.xy else (np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64))
         r = rival_pose(table, poses[:, :2], *seen, answer_xy, answer_col, distance_m=pp.margin_distance_m,
                        yaw_cols=rival_cols)
         rival[k], rival_xy[k], rival_heading[k] = r.score, (r.x, r.y), (r.col * 360.0 / w if r.col >= 0 else np.nan)
@@ -1680,7 +1761,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     final_start = pp.refine_final_start_m if pp.refine_final_start_m > 0 else steps[-1]   # the final search's first step
     rival_cols = pp.margin_yaw_deg * w / 360.0
 
-    def scored() -> Iterable:
+    def batches() -> Iterable[list[tuple[int, np.ndarray, np.ndarray | None]]]:
         for s in range(0, n, PANORAMA_BATCH):
             ks = np.arange(s, min(n, s + PANORAMA_BATCH))
             # the tables are a few large products per batch: BLAS on every usable core (the
@@ -1689,7 +1770,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             # panorama of 75 on one thread (bench-umap on an H100 host)
             with threadpool_limits(limits=usable_cores(), user_api="blas"):
                 batch = tables(ks), tolerant_tables(ks) if coarse else [None] * len(ks)
-            yield from zip(ks, *batch)
+            yield [(int(k), t, c) for k, t, c in zip(ks, *batch)]
 
     def move(k: int, xy: np.ndarray, col: np.ndarray, sc: np.ndarray, step: float, floor_d: np.ndarray,
              q_close: np.ndarray | None, offsets: np.ndarray = NEIGHBOURS) -> None:
@@ -1741,97 +1822,101 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             return out, cols_out
         return score_at
 
+    def search_one(k: int, table: np.ndarray, tolerant: np.ndarray | None) -> None:
+        """Query k's answer from its table (and tolerant table): the candidates, the local
+        search and the final search, written into ``best``, ``heading``, ``score``, ... at k.
+        Reads nothing another query writes, so queries may run on threads of their own."""
+        best[k], shift, score[k] = best_pose(table)
+        heading[k] = shift * 360.0 / w
+        scored_here.xy, scored_here.score, scored_here.col = [], [], []
+        answer_xy, answer_col = poses[best[k], :2], shift
+        if pp.refine_candidates <= 0:
+            cands = np.zeros(0, np.int64)
+        elif tolerant is not None:
+            cands = coarse_to_fine_candidates(table, tolerant, poses[:, :2], count=pp.refine_candidates,
+                                              coarse=pp.coarse_candidates, min_separation_m=pp.refine_separation_m)
+        else:
+            cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
+                                        min_separation_m=pp.refine_separation_m)
+        if not len(cands):
+            keep_rival(int(k), table, answer_xy, answer_col)
+            return
+        q_close = None
+        if chamfer:
+            q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
+                       stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
+        rows = cands
+        xy, col, sc, floor_d = cell_stage(int(k), rows, table, q_close)
+        for _ in range(pp.refine_climb):                                        # every candidate climbs
+            move(int(k), xy, col, sc, steps[0], floor_d, q_close)
+        beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
+        rows, xy, col, sc, floor_d = rows[beam], xy[beam], col[beam], sc[beam], floor_d[beam]
+        # refine_top: the cells of the best-ranked grid points that a pose of the beam kept
+        # out of the candidates, searched after the beam is chosen (so that the choice among
+        # places is the candidates' own); each that beats the pose joins the beam beside it
+        # (not in its place: a better start need not climb higher on a rugged score)
+        extra, owner = suppressed_neighbours(table, poses[:, :2], cands, top=pp.refine_top,
+                                             min_separation_m=pp.refine_separation_m)
+        slot = np.full(len(cands), -1)
+        slot[beam] = np.arange(len(beam))
+        extra, owner = extra[slot[owner] >= 0], slot[owner[slot[owner] >= 0]]
+        if len(extra):
+            e_xy, e_col, e_sc, e_floor = cell_stage(int(k), extra, table, q_close)
+            up = e_sc > sc[owner]
+            rows, xy, col = np.r_[rows, extra[up]], np.r_[xy, e_xy[up]], np.r_[col, e_col[up]]
+            sc, floor_d = np.r_[sc, e_sc[up]], np.r_[floor_d, e_floor[up]]
+        for i, step in enumerate(steps):                                        # coarse to fine
+            # the beam's cells, densely (chamfer only: the IoU of dilated lines is flat over a
+            # few centimetres, and a dense square finds its spurious maxima: 5 degrees off on
+            # the end-to-end test)
+            if i == 0 and chamfer and pp.refine_square > 1:
+                move(int(k), xy, col, sc, step, floor_d, q_close, square)
+            move(int(k), xy, col, sc, step, floor_d, q_close)
+        j = int(np.argmax(sc))
+        before_final[k] = max(score[k], float(sc[j]))                         # the margin's score
+        final = False                                                         # the final search's end taken
+        if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
+            scorer = final_scorer(int(k), float(floor_d[j]), q_close)
+            finest = min(pp.refine_final_m, final_start)
+            if pp.refine_final_start_m > 0 and pp.refine_final_radius_m > 0:
+                # from the best point of the plan's own lattice (not the grid's) of half
+                # the first step within the radius: two grid origins whose beams end on
+                # neighbouring bumps of the score, within the radius of each other, score
+                # the same points and start from the same one. Half the first step (0.04
+                # m): a peak 0.1 m wide has a point within 0.03 m of its top (at 0.08 m
+                # one was missed, docs/umap.md). Its end is the answer even where the
+                # beam's own pose scored higher (by a median 0.001 on generated homes):
+                # that pose keeps the grid's phase
+                disk = lattice_disk(xy[j], final_start / 2.0, pp.refine_final_radius_m)
+                s, c = scorer(disk, int(col[j]))
+                i0 = int(np.argmax(s))
+                if np.isfinite(s[i0]):
+                    xy[j], sc[j], col[j] = pattern_search(scorer, disk[i0], float(s[i0]), int(c[i0]),
+                                                          start_m=final_start, finest_m=finest)
+                    final = True
+            else:
+                x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
+                if pp.refine_final_start_m > 0:
+                    # from the nearest point of the plan's own lattice of the first step
+                    x0 = np.round(xy[j] / final_start) * final_start
+                    s, c = scorer(x0[None], c0)
+                    s0, c0 = float(s[0]), int(c[0])
+                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start, finest_m=finest)
+                if fs > sc[j]:                                                # kept where higher
+                    xy[j], sc[j], col[j] = fx, fs, fc
+        if final or sc[j] > score[k]:
+            # the grid row stays that of the candidate; the position is the refined one
+            best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]
+            refined_xy[k] = xy[j]
+            answer_xy, answer_col = xy[j], int(col[j])
+        keep_rival(int(k), table, answer_xy, answer_col)
+    threads = panorama_threads(n)
     # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
     # shared cores they cost 3-5x the CPU time of the search; bench-umap)
     limiter = threadpool_limits(limits=1, user_api="blas")
     try:
-        for k, table, tolerant in progress(scored()):
-            best[k], shift, score[k] = best_pose(table)
-            heading[k] = shift * 360.0 / w
-            seen_xy.clear()
-            seen_score.clear()
-            seen_col.clear()
-            answer_xy, answer_col = poses[best[k], :2], shift
-            if pp.refine_candidates <= 0:
-                cands = np.zeros(0, np.int64)
-            elif tolerant is not None:
-                cands = coarse_to_fine_candidates(table, tolerant, poses[:, :2], count=pp.refine_candidates,
-                                                  coarse=pp.coarse_candidates, min_separation_m=pp.refine_separation_m)
-            else:
-                cands = distinct_candidates(table, poses[:, :2], count=pp.refine_candidates,
-                                            min_separation_m=pp.refine_separation_m)
-            if not len(cands):
-                keep_rival(int(k), table, answer_xy, answer_col)
-                continue
-            q_close = None
-            if chamfer:
-                q_close = (closeness(queries[k], pp.chamfer_tau_px).astype(np.float32) if spread is None else
-                           stack_channels(oriented_closeness(queries[k], pp.chamfer_tau_px, spread)).astype(np.float32))
-            rows = cands
-            xy, col, sc, floor_d = cell_stage(int(k), rows, table, q_close)
-            for _ in range(pp.refine_climb):                                        # every candidate climbs
-                move(int(k), xy, col, sc, steps[0], floor_d, q_close)
-            beam = np.argsort(-sc, kind="stable")[:max(1, pp.refine_beam)]
-            rows, xy, col, sc, floor_d = rows[beam], xy[beam], col[beam], sc[beam], floor_d[beam]
-            # refine_top: the cells of the best-ranked grid points that a pose of the beam kept
-            # out of the candidates, searched after the beam is chosen (so that the choice among
-            # places is the candidates' own); each that beats the pose joins the beam beside it
-            # (not in its place: a better start need not climb higher on a rugged score)
-            extra, owner = suppressed_neighbours(table, poses[:, :2], cands, top=pp.refine_top,
-                                                 min_separation_m=pp.refine_separation_m)
-            slot = np.full(len(cands), -1)
-            slot[beam] = np.arange(len(beam))
-            extra, owner = extra[slot[owner] >= 0], slot[owner[slot[owner] >= 0]]
-            if len(extra):
-                e_xy, e_col, e_sc, e_floor = cell_stage(int(k), extra, table, q_close)
-                up = e_sc > sc[owner]
-                rows, xy, col = np.r_[rows, extra[up]], np.r_[xy, e_xy[up]], np.r_[col, e_col[up]]
-                sc, floor_d = np.r_[sc, e_sc[up]], np.r_[floor_d, e_floor[up]]
-            for i, step in enumerate(steps):                                        # coarse to fine
-                # the beam's cells, densely (chamfer only: the IoU of dilated lines is flat over a
-                # few centimetres, and a dense square finds its spurious maxima: 5 degrees off on
-                # the end-to-end test)
-                if i == 0 and chamfer and pp.refine_square > 1:
-                    move(int(k), xy, col, sc, step, floor_d, q_close, square)
-                move(int(k), xy, col, sc, step, floor_d, q_close)
-            j = int(np.argmax(sc))
-            before_final[k] = max(score[k], float(sc[j]))                         # the margin's score
-            final = False                                                         # the final search's end taken
-            if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
-                scorer = final_scorer(int(k), float(floor_d[j]), q_close)
-                finest = min(pp.refine_final_m, final_start)
-                if pp.refine_final_start_m > 0 and pp.refine_final_radius_m > 0:
-                    # from the best point of the plan's own lattice (not the grid's) of half
-                    # the first step within the radius: two grid origins whose beams end on
-                    # neighbouring bumps of the score, within the radius of each other, score
-                    # the same points and start from the same one. Half the first step (0.04
-                    # m): a peak 0.1 m wide has a point within 0.03 m of its top (at 0.08 m
-                    # one was missed, docs/umap.md). Its end is the answer even where the
-                    # beam's own pose scored higher (by a median 0.001 on generated homes):
-                    # that pose keeps the grid's phase
-                    disk = lattice_disk(xy[j], final_start / 2.0, pp.refine_final_radius_m)
-                    s, c = scorer(disk, int(col[j]))
-                    i0 = int(np.argmax(s))
-                    if np.isfinite(s[i0]):
-                        xy[j], sc[j], col[j] = pattern_search(scorer, disk[i0], float(s[i0]), int(c[i0]),
-                                                              start_m=final_start, finest_m=finest)
-                        final = True
-                else:
-                    x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
-                    if pp.refine_final_start_m > 0:
-                        # from the nearest point of the plan's own lattice of the first step
-                        x0 = np.round(xy[j] / final_start) * final_start
-                        s, c = scorer(x0[None], c0)
-                        s0, c0 = float(s[0]), int(c[0])
-                    fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start, finest_m=finest)
-                    if fs > sc[j]:                                                # kept where higher
-                        xy[j], sc[j], col[j] = fx, fs, fc
-            if final or sc[j] > score[k]:
-                # the grid row stays that of the candidate; the position is the refined one
-                best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]
-                refined_xy[k] = xy[j]
-                answer_xy, answer_col = xy[j], int(col[j])
-            keep_rival(int(k), table, answer_xy, answer_col)
+        for _ in progress(_each_searched(batches(), search_one, threads)):
+            pass
     finally:
         limiter.restore_original_limits()
     est = poses[best, :2].copy()

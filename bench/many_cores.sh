@@ -63,7 +63,7 @@ table image-threads 60 "$PY" bench/bench_image_threads.py --n "$N" --repeat 2
 table seqslam-timeline 90 "$PY" bench/bench_seqslam_timeline.py --frames "$N"
 HALVES=$("$PY" -c "import os; n = len(os.sched_getaffinity(0)); print(','.join(map(str, sorted({n, max(1, n // 2), 1}, reverse=True))))")
 table preset-tiles 200 "$PY" bench/bench_seqslam_timeline.py --frames "$N" --cores "$HALVES" --tiles 4096,1024,512
-table umap 60 "$PY" bench/bench_umap.py --panorama-only
+table umap 150 "$PY" bench/bench_umap.py --panorama-only
 table umap-home 180 "$PY" bench/bench_umap_home.py --repeat 2 --panoramas "${UMAP_PANORAMAS:-20}" ${UMAP_WORK:+--work "$UMAP_WORK"}
 table coembed 40 "$PY" bench/bench_coembed.py
 if "$PY" -c "import faiss" 2>/dev/null; then

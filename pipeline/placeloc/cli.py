@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import shlex
 import sys
@@ -456,6 +457,40 @@ def inspect(file: Path = typer.Argument(..., help="An artifact (.h5) written by 
         # h5py's text alone does not name the file, nor say what a truncated one means
         raise ValueError(f"{file}: cannot be read as a placeloc artifact: {unusable_reason(file) or _one_line(exc)}; "
                          "run its stage again (placeloc STAGE CONFIG -o RUN_DIR -f)") from exc
+
+
+@app.command()
+def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml), a ZInD zind_data.json or a wireframe: "
+                                                "what umap.model names."),
+         out: Path | None = typer.Option(None, "--out", help="Folder for plan.png and view.png (default "
+                                                             "runs/plan-<the file's name>)."),
+         floor: str | None = typer.Option(None, help="The floor of a zind_data.json, e.g. floor_01 (umap.floor)."),
+         at: str | None = typer.Option(None, help="X,Y in metres: also draw view.png, the map's lines as a 360 deg "
+                                                  "camera there would see them, to hold against a photo taken there."),
+         heading: float = typer.Option(0.0, help="The view's centre column, degrees (0 along +x, counter-clockwise)."),
+         z: float | None = typer.Option(None, help="The camera height in metres (default the plan's camera_z; "
+                                                   "umap.grid.z)."),
+         step: float | None = typer.Option(None, help="The grid's step in metres (default umap.grid.step_m's)."),
+         wall_margin: float | None = typer.Option(None, help="The grid's least distance from a wall in metres "
+                                                             "(default umap.grid.wall_margin_m's).")) -> None:
+    """Check a floor plan before localizing against it: its rooms and their areas, doors and
+    windows, camera height and the places localize searches, printed, and drawn in
+    plan.png (with --at, view.png too)."""
+    from placeloc.umap.plan_report import draw, summarise
+
+    point = None
+    if at is not None:
+        try:
+            point = tuple(float(v) for v in at.split(","))
+        except ValueError:
+            point = ()
+        if len(point) != 2 or not all(math.isfinite(v) for v in point):
+            _fail(ValueError(f"--at {at!r}: give the point as X,Y in metres, e.g. --at 2.5,1.2"))
+    summary, built = summarise(model, floor=floor, step_m=step, wall_margin_m=wall_margin, z=z)
+    for line in summary.lines():
+        typer.echo(line)
+    for path in draw(summary, built, out or Path("runs") / f"plan-{model.stem}", point, heading):
+        typer.echo(f"wrote {path}")
 
 
 @app.command()

@@ -544,7 +544,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                            mode: str, truth_heading_deg: np.ndarray | None = None,
                            est_heading_deg: np.ndarray | None = None, names: Sequence[str] | None = None,
                            alternative: np.ndarray | None = None, openings: np.ndarray | None = None,
-                           labels: Sequence[str] | None = None, label_xy: np.ndarray | None = None) -> Path:
+                           labels: Sequence[str] | None = None, label_xy: np.ndarray | None = None,
+                           grid: np.ndarray | None = None, title: str | None = None,
+                           est_label: str | None = None) -> Path:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
     positions joined by error lines, headings as pale arrows of a fixed length on the page
     (drawn under the dots); a doubtful answer's ``alternative`` (Q x 2, NaN rows: none) as
@@ -558,14 +560,17 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     ``openings`` (G x 4: door and opening ends) are drawn as gaps in the walls, and ``labels``
     (room names) in grey from ``label_xy`` (their top left corner), under everything else.
     With a few frames (at most :data:`NAMED_WRONG`) the heading arrows are twice as long,
-    and where there is no truth each answer is named where it lies. Drawn in pixels
+    and where there is no truth each answer is named where it lies. ``grid`` (P x 2): places
+    drawn as small grey dots under everything (the places localize searches, ``placeloc
+    plan``); ``title`` and ``est_label`` (the estimates' legend entry) in place of those made
+    from the answers and ``mode``. Drawn in pixels
     (:mod:`.raster`)."""
     est = np.asarray(est, float)
     truth = est if truth is None else np.asarray(truth, float)  # estimates only (no ground truth): no error lines
     known = truth is not est
     alt = np.full((len(est), 2), np.nan) if alternative is None else np.asarray(alternative, float).reshape(-1, 2)
     has_alt = np.isfinite(alt).all(axis=1)
-    frames = np.vstack([truth, est, alt[has_alt]])
+    frames = np.vstack([truth, est, alt[has_alt], np.zeros((0, 2)) if grid is None else np.asarray(grid, float).reshape(-1, 2)])
     frames = frames[np.isfinite(frames).all(axis=1)]
     if not len(frames):
         frames = np.zeros((1, 2))
@@ -596,7 +601,7 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     named = worst_wrong(err, wrong)
     grey = (115, 115, 115)
     entries = ([R.LegendEntry("true position", BLUE, marker="o", marker_size=7.5)] if known else []) + [
-        R.LegendEntry(f"{mode} estimate", RED, marker="x", marker_size=9)]
+        R.LegendEntry(est_label or f"{mode} estimate", RED, marker="x", marker_size=9)]
     if has_alt.any():
         entries.append(R.LegendEntry(f"doubtful answer's alternative ({int(has_alt.sum())})", ORANGE, marker="O",
                                      marker_size=12))
@@ -609,7 +614,11 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                                                                            if wrong.sum() > len(named) else ""),
                                      BLUE, text="ab"))
     cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
-    title = (plan_title(mode, truth, est, alt) if known else
+    if grid is not None and len(grid):
+        entries.insert(0, R.LegendEntry(f"grid place ({len(grid):,})", (160, 160, 160), marker="o", marker_size=3))
+    if not len(est):
+        entries = [e for e in entries if e.colour != RED]
+    title = (title if title is not None else plan_title(mode, truth, est, alt) if known else
              f"{mode}: {len(est)} estimate{'' if len(est) == 1 else 's'} (no ground truth)") + cut
     few = len(est) <= NAMED_WRONG
     arrow_px = 2.0 * ARROW_PX if few else ARROW_PX
@@ -644,6 +653,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
             ax.segments(o[:, 0], o[:, 1], o[:, 2], o[:, 3], (255, 255, 255), 4.0)
             for ends in (o[:, :2], o[:, 2:]):
                 ax.markers(ends[:, 0], ends[:, 1], R.BLACK, "o", 2.5)
+        if grid is not None and len(grid):
+            g = np.asarray(grid, float).reshape(-1, 2)
+            ax.markers(g[:, 0], g[:, 1], (160, 160, 160), "o", 3)
         if labels is not None and label_xy is not None:
             for name, (lx, ly) in zip(labels, np.asarray(label_xy, float).reshape(-1, 2)):
                 ax.text(lx, ly, str(name), 13, fill=(140, 140, 140), anchor="la")   # from the room's top left

@@ -48,6 +48,24 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     canvas.save(path)
 
 
+def plot_map_view(path: Path, lines: np.ndarray, title: str) -> Path:
+    """The map's lines (H, W bool, an equirectangular line image) in black on white, in
+    the frame of :func:`plot_panorama_overlay`: what a 360 degree camera at a point of the
+    plan would see of the map, to hold against a photo taken there (``placeloc plan``)."""
+    from placeloc.evaluation import raster as R
+
+    img = np.full((*lines.shape, 3), 255, np.uint8)
+    img[np.asarray(lines, bool)] = 0
+    canvas = R.Canvas(1000, 560, ss=1)
+    ax = R.Axes(canvas, (70, 56, 980, 504), (180.0, -180.0), (-90.0, 90.0))
+    ax.frame(np.arange(-150, 151, 50), np.arange(-80, 81, 20), grid=False)
+    ax.image(img)
+    ax.box()
+    ax.labels("azimuth from the centre column [deg] (left is counter-clockwise)", "elevation [deg]", title,
+              size=12, title_size=11)
+    return canvas.save(path)
+
+
 def plot_ceiling_scores(path: Path, means: np.ndarray, found: float, panoramas: int) -> Path:
     """The home's ceiling search (``umap.grid.ceilings``) at a glance: each ceiling searched
     against its mean over the run's ``panoramas`` of their best grid-table score (``means``:

@@ -1,0 +1,172 @@
+"""Check a floor plan before localizing against it (``placeloc plan``).
+
+Whoever traces a listing's floor plan into ``floor_plan.yaml`` by hand needs to see what
+the localizer will read from it before spending a run on it: the rooms and their areas
+(a plan drawn at the wrong scale shows in a room's area first), the doors and windows, the
+camera height, the grid of places localize searches, a picture of the plan with all of it,
+and the map's lines as a 360 degree camera would see them from a chosen point, to hold
+against a photo taken there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from placeloc.geometry.floorplan import Model, label_points, load_model, load_plan, plan_grid
+from placeloc.geometry.panorama import render_panoramas
+from placeloc.umap.bits import unpack
+
+# the view's size: wide enough that a door's jambs are columns apart (0.4 degrees a column)
+VIEW_WIDTH = 900
+
+
+@dataclass(frozen=True)
+class PlanSummary:
+    """What a plan file holds, as localize reads it. ``rooms``: (name, floor area in square
+    metres without its internal wall blocks, ceiling height above the floor in metres or
+    None); ``counts``: doors, openings, windows and internal blocks as the file lists them;
+    ``bounds``: x min, y min, x max, y max of the plan in metres; ``grid``: the (N, 4) poses
+    localize would search with the given step, wall margin and camera height."""
+
+    source: str
+    kind: str                                  # "rooms", "outline" or "wireframe"
+    rooms: list[tuple[str, float, float | None]]
+    counts: dict[str, int]
+    camera_z: float | None
+    bounds: tuple[float, float, float, float]
+    grid: np.ndarray
+    step_m: float
+    wall_margin_m: float
+    z: float | None
+    notes: list[str] = field(default_factory=list)
+    gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # doors and openings: x0 y0 x1 y1
+
+    def lines(self) -> list[str]:
+        """The summary as the ``plan`` command prints it."""
+        x0, y0, x1, y1 = self.bounds
+        kind = {"rooms": "a plan of rooms", "outline": "an outline plan", "wireframe": "a wireframe"}[self.kind]
+        out = [f"{self.source}: {kind}, {x1 - x0:.2f} m x {y1 - y0:.2f} m "
+               f"(x {x0:.2f} to {x1:.2f}, y {y0:.2f} to {y1:.2f})"]
+        if self.rooms:
+            total = sum(a for _, a, _ in self.rooms)
+            out.append(f"{len(self.rooms)} room{'s' if len(self.rooms) != 1 else ''}, {total:.1f} m2 in all:")
+            width = max(len(name) for name, _, _ in self.rooms)
+            for name, area, ceiling in self.rooms:
+                out.append(f"  {name:<{width}}  {area:6.1f} m2" + (f", ceiling {ceiling:.2f} m" if ceiling is not None else ""))
+        if self.counts:
+            out.append(", ".join(f"{n} {k if n != 1 else k[:-1]}" for k, n in self.counts.items()))
+        out.append(f"camera height: {self.camera_z:.2f} m (camera_z)" if self.camera_z is not None else
+                   "camera height: not in the plan; give umap.grid.z (or camera_z in the plan, or --z here)")
+        if self.z is not None:
+            out.append(f"grid: {len(self.grid):,} places at {self.step_m:g} m, at least {self.wall_margin_m:g} m from "
+                       f"the walls, camera at {self.z:.2f} m (about {len(self.grid) * self.step_m ** 2:.1f} m2 of free space)")
+        out.extend(self.notes)
+        return out
+
+
+def summarise(path: str | Path, *, floor: str | None = None, step_m: float | None = None,
+              wall_margin_m: float | None = None, z: float | None = None) -> tuple[PlanSummary, Model]:
+    """The :class:`PlanSummary` of the model in ``path`` (a floor plan, a ZInD
+    ``zind_data.json`` with ``floor``, or a wireframe) and the model localize builds from it.
+    ``step_m`` and ``wall_margin_m`` None: ``umap.grid``'s defaults; ``z`` None: the plan's
+    own camera height (no grid where it has none)."""
+    from placeloc.umap.params import GridParams
+
+    defaults = GridParams()
+    step_m = defaults.step_m if step_m is None else float(step_m)
+    wall_margin_m = defaults.wall_margin_m if wall_margin_m is None else float(wall_margin_m)
+    if step_m <= 0 or wall_margin_m < 0:
+        raise ValueError(f"the grid's step ({step_m:g} m) must be above 0 and its wall margin ({wall_margin_m:g} m) "
+                         "not below 0")
+    path = Path(path)
+    plan = load_plan(path, floor)
+    model = load_model(path, floor)
+    walls = np.asarray(model.segments, float).reshape(-1, 6)
+    points = np.vstack([*model.polygons, walls[:, [0, 1]], walls[:, [3, 4]]]) if len(walls) or model.polygons else \
+        np.zeros((1, 2))
+    bounds = (float(points[:, 0].min()), float(points[:, 1].min()), float(points[:, 0].max()), float(points[:, 1].max()))
+    rooms: list[tuple[str, float, float | None]] = []
+    counts: dict[str, int] = {}
+    gaps = np.asarray(model.gaps, float).reshape(-1, 4)
+    kind = "wireframe"
+    if plan is not None:
+        kind = "rooms" if "rooms" in plan else "outline"
+        floor_z = float(plan.get("floor_z", 0.0))
+        if kind == "rooms":
+            for i, (room, poly) in enumerate(zip(plan["rooms"], model.polygons)):
+                blocks = [np.asarray(b, float) for b in room.get("internal", []) or []]
+                area = polygon_area(poly) - sum(polygon_area(b) for b in blocks)
+                ceiling = room.get("ceiling_z", plan.get("ceiling_z"))
+                name = model.room_names[i] if i < len(model.room_names) else f"room {i}"
+                rooms.append((str(name), area, None if ceiling is None else float(ceiling) - floor_z))
+        else:
+            ceiling = plan.get("ceiling_z")
+            area = polygon_area(model.polygons[0]) - sum(polygon_area(p) for p in model.polygons[1:])
+            rooms.append(("inside the outline", area, None if ceiling is None else float(ceiling) - floor_z))
+        for key in ("doors", "openings", "windows"):
+            counts[key] = len(plan.get(key, []) or [])
+        ways = [w for key in ("doors", "openings") for w in plan.get(key, []) or [] if isinstance(w, dict)]
+        gaps = np.array([[*w["from"], *w["to"]] for w in ways], float).reshape(-1, 4)
+        if kind == "rooms":
+            counts["internal blocks"] = sum(len(r.get("internal", []) or []) for r in plan["rooms"])
+    z = model.camera_z if z is None else float(z)
+    grid = np.zeros((0, 4))
+    notes: list[str] = []
+    if z is not None:
+        grid, notes = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
+    return PlanSummary(str(path), kind, rooms, counts, model.camera_z, bounds, grid, float(step_m),
+                       float(wall_margin_m), z, list(notes), gaps), model
+
+
+def polygon_area(poly: Any) -> float:
+    """The area of a simple polygon (its vertices in order, either way round), in the
+    square of its units (the shoelace formula)."""
+    p = np.asarray(poly, float).reshape(-1, 2)
+    return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(p[:, 1], np.roll(p[:, 0], -1))))
+
+
+def view_lines(model: Model, x: float, y: float, z: float, heading_deg: float = 0.0,
+               width: int = VIEW_WIDTH) -> np.ndarray:
+    """(width / 2, width) bool: the map's lines, hidden lines removed, as an equirectangular
+    360 degree camera at (x, y, z) with its centre column at ``heading_deg`` (0 along +x,
+    counter-clockwise) would see them (:func:`placeloc.geometry.panorama.render_panoramas`,
+    the localizer's own renderer)."""
+    h = width // 2
+    packed = render_panoramas(model.segments, model.faces, np.array([[x, y, z, heading_deg]], float), width=width,
+                              height=h, hidden=True)
+    return unpack(packed, h, width)[0] > 0
+
+
+def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, float] | None = None,
+         heading_deg: float = 0.0) -> list[Path]:
+    """``plan.png`` (the rooms, doors as gaps, room names, the grid's places as grey dots
+    and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there."""
+    from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
+    from placeloc.umap.plots import plot_map_view
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    est = np.array([at], float) if at is not None else np.zeros((0, 2))
+    labels = model.room_names[:len(model.polygons)] if model.rooms else None
+    x0, y0, x1, y1 = summary.bounds
+    title = (f"{Path(summary.source).name}: {x1 - x0:.1f} m x {y1 - y0:.1f} m" +
+             (f", {len(summary.grid):,} grid places at {summary.step_m:g} m" if len(summary.grid) else
+              ", no grid (no camera height)"))
+    paths = [plot_estimates_on_plan(out_dir / "plan.png", None, est, model.polygons if model.polygons else [],
+                                    model.segments, "the view's point", None,
+                                    np.array([heading_deg]) if at is not None else None,
+                                    names=["view.png"] if at is not None else None, openings=summary.gaps,
+                                    labels=labels, label_xy=label_points(model.polygons[:len(labels)]) if labels else None,
+                                    grid=summary.grid[:, :2], title=title,
+                                    est_label="the point view.png is seen from")]
+    if at is not None:
+        if summary.z is None:
+            raise ValueError("the view needs a camera height: the plan gives none (camera_z); give --z")
+        lines = view_lines(model, at[0], at[1], summary.z, heading_deg)
+        paths.append(plot_map_view(out_dir / "view.png", lines,
+                                   f"{Path(summary.source).name}: the map's lines from ({at[0]:g}, {at[1]:g}) at "
+                                   f"{summary.z:.2f} m, centre column heading {heading_deg:g} deg (0 along +x)"))
+    return paths

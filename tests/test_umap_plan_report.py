@@ -1,0 +1,93 @@
+"""``placeloc plan``: what a floor plan holds, by hand-computed areas and counts, the grid
+localize would search, and the map's lines from a point at the azimuths geometry gives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+from test_umap_panorama import PLAN
+from typer.testing import CliRunner
+
+from placeloc.cli import app
+from placeloc.geometry.floorplan import floor_plan_model, plan_grid
+from placeloc.umap.plan_report import polygon_area, summarise, view_lines
+
+ROOMS = {"floor_z": 0.0, "ceiling_z": 2.6, "camera_z": 1.5,
+         "rooms": [{"name": "kitchen", "polygon": [[0, 0], [4, 0], [4, 3], [0, 3]], "ceiling_z": 2.4,
+                    "internal": [[[1, 2.5], [2, 2.5], [2, 2.7], [1, 2.7]]]},
+                   {"name": "hall", "polygon": [[4.1, 0], [8, 0], [8, 3], [4.1, 3]]}],
+         "doors": [{"from": [4, 1], "to": [4, 2], "height": 2.0}, {"from": [4.1, 1], "to": [4.1, 2], "height": 2.0}],
+         "openings": [{"from": [8, 0.5], "to": [8, 2.5], "height": 2.6}],
+         "windows": [{"from": [0, 0.5], "to": [0, 2.5], "sill": 0.9, "top": 2.1}]}
+
+
+def test_polygon_area_by_hand():
+    assert polygon_area([[0, 0], [4, 0], [4, 3], [0, 3]]) == 12.0
+    assert polygon_area([[0, 3], [4, 3], [4, 0], [0, 0]]) == 12.0          # either way round
+    assert polygon_area(PLAN["outline"]) == pytest.approx(6 * 4 + 3.5 * 3)   # the L: 24 + 10.5
+
+
+def test_a_rooms_plan_summarised(tmp_path):
+    path = tmp_path / "floor_plan.yaml"
+    path.write_text(yaml.safe_dump(ROOMS))
+    s, model = summarise(path)
+    assert s.kind == "rooms" and s.bounds == (0.0, 0.0, 8.0, 3.0)
+    # kitchen 4 x 3 less its 1 x 0.2 block, at its own 2.4 m; hall 3.9 x 3 at the plan's 2.6 m
+    assert s.rooms == [("kitchen", pytest.approx(11.8), 2.4), ("hall", pytest.approx(11.7), 2.6)]
+    assert s.counts == {"doors": 2, "openings": 1, "windows": 1, "internal blocks": 1}
+    assert s.camera_z == 1.5 and s.z == 1.5 and (s.step_m, s.wall_margin_m) == (0.25, 0.1)   # umap.grid's defaults
+    want, _ = plan_grid(model, step_m=0.25, z=1.5, wall_margin_m=0.1)
+    np.testing.assert_array_equal(s.grid, want)
+    text = "\n".join(s.lines())
+    assert "8.00 m x 3.00 m" in text and "2 rooms, 23.5 m2 in all" in text and "kitchen    11.8 m2, ceiling 2.40 m" in text
+    assert "2 doors, 1 opening, 1 window, 1 internal block" in text
+    assert f"grid: {len(want):,} places at 0.25 m" in text
+    # a coarser grid, a camera given: fewer places, at that height
+    coarse, _ = summarise(path, step_m=0.5, z=1.2)
+    assert 0 < len(coarse.grid) < len(s.grid) and np.all(coarse.grid[:, 2] == 1.2)
+
+
+def test_an_outline_without_a_camera_height_has_no_grid_and_says_so(tmp_path):
+    path = tmp_path / "plan.yaml"
+    path.write_text(yaml.safe_dump(PLAN))
+    s, _ = summarise(path)
+    assert s.kind == "outline" and s.rooms == [("inside the outline", pytest.approx(34.5), 2.6)]
+    assert s.counts == {"doors": 2, "openings": 0, "windows": 0} and len(s.grid) == 0 and s.z is None
+    np.testing.assert_array_equal(s.gaps, [[2, 0, 2.9, 0], [0, 5, 0, 5.9]])   # drawn as gaps in the walls
+    assert any("not in the plan; give umap.grid.z" in line for line in s.lines())
+    with pytest.raises(ValueError, match="step"):
+        summarise(path, step_m=0.0)
+
+
+def test_the_view_shows_a_square_room_s_corners_where_geometry_puts_them():
+    # a 4 x 4 room, the camera at its centre facing +x: its four vertical corners at
+    # azimuths +-45 and +-135 deg, column u = (180 - azimuth) W / 360 - 0.5 (azimuth growing
+    # to the left); at the horizon's row every other column is a wall's horizontal middle
+    model = floor_plan_model({"floor_z": 0.0, "ceiling_z": 2.5, "outline": [[0, 0], [4, 0], [4, 4], [0, 4]]})
+    w = 360
+    lines = view_lines(model, 2.0, 2.0, 1.25, 0.0, width=w)
+    assert lines.shape == (180, 360)
+    horizon = lines[90]
+    for azimuth in (45, 135, -45, -135):
+        u = (180 - azimuth) * w / 360 - 0.5
+        assert horizon[int(np.floor(u)):int(np.ceil(u)) + 1].any(), azimuth
+    assert horizon.sum() <= 8                                  # nothing else crosses the horizon
+    # facing +y instead (heading 90): the same corners, a quarter turn along
+    turned = view_lines(model, 2.0, 2.0, 1.25, 90.0, width=w)
+    np.testing.assert_array_equal(turned, np.roll(lines, -90, axis=1))
+
+
+def test_the_command_prints_and_draws(tmp_path):
+    path = tmp_path / "floor_plan.yaml"
+    path.write_text(yaml.safe_dump(ROOMS))
+    out = tmp_path / "check"
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--at", "2,1.5", "--heading", "30"])
+    assert r.exit_code == 0, r.output
+    assert "2 rooms, 23.5 m2 in all" in r.output and f"wrote {out / 'view.png'}" in r.output
+    for name in ("plan.png", "view.png"):
+        with Image.open(out / name) as im:
+            assert im.size[0] >= 640 and im.size[1] >= 400
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--at", "2;1"])
+    assert r.exit_code != 0 and "--at '2;1': give the point as X,Y" in r.output

@@ -37,6 +37,7 @@ def test_a_rooms_plan_summarised(tmp_path):
     # kitchen 4 x 3 less its 1 x 0.2 block, at its own 2.4 m; hall 3.9 x 3 at the plan's 2.6 m
     assert s.rooms == [("kitchen", pytest.approx(11.8), 2.4), ("hall", pytest.approx(11.7), 2.6)]
     assert s.counts == {"doors": 2, "openings": 1, "windows": 1, "internal blocks": 1}
+    np.testing.assert_array_equal(s.windows, [[0, 0.5, 0, 2.5]])
     assert s.camera_z == 1.5 and s.z == 1.5 and (s.step_m, s.wall_margin_m) == (0.25, 0.1)   # umap.grid's defaults
     want, _ = plan_grid(model, step_m=0.25, z=1.5, wall_margin_m=0.1)
     np.testing.assert_array_equal(s.grid, want)

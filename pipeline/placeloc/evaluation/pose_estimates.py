@@ -546,7 +546,7 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
                            alternative: np.ndarray | None = None, openings: np.ndarray | None = None,
                            labels: Sequence[str] | None = None, label_xy: np.ndarray | None = None,
                            grid: np.ndarray | None = None, title: str | None = None,
-                           est_label: str | None = None) -> Path:
+                           est_label: str | None = None, windows: np.ndarray | None = None) -> Path:
     """The plan (room polygons, or the wireframe's floor lines), true and estimated
     positions joined by error lines, headings as pale arrows of a fixed length on the page
     (drawn under the dots); a doubtful answer's ``alternative`` (Q x 2, NaN rows: none) as
@@ -562,8 +562,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     With a few frames (at most :data:`NAMED_WRONG`) the heading arrows are twice as long,
     and where there is no truth each answer is named where it lies. ``grid`` (P x 2): places
     drawn as small grey dots under everything (the places localize searches, ``placeloc
-    plan``); ``title`` and ``est_label`` (the estimates' legend entry) in place of those made
-    from the answers and ``mode``. Drawn in pixels
+    plan``); ``windows`` (W x 4: their ends) drawn over their walls in green; ``title`` and
+    ``est_label`` (the estimates' legend entry) in place of those made from the answers and
+    ``mode``. Drawn in pixels
     (:mod:`.raster`)."""
     est = np.asarray(est, float)
     truth = est if truth is None else np.asarray(truth, float)  # estimates only (no ground truth): no error lines
@@ -616,6 +617,8 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     cut = f"; the plan cut into {pieces} pieces along {'x' if along == 0 else 'y'}" if pieces > 1 else ""
     if grid is not None and len(grid):
         entries.insert(0, R.LegendEntry(f"grid place ({len(grid):,})", (160, 160, 160), marker="o", marker_size=3))
+    if windows is not None and len(windows):
+        entries.insert(0, R.LegendEntry(f"window ({len(windows)})", GREEN, line_width=4.0))
     if not len(est):
         entries = [e for e in entries if e.colour != RED]
     title = (title if title is not None else plan_title(mode, truth, est, alt) if known else
@@ -653,6 +656,9 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
             ax.segments(o[:, 0], o[:, 1], o[:, 2], o[:, 3], (255, 255, 255), 4.0)
             for ends in (o[:, :2], o[:, 2:]):
                 ax.markers(ends[:, 0], ends[:, 1], R.BLACK, "o", 2.5)
+        if windows is not None and len(windows):
+            wn = np.asarray(windows, float).reshape(-1, 4)
+            ax.segments(wn[:, 0], wn[:, 1], wn[:, 2], wn[:, 3], GREEN, 4.0)
         if grid is not None and len(grid):
             g = np.asarray(grid, float).reshape(-1, 2)
             ax.markers(g[:, 0], g[:, 1], (160, 160, 160), "o", 3)

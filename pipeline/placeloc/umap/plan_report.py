@@ -44,6 +44,7 @@ class PlanSummary:
     z: float | None
     notes: list[str] = field(default_factory=list)
     gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # doors and openings: x0 y0 x1 y1
+    windows: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # x0 y0 x1 y1
 
     def lines(self) -> list[str]:
         """The summary as the ``plan`` command prints it."""
@@ -92,6 +93,7 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
     rooms: list[tuple[str, float, float | None]] = []
     counts: dict[str, int] = {}
     gaps = np.asarray(model.gaps, float).reshape(-1, 4)
+    windows = np.zeros((0, 4))
     kind = "wireframe"
     if plan is not None:
         kind = "rooms" if "rooms" in plan else "outline"
@@ -111,6 +113,8 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
             counts[key] = len(plan.get(key, []) or [])
         ways = [w for key in ("doors", "openings") for w in plan.get(key, []) or [] if isinstance(w, dict)]
         gaps = np.array([[*w["from"], *w["to"]] for w in ways], float).reshape(-1, 4)
+        windows = np.array([[*w["from"], *w["to"]] for w in plan.get("windows", []) or [] if isinstance(w, dict)],
+                           float).reshape(-1, 4)
         if kind == "rooms":
             counts["internal blocks"] = sum(len(r.get("internal", []) or []) for r in plan["rooms"])
     z = model.camera_z if z is None else float(z)
@@ -119,7 +123,7 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
     if z is not None:
         grid, notes = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
     return PlanSummary(str(path), kind, rooms, counts, model.camera_z, bounds, grid, float(step_m),
-                       float(wall_margin_m), z, list(notes), gaps), model
+                       float(wall_margin_m), z, list(notes), gaps, windows), model
 
 
 def polygon_area(poly: Any) -> float:
@@ -143,8 +147,8 @@ def view_lines(model: Model, x: float, y: float, z: float, heading_deg: float = 
 
 def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, float] | None = None,
          heading_deg: float = 0.0) -> list[Path]:
-    """``plan.png`` (the rooms, doors as gaps, room names, the grid's places as grey dots
-    and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there."""
+    """``plan.png`` (the rooms, doors as gaps, windows in green, room names, the grid's
+    places as grey dots and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there."""
     from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
     from placeloc.umap.plots import plot_map_view
 
@@ -161,7 +165,7 @@ def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, flo
                                     names=["view.png"] if at is not None else None, openings=summary.gaps,
                                     labels=labels, label_xy=label_points(model.polygons[:len(labels)]) if labels else None,
                                     grid=summary.grid[:, :2], title=title,
-                                    est_label="the point view.png is seen from")]
+                                    est_label="the point view.png is seen from", windows=summary.windows)]
     if at is not None:
         if summary.z is None:
             raise ValueError("the view needs a camera height: the plan gives none (camera_z); give --z")

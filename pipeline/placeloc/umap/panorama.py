@@ -1681,7 +1681,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     ``seen`` (N, H; :func:`seen_rows`; chamfer with chance ``none``): the rows each query's
     photo covered (photo spheres stored cropped): in every score of that query, the tables'
     and the local search's, the recall half counts the map's lines in those rows only (the
-    local search weighs the other rows zero). None: every row."""
+    local search weighs the other rows zero). None: every row.
+
+    After each batch's tables, its queries are searched side by side, one a thread
+    (:func:`panorama_threads`), each to the same answer as alone."""
     bins = int(pp.orientation_bins)
     n, h, w = lines.shape[0], lines.shape[-2], lines.shape[-1]
     best, heading, score, rival = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n), np.full(n, np.nan)
@@ -1910,6 +1913,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             refined_xy[k] = xy[j]
             answer_xy, answer_col = xy[j], int(col[j])
         keep_rival(int(k), table, answer_xy, answer_col)
+
+    # the queries side by side, one a thread (panorama_threads); the same answers to the bit
     threads = panorama_threads(n)
     # one BLAS thread: the products are many and small, and waiting BLAS threads spin (on two
     # shared cores they cost 3-5x the CPU time of the search; bench-umap)

@@ -60,6 +60,9 @@ def test_an_outline_without_a_camera_height_has_no_grid_and_says_so(tmp_path):
     assert any("not in the plan; give umap.grid.z" in line for line in s.lines())
     with pytest.raises(ValueError, match="step"):
         summarise(path, step_m=0.0)
+    # a step of a millimetre over 6 x 7 m (42 million points): refused before any is laid
+    with pytest.raises(ValueError, match=r"a grid step of 0.001 m lays 42,013,001 points .* give a larger --step"):
+        summarise(path, step_m=0.001, z=1.4)
 
 
 def test_the_view_shows_a_square_room_s_corners_where_geometry_puts_them():
@@ -90,5 +93,8 @@ def test_the_command_prints_and_draws(tmp_path):
     for name in ("plan.png", "view.png"):
         with Image.open(out / name) as im:
             assert im.size[0] >= 640 and im.size[1] >= 400
+    assert "lies outside" not in r.output
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--at", "20,1.5"])   # beyond the hall
+    assert r.exit_code == 0 and "note: (20, 1.5) lies outside the plan's rooms" in r.output
     r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--at", "2;1"])
     assert r.exit_code != 0 and "--at '2;1': give the point as X,Y" in r.output

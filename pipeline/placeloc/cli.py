@@ -476,7 +476,7 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
     """Check a floor plan before localizing against it: its rooms and their areas, doors and
     windows, camera height and the places localize searches, printed, and drawn in
     plan.png (with --at, view.png too)."""
-    from placeloc.umap.plan_report import draw, summarise
+    from placeloc.umap.plan_report import draw, point_note, summarise
 
     point = None
     if at is not None:
@@ -487,8 +487,9 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
         if len(point) != 2 or not all(math.isfinite(v) for v in point):
             _fail(ValueError(f"--at {at!r}: give the point as X,Y in metres, e.g. --at 2.5,1.2"))
     summary, built = summarise(model, floor=floor, step_m=step, wall_margin_m=wall_margin, z=z)
-    for line in summary.lines():
-        typer.echo(line)
+    for line in summary.lines() + ([point_note(built, point)] if point is not None else []):
+        if line:
+            typer.echo(line)
     for path in draw(summary, built, out or Path("runs") / f"plan-{model.stem}", point, heading):
         typer.echo(f"wrote {path}")
 

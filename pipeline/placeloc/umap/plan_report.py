@@ -23,6 +23,10 @@ from placeloc.umap.bits import unpack
 # the view's size: wide enough that a door's jambs are columns apart (0.4 degrees a column)
 VIEW_WIDTH = 900
 
+# grid points over the plan's bounds the check lays at most: 0.02 m over a 13 x 9 m home is
+# about 290,000 and takes 2 s; a step of millimetres would take minutes and gigabytes
+MAX_GRID_POINTS = 2_000_000
+
 
 @dataclass(frozen=True)
 class PlanSummary:
@@ -121,9 +125,24 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
     grid = np.zeros((0, 4))
     notes: list[str] = []
     if z is not None:
+        points = np.ceil((bounds[2] - bounds[0]) / step_m + 1) * np.ceil((bounds[3] - bounds[1]) / step_m + 1)
+        if points > MAX_GRID_POINTS:
+            raise ValueError(f"a grid step of {step_m:g} m lays {points:,.0f} points over the plan's "
+                             f"{bounds[2] - bounds[0]:.1f} x {bounds[3] - bounds[1]:.1f} m, more than "
+                             f"{MAX_GRID_POINTS:,}; give a larger --step (umap.grid.step_m is {GridParams().step_m:g} m)")
         grid, notes = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
     return PlanSummary(str(path), kind, rooms, counts, model.camera_z, bounds, grid, float(step_m),
                        float(wall_margin_m), z, list(notes), gaps, windows), model
+
+
+def point_note(model: Model, at: tuple[float, float]) -> str | None:
+    """What to say of a view's point that no camera of a localize run could stand at: one
+    outside every room (or the outline), where the view looks at the plan from outside.
+    None where it is inside (or the model has no rooms to tell)."""
+    if not model.polygons or bool(model.inside(np.array([at], float))[0]):
+        return None
+    return (f"note: ({at[0]:g}, {at[1]:g}) lies outside the plan's rooms; view.png shows the plan from outside "
+            "(plan.png shows where the rooms are)")
 
 
 def polygon_area(poly: Any) -> float:

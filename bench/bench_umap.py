@@ -155,6 +155,20 @@ def panorama(args: argparse.Namespace) -> None:
           f"<= 100 ms wall); of it every position x yaw: {t_glob / n * 1e3:.1f} ms wall, {c_glob / n * 1e3:.1f} ms CPU; within "
           f"0.05 m of the truth {np.mean(err <= 0.05):.0%}, within 0.1 m {np.mean(err <= 0.1):.0%}; load average now "
           f"{os.getloadavg()[0]:.1f}")
+    # the queries one after another, each kernel on every core (panorama.PANORAMA_THREADS = 1),
+    # against side by side, one a thread (the default), timed in the same run
+    from placeloc.umap import panorama as panorama_module
+
+    panorama_module.PANORAMA_THREADS = 1
+    try:
+        res_seq, t_seq, c_seq = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp,
+                                       tolerance_px=2, wall_margin_m=0.1, hidden=True)
+    finally:
+        panorama_module.PANORAMA_THREADS = None
+    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(res, res_seq))
+    print(f"the queries one after another (PANORAMA_THREADS 1): {t_seq / n * 1e3:.0f} ms wall, {c_seq / n * 1e3:.0f} ms CPU "
+          f"per panorama; side by side on {panorama_module.panorama_threads(n)} threads (the default) {t_new / n * 1e3:.0f} ms "
+          f"wall; ratio one after another / side by side {t_seq / t_new:.2f}x wall; the same answers: {same}")
     err1 = np.hypot(*(res1[1] - truth[:, :2]).T)
     print(f"the beam by 8 neighbours only (refine_square 1): {t_climb / n * 1e3:.0f} ms wall, {c_climb / n * 1e3:.0f} ms CPU per "
           f"panorama; within 0.05 m {np.mean(err1 <= 0.05):.0%}; ratio plain search / that {t_new / t_climb:.2f}x wall, "
@@ -185,17 +199,25 @@ def panorama(args: argparse.Namespace) -> None:
         top = numba.get_num_threads()
         counts = counts_from(args.workers, top)
 
+        from placeloc.umap import panorama as panorama_module
+
         def measure(k: int) -> dict[str, float]:
+            # k threads: the queries side by side on k (panorama.PANORAMA_THREADS), and the
+            # tables' kernels on k numba threads
             numba.set_num_threads(min(k, top))
+            panorama_module.PANORAMA_THREADS = k
             try:
                 _, wall, _ = _timed(search_panoramas, q, poses, model.segments, model.faces, {"spectra": spectra}, pp,
                                     tolerance_px=2, wall_margin_m=0.1, hidden=True)
                 return {f"localize search, {len(poses):,} positions, per panorama": wall / n}
             finally:
                 numba.set_num_threads(top)
+                panorama_module.PANORAMA_THREADS = None
 
         print(markdown(scaling_table(measure, counts, warm_up=False), "UMap whole-panorama search", unit="thread",
-                       note="numba threads set with numba.set_num_threads; one run each."))
+                       note="k threads: the queries side by side on k (panorama.PANORAMA_THREADS) and numba's "
+                            "kernels on k (numba.set_num_threads); BLAS and SciPy's transforms on every core; one "
+                            "run each."))
 
 
 def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np.ndarray, rng: np.random.Generator,  # noqa: ANN001

@@ -468,6 +468,8 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
          at: str | None = typer.Option(None, help="X,Y in metres: also draw view.png, the map's lines as a 360 deg "
                                                   "camera there would see them, to hold against a photo taken there."),
          heading: float = typer.Option(0.0, help="The view's centre column, degrees (0 along +x, counter-clockwise)."),
+         photo: Path | None = typer.Option(None, help="A 360 deg photo taken at --at: its lines against the map's "
+                                                      "there (photo.png), at the heading where they match best."),
          z: float | None = typer.Option(None, help="The camera height in metres (default the plan's camera_z; "
                                                    "umap.grid.z)."),
          step: float | None = typer.Option(None, help="The grid's step in metres (default umap.grid.step_m's)."),
@@ -475,8 +477,8 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
                                                              "(default umap.grid.wall_margin_m's).")) -> None:
     """Check a floor plan before localizing against it: its rooms and their areas, doors and
     windows, camera height and the places localize searches, printed, and drawn in
-    plan.png (with --at, view.png too)."""
-    from placeloc.umap.plan_report import draw, point_note, summarise
+    plan.png (with --at, view.png too; with --photo, photo.png)."""
+    from placeloc.umap.plan_report import draw, photo_at, point_note, summarise
 
     point = None
     if at is not None:
@@ -486,11 +488,21 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
             point = ()
         if len(point) != 2 or not all(math.isfinite(v) for v in point):
             _fail(ValueError(f"--at {at!r}: give the point as X,Y in metres, e.g. --at 2.5,1.2"))
+    if photo is not None and point is None:
+        _fail(ValueError("--photo needs --at X,Y: where the photo was taken"))
     summary, built = summarise(model, floor=floor, step_m=step, wall_margin_m=wall_margin, z=z)
     for line in summary.lines() + ([point_note(built, point)] if point is not None else []):
         if line:
             typer.echo(line)
-    for path in draw(summary, built, out or Path("runs") / f"plan-{model.stem}", point, heading):
+    held = None
+    if photo is not None and point is not None:
+        if summary.z is None:
+            _fail(ValueError("--photo needs a camera height: the plan gives none (camera_z); give --z"))
+        held = photo_at(built, point[0], point[1], summary.z, photo)
+        heading = held.heading_deg
+        typer.echo(f"{photo.name}: its lines match the map's at ({point[0]:g}, {point[1]:g}) best at heading "
+                   f"{held.heading_deg:g} deg, score {held.score:.3f} (photo.png; view.png is drawn at that heading)")
+    for path in draw(summary, built, out or Path("runs") / f"plan-{model.stem}", point, heading, held):
         typer.echo(f"wrote {path}")
 
 

@@ -145,6 +145,42 @@ def point_note(model: Model, at: tuple[float, float]) -> str | None:
             "(plan.png shows where the rooms are)")
 
 
+@dataclass(frozen=True)
+class PhotoAt:
+    """A photo held against the map at one point: the heading at which its lines best match
+    the map's there (degrees, 0 along +x, counter-clockwise), that match's chamfer score (the
+    plain halves' mean, 0-1, :func:`placeloc.umap.panorama.chamfer_yaw_scores`), and the two
+    (H, W) line images at the localizer's size, the map's turned to that heading."""
+
+    heading_deg: float
+    score: float
+    photo_lines: np.ndarray
+    map_lines: np.ndarray
+
+
+def photo_at(model: Model, x: float, y: float, z: float, photo: str | Path) -> PhotoAt:
+    """The 360 degree ``photo`` (an equirectangular image, or a photo sphere stored cropped)
+    as localize reads it (``umap.panorama``'s defaults, one direction bin: its lines at the
+    localizer's size, levelled), scored against the map at (x, y, z) at every heading."""
+    from placeloc.core.images import read_gray
+    from placeloc.umap.panorama import chamfer_yaw_scores, closeness
+    from placeloc.umap.params import PanoramaParams
+    from placeloc.umap.query_features import panorama_arrays
+
+    pp = PanoramaParams()
+    w, h = pp.width, pp.height
+    got = panorama_arrays(read_gray(photo), width=w, height=h, face_px=pp.face_px, min_length=pp.lsd_min_length_px,
+                          level_max_deg=pp.level_max_deg, path=str(photo))
+    lines = unpack(got["lines"], h, w)[0]
+    packed = render_panoramas(model.segments, model.faces, np.array([[x, y, z, 0.0]]), width=w, height=h, hidden=True)
+    drawn = unpack(packed, h, w)
+    scores = chamfer_yaw_scores(packed, closeness(drawn, pp.chamfer_tau_px), lines, tau_px=pp.chamfer_tau_px,
+                                chance="none")[0]
+    k = int(np.argmax(scores))
+    # a panorama at heading psi is the one at heading 0 rolled by psi W / 360 columns
+    return PhotoAt(k * 360.0 / w, float(scores[k]), lines > 0, np.roll(drawn[0], k, axis=1) > 0)
+
+
 def polygon_area(poly: Any) -> float:
     """The area of a simple polygon (its vertices in order, either way round), in the
     square of its units (the shoelace formula)."""
@@ -165,9 +201,11 @@ def view_lines(model: Model, x: float, y: float, z: float, heading_deg: float = 
 
 
 def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, float] | None = None,
-         heading_deg: float = 0.0) -> list[Path]:
+         heading_deg: float = 0.0, photo: PhotoAt | None = None) -> list[Path]:
     """``plan.png`` (the rooms, doors as gaps, windows in green, room names, the grid's
-    places as grey dots and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there."""
+    places as grey dots and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there.
+    With ``photo`` (:func:`photo_at` at ``at``), ``photo.png``: its lines against the map's
+    there at the heading where they match best."""
     from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
     from placeloc.umap.plots import plot_map_view
 
@@ -189,6 +227,13 @@ def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, flo
         if summary.z is None:
             raise ValueError("the view needs a camera height: the plan gives none (camera_z); give --z")
         lines = view_lines(model, at[0], at[1], summary.z, heading_deg)
+        if photo is not None:
+            from placeloc.umap.plots import plot_panorama_overlay
+
+            plot_panorama_overlay(out_dir / "photo.png", photo.photo_lines, photo.map_lines, None,
+                                  f"the photo against the map at ({at[0]:g}, {at[1]:g}), heading {photo.heading_deg:g} deg "
+                                  f"(its best), score {photo.score:.3f}")
+            paths.append(out_dir / "photo.png")
         paths.append(plot_map_view(out_dir / "view.png", lines,
                                    f"{Path(summary.source).name}: the map's lines from ({at[0]:g}, {at[1]:g}) at "
                                    f"{summary.z:.2f} m, centre column heading {heading_deg:g} deg (0 along +x)"))

@@ -162,14 +162,20 @@ def photo_at(model: Model, x: float, y: float, z: float, photo: str | Path) -> P
     """The 360 degree ``photo`` (an equirectangular image, or a photo sphere stored cropped)
     as localize reads it (``umap.panorama``'s defaults, one direction bin: its lines at the
     localizer's size, levelled), scored against the map at (x, y, z) at every heading."""
-    from placeloc.core.images import read_gray
+    from placeloc.core.images import ImageError, read_gray
     from placeloc.umap.panorama import chamfer_yaw_scores, closeness
     from placeloc.umap.params import PanoramaParams
     from placeloc.umap.query_features import panorama_arrays
 
     pp = PanoramaParams()
     w, h = pp.width, pp.height
-    got = panorama_arrays(read_gray(photo), width=w, height=h, face_px=pp.face_px, min_length=pp.lsd_min_length_px,
+    if not Path(photo).is_file():
+        raise ValueError(f"{photo}: no such file; give the 360 degree photo taken at the point")
+    try:
+        gray = read_gray(photo)
+    except ImageError as exc:   # its words, without the advice for a run's image folders
+        raise ValueError(str(exc).split("; remove or replace it")[0] + "; give a JPEG or PNG of the photo") from None
+    got = panorama_arrays(gray, width=w, height=h, face_px=pp.face_px, min_length=pp.lsd_min_length_px,
                           level_max_deg=pp.level_max_deg, path=str(photo))
     lines = unpack(got["lines"], h, w)[0]
     packed = render_panoramas(model.segments, model.faces, np.array([[x, y, z, 0.0]]), width=w, height=h, hidden=True)

@@ -601,8 +601,8 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
     wrong = ~right_answers(err, yaw_err) if known and names is not None else np.zeros(len(err), bool)
     named = worst_wrong(err, wrong)
     grey = (115, 115, 115)
-    entries = ([R.LegendEntry("true position", BLUE, marker="o", marker_size=7.5)] if known else []) + [
-        R.LegendEntry(est_label or f"{mode} estimate", RED, marker="x", marker_size=9)]
+    entries = ([R.LegendEntry("true position", BLUE, marker="o", marker_size=7.5)] if known else []) + (
+        [R.LegendEntry(est_label or f"{mode} estimate", RED, marker="x", marker_size=9)] if len(est) else [])
     if has_alt.any():
         entries.append(R.LegendEntry(f"doubtful answer's alternative ({int(has_alt.sum())})", ORANGE, marker="O",
                                      marker_size=12))
@@ -619,8 +619,6 @@ def plot_estimates_on_plan(path: Path, truth: np.ndarray | None, est: np.ndarray
         entries.insert(0, R.LegendEntry(f"grid place ({len(grid):,})", (160, 160, 160), marker="o", marker_size=3))
     if windows is not None and len(windows):
         entries.insert(0, R.LegendEntry(f"window ({len(windows)})", GREEN, line_width=4.0))
-    if not len(est):
-        entries = [e for e in entries if e.colour != RED]
     title = (title if title is not None else plan_title(mode, truth, est, alt) if known else
              f"{mode}: {len(est)} estimate{'' if len(est) == 1 else 's'} (no ground truth)") + cut
     few = len(est) <= NAMED_WRONG

@@ -1538,11 +1538,7 @@ def panorama_threads(n: int) -> int:
     each query runs Python; queries side by side keep the cores busy (the kernels release
     the GIL). 1 where numba's threading layer is ``workqueue``, which aborts the process
     when two threads call its kernels at once (``omp`` and ``tbb`` allow it)."""
-    if PANORAMA_THREADS is not None:
-        want = int(PANORAMA_THREADS)
-    else:
-        want = usable_cores()
-    want = max(1, min(want, n))
+    want = max(1, min(usable_cores() if PANORAMA_THREADS is None else int(PANORAMA_THREADS), n))
     if want == 1:
         return 1
     import numba

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from placeloc.geometry.floorplan import Model, label_points, load_model, load_plan, plan_grid
+from placeloc.geometry.floorplan import Model, floor_plan_model, label_points, load_model, load_plan, plan_grid
 from placeloc.geometry.panorama import render_panoramas
 from placeloc.umap.bits import unpack
 
@@ -88,16 +88,15 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
         raise ValueError(f"the grid's step ({step_m:g} m) must be above 0 and its wall margin ({wall_margin_m:g} m) "
                          "not below 0")
     path = Path(path)
-    plan = load_plan(path, floor)
-    model = load_model(path, floor)
+    plan = load_plan(path, floor)   # the file read once: a plan's model is built from it as load_model does
+    model = floor_plan_model(plan, str(path)) if plan is not None else load_model(path, floor)
     walls = np.asarray(model.segments, float).reshape(-1, 6)
     points = np.vstack([*model.polygons, walls[:, [0, 1]], walls[:, [3, 4]]]) if len(walls) or model.polygons else \
         np.zeros((1, 2))
     bounds = (float(points[:, 0].min()), float(points[:, 1].min()), float(points[:, 0].max()), float(points[:, 1].max()))
     rooms: list[tuple[str, float, float | None]] = []
     counts: dict[str, int] = {}
-    gaps = np.asarray(model.gaps, float).reshape(-1, 4)
-    windows = np.zeros((0, 4))
+    gaps = windows = np.zeros((0, 4))   # a wireframe has neither
     kind = "wireframe"
     if plan is not None:
         kind = "rooms" if "rooms" in plan else "outline"
@@ -125,11 +124,11 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
     grid = np.zeros((0, 4))
     notes: list[str] = []
     if z is not None:
-        points = np.ceil((bounds[2] - bounds[0]) / step_m + 1) * np.ceil((bounds[3] - bounds[1]) / step_m + 1)
-        if points > MAX_GRID_POINTS:
-            raise ValueError(f"a grid step of {step_m:g} m lays {points:,.0f} points over the plan's "
+        laid = np.ceil((bounds[2] - bounds[0]) / step_m + 1) * np.ceil((bounds[3] - bounds[1]) / step_m + 1)
+        if laid > MAX_GRID_POINTS:
+            raise ValueError(f"a grid step of {step_m:g} m lays {laid:,.0f} points over the plan's "
                              f"{bounds[2] - bounds[0]:.1f} x {bounds[3] - bounds[1]:.1f} m, more than "
-                             f"{MAX_GRID_POINTS:,}; give a larger --step (umap.grid.step_m is {GridParams().step_m:g} m)")
+                             f"{MAX_GRID_POINTS:,}; give a larger --step (umap.grid.step_m is {defaults.step_m:g} m)")
         grid, notes = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
     return PlanSummary(str(path), kind, rooms, counts, model.camera_z, bounds, grid, float(step_m),
                        float(wall_margin_m), z, list(notes), gaps, windows), model

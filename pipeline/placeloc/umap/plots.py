@@ -22,8 +22,6 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     Drawn straight into pixels (:mod:`placeloc.evaluation.raster`), as the ranked results'
     pictures are: with matplotlib (``tight_layout`` drawing it twice) a picture took 126 ms
     here, with fixed margins 81 ms, and evaluate draws twelve."""
-    from placeloc.evaluation import raster as R
-
     h, w = query.shape
     img = np.ones((h, w, 3))
     if unseen is not None:
@@ -34,36 +32,35 @@ def plot_panorama_overlay(path: Path, query: np.ndarray, at_estimate: np.ndarray
     img[at_estimate > 0] = (0.85, 0.1, 0.1)
     if at_truth is not None:
         img[(at_truth > 0) & (at_estimate > 0)] = (0.55, 0.35, 0.0)
+    _equirect_picture(path, np.round(img * 255).astype(np.uint8),
+                      "azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)",
+                      title + "\ngrey: detected lines; red: map at the estimate"
+                      + (f"; green: map at {second}; brown: both" if at_truth is not None else "")
+                      + ("; blue: not in the photo" if unseen is not None and np.any(unseen) else ""))
+
+
+def _equirect_picture(path: Path, img: np.ndarray, xlabel: str, title: str) -> Path:
+    """An (H, W, 3) uint8 equirectangular image in its frame of azimuth (180 deg on the
+    left) and elevation: UMap's panorama pictures."""
+    from placeloc.evaluation import raster as R
+
     # an image in an axis-parallel frame: no supersampling needed
     canvas = R.Canvas(1000, 560, ss=1)
     ax = R.Axes(canvas, (70, 56, 980, 504), (180.0, -180.0), (-90.0, 90.0))
     ax.frame(np.arange(-150, 151, 50), np.arange(-80, 81, 20), grid=False)
-    ax.image(np.round(img * 255).astype(np.uint8))
+    ax.image(img)
     ax.box()
-    ax.labels("azimuth relative to the panorama's centre column [deg] (left is counter-clockwise)", "elevation [deg]",
-              title + "\ngrey: detected lines; red: map at the estimate"
-              + (f"; green: map at {second}; brown: both" if at_truth is not None else "")
-              + ("; blue: not in the photo" if unseen is not None and np.any(unseen) else ""),
-              size=12, title_size=11)
-    canvas.save(path)
+    ax.labels(xlabel, "elevation [deg]", title, size=12, title_size=11)
+    return canvas.save(path)
 
 
 def plot_map_view(path: Path, lines: np.ndarray, title: str) -> Path:
     """The map's lines (H, W bool, an equirectangular line image) in black on white, in
     the frame of :func:`plot_panorama_overlay`: what a 360 degree camera at a point of the
     plan would see of the map, to hold against a photo taken there (``placeloc plan``)."""
-    from placeloc.evaluation import raster as R
-
     img = np.full((*lines.shape, 3), 255, np.uint8)
     img[np.asarray(lines, bool)] = 0
-    canvas = R.Canvas(1000, 560, ss=1)
-    ax = R.Axes(canvas, (70, 56, 980, 504), (180.0, -180.0), (-90.0, 90.0))
-    ax.frame(np.arange(-150, 151, 50), np.arange(-80, 81, 20), grid=False)
-    ax.image(img)
-    ax.box()
-    ax.labels("azimuth from the centre column [deg] (left is counter-clockwise)", "elevation [deg]", title,
-              size=12, title_size=11)
-    return canvas.save(path)
+    return _equirect_picture(path, img, "azimuth from the centre column [deg] (left is counter-clockwise)", title)
 
 
 def plot_ceiling_scores(path: Path, means: np.ndarray, found: float, panoramas: int) -> Path:

@@ -1062,14 +1062,16 @@ def _put(a: np.ndarray, rows: np.ndarray, b: np.ndarray) -> np.ndarray:
 def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                   progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
-                  seen: np.ndarray | None = None) -> PanoramaAnswers:
+                  seen: np.ndarray | None = None,
+                  inside: Callable[[np.ndarray], np.ndarray] | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
     (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
     writes them): each layer searched alone over its own rows of ``database``, each
     panorama's answer the best over them (:func:`best_over_heights`). With
     ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
     table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
-    total)`` wraps each layer's loop over its panoramas. ``seen``: as :func:`search_panoramas`'."""
+    total)`` wraps each layer's loop over its panoramas. ``seen`` and ``inside``: as
+    :func:`search_panoramas`'."""
     starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
     # the spectra hold positions on their second axis (frequency first), the rest on their first
@@ -1093,7 +1095,7 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
         answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
                                    progress=lambda it, what=what, m=len(ks): progress(it, what, m),
-                                   seen=None if seen is None else seen[ks])
+                                   seen=None if seen is None else seen[ks], inside=inside)
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
     if len(found) == 1:
         return found[0]
@@ -1627,7 +1629,8 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.nd
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                      progress: Callable[[Iterable], Iterable] = lambda it: it,
-                     seen: np.ndarray | None = None) -> PanoramaAnswers:
+                     seen: np.ndarray | None = None,
+                     inside: Callable[[np.ndarray], np.ndarray] | None = None) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image, and the best score of a rival answer (:func:`rival_pose`, ``pp.margin_distance_m``
     and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
@@ -1678,6 +1681,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     photo covered (photo spheres stored cropped): in every score of that query, the tables'
     and the local search's, the recall half counts the map's lines in those rows only (the
     local search weighs the other rows zero). None: every row.
+
+    ``inside`` (plan points (P, 2) -> (P,) bool; ``umap.room_hints``): where the local
+    search may go; the grid ``poses`` given are already those inside. None: anywhere.
 
     After each batch's tables, its queries are searched side by side, one a thread
     (:func:`panorama_threads`), each to the same answer as alone."""
@@ -1780,6 +1786,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
             ok = wall_distance(pts, walls) >= floor_d[owner]
             pts, owner = pts[ok], owner[ok]
+        if inside is not None:   # not out of the photo's room (umap.room_hints)
+            ok = inside(pts)
+            pts, owner = pts[ok], owner[ok]
         if not len(pts):
             return
         cols = col[owner][:, None] + window[None]
@@ -1814,6 +1823,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         def score_at(pts: np.ndarray, col: int) -> tuple[np.ndarray, np.ndarray]:
             out, cols_out = np.full(len(pts), -np.inf), np.full(len(pts), col, dtype=np.int64)
             ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
+            if inside is not None:
+                ok &= inside(pts)
             if ok.any():
                 cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
                 sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), q_close)

@@ -214,4 +214,15 @@ class UMapParams(Params):
     mode: str = param("umap", choices=("umap", "umap+ca"),
                       help="umap: every image on its own; umap+ca: a sequence with Consistency Adjustment (needs sensor_csv)")
     sensor_csv: str | None = param(None, path=True, help="odometry/laser CSV for CA")
+    room_hints: str | None = param(None, path=True, help="panoramas with a floor plan of rooms: a CSV with the columns "
+                                                         "frame, room naming the room each photo was taken in, where "
+                                                         "you know it (a room's name, or its label in parentheses: "
+                                                         "kitchen for 'complete_room_3 (kitchen)'; every room of that "
+                                                         "name counts; an empty room or a missing frame: anywhere). "
+                                                         "Each such photo is searched in that room only, so a "
+                                                         "look-alike room elsewhere is no rival, and its margin is "
+                                                         "over the room's other places and headings")
+    room_hint_margin_m: float = param(0.3, min=0.0, help="umap.room_hints: how far outside its room's outline a photo "
+                                                         "may still stand (a camera in a doorway counts for both "
+                                                         "rooms)")
     ca: CAParams = section(CAParams)

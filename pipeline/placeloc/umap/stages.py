@@ -49,13 +49,16 @@ from placeloc.umap.panorama import (
     render_panorama_block,
     render_panoramas,
     row_weights,
+    scatter_answers,
     search_layers,
     seen_rows,
+    unsearched,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_ceiling_scores, plot_panorama_overlay
 from placeloc.umap.query_features import panorama_arrays, query_arrays, query_camera
 from placeloc.umap.render import render_grid_block
+from placeloc.umap.room_hints import RoomRegion, matching_rooms, read_room_hints
 from placeloc.umap.scoring import Scorer
 from placeloc.umap.sensor import read_sensor_csv
 from placeloc.umap.tracker import ca_chain, ca_steps, ca_track
@@ -81,6 +84,20 @@ def _check(config: dict[str, Any]) -> None:
     if p["query_kind"] == "panorama" and p["mode"] == "umap+ca":
         raise ConfigError("umap.mode umap+ca needs pinhole views along a wall (the laser CA); panoramas are localized "
                           "one by one: set umap.mode: umap for umap.query_kind: panorama")
+    if p["room_hints"] is not None:
+        if p["query_kind"] != "panorama":
+            raise ConfigError("umap.room_hints keeps whole panoramas' search to a room (umap.query_kind: panorama); "
+                              "leave it out for pinhole images")
+        if not Path(p["room_hints"]).is_file():
+            raise ConfigError(f"umap.room_hints: {p['room_hints']} does not exist; fix the path (relative paths start at "
+                              "the config's folder) or leave it out")
+        try:   # each hint names a room of the plan: told now, not after the index is built
+            plan = load_plan(p["model"], p["floor"])
+            names = floor_plan_model(plan, str(p["model"])).room_names if plan is not None else []
+        except ModelError:
+            names = None   # build-dictionary says what is wrong with the model
+        if names is not None:
+            read_room_hints(p["room_hints"], [], names)
     heights = list(p["grid"]["heights"] or [])
     if heights and p["query_kind"] != "panorama":
         raise ConfigError("umap.grid.heights searches the camera height of whole panoramas (umap.query_kind: panorama); "
@@ -403,11 +420,52 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
         poses = poses[lo:hi]
         database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
         segments, faces = model_at_ceiling(src, choice.height)
-    found = search_layers(lines, poses, segments, faces, database, pp,
-                          tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                          hidden=bool(ctx.params.hidden_lines),
-                          progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen)
+
+    def search(ks: np.ndarray, rows: np.ndarray | None, inside: RoomRegion | None) -> PanoramaAnswers:
+        """Panoramas ``ks`` over the grid ``rows`` (None: all), the local search kept ``inside``."""
+        db = database if rows is None else {k: v[:, rows] if k == "spectra" else v[rows] for k, v in database.items()}
+        got = search_layers(lines[ks], poses if rows is None else poses[rows], segments, faces, db, pp,
+                            tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                            hidden=bool(ctx.params.hidden_lines),
+                            progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc),
+                            seen=None if seen is None else seen[ks], inside=inside)
+        return got if rows is None else got._replace(best=rows[got.best])
+
+    everyone = np.arange(len(lines))
+    if ctx.params.room_hints is None:
+        found = search(everyone, None, None)
+    else:   # each room named for some photos searched alone, over its grid positions (umap.room_hints)
+        found = unsearched(len(lines))
+        for hint, ks, region in _room_groups(ctx, src):
+            rows = None if region is None else np.flatnonzero(region(poses[:, :2]))
+            if rows is not None and not len(rows):
+                raise _stage_error(ValueError(f"umap.room_hints: no grid position lies in {hint!r}; give umap.grid a "
+                                              "finer step_m or a smaller wall_margin_m"))
+            found = scatter_answers(found, ks, search(ks, rows, region))
     return found._replace(best=found.best + lo), choice
+
+
+def _room_groups(ctx: Any, src: Any) -> list[tuple[str | None, np.ndarray, RoomRegion | None]]:
+    """The query panoramas grouped by the room ``umap.room_hints`` names for them: (the hint,
+    the panoramas, the plan region they may stand in), the panoramas it names no room for
+    last with no region."""
+    names = read_strings(ctx.artifact("extract")["names"])
+    room_names = read_strings(src["room_names"]) if "room_names" in src and "plan" in src else []
+    hints, stray = read_room_hints(ctx.params.room_hints, names, room_names)
+    if stray:
+        log.warning("umap.room_hints %s names %d frame%s that are not query images (e.g. %s); they are left out",
+                    ctx.params.room_hints, len(stray), "" if len(stray) == 1 else "s", stray[0])
+    polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(room_names))]
+    margin = float(ctx.params.room_hint_margin_m)
+    groups = []
+    for hint in dict.fromkeys(h for h in hints if h is not None):
+        ks = np.array([k for k, h in enumerate(hints) if h == hint], np.int64)
+        groups.append((hint, ks, RoomRegion([polygons[i] for i in matching_rooms(hint, room_names)], margin)))
+    free = np.array([k for k, h in enumerate(hints) if h is None], np.int64)
+    if len(free):
+        groups.append((None, free, None))
+    log.info("umap.room_hints: %d of %d panoramas searched in the room named for them", len(names) - len(free), len(names))
+    return groups
 
 
 def model_at_ceiling(plan: Any, ceiling: float) -> tuple[np.ndarray, np.ndarray]:
@@ -812,7 +870,8 @@ METHOD = Method(
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight", "panorama.solid_angle", "panorama.chamfer_chance",
                                     "panorama.clutter_share", "panorama.orientation_bins", "panorama.orientation_spread")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "panorama.score", "panorama.chamfer_tau_px", "panorama.chamfer_chance",
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "panorama.score",
+                                          "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",

@@ -75,6 +75,12 @@ def test_import_writes_plan_and_poses(tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "out" / "poses.csv")))
     assert [r["frame"] for r in rows] == ["a.jpg", "b.jpg", "c.jpg"]
     assert [r["primary"] for r in rows] == ["1", "1", "0"]
+    # each panorama's room, as the plan names it: a umap.room_hints file (c.jpg, a secondary
+    # panorama, in its complete room's)
+    rooms = list(csv.DictReader(open(tmp_path / "out" / "rooms.csv")))
+    assert [(r["frame"], r["room"]) for r in rooms] == [("a.jpg", "complete_room_01 (room)"),
+                                                       ("b.jpg", "complete_room_02 (room)"),
+                                                       ("c.jpg", "complete_room_02 (room)")]
     assert floor_plan_model(__import__("yaml").safe_load((tmp_path / "out" / "floor_plan.yaml").read_text())).rooms
 
 

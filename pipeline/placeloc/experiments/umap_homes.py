@@ -34,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.core.config import load_config
 from placeloc.core.runner import read_metrics, run_all
 from placeloc.core.safe_io import read_run_table
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap import home_table
-from placeloc.geometry.floorplan import model_bounds
+from placeloc.geometry.floorplan import load_plan, model_bounds, rooms_at
 from placeloc.synth import generate
 from placeloc.umap.stages import load_model
 
@@ -156,19 +157,36 @@ def shifted_grid(plan: Path, frac: float, step: float = GRID_STEP_M) -> dict[str
 
 
 def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: float, quiet: bool,
-         plan: Path | None = None, grid: dict[str, Any] | None = None) -> dict[str, Any]:
+         plan: Path | None = None, grid: dict[str, Any] | None = None, room_hints: Path | None = None) -> dict[str, Any]:
     # only what a user of a real home gives (the model, the images, the query kind, the
     # truth) and the grid origin; ``plan``: another file of the same plan (default the home's
     # own floor_plan.yaml), so that runs of one home's variants share a map and index;
-    # ``grid``: umap.grid settings beside the origin's x and y (the ceilings searched)
+    # ``grid``: umap.grid settings beside the origin's x and y (the ceilings searched);
+    # ``room_hints``: each photo's room named (umap.room_hints)
     plan = plan or data / "floor_plan.yaml"
     cfg = load_config(data={"method": "umap", "query": {"images": str(data / "panoramas")},
                             "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
                             "umap": {"model": str(plan), "query_kind": "panorama", "panorama": panorama,
-                                     "grid": {**shifted_grid(plan, frac), **(grid or {})}},
+                                     "grid": {**shifted_grid(plan, frac), **(grid or {})},
+                                     **({"room_hints": str(room_hints)} if room_hints else {})},
                             "executor": {"workers": 1}, "plots": False}, base_dir=root)
     run_all(cfg, root / name, quiet=quiet)
     return {**read_metrics(root / name), "line_stats": json.loads((data / "line_stats.json").read_text()), "origin": frac}
+
+
+def true_rooms(data: Path) -> Path:
+    """``data/rooms.csv``: each panorama's room, read off the plan at its true position (a
+    :mod:`placeloc.umap.room_hints` file: what the person who took the photos knows)."""
+    plan = load_plan(data / "floor_plan.yaml")
+    rows = list(csv.DictReader(open(data / "poses.csv", newline="")))
+    rooms = rooms_at(np.array([[float(r["x"]), float(r["y"])] for r in rows]),
+                     [np.asarray(r["polygon"], float) for r in plan["rooms"]], [str(r["name"]) for r in plan["rooms"]])
+    out = data / "rooms.csv"
+    with atomic_open(out, newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "room"])
+        w.writerows([r["frame"], room] for r, room in zip(rows, rooms))
+    return out
 
 
 MOVE_LIMITS_M = (0.1, 0.05)   # answers further apart than these over the origins count as moved

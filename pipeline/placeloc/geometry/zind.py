@@ -184,8 +184,9 @@ def zind_home(path: str | Path, floor: str | None = None) -> tuple[dict[str, Any
 
 
 def import_zind(path: str | Path, out_dir: str | Path, floor: str | None = None) -> dict[str, Any]:
-    """Write ``floor_plan.yaml`` and ``poses.csv`` (frame, x, y, z, heading_deg, primary) of
-    a ``zind_data.json`` under ``out_dir``: of ``floor`` when given or when the file has one
+    """Write ``floor_plan.yaml``, ``poses.csv`` (frame, x, y, z, heading_deg, primary) and
+    ``rooms.csv`` (frame, room: a ``umap.room_hints`` file) of a ``zind_data.json`` under
+    ``out_dir``: of ``floor`` when given or when the file has one
     floor with a scale, else of every such floor, each in ``out_dir/<floor>/``. Returns a
     short summary (per floor when there are several)."""
     out = Path(out_dir)
@@ -213,6 +214,13 @@ def _write_floor(path: str | Path, out: Path, floor: str) -> dict[str, Any]:
         for p in panos:
             w.writerow([p["frame"], f"{p['x']:.4f}", f"{p['y']:.4f}", f"{p['z']:.4f}", f"{p['heading_deg']:.2f}",
                         int(p["primary"])])
+    # each panorama's room as ZInD's annotators placed it: a umap.room_hints file (empty where
+    # its complete room gave the plan no room: none of its panoramas had a layout)
+    names = {str(r["name"]).split(" (", 1)[0]: str(r["name"]) for r in plan["rooms"]}
+    with atomic_open(out / "rooms.csv", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "room"])
+        w.writerows([p["frame"], names.get(str(p["room"]), "")] for p in panos)
     return {"floor": floor, "out": str(out), "rooms": len(plan["rooms"]),
             "internal walls": sum(len(r.get("internal", [])) for r in plan["rooms"]), "doors": len(plan["doors"]),
             "openings": len(plan["openings"]), "windows": len(plan["windows"]), "panoramas": len(panos),

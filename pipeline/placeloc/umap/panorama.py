@@ -1063,7 +1063,7 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                   progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
                   seen: np.ndarray | None = None,
-                  inside: Callable[[np.ndarray], np.ndarray] | None = None) -> PanoramaAnswers:
+                  inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
     (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
     writes them): each layer searched alone over its own rows of ``database``, each
@@ -1095,7 +1095,8 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
         answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
                                    progress=lambda it, what=what, m=len(ks): progress(it, what, m),
-                                   seen=None if seen is None else seen[ks], inside=inside)
+                                   seen=None if seen is None else seen[ks],
+                                   inside=None if inside is None else [inside[k] for k in ks])
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
     if len(found) == 1:
         return found[0]
@@ -1190,11 +1191,20 @@ def _distinct(order: np.ndarray, xy: np.ndarray, count: int, min_separation_m: f
     return n
 
 
+def _ranked(scores: np.ndarray) -> np.ndarray:
+    """The rows of a (P, W) score table by their best score, best first (the first of equals
+    first), leaving out the rows that score -inf everywhere (outside a photo's room:
+    ``umap.room_hints``)."""
+    top = scores.max(axis=1)
+    order = np.argsort(-top, kind="stable")
+    return order[np.isfinite(top[order])]
+
+
 def distinct_candidates(scores: np.ndarray, xy: np.ndarray, *, count: int, min_separation_m: float) -> np.ndarray:
     """Rows of the ``count`` best grid positions (each scored at its best yaw), greedily
     skipping any within ``min_separation_m`` of one already taken: the distinct places that
     compete (the same spot in two look-alike rooms, say)."""
-    order = np.argsort(-scores.max(axis=1), kind="stable")
+    order = _ranked(scores)
     out = np.zeros(max(count, 0), dtype=np.int64)
     n = _distinct(order.astype(np.int64), np.ascontiguousarray(xy, np.float64), count, float(min_separation_m), out)
     return out[:n]
@@ -1211,10 +1221,8 @@ def coarse_to_fine_candidates(scores: np.ndarray, tolerant: np.ndarray, xy: np.n
     exact = max(count - max(int(coarse), 0), 0)
     out = np.zeros(count, dtype=np.int64)
     pts = np.ascontiguousarray(xy, np.float64)
-    n = _distinct(np.argsort(-scores.max(axis=1), kind="stable").astype(np.int64), pts, exact,
-                  float(min_separation_m), out)
-    n = _distinct(np.argsort(-tolerant.max(axis=1), kind="stable").astype(np.int64), pts, count,
-                  float(min_separation_m), out, n)
+    n = _distinct(_ranked(scores).astype(np.int64), pts, exact, float(min_separation_m), out)
+    n = _distinct(_ranked(tolerant).astype(np.int64), pts, count, float(min_separation_m), out, n)
     return out[:n]
 
 
@@ -1238,7 +1246,7 @@ def suppressed_neighbours(scores: np.ndarray, xy: np.ndarray, candidates: np.nda
     better start can climb to a lower bump: both on generated homes, docs/umap.md)."""
     if top <= 0 or not len(candidates):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    order = np.argsort(-scores.max(axis=1), kind="stable")[:top]
+    order = _ranked(scores)[:top]
     rows = order[~np.isin(order, candidates)].astype(np.int64)
     d = np.hypot(*(xy[rows][:, None, :] - xy[candidates][None, :, :]).transpose(2, 0, 1))     # (rows, candidates)
     near = d < min_separation_m
@@ -1630,7 +1638,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                      progress: Callable[[Iterable], Iterable] = lambda it: it,
                      seen: np.ndarray | None = None,
-                     inside: Callable[[np.ndarray], np.ndarray] | None = None) -> PanoramaAnswers:
+                     inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image, and the best score of a rival answer (:func:`rival_pose`, ``pp.margin_distance_m``
     and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
@@ -1682,8 +1690,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     and the local search's, the recall half counts the map's lines in those rows only (the
     local search weighs the other rows zero). None: every row.
 
-    ``inside`` (plan points (P, 2) -> (P,) bool; ``umap.room_hints``): where the local
-    search may go; the grid ``poses`` given are already those inside. None: anywhere.
+    ``inside`` (``umap.room_hints``): each query's region, plan points (P, 2) -> (P,) bool, or
+    None (anywhere): its grid table keeps the positions inside only (the rest score -inf, so
+    they are never a candidate, an answer or a rival), and its local search stays inside.
 
     After each batch's tables, its queries are searched side by side, one a thread
     (:func:`panorama_threads`), each to the same answer as alone."""
@@ -1786,8 +1795,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
             ok = wall_distance(pts, walls) >= floor_d[owner]
             pts, owner = pts[ok], owner[ok]
-        if inside is not None:   # not out of the photo's room (umap.room_hints)
-            ok = inside(pts)
+        region = None if inside is None else inside[k]
+        if region is not None:   # not out of the photo's room (umap.room_hints)
+            ok = region(pts)
             pts, owner = pts[ok], owner[ok]
         if not len(pts):
             return
@@ -1823,8 +1833,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         def score_at(pts: np.ndarray, col: int) -> tuple[np.ndarray, np.ndarray]:
             out, cols_out = np.full(len(pts), -np.inf), np.full(len(pts), col, dtype=np.int64)
             ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
-            if inside is not None:
-                ok &= inside(pts)
+            if inside is not None and inside[k] is not None:
+                ok &= inside[k](pts)
             if ok.any():
                 cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
                 sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), q_close)
@@ -1836,6 +1846,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         """Query k's answer from its table (and tolerant table): the candidates, the local
         search and the final search, written into ``best``, ``heading``, ``score``, ... at k.
         Reads nothing another query writes, so queries may run on threads of their own."""
+        if inside is not None and inside[k] is not None:   # the grid positions outside its region never compete
+            keep = inside[k](poses[:, :2])[:, None]
+            table = np.where(keep, table, -np.inf)
+            tolerant = None if tolerant is None else np.where(keep, tolerant, -np.inf)
         best[k], shift, score[k] = best_pose(table)
         heading[k] = shift * 360.0 / w
         scored_here.xy, scored_here.score, scored_here.col = [], [], []

@@ -49,10 +49,8 @@ from placeloc.umap.panorama import (
     render_panorama_block,
     render_panoramas,
     row_weights,
-    scatter_answers,
     search_layers,
     seen_rows,
-    unsearched,
 )
 from placeloc.umap.params import UMapParams
 from placeloc.umap.plots import plot_ceiling_scores, plot_panorama_overlay
@@ -421,34 +419,19 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
         database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
         segments, faces = model_at_ceiling(src, choice.height)
 
-    def search(ks: np.ndarray, rows: np.ndarray | None, inside: RoomRegion | None) -> PanoramaAnswers:
-        """Panoramas ``ks`` over the grid ``rows`` (None: all), the local search kept ``inside``."""
-        db = database if rows is None else {k: v[:, rows] if k == "spectra" else v[rows] for k, v in database.items()}
-        got = search_layers(lines[ks], poses if rows is None else poses[rows], segments, faces, db, pp,
-                            tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
-                            hidden=bool(ctx.params.hidden_lines),
-                            progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc),
-                            seen=None if seen is None else seen[ks], inside=inside)
-        return got if rows is None else got._replace(best=rows[got.best])
-
-    everyone = np.arange(len(lines))
-    if ctx.params.room_hints is None:
-        found = search(everyone, None, None)
-    else:   # each room named for some photos searched alone, over its grid positions (umap.room_hints)
-        found = unsearched(len(lines))
-        for hint, ks, region in _room_groups(ctx, src):
-            rows = None if region is None else np.flatnonzero(region(poses[:, :2]))
-            if rows is not None and not len(rows):
-                raise _stage_error(ValueError(f"umap.room_hints: no grid position lies in {hint!r}; give umap.grid a "
-                                              "finer step_m or a smaller wall_margin_m"))
-            found = scatter_answers(found, ks, search(ks, rows, region))
+    inside = None if ctx.params.room_hints is None else _room_regions(ctx, src, poses)
+    found = search_layers(lines, poses, segments, faces, database, pp,
+                          tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
+                          hidden=bool(ctx.params.hidden_lines),
+                          progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
+                          inside=inside)
     return found._replace(best=found.best + lo), choice
 
 
-def _room_groups(ctx: Any, src: Any) -> list[tuple[str | None, np.ndarray, RoomRegion | None]]:
-    """The query panoramas grouped by the room ``umap.room_hints`` names for them: (the hint,
-    the panoramas, the plan region they may stand in), the panoramas it names no room for
-    last with no region."""
+def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> list[RoomRegion | None]:
+    """Each query panorama's region where ``umap.room_hints`` names its room (None where it
+    names none): the rooms of that name and ``room_hint_margin_m`` around them. A room the
+    grid ``poses`` lay no position in is an error naming it and the fix."""
     names = read_strings(ctx.artifact("extract")["names"])
     room_names = read_strings(src["room_names"]) if "room_names" in src and "plan" in src else []
     hints, stray = read_room_hints(ctx.params.room_hints, names, room_names)
@@ -456,16 +439,16 @@ def _room_groups(ctx: Any, src: Any) -> list[tuple[str | None, np.ndarray, RoomR
         log.warning("umap.room_hints %s names %d frame%s that are not query images (e.g. %s); they are left out",
                     ctx.params.room_hints, len(stray), "" if len(stray) == 1 else "s", stray[0])
     polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(room_names))]
-    margin = float(ctx.params.room_hint_margin_m)
-    groups = []
+    regions: dict[str, RoomRegion] = {}
     for hint in dict.fromkeys(h for h in hints if h is not None):
-        ks = np.array([k for k, h in enumerate(hints) if h == hint], np.int64)
-        groups.append((hint, ks, RoomRegion([polygons[i] for i in matching_rooms(hint, room_names)], margin)))
-    free = np.array([k for k, h in enumerate(hints) if h is None], np.int64)
-    if len(free):
-        groups.append((None, free, None))
-    log.info("umap.room_hints: %d of %d panoramas searched in the room named for them", len(names) - len(free), len(names))
-    return groups
+        regions[hint] = RoomRegion([polygons[i] for i in matching_rooms(hint, room_names)],
+                                   float(ctx.params.room_hint_margin_m))
+        if not regions[hint](poses[:, :2]).any():
+            raise _stage_error(ValueError(f"umap.room_hints: no grid position lies in {hint!r}; give umap.grid a finer "
+                                          "step_m or a smaller wall_margin_m"))
+    log.info("umap.room_hints: %d of %d panoramas searched in the room named for them",
+             sum(h is not None for h in hints), len(names))
+    return [None if h is None else regions[h] for h in hints]
 
 
 def model_at_ceiling(plan: Any, ceiling: float) -> tuple[np.ndarray, np.ndarray]:

@@ -162,11 +162,14 @@ def test_room_hints_are_checked(tmp_path):
     cfg["umap"]["grid"]["x"] = [3.5, 6.0, 0.3]   # the east twin's grid only
     with pytest.raises(Exception, match=r"umap.room_hints: no grid position lies in 'closet'"):
         run_stage(cfg, d / "run", "localize", quiet=True)
-    # the hint file is an input of localize: editing it re-runs the stage
+    # the hint file is an input of localize alone: editing it re-runs localize, and the
+    # stages before it (the map and its index) are kept as they were
     d = tmp_path / "edit"
     cfg = _twins_run(d, "frame,room\na.png,room_1 (bedroom)\n")
     run_stage(cfg, d / "run", "localize", quiet=True)
     first = (d / "run" / "estimates.csv").read_text()
+    before = {s: (d / "run" / f"{s}.h5").stat().st_mtime_ns for s in ("extract", "build-dictionary", "index")}
     (d / "rooms.csv").write_text("frame,room\na.png,room_2 (bedroom)\n")
     run_stage(cfg, d / "run", "localize", quiet=True)
     assert (d / "run" / "estimates.csv").read_text() != first
+    assert {s: (d / "run" / f"{s}.h5").stat().st_mtime_ns for s in before} == before

@@ -68,8 +68,9 @@ def test_cause_line_by_hand():
 
 def test_the_quick_homes_experiment_explains_its_wrong_answers_and_drops_its_indexes(tmp_path):
     # `placeloc experiment umap-homes --quick`: one development home at one origin, two test
-    # homes. Every wrong test answer at the first origin is in summary.json with the best
-    # score near its truth, the table's line counts them, and no run folder keeps its index
+    # homes, and those again with each photo's room named. Every wrong test answer at the
+    # first origin is in summary.json with the best score near its truth, the table's line
+    # counts them, and no run folder keeps its index
     import csv
     import json
 
@@ -91,4 +92,10 @@ def test_the_quick_homes_experiment_explains_its_wrong_answers_and_drops_its_ind
     else:
         assert "Wrong test answers at grid origin 0: none." in table
     assert list(tmp_path.glob("*/index.h5")) == []
-    assert len(list(tmp_path.glob("*/localize.h5"))) == 3
+    assert len(list(tmp_path.glob("*/localize.h5"))) == 5
+    # the test homes again with each photo's room named: a line of the table, and the map
+    # linked from the plain run's folder, not drawn again
+    assert "With each test photo's room named (umap.room_hints, the room at its true position): within 1 m" in table
+    assert (tmp_path / "home20-origin0-rooms" / "build-dictionary.h5").samefile(tmp_path / "home20-origin0" /
+                                                                               "build-dictionary.h5")
+    assert summary["home20-origin0-rooms"]["within_1m_30deg"] >= summary["home20-origin0-panorama-chamfer"]["within_1m_30deg"]

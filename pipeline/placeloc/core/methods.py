@@ -96,6 +96,10 @@ class Method:
     # Where the contract finds ground truth the method's own parameters name (role -> parameter),
     # e.g. the map contract's {"points": "truth"}; the shared ground_truth section otherwise.
     truth_keys: dict[str, str] = field(default_factory=dict)
+    # Path parameters whose file only a later stage reads (key -> that stage): the file is part
+    # of that stage's inputs, so editing it re-runs that stage on, not the ones before it.
+    # Every other path parameter's file is an input of the first stage.
+    file_stages: dict[str, str] = field(default_factory=dict)
     defaults: dict[str, Any] = field(init=False)
     choices: dict[str, tuple] = field(init=False)
     path_keys: tuple[str, ...] = field(init=False)
@@ -119,6 +123,10 @@ class Method:
             for key in stage.keys:
                 if key not in known:
                     raise ValueError(f"{self.name}.{name} depends on unknown parameter {key!r}")
+        for key, name in self.file_stages.items():
+            if key not in self.path_keys or name not in self.stages or key not in self.stages[name].keys:
+                raise ValueError(f"{self.name}: file_stages names {key!r} for stage {name!r}: it must be a path "
+                                 "parameter that stage declares")
 
     def result_kind(self, config: dict) -> str | None:
         """The result contract this method's localize writes for ``config``."""

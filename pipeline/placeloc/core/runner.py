@@ -204,14 +204,17 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     if stage == STAGES[0]:
         for role, s in images.items():
             inputs[f"images.{role}"] = s.fingerprint()
-        # Files named by the method's own path keys (models, observation CSVs, ...): a change
-        # re-runs the first stage and so, through the parent stamps, everything after it.
-        for key in method.path_keys:
-            node: Any = section
-            for part in key.split("."):
-                node = node.get(part) if isinstance(node, dict) else None
-            if node:
-                inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
+    # Files named by the method's own path keys (models, observation CSVs, ...): a change
+    # re-runs the first stage and so, through the parent stamps, everything after it; or,
+    # for a file only a later stage reads (Method.file_stages), that stage on.
+    for key in method.path_keys:
+        if method.file_stages.get(key, STAGES[0]) != stage:
+            continue
+        node: Any = section
+        for part in key.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if node:
+            inputs[f"file.{key}"] = _path_fingerprint(Path(str(node)))
     gt_path = (config.get("ground_truth") or {}).get("path")
     if "ground_truth" in sections and gt_path and Path(gt_path).is_file():
         inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))

@@ -17,6 +17,8 @@ homes by a stated rule, then reported on other homes, each for several grid orig
 3. Why each wrong test answer at the first origin is wrong (:func:`wrong_answer_causes`):
    the search again over the grid within 1 m of the truth only; where its best pose scores
    below the answer the score prefers the wrong place, else the search missed the truth.
+4. The test homes again with each photo's room named (``umap.room_hints``, the room at its
+   true position: :func:`true_rooms`), as whoever took the photos knows it.
 
 Writes ``OUT/dev.md``, ``OUT/table.md`` and ``OUT/summary.json``. Each run folder's
 ``index.h5`` (the map spectra, about 1.2 GB a home) is deleted once every setting has run at
@@ -29,6 +31,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +39,7 @@ import numpy as np
 
 from placeloc.core.artifacts import atomic_open
 from placeloc.core.config import load_config
-from placeloc.core.runner import read_metrics, run_all
+from placeloc.core.runner import STAGES, read_metrics, run_stage
 from placeloc.core.safe_io import read_run_table
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap import home_table
@@ -157,12 +160,14 @@ def shifted_grid(plan: Path, frac: float, step: float = GRID_STEP_M) -> dict[str
 
 
 def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: float, quiet: bool,
-         plan: Path | None = None, grid: dict[str, Any] | None = None, room_hints: Path | None = None) -> dict[str, Any]:
+         plan: Path | None = None, grid: dict[str, Any] | None = None, room_hints: Path | None = None,
+         reuse: Sequence[Path] = ()) -> dict[str, Any]:
     # only what a user of a real home gives (the model, the images, the query kind, the
     # truth) and the grid origin; ``plan``: another file of the same plan (default the home's
     # own floor_plan.yaml), so that runs of one home's variants share a map and index;
     # ``grid``: umap.grid settings beside the origin's x and y (the ceilings searched);
-    # ``room_hints``: each photo's room named (umap.room_hints)
+    # ``room_hints``: each photo's room named (umap.room_hints); ``reuse``: run folders whose
+    # stages with the same stamp are linked, not computed again (the map and its index)
     plan = plan or data / "floor_plan.yaml"
     cfg = load_config(data={"method": "umap", "query": {"images": str(data / "panoramas")},
                             "ground_truth": {"kind": "poses", "path": str(data / "poses.csv")},
@@ -170,7 +175,7 @@ def _run(root: Path, name: str, data: Path, panorama: dict[str, Any], frac: floa
                                      "grid": {**shifted_grid(plan, frac), **(grid or {})},
                                      **({"room_hints": str(room_hints)} if room_hints else {})},
                             "executor": {"workers": 1}, "plots": False}, base_dir=root)
-    run_all(cfg, root / name, quiet=quiet)
+    run_stage(cfg, root / name, STAGES[-1], quiet=quiet, reuse=reuse)
     return {**read_metrics(root / name), "line_stats": json.loads((data / "line_stats.json").read_text()), "origin": frac}
 
 
@@ -321,6 +326,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     (out_dir / "dev.md").write_text("\n".join(lines) + "\n")
     homes: dict[str, dict[str, Any]] = {}
     test_answers: dict[tuple[int, str], list[tuple[float, float]]] = {}
+    hinted: dict[str, dict[str, Any]] = {}
     for seed in TEST_SEEDS[:2] if quick else TEST_SEEDS:
         data = _home(out_dir, seed)
         for i, frac in enumerate(origins):
@@ -329,11 +335,17 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                                                                    quiet)
             for frame, xy in _answers(out_dir / f"home{seed}-origin{i}").items():
                 test_answers.setdefault((seed, frame), []).append(xy)
+            # each photo's room named, as its taker knows it (umap.room_hints): in a folder of its own
+            # beside it, the stages before localize linked from it
+            hinted[f"home{seed}-origin{i}"] = _run(out_dir, f"home{seed}-origin{i}-rooms", data, SWEEP[chosen], frac,
+                                                   quiet, room_hints=true_rooms(data),
+                                                   reuse=[out_dir / f"home{seed}-origin{i}"])
             _drop_index(out_dir / f"home{seed}-origin{i}")
+            _drop_index(out_dir / f"home{seed}-origin{i}-rooms")
     # why the test homes' wrong answers are wrong (at the first origin): the score or the search
     causes = {seed: wrong_answer_causes(out_dir / f"home{seed}-origin0", _home(out_dir, seed), SWEEP[chosen])
               for seed in (TEST_SEEDS[:2] if quick else TEST_SEEDS)}
-    write_summary(out_dir, {**runs, **homes, "chosen": {"setting": chosen},
+    write_summary(out_dir, {**runs, **homes, **{f"{k}-rooms": m for k, m in hinted.items()}, "chosen": {"setting": chosen},
                             "wrong_answer_causes": {str(s): [{"frame": f, "score": a, "best_near_truth": b}
                                                              for f, a, b in c] for s, c in causes.items()}})
     seeds = TEST_SEEDS[:2] if quick else TEST_SEEDS
@@ -354,6 +366,12 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
               f"{' / '.join(f'{x:g}' for x in MOVE_LIMITS_M)} m: "
               f"{' / '.join(map(str, answer_moves(test_answers)))} of {len(test_answers)}"]
     table += ["", cause_line(causes, origin=origins[0])]
+    share = np.array([m["within_1m_30deg"] for m in hinted.values()])
+    table += ["", "With each test photo's room named (umap.room_hints, the room at its true position): within 1 m and "
+              f"30 deg worst / median / best {share.min():.0%} / {np.median(share):.0%} / {share.max():.0%} over the "
+              f"{len(share)} runs; per home at each origin: "
+              + "; ".join(f"{s}: " + " / ".join(f"{m['within_1m_30deg']:.0%}" for k, m in hinted.items()
+                                                 if k.startswith(f"home{s}-")) for s in seeds)]
     (out_dir / "table.md").write_text("\n".join(table) + "\n")
     if not quiet:
         print("\n".join(table))

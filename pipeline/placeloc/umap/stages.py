@@ -869,6 +869,8 @@ METHOD = Method(
                           + LOCALIZE_CA_KEYS),
     },
     result="poses",
+    # read by localize alone: editing the per-frame sensor or room file re-runs localize, not the map
+    file_stages={"sensor_csv": "localize", "room_hints": "localize"},
     evaluate_extra=evaluate_extra,
     show_extra=show_extra,
     required_images=("query",),

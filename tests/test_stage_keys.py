@@ -316,7 +316,8 @@ def pirf_variants(tmp: Path) -> list[dict]:
 
 
 def umap_variants(tmp: Path) -> list[dict]:
-    """The eight-frame corridor of tests/test_umap_method.py, alone and with CA."""
+    """The eight-frame corridor of tests/test_umap_method.py, alone and with CA; the
+    panorama variants; two look-alike rooms with a photo's room named."""
     from test_umap_method import _tiny_corridor
 
     _tiny_corridor(tmp)
@@ -327,8 +328,12 @@ def umap_variants(tmp: Path) -> list[dict]:
                               "headings": [45.0, 135.0, 225.0, 315.0]}},
             "plots": True}
     ca = {**base, "plots": False, "umap": {**base["umap"], "mode": "umap+ca"}}
+    from test_umap_room_hints import _twins_run
+
+    # a plan of rooms with a photo's room named (umap.room_hints reads room_hint_margin_m)
+    rooms = _twins_run(tmp / "rooms", "frame,room\na.png,room_1 (bedroom)\n")
     return [load_config(data=base, base_dir=tmp), load_config(data=ca, base_dir=tmp),
-            *_umap_panorama_variants(tmp / "pano")]
+            *_umap_panorama_variants(tmp / "pano"), rooms]
 
 
 def _umap_panorama_variants(tmp: Path) -> list[dict]:

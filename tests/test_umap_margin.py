@@ -151,6 +151,8 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
             # the answer and its rival are in the two rooms, named as the plan names them
             assert {row["room"], row["rival_room"]} == {"a", "b"}, row
             assert f"p0.png ({row['room']}, or {row['rival_room']})" in caplog.text
+            # the two places in two rooms: the log says how to settle it
+            assert "you know the room it was taken in, name it in umap.room_hints" in caplog.text
             # the rival is the answer's spot moved into the other room, and is the contract's alternative
             assert np.hypot(*(rival - est - [6.0 if est[0] < 5.0 else -6.0, 0.0])) <= 0.1, row
             assert np.allclose(alternative, [[round(v, 3) for v in rival]], atol=1e-3)
@@ -159,6 +161,7 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
             assert metrics["doubtful_wrong"] == metrics["doubtful_wrong_rival_right"] == int(est[0] > 5.0)
         else:
             assert np.isnan(alternative).all()
+            assert "umap.room_hints" not in caplog.text
             assert (metrics["doubtful_answers"], metrics["doubtful_wrong"]) == (0, 0)
             assert metrics["within_1m_30deg_or_rival"] == metrics["within_1m_30deg"] == 1.0
 

@@ -223,6 +223,7 @@ class UMapParams(Params):
                                                          "look-alike room elsewhere is no rival, and its margin is "
                                                          "over the room's other places and headings")
     room_hint_margin_m: float = param(0.3, min=0.0, help="umap.room_hints: how far outside its room's outline a photo "
-                                                         "may still stand (a camera in a doorway counts for both "
-                                                         "rooms)")
+                                                         "may still stand: a camera in a doorway counts for both "
+                                                         "rooms (the grid's doorways reach 0.25 m either side of the "
+                                                         "wall line); kept small, as twin rooms share a wall")
     ca: CAParams = section(CAParams)

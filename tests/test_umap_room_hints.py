@@ -135,6 +135,14 @@ def test_twin_rooms_are_told_apart_by_the_room_named(tmp_path, caplog):
         # no twin left to rival it: the rival, if any, is in the room named, and further behind
         assert w["rival_room"] in ("", "room_1 (bedroom)") and e["rival_room"] in ("", "room_2 (bedroom)"), (w, e)
         assert w["margin"] == "" or float(w["margin"]) > float(f["margin"]), (w, f)
+    # with the ceiling and the camera height searched too (each panorama searched whole in its
+    # best layer only): the ceiling and the layers are chosen over the named room, the same answers
+    d = tmp_path / "layers"
+    cfg = _twins_run(d, "frame,room\na.png,room_2 (bedroom)\nb.png,room_2 (bedroom)\n", panorama={"height_layers": 1})
+    cfg["umap"]["grid"].update(ceilings=[2.3, 2.5], heights=[1.3, 1.5])
+    run_stage(cfg, d / "run", "localize", quiet=True)
+    for row in csv.DictReader(open(d / "run" / "estimates.csv")):
+        assert near(row, 3.2) and (row["ceiling_m"], row["height_m"]) == ("2.50", "1.50"), row
     # one photo named, the other left to the whole plan (an empty room)
     mixed, said = answers("mixed", "frame,room\na.png,room_2 (bedroom)\nb.png,\n")
     assert "umap.room_hints: 1 of 2 panoramas searched in the room named for them" in said
@@ -173,3 +181,35 @@ def test_room_hints_are_checked(tmp_path):
     run_stage(cfg, d / "run", "localize", quiet=True)
     assert (d / "run" / "estimates.csv").read_text() != first
     assert {s: (d / "run" / f"{s}.h5").stat().st_mtime_ns for s in before} == before
+
+
+def test_the_grid_tables_that_choose_layers_and_ceilings_count_a_named_photos_room_only():
+    # grid_table_best with each photo's positions kept (region_masks) is its best over those
+    # positions alone: the same number as the table over only those grid rows; a photo with
+    # no region keeps every row; a region that keeps none gives -inf
+    from dataclasses import replace
+
+    from test_umap_panorama import PLAN, H, _render_all
+
+    from placeloc.geometry.floorplan import floor_plan_model, plan_grid
+    from placeloc.umap.panorama import chamfer_spectra, grid_table_best, region_masks, row_weights
+    from placeloc.umap.params import PanoramaParams
+
+    m = floor_plan_model(PLAN)
+    pp = replace(PanoramaParams(), orientation_bins=1)
+    wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+    poses, _ = plan_grid(m, x=[0.2, 6.0, 0.4], y=[0.2, 7.0, 0.4], z=1.4, headings=[0.0])
+    spectra = chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)
+    q = _render_all(m, [[1.3, 1.1, 1.4, 30.0], [2.0, 5.5, 1.4, 100.0], [4.0, 2.0, 1.4, 0.0]])
+    south = RoomRegion([np.array([[0, 0], [6, 0], [6, 4], [0, 4]], float)], margin_m=0.0)   # the L's south arm
+    nowhere = RoomRegion([np.array([[10, 10], [11, 10], [11, 11]], float)], margin_m=0.0)
+    keep = region_masks([south, None, nowhere], poses)
+    assert keep.shape == (3, len(poses)) and keep[1].all() and not keep[2].any()
+    assert 0 < keep[0].sum() < len(poses)
+    assert region_masks(None, poses) is None and region_masks([None, None], poses) is None
+    best = grid_table_best(q, spectra, pp, keep=keep)
+    whole = grid_table_best(q, spectra, pp)
+    alone = grid_table_best(q[:1], spectra[:, keep[0]], pp)
+    assert best[0] == alone[0] and best[1] == whole[1] and best[2] == -np.inf
+    # the second photo stands in the north arm: its best over the south arm alone is lower
+    assert grid_table_best(q[1:2], spectra[:, keep[0]], pp)[0] < whole[1]

@@ -1082,7 +1082,8 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
     if len(bounds) > 1 and 0 < keep < len(bounds) and "spectra" in database:
         # each panorama's best layers by the grid table alone (a fifth of a search's cost):
         # the search off the grid, most of it, runs there only
-        table = np.stack([grid_table_best(lines, layer["spectra"], pp, seen) for layer in layers])
+        table = np.stack([grid_table_best(lines, layer["spectra"], pp, seen, region_masks(inside, poses[lo:hi]))
+                          for layer, (lo, hi) in zip(layers, bounds)])
         searched[:] = False
         searched[np.argsort(-table, axis=0, kind="stable")[:keep], np.arange(n)[None, :]] = True
     found = []
@@ -1119,14 +1120,24 @@ class CeilingChoice(NamedTuple):
         return len(self.means) > 1 and self.layer in (min(self.means), max(self.means))
 
 
+def region_masks(inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None, poses: np.ndarray) -> np.ndarray | None:
+    """(N, P) bool: the grid ``poses`` inside each query's region (``inside``, as
+    :func:`search_panoramas` takes it), or None where no query has one."""
+    if inside is None or all(r is None for r in inside):
+        return None
+    every = np.ones(len(poses), bool)
+    return np.stack([every if r is None else r(poses[:, :2]) for r in inside])
+
+
 def choose_ceiling(lines: np.ndarray, ceiling: np.ndarray, spectra: np.ndarray, pp: Any,
-                   seen: np.ndarray | None = None) -> CeilingChoice:
+                   seen: np.ndarray | None = None, keep: np.ndarray | None = None) -> CeilingChoice:
     """The home's ceiling among the grid's layers of several ceiling heights (``ceiling``:
     each grid position's, as build-dictionary writes them, one ceiling's layers contiguous):
     each panorama's best grid-table score over each ceiling's layers (:func:`grid_table_best`,
     a fifth of a search's cost), averaged over the panoramas; the highest mean wins (the
     lowest ceiling of equal means), and the height is refined by the parabola through it and
-    its two neighbours (:func:`parabola_peak`).
+    its two neighbours (:func:`parabola_peak`). ``keep`` (N, P) bool: each panorama's grid
+    positions that count (its room, ``umap.room_hints``; None: all).
 
     Why one ceiling for the run, and by the grid table: a home's rooms share a ceiling height
     (a plan drawn by hand gives one), and the mean over a run's panoramas is a smooth curve
@@ -1142,7 +1153,7 @@ def choose_ceiling(lines: np.ndarray, ceiling: np.ndarray, spectra: np.ndarray, 
         if hi - lo != len(rows):
             raise ValueError(f"the grid rows of ceiling {c:g} m are not one block: rebuild build-dictionary (--force)")
         # over every position of every camera height under this ceiling: each panorama's best over its layers
-        best = grid_table_best(lines, spectra[:, lo:hi], pp, seen)
+        best = grid_table_best(lines, spectra[:, lo:hi], pp, seen, None if keep is None else keep[:, lo:hi])
         means[float(c)] = float(np.mean(best)) if len(best) else -math.inf
         bounds[float(c)] = (lo, hi)
     chosen = max(means, key=lambda c: (means[c], -c))
@@ -1618,11 +1629,13 @@ def _search_table(spectra: np.ndarray, queries: np.ndarray, weights: np.ndarray,
                          precision_rows=prows, clutter_share=pp.clutter_share, spread=spread, seen=seen)
 
 
-def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None = None) -> np.ndarray:
+def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None = None,
+                    keep: np.ndarray | None = None) -> np.ndarray:
     """(N,) each query's best chamfer score over every grid position and yaw of ``spectra``
     (the search's first step, :func:`chamfer_table`, without the local search): how well a
     layer of the grid at one camera height explains each panorama, to choose the layers
-    worth searching whole (``umap.panorama.height_layers``)."""
+    worth searching whole (``umap.panorama.height_layers``). ``keep`` (N, P) bool: each
+    query's positions that count (its room, ``umap.room_hints``; -inf where none does)."""
     queries, weights, prows, spread = _query_side(lines, pp)
     out = np.full(len(lines), -np.inf)
     with threadpool_limits(limits=usable_cores(), user_api="blas"):
@@ -1630,6 +1643,8 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.nd
             table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp,
                                   None if seen is None else seen[s:s + PANORAMA_BATCH])
             if table.shape[1]:
+                if keep is not None:
+                    table = np.where(keep[s:s + PANORAMA_BATCH, :, None], table, -np.inf)
                 out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
     return out
 

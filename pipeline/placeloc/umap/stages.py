@@ -45,6 +45,7 @@ from placeloc.umap.panorama import (
     PanoramaAnswers,
     chamfer_spectra,
     choose_ceiling,
+    region_masks,
     render_oriented_block,
     render_panorama_block,
     render_panoramas,
@@ -410,16 +411,16 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
     segments, faces = src["segments"][()], src["faces"][()]
     choice, lo = None, 0
     pose_ceiling = src["ceiling_m"][()] if "ceiling_m" in src else None
+    # each panorama's room where umap.room_hints names it: the ceiling, the layers and the search look there only
+    inside = None if ctx.params.room_hints is None else _room_regions(ctx, src, poses)
     if pose_ceiling is not None and len(np.unique(pose_ceiling)) > 1:
         # the home's ceiling by the grid table of every ceiling's layers, then the search
         # off the grid at that ceiling, refined between the layers, alone
-        choice = choose_ceiling(lines, pose_ceiling, database["spectra"], pp, seen)
+        choice = choose_ceiling(lines, pose_ceiling, database["spectra"], pp, seen, region_masks(inside, poses))
         lo, hi = choice.rows
         poses = poses[lo:hi]
         database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
         segments, faces = model_at_ceiling(src, choice.height)
-
-    inside = None if ctx.params.room_hints is None else _room_regions(ctx, src, poses)
     found = search_layers(lines, poses, segments, faces, database, pp,
                           tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
                           hidden=bool(ctx.params.hidden_lines),

@@ -159,11 +159,14 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
             # one of the two is where the camera stood
             assert (metrics["doubtful_answers"], metrics["within_1m_30deg_or_rival"]) == (1, 1.0)
             assert metrics["doubtful_wrong"] == metrics["doubtful_wrong_rival_right"] == int(est[0] > 5.0)
+            # the camera stood in room a: the answer's room is right where the answer is
+            assert (metrics["room_right"], metrics["room_frames"]) == (float(est[0] < 5.0), 1)
         else:
             assert np.isnan(alternative).all()
             assert "umap.room_hints" not in caplog.text
             assert (metrics["doubtful_answers"], metrics["doubtful_wrong"]) == (0, 0)
             assert metrics["within_1m_30deg_or_rival"] == metrics["within_1m_30deg"] == 1.0
+            assert (metrics["room_right"], metrics["room_frames"]) == (1.0, 1)
 
 
 def test_show_of_a_photo_without_truth_draws_its_lines_against_the_map_at_the_answer(tmp_path):

@@ -678,8 +678,10 @@ def _write_result(ctx: Any, names: list[str], x: np.ndarray, y: np.ndarray, head
 
 def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
     """UMap's own figures: the mode in metrics.json, for panoramas with true headings how
-    often a doubtful answer's rival is where the camera stood (:func:`rival_metrics`), and
-    each panorama's lines against the map rendered at the estimate and at the truth."""
+    often a doubtful answer's rival is where the camera stood (:func:`rival_metrics`), on a
+    plan of rooms the share of answers in the camera's room (``room_right``, over the
+    ``room_frames`` whose true position lies in a named room), and each panorama's lines
+    against the map rendered at the estimate and at the truth."""
     loc = ctx.artifact("localize")
     ev.metrics["mode"] = str(loc.attrs["mode"])
     ev.label = ev.metrics["mode"]
@@ -689,6 +691,12 @@ def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
         # in the headline beside the share it qualifies: what checking both places of the doubtful answers finds
         head = ev.metrics["headline"]
         head.insert(head.index("within_1m_30deg") + 1 if "within_1m_30deg" in head else 0, "within_1m_30deg_or_rival")
+    # a plan of rooms: how often the answer's room is the camera's (what a person asks first)
+    room_est, room_truth = _rooms(ctx.artifact("build-dictionary"), ev.est, ev.truth)
+    named = np.array([bool(r) for r in room_truth])
+    if named.any():
+        ev.metrics["room_right"] = float(np.mean([e == t for e, t, k in zip(room_est, room_truth, named) if k]))
+        ev.metrics["room_frames"] = int(named.sum())
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
         _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)

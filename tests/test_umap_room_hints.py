@@ -213,3 +213,25 @@ def test_the_grid_tables_that_choose_layers_and_ceilings_count_a_named_photos_ro
     assert best[0] == alone[0] and best[1] == whole[1] and best[2] == -np.inf
     # the second photo stands in the north arm: its best over the south arm alone is lower
     assert grid_table_best(q[1:2], spectra[:, keep[0]], pp)[0] < whole[1]
+
+
+def test_a_photo_named_for_the_wrong_room_is_flagged(tmp_path, caplog):
+    # b.png stands in the middle of the west twin's south half; named "closet" (the small room
+    # north of the west twin), its answer in or by the closet scores far below its true place:
+    # warned, naming the room where the better place lies, its gap in localize.h5. a.png, named
+    # right, is not (its answer, refined in its room, beats every grid place outside it)
+    import h5py
+
+    from placeloc.core.runner import run_stage
+
+    d = tmp_path / "w"
+    cfg = _twins_run(d, "frame,room\na.png,room_1 (bedroom)\nb.png,closet\n")
+    with caplog.at_level(logging.WARNING, logger="placeloc"):
+        run_stage(cfg, d / "run", "localize", quiet=True)
+    with h5py.File(d / "run" / "localize.h5", "r") as f:
+        gap = f["room_hint_gap"][()]
+    assert gap[0] < 0.0 and gap[1] > 0.3, gap
+    said = [r.getMessage() for r in caplog.records if "umap.room_hint_check" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("1 of 2 photos named for a room score far better elsewhere"), said
+    assert "b.png named 'closet' scores 0.4" in said[0] and "in 'room_1 (bedroom)'" in said[0], said
+    assert "a.png" not in said[0]

@@ -1636,17 +1636,43 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.nd
     layer of the grid at one camera height explains each panorama, to choose the layers
     worth searching whole (``umap.panorama.height_layers``). ``keep`` (N, P) bool: each
     query's positions that count (its room, ``umap.room_hints``; -inf where none does)."""
-    queries, weights, prows, spread = _query_side(lines, pp)
     out = np.full(len(lines), -np.inf)
+    for s, table in _grid_tables(lines, spectra, pp, seen):
+        if keep is not None:
+            table = np.where(keep[s:s + len(table), :, None], table, -np.inf)
+        out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
+    return out
+
+
+def _grid_tables(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None) -> Iterator[tuple[int, np.ndarray]]:
+    """(first query, its batch's (n, P, W) grid table) for the queries ``lines``, a batch at a
+    time (:func:`_search_table`), BLAS on every usable core; none where the grid is empty."""
+    queries, weights, prows, spread = _query_side(lines, pp)
     with threadpool_limits(limits=usable_cores(), user_api="blas"):
         for s in range(0, len(lines), PANORAMA_BATCH):
             table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp,
                                   None if seen is None else seen[s:s + PANORAMA_BATCH])
             if table.shape[1]:
-                if keep is not None:
-                    table = np.where(keep[s:s + PANORAMA_BATCH, :, None], table, -np.inf)
-                out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
-    return out
+                yield s, table
+
+
+def region_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, keep: np.ndarray,
+                seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each query's best grid-table score (every yaw) inside its kept positions (``keep``
+    (N, P) bool: its room, ``umap.room_hints``), the best outside them (-inf: none) and the
+    grid row of that one (-1: none): whether the place a photo's room name keeps out of the
+    search would have won it by far (a wrong name)."""
+    n = len(lines)
+    inside, outside, row = np.full(n, -np.inf), np.full(n, -np.inf), np.full(n, -1, np.int64)
+    for s, table in _grid_tables(lines, spectra, pp, seen):
+        per = table.max(axis=2)                                  # (n, P): each position at its best yaw
+        k = keep[s:s + len(per)]
+        into = np.where(k, per, -np.inf)
+        away = np.where(k, -np.inf, per)
+        inside[s:s + len(per)] = into.max(axis=1)
+        outside[s:s + len(per)] = away.max(axis=1)
+        row[s:s + len(per)] = np.where(np.isfinite(away.max(axis=1)), away.argmax(axis=1), -1)
+    return inside, outside, row
 
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,

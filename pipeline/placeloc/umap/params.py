@@ -226,4 +226,9 @@ class UMapParams(Params):
                                                          "may still stand: a camera in a doorway counts for both "
                                                          "rooms (the grid's doorways reach 0.25 m either side of the "
                                                          "wall line); kept small, as twin rooms share a wall")
+    room_hint_check: float = param(0.02, min=0.0, help="umap.room_hints: warn where the best grid place outside a "
+                                                       "photo's named room scores more than this above its answer "
+                                                       "inside it: the name may be wrong (0.02, as "
+                                                       "panorama.doubtful_margin: an outside place that far ahead is "
+                                                       "no near tie; docs/umap.md)")
     ca: CAParams = section(CAParams)

@@ -45,6 +45,7 @@ from placeloc.umap.panorama import (
     PanoramaAnswers,
     chamfer_spectra,
     choose_ceiling,
+    region_best,
     region_masks,
     render_oriented_block,
     render_panorama_block,
@@ -426,7 +427,38 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
                           hidden=bool(ctx.params.hidden_lines),
                           progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
                           inside=inside)
+    if inside is not None and "spectra" in database:
+        _check_room_hints(ctx, src, lines, poses, database["spectra"], inside, seen, found.score)
     return found._replace(best=found.best + lo), choice
+
+
+def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, spectra: np.ndarray,
+                      inside: list[RoomRegion | None], seen: np.ndarray | None, score: np.ndarray) -> None:
+    """Warn about each named photo whose best grid place outside its named room scores more
+    than ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
+    likely), naming the room that place lies in; the gap of each named photo goes into
+    localize.h5 (``room_hint_gap``, NaN where none was named). Why the answer and not the
+    room's best grid place: the answer is refined off the grid, so a right name is not flagged
+    for where the grid happens to fall in its room."""
+    named = np.array([r is not None for r in inside])
+    gap = np.full(len(inside), np.nan)
+    ks = np.flatnonzero(named)
+    keep = region_masks([inside[k] for k in ks], poses)
+    _, best_out, row = region_best(lines[ks], spectra, ctx.params.panorama, keep, None if seen is None else seen[ks])
+    with np.errstate(invalid="ignore"):
+        gap[ks] = best_out - score[ks]
+    ctx.out.create_dataset("room_hint_gap", data=gap)
+    names = read_strings(ctx.artifact("extract")["names"])
+    hints, _ = read_room_hints(ctx.params.room_hints, names, read_strings(src["room_names"]))
+    limit = float(ctx.params.room_hint_check)
+    flagged = [(k, j) for j, k in enumerate(ks) if gap[k] > limit]
+    if flagged:
+        where = _rooms(src, poses[[row[j] for _, j in flagged], :2])[0]
+        log.warning("%d of %d photos named for a room score far better elsewhere (by more than umap.room_hint_check "
+                    "%g): check the room named in %s: %s", len(flagged), len(ks), limit, ctx.params.room_hints,
+                    "; ".join(f"{names[k]} named {hints[k]!r} scores {score[k]:.3f} there and {best_out[j]:.3f} in "
+                              f"{where[i] or 'no room'!r}" for i, (k, j) in enumerate(flagged[:10]))
+                    + ("; ..." if len(flagged) > 10 else ""))
 
 
 def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> list[RoomRegion | None]:
@@ -868,7 +900,8 @@ METHOD = Method(
         "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight", "panorama.solid_angle", "panorama.chamfer_chance",
                                     "panorama.clutter_share", "panorama.orientation_bins", "panorama.orientation_spread")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "panorama.score",
+        "localize": Stage(localize, keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "room_hint_check",
+                                          "panorama.score",
                                           "panorama.chamfer_tau_px", "panorama.chamfer_chance",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",

@@ -604,6 +604,8 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
     if doubtful.any():
         def either(k: int) -> str:   # "pano_013.png (bedroom1, or bedroom2)" where the plan names its rooms
             places = [r for r in (room[k], rival_room[k]) if r]
+            if len(places) == 2 and places[0] == places[1]:
+                return f"{names[k]} (both in {places[0]})"
             return names[k] + (f" ({places[0]}, or {places[1]})" if len(places) == 2 else "")
 
         log.warning("%d of %d answers are doubtful (margin below umap.panorama.doubtful_margin %g: another place or "

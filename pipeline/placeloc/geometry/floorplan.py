@@ -79,7 +79,9 @@ class Model:
     source: str = ""
     rooms: bool = False             # polygons are rooms (inside = in any) rather than outline + obstacles
     camera_z: float | None = None   # the camera height the plan was drawn for (importer, generator), if known
-    gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (G, 4) door/opening ends x0 y0 x1 y1
+    # (G, 4) door/opening ends x0 y0 x1 y1; an outline plan's doors too, which the plan pictures
+    # draw as gaps but which are not cut out of its walls
+    gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     internal: list[np.ndarray] = field(default_factory=list)            # wall blocks inside rooms (ZInD "internal")
     room_names: list[str] = field(default_factory=list)                 # a multi-room plan's, one per polygon
 
@@ -271,6 +273,7 @@ def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
             segs.append([a[0], a[1], zc, b[0], b[1], zc])
             segs.append([a[0], a[1], zf, a[0], a[1], zc])
             faces.append([a[0], a[1], b[0], b[1], zf, zc])
+    doors: list[list[float]] = []
     for i, door in enumerate(plan.get("doors") or []):
         try:
             p, q = np.asarray(door["from"], float), np.asarray(door["to"], float)
@@ -280,8 +283,12 @@ def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
         segs.append([p[0], p[1], zf, p[0], p[1], zf + h])
         segs.append([q[0], q[1], zf, q[0], q[1], zf + h])
         segs.append([p[0], p[1], zf + h, q[0], q[1], zf + h])
+        doors.append([p[0], p[1], q[0], q[1]])
     camera_z = _num(plan, "camera_z", None, source, "the plan") if plan.get("camera_z") is not None else None
-    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source, camera_z=camera_z)
+    # the doors' ends, for the plan pictures to draw as gaps in the outline (the wall face
+    # stays: an outline's door is a frame on its wall, so free space and renders ignore them)
+    return Model(np.asarray(segs, float), np.asarray(faces, float), polygons=polys, source=source, camera_z=camera_z,
+                 gaps=np.asarray(doors, float).reshape(-1, 4))
 
 
 def _num(d: dict[str, Any], key: str, default: float | None, source: str, what: str) -> float:

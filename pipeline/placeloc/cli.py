@@ -527,10 +527,12 @@ def synth(kind: str = typer.Argument(..., help="Data set kind: route (SeqSLAM ro
 @app.command(name="import")
 def import_(kind: str = typer.Argument(..., help="Format: zind (a Zillow Indoor Dataset tour's zind_data.json)."),
             source: Path = typer.Argument(..., help="The file to import, e.g. zind_data.json."),
-            out: Path = typer.Argument(..., help="Output folder: floor_plan.yaml and poses.csv (one folder per floor "
-                                                "when the tour has several and --floor is not given)."),
+            out: Path = typer.Argument(..., help="Output folder: floor_plan.yaml, poses.csv and rooms.csv (each "
+                                                "panorama's room, a umap.room_hints file; one folder per floor when "
+                                                "the tour has several and --floor is not given)."),
             floor: str | None = typer.Option(None, help="The floor to import, e.g. floor_01 (default: every floor).")) -> None:
-    """Import a home's floor plan and panorama poses for UMap (umap.model, ground_truth.path)."""
+    """Import a home's floor plan and panorama poses for UMap (umap.model, ground_truth.path,
+    umap.room_hints)."""
     from placeloc.geometry.floorplan import ModelError
     from placeloc.geometry.zind import import_zind
 

@@ -93,6 +93,9 @@ def test_the_quick_homes_experiment_explains_its_wrong_answers_and_drops_its_ind
         assert "Wrong test answers at grid origin 0: none." in table
     assert list(tmp_path.glob("*/index.h5")) == []
     assert len(list(tmp_path.glob("*/localize.h5"))) == 5
+    # the test homes' table says how often the answer is in the camera's room (worst / median over the runs)
+    rooms = sorted(summary[f"home{s}-origin0-panorama-chamfer"]["room_right"] for s in (20, 21))
+    assert f"| {rooms[0]:.0%} / {np.median(rooms):.0%} |" in table
     # the test homes again with each photo's room named: a line of the table, and the map
     # linked from the plain run's folder, not drawn again
     assert "With each test photo's room named (umap.room_hints, the room at its true position): within 1 m" in table

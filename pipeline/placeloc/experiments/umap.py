@@ -114,10 +114,12 @@ def home_runs(out_dir: Path, seeds: tuple[int, ...], panoramas: int, quiet: bool
 
 def home_table(runs: dict[str, dict[str, Any]]) -> list[str]:
     """Per score: worst, median and best over the homes of the share of panoramas within 1 m
-    and 30 degrees (the headline), within 1 m, the median errors, and the homes' line
-    statistics beside the real home's."""
+    and 30 degrees (the headline), within 1 m, the share answered in the camera's room
+    (``room_right``), the median errors, and the homes' line statistics beside the real
+    home's."""
     lines = ["| score | homes | within 1 m and 30 deg: worst / median / best | within 1 m, median | within 2 m, median | "
-             "median error [m] | median yaw error [deg] |", "|---|---|---|---|---|---|---|"]
+             "in the camera's room: worst / median | median error [m] | median yaw error [deg] |",
+             "|---|---|---|---|---|---|---|---|"]
     for score in HOME_SCORES:
         ms = [m for k, m in runs.items() if k.endswith(f"-panorama-{score}")]
         if not ms:
@@ -127,8 +129,11 @@ def home_table(runs: dict[str, dict[str, Any]]) -> list[str]:
             return np.array([m[key] for m in ms])
 
         head = col("within_1m_30deg")
+        # room_right: runs from before it (and plans without rooms) have none
+        rooms = np.array([m["room_right"] for m in ms if m.get("room_right") is not None])
+        room = f"{rooms.min():.0%} / {np.median(rooms):.0%}" if len(rooms) else "-"
         lines.append(f"| {score} | {len(ms)} | {head.min():.0%} / {np.median(head):.0%} / {head.max():.0%} | "
-                     f"{np.median(col('within_1m')):.0%} | {np.median(col('within_2m')):.0%} | "
+                     f"{np.median(col('within_1m')):.0%} | {np.median(col('within_2m')):.0%} | {room} | "
                      f"{np.median(col('median_error_m')):.2f} | {np.median(col('median_yaw_error_deg')):.1f} |")
     kept = {score: [m["kept_at_100_precision"] for k, m in runs.items()
                     if k.endswith(f"-panorama-{score}") and m.get("kept_at_100_precision") is not None]

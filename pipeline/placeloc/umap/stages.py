@@ -413,7 +413,7 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
     choice, lo = None, 0
     pose_ceiling = src["ceiling_m"][()] if "ceiling_m" in src else None
     # each panorama's room where umap.room_hints names it: the ceiling, the layers and the search look there only
-    inside = None if ctx.params.room_hints is None else _room_regions(ctx, src, poses)
+    inside, hints = _room_regions(ctx, src, poses) if ctx.params.room_hints is not None else (None, [])
     if pose_ceiling is not None and len(np.unique(pose_ceiling)) > 1:
         # the home's ceiling by the grid table of every ceiling's layers, then the search
         # off the grid at that ceiling, refined between the layers, alone
@@ -428,12 +428,13 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
                           progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
                           inside=inside)
     if inside is not None and "spectra" in database:
-        _check_room_hints(ctx, src, lines, poses, database["spectra"], inside, seen, found.score)
+        _check_room_hints(ctx, src, lines, poses, database["spectra"], inside, hints, seen, found.score)
     return found._replace(best=found.best + lo), choice
 
 
 def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, spectra: np.ndarray,
-                      inside: list[RoomRegion | None], seen: np.ndarray | None, score: np.ndarray) -> None:
+                      inside: list[RoomRegion | None], hints: list[str | None], seen: np.ndarray | None,
+                      score: np.ndarray) -> None:
     """Warn about each named photo whose best grid place outside its named room scores more
     than ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
     likely), naming the room that place lies in; the gap of each named photo goes into
@@ -449,7 +450,6 @@ def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, 
         gap[ks] = best_out - score[ks]
     ctx.out.create_dataset("room_hint_gap", data=gap)
     names = read_strings(ctx.artifact("extract")["names"])
-    hints, _ = read_room_hints(ctx.params.room_hints, names, read_strings(src["room_names"]))
     limit = float(ctx.params.room_hint_check)
     flagged = [(k, j) for j, k in enumerate(ks) if gap[k] > limit]
     if flagged:
@@ -461,10 +461,11 @@ def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, 
                     + ("; ..." if len(flagged) > 10 else ""))
 
 
-def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> list[RoomRegion | None]:
+def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> tuple[list[RoomRegion | None], list[str | None]]:
     """Each query panorama's region where ``umap.room_hints`` names its room (None where it
-    names none): the rooms of that name and ``room_hint_margin_m`` around them. A room the
-    grid ``poses`` lay no position in is an error naming it and the fix."""
+    names none): the rooms of that name and ``room_hint_margin_m`` around them; and each one's
+    name as given. A room the grid ``poses`` lay no position in is an error naming it and the
+    fix."""
     names = read_strings(ctx.artifact("extract")["names"])
     room_names = read_strings(src["room_names"]) if "room_names" in src and "plan" in src else []
     hints, stray = read_room_hints(ctx.params.room_hints, names, room_names)
@@ -481,7 +482,7 @@ def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> list[RoomRegion | No
                                           "step_m or a smaller wall_margin_m"))
     log.info("umap.room_hints: %d of %d panoramas searched in the room named for them",
              sum(h is not None for h in hints), len(names))
-    return [None if h is None else regions[h] for h in hints]
+    return [None if h is None else regions[h] for h in hints], hints
 
 
 def model_at_ceiling(plan: Any, ceiling: float) -> tuple[np.ndarray, np.ndarray]:

@@ -584,6 +584,9 @@ def localize(ctx: Any) -> None:
 CEILING_PANORAMAS = 10
 
 
+_ADVISED: list[bool] = []   # the room_hints advice given in this process (said once)
+
+
 def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
                               tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None) -> None:
     n = len(names)
@@ -613,9 +616,11 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                     "heading scores nearly as well; estimates.csv gives each one's rival as rival_x, rival_y, "
                     "rival_heading_deg and rival_room): %s", int(doubtful.sum()), n, ctx.params.panorama.doubtful_margin,
                     ", ".join(either(k) for k in np.flatnonzero(doubtful)[:10]) + (", ..." if doubtful.sum() > 10 else ""))
-        if ctx.params.room_hints is None and any(room[k] and rival_room[k] and room[k] != rival_room[k]
-                                                 for k in np.flatnonzero(doubtful)):
-            # the one thing the photos' taker knows that lines cannot tell: which room
+        if ctx.params.room_hints is None and not _ADVISED and any(room[k] and rival_room[k] and room[k] != rival_room[k]
+                                                                  for k in np.flatnonzero(doubtful)):
+            # the one thing the photos' taker knows that lines cannot tell: which room (said once
+            # a process: an experiment's hundred runs need it once)
+            _ADVISED.append(True)
             log.warning("where a doubtful photo's two places lie in different rooms and you know the room it was taken "
                         "in, name it in umap.room_hints (a CSV frame, room): it is then searched in that room only "
                         "(docs/umap.md, \"The room each photo was taken in\")")

@@ -113,7 +113,7 @@ def _photo_config(d, plan: dict, truth: tuple, photo: str, with_truth: bool):
     return load_config(data=data, base_dir=d)
 
 
-def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog):
+def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog, monkeypatch):
     # Through the pipeline: a panorama taken in one of two identical rooms is marked doubtful
     # in estimates.csv and named in the log, its rival is the same spot in the other room
     # (estimates.csv, and the poses contract's alternative), and evaluate counts the answer
@@ -124,7 +124,9 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
 
     from placeloc.core.runner import run_stage
     from placeloc.evaluation.contracts import read_result
+    from placeloc.umap import stages
 
+    monkeypatch.setattr(stages, "_ADVISED", [])   # the room_hints advice is said once a process
     truth = (1.37, 1.12, 1.4, 40.0)
     for name, plan in (("twins", TWINS), ("odd", ODD)):
         d = tmp_path / name
@@ -151,8 +153,9 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog)
             # the answer and its rival are in the two rooms, named as the plan names them
             assert {row["room"], row["rival_room"]} == {"a", "b"}, row
             assert f"p0.png ({row['room']}, or {row['rival_room']})" in caplog.text
-            # the two places in two rooms: the log says how to settle it
+            # the two places in two rooms: the log says how to settle it, once a process
             assert "you know the room it was taken in, name it in umap.room_hints" in caplog.text
+            assert stages._ADVISED == [True]
             # the rival is the answer's spot moved into the other room, and is the contract's alternative
             assert np.hypot(*(rival - est - [6.0 if est[0] < 5.0 else -6.0, 0.0])) <= 0.1, row
             assert np.allclose(alternative, [[round(v, 3) for v in rival]], atol=1e-3)

@@ -51,6 +51,11 @@ def test_the_hint_file_is_read_and_checked(tmp_path):
     f.write_text("\ufeffframe, room\na.png,bedroom\nb.png,\nc.png,closet\nz.png,closet\n")
     hints, stray = read_room_hints(f, ["a.png", "b.png", "c.png", "d.png"], NAMES)
     assert hints == ["bedroom", None, "closet", None] and stray == ["z.png"]
+    # a frame given with its folder names the query frame of its file name (frames are file
+    # names); one given both ways keeps the plain name's row
+    f.write_text("frame,room\nphotos/a.png,closet\n./b.png,bedroom\nc.png,closet\nold/c.png,bedroom\n")
+    hints, stray = read_room_hints(f, ["a.png", "b.png", "c.png"], NAMES)
+    assert hints == ["closet", "bedroom", "closet"] and stray == ["old/c.png"]
     for text, match in (("frame,where\na.png,closet\n", r"rooms.csv: umap.room_hints needs a CSV with the columns frame, room"),
                         ("frame,room\na.png,kitchen\n", r"rooms.csv:2: 'kitchen' names none of the plan's rooms "
                                                         r"\(room_1 \(bedroom\), room_2 \(bedroom\), closet\)"),

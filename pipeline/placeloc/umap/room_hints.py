@@ -65,7 +65,8 @@ def read_room_hints(path: str | Path, frames: Sequence[str], room_names: Sequenc
     """Each query frame's room hint from a CSV with the columns ``frame`` and ``room`` (None
     where the frame has no row, or an empty room), and the CSV's frames that are not query
     frames (for the caller to warn about). A room must name at least one of the plan's rooms
-    (:func:`matching_rooms`). Errors name the file, the line and the fix."""
+    (:func:`matching_rooms`). A frame given with a folder (``photos/IMG_1.jpg``) names the query
+    frame of its file name. Errors name the file, the line and the fix."""
     path = Path(path)
     if not room_names:
         raise ConfigError(f"umap.room_hints {path}: the model names no rooms (only a floor plan of rooms does, or a "
@@ -93,6 +94,10 @@ def read_room_hints(path: str | Path, frames: Sequence[str], room_names: Sequenc
                 raise ConfigError(f"{path}:{line}: {room!r} names none of the plan's rooms ({known}); give one of "
                                   "them, or a label in parentheses (kitchen for 'complete_room_3 (kitchen)')")
             hints[frame] = room
+    # a frame given with its folder (photos/IMG_1.jpg) names the query image of that file name:
+    # query frames are named by file name alone
     wanted = set(frames)
+    for k in [k for k in hints if k not in wanted and Path(k).name in wanted and Path(k).name not in hints]:
+        hints[Path(k).name] = hints.pop(k)
     stray = [k for k in hints if k not in wanted]
     return [hints.get(k) or None for k in frames], stray

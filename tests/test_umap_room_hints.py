@@ -129,6 +129,7 @@ def test_twin_rooms_are_told_apart_by_the_room_named(tmp_path, caplog):
         return np.hypot(float(row["rival_x"]) - x - dx, float(row["rival_y"]) - y) <= 0.1
 
     free, _ = answers("free", None)
+    assert "room_named" not in free[0] and "room_hint_gap" not in free[0]   # no names, no columns
     for row in free:   # the west spot, its rival the east twin's (unrefined, so a few hundredths lower)
         assert near(row) and rival_near(row, 3.2) and row["rival_room"] == "room_2 (bedroom)", row
     west, said = answers("west", "frame,room\na.png,room_1 (bedroom)\nb.png,Room_1 (Bedroom)\n")
@@ -240,3 +241,7 @@ def test_a_photo_named_for_the_wrong_room_is_flagged(tmp_path, caplog):
     assert len(said) == 1 and said[0].startswith("1 of 2 photos named for a room score far better elsewhere"), said
     assert "b.png named 'closet' scores 0.4" in said[0] and "in 'room_1 (bedroom)'" in said[0], said
     assert "a.png" not in said[0]
+    # estimates.csv: each photo's room as named and its gap, beside its answer
+    rows = list(csv.DictReader(open(d / "run" / "estimates.csv")))
+    assert [r["room_named"] for r in rows] == ["room_1 (bedroom)", "closet"]
+    assert [float(r["room_hint_gap"]) for r in rows] == pytest.approx(gap, abs=1e-4)

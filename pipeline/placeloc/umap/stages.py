@@ -438,7 +438,8 @@ def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, 
     """Warn about each named photo whose best grid place outside its named room scores more
     than ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
     likely), naming the room that place lies in; the gap of each named photo goes into
-    localize.h5 (``room_hint_gap``, NaN where none was named). Why the answer and not the
+    localize.h5 (``room_hint_gap``, NaN where none was named; ``room_named``, each photo's name
+    as given) and estimates.csv (``room_named``, ``room_hint_gap``). Why the answer and not the
     room's best grid place: the answer is refined off the grid, so a right name is not flagged
     for where the grid happens to fall in its room."""
     named = np.array([r is not None for r in inside])
@@ -449,6 +450,7 @@ def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, 
     with np.errstate(invalid="ignore"):
         gap[ks] = best_out - score[ks]
     ctx.out.create_dataset("room_hint_gap", data=gap)
+    write_tree(ctx.out, {"room_named": [h or "" for h in hints]})
     names = read_strings(ctx.artifact("extract")["names"])
     limit = float(ctx.params.room_hint_check)
     flagged = [(k, j) for j, k in enumerate(ks) if gap[k] > limit]
@@ -655,12 +657,16 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
         ctx.out.create_dataset("tilt_deg", data=np.asarray(tilt, np.float64))
         log.info("panoramas levelled (umap.panorama.level_max_deg): %d of %d turned upright, by %.1f deg at the median "
                  "and %.1f at most", int(np.sum(tilt > 0)), n, float(np.median(tilt[tilt > 0])), float(np.max(tilt)))
+    # each photo's room as named (umap.room_hints) and how far a place outside it scored above
+    # the answer (room_hint_gap; above umap.room_hint_check the name was warned about)
+    gap = ctx.out["room_hint_gap"][()] if "room_hint_gap" in ctx.out else None
+    named = read_strings(ctx.out["room_named"]) if gap is not None else [""] * n
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []),
                     *(["ceiling_m"] if ceilings else []), *(["tilt_deg"] if levelled else []),
                     "score", "rival_score", "margin", "doubtful", "rival_x", "rival_y", "rival_heading_deg", "room",
-                    "rival_room"])
+                    "rival_room", *(["room_named", "room_hint_gap"] if gap is not None else [])])
         for k in range(n):
             w.writerow([names[k], f"{est[k, 0]:.3f}", f"{est[k, 1]:.3f}", f"{heading[k]:.1f}",
                         *([f"{est[k, 2]:.2f}"] if heights else []), *([f"{found_ceiling[k]:.2f}"] if ceilings else []),
@@ -668,7 +674,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                         f"{score[k]:.5f}",
                         _csv_number(rival[k]), _csv_number(margin[k]), "true" if doubtful[k] else "false",
                         _csv_number(rival_xy[k, 0], 3), _csv_number(rival_xy[k, 1], 3), _csv_number(rival_heading[k], 1),
-                        room[k], rival_room[k]])
+                        room[k], rival_room[k], *([named[k], _csv_number(gap[k], 4)] if gap is not None else [])])
 
 
 def _rooms(src: Any, *points: np.ndarray) -> list[list[str]]:

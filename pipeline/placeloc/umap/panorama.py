@@ -1063,14 +1063,16 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
                   database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                   progress: Callable[[Iterable, str, int], Iterable] = lambda it, desc, total: it,
                   seen: np.ndarray | None = None,
-                  inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None) -> PanoramaAnswers:
+                  inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None,
+                  outside: np.ndarray | None = None) -> PanoramaAnswers:
     """:func:`search_panoramas` over a grid of one or more layers, one per camera height
     (``umap.grid.heights``; ``poses`` holds them one after another, as build-dictionary
     writes them): each layer searched alone over its own rows of ``database``, each
     panorama's answer the best over them (:func:`best_over_heights`). With
     ``pp.height_layers`` k, each panorama is searched whole only in the k layers whose grid
     table scores it best (:func:`grid_table_best`, chamfer only). ``progress(iterable, what,
-    total)`` wraps each layer's loop over its panoramas. ``seen`` and ``inside``: as
+    total)`` wraps each layer's loop over its panoramas. ``seen``, ``inside`` and ``outside``
+    (here the best over the layers searched, its row counted over every layer): as
     :func:`search_panoramas`'."""
     starts = np.flatnonzero(np.r_[True, np.diff(poses[:, 2]) != 0]) if len(poses) else np.zeros(1, np.int64)
     bounds = list(zip(starts.tolist(), [*starts[1:].tolist(), len(poses)]))
@@ -1093,11 +1095,15 @@ def search_layers(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, fa
             found.append(unsearched(n))
             continue
         what = "panorama search" + (f" at {poses[lo, 2]:.2f} m" if len(bounds) > 1 else "")
+        away = None if outside is None else np.tile([-np.inf, -1.0], (len(ks), 1))
         answers = search_panoramas(lines[ks] if len(ks) < n else lines, poses[lo:hi], segments, faces, layer, pp,
                                    tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden,
                                    progress=lambda it, what=what, m=len(ks): progress(it, what, m),
                                    seen=None if seen is None else seen[ks],
-                                   inside=None if inside is None else [inside[k] for k in ks])
+                                   inside=None if inside is None else [inside[k] for k in ks], outside=away)
+        if away is not None:   # the best outside over the layers, its row among all of them
+            better = away[:, 0] > outside[ks, 0]
+            outside[ks[better]] = np.column_stack([away[better, 0], away[better, 1] + lo])
         found.append(answers if len(ks) == n else scatter_answers(unsearched(n), ks, answers))
     if len(found) == 1:
         return found[0]
@@ -1656,30 +1662,12 @@ def _grid_tables(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarr
                 yield s, table
 
 
-def region_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, keep: np.ndarray,
-                seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each query's best grid-table score (every yaw) inside its kept positions (``keep``
-    (N, P) bool: its room, ``umap.room_hints``), the best outside them (-inf: none) and the
-    grid row of that one (-1: none): whether the place a photo's room name keeps out of the
-    search would have won it by far (a wrong name)."""
-    n = len(lines)
-    inside, outside, row = np.full(n, -np.inf), np.full(n, -np.inf), np.full(n, -1, np.int64)
-    for s, table in _grid_tables(lines, spectra, pp, seen):
-        per = table.max(axis=2)                                  # (n, P): each position at its best yaw
-        k = keep[s:s + len(per)]
-        into = np.where(k, per, -np.inf)
-        away = np.where(k, -np.inf, per)
-        inside[s:s + len(per)] = into.max(axis=1)
-        outside[s:s + len(per)] = away.max(axis=1)
-        row[s:s + len(per)] = np.where(np.isfinite(away.max(axis=1)), away.argmax(axis=1), -1)
-    return inside, outside, row
-
-
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
                      database: dict[str, np.ndarray], pp: Any, *, tolerance_px: int, wall_margin_m: float, hidden: bool,
                      progress: Callable[[Iterable], Iterable] = lambda it: it,
                      seen: np.ndarray | None = None,
-                     inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None) -> PanoramaAnswers:
+                     inside: Sequence[Callable[[np.ndarray], np.ndarray] | None] | None = None,
+                     outside: np.ndarray | None = None) -> PanoramaAnswers:
     """Best (grid row, plan position, heading in degrees, score) of each (N, H, W) query line
     image, and the best score of a rival answer (:func:`rival_pose`, ``pp.margin_distance_m``
     and ``pp.margin_yaw_deg``; every pose the search scored competes): every grid position
@@ -1734,6 +1722,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     ``inside`` (``umap.room_hints``): each query's region, plan points (P, 2) -> (P,) bool, or
     None (anywhere): its grid table keeps the positions inside only (the rest score -inf, so
     they are never a candidate, an answer or a rival), and its local search stays inside.
+    ``outside`` (N, 2), where given, receives each such query's best grid-table score outside
+    its region and that position's grid row (-inf and -1 where none): whether the place the
+    region kept out would have won by far (a wrong room named).
 
     After each batch's tables, its queries are searched side by side, one a thread
     (:func:`panorama_threads`), each to the same answer as alone."""
@@ -1889,6 +1880,10 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         Reads nothing another query writes, so queries may run on threads of their own."""
         if inside is not None and inside[k] is not None:   # the grid positions outside its region never compete
             keep = inside[k](poses[:, :2])[:, None]
+            if outside is not None:
+                away = np.where(keep[:, 0], -np.inf, table.max(axis=1))
+                if len(away) and np.isfinite(away.max()):
+                    outside[k] = away.max(), float(np.argmax(away))
             table = np.where(keep, table, -np.inf)
             tolerant = None if tolerant is None else np.where(keep, tolerant, -np.inf)
         best[k], shift, score[k] = best_pose(table)

@@ -45,7 +45,6 @@ from placeloc.umap.panorama import (
     PanoramaAnswers,
     chamfer_spectra,
     choose_ceiling,
-    region_best,
     region_masks,
     render_oriented_block,
     render_panorama_block,
@@ -422,33 +421,31 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
         poses = poses[lo:hi]
         database = {k: v[:, lo:hi] if k == "spectra" else v[lo:hi] for k, v in database.items()}
         segments, faces = model_at_ceiling(src, choice.height)
+    outside = None if inside is None else np.tile([-np.inf, -1.0], (len(lines), 1))
     found = search_layers(lines, poses, segments, faces, database, pp,
                           tolerance_px=int(ctx.params.tolerance_px), wall_margin_m=float(ctx.params.grid.wall_margin_m),
                           hidden=bool(ctx.params.hidden_lines),
                           progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
-                          inside=inside)
-    if inside is not None and "spectra" in database:
-        _check_room_hints(ctx, src, lines, poses, database["spectra"], inside, hints, seen, found.score)
+                          inside=inside, outside=outside)
+    if inside is not None:
+        _check_room_hints(ctx, src, poses, inside, hints, outside, found.score)
     return found._replace(best=found.best + lo), choice
 
 
-def _check_room_hints(ctx: Any, src: Any, lines: np.ndarray, poses: np.ndarray, spectra: np.ndarray,
-                      inside: list[RoomRegion | None], hints: list[str | None], seen: np.ndarray | None,
-                      score: np.ndarray) -> None:
-    """Warn about each named photo whose best grid place outside its named room scores more
-    than ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
+def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRegion | None], hints: list[str | None],
+                      outside: np.ndarray, score: np.ndarray) -> None:
+    """Warn about each named photo whose best grid place outside its named room (``outside``:
+    its score and grid row, as the search found them) scores more than
+    ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
     likely), naming the room that place lies in; the gap of each named photo goes into
     localize.h5 (``room_hint_gap``, NaN where none was named; ``room_named``, each photo's name
     as given) and estimates.csv (``room_named``, ``room_hint_gap``). Why the answer and not the
     room's best grid place: the answer is refined off the grid, so a right name is not flagged
     for where the grid happens to fall in its room."""
-    named = np.array([r is not None for r in inside])
+    ks = np.flatnonzero([r is not None for r in inside])
     gap = np.full(len(inside), np.nan)
-    ks = np.flatnonzero(named)
-    keep = region_masks([inside[k] for k in ks], poses)
-    _, best_out, row = region_best(lines[ks], spectra, ctx.params.panorama, keep, None if seen is None else seen[ks])
-    with np.errstate(invalid="ignore"):
-        gap[ks] = best_out - score[ks]
+    best_out, row = outside[ks, 0], outside[ks, 1].astype(np.int64)
+    gap[ks] = np.where(np.isfinite(best_out), best_out - score[ks], np.nan)   # NaN: the room holds the whole grid
     ctx.out.create_dataset("room_hint_gap", data=gap)
     write_tree(ctx.out, {"room_named": [h or "" for h in hints]})
     names = read_strings(ctx.artifact("extract")["names"])

@@ -134,3 +134,36 @@ def test_the_command_holds_a_photo_against_the_map(tmp_path):
     assert (out / "photo.png").is_file() and (out / "view.png").is_file()
     r = CliRunner().invoke(app, ["plan", str(plan), "--out", str(out), "--photo", str(photo)])
     assert r.exit_code != 0 and "--photo needs --at X,Y" in r.output
+
+
+def test_the_command_writes_a_rooms_file_to_fill_in(tmp_path):
+    # --rooms-for PHOTOS: rooms.csv with a row for each photo (named as localize names them),
+    # its room empty; read back as umap.room_hints it names no room yet, and filled in it is
+    # read as the plan's rooms. An outline plan has no rooms to name: refused
+    import csv
+
+    from placeloc.umap.room_hints import read_room_hints
+
+    path = tmp_path / "floor_plan.yaml"
+    path.write_text(yaml.safe_dump(ROOMS))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("b.jpg", "a.jpg", "c.png"):
+        cv2.imwrite(str(photos / name), np.zeros((32, 64), np.uint8))
+    (photos / "notes.txt").write_text("not a photo")
+    out = tmp_path / "check"
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--rooms-for", str(photos)])
+    assert r.exit_code == 0, r.output
+    assert f"wrote {out / 'rooms.csv'}: 3 photos; fill in the room of each you know" in r.output
+    rows = list(csv.DictReader(open(out / "rooms.csv")))
+    assert [(row["frame"], row["room"]) for row in rows] == [("a.jpg", ""), ("b.jpg", ""), ("c.png", "")]
+    assert read_room_hints(out / "rooms.csv", ["a.jpg", "b.jpg", "c.png"], ["kitchen", "hall"]) == ([None] * 3, [])
+    (out / "rooms.csv").write_text("frame,room\na.jpg,kitchen\nb.jpg,\nc.png,Hall\n")
+    assert read_room_hints(out / "rooms.csv", ["a.jpg", "b.jpg", "c.png"], ["kitchen", "hall"])[0] == \
+        ["kitchen", None, "Hall"]
+    outline = tmp_path / "outline.yaml"
+    outline.write_text(yaml.safe_dump({**PLAN, "camera_z": 1.4}))
+    r = CliRunner().invoke(app, ["plan", str(outline), "--out", str(out), "--rooms-for", str(photos)])
+    assert r.exit_code != 0 and "an outline plan names no rooms; umap.room_hints needs a plan of rooms" in r.output
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--rooms-for", str(tmp_path / "nothere")])
+    assert r.exit_code != 0 and "nothere: not a folder; give the folder of photos" in r.output

@@ -474,11 +474,17 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
                                                    "umap.grid.z)."),
          step: float | None = typer.Option(None, help="The grid's step in metres (default umap.grid.step_m's)."),
          wall_margin: float | None = typer.Option(None, help="The grid's least distance from a wall in metres "
-                                                             "(default umap.grid.wall_margin_m's).")) -> None:
+                                                             "(default umap.grid.wall_margin_m's)."),
+         rooms_for: Path | None = typer.Option(None, "--rooms-for", help="A folder of photos (what query.images "
+                                                                         "names): also write rooms.csv, a row for "
+                                                                         "each photo with its room left empty, to "
+                                                                         "fill in and give as umap.room_hints.")) -> None:
     """Check a floor plan before localizing against it: its rooms and their areas, doors and
     windows, camera height and the places localize searches, printed, and drawn in
-    plan.png (with --at, view.png too; with --photo, photo.png)."""
-    from placeloc.umap.plan_report import draw, photo_at, point_note, summarise
+    plan.png (with --at, view.png too; with --photo, photo.png; with --rooms-for, a rooms.csv
+    to fill in)."""
+    from placeloc.core.images import ImageError
+    from placeloc.umap.plan_report import draw, photo_at, point_note, rooms_template, summarise
 
     point = None
     if at is not None:
@@ -490,6 +496,8 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
             _fail(ValueError(f"--at {at!r}: give the point as X,Y in metres, e.g. --at 2.5,1.2"))
     if photo is not None and point is None:
         _fail(ValueError("--photo needs --at X,Y: where the photo was taken"))
+    if rooms_for is not None and not rooms_for.is_dir():
+        _fail(ValueError(f"--rooms-for {rooms_for}: not a folder; give the folder of photos (what query.images names)"))
     summary, built = summarise(model, floor=floor, step_m=step, wall_margin_m=wall_margin, z=z)
     for line in summary.lines() + ([point_note(built, point)] if point is not None else []):
         if line:
@@ -502,8 +510,16 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
         heading = held.heading_deg
         typer.echo(f"{photo.name}: its lines match the map's at ({point[0]:g}, {point[1]:g}) best at heading "
                    f"{held.heading_deg:g} deg, score {held.score:.3f} (photo.png; view.png is drawn at that heading)")
-    for path in draw(summary, built, out or Path("runs") / f"plan-{model.stem}", point, heading, held):
+    folder = out or Path("runs") / f"plan-{model.stem}"
+    for path in draw(summary, built, folder, point, heading, held):
         typer.echo(f"wrote {path}")
+    if rooms_for is not None:
+        try:
+            path, count = rooms_template(summary, rooms_for, folder)
+        except (ImageError, ValueError) as exc:
+            _fail(exc)
+        typer.echo(f"wrote {path}: {count} photo{'s' if count != 1 else ''}; fill in the room of each you know (a name "
+                   "above), leave the others empty, and give the file as umap.room_hints")
 
 
 @app.command()

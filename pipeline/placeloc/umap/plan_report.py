@@ -10,12 +10,14 @@ against a photo taken there.
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.geometry.floorplan import Model, floor_plan_model, label_points, load_model, load_plan, plan_grid
 from placeloc.geometry.panorama import render_panoramas
 from placeloc.umap.bits import unpack
@@ -243,3 +245,24 @@ def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, flo
                                    f"{Path(summary.source).name}: the map's lines from ({at[0]:g}, {at[1]:g}) at "
                                    f"{summary.z:.2f} m, centre column heading {heading_deg:g} deg (0 along +x)"))
     return paths
+
+
+def rooms_template(summary: PlanSummary, photos: Path, out_dir: Path) -> tuple[Path, int]:
+    """Write ``out_dir/rooms.csv``: a ``umap.room_hints`` file with a row for each image of the
+    folder ``photos`` (named as localize names them) and its room left empty, for the person
+    who took them to fill in. Returns its path and the number of photos. A plan without named
+    rooms is refused (a hint would have nothing to name)."""
+    from placeloc.core.images import list_images
+
+    if summary.kind != "rooms":
+        what = {"outline": "an outline plan", "wireframe": "a wireframe"}.get(summary.kind, summary.kind)
+        raise ValueError(f"{summary.source}: {what} names no rooms; umap.room_hints needs a plan of rooms")
+    frames = list_images(photos).names
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "rooms.csv"
+    with atomic_open(path, newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "room"])
+        w.writerows([name, ""] for name in frames)
+    return path, len(frames)
+

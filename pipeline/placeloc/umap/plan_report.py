@@ -98,7 +98,8 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
     bounds = (float(points[:, 0].min()), float(points[:, 1].min()), float(points[:, 0].max()), float(points[:, 1].max()))
     rooms: list[tuple[str, float, float | None]] = []
     counts: dict[str, int] = {}
-    gaps = windows = np.zeros((0, 4))   # a wireframe has neither
+    gaps = np.asarray(model.gaps, float).reshape(-1, 4)   # doors and openings, as the model keeps them
+    windows = np.zeros((0, 4))   # a wireframe has none
     kind = "wireframe"
     if plan is not None:
         kind = "rooms" if "rooms" in plan else "outline"
@@ -116,8 +117,6 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
             rooms.append(("inside the outline", area, None if ceiling is None else float(ceiling) - floor_z))
         for key in ("doors", "openings", "windows"):
             counts[key] = len(plan.get(key, []) or [])
-        ways = [w for key in ("doors", "openings") for w in plan.get(key, []) or [] if isinstance(w, dict)]
-        gaps = np.array([[*w["from"], *w["to"]] for w in ways], float).reshape(-1, 4)
         windows = np.array([[*w["from"], *w["to"]] for w in plan.get("windows", []) or [] if isinstance(w, dict)],
                            float).reshape(-1, 4)
         if kind == "rooms":

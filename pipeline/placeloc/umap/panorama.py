@@ -1642,24 +1642,17 @@ def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.nd
     layer of the grid at one camera height explains each panorama, to choose the layers
     worth searching whole (``umap.panorama.height_layers``). ``keep`` (N, P) bool: each
     query's positions that count (its room, ``umap.room_hints``; -inf where none does)."""
-    out = np.full(len(lines), -np.inf)
-    for s, table in _grid_tables(lines, spectra, pp, seen):
-        if keep is not None:
-            table = np.where(keep[s:s + len(table), :, None], table, -np.inf)
-        out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
-    return out
-
-
-def _grid_tables(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None) -> Iterator[tuple[int, np.ndarray]]:
-    """(first query, its batch's (n, P, W) grid table) for the queries ``lines``, a batch at a
-    time (:func:`_search_table`), BLAS on every usable core; none where the grid is empty."""
     queries, weights, prows, spread = _query_side(lines, pp)
+    out = np.full(len(lines), -np.inf)
     with threadpool_limits(limits=usable_cores(), user_api="blas"):
         for s in range(0, len(lines), PANORAMA_BATCH):
             table = _search_table(spectra, queries[s:s + PANORAMA_BATCH], weights, prows, spread, pp,
                                   None if seen is None else seen[s:s + PANORAMA_BATCH])
             if table.shape[1]:
-                yield s, table
+                if keep is not None:
+                    table = np.where(keep[s:s + PANORAMA_BATCH, :, None], table, -np.inf)
+                out[s:s + len(table)] = table.reshape(len(table), -1).max(axis=1)
+    return out
 
 
 def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray, faces: np.ndarray,
@@ -1765,6 +1758,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                                 orientation_bins=bins if spread is not None else 0)
 
     renders = RenderCache(render_local)
+    regions = list(inside) if inside is not None else [None] * n   # each query's region (umap.room_hints), or None
     # the plan points the local search scored for the current query, each at its best shift:
     # the rivals off the grid. Per thread: a query's whole search runs on one thread
     # (:func:`panorama_threads`), so each thread's lists are its current query's
@@ -1827,9 +1821,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         if len(walls):  # not through a wall: as far from the walls as the grid keeps its positions
             ok = wall_distance(pts, walls) >= floor_d[owner]
             pts, owner = pts[ok], owner[ok]
-        region = None if inside is None else inside[k]
-        if region is not None:   # not out of the photo's room (umap.room_hints)
-            ok = region(pts)
+        if regions[k] is not None:   # not out of the photo's room (umap.room_hints)
+            ok = regions[k](pts)
             pts, owner = pts[ok], owner[ok]
         if not len(pts):
             return
@@ -1865,8 +1858,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         def score_at(pts: np.ndarray, col: int) -> tuple[np.ndarray, np.ndarray]:
             out, cols_out = np.full(len(pts), -np.inf), np.full(len(pts), col, dtype=np.int64)
             ok = wall_distance(pts, walls) >= floor if len(walls) else np.ones(len(pts), bool)
-            if inside is not None and inside[k] is not None:
-                ok &= inside[k](pts)
+            if regions[k] is not None:
+                ok &= regions[k](pts)
             if ok.any():
                 cols = np.broadcast_to(col + window, (int(ok.sum()), len(window)))
                 sub = local_scores(k, pts[ok], np.ascontiguousarray(cols), q_close)
@@ -1878,8 +1871,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         """Query k's answer from its table (and tolerant table): the candidates, the local
         search and the final search, written into ``best``, ``heading``, ``score``, ... at k.
         Reads nothing another query writes, so queries may run on threads of their own."""
-        if inside is not None and inside[k] is not None:   # the grid positions outside its region never compete
-            keep = inside[k](poses[:, :2])[:, None]
+        if regions[k] is not None:   # the grid positions outside its region never compete
+            keep = regions[k](poses[:, :2])[:, None]
             if outside is not None:
                 away = np.where(keep[:, 0], -np.inf, table.max(axis=1))
                 if len(away) and np.isfinite(away.max()):

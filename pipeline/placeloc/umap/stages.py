@@ -16,7 +16,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -375,7 +375,7 @@ def query_line_images(ex: Any, bins: int, rows: Any = slice(None)) -> np.ndarray
     return unpack(words[:, 0], h, w) if bins == 1 else unpack(words, h, w)
 
 
-def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, CeilingChoice | None]:
+def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, CeilingChoice | None, RoomCheck | None]:
     """Best (grid row, plan position, heading, score) of each panorama and its rival's score:
     :func:`placeloc.umap.panorama.search_panoramas` over the index's database; and the
     home's ceiling where umap.grid.ceilings searched several (else None)."""
@@ -427,27 +427,32 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
                           hidden=bool(ctx.params.hidden_lines),
                           progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
                           inside=inside, outside=outside)
-    if inside is not None:
-        _check_room_hints(ctx, src, poses, inside, hints, outside, found.score)
-    return found._replace(best=found.best + lo), choice
+    checked = None if inside is None else RoomCheck(hints, _check_room_hints(ctx, src, poses, inside, hints, outside,
+                                                                           found.score))
+    return found._replace(best=found.best + lo), choice, checked
+
+
+class RoomCheck(NamedTuple):
+    """Each panorama's room as ``umap.room_hints`` names it (None: not named) and the gap of
+    :func:`_check_room_hints` (NaN: not named, or nothing outside its room)."""
+
+    named: list[str | None]
+    gap: np.ndarray
 
 
 def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRegion | None], hints: list[str | None],
-                      outside: np.ndarray, score: np.ndarray) -> None:
+                      outside: np.ndarray, score: np.ndarray) -> np.ndarray:
     """Warn about each named photo whose best grid place outside its named room (``outside``:
     its score and grid row, as the search found them) scores more than
     ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
-    likely), naming the room that place lies in; the gap of each named photo goes into
-    localize.h5 (``room_hint_gap``, NaN where none was named; ``room_named``, each photo's name
-    as given) and estimates.csv (``room_named``, ``room_hint_gap``). Why the answer and not the
+    likely), naming the room that place lies in; returns that gap of each photo (NaN where
+    none was named, or nothing lies outside its room). Why the answer and not the
     room's best grid place: the answer is refined off the grid, so a right name is not flagged
     for where the grid happens to fall in its room."""
     ks = np.flatnonzero([r is not None for r in inside])
     gap = np.full(len(inside), np.nan)
     best_out, row = outside[ks, 0], outside[ks, 1].astype(np.int64)
     gap[ks] = np.where(np.isfinite(best_out), best_out - score[ks], np.nan)   # NaN: the room holds the whole grid
-    ctx.out.create_dataset("room_hint_gap", data=gap)
-    write_tree(ctx.out, {"room_named": [h or "" for h in hints]})
     names = read_strings(ctx.artifact("extract")["names"])
     limit = float(ctx.params.room_hint_check)
     flagged = [(k, j) for j, k in enumerate(ks) if gap[k] > limit]
@@ -458,6 +463,7 @@ def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRe
                     "; ".join(f"{names[k]} named {hints[k]!r} scores {score[k]:.3f} there and {best_out[j]:.3f} in "
                               f"{where[i] or 'no room'!r}" for i, (k, j) in enumerate(flagged[:10]))
                     + ("; ..." if len(flagged) > 10 else ""))
+    return gap
 
 
 def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> tuple[list[RoomRegion | None], list[str | None]]:
@@ -466,12 +472,11 @@ def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> tuple[list[RoomRegio
     name as given. A room the grid ``poses`` lay no position in is an error naming it and the
     fix."""
     names = read_strings(ctx.artifact("extract")["names"])
-    room_names = read_strings(src["room_names"]) if "room_names" in src and "plan" in src else []
+    room_names, polygons = _plan_rooms(src)
     hints, stray = read_room_hints(ctx.params.room_hints, names, room_names)
     if stray:
         log.warning("umap.room_hints %s names %d frame%s that are not query images (e.g. %s); they are left out",
                     ctx.params.room_hints, len(stray), "" if len(stray) == 1 else "s", stray[0])
-    polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(room_names))]
     regions: dict[str, RoomRegion] = {}
     for hint in dict.fromkeys(h for h in hints if h is not None):
         regions[hint] = RoomRegion([polygons[i] for i in matching_rooms(hint, room_names)],
@@ -513,8 +518,8 @@ def localize(ctx: Any) -> None:
         if str(ex.attrs["query_kind"]) != str(idx.attrs.get("kind", "pinhole")):
             raise _stage_error(ValueError("extract and the database disagree on umap.query_kind: re-run both (--force-all)"))
         tilt = ex["tilt_deg"][()] if "tilt_deg" in ex else None
-        found, ceiling = _localize_panoramas(ctx, idx, ex)
-        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), found, tilt, ceiling)
+        found, ceiling, checked = _localize_panoramas(ctx, idx, ex)
+        _write_panorama_estimates(ctx, poses, read_strings(ex["names"]), found, tilt, ceiling, checked)
         return
     scorer = Scorer(_dilated_bits(ctx, idx), idx["counts"][()], poses, ex["view_heading"][()], pooled=_pooled(ctx),
                     shape=(int(idx.attrs["height"]), int(idx.attrs["width"])))
@@ -587,7 +592,8 @@ _ADVISED: list[bool] = []   # the room_hints advice given in this process (said 
 
 
 def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
-                              tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None) -> None:
+                              tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None,
+                              checked: RoomCheck | None = None) -> None:
     n = len(names)
     est = np.column_stack([found.xy, poses[found.best, 2:]])
     heading, score, rival, margin = found.heading, found.score, found.rival, found.margin
@@ -656,8 +662,10 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                  "and %.1f at most", int(np.sum(tilt > 0)), n, float(np.median(tilt[tilt > 0])), float(np.max(tilt)))
     # each photo's room as named (umap.room_hints) and how far a place outside it scored above
     # the answer (room_hint_gap; above umap.room_hint_check the name was warned about)
-    gap = ctx.out["room_hint_gap"][()] if "room_hint_gap" in ctx.out else None
-    named = read_strings(ctx.out["room_named"]) if gap is not None else [""] * n
+    gap = None if checked is None else checked.gap
+    named = [""] * n if checked is None else [h or "" for h in checked.named]
+    if checked is not None:
+        write_tree(ctx.out, {"room_hint_gap": gap, "room_named": named})
     with atomic_open(ctx.output("estimates.csv"), newline="") as f:
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "heading_deg", *(["height_m"] if heights else []),
@@ -678,11 +686,20 @@ def _rooms(src: Any, *points: np.ndarray) -> list[list[str]]:
     """The plan's room name at each point of each (P, 2) array ("" outside every room, or
     where the plan names none: a wireframe, or a build-dictionary of before room names were
     kept), from the build-dictionary artifact ``src``; the plan read once for all."""
-    if "room_names" not in src or "plan" not in src:
+    names, polygons = _plan_rooms(src)
+    if not names:
         return [[""] * len(xy) for xy in points]
-    names = read_strings(src["room_names"])
-    polygons = [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
     return [rooms_at(xy, polygons, names) for xy in points]
+
+
+def _plan_rooms(src: Any) -> tuple[list[str], list[np.ndarray]]:
+    """The plan's room names and their polygons from the build-dictionary artifact ``src``
+    (none where the plan names no rooms: a wireframe, an outline, or a build-dictionary of
+    before room names were kept)."""
+    if "room_names" not in src or "plan" not in src:
+        return [], []
+    names = read_strings(src["room_names"])
+    return names, [src["plan"][f"polygon_{i}"][()] for i in range(len(names))]
 
 
 def _csv_number(x: float, decimals: int = 5) -> str:

@@ -199,8 +199,6 @@ def panorama(args: argparse.Namespace) -> None:
         top = numba.get_num_threads()
         counts = counts_from(args.workers, top)
 
-        from placeloc.umap import panorama as panorama_module
-
         def measure(k: int) -> dict[str, float]:
             # k threads: the queries side by side on k (panorama.PANORAMA_THREADS), and the
             # tables' kernels on k numba threads

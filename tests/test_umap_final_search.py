@@ -14,6 +14,7 @@ from placeloc.geometry.floorplan import floor_plan_model, plan_grid
 from placeloc.umap.panorama import (
     FINAL_MOVES,
     chamfer_spectra,
+    final_starts,
     lattice_disk,
     pattern_search,
     row_weights,
@@ -115,3 +116,60 @@ def test_lattice_disk_by_hand():
     assert len(shared) >= 6
     # a radius too small to hold a lattice point: the one nearest the centre
     assert np.allclose(lattice_disk(np.array([1.01, 2.03]), 0.04, 0.005), [[1.0, 2.04]])
+
+
+def test_final_starts_by_hand():
+    # a beam of five poses: the best (index 2, 0.50), one 0.1 m from it within the ties (index
+    # 0: inside its search), one 0.5 m away within the ties (index 4, 0.485), a copy of that one
+    # (index 1, equal score, same place) and one below the ties (index 3, 0.47)
+    xy = np.array([[1.1, 0.0], [1.5, 0.0], [1.0, 0.0], [3.0, 0.0], [1.5, 0.0]])
+    scores = np.array([0.495, 0.485, 0.50, 0.47, 0.485])
+    assert final_starts(xy, scores, ties=0.02, apart_m=0.24) == [2, 1]      # the first of equals, best first
+    assert final_starts(xy, scores, ties=0.0, apart_m=0.24) == [2]
+    assert final_starts(np.array([[0.0, 0.0], [2.0, 0.0]]), np.array([0.5, 0.5]), ties=0.0, apart_m=0.24) == [0]
+    assert final_starts(xy, scores, ties=0.05, apart_m=0.24) == [2, 1, 3]
+    assert final_starts(xy, scores, ties=0.05, apart_m=0.05) == [2, 0, 1, 3]
+
+
+# twin rooms side by side, alike but for the east one's door, 0.15 m wider: a view from the
+# west room is nearly a view from the east one 3.2 m east, and which of the two places the
+# beam ranks first can turn on where the grid falls
+NEAR_TWINS = {"floor_z": 0.0, "ceiling_z": 2.5,
+              "rooms": [{"name": "west", "polygon": [[0, 0], [3, 0], [3, 2.5], [0, 2.5]]},
+                        {"name": "east", "polygon": [[3.2, 0], [6.2, 0], [6.2, 2.5], [3.2, 2.5]]}],
+              "doors": [{"from": [0.6, 0], "to": [1.5, 0], "height": 2.0},
+                        {"from": [3.8, 0], "to": [4.85, 0], "height": 2.0}]}
+
+
+def test_near_tied_places_are_compared_after_their_final_search():
+    # Four cameras in the west room, grids of 0.3 m at five origins (fractions of a step as in
+    # the umap-homes experiment). Finishing only the beam's best pose (refine_final_ties 0),
+    # the camera at (2.189, 1.867) is answered in the east room at four origins and in the west
+    # at one (measured). Finishing every pose of the beam within 0.02 of its best (the
+    # default) answers each camera at the same place at every origin, to the bit: that camera
+    # in the west room, within 0.02 m of the truth. The camera at (0.49, 1.64) sees the wider
+    # door better from the east (answered there at every origin, either way: the score's
+    # choice, not the grid's).
+    m = floor_plan_model(NEAR_TWINS)
+    truth = np.array([[1.801, 1.858, 1.5, 221.5], [0.994, 0.457, 1.5, 138.1], [0.49, 1.64, 1.5, 359.0],
+                      [2.189, 1.867, 1.5, 246.8]])
+    q = _render_all(m, truth)
+    q[:, ::3, ::4] = 0                                    # a few line pixels lost
+    answers = {}
+    for ties in (0.0, 0.02):
+        pp = replace(PanoramaParams(), orientation_bins=1, refine_final_ties=ties)
+        wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+        out = []
+        for frac in (0.0, 0.1, 1 / 3, 0.55, 2 / 3):
+            origin = 0.15 + frac * 0.3
+            poses, _ = plan_grid(m, x=[origin, 6.2, 0.3], y=[origin, 2.5, 0.3], z=1.5, headings=[0.0])
+            db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
+            out.append(search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+                                        hidden=True).xy)
+        answers[ties] = np.array(out)                     # (origins, cameras, 2)
+    east = {ties: (a[:, :, 0] > 3.1).sum(axis=0).tolist() for ties, a in answers.items()}
+    assert east[0.0] == [0, 0, 5, 4]
+    assert east[0.02] == [0, 0, 5, 0]
+    assert np.all(answers[0.02] == answers[0.02][:1])
+    assert np.hypot(*(answers[0.02][:, 3] - truth[3, :2]).T).max() <= 0.02
+    assert PanoramaParams().refine_final_ties == 0.02 == PanoramaParams().doubtful_margin

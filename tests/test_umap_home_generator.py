@@ -86,10 +86,12 @@ def test_line_agreement_by_hand():
 
 
 def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
-    # placeloc experiment umap-homes: highest mean share over the development runs; among
-    # settings within one panorama of the 300 of it, the fewest candidate cells, then the
-    # earlier (plainer) in the sweep
-    from placeloc.experiments.umap_homes import NOISE, SWEEP, choose
+    # placeloc experiment umap-homes: highest mean over the homes of each home's worst origin
+    # (here nine runs, each a home of its own: the mean share); among settings within one
+    # panorama of one home of it, the fewest answers moving, then the fewest candidate cells,
+    # then the earlier (plainer) in the sweep
+    from placeloc.experiments.umap_homes import PANORAMAS, SWEEP, choose
+    from placeloc.umap.params import PanoramaParams
 
     names = list(SWEEP)
     climb32 = "solid-angle chamfer, 32 cells"
@@ -98,20 +100,33 @@ def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
     texture_square32 = "solid-angle chamfer, texture r 1, 32 cells, beam's cells whole"
     assert {climb32, square16, square32, texture_square32} <= set(names)
     nine = [0.95] * 9
+    one = 1.0 / (PANORAMAS * 9)                               # one panorama of one of the nine homes
     results = {climb32: nine, square32: [0.975] * 9, texture_square32: [0.975] * 9, square16: nine}
     assert choose(results) == square32                        # a tie on 32 cells: the earlier in the sweep
     assert names.index(square32) < names.index(texture_square32)
-    results[square16] = [0.975 - NOISE] * 9                   # one panorama below on fewer cells: the cheaper
+    results[square16] = [0.975 - one] * 9                   # one panorama below on fewer cells: the cheaper
     assert choose(results) == square16
-    results[square16] = [0.975 - 2 * NOISE] * 9               # two panoramas below: the best
+    results[square16] = [0.975 - 2 * one] * 9               # two panoramas below: the best
     assert choose(results) == square32
     # within one panorama, the answers that move least with the grid's origin come first
     # (more than 0.1 m, then more than 0.05 m), before the cost
-    results[square16] = [0.975 - NOISE] * 9
+    results[square16] = [0.975 - one] * 9
     moves = {square32: (2, 9), texture_square32: (1, 9), square16: (2, 3), climb32: (0, 0)}
     assert choose(results, moves) == texture_square32
     moves[texture_square32] = (2, 9)
     assert choose(results, moves) == square16                 # equal beyond 0.1 m: fewer beyond 0.05 m
+    # three homes at three origins: each home's worst origin counts, not the mean over the runs.
+    # square32 has the higher mean (0.967 against 0.95) but one home at 0.85 at one origin
+    # (worst origins 1, 1, 0.85: mean 0.95); square16 is 0.95 everywhere (mean of worst 0.95):
+    # a tie, within one panorama of one home (1/60): the fewer answers moving wins
+    results = {square32: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.85, 1.0, 0.85], square16: [0.95] * 9}
+    assert choose(results, {square32: (1, 1), square16: (0, 0)}, origins=3) == square16
+    assert choose(results, {square32: (0, 0), square16: (1, 1)}, origins=3) == square32
+    results[square16] = [0.9] * 9                             # one home's worst 0.05 lower each: the best
+    assert choose(results, {square32: (1, 1), square16: (0, 0)}, origins=3) == square32
+    # the settings before refine_final_ties finished the beam's best pose only; the last the default
+    assert all(SWEEP[k]["refine_final_ties"] == 0.0 for k in names[:-1])
+    assert SWEEP[names[-1]]["refine_final_ties"] == 0.02 == PanoramaParams().refine_final_ties
 
 
 def test_answer_moves_by_hand():

@@ -1339,6 +1339,22 @@ def lattice_disk(centre: np.ndarray, spacing_m: float, radius_m: float) -> np.nd
     return pts if len(pts) else (np.round(centre / spacing_m) * spacing_m)[None]
 
 
+def final_starts(xy: np.ndarray, scores: np.ndarray, *, ties: float, apart_m: float) -> list[int]:
+    """The poses of a beam (plan points ``xy`` (B, 2) scoring ``scores``) that the final
+    search starts from (:func:`search_panoramas`): the best, then each other scoring within
+    ``ties`` of it, best first, that lies more than ``apart_m`` from every one taken (a pose
+    that near one taken is inside that one's search). Indices into the beam. ``ties`` 0: the
+    best alone (the first of equals), as before the ties were searched."""
+    order = np.argsort(-np.asarray(scores, float), kind="stable")
+    out = [int(order[0])]
+    for i in order[1:] if ties > 0 else ():
+        if scores[i] < scores[order[0]] - ties:
+            break
+        if all(np.hypot(*(xy[i] - xy[t])) > apart_m for t in out):
+            out.append(int(i))
+    return out
+
+
 def grid_step(xy: np.ndarray) -> float:
     """The spacing of a plan grid: the smallest gap between its distinct x or y values."""
     gaps = [np.diff(np.unique(np.round(xy[:, a], 6))) for a in (0, 1)]
@@ -1696,7 +1712,12 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
        then changes no answer whose beams end within the radius of each other. Without, it
        climbs from the beam's best pose (from the nearest point of the plan's lattice of the
        first step; ``refine_final_start_m`` 0: from the beam's finest step, where it is) and
-       is kept where it scores higher.
+       is kept where it scores higher. With ``refine_final_ties``, every pose of the beam
+       scoring within that of its best (and further than the radius from one taken,
+       :func:`final_starts`) gets the same search, and the best end is the answer: two places
+       whose beam scores differ by less than the grid's phase moves them are compared on the
+       plan's lattice. Where another place more than ``margin_distance_m`` away was finished
+       too, the margin's score is the answer's finished one (finished against finished).
 
     Every local pose is rendered on the spot and scored the same way at the ``refine_yaw_cols``
     column shifts either side of its candidate's best heading so far (:func:`chamfer_at_shifts`);
@@ -1867,6 +1888,39 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             return out, cols_out
         return score_at
 
+    def finish(k: int, xy0: np.ndarray, col0: int, sc0: float, floor: float, q_close: np.ndarray | None
+               ) -> tuple[np.ndarray, float, int, bool]:
+        """The final search (``refine_final_m``, chamfer only) of query k from a pose of its
+        beam: its end (position, score, heading column) and whether the end is the answer
+        whatever it scores (from the plan's lattice within ``refine_final_radius_m``), else
+        it is kept only where it scores higher than the beam's pose."""
+        scorer = final_scorer(k, floor, q_close)
+        finest = min(pp.refine_final_m, final_start)
+        if pp.refine_final_start_m > 0 and pp.refine_final_radius_m > 0:
+            # from the best point of the plan's own lattice (not the grid's) of half the first
+            # step within the radius: two grid origins whose beams end on neighbouring bumps of
+            # the score, within the radius of each other, score the same points and start from
+            # the same one. Half the first step (0.04 m): a peak 0.1 m wide has a point within
+            # 0.03 m of its top (at 0.08 m one was missed, docs/umap.md). Its end is the answer
+            # even where the beam's own pose scored higher (by a median 0.001 on generated
+            # homes): that pose keeps the grid's phase
+            disk = lattice_disk(xy0, final_start / 2.0, pp.refine_final_radius_m)
+            s, c = scorer(disk, col0)
+            i0 = int(np.argmax(s))
+            if np.isfinite(s[i0]):
+                fx, fs, fc = pattern_search(scorer, disk[i0], float(s[i0]), int(c[i0]), start_m=final_start,
+                                            finest_m=finest)
+                return fx, fs, fc, True
+            return xy0, sc0, col0, False
+        x0, s0, c0 = xy0, sc0, col0
+        if pp.refine_final_start_m > 0:
+            # from the nearest point of the plan's own lattice of the first step
+            x0 = np.round(xy0 / final_start) * final_start
+            s, c = scorer(x0[None], c0)
+            s0, c0 = float(s[0]), int(c[0])
+        fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start, finest_m=finest)
+        return (fx, fs, fc, False) if fs > sc0 else (xy0, sc0, col0, False)              # kept where higher
+
     def search_one(k: int, table: np.ndarray, tolerant: np.ndarray | None) -> None:
         """Query k's answer from its table (and tolerant table): the candidates, the local
         search and the final search, written into ``best``, ``heading``, ``score``, ... at k.
@@ -1926,37 +1980,24 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 move(int(k), xy, col, sc, step, floor_d, q_close, square)
             move(int(k), xy, col, sc, step, floor_d, q_close)
         j = int(np.argmax(sc))
-        before_final[k] = max(score[k], float(sc[j]))                         # the margin's score
+        # the margin's score: the answer's own beam score, before the final search polishes it
+        # alone (at least the grid's best where the answer is the beam's best)
+        before_final[k] = max(score[k], float(sc[j]))
         final = False                                                         # the final search's end taken
         if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres
-            scorer = final_scorer(int(k), float(floor_d[j]), q_close)
-            finest = min(pp.refine_final_m, final_start)
-            if pp.refine_final_start_m > 0 and pp.refine_final_radius_m > 0:
-                # from the best point of the plan's own lattice (not the grid's) of half
-                # the first step within the radius: two grid origins whose beams end on
-                # neighbouring bumps of the score, within the radius of each other, score
-                # the same points and start from the same one. Half the first step (0.04
-                # m): a peak 0.1 m wide has a point within 0.03 m of its top (at 0.08 m
-                # one was missed, docs/umap.md). Its end is the answer even where the
-                # beam's own pose scored higher (by a median 0.001 on generated homes):
-                # that pose keeps the grid's phase
-                disk = lattice_disk(xy[j], final_start / 2.0, pp.refine_final_radius_m)
-                s, c = scorer(disk, int(col[j]))
-                i0 = int(np.argmax(s))
-                if np.isfinite(s[i0]):
-                    xy[j], sc[j], col[j] = pattern_search(scorer, disk[i0], float(s[i0]), int(c[i0]),
-                                                          start_m=final_start, finest_m=finest)
-                    final = True
-            else:
-                x0, s0, c0 = xy[j], float(sc[j]), int(col[j])
-                if pp.refine_final_start_m > 0:
-                    # from the nearest point of the plan's own lattice of the first step
-                    x0 = np.round(xy[j] / final_start) * final_start
-                    s, c = scorer(x0[None], c0)
-                    s0, c0 = float(s[0]), int(c[0])
-                fx, fs, fc = pattern_search(scorer, x0, s0, c0, start_m=final_start, finest_m=finest)
-                if fs > sc[j]:                                                # kept where higher
-                    xy[j], sc[j], col[j] = fx, fs, fc
+            # every pose of the beam near the best (refine_final_ties) is finished before they are
+            # compared: two places whose beam scores differ by less than the grid's phase moves
+            # them are then compared on the plan's own lattice, where the grid's origin does not reach
+            starts = final_starts(xy, sc, ties=pp.refine_final_ties,
+                                  apart_m=max(pp.refine_final_radius_m, final_start))
+            ends = [finish(int(k), xy[i], int(col[i]), float(sc[i]), float(floor_d[i]), q_close) for i in starts]
+            e = max(range(len(ends)), key=lambda i: ends[i][1])                # the first of equals
+            j = starts[e]
+            if any(np.hypot(*(ends[i][0] - ends[e][0])) > pp.margin_distance_m for i in range(len(ends))):
+                # another place was finished too, and is a rival: the margin compares finished
+                # with finished (a twin room's same spot: 0, as before the final search)
+                before_final[k] = ends[e][1]
+            xy[j], sc[j], col[j], final = ends[e]
         if final or sc[j] > score[k]:
             # the grid row stays that of the candidate; the position is the refined one
             best[k], heading[k], score[k] = rows[j], col[j] * 360.0 / w, sc[j]

@@ -176,6 +176,11 @@ class PanoramaParams(Params):
                                                            "no answer between bumps of the score closer than this "
                                                            "(about 110 renders a panorama at 0.24 m; 0: from the "
                                                            "lattice point nearest the beam's pose, kept where higher)")
+    refine_final_ties: float = param(0.02, min=0.0, help="refine_final_m > 0: every pose of the beam scoring within "
+                                                         "this of its best (and further than refine_final_radius_m "
+                                                         "from one taken) gets that search too, and the best end is "
+                                                         "the answer: places the grid's phase ranks either way are "
+                                                         "compared on the plan's own lattice (0: the best pose only)")
     refine_yaw_cols: int = param(3, min=0, help="column shifts either side of a candidate's best heading scored at each "
                                                 "local pose")
     margin_distance_m: float = param(1.0, min=0.0, min_exclusive=True,

@@ -938,6 +938,7 @@ METHOD = Method(
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
                                           "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_final_radius_m",
+                                          "panorama.refine_final_ties",
                                           "panorama.refine_yaw_cols",
                                           "panorama.margin_distance_m", "panorama.margin_yaw_deg",
                                           "panorama.doubtful_margin", "panorama.height_layers", "hidden_lines",

@@ -26,7 +26,8 @@
    final pattern search of the beam's best pose (``refine_final_m``, ``--final-m``) against
    it in the same run, and that search from the best lattice point within
    ``refine_final_radius_m`` (the defaults) against it from the lattice point nearest the
-   beam's pose.
+   beam's pose, and that search from every pose of the beam within ``refine_final_ties`` of
+   its best (the defaults) against from its best pose only.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -254,6 +255,12 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
                                wall_margin_m=0.1, hidden=True)
     n = len(qo)
     err = np.hypot(*(res[1] - truth[:, :2]).T)
+
+    def searched(p: PanoramaParams) -> tuple:
+        """The search with parameters p, timed: the defaults' run above where p is the defaults."""
+        return (res, t, c) if p == pp else _timed(search_panoramas, qo, poses, model.segments, model.faces, db, p,
+                                                  tolerance_px=2, wall_margin_m=0.1, hidden=True)
+
     for start_m in final_starts if final_m > 0 else []:
         # the final pattern search of the beam's best pose (refine_final_m, first step
         # refine_final_start_m, from the lattice point nearest the beam's pose) on and off, timed in the same run
@@ -261,8 +268,7 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
         off = replace(pp, refine_final_m=0.0)
         timed = {}
         for name, p in (("on", on), ("off", off)):
-            timed[name] = (res, t, c) if p == pp else _timed(search_panoramas, qo, poses, model.segments, model.faces, db, p,
-                                                             tolerance_px=2, wall_margin_m=0.1, hidden=True)
+            timed[name] = searched(p)
         (ron, ton, con), (roff, toff, coff) = timed["on"], timed["off"]
         eon, eoff = (np.hypot(*(r[1] - truth[:, :2]).T) for r in (ron, roff))
         print(f"oriented score, {bins} bins, with the final pattern search from {start_m or 'the beam finest step'} "
@@ -275,15 +281,24 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
         # (the defaults) against it from the lattice point nearest the beam's pose, in the same run
         near = replace(pp, refine_final_m=final_m, refine_final_radius_m=0.0)
         disk = replace(pp, refine_final_m=final_m)
-        (rn, tn_, cn_), (rd, td, cd) = (((res, t, c) if p == pp else
-                                         _timed(search_panoramas, qo, poses, model.segments, model.faces, db, p,
-                                                tolerance_px=2, wall_margin_m=0.1, hidden=True)) for p in (near, disk))
+        (rn, tn_, cn_), (rd, td, cd) = (searched(p) for p in (near, disk))
         en, ed = (np.hypot(*(r[1] - truth[:, :2]).T) for r in (rn, rd))
         print(f"oriented score, {bins} bins, the final search from the best lattice point within "
               f"{pp.refine_final_radius_m} m (refine_final_radius_m): {td / n * 1e3:.0f} ms wall, {cd / n * 1e3:.0f} ms "
               f"CPU per panorama against {tn_ / n * 1e3:.0f} ms wall, {cn_ / n * 1e3:.0f} ms CPU from the lattice point "
               f"nearest the beam's pose: {td / tn_:.2f}x wall, {cd / cn_:.2f}x CPU; median error {np.median(ed):.3f} m "
               f"against {np.median(en):.3f} m")
+    if final_m > 0 and pp.refine_final_ties > 0:
+        # the final search from every pose of the beam within refine_final_ties of its best
+        # (the defaults) against from its best pose only, in the same run
+        alone = replace(pp, refine_final_m=final_m, refine_final_ties=0.0)
+        ties = replace(pp, refine_final_m=final_m)
+        (ra, ta, ca), (rt, tt, ct) = (searched(p) for p in (alone, ties))
+        moved = int(np.sum(np.hypot(*(ra[1] - rt[1]).T) > 0.05))
+        print(f"oriented score, {bins} bins, the final search from every pose of the beam within "
+              f"{pp.refine_final_ties} of its best (refine_final_ties): {tt / n * 1e3:.0f} ms wall, {ct / n * 1e3:.0f} ms "
+              f"CPU per panorama against {ta / n * 1e3:.0f} ms wall, {ca / n * 1e3:.0f} ms CPU from its best pose only: "
+              f"{tt / ta:.2f}x wall, {ct / ca:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
     ti, ci, tn, cn = default_times
     print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
           f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "

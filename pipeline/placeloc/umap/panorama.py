@@ -1980,8 +1980,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
                 move(int(k), xy, col, sc, step, floor_d, q_close, square)
             move(int(k), xy, col, sc, step, floor_d, q_close)
         j = int(np.argmax(sc))
-        # the margin's score: the answer's own beam score, before the final search polishes it
-        # alone (at least the grid's best where the answer is the beam's best)
+        # the margin's score: the beam's best (at least the grid's best), taken before the final
+        # search polishes the answer alone; no rival gets that polish (but see the ties below)
         before_final[k] = max(score[k], float(sc[j]))
         final = False                                                         # the final search's end taken
         if chamfer and pp.refine_final_m > 0:                                 # the winner, in metres

@@ -412,7 +412,8 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
     choice, lo = None, 0
     pose_ceiling = src["ceiling_m"][()] if "ceiling_m" in src else None
     # each panorama's room where umap.room_hints names it: the ceiling, the layers and the search look there only
-    inside, hints = _room_regions(ctx, src, poses) if ctx.params.room_hints is not None else (None, [])
+    names = read_strings(ex["names"])
+    inside, hints = _room_regions(ctx, src, poses, names) if ctx.params.room_hints is not None else (None, [])
     if pose_ceiling is not None and len(np.unique(pose_ceiling)) > 1:
         # the home's ceiling by the grid table of every ceiling's layers, then the search
         # off the grid at that ceiling, refined between the layers, alone
@@ -427,8 +428,8 @@ def _localize_panoramas(ctx: Any, idx: Any, ex: Any) -> tuple[PanoramaAnswers, C
                           hidden=bool(ctx.params.hidden_lines),
                           progress=lambda it, desc, total: ctx.progress(it, total=total, desc=desc), seen=seen,
                           inside=inside, outside=outside)
-    checked = None if inside is None else RoomCheck(hints, _check_room_hints(ctx, src, poses, inside, hints, outside,
-                                                                           found.score))
+    checked = None if inside is None else RoomCheck(hints, _check_room_hints(ctx, src, poses, names, inside, hints,
+                                                                           outside, found.score))
     return found._replace(best=found.best + lo), choice, checked
 
 
@@ -440,8 +441,8 @@ class RoomCheck(NamedTuple):
     gap: np.ndarray
 
 
-def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRegion | None], hints: list[str | None],
-                      outside: np.ndarray, score: np.ndarray) -> np.ndarray:
+def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, names: list[str], inside: list[RoomRegion | None],
+                      hints: list[str | None], outside: np.ndarray, score: np.ndarray) -> np.ndarray:
     """Warn about each named photo whose best grid place outside its named room (``outside``:
     its score and grid row, as the search found them) scores more than
     ``umap.room_hint_check`` above its answer (``score``, found inside; a wrong name, most
@@ -453,7 +454,6 @@ def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRe
     gap = np.full(len(inside), np.nan)
     best_out, row = outside[ks, 0], outside[ks, 1].astype(np.int64)
     gap[ks] = np.where(np.isfinite(best_out), best_out - score[ks], np.nan)   # NaN: the room holds the whole grid
-    names = read_strings(ctx.artifact("extract")["names"])
     limit = float(ctx.params.room_hint_check)
     flagged = [(k, j) for j, k in enumerate(ks) if gap[k] > limit]
     if flagged:
@@ -466,12 +466,12 @@ def _check_room_hints(ctx: Any, src: Any, poses: np.ndarray, inside: list[RoomRe
     return gap
 
 
-def _room_regions(ctx: Any, src: Any, poses: np.ndarray) -> tuple[list[RoomRegion | None], list[str | None]]:
-    """Each query panorama's region where ``umap.room_hints`` names its room (None where it
-    names none): the rooms of that name and ``room_hint_margin_m`` around them; and each one's
-    name as given. A room the grid ``poses`` lay no position in is an error naming it and the
-    fix."""
-    names = read_strings(ctx.artifact("extract")["names"])
+def _room_regions(ctx: Any, src: Any, poses: np.ndarray, names: list[str]
+                  ) -> tuple[list[RoomRegion | None], list[str | None]]:
+    """Each query panorama's (frame ``names``) region where ``umap.room_hints`` names its room
+    (None where it names none): the rooms of that name and ``room_hint_margin_m`` around them;
+    and each one's name as given. A room the grid ``poses`` lay no position in is an error
+    naming it and the fix."""
     room_names, polygons = _plan_rooms(src)
     hints, stray = read_room_hints(ctx.params.room_hints, names, room_names)
     if stray:

@@ -30,6 +30,23 @@ def _moves_counted(score):
     return score_at
 
 
+def _answers_by_origin(m, q, settings, *, start, end, z, fracs):
+    """Each setting's answers (origins, cameras, 2) to the query line images ``q`` over grids
+    of 0.3 m from ``start + frac * 0.3`` to ``end`` at height ``z``, one for each of ``fracs``:
+    each grid's views rendered once, each setting's spectra drawn from them."""
+    out = {key: [] for key in settings}
+    for frac in fracs:
+        origin = start + frac * 0.3
+        poses, _ = plan_grid(m, x=[origin, end[0], 0.3], y=[origin, end[1], 0.3], z=z, headings=[0.0])
+        views = _render_all(m, poses)
+        for key, pp in settings.items():
+            wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
+            db = {"spectra": chamfer_spectra(views, tau_px=pp.chamfer_tau_px, weights=wts)}
+            out[key].append(search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
+                                             hidden=True).xy)
+    return {key: np.array(v) for key, v in out.items()}
+
+
 def test_pattern_search_by_hand():
     # a smooth peak off every lattice of the steps: found within half the finest step per axis
     peak = np.array([0.1234, -0.0567])
@@ -66,20 +83,10 @@ def test_final_search_makes_the_answer_the_same_wherever_the_grid_falls():
                       [1.803, 6.617, 1.4, 200.0], [1.234, 2.871, 1.4, 75.0], [4.71, 3.13, 1.4, 300.0]])
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
-    answers = {}
-    for final, start, radius in ((0.0, 0.0, 0.0), (0.01, 0.0, 0.0), (0.01, 0.08, 0.0), (0.01, 0.08, 0.24)):
-        pp = replace(PanoramaParams(), orientation_bins=1, refine_final_m=final, refine_final_start_m=start,
-                     refine_final_radius_m=radius)
-        wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
-        out = []
-        for frac in (0.0, 1 / 3, 2 / 3, 0.1, 0.77):
-            origin = 0.1 + frac * 0.3
-            poses, _ = plan_grid(m, x=[origin, 6.0, 0.3], y=[origin, 7.0, 0.3], z=1.4, headings=[0.0])
-            db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
-            _, xy, *_ = search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
-                                           hidden=True)
-            out.append(xy)
-        answers[final, start, radius] = np.array(out)             # (origins, cameras, 2)
+    settings = {(final, start, radius): replace(PanoramaParams(), orientation_bins=1, refine_final_m=final,
+                                                refine_final_start_m=start, refine_final_radius_m=radius)
+                for final, start, radius in ((0.0, 0.0, 0.0), (0.01, 0.0, 0.0), (0.01, 0.08, 0.0), (0.01, 0.08, 0.24))}
+    answers = _answers_by_origin(m, q, settings, start=0.1, end=(6.0, 7.0), z=1.4, fracs=(0.0, 1 / 3, 2 / 3, 0.1, 0.77))
 
     def apart(a):                                         # per camera, the largest distance between two origins
         return np.hypot(*(a[:, None] - a[None]).transpose(3, 0, 1, 2)).max(axis=(0, 1))
@@ -155,18 +162,9 @@ def test_near_tied_places_are_compared_after_their_final_search():
                       [2.189, 1.867, 1.5, 246.8]])
     q = _render_all(m, truth)
     q[:, ::3, ::4] = 0                                    # a few line pixels lost
-    answers = {}
-    for ties in (0.0, 0.02):
-        pp = replace(PanoramaParams(), orientation_bins=1, refine_final_ties=ties)
-        wts = row_weights(H, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
-        out = []
-        for frac in (0.0, 0.1, 1 / 3, 0.55, 2 / 3):
-            origin = 0.15 + frac * 0.3
-            poses, _ = plan_grid(m, x=[origin, 6.2, 0.3], y=[origin, 2.5, 0.3], z=1.5, headings=[0.0])
-            db = {"spectra": chamfer_spectra(_render_all(m, poses), tau_px=pp.chamfer_tau_px, weights=wts)}
-            out.append(search_panoramas(q, poses, m.segments, m.faces, db, pp, tolerance_px=2, wall_margin_m=0.1,
-                                        hidden=True).xy)
-        answers[ties] = np.array(out)                     # (origins, cameras, 2)
+    settings = {ties: replace(PanoramaParams(), orientation_bins=1, refine_final_ties=ties) for ties in (0.0, 0.02)}
+    answers = _answers_by_origin(m, q, settings, start=0.15, end=(6.2, 2.5), z=1.5,
+                                 fracs=(0.0, 0.1, 1 / 3, 0.55, 2 / 3))
     east = {ties: (a[:, :, 0] > 3.1).sum(axis=0).tolist() for ties, a in answers.items()}
     assert east[0.0] == [0, 0, 5, 4]
     assert east[0.02] == [0, 0, 5, 0]

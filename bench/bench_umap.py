@@ -27,7 +27,9 @@
    it in the same run, and that search from the best lattice point within
    ``refine_final_radius_m`` (the defaults) against it from the lattice point nearest the
    beam's pose, and that search from every pose of the beam within ``refine_final_ties`` of
-   its best (the defaults) against from its best pose only.
+   its best (the defaults) against from its best pose only; and the beam cut to the poses
+   within ``refine_beam_within`` of the cell stage's best (the defaults) against the whole
+   beam of ``refine_beam``.
 
     python bench/bench_umap.py [--views 36032] [--floor-only] [--panorama-only] [--old-views 3000]
 
@@ -299,6 +301,16 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
               f"{pp.refine_final_ties} of its best (refine_final_ties): {tt / n * 1e3:.0f} ms wall, {ct / n * 1e3:.0f} ms "
               f"CPU per panorama against {ta / n * 1e3:.0f} ms wall, {ca / n * 1e3:.0f} ms CPU from its best pose only: "
               f"{tt / ta:.2f}x wall, {ct / ca:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
+    if pp.refine_beam_within > 0:
+        # the beam cut to the poses within refine_beam_within of the cell stage's best (the
+        # defaults) against the whole beam of refine_beam, in the same run
+        whole = replace(pp, refine_beam_within=0.0)
+        (rw, tw, cw), (rc, tc, cc) = (searched(p) for p in (whole, pp))
+        moved = int(np.sum(np.hypot(*(rw[1] - rc[1]).T) > 0.05))
+        print(f"oriented score, {bins} bins, the beam cut to the poses within {pp.refine_beam_within} of the cell "
+              f"stage's best (refine_beam_within): {tc / n * 1e3:.0f} ms wall, {cc / n * 1e3:.0f} ms CPU per panorama "
+              f"against {tw / n * 1e3:.0f} ms wall, {cw / n * 1e3:.0f} ms CPU with the whole beam of {pp.refine_beam}: "
+              f"{tc / tw:.2f}x wall, {cc / cw:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
     ti, ci, tn, cn = default_times
     print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
           f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "

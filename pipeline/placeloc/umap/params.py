@@ -156,6 +156,11 @@ class PanoramaParams(Params):
                                                     "that every candidate makes before the beam is chosen (8 renders "
                                                     "each per candidate and climb; 0: none)")
     refine_beam: int = param(4, min=1, help="best poses after the cell stage that go on coarse to fine")
+    refine_beam_within: float = param(0.05, min=0.0, help="of the refine_beam poses, only those scoring within this of "
+                                                          "the best after the cell stage go on: on generated homes the "
+                                                          "place that won was never more than 0.019 behind there, and "
+                                                          "each pose kept costs 64 renders (docs/umap.md, \"A beam of "
+                                                          "the places that can still win\"; 0: every one)")
     refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
                                                      "samples the square of this many steps either side of it (3: its "
                                                      "whole grid cell; 1: only its 8 neighbours); chamfer score only")

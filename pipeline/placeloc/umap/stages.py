@@ -936,7 +936,7 @@ METHOD = Method(
                                           "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",
                                           "panorama.coarse_candidates", "panorama.coarse_tau_px", "panorama.coarse_blur_px",
                                           "panorama.refine_climb", "panorama.orientation_bins", "panorama.orientation_spread",
-                                          "panorama.refine_beam", "panorama.refine_square", "panorama.refine_step_m",
+                                          "panorama.refine_beam", "panorama.refine_beam_within", "panorama.refine_square", "panorama.refine_step_m",
                                           "panorama.refine_final_m", "panorama.refine_final_start_m", "panorama.refine_final_radius_m",
                                           "panorama.refine_final_ties",
                                           "panorama.refine_yaw_cols",

@@ -152,6 +152,9 @@ SWEEP.update({
 # the settings before refine_final_ties finished the beam's best pose only
 for _over in SWEEP.values():
     _over.setdefault("refine_final_ties", 0.0)
+# refine_beam_within is not swept: every row runs with its default, a cut of the search's
+# cost whose gap was measured apart (it changes no answer of the chosen row on any generated
+# home; docs/umap.md, "A beam of the places that can still win")
 
 
 def _home(root: Path, seed: int) -> Path:

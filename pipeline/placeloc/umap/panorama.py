@@ -1342,9 +1342,9 @@ def lattice_disk(centre: np.ndarray, spacing_m: float, radius_m: float) -> np.nd
 def beam_of(scores: np.ndarray, *, size: int, within: float) -> np.ndarray:
     """The poses (indices into ``scores``, best first, the first of equals first) that go on
     from the cell stage: the ``size`` best, and of those only the ones scoring within
-    ``within`` of the best (0: all ``size``). Why a gap: a pose that far behind after the cell
-    stage does not win, as measured on generated homes (docs/umap.md, "A beam of the places
-    that can still win"), and each costs the beam's square and climbs (64 renders)."""
+    ``within`` of the best (0: all ``size``). Why a gap: on generated homes no place that far
+    behind after the cell stage went on to win (docs/umap.md, "A beam of the places that can
+    still win"), and each pose costs the beam's square and climbs (64 renders)."""
     beam = np.argsort(-np.asarray(scores), kind="stable")[:max(1, int(size))]
     if within > 0 and len(beam):
         beam = beam[scores[beam] >= scores[beam[0]] - within]
@@ -1707,8 +1707,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     2. with ``refine_climb``, every candidate first climbs that many times by its 8
        neighbours at a sixth of a grid step, so that a peak whose cell-stage point ranks
        low is reached before the beam is chosen;
-    3. the ``refine_beam`` best poses so far (with ``refine_beam_within``, only those within
-       that of the best: :func:`beam_of`) then move coarse to fine (:func:`refine_steps`:
+    3. the ``refine_beam`` best poses so far (with ``refine_beam_within`` and the chamfer
+       score, only those within that of the best: :func:`beam_of`) then move coarse to fine (:func:`refine_steps`:
        the 8 neighbours at each step, down to ``refine_step_m``); at the first step (a sixth
        of a grid step) each first samples the whole square of ``refine_square`` steps either
        side of it (:func:`square_offsets`; 3: the grid cell around it; chamfer score only),
@@ -1969,7 +1969,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         xy, col, sc, floor_d = cell_stage(int(k), rows, table, q_close)
         for _ in range(pp.refine_climb):                                        # every candidate climbs
             move(int(k), xy, col, sc, steps[0], floor_d, q_close)
-        beam = beam_of(sc, size=pp.refine_beam, within=pp.refine_beam_within)
+        # the gap was measured on the chamfer score; the IoU score's differences are smaller
+        beam = beam_of(sc, size=pp.refine_beam, within=pp.refine_beam_within if chamfer else 0.0)
         rows, xy, col, sc, floor_d = rows[beam], xy[beam], col[beam], sc[beam], floor_d[beam]
         # refine_top: the cells of the best-ranked grid points that a pose of the beam kept
         # out of the candidates, searched after the beam is chosen (so that the choice among

@@ -160,7 +160,7 @@ class PanoramaParams(Params):
                                                           "the best after the cell stage go on: on generated homes the "
                                                           "place that won was never more than 0.019 behind there, and "
                                                           "each pose kept costs 64 renders (docs/umap.md, \"A beam of "
-                                                          "the places that can still win\"; 0: every one)")
+                                                          "the places that can still win\"; chamfer score only; 0: every one)")
     refine_square: int = param(3, min=1, max=6, help="at the beam's first step (a sixth of a grid step) each pose first "
                                                      "samples the square of this many steps either side of it (3: its "
                                                      "whole grid cell; 1: only its 8 neighbours); chamfer score only")

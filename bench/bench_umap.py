@@ -290,27 +290,26 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
               f"CPU per panorama against {tn_ / n * 1e3:.0f} ms wall, {cn_ / n * 1e3:.0f} ms CPU from the lattice point "
               f"nearest the beam's pose: {td / tn_:.2f}x wall, {cd / cn_:.2f}x CPU; median error {np.median(ed):.3f} m "
               f"against {np.median(en):.3f} m")
+    def compared(what: str, new: PanoramaParams, old: PanoramaParams, old_what: str) -> None:
+        """The search with ``new`` (the defaults) against ``old``, timed in the same run."""
+        (r_old, t_old, c_old), (r_new, t_new, c_new) = (searched(p) for p in (old, new))
+        moved = int(np.sum(np.hypot(*(r_old[1] - r_new[1]).T) > 0.05))
+        print(f"oriented score, {bins} bins, {what}: {t_new / n * 1e3:.0f} ms wall, {c_new / n * 1e3:.0f} ms CPU per "
+              f"panorama against {t_old / n * 1e3:.0f} ms wall, {c_old / n * 1e3:.0f} ms CPU {old_what}: "
+              f"{t_new / t_old:.2f}x wall, {c_new / c_old:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
+
     if final_m > 0 and pp.refine_final_ties > 0:
         # the final search from every pose of the beam within refine_final_ties of its best
         # (the defaults) against from its best pose only, in the same run
-        alone = replace(pp, refine_final_m=final_m, refine_final_ties=0.0)
-        ties = replace(pp, refine_final_m=final_m)
-        (ra, ta, ca), (rt, tt, ct) = (searched(p) for p in (alone, ties))
-        moved = int(np.sum(np.hypot(*(ra[1] - rt[1]).T) > 0.05))
-        print(f"oriented score, {bins} bins, the final search from every pose of the beam within "
-              f"{pp.refine_final_ties} of its best (refine_final_ties): {tt / n * 1e3:.0f} ms wall, {ct / n * 1e3:.0f} ms "
-              f"CPU per panorama against {ta / n * 1e3:.0f} ms wall, {ca / n * 1e3:.0f} ms CPU from its best pose only: "
-              f"{tt / ta:.2f}x wall, {ct / ca:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
+        compared(f"the final search from every pose of the beam within {pp.refine_final_ties} of its best "
+                 "(refine_final_ties)", replace(pp, refine_final_m=final_m),
+                 replace(pp, refine_final_m=final_m, refine_final_ties=0.0), "from its best pose only")
     if pp.refine_beam_within > 0:
         # the beam cut to the poses within refine_beam_within of the cell stage's best (the
         # defaults) against the whole beam of refine_beam, in the same run
-        whole = replace(pp, refine_beam_within=0.0)
-        (rw, tw, cw), (rc, tc, cc) = (searched(p) for p in (whole, pp))
-        moved = int(np.sum(np.hypot(*(rw[1] - rc[1]).T) > 0.05))
-        print(f"oriented score, {bins} bins, the beam cut to the poses within {pp.refine_beam_within} of the cell "
-              f"stage's best (refine_beam_within): {tc / n * 1e3:.0f} ms wall, {cc / n * 1e3:.0f} ms CPU per panorama "
-              f"against {tw / n * 1e3:.0f} ms wall, {cw / n * 1e3:.0f} ms CPU with the whole beam of {pp.refine_beam}: "
-              f"{tc / tw:.2f}x wall, {cc / cw:.2f}x CPU; {moved} of {n} answers elsewhere (more than 0.05 m)")
+        compared(f"the beam cut to the poses within {pp.refine_beam_within} of the cell stage's best "
+                 "(refine_beam_within)", pp, replace(pp, refine_beam_within=0.0),
+                 f"with the whole beam of {pp.refine_beam}")
     ti, ci, tn, cn = default_times
     print(f"oriented score, {bins} bins (spread {pp.orientation_spread}): index {t_idx:.2f} s wall, {c_idx:.2f} s CPU, "
           f"{spectra.nbytes / 2**20:.0f} MiB ({t_idx / ti:.1f}x the plain score's wall); search {t / n * 1e3:.0f} ms wall, "

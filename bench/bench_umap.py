@@ -290,6 +290,7 @@ def _oriented_case(bins: int, model, poses: np.ndarray, truth: np.ndarray, q: np
               f"CPU per panorama against {tn_ / n * 1e3:.0f} ms wall, {cn_ / n * 1e3:.0f} ms CPU from the lattice point "
               f"nearest the beam's pose: {td / tn_:.2f}x wall, {cd / cn_:.2f}x CPU; median error {np.median(ed):.3f} m "
               f"against {np.median(en):.3f} m")
+
     def compared(what: str, new: PanoramaParams, old: PanoramaParams, old_what: str) -> None:
         """The search with ``new`` (the defaults) against ``old``, timed in the same run."""
         (r_old, t_old, c_old), (r_new, t_new, c_new) = (searched(p) for p in (old, new))

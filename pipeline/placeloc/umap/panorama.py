@@ -1345,7 +1345,8 @@ def beam_of(scores: np.ndarray, *, size: int, within: float) -> np.ndarray:
     ``within`` of the best (0: all ``size``). Why a gap: on generated homes no place that far
     behind after the cell stage went on to win (docs/umap.md, "A beam of the places that can
     still win"), and each pose costs the beam's square and climbs (64 renders)."""
-    beam = np.argsort(-np.asarray(scores), kind="stable")[:max(1, int(size))]
+    scores = np.asarray(scores, float)
+    beam = np.argsort(-scores, kind="stable")[:max(1, int(size))]
     if within > 0 and len(beam):
         beam = beam[scores[beam] >= scores[beam[0]] - within]
     return beam
@@ -1356,12 +1357,10 @@ def final_starts(xy: np.ndarray, scores: np.ndarray, *, ties: float, apart_m: fl
     search starts from (:func:`search_panoramas`): the best, then each other scoring within
     ``ties`` of it, best first, that lies more than ``apart_m`` from every one taken (a pose
     that near one taken is inside that one's search). Indices into the beam. ``ties`` 0: the
-    best alone (the first of equals), as before the ties were searched."""
-    order = np.argsort(-np.asarray(scores, float), kind="stable")
-    out = [int(order[0])]
-    for i in order[1:] if ties > 0 else ():
-        if scores[i] < scores[order[0]] - ties:
-            break
+    best alone (the first of equals), as before the ties were searched. The poses within
+    ``ties`` of the best, best first, are :func:`beam_of`'s."""
+    out: list[int] = []
+    for i in beam_of(scores, size=len(scores) if ties > 0 else 1, within=ties):
         if all(np.hypot(*(xy[i] - xy[t])) > apart_m for t in out):
             out.append(int(i))
     return out

@@ -104,9 +104,9 @@ def test_the_experiment_rule_picks_the_highest_mean_then_the_cheapest():
     results = {climb32: nine, square32: [0.975] * 9, texture_square32: [0.975] * 9, square16: nine}
     assert choose(results) == square32                        # a tie on 32 cells: the earlier in the sweep
     assert names.index(square32) < names.index(texture_square32)
-    results[square16] = [0.975 - one] * 9                   # one panorama below on fewer cells: the cheaper
+    results[square16] = [0.975 - one] * 9                     # one panorama below on fewer cells: the cheaper
     assert choose(results) == square16
-    results[square16] = [0.975 - 2 * one] * 9               # two panoramas below: the best
+    results[square16] = [0.975 - 2 * one] * 9                 # two panoramas below: the best
     assert choose(results) == square32
     # within one panorama, the answers that move least with the grid's origin come first
     # (more than 0.1 m, then more than 0.05 m), before the cost

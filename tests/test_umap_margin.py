@@ -175,7 +175,8 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog,
 def test_show_of_a_photo_without_truth_draws_its_lines_against_the_map_at_the_answer(tmp_path):
     # `placeloc show` of a panorama located without ground truth: its detected lines against
     # the map at its answer (red), and where the answer is doubtful (the twin rooms) at its
-    # rival too (green; brown where both draw a line: the twins' views are alike); report.html lists the answer. A home whose rooms differ: no green.
+    # rival too (green; brown where both draw a line: the twins' views are alike); report.html
+    # lists the answer. A home whose rooms differ: no green.
     import cv2
 
     from placeloc.core.runner import run_stage

@@ -358,14 +358,14 @@ def _blur_by_hand(img, r):
     return out / (2 * r + 1) ** 2
 
 
-def _chamfer_reference(db, q, *, tau, weights, prows, spread, recall_tau=None, blur=0):
+def _chamfer_reference(db, q, *, tau, weights, prows, spread, recall_tau=None, blur=0, recall_weight=0.5):
     """The chamfer score (chance none) pixel by pixel, for the oriented and the tolerant
     tables: (P, B, H, W) map channels, (B, H, W) query channels (B = 1: the plain score),
     each element's closeness to the other side's lines of compatible bins
     (:func:`_closeness_by_transform`); the recall half's query closeness at ``recall_tau``
     (None: ``tau``), the precision half's query pixels (times the precision rows) blurred
     over ``blur`` pixels, each against the map's closeness at ``tau``; every query shift by
-    rolling its columns."""
+    rolling its columns; the halves mixed as ``recall_weight`` says (0.5: their mean)."""
     recall_tau = tau if recall_tau is None else recall_tau
     b, h, w = q.shape
     wr = weights[:, None]
@@ -378,7 +378,7 @@ def _chamfer_reference(db, q, *, tau, weights, prows, spread, recall_tau=None, b
             rec = sum((m[c] * wr * q_near[c]).sum() for c in range(b)) / max((m * wr).sum(), 1e-9)
             qb = [_blur_by_hand(qk[c] * prows[:, None], blur) * wr for c in range(b)]
             pre = sum((qb[c] * m_near[c]).sum() for c in range(b)) / max(sum(x.sum() for x in qb), 1e-9)
-            out[p, k] = 0.5 * (rec + pre)
+            out[p, k] = recall_weight * rec + (1.0 - recall_weight) * pre
     return out
 
 

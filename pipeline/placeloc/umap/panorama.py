@@ -287,7 +287,8 @@ def _query_pixels(query: np.ndarray, precision_rows: np.ndarray | None) -> tuple
 
 
 def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, *, tau_px: float, chance: str,
-                       precision_rows: np.ndarray | None = None, clutter_share: float = 0.5) -> np.ndarray:
+                       precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
+                       recall_weight: float = 0.5) -> np.ndarray:
     """The truncated chamfer score (module docstring) of every database panorama with the
     query at every column shift, pixel by pixel (the reference :func:`chamfer_table` is
     tested against): (P, W) float64. ``db`` the undilated packed map line images,
@@ -299,7 +300,9 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
     ``precision_rows`` (H,): each row's query pixels count in the precision half times
     this (:func:`precision_rows`; the recall half keeps them all). ``likelihood``: each half
     the mean log likelihood ratio of its side's line pixels (:func:`likelihood_image` of the
-    other side's closeness, unit row weights, ``clutter_share``)."""
+    other side's closeness, unit row weights, ``clutter_share``). The score is
+    ``recall_weight`` times the recall half plus the rest times the precision half
+    (:func:`halves_mixed`; 0.5: their mean)."""
     h, w = query.shape
     rows, cols, vals = _query_pixels(query, precision_rows)
     halves = np.zeros((db.shape[0], 2, w))
@@ -322,7 +325,21 @@ def chamfer_yaw_scores(db: np.ndarray, db_close: np.ndarray, query: np.ndarray, 
         precision = chance_corrected(precision, precision.mean(axis=1, keepdims=True))
     elif chance not in ("none", "likelihood"):
         raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
-    return 0.5 * (recall + precision)
+    return halves_mixed(recall, precision, recall_weight)
+
+
+def halves_mixed(recall: Any, precision: Any, recall_weight: float) -> Any:
+    """The chamfer score from its two halves: ``recall_weight`` times the recall half (the
+    map's drawn lines near the photo's) plus ``1 - recall_weight`` times the precision half
+    (the photo's lines near the map's); 0.5, their mean. Every score of the search (the
+    tables, the local search, the rival) mixes them so.
+
+    Why a weight: a sparse view earns the recall half easily (few drawn lines, each near
+    something), a busy one the precision half (many drawn lines for clutter to fall near),
+    so the mean is one choice among many. Another weight was measured and not taken: 0.4
+    placed more photos on development homes and fewer on test homes (docs/umap.md, "The
+    halves' weights"; ``placeloc experiment umap-halves``)."""
+    return recall_weight * recall + (1.0 - recall_weight) * precision
 
 
 # ------------------------------------------------------------------ directions: the oriented (directional) score
@@ -475,7 +492,7 @@ def channel_masks(channels: np.ndarray) -> np.ndarray:
 
 def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                        spread: int, query_close: np.ndarray | None = None,
-                       precision_rows: np.ndarray | None = None) -> np.ndarray:
+                       precision_rows: np.ndarray | None = None, recall_weight: float = 0.5) -> np.ndarray:
     """The oriented chamfer score (:func:`chamfer_table` with ``spread``) of one query's
     (B, H, W) oriented channels (0/1 or weights) against (L, H, W) orientation bitmask map
     images (as :func:`render_panoramas` draws them), each at its own column shifts (L, S):
@@ -501,7 +518,7 @@ def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray,
                          np.ascontiguousarray(query_close, np.float32),
                          rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
                          halves)
-    return 0.5 * (halves[..., 0] + halves[..., 1])
+    return halves_mixed(halves[..., 0], halves[..., 1], recall_weight)
 
 
 @functools.lru_cache(maxsize=64)
@@ -751,7 +768,7 @@ def _close_over_seen(q_close: np.ndarray, seen: np.ndarray | None,
 
 def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, weights: np.ndarray,
                   chance: str, precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
-                  spread: int | None = None, seen: np.ndarray | None = None) -> np.ndarray:
+                  spread: int | None = None, seen: np.ndarray | None = None, recall_weight: float = 0.5) -> np.ndarray:
     """Chamfer scores (module docstring, rows weighted by ``weights``, halves corrected for
     chance as ``chance`` says: see :func:`chamfer_yaw_scores`) of a batch of (N, H, W) query
     line images against every map panorama of ``spectra`` (:func:`chamfer_spectra`) at every
@@ -772,7 +789,11 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     ``seen`` (N, H; :func:`seen_rows`; chance ``none``): the rows each query's photo saw (a
     photo sphere stored cropped); its recall half counts the map's lines in those rows only
     (:func:`_table_products`), so a pose is not marked down for lines where the photo has no
-    pixels. None: every row."""
+    pixels. None: every row.
+
+    ``recall_weight`` (:func:`halves_mixed`): each half's products are scaled by twice its
+    weight before the one inverse FFT, which then gives the mixed score."""
+    mix_r, mix_p = 2.0 * float(recall_weight), 2.0 * (1.0 - float(recall_weight))
     if seen is not None and chance != "none":
         seen = None   # the chance-corrected halves are not derived for a part of the sphere
     if spread is not None:
@@ -786,7 +807,7 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
             q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
         q_close, seen = _close_over_seen(q_close, seen, b)
-        x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)             # (N, 2 B H, W)
+        x = np.concatenate([q_close * mix_r, stack_channels(q) * (mix_p / nq)], axis=1)   # (N, 2 B H, W)
         qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))
         prod = _table_products(spectra, qs, seen)                                 # (F, P, N)
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
@@ -804,6 +825,8 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
     x = np.concatenate([q_close, q / nq], axis=1)                             # (N, 2H, W)
     qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))  # (F, 2H, N)
     if chance in ("none", "likelihood"):
+        qs[:, :h] *= np.float32(mix_r)
+        qs[:, h:] *= np.float32(mix_p)
         prod = _table_products(spectra, qs, seen)                             # (F, P, N)
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
     recall = _batch_products(spectra[:, :, :h], qs[:, :h])                    # (F, P, N) each half
@@ -816,8 +839,8 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
         r_chance, p_chance = recall[0].real / w, precision[0].real / w
     else:
         raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
-    r_scale = 1.0 / np.maximum(1.0 - r_chance, CHANCE_FLOOR)
-    p_scale = 1.0 / np.maximum(1.0 - p_chance, CHANCE_FLOOR)
+    r_scale = mix_r / np.maximum(1.0 - r_chance, CHANCE_FLOOR)
+    p_scale = mix_p / np.maximum(1.0 - p_chance, CHANCE_FLOOR)
     prod = recall * r_scale.astype(np.float32) + precision * p_scale.astype(np.float32)
     offset = (r_chance * r_scale + p_chance * p_scale).T                      # (N, P)
     return (0.5 * (_irfft(prod.transpose(2, 1, 0), w) - offset[:, :, None])).astype(np.float32)
@@ -859,7 +882,7 @@ def tolerant_bands(width: int, recall_tau_px: float) -> int:
 def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_tau_px: float, blur_px: int,
                            weights: np.ndarray, precision_rows: np.ndarray | None = None,
                            spread: int | None = None, bands: int | None = None,
-                           seen: np.ndarray | None = None) -> np.ndarray:
+                           seen: np.ndarray | None = None, recall_weight: float = 0.5) -> np.ndarray:
     """A more tolerant chamfer score (chance ``none``) of a batch of query line images
     against the same ``spectra`` as :func:`chamfer_table` (built with its ``tau_px``), at
     every position and column shift: (N, P, W) float32. Only the query's side changes, so
@@ -894,7 +917,7 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     ``bands``: only the column frequencies 0 .. bands - 1 of each row's correlation are
     multiplied (:func:`tolerant_bands`), so the table is the full one low-passed over the
     column shifts (tested): a heading blurred, for bands / (W / 2 + 1) of the products'
-    cost; None: all. ``seen``: as :func:`chamfer_table`'s."""
+    cost; None: all. ``seen`` and ``recall_weight``: as :func:`chamfer_table`'s."""
     queries = np.asarray(queries)
     if spread is None:
         queries = queries.reshape(-1, 1, *queries.shape[-2:])            # one channel: the plain score
@@ -911,7 +934,8 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     wr = np.asarray(weights, np.float32)[None, None, :, None]
     nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
     q_close, seen = _close_over_seen(q_close, seen, b)
-    x = np.concatenate([q_close, stack_channels(q) / nq], axis=1)         # (N, 2 B H, W)
+    x = np.concatenate([q_close * (2.0 * float(recall_weight)),
+                        stack_channels(q) * (2.0 * (1.0 - float(recall_weight)) / nq)], axis=1)   # (N, 2 B H, W)
     f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
     qs = np.ascontiguousarray(_rfft(x)[..., :f].astype(np.complex64).transpose(2, 1, 0))
     prod = _table_products(spectra[:f], qs, seen)                         # (f, P, N); the rest are zero
@@ -1442,7 +1466,7 @@ def _chamfer_at_shifts(imgs: np.ndarray, m_close: np.ndarray, q_close: np.ndarra
 def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                       chance: str, query_close: np.ndarray | None = None,
                       precision_rows: np.ndarray | None = None, clutter_share: float = 0.5,
-                      spread: int | None = None) -> np.ndarray:
+                      spread: int | None = None, recall_weight: float = 0.5) -> np.ndarray:
     """The chamfer score of :func:`chamfer_table` (same weights and chance correction) of one
     (H, W) query line image against (L, H, W) map line images, each only at its own column
     shifts ``shifts`` (L, S): (L, S) float64. What the local search needs: a few shifts
@@ -1455,7 +1479,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
     if spread is not None:
         _check_oriented(chance)
         return oriented_at_shifts(channel_masks(imgs), query, shifts, tau_px=tau_px, weights=weights, spread=spread,
-                                  query_close=query_close, precision_rows=precision_rows)
+                                  query_close=query_close, precision_rows=precision_rows, recall_weight=recall_weight)
     imgs = np.ascontiguousarray(imgs, np.uint8)
     q_close = closeness(query, tau_px).astype(np.float32) if query_close is None else query_close
     rows, cols, vals = _query_pixels(query, precision_rows)
@@ -1476,7 +1500,7 @@ def chamfer_at_shifts(imgs: np.ndarray, query: np.ndarray, shifts: np.ndarray, *
         recall, precision = chance_corrected(recall, levels[:, 2:3]), chance_corrected(precision, levels[:, 3:4])
     elif chance not in ("none", "likelihood"):
         raise ValueError(f"chance must be one of {', '.join(CHANCES)}, not {chance!r}")
-    return 0.5 * (recall + precision)
+    return halves_mixed(recall, precision, recall_weight)
 
 
 def dilate_lines(imgs: np.ndarray, tolerance_px: int) -> np.ndarray:
@@ -1659,7 +1683,8 @@ def _search_table(spectra: np.ndarray, queries: np.ndarray, weights: np.ndarray,
     (:func:`chamfer_table`), one home for both :func:`search_panoramas` and
     :func:`grid_table_best`, which must score alike."""
     return chamfer_table(spectra, queries, tau_px=pp.chamfer_tau_px, weights=weights, chance=pp.chamfer_chance,
-                         precision_rows=prows, clutter_share=pp.clutter_share, spread=spread, seen=seen)
+                         precision_rows=prows, clutter_share=pp.clutter_share, spread=spread, seen=seen,
+                         recall_weight=pp.recall_weight)
 
 
 def grid_table_best(lines: np.ndarray, spectra: np.ndarray, pp: Any, seen: np.ndarray | None = None,
@@ -1773,7 +1798,8 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     def tolerant_tables(ks: np.ndarray) -> np.ndarray:
         return tolerant_chamfer_table(database["spectra"], queries[ks], recall_tau_px=pp.coarse_tau_px,
                                       blur_px=pp.coarse_blur_px, weights=weights, precision_rows=prows, spread=spread,
-                                      bands=tolerant_bands(w, pp.coarse_tau_px), seen=None if seen is None else seen[ks])
+                                      bands=tolerant_bands(w, pp.coarse_tau_px), seen=None if seen is None else seen[ks],
+                                      recall_weight=pp.recall_weight)
 
     def tables(ks: np.ndarray) -> np.ndarray:
         if chamfer:
@@ -1804,11 +1830,13 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         wk = weights if seen is None else weights * seen[k]
         if spread is not None:
             out = oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=wk,
-                                     spread=spread, query_close=q_close, precision_rows=prows)
+                                     spread=spread, query_close=q_close, precision_rows=prows,
+                                     recall_weight=pp.recall_weight)
         elif chamfer:
             out = chamfer_at_shifts(unpack(renders(pts), h, w), queries[k], cols, tau_px=pp.chamfer_tau_px,
                                     weights=wk, chance=pp.chamfer_chance, query_close=q_close,
-                                    precision_rows=prows, clutter_share=pp.clutter_share)
+                                    precision_rows=prows, clutter_share=pp.clutter_share,
+                                    recall_weight=pp.recall_weight)
         else:
             dil = pack(dilate_lines(unpack(renders(pts), h, w), tolerance_px))
             out = np.take_along_axis(iou_yaw_scores(dil, popcount_rows(dil), lines[k]), cols % w, axis=1)

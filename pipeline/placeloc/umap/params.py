@@ -103,6 +103,11 @@ class PanoramaParams(Params):
     clutter_share: float = param(0.5, min=0.0, max=0.99, min_exclusive=True,
                                  help="chamfer_chance likelihood: the share of line pixels taken as clutter spread evenly "
                                       "over the sphere (the rest lie near the other side's lines, as its closeness says)")
+    recall_weight: float = param(0.5, min=0.0, max=1.0,
+                                 help="chamfer score: the weight of its recall half (the map's drawn lines near the "
+                                      "photo's lines); the precision half (the photo's lines near the map's) weighs the "
+                                      "rest; 0.5: their mean. 0.4 placed more photos on development homes but fewer on "
+                                      "test homes (placeloc experiment umap-halves), so the mean stays")
     texture_radius_px: int = param(0, min=0, max=8,
                                    help="chamfer score: each query line pixel weighs two lines' worth of pixels in the "
                                         "(2r + 1)-pixel square around it over the line pixels there (at most 1), so "

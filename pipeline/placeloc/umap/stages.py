@@ -930,7 +930,7 @@ METHOD = Method(
                                     "panorama.clutter_share", "panorama.orientation_bins", "panorama.orientation_spread")),
         "localize": Stage(localize, keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "room_hint_check",
                                           "panorama.score",
-                                          "panorama.chamfer_tau_px", "panorama.chamfer_chance",
+                                          "panorama.chamfer_tau_px", "panorama.chamfer_chance", "panorama.recall_weight",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
                                           "panorama.polar_deg", "panorama.polar_weight", "panorama.solid_angle", "tolerance_px",
                                           "panorama.refine_candidates", "panorama.refine_separation_m", "panorama.refine_top",

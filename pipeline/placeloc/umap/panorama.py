@@ -807,7 +807,8 @@ def chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, tau_px: float, we
             q = q * np.asarray(precision_rows, np.float32)[None, None, :, None]
         nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
         q_close, seen = _close_over_seen(q_close, seen, b)
-        x = np.concatenate([q_close * mix_r, stack_channels(q) * (mix_p / nq)], axis=1)   # (N, 2 B H, W)
+        # times the weights after the division: at 0.5 (times 1.0) the table before, to the bit
+        x = np.concatenate([q_close * mix_r, stack_channels(q) / nq * mix_p], axis=1)     # (N, 2 B H, W)
         qs = np.ascontiguousarray(_rfft(x).astype(np.complex64).transpose(2, 1, 0))
         prod = _table_products(spectra, qs, seen)                                 # (F, P, N)
         return (0.5 * _irfft(prod.transpose(2, 1, 0), w)).astype(np.float32)
@@ -935,7 +936,7 @@ def tolerant_chamfer_table(spectra: np.ndarray, queries: np.ndarray, *, recall_t
     nq = np.maximum((q * wr).sum(axis=(1, 2, 3)), 1e-9)[:, None, None]
     q_close, seen = _close_over_seen(q_close, seen, b)
     x = np.concatenate([q_close * (2.0 * float(recall_weight)),
-                        stack_channels(q) * (2.0 * (1.0 - float(recall_weight)) / nq)], axis=1)   # (N, 2 B H, W)
+                        stack_channels(q) / nq * (2.0 * (1.0 - float(recall_weight)))], axis=1)   # (N, 2 B H, W)
     f = spectra.shape[0] if bands is None else max(1, min(int(bands), spectra.shape[0]))
     qs = np.ascontiguousarray(_rfft(x)[..., :f].astype(np.complex64).transpose(2, 1, 0))
     prod = _table_products(spectra[:f], qs, seen)                         # (f, P, N); the rest are zero

@@ -109,3 +109,20 @@ def test_the_weight_is_chosen_by_the_homes_rule():
     assert choose_weight({0.4: moving, 0.6: one_less}, origins=2, homes=2) == 0.6
     assert choose_weight({0.4: best, 0.6: one_less}, origins=2, homes=2) == 0.4
     assert choose_weight({0.45: best, 0.6: best}, origins=2, homes=2) == 0.45
+
+
+def test_the_default_changes_only_where_the_chosen_weight_holds_on_the_test_homes():
+    from placeloc.experiments.umap_halves import verdict
+
+    def got(shares):
+        return {"shares": shares, "wrong": 0, "answers": {}}
+
+    # the full run's test homes (five homes, five origins): 0.4 worst origins 95 / 95 / 100 /
+    # 100 / 90 %, the mean 100 / 95 / 100 / 100 / 100 %
+    four = got([.95, 1, 1, 1, 1] + [.95] * 5 + [1] * 5 + [1] * 5 + [.95, .95, .95, .9, .95])
+    mean = got([1] * 5 + [.95] * 5 + [1] * 15)
+    assert verdict(0.4, {0.4: four, 0.5: mean}, origins=5).endswith("worse than the halves' mean by the same "
+                                                                        "measure: the default stays 0.5.")
+    assert verdict(0.4, {0.4: mean, 0.5: four}, origins=5).endswith("the default is 0.4.")
+    assert verdict(0.4, {0.4: mean, 0.5: mean}, origins=5).endswith("the default is 0.4.")     # a tie holds
+    assert verdict(0.5, {0.5: mean}, origins=5) == "The rule chose the halves' mean itself: the default stays 0.5."

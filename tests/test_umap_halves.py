@@ -102,13 +102,13 @@ def test_the_weight_is_chosen_by_the_homes_rule():
     best = got([1.0, 1.0, 0.95, 1.0])                 # worst origins 1.0 and 0.95: mean 0.975
     one_less = got([1.0, 0.95, 0.95, 0.95])           # 0.95: within one panorama of one home
     far = got([0.9, 0.9, 0.9, 0.9])
-    assert choose_weight({0.3: far, 0.4: best, 0.5: one_less}, origins=2, homes=2) == 0.5   # the halves' mean
-    assert choose_weight({0.3: far, 0.4: best, 0.5: far}, origins=2, homes=2) == 0.4
+    assert choose_weight({0.3: far, 0.4: best, 0.5: one_less}, origins=2) == 0.5   # the halves' mean
+    assert choose_weight({0.3: far, 0.4: best, 0.5: far}, origins=2) == 0.4
     # within the band, fewer answers moving with the origin first, then the nearer to 0.5
     moving = got([1.0, 1.0, 0.95, 1.0], moved=[("a.png", 0.2)])
-    assert choose_weight({0.4: moving, 0.6: one_less}, origins=2, homes=2) == 0.6
-    assert choose_weight({0.4: best, 0.6: one_less}, origins=2, homes=2) == 0.4
-    assert choose_weight({0.45: best, 0.6: best}, origins=2, homes=2) == 0.45
+    assert choose_weight({0.4: moving, 0.6: one_less}, origins=2) == 0.6
+    assert choose_weight({0.4: best, 0.6: one_less}, origins=2) == 0.4
+    assert choose_weight({0.45: best, 0.6: best}, origins=2) == 0.45
 
 
 def test_the_default_changes_only_where_the_chosen_weight_holds_on_the_test_homes():

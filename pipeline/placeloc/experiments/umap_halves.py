@@ -42,6 +42,9 @@ from placeloc.experiments.umap_homes import (
     _home,
     _run,
     answer_moves,
+    near_the_best,
+    within_goal,
+    worst_origin_mean,
 )
 
 log = logging.getLogger("placeloc")
@@ -54,7 +57,7 @@ MEAN = 0.5                      # the halves' mean: the score before the weight,
 def _right(run_dir: Path) -> dict[str, tuple[bool, tuple[float, float]]]:
     """frame -> (within 1 m and 30 degrees, the answered plan position), from a run's
     per_query.csv."""
-    return {r["frame"]: (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0, (float(r["x"]), float(r["y"])))
+    return {r["frame"]: (within_goal(r), (float(r["x"]), float(r["y"])))
             for r in csv.DictReader(read_run_table(run_dir, "per_query.csv"))}
 
 
@@ -78,11 +81,9 @@ def _sweep(out_dir: Path, seeds: tuple[int, ...], origins: tuple[float, ...], we
     return got
 
 
-def choose_weight(got: dict[float, dict[str, Any]], origins: int, homes: int) -> float:
-    """The rule of the module docstring over :func:`_sweep`'s results."""
-    worst = {w: float(np.mean(np.asarray(g["shares"], float).reshape(-1, origins).min(axis=1))) for w, g in got.items()}
-    top = max(worst.values())
-    near = [w for w in got if worst[w] >= top - 1.0 / (PANORAMAS * homes) - 1e-12]
+def choose_weight(got: dict[float, dict[str, Any]], origins: int) -> float:
+    """The rule of the module docstring over :func:`_sweep`'s results (``origins`` runs a home)."""
+    near = near_the_best({w: g["shares"] for w, g in got.items()}, origins)
     return min(near, key=lambda w: (answer_moves(got[w]["answers"]), abs(w - MEAN), w))
 
 
@@ -90,7 +91,7 @@ def _row(label: str, g: dict[str, Any], origins: int) -> str:
     shares = np.asarray(g["shares"], float).reshape(-1, origins)
     perfect = int((shares.min(axis=1) == 1.0).sum())
     moves = answer_moves(g["answers"])
-    return (f"| {label} | {shares.mean():.2%} | {shares.min():.0%} | {shares.min(axis=1).mean():.2%} | "
+    return (f"| {label} | {shares.mean():.2%} | {shares.min():.0%} | {worst_origin_mean(g['shares'], origins):.2%} | "
             f"{perfect} of {len(shares)} | {g['wrong']} | {moves[0]} / {moves[1]} |")
 
 
@@ -100,11 +101,7 @@ def verdict(chosen: float, test: dict[float, dict[str, Any]], origins: int) -> s
     mean's, else the mean."""
     if chosen == MEAN:
         return f"The rule chose the halves' mean itself: the default stays {MEAN:g}."
-
-    def worst_mean(w: float) -> float:
-        return float(np.mean(np.asarray(test[w]["shares"], float).reshape(-1, origins).min(axis=1)))
-
-    holds = worst_mean(chosen) >= worst_mean(MEAN) - 1e-12
+    holds = worst_origin_mean(test[chosen]["shares"], origins) >= worst_origin_mean(test[MEAN]["shares"], origins) - 1e-12
     return (f"On the test homes the chosen weight does {'at least as well as' if holds else 'worse than'} the halves' "
             f"mean by the same measure: the default " + (f"is {chosen:g}." if holds else f"stays {MEAN:g}."))
 
@@ -120,7 +117,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     weights = (0.4, MEAN) if quick else WEIGHTS
     runs: dict[str, dict[str, Any]] = {}
     dev = _sweep(out_dir, dev_seeds, origins, weights, "dev", quiet, runs)
-    chosen = choose_weight(dev, len(origins), len(dev_seeds))
+    chosen = choose_weight(dev, len(origins))
     test = _sweep(out_dir, test_seeds, origins, tuple(sorted({chosen, MEAN})), "test", quiet, runs)
     write_summary(out_dir, runs)
     per = len(dev_seeds) * len(origins) * PANORAMAS

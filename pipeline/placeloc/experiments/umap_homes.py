@@ -221,15 +221,33 @@ def answer_moves(positions: dict[Any, list[tuple[float, float]]]) -> tuple[int, 
     return tuple(int(sum(d > limit for d in spreads)) for limit in MOVE_LIMITS_M)
 
 
+def worst_origin_mean(shares: Sequence[float], origins: int) -> float:
+    """The mean over the homes of each home's worst origin: ``shares`` within 1 m and 30 deg
+    per run, home by home, ``origins`` runs a home (the rule's first criterion)."""
+    return float(np.mean(np.asarray(shares, float).reshape(-1, origins).min(axis=1)))
+
+
+def near_the_best(results: dict[Any, Sequence[float]], origins: int) -> list[Any]:
+    """The settings (key -> shares per run, as :func:`worst_origin_mean` takes them) whose
+    mean of the homes' worst origins lies within one panorama of one home of the best, in
+    ``results``' order: those the rule's later criteria choose among."""
+    worst = {k: worst_origin_mean(v, origins) for k, v in results.items()}
+    homes = len(next(iter(results.values()))) // origins
+    top = max(worst.values())
+    return [k for k in results if worst[k] >= top - 1.0 / (PANORAMAS * homes) - 1e-12]
+
+
+def within_goal(row: dict[str, str]) -> bool:
+    """Whether a row of a run's ``per_query.csv`` lies within 1 m and 30 degrees of the truth."""
+    return float(row["error_m"]) <= 1.0 and float(row["yaw_error_deg"]) <= 30.0
+
+
 def choose(results: dict[str, list[float]], moves: dict[str, tuple[int, ...]] | None = None, origins: int = 1) -> str:
     """The rule of the module docstring: name -> shares within 1 m and 30 deg per run (home by
     home, ``origins`` runs a home), and (optional) name -> :func:`answer_moves` over the
     origins. Near the best: a mean of the homes' worst origins within one panorama of one
-    home of the best (``origins`` 1: each run a home of its own)."""
-    worst = {k: float(np.mean(np.asarray(v, float).reshape(-1, origins).min(axis=1))) for k, v in results.items()}
-    homes = len(next(iter(results.values()))) // origins
-    top = max(worst.values())
-    near = [k for k in SWEEP if k in worst and worst[k] >= top - 1.0 / (PANORAMAS * homes) - 1e-12]
+    home of the best (``origins`` 1: each run a home of its own; :func:`near_the_best`)."""
+    near = [k for k in near_the_best(results, origins) if k in SWEEP]
     moved = moves or {}
     return min(near, key=lambda k: (moved.get(k, (0,) * len(MOVE_LIMITS_M)), SWEEP[k]["refine_candidates"],
                                     list(SWEEP).index(k)))
@@ -254,7 +272,7 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     from placeloc.umap.stages import query_line_images, query_seen_rows
 
     rows = list(csv.DictReader(read_run_table(run_dir, "per_query.csv")))
-    wrong = [r for r in rows if not (float(r["error_m"]) <= 1.0 and float(r["yaw_error_deg"]) <= 30.0)]
+    wrong = [r for r in rows if not within_goal(r)]
     if not wrong:
         return []
     up = UMapParams()
@@ -337,7 +355,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
              "| frames whose answers move > 0.1 / 0.05 m |",
              "|---|---|---|---|---|---|"]
     lines += [f"| {k} | {' / '.join(f'{x:.0%}' for x in v)} | {np.mean(v):.1%} | {min(v):.0%} | "
-              f"{np.mean(np.reshape(v, (-1, len(origins))).min(axis=1)):.1%} | "
+              f"{worst_origin_mean(v, len(origins)):.1%} | "
               f"{' / '.join(map(str, moves.get(k, ())))} |" for k, v in dev.items()]
     lines += ["", "Chosen by the rule (the highest mean of each home's worst origin; within one panorama of one home of "
               "it, the fewest answers moving with the origin, then the fewest refined candidates, then the plainer): "

@@ -759,7 +759,7 @@ def evaluate_extra(ctx: Any, ev: PoseEvaluation) -> None:
         ev.metrics["room_frames"] = int(named.sum())
     ex = ctx.artifact("extract")
     if ctx.config.get("plots", True) and str(ex.attrs["query_kind"]) == "panorama":
-        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err)
+        _panorama_pictures(ctx, ex, ctx.artifact("build-dictionary"), loc, ev.poses, ev.rows, ev.err, ev.yaw_err)
         _ceiling_picture(ctx.output("ceiling_scores.png"), loc)
 
 
@@ -789,17 +789,56 @@ def rival_metrics(ev: PoseEvaluation, doubtful: np.ndarray, rival_x: np.ndarray,
             "within_1m_30deg_or_rival": float(np.mean(right | (doubtful & rival_right))) if len(right) else math.nan}
 
 
-# pictures of the first panoramas only: one PNG each
+# panoramas drawn one PNG each, at most this many (:func:`pictured_panoramas` chooses them)
 PANORAMA_PICTURES = 12
 
 
-def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray) -> None:
+def pictured_panoramas(n: int, *, wrong: np.ndarray | None = None, error_m: np.ndarray | None = None,
+                       doubtful: np.ndarray | None = None, margin: np.ndarray | None = None,
+                       limit: int | None = None) -> list[int]:
+    """The frames of ``n`` panorama answers that get a picture, at most ``limit`` (None:
+    :data:`PANORAMA_PICTURES`), in frame
+    order: first the ``wrong`` ones (the largest ``error_m`` first), then the ``doubtful``
+    ones (the smallest ``margin`` first), then the others spread evenly over the run (the
+    first and the last among them). Any of the four may be None (none wrong, none doubtful,
+    ties in frame order).
+
+    Why: the pictures are where a user sees why an answer is wrong or doubtful, which of the
+    photo's lines the map explains there and which it does not. Drawing the first twelve
+    left out every such answer past them (a 32-photo home's three wrong answers were frames
+    16, 19 and 25)."""
+    limit = PANORAMA_PICTURES if limit is None else int(limit)
+    order = np.arange(n)
+    picked: list[int] = []
+
+    def take(mask: np.ndarray | None, key: np.ndarray | None) -> None:
+        if mask is None:
+            return
+        mask = np.asarray(mask, bool) & ~np.isin(order, picked)
+        keys = np.zeros(n) if key is None else np.nan_to_num(np.asarray(key, float), nan=np.inf)
+        picked.extend(int(k) for k in order[mask][np.argsort(keys[mask], kind="stable")][:limit - len(picked)])
+
+    take(wrong, None if error_m is None else -np.asarray(error_m, float))
+    take(doubtful, margin)
+    rest = order[~np.isin(order, picked)]
+    room = limit - len(picked)
+    if room > 0 and len(rest):
+        # evenly over the run's frames: photos taken room by room are not all of the first rooms
+        picked.extend(int(k) for k in rest[np.unique(np.round(np.linspace(0, len(rest) - 1, min(room, len(rest)))).astype(int))])
+    return sorted(picked)
+
+
+def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray,
+                       yaw_err: np.ndarray | None) -> None:
     h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
     segs, faces = _answer_model(plan, loc)
     zs = _answer_heights(loc, float(ctx.artifact("index")["poses"][0, 2]))
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
-    for k in range(min(len(names), PANORAMA_PICTURES)):
+    doubtful = loc["doubtful"][()] if "doubtful" in loc else None
+    margin = loc["margin"][()] if "margin" in loc else None
+    wrong = ~right_answers(err, yaw_err) & np.isfinite(err)
+    for k in pictured_panoramas(len(names), wrong=wrong, error_m=err, doubtful=doubtful, margin=margin):
         true_pose = None
         if gt.heading is not None:
             tz = float(gt.z[rows[k]]) if gt.z is not None else zs[k]
@@ -812,7 +851,8 @@ def _panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
     """``placeloc show`` of a panorama run not evaluated (a photo located without ground
-    truth): for each of the first :data:`PANORAMA_PICTURES` panoramas its detected lines
+    truth): for each of up to :data:`PANORAMA_PICTURES` panoramas (the doubtful ones first,
+    :func:`pictured_panoramas`) its detected lines
     against the map rendered at its answer, and, where the answer is doubtful, at its rival
     too, so that whoever took the photo sees which lines the answer explains. Pinhole runs:
     none."""
@@ -833,7 +873,8 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path) -> list[Path]:
         names = read_strings(loc["names"])
         x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
         (rooms,) = _rooms(plan, np.column_stack([x, y]))
-        for k in range(min(len(names), PANORAMA_PICTURES)):
+        doubtful = loc["doubtful"][()] if "doubtful" in loc else None
+        for k in pictured_panoramas(len(names), doubtful=doubtful, margin=loc["margin"][()] if "margin" in loc else None):
             doubt = _doubt_note(loc, k)
             rival = (loc["rival_x"][k], loc["rival_y"][k], zs[k], loc["rival_heading_deg"][k]) if doubt else None
             where = f" in the {rooms[k]}" if rooms[k] else ""

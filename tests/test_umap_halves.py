@@ -90,7 +90,11 @@ def test_chance_corrected_halves_are_mixed_after_their_correction():
 
 
 def test_the_weight_is_chosen_by_the_homes_rule():
-    from placeloc.experiments.umap_halves import choose_weight
+    from placeloc.experiments.umap_halves import MEAN
+    from placeloc.experiments.umap_setting import choose
+
+    def choose_weight(got, origins):
+        return choose(got, origins, MEAN)
 
     # two homes at two origins each: one panorama of one home is 1 / 40 of the mean of the
     # homes' worst origins
@@ -112,7 +116,11 @@ def test_the_weight_is_chosen_by_the_homes_rule():
 
 
 def test_the_default_changes_only_where_the_chosen_weight_holds_on_the_test_homes():
-    from placeloc.experiments.umap_halves import verdict
+    from placeloc.experiments.umap_halves import HALVES
+    from placeloc.experiments.umap_setting import verdict as setting_verdict
+
+    def verdict(chosen, test, origins):
+        return setting_verdict(HALVES, chosen, test, origins)
 
     def got(shares):
         return {"shares": shares, "wrong": 0, "answers": {}}
@@ -126,3 +134,15 @@ def test_the_default_changes_only_where_the_chosen_weight_holds_on_the_test_home
     assert verdict(0.4, {0.4: mean, 0.5: four}, origins=5).endswith("the default is 0.4.")
     assert verdict(0.4, {0.4: mean, 0.5: mean}, origins=5).endswith("the default is 0.4.")     # a tie holds
     assert verdict(0.5, {0.5: mean}, origins=5) == "The rule chose the halves' mean itself: the default stays 0.5."
+
+
+def test_each_setting_experiment_sweeps_from_the_parameters_default():
+    # umap-halves and umap-lines compare against the default a user gets: their Setting's
+    # default is the parameter's, and the sweeps (full and quick) include it
+    from placeloc.experiments.umap_halves import HALVES
+    from placeloc.experiments.umap_lines import LINES
+    from placeloc.umap.params import PanoramaParams
+
+    for setting in (HALVES, LINES):
+        assert getattr(PanoramaParams(), setting.key) == setting.default, setting.key
+        assert setting.default in setting.values and set(setting.quick) <= set(setting.values), setting.key

@@ -167,3 +167,51 @@ def test_the_command_writes_a_rooms_file_to_fill_in(tmp_path):
     assert r.exit_code != 0 and "an outline plan names no rooms; umap.room_hints needs a plan of rooms" in r.output
     r = CliRunner().invoke(app, ["plan", str(path), "--out", str(out), "--rooms-for", str(tmp_path / "nothere")])
     assert r.exit_code != 0 and "nothere: not a folder; give the folder of photos" in r.output
+
+
+def _two_rooms(tmp_path, second):
+    """Room a (3 x 3 m, a door in its south wall 1-1.9 m along) and room ``second`` with a
+    door 1-1.9 m along its own south wall; the camera at 1.5 m."""
+    x0 = second[0][0]
+    plan = {"floor_z": 0.0, "ceiling_z": 2.5, "camera_z": 1.5,
+            "rooms": [{"name": "a", "polygon": [[0, 0], [3, 0], [3, 3], [0, 3]]}, {"name": "b", "polygon": second}],
+            "doors": [{"from": [1, 0], "to": [1.9, 0], "height": 2.0},
+                      {"from": [x0 + 1, 0], "to": [x0 + 1.9, 0], "height": 2.0}]}
+    path = tmp_path / f"plan{x0:g}.yaml"
+    path.write_text(yaml.safe_dump(plan))
+    return summarise(path)
+
+
+def test_rooms_that_repeat_each_others_views_look_alike(tmp_path):
+    from placeloc.umap.plan_report import LOOK_ALIKE, look_alike_lines, look_alike_rooms
+
+    # b the same room as a, 3.5 m east (seven of the check's 0.5 m steps, so each of a's places
+    # has b's copy on the grid) and no opening between them: every view of a is one of b's,
+    # to the pixel, so each room's median best score in the other is 1
+    s, m = _two_rooms(tmp_path, [[3.5, 0], [6.5, 0], [6.5, 3], [3.5, 3]])
+    twins = look_alike_rooms(m, z=s.z, wall_margin_m=s.wall_margin_m)
+    assert [(a.room, a.like) for a in twins] == [("a", "b"), ("b", "a")] or \
+        [(a.room, a.like) for a in twins] == [("b", "a"), ("a", "b")]
+    assert all(a.score == pytest.approx(1.0, abs=1e-6) and a.places == 36 for a in twins), twins
+    said = look_alike_lines(twins)
+    assert len(said) == 3 and all("look alike: name the room" in line for line in said[1:])
+    # b a long 7 x 1.8 m room: no view of one is near one of the other
+    s, m = _two_rooms(tmp_path, [[3.5, 0], [10.5, 0], [10.5, 1.8], [3.5, 1.8]])
+    apart = look_alike_rooms(m, z=s.z, wall_margin_m=s.wall_margin_m)
+    assert len(apart) == 2 and all(a.score < LOOK_ALIKE - 0.1 for a in apart), apart
+    assert not any("look alike:" in line for line in look_alike_lines(apart))
+    # an outline names no rooms: nothing to compare
+    path = tmp_path / "outline.yaml"
+    path.write_text(yaml.safe_dump({**PLAN, "camera_z": 1.5}))
+    s, m = summarise(path)
+    assert look_alike_rooms(m, z=s.z, wall_margin_m=s.wall_margin_m) == [] and look_alike_lines([]) == []
+
+
+def test_the_command_says_which_rooms_look_alike_unless_told_not_to(tmp_path):
+    path = tmp_path / "floor_plan.yaml"
+    path.write_text(yaml.safe_dump(ROOMS))
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(tmp_path / "a")])
+    assert r.exit_code == 0 and "rooms that look alike from inside" in r.output, r.output
+    assert any(line.strip().startswith("kitchen") and " like hall" in line for line in r.output.splitlines())
+    r = CliRunner().invoke(app, ["plan", str(path), "--out", str(tmp_path / "b"), "--no-look-alike"])
+    assert r.exit_code == 0 and "look alike" not in r.output

@@ -478,13 +478,25 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
          rooms_for: Path | None = typer.Option(None, "--rooms-for", help="A folder of photos (what query.images "
                                                                          "names): also write rooms.csv, a row for "
                                                                          "each photo with its room left empty, to "
-                                                                         "fill in and give as umap.room_hints.")) -> None:
+                                                                         "fill in and give as umap.room_hints."),
+         look_alike: bool = typer.Option(True, "--look-alike/--no-look-alike",
+                                         help="Say which rooms another room looks like from inside (a plan of rooms "
+                                              "with a camera height; a few seconds): photos taken in a look-alike "
+                                              "room need their room named (umap.room_hints).")) -> None:
     """Check a floor plan before localizing against it: its rooms and their areas, doors and
-    windows, camera height and the places localize searches, printed, and drawn in
-    plan.png (with --at, view.png too; with --photo, photo.png; with --rooms-for, a rooms.csv
-    to fill in)."""
+    windows, camera height, the places localize searches and the rooms that look alike from
+    inside, printed, and drawn in plan.png (with --at, view.png too; with --photo, photo.png;
+    with --rooms-for, a rooms.csv to fill in)."""
     from placeloc.core.images import ImageError
-    from placeloc.umap.plan_report import draw, photo_at, point_note, rooms_template, summarise
+    from placeloc.umap.plan_report import (
+        draw,
+        look_alike_lines,
+        look_alike_rooms,
+        photo_at,
+        point_note,
+        rooms_template,
+        summarise,
+    )
 
     point = None
     if at is not None:
@@ -501,6 +513,9 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
     summary, built = summarise(model, floor=floor, step_m=step, wall_margin_m=wall_margin, z=z)
     for line in summary.lines() + ([point_note(built, point)] if point is not None else []):
         if line:
+            typer.echo(line)
+    if look_alike and summary.kind == "rooms" and summary.z is not None:
+        for line in look_alike_lines(look_alike_rooms(built, z=summary.z, wall_margin_m=summary.wall_margin_m)):
             typer.echo(line)
     held = None
     if photo is not None and point is not None:

@@ -215,3 +215,16 @@ def test_the_command_says_which_rooms_look_alike_unless_told_not_to(tmp_path):
     assert any(line.strip().startswith("kitchen") and " like hall" in line for line in r.output.splitlines())
     r = CliRunner().invoke(app, ["plan", str(path), "--out", str(tmp_path / "b"), "--no-look-alike"])
     assert r.exit_code == 0 and "look alike" not in r.output
+
+
+def test_a_large_plan_is_checked_on_a_coarser_grid(tmp_path, monkeypatch):
+    # 72 places at 0.5 m in the two rooms; allowed 20, the step grows by sqrt(72 / 20) to about
+    # 0.95 m: about 20 places, still both rooms
+    from placeloc.umap import plan_report
+    from placeloc.umap.plan_report import look_alike_places
+
+    s, m = _two_rooms(tmp_path, [[3.5, 0], [6.5, 0], [6.5, 3], [3.5, 3]])
+    assert len(look_alike_places(m, z=s.z, wall_margin_m=s.wall_margin_m).xy) == 72
+    monkeypatch.setattr(plan_report, "LOOK_ALIKE_MAX_PLACES", 20)
+    got = look_alike_places(m, z=s.z, wall_margin_m=s.wall_margin_m)
+    assert 8 <= len(got.xy) <= 25 and set(got.room) == {"a", "b"}, got

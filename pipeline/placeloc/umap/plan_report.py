@@ -11,6 +11,7 @@ against a photo taken there.
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -146,6 +147,9 @@ def summarise(path: str | Path, *, floor: str | None = None, step_m: float | Non
 # the look-alike check's places: every LOOK_ALIKE_STEP_M over the rooms (the localize grid's
 # 0.25 m would cost four times the renders and tell the same of a room)
 LOOK_ALIKE_STEP_M = 0.5
+# at most this many places: a larger plan (an office floor) is sampled more coarsely, so that the
+# check's table (places x places x headings) stays seconds, not minutes
+LOOK_ALIKE_MAX_PLACES = 3000
 # a place whose view another room repeats this well: on generated development homes 0-12 (five
 # grid origins, the defaults) 21 % of the answers at such places were wrong, against 0.5 %
 # below 0.6 (docs/umap.md, "Rooms that look alike")
@@ -178,7 +182,8 @@ class LookAlikePlaces(NamedTuple):
 def look_alike_places(model: Model, *, z: float, wall_margin_m: float, step_m: float = LOOK_ALIKE_STEP_M,
                       apart_m: float | None = None) -> LookAlikePlaces:
     """The map's own lines seen from every place of the plan's named rooms (every ``step_m``,
-    as localize's grid lays them with ``wall_margin_m``, the camera at ``z``), each scored as a
+    coarser where that lays more than :data:`LOOK_ALIKE_MAX_PLACES`, as localize's grid lays
+    them with ``wall_margin_m``, the camera at ``z``), each scored as a
     photo against every place and heading (the chamfer table of localize with
     ``umap.panorama``'s defaults), and its best taken over the places of the other rooms more
     than ``apart_m`` away (None: ``margin_distance_m``, as the rival of a localize answer);
@@ -193,6 +198,9 @@ def look_alike_places(model: Model, *, z: float, wall_margin_m: float, step_m: f
     if len(set(names)) < 2:
         return none
     grid, _ = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
+    if len(grid) > LOOK_ALIKE_MAX_PLACES:   # coarser, to about LOOK_ALIKE_MAX_PLACES places
+        grid, _ = plan_grid(model, step_m=step_m * math.sqrt(len(grid) / LOOK_ALIKE_MAX_PLACES), z=z,
+                            wall_margin_m=wall_margin_m)
     room = np.array(rooms_at(grid[:, :2], model.polygons[:len(names)], names))
     grid, room = grid[room != ""], room[room != ""]
     if len(set(room)) < 2:

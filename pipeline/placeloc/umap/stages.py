@@ -797,16 +797,15 @@ def pictured_panoramas(n: int, *, wrong: np.ndarray | None = None, error_m: np.n
                        doubtful: np.ndarray | None = None, margin: np.ndarray | None = None,
                        limit: int | None = None) -> list[int]:
     """The frames of ``n`` panorama answers that get a picture, at most ``limit`` (None:
-    :data:`PANORAMA_PICTURES`), in frame
-    order: first the ``wrong`` ones (the largest ``error_m`` first), then the ``doubtful``
-    ones (the smallest ``margin`` first), then the others spread evenly over the run (the
-    first and the last among them). Any of the four may be None (none wrong, none doubtful,
-    ties in frame order).
+    :data:`PANORAMA_PICTURES`), in frame order: first the ``wrong`` ones (the largest
+    ``error_m`` first), then the ``doubtful`` ones (the smallest ``margin`` first), then the
+    others spread evenly over the run (the first and the last among them). Any of the four
+    may be None (none wrong, none doubtful, ties in frame order).
 
     Why: the pictures are where a user sees why an answer is wrong or doubtful, which of the
     photo's lines the map explains there and which it does not. Drawing the first twelve
-    left out every such answer past them (a 32-photo home's three wrong answers were frames
-    16, 19 and 25)."""
+    left out every such answer past them (generated home 21 with 32 photos: its one wrong
+    and doubtful answer, pano_019, had no picture)."""
     limit = PANORAMA_PICTURES if limit is None else int(limit)
     order = np.arange(n)
     picked: list[int] = []

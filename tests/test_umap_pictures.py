@@ -19,8 +19,9 @@ def test_pictured_panoramas_by_hand():
     # nothing known: 12 of 32 spread evenly, round(31 k / 11) for k = 0..11
     assert pictured_panoramas(32) == [0, 3, 6, 8, 11, 14, 17, 20, 23, 25, 28, 31]
     assert pictured_panoramas(5) == [0, 1, 2, 3, 4] and pictured_panoramas(0) == []
-    # the real home's three wrong answers (frames 16, 19, 25; 13.2, 3.7 and 5.7 m off), all
-    # doubtful, and two more doubtful ones (frames 3 and 30): all five are drawn, and the
+    # three wrong answers at frames 16, 19 and 25 (off by the real home's three errors, 13.2,
+    # 3.7 and 5.7 m), all doubtful, and two more doubtful ones (frames 3 and 30): all five are
+    # drawn, and the
     # other 7 pictures go to frames spread over the 27 left (their positions 0, 4, 9, 13,
     # 17, 22, 26: frames 0, 5, 10, 14, 20, 26, 31)
     wrong, err = np.zeros(32, bool), np.zeros(32)

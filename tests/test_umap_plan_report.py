@@ -228,3 +228,26 @@ def test_a_large_plan_is_checked_on_a_coarser_grid(tmp_path, monkeypatch):
     monkeypatch.setattr(plan_report, "LOOK_ALIKE_MAX_PLACES", 20)
     got = look_alike_places(m, z=s.z, wall_margin_m=s.wall_margin_m)
     assert 8 <= len(got.xy) <= 25 and set(got.room) == {"a", "b"}, got
+
+
+def test_plan_png_names_the_look_alike_rooms(tmp_path, monkeypatch):
+    # the picture's room labels and title say what the printed lines say: a marked room is
+    # labelled with the room it looks like, an unmarked one keeps its name
+    from placeloc.evaluation import pose_estimates
+    from placeloc.umap.plan_report import LookAlike, draw
+
+    seen = {}
+
+    def fake_plot(path, *args, **kwargs):
+        seen.update(kwargs)
+        return path
+
+    monkeypatch.setattr(pose_estimates, "plot_estimates_on_plan", fake_plot)
+    path = tmp_path / "floor_plan.yaml"
+    path.write_text(yaml.safe_dump(ROOMS))
+    s, model = summarise(path)
+    draw(s, model, tmp_path / "out", look_alike=[LookAlike("kitchen", 0.81, "hall", 20), LookAlike("hall", 0.55, "kitchen", 20)])
+    assert seen["labels"] == ["kitchen: like hall (0.81)", "hall"]
+    assert seen["title"].endswith("; look-alike rooms: kitchen (name the room of photos taken there)")
+    draw(s, model, tmp_path / "out")
+    assert seen["labels"] == ["kitchen", "hall"] and "look-alike" not in seen["title"]

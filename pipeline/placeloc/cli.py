@@ -514,8 +514,10 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
     for line in summary.lines() + ([point_note(built, point)] if point is not None else []):
         if line:
             typer.echo(line)
+    alike = None
     if look_alike and summary.kind == "rooms" and summary.z is not None:
-        for line in look_alike_lines(look_alike_rooms(built, z=summary.z, wall_margin_m=summary.wall_margin_m)):
+        alike = look_alike_rooms(built, z=summary.z, wall_margin_m=summary.wall_margin_m)
+        for line in look_alike_lines(alike):
             typer.echo(line)
     held = None
     if photo is not None and point is not None:
@@ -526,7 +528,7 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
         typer.echo(f"{photo.name}: its lines match the map's at ({point[0]:g}, {point[1]:g}) best at heading "
                    f"{held.heading_deg:g} deg, score {held.score:.3f} (photo.png; view.png is drawn at that heading)")
     folder = out or Path("runs") / f"plan-{model.stem}"
-    for path in draw(summary, built, folder, point, heading, held):
+    for path in draw(summary, built, folder, point, heading, held, alike):
         typer.echo(f"wrote {path}")
     if rooms_for is not None:
         try:

@@ -330,9 +330,11 @@ def view_lines(model: Model, x: float, y: float, z: float, heading_deg: float = 
 
 
 def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, float] | None = None,
-         heading_deg: float = 0.0, photo: PhotoAt | None = None) -> list[Path]:
+         heading_deg: float = 0.0, photo: PhotoAt | None = None, look_alike: list[LookAlike] | None = None) -> list[Path]:
     """``plan.png`` (the rooms, doors as gaps, windows in green, room names, the grid's
-    places as grey dots and the ``at`` point) and, with ``at``, ``view.png``: :func:`view_lines` from there.
+    places as grey dots and the ``at`` point; a room :func:`look_alike_rooms` marks is named
+    with the room it looks like, "bedroom1: like bedroom3 (0.82)") and, with ``at``,
+    ``view.png``: :func:`view_lines` from there.
     With ``photo`` (:func:`photo_at` at ``at``), ``photo.png``: its lines against the map's
     there at the heading where they match best."""
     from placeloc.evaluation.pose_estimates import plot_estimates_on_plan
@@ -340,11 +342,15 @@ def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, flo
 
     out_dir.mkdir(parents=True, exist_ok=True)
     est = np.array([at], float) if at is not None else np.zeros((0, 2))
-    labels = model.room_names[:len(model.polygons)] if model.rooms else None
+    labels = list(model.room_names[:len(model.polygons)]) if model.rooms else None
+    marked = {a.room: a for a in look_alike or [] if a.score >= LOOK_ALIKE}
+    if labels and marked:
+        labels = [f"{n}: like {marked[n].like} ({marked[n].score:.2f})" if n in marked else n for n in labels]
     x0, y0, x1, y1 = summary.bounds
     title = (f"{Path(summary.source).name}: {x1 - x0:.1f} m x {y1 - y0:.1f} m" +
              (f", {len(summary.grid):,} grid places at {summary.step_m:g} m" if len(summary.grid) else
-              ", no grid (no camera height)"))
+              ", no grid (no camera height)") +
+             (f"; look-alike rooms: {', '.join(marked)} (name the room of photos taken there)" if marked else ""))
     paths = [plot_estimates_on_plan(out_dir / "plan.png", None, est, model.polygons if model.polygons else [],
                                     model.segments, "the view's point", None,
                                     np.array([heading_deg]) if at is not None else None,

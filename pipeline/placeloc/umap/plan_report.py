@@ -151,7 +151,7 @@ LOOK_ALIKE_STEP_M = 0.5
 # check's table (places x places x headings) stays seconds, not minutes
 LOOK_ALIKE_MAX_PLACES = 3000
 # a place whose view another room repeats this well: on generated development homes 0-12 (five
-# grid origins, the defaults) 21 % of the answers at such places were wrong, against 0.5 %
+# grid origins, the defaults) 23 % of the answers at such places were wrong, against 0.5 %
 # below 0.6 (docs/umap.md, "Rooms that look alike")
 LOOK_ALIKE = 0.7
 

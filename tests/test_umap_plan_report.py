@@ -251,3 +251,17 @@ def test_plan_png_names_the_look_alike_rooms(tmp_path, monkeypatch):
     assert seen["title"].endswith("; look-alike rooms: kitchen (name the room of photos taken there)")
     draw(s, model, tmp_path / "out")
     assert seen["labels"] == ["kitchen", "hall"] and "look-alike" not in seen["title"]
+
+
+def test_rooms_narrower_than_the_checks_step_are_not_compared(tmp_path):
+    # two 0.3 m closets: the 0.05 m grid has places in them, the check's 0.5 m grid none
+    from placeloc.umap.plan_report import look_alike_places, look_alike_rooms
+
+    path = tmp_path / "closets.yaml"
+    path.write_text(yaml.safe_dump({"floor_z": 0.0, "ceiling_z": 2.5, "camera_z": 1.5, "rooms": [
+        {"name": "a", "polygon": [[0, 0], [0.3, 0], [0.3, 0.3], [0, 0.3]]},
+        {"name": "b", "polygon": [[0.4, 0], [0.7, 0], [0.7, 0.3], [0.4, 0.3]]}]}))
+    s, m = summarise(path, step_m=0.05)
+    assert len(s.grid) > 0
+    assert len(look_alike_places(m, z=s.z, wall_margin_m=s.wall_margin_m).xy) == 0
+    assert look_alike_rooms(m, z=s.z, wall_margin_m=s.wall_margin_m) == []

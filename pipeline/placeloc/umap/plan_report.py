@@ -198,7 +198,10 @@ def look_alike_places(model: Model, *, z: float, wall_margin_m: float, step_m: f
     none = LookAlikePlaces(np.zeros((0, 2)), np.zeros(0, str), np.zeros(0), np.zeros(0, str))
     if len(set(names)) < 2:
         return none
-    grid, _ = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
+    try:
+        grid, _ = plan_grid(model, step_m=step_m, z=z, wall_margin_m=wall_margin_m)
+    except ValueError:   # no place at this step (rooms narrower than it): nothing to compare
+        return none
     if len(grid) > LOOK_ALIKE_MAX_PLACES:   # coarser, to about LOOK_ALIKE_MAX_PLACES places
         grid, _ = plan_grid(model, step_m=step_m * math.sqrt(len(grid) / LOOK_ALIKE_MAX_PLACES), z=z,
                             wall_margin_m=wall_margin_m)

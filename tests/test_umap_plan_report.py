@@ -265,3 +265,18 @@ def test_rooms_narrower_than_the_checks_step_are_not_compared(tmp_path):
     assert len(s.grid) > 0
     assert len(look_alike_places(m, z=s.z, wall_margin_m=s.wall_margin_m).xy) == 0
     assert look_alike_rooms(m, z=s.z, wall_margin_m=s.wall_margin_m) == []
+
+
+def test_the_rooms_file_says_which_photos_matter_most(tmp_path):
+    # two rooms that repeat each other's views: the rooms.csv line names them as the ones to
+    # fill in first; with the check off, the line is as before
+    s, _ = _two_rooms(tmp_path, [[3.5, 0], [6.5, 0], [6.5, 3], [3.5, 3]])
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    cv2.imwrite(str(photos / "a.jpg"), np.zeros((32, 64), np.uint8))
+    r = CliRunner().invoke(app, ["plan", s.source, "--out", str(tmp_path / "o"), "--rooms-for", str(photos)])
+    assert r.exit_code == 0, r.output
+    assert "umap.room_hints; those taken in a, b (look-alike rooms) matter most" in r.output
+    r = CliRunner().invoke(app, ["plan", s.source, "--out", str(tmp_path / "o"), "--rooms-for", str(photos),
+                                 "--no-look-alike"])
+    assert r.exit_code == 0 and r.output.rstrip().endswith("give the file as umap.room_hints"), r.output

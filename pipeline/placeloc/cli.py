@@ -489,6 +489,7 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
     with --rooms-for, a rooms.csv to fill in)."""
     from placeloc.core.images import ImageError
     from placeloc.umap.plan_report import (
+        LOOK_ALIKE,
         draw,
         look_alike_lines,
         look_alike_rooms,
@@ -535,8 +536,10 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
             path, count = rooms_template(summary, rooms_for, folder)
         except (ImageError, ValueError) as exc:
             _fail(exc)
+        marked = [a.room for a in alike or [] if a.score >= LOOK_ALIKE]
         typer.echo(f"wrote {path}: {count} photo{'s' if count != 1 else ''}; fill in the room of each you know (a name "
-                   "above), leave the others empty, and give the file as umap.room_hints")
+                   "above), leave the others empty, and give the file as umap.room_hints"
+                   + (f"; those taken in {', '.join(marked)} (look-alike rooms) matter most" if marked else ""))
 
 
 @app.command()

@@ -675,6 +675,29 @@ def chamfer_spectra(lines: np.ndarray, *, tau_px: float, weights: np.ndarray,
     return out
 
 
+def map_side(pp: Any, height: int) -> dict[str, Any]:
+    """:func:`chamfer_spectra`'s settings from the ``umap.panorama`` parameters ``pp`` for
+    images ``height`` rows tall: the row weights, the likelihood score's clutter share (None
+    for the other chances) and the orientation spread (None with one bin). One home for the
+    map side, so that the index stage, :func:`search_near` and ``placeloc plan``'s look-alike
+    check draw their spectra alike."""
+    return {"tau_px": pp.chamfer_tau_px,
+            "weights": row_weights(height, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight,
+                                   solid_angle=pp.solid_angle),
+            # the likelihood score stores the map's log likelihood-ratio image, not its closeness
+            "clutter_share": float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None,
+            "spread": int(pp.orientation_spread) if int(pp.orientation_bins) > 1 else None}
+
+
+def map_images(segments: np.ndarray, faces: np.ndarray, poses: np.ndarray, *, width: int, height: int,
+               bins: int, hidden: bool) -> np.ndarray:
+    """The map's line images at ``poses`` (N, 4) as the score takes them: (N, H, W) 0/1, or
+    with ``bins`` > 1 (N, B, H, W) oriented channels (:func:`orientation_channels`)."""
+    drawn = render_panoramas(segments, faces, poses, width=width, height=height, hidden=hidden,
+                             orientation_bins=bins if bins > 1 else 0)
+    return orientation_channels(drawn, bins) if bins > 1 else unpack(drawn, height, width)
+
+
 def _spectra_rows(lines: np.ndarray, close: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
     """One block of :func:`chamfer_spectra`: (P, R, W) line images and their (P, R, W) float32
     closeness (or likelihood) images, row weights ``w`` (1, R, 1) -> ``out`` (F, P, 2R), the
@@ -2099,16 +2122,8 @@ def search_near(lines: np.ndarray, point: np.ndarray, model: Any, pp: Any, *, ra
     if pp.score != "chamfer":
         raise ValueError("search_near scores with the chamfer score only (umap.panorama.score chamfer)")
     h, w = lines.shape[-2:]
-    bins = int(pp.orientation_bins)
-    # the map side as the index stage makes it: oriented channels with a spread, or the plain
-    # images with the likelihood score's clutter share
-    rendered = render_panoramas(model.segments, model.faces, poses, width=w, height=h, hidden=hidden,
-                                orientation_bins=bins if bins > 1 else 0)
-    spectra = chamfer_spectra(orientation_channels(rendered, bins) if bins > 1 else unpack(rendered, h, w),
-                              tau_px=pp.chamfer_tau_px,
-                              weights=row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight,
-                                                  solid_angle=pp.solid_angle),
-                              clutter_share=float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None,
-                              spread=int(pp.orientation_spread) if bins > 1 else None)
+    # the map side as the index stage makes it (map_side)
+    spectra = chamfer_spectra(map_images(model.segments, model.faces, poses, width=w, height=h,
+                                         bins=int(pp.orientation_bins), hidden=hidden), **map_side(pp, h))
     return search_panoramas(lines, poses, model.segments, model.faces, {"spectra": spectra}, pp,
                             tolerance_px=tolerance_px, wall_margin_m=wall_margin_m, hidden=hidden, seen=seen)

@@ -189,7 +189,7 @@ def look_alike_places(model: Model, *, z: float, wall_margin_m: float, step_m: f
     ``umap.panorama``'s defaults), and its best taken over the places of the other rooms more
     than ``apart_m`` away (None: ``margin_distance_m``, as the rival of a localize answer);
     -inf where there is none. A clutter-free view is its own best (1)."""
-    from placeloc.umap.panorama import _query_side, _search_table, chamfer_spectra, orientation_channels, row_weights
+    from placeloc.umap.panorama import _query_side, _search_table, chamfer_spectra, map_images, map_side
     from placeloc.umap.params import PanoramaParams
 
     pp = PanoramaParams()
@@ -209,13 +209,10 @@ def look_alike_places(model: Model, *, z: float, wall_margin_m: float, step_m: f
     grid, room = grid[room != ""], room[room != ""]
     if len(set(room)) < 2:
         return none
-    h, w, bins = pp.height, pp.width, int(pp.orientation_bins)
-    drawn = render_panoramas(model.segments, model.faces, grid, width=w, height=h, hidden=True,
-                             orientation_bins=bins if bins > 1 else 0)
-    lines = orientation_channels(drawn, bins) if bins > 1 else unpack(drawn, h, w)
+    lines = map_images(model.segments, model.faces, grid, width=pp.width, height=pp.height,
+                       bins=int(pp.orientation_bins), hidden=True)
     queries, weights, prows, spread = _query_side(lines, pp)
-    spectra = chamfer_spectra(lines, tau_px=pp.chamfer_tau_px, weights=row_weights(
-        h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle), spread=spread)
+    spectra = chamfer_spectra(lines, **map_side(pp, pp.height))
     xy = grid[:, :2]
     best, like = np.full(len(grid), -np.inf), np.full(len(grid), "", dtype=room.dtype)
     for s in range(0, len(grid), 32):

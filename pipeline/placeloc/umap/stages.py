@@ -45,11 +45,11 @@ from placeloc.umap.panorama import (
     PanoramaAnswers,
     chamfer_spectra,
     choose_ceiling,
+    map_side,
     region_masks,
     render_oriented_block,
     render_panorama_block,
     render_panoramas,
-    row_weights,
     search_layers,
     seen_rows,
 )
@@ -286,25 +286,21 @@ def _index_spectra(ctx: Any, src: Any, db: Any, h: int, w: int) -> None:
     (:func:`placeloc.umap.panorama.chamfer_spectra`), so localize scores every position and
     yaw of a batch of queries with one matrix product per frequency."""
     pp = ctx.params.panorama
-    weights = row_weights(h, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight, solid_angle=pp.solid_angle)
-    # the likelihood score stores the map's log likelihood-ratio image, not its closeness
-    share = float(pp.clutter_share)
-    clutter = share if pp.chamfer_chance == "likelihood" else None
     n = db.shape[0]
     bins = int(src.attrs.get("orientation_bins", 1))
     if bins != int(pp.orientation_bins):
         raise _stage_error(ValueError(f"the database was drawn with {bins} orientation bins but "
                                       f"umap.panorama.orientation_bins is {int(pp.orientation_bins)}: re-run "
                                       "build-dictionary (--force-all)"))
-    spread = int(pp.orientation_spread) if bins > 1 else None
+    side = map_side(pp, h)
+    clutter, spread = side["clutter_share"], side["spread"]
     spectra = ctx.out.create_dataset("spectra", shape=(w // 2 + 1, n, 2 * bins * h), dtype=np.complex64)
     counts = np.zeros(n, dtype=np.int64)
     block = umap_resources.SPECTRA_BLOCK   # positions made and written at a time (its why: there)
     for s in ctx.progress(range(0, n, block), total=-(-n // block), desc="map spectra"):
         words = np.ascontiguousarray(db[s:s + block])
         imgs = unpack(words, h, w) if bins == 1 else unpack(words.reshape(len(words), bins, -1), h, w)
-        spectra[:, s:s + len(words)] = chamfer_spectra(imgs, tau_px=pp.chamfer_tau_px, weights=weights,
-                                                       clutter_share=clutter, spread=spread)
+        spectra[:, s:s + len(words)] = chamfer_spectra(imgs, **side)
         counts[s:s + len(words)] = popcount_rows(words)
     write_tree(ctx.out, {"counts": counts, "poses": src["poses"][()]})
     ctx.out.attrs.update(width=w, height=h, hfov_deg=float(src.attrs["hfov_deg"]), tolerance_px=int(ctx.params.tolerance_px),

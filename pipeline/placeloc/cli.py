@@ -489,7 +489,6 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
     with --rooms-for, a rooms.csv to fill in)."""
     from placeloc.core.images import ImageError
     from placeloc.umap.plan_report import (
-        LOOK_ALIKE,
         draw,
         look_alike_lines,
         look_alike_rooms,
@@ -536,7 +535,7 @@ def plan(model: Path = typer.Argument(..., help="A floor plan (floor_plan.yaml),
             path, count = rooms_template(summary, rooms_for, folder)
         except (ImageError, ValueError) as exc:
             _fail(exc)
-        marked = [a.room for a in alike or [] if a.score >= LOOK_ALIKE]
+        marked = [a.room for a in alike or [] if a.marked]
         typer.echo(f"wrote {path}: {count} photo{'s' if count != 1 else ''}; fill in the room of each you know (a name "
                    "above), leave the others empty, and give the file as umap.room_hints"
                    + (f"; those taken in {', '.join(marked)} (look-alike rooms) matter most" if marked else ""))

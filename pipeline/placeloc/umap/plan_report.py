@@ -169,6 +169,12 @@ class LookAlike:
     like: str
     places: int
 
+    @property
+    def marked(self) -> bool:
+        """Whether the room looks alike (:data:`LOOK_ALIKE` or more): photos taken there need
+        their room named."""
+        return self.score >= LOOK_ALIKE
+
 
 class LookAlikePlaces(NamedTuple):
     """:func:`look_alike_places`: the places (P, 2) in the named rooms, each one's ``room``,
@@ -254,7 +260,7 @@ def look_alike_lines(found: list[LookAlike]) -> list[str]:
     out = [f"rooms that look alike from inside (the map's lines from each place against every place of another room; "
            f"1: the same view; a median of {LOOK_ALIKE:g} or more asks for the room of each photo taken there):"]
     for a in found:
-        note = "  look alike: name the room of photos taken here (umap.room_hints)" if a.score >= LOOK_ALIKE else ""
+        note = "  look alike: name the room of photos taken here (umap.room_hints)" if a.marked else ""
         out.append(f"  {a.room:<{width}}  {a.score:.2f} like {a.like}{note}")
     return out
 
@@ -344,7 +350,7 @@ def draw(summary: PlanSummary, model: Model, out_dir: Path, at: tuple[float, flo
     out_dir.mkdir(parents=True, exist_ok=True)
     est = np.array([at], float) if at is not None else np.zeros((0, 2))
     labels = list(model.room_names[:len(model.polygons)]) if model.rooms else None
-    marked = {a.room: a for a in look_alike or [] if a.score >= LOOK_ALIKE}
+    marked = {a.room: a for a in look_alike or [] if a.marked}
     if labels and marked:
         labels = [f"{n}: like {marked[n].like} ({marked[n].score:.2f})" if n in marked else n for n in labels]
     x0, y0, x1, y1 = summary.bounds

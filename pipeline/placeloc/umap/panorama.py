@@ -681,11 +681,14 @@ def map_side(pp: Any, height: int) -> dict[str, Any]:
     for the other chances) and the orientation spread (None with one bin). One home for the
     map side, so that the index stage, :func:`search_near` and ``placeloc plan``'s look-alike
     check draw their spectra alike."""
+    # read whatever the chance: the index stage declares the key, and tests/test_stage_keys.py
+    # checks that a stage reads every key it declares
+    share = float(pp.clutter_share)
     return {"tau_px": pp.chamfer_tau_px,
             "weights": row_weights(height, polar_deg=pp.polar_deg, polar_weight=pp.polar_weight,
                                    solid_angle=pp.solid_angle),
             # the likelihood score stores the map's log likelihood-ratio image, not its closeness
-            "clutter_share": float(pp.clutter_share) if pp.chamfer_chance == "likelihood" else None,
+            "clutter_share": share if pp.chamfer_chance == "likelihood" else None,
             "spread": int(pp.orientation_spread) if int(pp.orientation_bins) > 1 else None}
 
 

@@ -284,6 +284,14 @@ def test_the_local_scores_stamping_own_bins_equal_the_compatible_closeness_to_th
     got = oriented_at_shifts(masks, query, shifts, tau_px=3.0, weights=weights, spread=spread, precision_rows=prows)
     ref = _shifts_in_kernel_order(masks, query, shifts, tau=3.0, weights=weights, spread=spread, prows=prows)
     assert (got == ref).all()
+    # the query's elements made once and passed in, as the local search does, give the same bits
+    from placeloc.umap.panorama import oriented_query_pixels
+
+    kept = oriented_query_pixels(query, prows)
+    for _ in range(2):   # the kept stamp (_rank_stamp) is read, not written, by a call
+        again = oriented_at_shifts(masks, query, shifts, tau_px=3.0, weights=weights, spread=spread,
+                                   precision_rows=prows, query_pixels=kept)
+        assert (again == ref).all()
 
 
 def test_the_render_cache_renders_each_point_once_and_returns_the_fresh_renders():

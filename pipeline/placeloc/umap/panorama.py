@@ -492,33 +492,54 @@ def channel_masks(channels: np.ndarray) -> np.ndarray:
 
 def oriented_at_shifts(masks: np.ndarray, query: np.ndarray, shifts: np.ndarray, *, tau_px: float, weights: np.ndarray,
                        spread: int, query_close: np.ndarray | None = None,
-                       precision_rows: np.ndarray | None = None, recall_weight: float = 0.5) -> np.ndarray:
+                       precision_rows: np.ndarray | None = None, recall_weight: float = 0.5,
+                       query_pixels: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The oriented chamfer score (:func:`chamfer_table` with ``spread``) of one query's
     (B, H, W) oriented channels (0/1 or weights) against (L, H, W) orientation bitmask map
     images (as :func:`render_panoramas` draws them), each at its own column shifts (L, S):
     (L, S) float64. Each map's compatible closeness is stamped and read in one pass
-    (:func:`_oriented_shifts`), so the local search never stores L x B closeness images."""
+    (:func:`_oriented_shifts`), so the local search never stores L x B closeness images.
+    ``query_pixels``: :func:`oriented_query_pixels` of the query and ``precision_rows``, where
+    the caller keeps them (the local search scores one query a few hundred times)."""
     query = np.asarray(query)
     b, h, w = query.shape
     if query_close is None:
         query_close = stack_channels(oriented_closeness(query, tau_px, spread))
-    rows, cols, vals = _query_pixels(stack_channels(query), None if precision_rows is None else np.tile(precision_rows, b))
+    rows, cols, vals = oriented_query_pixels(query, precision_rows) if query_pixels is None else query_pixels
     shifts = np.ascontiguousarray(np.asarray(shifts, np.int64) % w)
     masks = np.ascontiguousarray(np.asarray(masks, np.uint8).reshape(-1, h, w))
     halves = np.zeros((len(masks), shifts.shape[1], 2))
     if len(masks):
-        kernel = closeness_kernel(tau_px)
-        r = kernel.shape[0] // 2
-        dy, dx = np.nonzero(kernel > 0)
-        levels, rank = np.unique(kernel[dy, dx], return_inverse=True)
-        rank_type = np.uint8 if len(levels) < 2**8 else np.uint16 if len(levels) < 2**16 else np.uint32
-        offset = (dy - r) * (w + 2 * r) + (dx - r)          # flat, in a buffer row of w + 2 r
-        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), offset.astype(np.int64),
-                         (rank.ravel() + 1).astype(rank_type), np.concatenate([[0.0], levels]).astype(np.float32), r, b,
-                         np.ascontiguousarray(query_close, np.float32),
-                         rows.astype(np.int64), cols.astype(np.int64), vals, np.asarray(weights, np.float64), shifts,
-                         halves)
+        offset, rank, levels, r = _rank_stamp(float(tau_px), w)
+        _oriented_shifts(masks, compatible_bins(b, min(int(spread), b)), offset, rank, levels, r, b,
+                         np.ascontiguousarray(query_close, np.float32), rows, cols, vals,
+                         np.asarray(weights, np.float64), shifts, halves)
     return halves_mixed(halves[..., 0], halves[..., 1], recall_weight)
+
+
+def oriented_query_pixels(query: np.ndarray, precision_rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows (of the stacked channels, b H + y), columns and precision-half weights of a
+    (B, H, W) oriented query's line elements, as :func:`oriented_at_shifts` reads them."""
+    b = query.shape[0]
+    rows, cols, vals = _query_pixels(stack_channels(query), None if precision_rows is None else np.tile(precision_rows, b))
+    return rows.astype(np.int64), cols.astype(np.int64), vals
+
+
+@functools.lru_cache(maxsize=16)
+def _rank_stamp(tau_px: float, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The closeness kernel's stamp as :func:`_oriented_shifts` takes it: the flat offsets of
+    its pixels in a buffer row of ``w`` + 2 r, each pixel's rank among the kernel's distinct
+    values (1 the least), the values by rank (0 first: none) and r. Kept: it depends on the
+    kernel and the width alone, and the local search asks for it a few hundred times a
+    query. Callers must not write into the arrays."""
+    kernel = closeness_kernel(tau_px)
+    r = kernel.shape[0] // 2
+    dy, dx = np.nonzero(kernel > 0)
+    levels, rank = np.unique(kernel[dy, dx], return_inverse=True)
+    rank_type = np.uint8 if len(levels) < 2**8 else np.uint16 if len(levels) < 2**16 else np.uint32
+    offset = (dy - r) * (w + 2 * r) + (dx - r)          # flat, in a buffer row of w + 2 r
+    return (offset.astype(np.int64), (rank.ravel() + 1).astype(rank_type),
+            np.concatenate([[0.0], levels]).astype(np.float32), int(r))
 
 
 @functools.lru_cache(maxsize=64)
@@ -1847,7 +1868,9 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
     regions = list(inside) if inside is not None else [None] * n   # each query's region (umap.room_hints), or None
     # the plan points the local search scored for the current query, each at its best shift:
     # the rivals off the grid. Per thread: a query's whole search runs on one thread
-    # (:func:`panorama_threads`), so each thread's lists are its current query's
+    # (:func:`panorama_threads`), so each thread's lists are its current query's (and so is
+    # ``pixels``, its line elements for the oriented local score, oriented_query_pixels, made
+    # at its first call)
     scored_here = threading.local()
 
     def local_scores(k: int, pts: np.ndarray, cols: np.ndarray, q_close: np.ndarray | None) -> np.ndarray:
@@ -1856,9 +1879,11 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
         # the rows the photo saw weigh the map's lines: only those count in the recall half
         wk = weights if seen is None else weights * seen[k]
         if spread is not None:
+            if scored_here.pixels is None:   # the same for each of the query's few hundred calls
+                scored_here.pixels = oriented_query_pixels(queries[k], prows)
             out = oriented_at_shifts(renders(pts), queries[k], cols, tau_px=pp.chamfer_tau_px, weights=wk,
                                      spread=spread, query_close=q_close, precision_rows=prows,
-                                     recall_weight=pp.recall_weight)
+                                     recall_weight=pp.recall_weight, query_pixels=scored_here.pixels)
         elif chamfer:
             out = chamfer_at_shifts(unpack(renders(pts), h, w), queries[k], cols, tau_px=pp.chamfer_tau_px,
                                     weights=wk, chance=pp.chamfer_chance, query_close=q_close,
@@ -2002,7 +2027,7 @@ def search_panoramas(lines: np.ndarray, poses: np.ndarray, segments: np.ndarray,
             tolerant = None if tolerant is None else np.where(keep, tolerant, -np.inf)
         best[k], shift, score[k] = best_pose(table)
         heading[k] = shift * 360.0 / w
-        scored_here.xy, scored_here.score, scored_here.col = [], [], []
+        scored_here.xy, scored_here.score, scored_here.col, scored_here.pixels = [], [], [], None
         answer_xy, answer_col = poses[best[k], :2], shift
         if pp.refine_candidates <= 0:
             cands = np.zeros(0, np.int64)

@@ -880,11 +880,11 @@ def _choice_note(n: int, judged: bool, failures: int | None, sample: int | None)
     rest = "the doubtful ones first (the smallest margin first), then others spread over the run"
     if failures is None and sample is None:
         first = "the wrong answers first (the largest error first), then " if judged else ""
-        return f"One picture per photo for at most {PANORAMA_PICTURES} of the {n}: {first}{rest}."
+        return f"One picture per photo for at most {PANORAMA_PICTURES} of the {n}: {first}{rest.replace(' first (', ' (', 1) if judged else rest}."
     if not judged:
         return f"As placeloc show --sample {sample} chose them: {rest}."
     parts = ([f"the wrong answers, at most {failures} (the largest error first)"] if failures else []) + (
-        [f"{'then ' if failures else ''}{sample} more: {rest}"] if sample else [])
+        [f"{f'then {sample} more' if failures else sample}: {rest}"] if sample else [])
     return f"As placeloc show --failures {failures} --sample {sample} chose them: {', '.join(parts) or 'none'}."
 
 

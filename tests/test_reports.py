@@ -205,3 +205,34 @@ def test_the_ground_truth_line_names_only_what_the_contract_reads(tmp_path):
     assert "<td class=''>kind=poses, path=poses.csv, radius=25.0, exclude_recent=50</td>" in loops
     ranked = write_report(tmp_path, config={"method": "seqslam", "ground_truth": gt}, result_kind="ranked").read_text()
     assert "<td class=''>kind=poses, path=poses.csv, radius=25.0</td>" in ranked
+
+
+def test_a_method_s_pictures_in_its_order_with_its_captions(tmp_path):
+    """report.html shows a method's own pictures (MethodPictures) in the order it chose them,
+    each with its caption, right after the figures of ORDER; a PNG of their family that was
+    not chosen is left out; every other picture, and a report without MethodPictures, keeps
+    name order."""
+    import re
+
+    from placeloc.evaluation.report import MethodPictures, write_report
+
+    png = b"\x89PNG\r\n\x1a\n" + b"\0" * 16   # the report checks the signature, not the image
+    for name in ("estimates_on_plan.png", "panorama_a.png", "panorama_b.png", "panorama_c.png", "ceiling_scores.png",
+                 "zz.png"):
+        (tmp_path / name).write_bytes(png)
+
+    def listed(html: str) -> list[tuple[str, str]]:
+        return re.findall(r"<h3>([^<]*?)(?:<span class='why'>([^<]*)</span>)?</h3>", html)
+
+    plain = listed(write_report(tmp_path, config={"method": "seqslam"}).read_text())
+    assert [n for n, _ in plain] == ["estimates_on_plan.png", "ceiling_scores.png", "panorama_a.png", "panorama_b.png",
+                                     "panorama_c.png", "zz.png"]
+    assert all(why == "" for _, why in plain)
+    chosen = MethodPictures("panorama_", [("panorama_c.png", "wrong: 7.31 m off"), ("panorama_a.png", "")],
+                            "wrong ones first")
+    html = write_report(tmp_path, config={"method": "umap"}, method_pictures=chosen).read_text()
+    assert listed(html) == [("estimates_on_plan.png", ""), ("panorama_c.png", "wrong: 7.31 m off"), ("panorama_a.png", ""),
+                            ("ceiling_scores.png", ""), ("zz.png", "")]
+    # the note once, just before the first of them
+    assert html.count("wrong ones first") == 1
+    assert html.index("estimates_on_plan.png") < html.index("wrong ones first") < html.index("<h3>panorama_c.png")

@@ -743,8 +743,15 @@ def _exit_now(code: int) -> None:
 # ---------------------------------------------------------------------------------------
 @app.command()
 def show(run_dir: Path = typer.Argument(..., help="A run directory (after localize; evaluate adds right/wrong)."),
-         sample: int = typer.Option(8, min=0, help="Queries spread over the traverse to draw."),
-         failures: int = typer.Option(8, min=0, help="Most confident wrong matches to draw (needs ground truth)."),
+         sample: int | None = typer.Option(None, min=0, show_default=False,
+                                           help="Queries spread over the traverse to draw (default 8). UMap panoramas: "
+                                                "how many pictures besides the wrong ones, the doubtful answers first, "
+                                                "then others spread over the run."),
+         failures: int | None = typer.Option(None, min=0, show_default=False,
+                                             help="Most confident wrong matches to draw (needs ground truth; default 8). "
+                                                  "UMap panoramas: the wrong answers, the largest error first; "
+                                                  "--sample 0 draws only those. Without either option an evaluated "
+                                                  "UMap run keeps the pictures evaluate drew."),
          recall_at: str | None = typer.Option(None, help="Also print standard Recall@N for these N, e.g. 1,2,3,15 "
                                                          "(from per_query.csv; N up to its 20 candidates)."),
          quiet: bool = QuietOpt) -> None:

@@ -89,10 +89,16 @@ class Method:
     # own metrics and figures. evaluate_keys: the method parameters the hook reads.
     evaluate_extra: Callable[[Any, Any], None] | None = None
     evaluate_keys: tuple[str, ...] = ()
-    # Optional hook(run folder, its result, folder to draw into) -> paths: the method's own
-    # pictures that `placeloc show` adds for a run not evaluated (no ground truth), where
-    # evaluate_extra never ran (UMap: each panorama's lines against the map at its answer).
-    show_extra: Callable[[Path, Any, Path], list[Path]] | None = None
+    # Optional hook(run folder, its result, folder to draw into, *, evaluated, sample, failures,
+    # config) -> paths: the method's own pictures that `placeloc show` draws (UMap: each
+    # panorama's lines against the map at its answer): for a run not evaluated (no ground
+    # truth), where evaluate_extra never ran, and for an evaluated one where show's --sample or
+    # --failures (None: not given) ask for another choice than evaluate's.
+    show_extra: Callable[..., list[Path]] | None = None
+    # Optional hook(run folder, *, evaluated, sample, failures) -> placeloc.evaluation.report.MethodPictures
+    # or None: the order and captions report.html gives the method's own pictures, as `placeloc
+    # show` (its options) chose them; evaluate hands its choice over in the evaluation instead.
+    report_pictures: Callable[..., Any] | None = None
     # Where the contract finds ground truth the method's own parameters name (role -> parameter),
     # e.g. the map contract's {"points": "truth"}; the shared ground_truth section otherwise.
     truth_keys: dict[str, str] = field(default_factory=dict)

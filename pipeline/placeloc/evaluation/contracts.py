@@ -87,6 +87,9 @@ class Evaluation:
     arrays: dict[str, Any] = field(default_factory=dict)
     pr_curves: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     label: str = ""
+    # the method's own pictures as report.html shows them (placeloc.evaluation.report.MethodPictures:
+    # their order and captions), set by its evaluate_extra where it draws some; None: name order
+    method_pictures: Any = None
 
 
 @dataclass
@@ -367,7 +370,8 @@ def evaluate_stage(ctx: Any) -> None:
     if plots:
         from placeloc.evaluation.report import write_report
 
-        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, **report_parts(res.kind, clean))
+        write_report(ctx.run_dir, config=ctx.config, out_dir=ctx.output_dir, method_pictures=ev.method_pictures,
+                     **report_parts(res.kind, clean))
 
 
 def method_truth(method: Any, params: Any) -> str:

@@ -110,7 +110,7 @@ def write(ctx: Any, *, names: Sequence[str], x: np.ndarray, y: np.ndarray, headi
 # ---------------------------------------------------------------------------------------
 # ground truth
 # ---------------------------------------------------------------------------------------
-def _truth(section: dict[str, Any], names: Sequence[str]) -> tuple[Any, np.ndarray]:
+def true_poses(section: dict[str, Any], names: Sequence[str]) -> tuple[Any, np.ndarray]:
     """The poses file and the row of each query name in it (one error naming the file,
     the missing frame and the fix)."""
     from placeloc.evaluation.ground_truth import GroundTruthError
@@ -139,7 +139,7 @@ def check_ground_truth(config: dict[str, Any], method: Any) -> None:
             names = list(list_images(config["query"]["images"]).names)
         except ImageError:
             return  # the image check reports this one
-    _truth(section, names)
+    true_poses(section, names)
 
 
 # ---------------------------------------------------------------------------------------
@@ -266,7 +266,7 @@ def evaluate(ctx: Any, res: Result) -> PoseEvaluation:
     if section["kind"] == "none":
         raise StageError("ground_truth.kind is none: evaluate needs the true poses (ground_truth.kind: poses); "
                          "`placeloc show RUN_DIR` draws the estimates without it")
-    gt, rows = _truth(section, res["names"])
+    gt, rows = true_poses(section, res["names"])
     ev = score(res, gt, rows)
     problem = truth_off_the_map(ev.truth, res.get("plan_segments"))
     if problem is not None:

@@ -10,6 +10,7 @@ import functools
 import html
 import logging
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,23 @@ th{background:#f0f0f0}td.num{text-align:right;font-variant-numeric:tabular-nums}
 img{max-width:min(100%,1100px);border:1px solid #ddd;margin:6px 0 18px}h2{margin-top:28px;border-bottom:1px solid #ddd}
 .cfg{display:flex;gap:32px;flex-wrap:wrap;align-items:flex-start}.muted{color:#777;font-size:12px}
 details{margin:8px 0 20px}summary{cursor:pointer;color:#336;font-size:13px}
+.why{font-size:14px;font-weight:normal;color:#555;margin-left:10px}
 .headline{display:flex;gap:14px;flex-wrap:wrap;margin:10px 0 6px}.fig{border:1px solid #ccd;border-radius:6px;padding:8px 14px;
 background:#f6f8fc}.fig .v{font-size:24px;font-weight:600}.fig .k{font-size:12px;color:#555}"""
+
+
+@dataclass(frozen=True)
+class MethodPictures:
+    """A method's own pictures as report.html shows them (UMap's ``panorama_<photo>.png``):
+    ``chosen``, (file name, caption) in the order the method chose them, the one to look at
+    first first (file-name order put the one wrong answer of 32 photos eighth of twelve);
+    ``family``, the prefix their names share: a PNG of the family not chosen is left out (one
+    left from an earlier run, or from ``placeloc show`` with other options); ``note``, a line
+    above them that says how they were chosen."""
+
+    family: str
+    chosen: list[tuple[str, str]] = field(default_factory=list)
+    note: str = ""
 
 
 def format_value(v: Any) -> str:
@@ -262,11 +278,14 @@ def _metrics_doc(doc: dict[str, str] | None) -> str:
 
 def write_report(run_dir: str | Path, title: str | None = None, config: dict[str, Any] | None = None,
                  out_dir: str | Path | None = None, result_kind: str | None = None,
-                 headline: list[tuple[str, Any]] | None = None, metrics_doc: dict[str, str] | None = None) -> Path:
+                 headline: list[tuple[str, Any]] | None = None, metrics_doc: dict[str, str] | None = None,
+                 method_pictures: MethodPictures | None = None) -> Path:
     """Write ``report.html`` from what the run directory holds now; ``config`` is the
     run's config (default: the one stamped in its newest artifact). ``out_dir`` (a stage's
     ``ctx.output_dir``, default ``run_dir``): where the report goes; the metrics.json and
-    PNGs staged there by the same stage take the place of the run directory's."""
+    PNGs staged there by the same stage take the place of the run directory's.
+    ``method_pictures``: the method's own pictures, in its order and with its captions, right
+    after the :data:`ORDER` figures (None: every PNG past those in name order)."""
     run_dir = Path(run_dir)
     out_dir = Path(out_dir) if out_dir is not None else run_dir
     cfg = config if config is not None else run_config(run_dir)
@@ -325,16 +344,31 @@ def write_report(run_dir: str | Path, title: str | None = None, config: dict[str
                   + _table(rows, (f"{method} parameter", "value")) + "</details>")
     parts.append("<h2>Configuration</h2><div class='cfg'>" + _table(summary, ("setting", "value")) + params + "</div>")
     found = {p.name: p for d in (run_dir, out_dir) for p in d.glob("*.png") if not p.name.startswith(".")}
-    pngs = sorted(found.values(), key=lambda p: (ORDER.index(p.name) if p.name in ORDER else len(ORDER), p.name))
+    chosen = dict(method_pictures.chosen) if method_pictures is not None else {}
+    rank = {name: k for k, name in enumerate(chosen)}
+    if method_pictures is not None:
+        found = {n: p for n, p in found.items() if n in chosen or not n.startswith(method_pictures.family)}
+
+    def place(p: Path) -> tuple[int, int, str]:
+        if p.name in ORDER:
+            return 0, ORDER.index(p.name), ""
+        return (1, rank[p.name], "") if p.name in rank else (2, 0, p.name)
+
+    pngs = sorted(found.values(), key=place)
     parts.append("<h2>Pictures</h2>")
-    embedded = 0
+    embedded, noted = 0, False
     for png in pngs:
         raw = _picture_bytes(png)
         if raw is None:
             continue
+        if png.name in chosen and not noted and method_pictures is not None and method_pictures.note:
+            parts.append(f"<p class='muted'>{html.escape(method_pictures.note)}</p>")
+            noted = True
         embedded += 1
         data = base64.b64encode(raw).decode("ascii")
-        parts.append(f"<h3>{html.escape(png.name)}</h3><img alt='{html.escape(png.name)}' src='data:image/png;base64,{data}'>")
+        why = f"<span class='why'>{html.escape(chosen[png.name])}</span>" if chosen.get(png.name) else ""
+        parts.append(f"<h3>{html.escape(png.name)}{why}</h3><img alt='{html.escape(png.name)}' "
+                     f"src='data:image/png;base64,{data}'>")
     if not embedded:
         parts.append("<p>No pictures in this run directory (plots: false?).</p>")
     # every figure of metrics.json after the pictures: the headline above holds the few to look at first

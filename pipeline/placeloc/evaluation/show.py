@@ -343,11 +343,15 @@ def recall_from_per_query(run_dir: str | Path, ns: list[int]) -> dict[int, tuple
 
 
 SHOW_DIR = "show"
+# --sample and --failures where not given: strips of this many queries each
+DEFAULT_COUNT = 8
 
 
-def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tuple[list[Path], Path]:
+def show_run(run_dir: str | Path, *, sample: int | None = None, failures: int | None = None) -> tuple[list[Path], Path]:
     """The contract's pictures (strips, plan, map) and report.html for a run directory, as
-    ``placeloc show`` does.
+    ``placeloc show`` does. ``sample``, ``failures``: how many strips (None:
+    :data:`DEFAULT_COUNT`), and the method's own pictures (its ``show_extra``; None:
+    not given, the method's own choice).
 
     ``show`` is read-only for the pipeline: it never changes a file a stage recorded as its
     side output (a stage whose recorded file changed re-runs). Everything is drawn into a
@@ -381,7 +385,8 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
         # the run's config, read once (its chain of artifacts and their stamped YAML) for the
         # contract's pictures, the method's and the report
         cfg = run_config(run_dir)
-        drawn = mod.show(run_dir, res, sample=sample, failures=failures, out_dir=staging, config=cfg)
+        drawn = mod.show(run_dir, res, sample=DEFAULT_COUNT if sample is None else sample,
+                         failures=DEFAULT_COUNT if failures is None else failures, out_dir=staging, config=cfg)
         metrics = None
         if (run_dir / "metrics.json").is_file() and not evaluate_is_current(run_dir):
             log.warning("%s: evaluate.h5 is from an earlier run (a stage before it re-ran since): its metrics are left "
@@ -391,9 +396,14 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
                                 str(run_dir / "metrics.json"))
             if not isinstance(metrics, dict):
                 raise ShowError(f"{run_dir / 'metrics.json'}: not a JSON object of metrics; re-run evaluate (--force)")
-        if metrics is None:   # not evaluated: the method's own pictures of its answers, where it has some
-            drawn += _method_pictures(run_dir, res, staging, cfg)
-        write_report(run_dir, config=cfg, out_dir=staging, **report_parts(res.kind, metrics))
+        # the method's own pictures of its answers, where it has some: not evaluated, all it draws; evaluated,
+        # those --sample and --failures ask for (evaluate drew its own choice)
+        method = _method(cfg)
+        options = {"evaluated": metrics is not None, "sample": sample, "failures": failures}
+        if method is not None and method.show_extra:
+            drawn += list(method.show_extra(run_dir, res, staging, config=cfg, **options))
+        chosen = method.report_pictures(run_dir, **options) if method is not None and method.report_pictures else None
+        write_report(run_dir, config=cfg, out_dir=staging, method_pictures=chosen, **report_parts(res.kind, metrics))
         placed = _place(run_dir, staging, recorded_side_outputs(run_dir))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -401,18 +411,17 @@ def show_run(run_dir: str | Path, *, sample: int = 8, failures: int = 8) -> tupl
     return pictures, placed[REPORT]
 
 
-def _method_pictures(run_dir: Path, res: Any, out_dir: Path, config: Mapping[str, Any]) -> list[Path]:
-    """The ``show_extra`` pictures (:class:`placeloc.core.methods.Method`) of the method the
-    run's ``config`` names, drawn into ``out_dir``; none where the method has no such hook or
-    the config names no method."""
+def _method(config: Mapping[str, Any]) -> Any:
+    """The method (:class:`placeloc.core.methods.Method`) the run's ``config`` names, for its
+    ``show_extra`` and ``report_pictures`` hooks; None where it names none this placeloc knows
+    (the contract's pictures only)."""
     from placeloc.core.methods import get_method
 
     name = config.get("method")
     try:
-        method = get_method(name) if isinstance(name, str) else None
-    except KeyError:   # a config naming no method this placeloc knows: the contract's pictures only
-        method = None
-    return list(method.show_extra(run_dir, res, out_dir)) if method is not None and method.show_extra else []
+        return get_method(name) if isinstance(name, str) else None
+    except KeyError:
+        return None
 
 
 def recorded_side_outputs(run_dir: Path) -> dict[str, str]:

@@ -187,3 +187,19 @@ def test_report_renders_in_headless_chromium(run, tmp_path):
     assert img is not None and img.shape[:2] == (1600, 1300)
     # rendered, not blank: text and pictures put dark pixels on the white page
     assert (img.min(axis=2) < 128).mean() > 0.005
+
+
+def test_show_says_when_sample_and_failures_choose_nothing(run, caplog):
+    # A result drawn whole (a map) has no queries for --sample/--failures to choose: show says so
+    # rather than ignoring them; results drawn as strips of chosen queries do not get the line.
+    name, run_dir = run
+    res = read_result(run_dir / "localize.h5")
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="placeloc"):
+        show_mod.show_run(run_dir, sample=2, failures=1)
+    said = [r.getMessage() for r in caplog.records if "choose nothing here" in r.getMessage()]
+    assert contract(res.kind).CHOOSES_QUERIES == (res.kind in ("ranked", "loops"))
+    if name == "coembed":
+        assert len(said) == 1 and "a map result is drawn whole (map.png)" in said[0]
+    else:   # strips chosen, or UMap's own pictures (its show_extra speaks for itself)
+        assert said == []

@@ -78,7 +78,7 @@ def test_the_report_explains_only_the_figures_the_run_reports():
 def test_every_contract_module_follows_the_protocol():
     for kind in contracts.KINDS:
         mod = contracts.contract(kind)
-        for name in ("SCHEMA", "SECTIONS", "SHOW_AT_EVALUATE", "METRICS_DOC", "COUNTS", "check_ground_truth", "evaluate",
+        for name in ("SCHEMA", "SECTIONS", "SHOW_AT_EVALUATE", "CHOOSES_QUERIES", "METRICS_DOC", "COUNTS", "check_ground_truth", "evaluate",
                      "score", "finish", "headline", "show"):
             assert hasattr(mod, name), f"{kind}: {name}"
         assert "seconds_per_frame" in mod.METRICS_DOC

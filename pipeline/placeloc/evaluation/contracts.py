@@ -166,6 +166,7 @@ class Contract(Protocol):
     SCHEMA: dict[str, Field]
     SECTIONS: tuple[str, ...]
     SHOW_AT_EVALUATE: bool
+    CHOOSES_QUERIES: bool
     METRICS_DOC: dict[str, str]
 
     def check_ground_truth(self, config: dict[str, Any], method: Any) -> None: ...

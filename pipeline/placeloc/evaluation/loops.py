@@ -57,6 +57,9 @@ log = logging.getLogger("placeloc")
 SECTIONS = ("ground_truth", "plots")
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = True
+# show()'s --sample and --failures choose the queries it draws (strips); False: it draws the whole result
+# at once, and they choose nothing (placeloc show says so)
+CHOOSES_QUERIES = True
 
 SCHEMA = {
     "frame_index": Field("int", ("N",)),

@@ -29,6 +29,9 @@ from placeloc.evaluation.contracts import Field, MapEvaluation, Result, write_re
 SECTIONS = ("plots",)
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = False
+# show()'s --sample and --failures choose the queries it draws (strips); False: it draws the whole result
+# at once, and they choose nothing (placeloc show says so)
+CHOOSES_QUERIES = False
 
 SCHEMA = {
     "feature_ids": Field("int", ("M",)),

@@ -42,6 +42,9 @@ from placeloc.evaluation.contracts import Field, PoseEvaluation, Result, write_r
 SECTIONS = ("ground_truth", "plots")
 # evaluate draws show()'s pictures too (strips); False: finish() already drew them
 SHOW_AT_EVALUATE = False
+# show()'s --sample and --failures choose the queries it draws (strips); False: it draws the whole result
+# at once, and they choose nothing (placeloc show says so)
+CHOOSES_QUERIES = False
 
 SCHEMA = {
     "names": Field("str", ("Q",)),

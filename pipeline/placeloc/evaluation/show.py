@@ -400,6 +400,11 @@ def show_run(run_dir: str | Path, *, sample: int | None = None, failures: int | 
         # those --sample and --failures ask for (evaluate drew its own choice)
         method = _method(cfg)
         options = {"evaluated": metrics is not None, "sample": sample, "failures": failures}
+        if (sample is not None or failures is not None) and not mod.CHOOSES_QUERIES and not (method and method.show_extra):
+            # said, not silently ignored: a user who asked for the worst 3 should know none were chosen
+            log.warning("%s: a %s result is drawn whole (%s); --sample and --failures choose the queries other "
+                        "results draw strips of, and choose nothing here", run_dir, res.kind,
+                        ", ".join(p.name for p in drawn) or "no picture")
         if method is not None and method.show_extra:
             drawn += list(method.show_extra(run_dir, res, staging, config=cfg, **options))
         chosen = method.report_pictures(run_dir, **options) if method is not None and method.report_pictures else None

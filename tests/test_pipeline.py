@@ -202,11 +202,11 @@ def test_a_changed_method_input_file_reruns_from_the_first_stage(tmp_path):
     obs.write_text("t,feature,value\n0,1,0.5\n")
     method = Method(name="toy", params=ToyParams, stages={}, required_images=())
     cfg = {"method": "toy", "seed": 0, "reference": None, "query": None, "toy": {"observations": str(obs)}}
-    before = stage_inputs(cfg, method, "extract", {}, None)
-    assert stage_inputs(cfg, method, "extract", {}, None) == before
+    before = stage_inputs(cfg, method, "extract", {}, {})
+    assert stage_inputs(cfg, method, "extract", {}, {}) == before
     obs.write_text("t,feature,value\n0,1,0.75\n")
-    assert stage_inputs(cfg, method, "extract", {}, None)["file.observations"] != before["file.observations"]
-    assert "file.observations" not in stage_inputs(cfg, method, "localize", {}, "parent")
+    assert stage_inputs(cfg, method, "extract", {}, {})["file.observations"] != before["file.observations"]
+    assert "file.observations" not in stage_inputs(cfg, method, "localize", {}, {"index": "parent"})
 
 
 def test_atomic_open_leaves_the_old_file_on_failure(tmp_path):

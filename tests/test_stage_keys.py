@@ -8,9 +8,9 @@ only in one branch are read at least once; all in one run directory, as a user's
 ``--set`` would), hands each stage a parameter object and a
 config that record every attribute and section it reads, and compares:
 
-- read but not declared: an error, unless an earlier stage declares the key (the
-  parent's stamp carries it: the runner chains every stage to its parent) or the key is
-  declared ``affects_result=False`` (block and task sizes);
+- read but not declared: an error, unless one of its ancestors declares the key (its
+  parents' stamps carry it: ``Method.stage_ancestors``, every earlier stage unless a stage
+  names fewer parents) or the key is declared ``affects_result=False`` (block and task sizes);
 - declared but never read in any run of the variants: an error.
 
 What counts as a read: attribute access on ``ctx.params`` (nested sections as
@@ -181,17 +181,19 @@ def problems(method: Method, reads: Reads) -> list[str]:
     """Every disagreement between what the stages declare and what they read."""
     layout = set(P.work_layout_keys(method.params))
     out = []
-    earlier_keys: tuple[str, ...] = ()
-    earlier_sections: tuple[str, ...] = ()
     for name in STAGES:
         stage = method.stages.get(name)
         if stage is None:
             continue
+        # what its ancestors declare reaches it through its parents' stamps
+        ancestors = [method.stages[a] for a in method.stage_ancestors(name) if a in method.stages]
+        earlier_keys = tuple(k for a in ancestors for k in a.keys)
+        earlier_sections = tuple(sec for a in ancestors for sec in a.sections)
         if name not in reads.ran:
             out.append(f"{method.name}.{name}: did not run in any smoke variant")
             continue
         for key in sorted(reads.keys[name]):
-            # an earlier stage's key reaches this one through the parent's stamp
+            # an ancestor's key reaches this one through its parents' stamps
             if key not in layout and not _covers(stage.keys, key) and not _covers(earlier_keys, key):
                 out.append(f"{method.name}.{name}: reads {key!r}, not declared in its Stage(keys=...)")
         for key in stage.keys:
@@ -210,8 +212,6 @@ def problems(method: Method, reads: Reads) -> list[str]:
             # by a read of its whole section
             if not any(_covers((sec,), r) or sec.startswith(r + ".") for r in reads.sections[name]):
                 out.append(f"{method.name}.{name}: declares section {sec!r} but never reads it")
-        earlier_keys += stage.keys
-        earlier_sections += stage.sections
     return out
 
 

@@ -62,6 +62,14 @@ class Stage:
     run: Callable[[Any], None]
     keys: tuple[str, ...] = ()
     sections: tuple[str, ...] = ()
+    # The earlier stages whose artifacts it reads (:meth:`Method.stage_parents`). None: the
+    # stage just before it, so that it depends on every stage before it and, through the
+    # first, on the images. A stage that needs less says so, and then re-runs only when what
+    # it reads changed: UMap's map database is drawn from the floor plan alone (``()``), so
+    # adding a photo does not draw the map again nor rewrite its 0.7 GB index. The runner
+    # lets a stage open only the artifacts of its parents and theirs, and gives it the images
+    # only where the first stage is among them.
+    parents: tuple[str, ...] | None = None
 
 
 @dataclass
@@ -133,6 +141,31 @@ class Method:
             if key not in self.path_keys or name not in self.stages or key not in self.stages[name].keys:
                 raise ValueError(f"{self.name}: file_stages names {key!r} for stage {name!r}: it must be a path "
                                  "parameter that stage declares")
+        for name, stage in self.stages.items():
+            for parent in stage.parents or ():
+                if parent not in STAGES or STAGES.index(parent) >= STAGES.index(name):
+                    raise ValueError(f"{self.name}.{name} names {parent!r} among its parents: a parent is an "
+                                     f"earlier stage ({', '.join(STAGES[:STAGES.index(name)]) or 'none'})")
+
+    def stage_parents(self, name: str) -> tuple[str, ...]:
+        """The stages whose artifacts stage ``name`` reads directly: its declared
+        :attr:`Stage.parents`, else the stage before it (none for the first)."""
+        declared = self.stages.get(name)
+        if declared is not None and declared.parents is not None:
+            return tuple(declared.parents)
+        i = STAGES.index(name)
+        return (STAGES[i - 1],) if i > 0 else ()
+
+    def stage_ancestors(self, name: str) -> frozenset[str]:
+        """Every stage whose artifact stage ``name`` depends on: its parents, theirs, ..."""
+        found: set[str] = set()
+        todo = list(self.stage_parents(name))
+        while todo:
+            p = todo.pop()
+            if p not in found:
+                found.add(p)
+                todo.extend(self.stage_parents(p))
+        return frozenset(found)
 
     def result_kind(self, config: dict) -> str | None:
         """The result contract this method's localize writes for ``config``."""

@@ -80,6 +80,8 @@ class StageContext:
     quiet: bool = False
     images: dict[str, ImageSet] = field(default_factory=dict)
     _open: list[h5py.File] = field(default_factory=list)
+    # The earlier stages whose artifacts this one may open (Method.stage_ancestors); None: any
+    reads: frozenset[str] | None = None
 
     # The method's parameter object (see placeloc.core.params), built once per run.
     params: Any = None
@@ -118,6 +120,11 @@ class StageContext:
 
     def artifact(self, stage: str) -> h5py.File:
         """Open the artifact of an earlier stage read-only (closed by the runner)."""
+        if self.reads is not None and stage not in self.reads:
+            # its stamp does not cover that artifact: a re-run of it would not re-run this stage
+            raise RuntimeError(f"{self.method.name}.{self.stage} reads {stage}.h5, which is not among its parents "
+                               f"or theirs ({', '.join(sorted(self.reads)) or 'none'}): add it to the stage's "
+                               "Stage.parents")
         path = self.run_dir / f"{stage}.h5"
         if not path.is_file():
             raise StageError(f"{path} is missing: run `placeloc {stage}` first")
@@ -190,10 +197,12 @@ def _sidecar_fingerprint(images: dict[str, ImageSet]) -> str:
 
 
 def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
-                 parent_stamp: str | None) -> dict[str, Any]:
+                 parent_tokens: dict[str, str]) -> dict[str, Any]:
     """Everything a stage's result depends on, as JSON-able fingerprints: the parameters
     and sections it declares, images and files named by path parameters (first stage), the
-    ground-truth file (if it reads that section) and the parent's stamp."""
+    ground-truth file (if it reads that section) and its parents' tokens (``parent_tokens``,
+    stage -> :func:`_parent_token`): as ``parent``, the one token, where its parent is the
+    stage before it (:meth:`Method.stage_parents`), else as ``parents``, by stage."""
     declared = method.stages.get(stage)
     keys = declared.keys if declared is not None else ()
     sections = declared.sections if declared is not None else ()
@@ -220,8 +229,11 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
         inputs["ground_truth_file"] = _path_fingerprint(Path(gt_path))
     if "ground_truth" in sections and images:
         inputs["sidecar_files"] = _sidecar_fingerprint(images)
-    if parent_stamp is not None:
-        inputs["parent"] = parent_stamp
+    declared_parents = declared.parents if declared is not None else None
+    if declared_parents is not None:
+        inputs["parents"] = {name: parent_tokens[name] for name in declared_parents}
+    elif parent_tokens:
+        (inputs["parent"],) = parent_tokens.values()
     return inputs
 
 
@@ -279,19 +291,19 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     method = get_method(config["method"])
     images = image_sets(config) if method.uses_images else {}
     check_inputs(config, images)
-    parent_stamp: str | None = None
+    tokens: dict[str, str] = {}   # each stage brought up to date: what its children record of it
     executor: Executor | None = None
     try:
         for name in STAGES[: STAGES.index(stage) + 1]:
             raise_if_interrupted()
             path = run_dir / f"{name}.h5"
-            inputs = stage_inputs(config, method, name, images, parent_stamp)
+            inputs = stage_inputs(config, method, name, images, {p: tokens[p] for p in method.stage_parents(name)})
             stamp = config_hash({"version": __version__, "code": code_fingerprint(), "stage": name, "inputs": inputs})
             forced = force_all or (force and name == stage)
             found, why = stamp_and_reason(path)
             if found == stamp and side_outputs_intact(path) and not forced:
                 log.info("%s: up to date (%s), skipped", name, path)
-                parent_stamp = _parent_token(stamp, path)
+                tokens[name] = _parent_token(stamp, path)
                 continue
             if why is not None:
                 log.warning("%s: %s cannot be used: %s; the stage runs again", name, path, why)
@@ -305,7 +317,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 donor = _reuse(path, stamp, reuse)
                 if donor is not None:
                     log.info("%s: the same as %s (linked, not computed again)", name, donor)
-                    parent_stamp = _parent_token(stamp, path)
+                    tokens[name] = _parent_token(stamp, path)
                     continue
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
@@ -313,7 +325,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 executor = make_executor(common_params(config).executor)
             _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
-            parent_stamp = _parent_token(stamp, path)
+            tokens[name] = _parent_token(stamp, path)
     finally:
         if executor is not None:
             executor.close()
@@ -612,9 +624,12 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
                 return
             log.info("%s: running %s", name, method.name)
             staging.mkdir()
+            reads = method.stage_ancestors(name)
+            # the images only where the first stage is among its ancestors (its stamp covers them)
             ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
-                               executor=executor, quiet=quiet, images=images, params=method.build_params(config),
-                               common=common_params(config), staging=staging)
+                               executor=executor, quiet=quiet, images=images if name == STAGES[0] or STAGES[0] in reads
+                               else {}, params=method.build_params(config), common=common_params(config),
+                               staging=staging, reads=reads)
             before = _run_files(run_dir)
             _run_stage_fn(fn, ctx, run_dir, name)
             f.attrs["seconds"] = time.perf_counter() - t0

@@ -92,11 +92,13 @@ def _table(rows: list[tuple[str, Any]], head: tuple[str, str]) -> str:
 
 
 def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
-    """(stage, parent token, config) of the artifacts that form one chain of stamps: the first
-    stage's artifact, then each next stage's as long as it records the stamp of the one
-    before as its parent. An artifact left from an earlier run (its parent re-run since)
-    ends the chain, however recent its modification time. Artifacts are read through the
-    run-folder guard (no symbolic links, regular files only)."""
+    """(stage, its token, config) of the artifacts that form one chain of stamps: the first
+    stage's artifact, then each next stage's as long as it records the tokens of its
+    parents as they are in the chain (``parent``: the one before it; ``parents``: the stages
+    it names, :attr:`placeloc.core.methods.Stage.parents`). An artifact left from an earlier
+    run (a parent re-run since) ends the chain, however recent its modification time.
+    Artifacts are read through the run-folder guard (no symbolic links, regular files
+    only)."""
     from placeloc.core.stage_names import STAGES
 
     chain: list[tuple[str, str, dict[str, Any]]] = []
@@ -104,12 +106,16 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
         attrs = _artifact_attrs(run_dir, f"{stage}.h5")
         if attrs is None:
             break
-        stamp, parent = str(attrs.get("stamp") or ""), None
+        stamp = str(attrs.get("stamp") or "")
         try:
-            parent = load_json(str(attrs.get("inputs") or "{}"), f"{stage}.h5 inputs").get("parent")
+            inputs = load_json(str(attrs.get("inputs") or "{}"), f"{stage}.h5 inputs")
+            parents = inputs.get("parents") if "parents" in inputs else \
+                ({chain[-1][0]: inputs.get("parent")} if chain else {})
+            tokens = {name: token for name, token, _ in chain}
+            current = isinstance(parents, dict) and all(tokens.get(p) == t for p, t in parents.items())
         except (ValueError, AttributeError):  # not JSON, too deep, not a mapping
             break
-        if not stamp or (chain and parent != chain[-1][1]):
+        if not stamp or not current:
             break
         cfg = _parse_config(attrs.get("config_yaml"))
         if cfg is None:

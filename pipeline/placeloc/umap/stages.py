@@ -1118,13 +1118,15 @@ METHOD = Method(
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px", "panorama.orientation_bins",
                                         "panorama.level_max_deg")),
-        "build-dictionary": Stage(build_dictionary, keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
+        # the map database and its index are drawn from the plan alone: a photo added or changed
+        # re-runs extract and localize, not these (0.7-1 GB and seconds of renders at a home's size)
+        "build-dictionary": Stage(build_dictionary, parents=(), keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",
                                                           "panorama.width", "panorama.height", "tolerance_px",
                                                           "panorama.orientation_bins")),
-        "index": Stage(index, keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
+        "index": Stage(index, parents=("build-dictionary",), keys=("tolerance_px", "panorama.score", "panorama.chamfer_tau_px", "panorama.polar_deg",
                                     "panorama.polar_weight", "panorama.solid_angle", "panorama.chamfer_chance",
                                     "panorama.clutter_share", "panorama.orientation_bins", "panorama.orientation_spread")),
-        "localize": Stage(localize, keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "room_hint_check",
+        "localize": Stage(localize, parents=("extract", "index"), keys=("mode", "sensor_csv", "room_hints", "room_hint_margin_m", "room_hint_check",
                                           "panorama.score",
                                           "panorama.chamfer_tau_px", "panorama.chamfer_chance", "panorama.recall_weight",
                                           "panorama.clutter_share", "panorama.texture_radius_px", "panorama.precision_polar_deg",
@@ -1143,7 +1145,7 @@ METHOD = Method(
     },
     result="poses",
     # read by localize alone: editing the per-frame sensor or room file re-runs localize, not the map
-    file_stages={"sensor_csv": "localize", "room_hints": "localize"},
+    file_stages={"model": "build-dictionary", "sensor_csv": "localize", "room_hints": "localize"},
     evaluate_extra=evaluate_extra,
     show_extra=show_extra,
     report_pictures=report_pictures,

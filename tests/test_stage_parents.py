@@ -1,0 +1,88 @@
+"""A stage re-runs when, and only when, what it reads changed: ``Stage.parents`` names the
+earlier artifacts a stage reads, and the runner stamps it with theirs alone. UMap's map
+database and index are drawn from the floor plan only, so a photo added to the folder
+re-runs extract and localize but neither draws the map again nor rewrites its index (0.7 GB
+at a home's size); an edited plan re-runs the map, not the photos' extract."""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import h5py
+import pytest
+from test_umap_method import _config, _tiny_corridor
+
+from placeloc.core.methods import STAGES, Method, Stage, get_method
+from placeloc.core.runner import StageContext, run_all
+from placeloc.evaluation.report import stamped_configs
+
+
+def _write_ids(run_dir) -> dict[str, str]:
+    out = {}
+    for stage in STAGES:
+        with h5py.File(run_dir / f"{stage}.h5", "r") as f:
+            out[stage] = str(f.attrs["write_id"])
+    return out
+
+
+def _ran(caplog) -> set[str]:
+    return {s for s in STAGES for r in caplog.records if r.getMessage().startswith(f"{s}: running ")}
+
+
+def test_a_photo_removed_or_a_plan_edited_re_runs_only_what_reads_it(tmp_path, caplog):
+    data = _tiny_corridor(tmp_path)
+    run = tmp_path / "run"
+    run_all(_config(data), run, quiet=True)
+    first = _write_ids(run)
+
+    (data / "q" / "f7.png").unlink()                       # a photo fewer
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_all(_config(data), run, quiet=True)
+    after_photo = _write_ids(run)
+    assert _ran(caplog) == {"extract", "localize", "evaluate"}
+    assert [after_photo[s] == first[s] for s in STAGES] == [False, True, True, False, False]
+    with h5py.File(run / "localize.h5", "r") as f:
+        assert len(f["names"]) == 7
+        inputs = f.attrs["inputs"]
+    assert '"parents"' in inputs and '"extract"' in inputs and '"index"' in inputs
+    # the run's chain of stamps is whole: show and the report read the evaluated run
+    assert [s for s, _, _ in stamped_configs(run)] == list(STAGES)
+
+    plan = data / "plan.yaml"                              # the plan edited (its time moved on)
+    st = plan.stat()
+    os.utime(plan, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_all(_config(data), run, quiet=True)
+    assert _ran(caplog) == {"build-dictionary", "index", "localize", "evaluate"}
+    assert _write_ids(run)["extract"] == after_photo["extract"]
+    assert [s for s, _, _ in stamped_configs(run)] == list(STAGES)
+
+
+def test_a_stage_opens_only_the_artifacts_it_depends_on(tmp_path):
+    umap = get_method("umap")
+    assert umap.stage_parents("build-dictionary") == ()
+    assert umap.stage_ancestors("localize") == {"extract", "build-dictionary", "index"}
+    assert umap.stage_ancestors("evaluate") == {"extract", "build-dictionary", "index", "localize"}
+    assert get_method("seqslam").stage_ancestors("index") == {"extract", "build-dictionary"}   # the default chain
+    ctx = StageContext(stage="index", method=umap, config={}, run_dir=tmp_path, out=None, executor=None,
+                       reads=umap.stage_ancestors("index"))
+    with pytest.raises(RuntimeError, match=r"umap.index reads extract.h5, which is not among its parents.*Stage.parents"):
+        ctx.artifact("extract")
+
+
+def test_a_parent_must_be_an_earlier_stage():
+    from dataclasses import dataclass
+
+    from placeloc.core.params import Params
+
+    @dataclass(frozen=True)
+    class ToyParams(Params):
+        pass
+
+    with pytest.raises(ValueError, match=r"toy.index names 'localize' among its parents: a parent is an earlier "
+                                         r"stage \(extract, build-dictionary\)"):
+        Method(name="toy", params=ToyParams, stages={"index": Stage(lambda ctx: None, parents=("localize",))},
+               required_images=())

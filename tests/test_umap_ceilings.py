@@ -120,7 +120,7 @@ def test_a_plan_drawn_with_the_wrong_ceiling_is_searched_at_the_right_one(tmp_pa
 
     assert f", ceiling_m {runs['three'][0]['ceiling_m']}, " in answer_lines(tmp_path / "three" / "run")[0]
     # placeloc show draws the ceilings' means where several were searched, not otherwise
-    from placeloc.umap.stages import show_extra
+    from placeloc.umap.pictures import show_extra
 
     for name, drawn in (("three", True), ("plan", False)):
         pics = show_extra(tmp_path / name / "run", None, tmp_path / name / "run")

@@ -1,14 +1,14 @@
 """Which panoramas get a picture (``panorama_<name>.png``): the wrong answers first, then the
 doubtful ones, then the others spread over the run, at most
-:data:`placeloc.umap.stages.PANORAMA_PICTURES`; never simply the first ones."""
+:data:`placeloc.umap.pictures.PANORAMA_PICTURES`; never simply the first ones."""
 
 from __future__ import annotations
 
 import numpy as np
 import yaml
 
-from placeloc.umap import stages
-from placeloc.umap.stages import panorama_caption, pictured_panoramas, ranked_panoramas
+from placeloc.umap import pictures
+from placeloc.umap.pictures import panorama_caption, pictured_panoramas, ranked_panoramas
 
 # the L-shaped room of tests/test_umap_panorama.py
 PLAN = {"floor_z": 0.0, "ceiling_z": 2.6, "outline": [[0, 0], [6, 0], [6, 4], [3.5, 4], [3.5, 7], [0, 7]],
@@ -110,7 +110,7 @@ def test_evaluate_draws_the_wrong_answer_past_the_first_frames(tmp_path, monkeyp
     # frame's, and its title gives the error.
     from placeloc.core.runner import run_stage
 
-    monkeypatch.setattr(stages, "PANORAMA_PICTURES", 1)
+    monkeypatch.setattr(pictures, "PANORAMA_PICTURES", 1)
     run = tmp_path / "run"
     run_stage(_three_photos(tmp_path), run, "evaluate", quiet=True)
     rows = {r.split(",")[0]: r.split(",") for r in (run / "per_query.csv").read_text().splitlines()[1:]}

@@ -207,19 +207,30 @@ def report_pictures(run_dir: Path, *, evaluated: bool = False, sample: int | Non
         with h5py.File(run_dir / "extract.h5", "r") as ex, h5py.File(run_dir / "localize.h5", "r") as loc:
             if str(ex.attrs.get("query_kind", "")) != "panorama":
                 return None
-            names = read_strings(loc["names"])
-            if evaluated:
-                with h5py.File(run_dir / "evaluate.h5", "r") as judged:
-                    known = _known(loc, judged)
-            else:
-                known = _known(loc)
+            names, known, frames, (failures, sample) = _chosen(run_dir, loc, evaluated, sample, failures)
     except (OSError, KeyError):   # a folder without the artifacts (a report of a bare folder): name order
         return None
-    judged = "wrong" in known
-    failures, sample = _show_counts(judged, sample, failures)
-    frames = ranked_panoramas(len(names), wrong=known.get("wrong"), error_m=known.get("error_m"), doubtful=known["doubtful"],
-                              margin=known["margin"], failures=failures, sample=sample)
-    return _report_of(names, frames, _choice_note(len(names), judged, failures, sample), **known)
+    return _report_of(names, frames, _choice_note(len(names), "wrong" in known, failures, sample), **known)
+
+
+def _chosen(run_dir: Path, loc: Any, evaluated: bool, sample: int | None, failures: int | None
+            ) -> tuple[list[str], dict[str, Any], list[int], tuple[int | None, int | None]]:
+    """What show's pictures and the report's order are chosen from, and the choice: the
+    localize artifact ``loc``'s names, what is known of each answer (:func:`_known`; with
+    evaluate.h5 where ``evaluated``), the frames :func:`ranked_panoramas` picks and the counts
+    it took (:func:`_show_counts`)."""
+    import h5py
+
+    names = read_strings(loc["names"])
+    if evaluated:
+        with h5py.File(Path(run_dir) / "evaluate.h5", "r") as judged:
+            known = _known(loc, judged)
+    else:
+        known = _known(loc)
+    counts = _show_counts("wrong" in known, sample, failures)
+    frames = ranked_panoramas(len(names), wrong=known.get("wrong"), error_m=known.get("error_m"),
+                              doubtful=known["doubtful"], margin=known["margin"], failures=counts[0], sample=counts[1])
+    return names, known, frames, counts
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path, *, evaluated: bool = False, sample: int | None = None,
@@ -249,15 +260,7 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path, *, evaluated: bool = Fals
             log.warning("--failures %d: %s is not evaluated (no ground truth judged its answers), so no answer is known "
                         "wrong and none is drawn as a failure; --sample's pictures show the doubtful answers first",
                         failures, run_dir)
-        names = read_strings(loc["names"])
-        if evaluated:
-            with h5py.File(run_dir / "evaluate.h5", "r") as judged:
-                known = _known(loc, judged)
-        else:
-            known = _known(loc)
-        counts = _show_counts("wrong" in known, sample, failures)
-        frames = ranked_panoramas(len(names), wrong=known.get("wrong"), error_m=known.get("error_m"),
-                                  doubtful=known["doubtful"], margin=known["margin"], failures=counts[0], sample=counts[1])
+        names, known, frames, _ = _chosen(run_dir, loc, evaluated, sample, failures)
         if evaluated:
             from placeloc.evaluation.pose_estimates import true_poses
             from placeloc.evaluation.report import run_config

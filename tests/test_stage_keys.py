@@ -38,6 +38,7 @@ from placeloc.core import methods as M
 from placeloc.core import params as P
 from placeloc.core.config import load_config
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, Stage
+from placeloc.core.runner import IMAGE_SECTIONS, sees_images
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -201,6 +202,10 @@ def problems(method: Method, reads: Reads) -> list[str]:
                 out.append(f"{method.name}.{name}: declares {key!r} but never reads it")
         for sec in sorted(reads.sections[name]):
             top = sec.split(".")[0]
+            if top in IMAGE_SECTIONS and not sees_images(method, name):
+                # its stamp leaves the image sections out (a stage that does not depend on the images)
+                out.append(f"{method.name}.{name}: reads section {top!r}, but no image reaches it (Stage.parents)")
+                continue
             if top in ALWAYS_READABLE:
                 continue
             if top == method.name:

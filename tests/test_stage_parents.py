@@ -86,3 +86,41 @@ def test_a_parent_must_be_an_earlier_stage():
                                          r"stage \(extract, build-dictionary\)"):
         Method(name="toy", params=ToyParams, stages={"index": Stage(lambda ctx: None, parents=("localize",))},
                required_images=())
+
+
+def test_another_folder_of_photos_takes_the_map_of_an_earlier_run(tmp_path, caplog):
+    # The map and its index do not depend on the photos' folder (the query section is left out
+    # of their stamps), so `placeloc run --reuse EARLIER_RUN` links them instead of drawing them.
+    import shutil
+
+    import yaml
+    from typer.testing import CliRunner
+
+    from placeloc.cli import app
+    from placeloc.core.runner import stage_inputs
+
+    data = _tiny_corridor(tmp_path)
+    first = tmp_path / "first"
+    run_all(_config(data), first, quiet=True)
+    (data / "q2").mkdir()
+    for name in ("f1.png", "f2.png", "f3.png"):
+        shutil.copy(data / "q" / name, data / "q2" / name)
+    cfg = _config(data)
+    cfg["query"]["images"] = str(data / "q2")
+    umap = get_method("umap")
+    assert stage_inputs(cfg, umap, "build-dictionary", {}, {})["config"] == \
+        stage_inputs(_config(data), umap, "build-dictionary", {}, {})["config"]
+    assert stage_inputs(cfg, umap, "extract", {}, {})["config"] != stage_inputs(_config(data), umap, "extract", {}, {})["config"]
+    (tmp_path / "second.yaml").write_text(yaml.safe_dump(cfg))
+    second = tmp_path / "second"
+    out = CliRunner().invoke(app, ["run", str(tmp_path / "second.yaml"), "-o", str(second), "--reuse", str(first), "-q"])
+    assert out.exit_code == 0, out.output
+    for stage in ("build-dictionary", "index"):   # the same files, linked
+        assert os.path.samefile(first / f"{stage}.h5", second / f"{stage}.h5")
+    assert not os.path.samefile(first / "extract.h5", second / "extract.h5")
+    with h5py.File(second / "localize.h5", "r") as f:
+        assert len(f["names"]) == 3
+    bad = CliRunner().invoke(app, ["run", str(tmp_path / "second.yaml"), "-o", str(tmp_path / "third"),
+                                   "--reuse", str(tmp_path / "nowhere")])
+    assert bad.exit_code == 2 and "--reuse" in bad.output and "not a folder" in bad.output
+    assert not (tmp_path / "third").exists()

@@ -288,6 +288,10 @@ SetOpt = typer.Option(None, "--set", "-s", help="Override a config value by dott
 ForceOpt = typer.Option(False, "--force", "-f", help="Re-run even if the artifact is up to date.")
 QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars, warnings only.")
 WaitOpt = typer.Option(False, "--wait", help="If another run holds the run directory, wait for it instead of stopping.")
+ReuseOpt = typer.Option(None, "--reuse", metavar="RUN_DIR",
+                        help="Another run directory whose artifacts this run may take (hard-linked, not computed) where "
+                             "one was made from exactly the same inputs and settings: e.g. UMap's map and its 0.7-1 GB "
+                             "index of the same plan, when another folder of photos is localized. Repeatable.")
 
 
 class _SourceFormatter(logging.Formatter):
@@ -338,7 +342,7 @@ def _fail(exc: Exception) -> None:
 
 
 def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | None, force: bool,
-           quiet: bool, all_stages: bool = False, wait: bool = False) -> None:
+           quiet: bool, all_stages: bool = False, wait: bool = False, reuse: List[Path] | None = None) -> None:
     from placeloc.core.config import load_config
     from placeloc.core.runner import run_stage
 
@@ -351,8 +355,12 @@ def _stage(stage: str, config: Path, run_dir: Path | None, sets: List[str] | Non
         from placeloc.api import last_stage
 
         stage = last_stage(cfg)
+    for donor in reuse or ():
+        if not donor.is_dir():
+            raise ValueError(f"--reuse {donor}: not a folder; give a run directory (one holding build-dictionary.h5, "
+                             "index.h5, ...)")
     path = run_stage(cfg, out, stage, force=force and not all_stages, quiet=quiet, force_all=force and all_stages,
-                     wait=wait)
+                     wait=wait, reuse=list(reuse or ()))
     typer.echo(f"{stage}: {path}")
     if all_stages and stage != "evaluate":
         from placeloc.evaluation.report import answer_lines
@@ -402,9 +410,10 @@ def index(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[
 
 @app.command()
 def localize(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
-             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt) -> None:
+             force: bool = ForceOpt, quiet: bool = QuietOpt, wait: bool = WaitOpt,
+             reuse: List[Path] | None = ReuseOpt) -> None:
     """Stage 4: match every query against the reference -> localize.h5 (+ matches.csv)."""
-    _stage("localize", config, run_dir, set, force, quiet, wait=wait)
+    _stage("localize", config, run_dir, set, force, quiet, wait=wait, reuse=reuse)
 
 
 @app.command()
@@ -417,9 +426,9 @@ def evaluate(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: Li
 @app.command()
 def run(config: Path = ConfigArg, run_dir: Path | None = RunDirOpt, set: List[str] | None = SetOpt,
         force: bool = typer.Option(False, "--force", "-f", help="Re-run every stage."), quiet: bool = QuietOpt,
-        wait: bool = WaitOpt) -> None:
+        wait: bool = WaitOpt, reuse: List[Path] | None = ReuseOpt) -> None:
     """All stages in order; up-to-date stages are skipped, so an interrupted run resumes."""
-    _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True, wait=wait)
+    _stage("evaluate", config, run_dir, set, force, quiet, all_stages=True, wait=wait, reuse=reuse)
 
 
 @app.command("params")

@@ -196,6 +196,17 @@ def _sidecar_fingerprint(images: dict[str, ImageSet]) -> str:
     return config_hash(rows)
 
 
+# the config sections that name the image traverses
+IMAGE_SECTIONS = ("reference", "query")
+
+
+def sees_images(method: Method, stage: str) -> bool:
+    """Whether ``stage`` depends on the images: the first stage does, and every stage that
+    has it among its ancestors (:meth:`Method.stage_ancestors`); the others get no images
+    (``ctx.images`` empty) and their stamps leave the image sections out."""
+    return stage == STAGES[0] or STAGES[0] in method.stage_ancestors(stage)
+
+
 def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dict[str, ImageSet],
                  parent_tokens: dict[str, str]) -> dict[str, Any]:
     """Everything a stage's result depends on, as JSON-able fingerprints: the parameters
@@ -208,7 +219,10 @@ def stage_inputs(config: dict[str, Any], method: Method, stage: str, images: dic
     sections = declared.sections if declared is not None else ()
     section = config.get(method.name, {})
     method_part = {k: _lookup(section, k) for k in keys}
-    common = {k: _lookup(config, k) for k in BASE_SECTIONS + tuple(sections)}  # a section, or one key of it (dotted)
+    # the image traverses' sections (their folders, on_error) only where it sees the images:
+    # UMap's map, drawn from the plan alone, is the same for any folder of photos
+    base = BASE_SECTIONS if sees_images(method, stage) else tuple(k for k in BASE_SECTIONS if k not in IMAGE_SECTIONS)
+    common = {k: _lookup(config, k) for k in base + tuple(sections)}  # a section, or one key of it (dotted)
     inputs: dict[str, Any] = {"config": config_hash({"common": common, "method": method_part})}
     if stage == STAGES[0]:
         for role, s in images.items():
@@ -624,12 +638,11 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
                 return
             log.info("%s: running %s", name, method.name)
             staging.mkdir()
-            reads = method.stage_ancestors(name)
             # the images only where the first stage is among its ancestors (its stamp covers them)
             ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
-                               executor=executor, quiet=quiet, images=images if name == STAGES[0] or STAGES[0] in reads
-                               else {}, params=method.build_params(config), common=common_params(config),
-                               staging=staging, reads=reads)
+                               executor=executor, quiet=quiet, images=images if sees_images(method, name) else {},
+                               params=method.build_params(config), common=common_params(config),
+                               staging=staging, reads=method.stage_ancestors(name))
             before = _run_files(run_dir)
             _run_stage_fn(fn, ctx, run_dir, name)
             f.attrs["seconds"] = time.perf_counter() - t0

@@ -267,9 +267,9 @@ def wrong_answer_causes(run_dir: Path, data: Path, panorama: dict[str, Any]) -> 
     import h5py
 
     from placeloc.core.artifacts import read_strings
+    from placeloc.umap.artifacts import query_seen_rows
     from placeloc.umap.panorama import search_near
     from placeloc.umap.params import PanoramaParams, UMapParams
-    from placeloc.umap.artifacts import query_seen_rows
     from placeloc.umap.stages import query_line_images
 
     rows = list(csv.DictReader(read_run_table(run_dir, "per_query.csv")))

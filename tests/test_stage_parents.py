@@ -124,3 +124,19 @@ def test_another_folder_of_photos_takes_the_map_of_an_earlier_run(tmp_path, capl
                                    "--reuse", str(tmp_path / "nowhere")])
     assert bad.exit_code == 2 and "--reuse" in bad.output and "not a folder" in bad.output
     assert not (tmp_path / "third").exists()
+
+
+def test_the_map_is_built_without_reading_a_photo(tmp_path, caplog, monkeypatch):
+    # `placeloc index` of UMap runs the stages the index depends on, not extract: the photos'
+    # folder is not even listed
+    from placeloc.core import runner
+    from placeloc.core.runner import run_stage
+
+    data = _tiny_corridor(tmp_path)
+    listed = []
+    monkeypatch.setattr(runner, "image_sets", lambda config: listed.append(config) or {})
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="placeloc"):
+        run_stage(_config(data), tmp_path / "run", "index", quiet=True)
+    assert _ran(caplog) == {"build-dictionary", "index"}
+    assert not (tmp_path / "run" / "extract.h5").exists() and listed == []

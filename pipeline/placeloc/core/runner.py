@@ -303,12 +303,15 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     remove_stale_tmp(run_dir)
     remove_stale_shared()
     method = get_method(config["method"])
-    images = image_sets(config) if method.uses_images else {}
+    # the stage and those it depends on (every one before it, unless stages name fewer parents:
+    # `placeloc index` of UMap draws the map without reading a photo)
+    needed = [n for n in STAGES[: STAGES.index(stage) + 1] if n == stage or n in method.stage_ancestors(stage)]
+    images = image_sets(config) if method.uses_images and any(sees_images(method, n) for n in needed) else {}
     check_inputs(config, images)
     tokens: dict[str, str] = {}   # each stage brought up to date: what its children record of it
     executor: Executor | None = None
     try:
-        for name in STAGES[: STAGES.index(stage) + 1]:
+        for name in needed:
             raise_if_interrupted()
             path = run_dir / f"{name}.h5"
             inputs = stage_inputs(config, method, name, images, {p: tokens[p] for p in method.stage_parents(name)})
@@ -335,7 +338,7 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                     continue
             if executor is None:
                 # Before the first stage that does work: will it fit in memory and on disk?
-                check_resources(config, images, run_dir, STAGES[STAGES.index(name): STAGES.index(stage) + 1])
+                check_resources(config, images, run_dir, needed[needed.index(name):])
                 executor = make_executor(common_params(config).executor)
             _remove_previous_outputs(path, stamp)
             _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)

@@ -140,3 +140,23 @@ def test_the_map_is_built_without_reading_a_photo(tmp_path, caplog, monkeypatch)
         run_stage(_config(data), tmp_path / "run", "index", quiet=True)
     assert _ran(caplog) == {"build-dictionary", "index"}
     assert not (tmp_path / "run" / "extract.h5").exists() and listed == []
+
+
+def test_a_linked_artifact_in_the_donor_is_not_taken(tmp_path):
+    # --reuse takes a run's own artifacts only: a symbolic link named index.h5 in the donor
+    # (to wherever) is computed instead, as the run-folder guard reads no link
+    from placeloc.core.runner import run_stage
+
+    data = _tiny_corridor(tmp_path)
+    first = tmp_path / "first"
+    run_stage(_config(data), first, "index", quiet=True)
+    donor = tmp_path / "donor"
+    donor.mkdir()
+    for stage in ("build-dictionary", "index"):
+        (donor / f"{stage}.h5").symlink_to(first / f"{stage}.h5")
+    second = tmp_path / "second"
+    run_stage(_config(data), second, "index", quiet=True, reuse=[donor])
+    for stage in ("build-dictionary", "index"):
+        assert not os.path.samefile(first / f"{stage}.h5", second / f"{stage}.h5")
+    run_stage(_config(data), tmp_path / "third", "index", quiet=True, reuse=[first])   # the files themselves: linked
+    assert os.path.samefile(first / "index.h5", tmp_path / "third" / "index.h5")

@@ -365,7 +365,8 @@ def _reuse(path: Path, stamp: str, donors: Sequence[Path]) -> Path | None:
     for donor in donors:
         src = donor / path.name
         try:
-            if src.resolve() == path.resolve() or not src.is_file():
+            # a link is not a run's own artifact (the run-folder guard reads none): never linked on
+            if src.is_symlink() or src.resolve() == path.resolve() or not src.is_file():
                 continue
         except OSError:
             continue

@@ -61,6 +61,10 @@ class ImageSet:
     fingerprint_mode: str = "stat"
     # One stat per file per process: every stage's stamp in a run sees the same listing.
     _stat_digest: str | None = field(default=None, repr=False, compare=False)
+    # fingerprint_mode "content": each file's hash, once per listing, shared by the stamp
+    # (fingerprint) and the per-image keys the extract stores (image_keys), so a run reads
+    # every image's bytes for hashing once, not twice.
+    _content_hashes: dict[str, str] | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -75,7 +79,7 @@ class ImageSet:
         h = hashlib.sha256()
         if self.fingerprint_mode == "content":
             for p in self.paths:
-                h.update(f"{p.name}\0{content_hash(p)}\n".encode())
+                h.update(f"{p.name}\0{self._content_hash(p)}\n".encode())
             return h.hexdigest()
         if self._stat_digest is None:
             for p in self.paths:
@@ -83,6 +87,33 @@ class ImageSet:
                 h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
             self._stat_digest = h.hexdigest()
         return self._stat_digest
+
+    def _content_hash(self, path: Path) -> str:
+        if self._content_hashes is None:
+            self._content_hashes = {}
+        if str(path) not in self._content_hashes:
+            self._content_hashes[str(path)] = content_hash(path)
+        return self._content_hashes[str(path)]
+
+    def image_keys(self) -> list[str | None]:
+        """One key per listed image, what :meth:`fingerprint` hashes of it: its name, size
+        and modification time (``stat``), or its name and content hash (``content``). The
+        extract stores them beside each image's rows, so a later run can take the rows of an
+        image whose key is unchanged instead of describing it again
+        (:mod:`placeloc.core.imagework`). None for a file that cannot be stat'ed or read
+        now: it is described (and its error reported) as usual. Fields are joined by "/",
+        which no file name holds (HDF5 strings end at a NUL)."""
+        keys: list[str | None] = []
+        for p in self.paths:
+            try:
+                if self.fingerprint_mode == "content":
+                    keys.append(f"{p.name}/{self._content_hash(p)}")
+                else:
+                    st = os.stat(p)
+                    keys.append(f"{p.name}/{st.st_size}/{st.st_mtime_ns}")
+            except (OSError, ImageError):
+                keys.append(None)
+        return keys
 
 
 def content_hash(path: Path, block: int = 1 << 20) -> str:
@@ -127,7 +158,7 @@ def _copy_listing(images: ImageSet) -> ImageSet:
     Its fingerprint is taken afresh: an image edited in place keeps the folder's listing but
     must still change the stamp."""
     return replace(images, paths=list(images.paths), skipped=list(images.skipped), not_read=list(images.not_read),
-                   others=list(images.others), _stat_digest=None)
+                   others=list(images.others), _stat_digest=None, _content_hashes=None)
 
 
 def _list_images(spec: str, on_error: str, fingerprint: str) -> ImageSet:

@@ -39,6 +39,29 @@ Storage (:func:`write_images`), in one HDF5 group per traverse:
 attributes         ``source`` (the folder or glob), ``n_listed`` (images listed)
 =================  ==================================================================
 
+Incremental extract: a run whose images changed only in part (a few added, edited or
+removed) takes every other image's rows from the stage's previous artifact instead of
+describing it again (``ctx.previous``: the runner keeps the old file under a temporary name
+while the stage writes the new one), and stores exactly what a full run would. To tell
+which rows may be taken, every group also holds
+
+=================  ==================================================================
+``image_keys``     (n) str, each kept image's :meth:`ImageSet.image_keys` key (name, size
+                   and modification time; name and content hash with ``fingerprint:
+                   content``)
+``image_shapes``   (n, 2) int64, each kept image's (height, width), so ``same_size`` and
+                   ``first_shape`` come out as in a full run
+attributes         ``imagework_work`` (what the :class:`ImageWork` is: :func:`work_identity`),
+                   ``imagework_arrays`` (the fixed-size arrays' names, JSON)
+=================  ==================================================================
+
+A row is taken only where the old artifact was written by this very code (its
+``placeloc_code``), the work identity is equal and the image's key is equal; never with a
+``fold`` (its rows depend on the images before). An artifact without these keys is not
+used. Why exactness holds: a row depends only on its image and the work (``batch`` must
+treat rows independently), and the merged stream is cut into the chunks a full run would
+use, so ``skipped`` lists its messages in the same order.
+
 Local and original indices: the arrays are in *local* order (row ``i`` is the ``i``-th
 kept image); ``index[i]`` is its *original* position. Numerics and contracts work on local
 rows; :func:`local_to_original` maps an answer back (``-1`` stays ``-1``).
@@ -46,12 +69,18 @@ rows; :func:`local_to_original` maps an answer back (``-1`` stays ``-1``).
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import inspect
+import json
 import logging
 import math
+from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -252,6 +281,8 @@ class ImageStream:
         self.skipped: list[str] = list(images.skipped)
         self.first_shape: tuple[int, int] | None = None
         self.first_path: str | None = None
+        # Rows of a previous artifact to take instead of describing (set by write_images).
+        self.previous: PreviousRows | None = None
 
     def chunks(self) -> Iterator[tuple[list[int], ChunkResult]]:
         """(original positions of the kept images, chunk result) per chunk, in order."""
@@ -259,10 +290,13 @@ class ImageStream:
         workers = int(getattr(self.ctx.executor, "workers", 1))
         size = int(self.work.images_per_task or images_per_task(len(paths), workers))
         skip = self.images.on_error == "skip"
-        threads = worker_threads(self.ctx.executor, paths[0] if paths else None)
-        tasks = [(paths[i:i + size], self.work, skip, threads) for i in range(0, len(paths), size)]
-        results = self.ctx.executor.map(describe_chunk, tasks)
-        for c, res in enumerate(self.ctx.progress(results, total=len(tasks), desc=self.desc)):
+        if self.previous is not None and self.previous.rows:
+            results: Iterable[ChunkResult] = self._merged(paths, size, skip, workers)
+        else:
+            threads = worker_threads(self.ctx.executor, paths[0] if paths else None)
+            tasks = [(paths[i:i + size], self.work, skip, threads) for i in range(0, len(paths), size)]
+            results = self.ctx.progress(self.ctx.executor.map(describe_chunk, tasks), total=len(tasks), desc=self.desc)
+        for c, res in enumerate(results):
             start = c * size
             for _, message in res.errors:
                 self._skip(message)
@@ -271,6 +305,26 @@ class ImageStream:
             elif self.first_shape is None and res.kept:   # the first kept image's size, for the artifact
                 self.first_shape, self.first_path = res.shapes[0], paths[start + res.kept[0]]
             yield [start + i for i in res.kept], res
+
+    def _merged(self, paths: list[str], size: int, skip: bool, workers: int) -> Iterator[ChunkResult]:
+        """The chunk results a full run would give (cut every ``size`` images, before the
+        ``same_size`` check), made of the previous artifact's rows where ``self.previous``
+        has them and of the other images described now, in their own chunks."""
+        previous = self.previous
+        assert previous is not None
+        todo = [i for i in range(len(paths)) if i not in previous.rows]
+        per_task = int(self.work.images_per_task or images_per_task(len(todo), workers))
+        threads = worker_threads(self.ctx.executor, paths[todo[0]] if todo else None)
+        tasks = [([paths[i] for i in todo[k:k + per_task]], self.work, skip, threads)
+                 for k in range(0, len(todo), per_task)]
+        described: Iterator[_Described] = iter(())
+        if tasks:
+            results = self.ctx.executor.map(describe_chunk, tasks)
+            described = _per_image(self.ctx.progress(results, total=len(tasks), desc=self.desc))
+        for start in range(0, len(paths), size):
+            positions = range(start, min(start + size, len(paths)))
+            taken = previous.read([previous.rows[i] for i in positions if i in previous.rows])
+            yield _assemble([taken[previous.rows[i]] if i in previous.rows else next(described) for i in positions])
 
     def _skip(self, message: str) -> None:
         log.warning("skipped: %s", message)
@@ -312,6 +366,178 @@ def _select(res: ChunkResult, keep: list[int]) -> ChunkResult:
     return ChunkResult([res.kept[j] for j in keep], [res.shapes[j] for j in keep],
                        {k: v[keep] for k, v in res.fixed.items()}, {k: v[rows] for k, v in res.ragged.items()},
                        res.counts[keep], res.errors)
+
+
+@dataclass
+class _Described:
+    """One image of a chunk: its size and arrays (a fixed row, its ragged rows), or the
+    message of its error (``on_error: skip``)."""
+
+    shape: tuple[int, int] = (0, 0)
+    fixed: Arrays = field(default_factory=dict)
+    ragged: Arrays = field(default_factory=dict)
+    count: int = 0
+    error: str | None = None
+
+
+def _per_image(results: Iterable[ChunkResult]) -> Iterator[_Described]:
+    """The images of chunk results one by one, in their listed order."""
+    for res in results:
+        errors = dict(res.errors)
+        offsets = np.concatenate([[0], np.cumsum(res.counts)]).astype(np.int64)
+        j = 0
+        for position in range(len(res.kept) + len(res.errors)):
+            if position in errors:
+                yield _Described(error=errors[position])
+                continue
+            a, b = int(offsets[j]), int(offsets[j + 1])
+            yield _Described(res.shapes[j], {k: v[j] for k, v in res.fixed.items()},
+                             {k: v[a:b] for k, v in res.ragged.items()}, b - a)
+            j += 1
+
+
+def _assemble(parts: list[_Described]) -> ChunkResult:
+    """A chunk result of images given one by one (their positions: 0, 1, ...)."""
+    kept = [i for i, part in enumerate(parts) if part.error is None]
+    errors = [(i, str(part.error)) for i, part in enumerate(parts) if part.error is not None]
+    items = [parts[i] for i in kept]
+    if not items:
+        return ChunkResult([], [], {}, {}, np.zeros(0, np.int64), errors)
+    fixed = {name: np.stack([item.fixed[name] for item in items]) for name in items[0].fixed}
+    ragged = {name: np.concatenate([item.ragged[name] for item in items]) for name in items[0].ragged}
+    return ChunkResult(kept, [item.shape for item in items], fixed, ragged,
+                       np.array([item.count for item in items], np.int64), errors)
+
+
+# What identifies a per-image work and an image in a group (see the module's documentation).
+KEYS, SHAPES, WORK_ATTR, ARRAYS_ATTR = "image_keys", "image_shapes", "imagework_work", "imagework_arrays"
+
+
+class _Unidentified(ValueError):
+    """A part of a work that has no exact, lasting identity (a lambda, an object)."""
+
+
+def _callable_identity(fn: Any) -> Any:
+    if isinstance(fn, functools.partial):
+        return {"partial": _callable_identity(fn.func), "args": _canonical(fn.args), "keywords": _canonical(fn.keywords)}
+    name, module = getattr(fn, "__qualname__", None), getattr(fn, "__module__", None)
+    # A lambda, a nested function or a bound method carries state its name does not show.
+    if not name or not module or "<" in name or inspect.ismethod(fn):
+        raise _Unidentified(repr(fn))
+    return f"{module}.{name}"
+
+
+def _canonical(value: Any) -> Any:
+    """A JSON-able value equal for equal settings and different for different ones: types
+    are kept apart (a tuple is not a list, 1 is not 1.0), floats by their exact repr, arrays
+    by dtype, shape and a hash of their bytes (their repr is shortened)."""
+    if value is None or isinstance(value, (bool, str)) or type(value) is int:
+        return value
+    if type(value) is float:
+        return {"float": repr(value)}
+    if isinstance(value, np.ndarray) and value.dtype != object:
+        return {"ndarray": value.dtype.str, "shape": list(value.shape),
+                "sha256": hashlib.sha256(np.ascontiguousarray(value).tobytes()).hexdigest()}
+    if isinstance(value, np.generic) and not isinstance(value, np.object_):
+        return {"numpy": value.dtype.str, "bytes": value.tobytes().hex()}
+    if type(value) in (list, tuple):
+        return {type(value).__name__: [_canonical(v) for v in value]}
+    if type(value) is dict and all(isinstance(k, str) for k in value):
+        return {"dict": [[k, _canonical(value[k])] for k in sorted(value)]}
+    if isinstance(value, Path):
+        return {"path": str(value)}
+    if callable(value):
+        return {"callable": _callable_identity(value)}
+    raise _Unidentified(repr(value))
+
+
+def work_identity(work: ImageWork) -> str | None:
+    """Everything of ``work`` that can change a stored row, as one exact string; None when a
+    part of it has no lasting identity (then no row is ever taken from an earlier run).
+    ``images_per_task`` is left out: the cut of the chunks never changes a row."""
+    try:
+        return json.dumps({"fn": _callable_identity(work.fn), "settings": _canonical(dict(work.settings)),
+                           "read": _callable_identity(work.read),
+                           "batch": None if work.batch is None else _callable_identity(work.batch),
+                           "ragged": list(work.ragged), "same_size": work.same_size, "with_path": work.with_path,
+                           "offsets": work.offsets}, sort_keys=True)
+    except _Unidentified as exc:
+        log.debug("rows of this work are not taken from an earlier run: %s has no lasting identity", exc)
+        return None
+
+
+@dataclass
+class PreviousRows:
+    """The rows of a previous artifact's group that a run may take: ``rows`` maps a listed
+    position of this run to the old local row of the same image."""
+
+    group: h5py.Group
+    rows: dict[int, int]
+    fixed: list[str]
+    ragged: tuple[str, ...]
+    offsets: np.ndarray | None
+    shapes: np.ndarray
+
+    def read(self, rows: list[int]) -> dict[int, _Described]:
+        """Old rows -> their images (one read per array: a chunk's rows lie close together)."""
+        if not rows:
+            return {}
+        lo, hi = min(rows), max(rows) + 1
+        fixed = {name: self.group[name][lo:hi] for name in self.fixed}
+        off = self.offsets
+        a, b = (int(off[lo]), int(off[hi])) if off is not None else (0, 0)
+        ragged = {name: self.group[name][a:b] for name in self.ragged}
+        out = {}
+        for r in rows:
+            r0, r1 = (int(off[r]) - a, int(off[r + 1]) - a) if off is not None else (0, 0)
+            out[r] = _Described((int(self.shapes[r][0]), int(self.shapes[r][1])), {k: v[r - lo] for k, v in fixed.items()},
+                                {k: v[r0:r1] for k, v in ragged.items()}, r1 - r0)
+        return out
+
+
+def previous_rows(previous: h5py.File | None, name: str, work: ImageWork, identity: str | None,
+                  keys: list[str | None]) -> PreviousRows | None:
+    """The rows of ``previous[name]`` this run may take (see the module's documentation), or
+    None: another code or work, an artifact from before the keys, or nothing matches."""
+    from placeloc.core.runner import code_fingerprint  # here: the runner imports the methods, which import this
+
+    if previous is None or identity is None:
+        return None
+    code = previous.attrs.get("placeloc_code")
+    code = code.decode() if isinstance(code, bytes) else code
+    if code != code_fingerprint() or name not in previous:
+        return None
+    group = previous[name]
+    if group.attrs.get(WORK_ATTR) != identity or ARRAYS_ATTR not in group.attrs:
+        return None
+    fixed = json.loads(group.attrs[ARRAYS_ATTR])
+    needed = [KEYS, SHAPES, *fixed, *work.ragged] + ([work.offsets] if work.ragged else [])
+    if not all(n in group for n in needed):
+        return None
+    old_keys = [k.decode() if isinstance(k, bytes) else str(k) for k in group[KEYS][()]]
+    shapes = group[SHAPES][()]
+    offsets = group[work.offsets][()] if work.ragged else None
+    if len(shapes) != len(old_keys) or (offsets is not None and len(offsets) != len(old_keys) + 1):
+        return None
+    # a key found twice (a glob over folders with files of one name, size and time) is ambiguous: described
+    old_count, new_count = Counter(old_keys), Counter(keys)
+    old = {k: r for r, k in enumerate(old_keys) if old_count[k] == 1}
+    rows = {i: old[k] for i, k in enumerate(keys) if k is not None and k in old and new_count[k] == 1}
+    return PreviousRows(group, rows, fixed, work.ragged, offsets, shapes) if rows else None
+
+
+def _open_previous(ctx: Any) -> h5py.File | None:
+    """The stage's previous artifact (``ctx.previous``, kept by the runner), or None."""
+    path = getattr(ctx, "previous", None)
+    if path is None:
+        return None
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:  # unreadable: described in full, as without it
+        log.debug("%s: not read for rows to take (%s)", path, exc)
+        return None
 
 
 @dataclass
@@ -367,13 +593,43 @@ def write_images(group: h5py.Group, stream: ImageStream, fold: Callable[[ImageRe
     index: list[int] = []
     counts: list[np.ndarray] = []
     if fold is None:
-        for originals, res in stream.chunks():
-            index.extend(originals)
-            if not originals:
-                continue
-            for name, block in {**res.fixed, **res.ragged}.items():
-                out.append(name, block)
-            counts.append(res.counts)
+        # keys taken before any image is read: a file replaced meanwhile then has a newer key
+        # than the one stored with its rows, and is described again next time
+        keys = stream.images.image_keys()
+        identity = work_identity(stream.work)
+        previous = _open_previous(stream.ctx)
+        shapes: list[tuple[int, int]] = []
+        fixed_names: dict[str, None] = {}
+        try:
+            stream.previous = previous_rows(previous, group.name, stream.work, identity, keys)
+            for originals, res in stream.chunks():
+                index.extend(originals)
+                if not originals:
+                    continue
+                for name, block in {**res.fixed, **res.ragged}.items():
+                    out.append(name, block)
+                counts.append(res.counts)
+                shapes.extend(res.shapes)
+                fixed_names.update(dict.fromkeys(res.fixed))
+            taken = len(stream.previous.rows) if stream.previous is not None else 0
+        finally:
+            stream.previous = None
+            if previous is not None:
+                previous.close()
+        if taken:
+            stage = getattr(stream.ctx, "stage", "extract")
+            # the traverse by its role (a group at the artifact's root, as UMap's, has no name)
+            role = next((r for r, s in (getattr(stream.ctx, "images", None) or {}).items() if s.source == stream.images.source),
+                        group.name.strip("/") or stream.images.source)
+            log.info("%s %s: %d of %d images taken from the previous %s.h5 (unchanged), %d described",
+                     stage, role, taken, n, stage, n - taken)
+        if identity is not None and index and all(keys[i] is not None for i in index):
+            import h5py
+
+            group.create_dataset(KEYS, data=np.array([keys[i] for i in index], dtype=object), dtype=h5py.string_dtype())
+            group.create_dataset(SHAPES, data=np.asarray(shapes, np.int64).reshape(-1, 2))
+            group.attrs[WORK_ATTR] = identity
+            group.attrs[ARRAYS_ATTR] = json.dumps(list(fixed_names))
     else:
         for item in stream:
             arrays = fold(item)
@@ -434,5 +690,6 @@ def original_to_local(index: np.ndarray, original: np.ndarray) -> np.ndarray:
     return np.where(inside, lookup[np.clip(original, 0, max(0, len(lookup) - 1))] if len(lookup) else -1, -1)
 
 
-__all__ = ["ImageWork", "ImageResult", "ImageStream", "ImageTable", "describe_chunk", "extract_images", "write_images",
+__all__ = ["ImageWork", "PreviousRows", "previous_rows", "work_identity",
+           "ImageResult", "ImageStream", "ImageTable", "describe_chunk", "extract_images", "write_images",
            "read_ragged", "local_to_original", "original_to_local", "images_per_task", "worker_threads", "threads_per_task"]

@@ -92,6 +92,11 @@ class StageContext:
     # directory); the runner moves them into the run directory together with the artifact,
     # and only when the stage succeeded. None: straight into the run directory.
     staging: Path | None = None
+    # This stage's previous artifact, kept under a temporary name while the stage runs (the
+    # runner removes RUN_DIR/<stage>.h5 before a re-run on other inputs): the per-image
+    # engine takes the rows of unchanged images from it (placeloc.core.imagework). None:
+    # none, forced, or written by other code.
+    previous: Path | None = None
 
     @property
     def output_dir(self) -> Path:
@@ -329,24 +334,58 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
                 if other:
                     log.info("%s: %s was written by other placeloc code (source fingerprint %s, now %s); the stage "
                              "runs again", name, path, other[:12], code_fingerprint()[:12])
-            if reuse and not forced:
+            # kept before _remove_previous_outputs deletes it: the rows of unchanged images are
+            # taken from it (a forced run describes every image again, as asked)
+            previous = _keep_previous(path) if why is None and not forced and sees_images(method, name) else None
+            try:
+                if reuse and not forced:
+                    _remove_previous_outputs(path, stamp)
+                    donor = _reuse(path, stamp, reuse)
+                    if donor is not None:
+                        log.info("%s: the same as %s (linked, not computed again)", name, donor)
+                        tokens[name] = _parent_token(stamp, path)
+                        continue
+                if executor is None:
+                    # Before the first stage that does work: will it fit in memory and on disk?
+                    check_resources(config, images, run_dir, needed[needed.index(name):])
+                    executor = make_executor(common_params(config).executor)
                 _remove_previous_outputs(path, stamp)
-                donor = _reuse(path, stamp, reuse)
-                if donor is not None:
-                    log.info("%s: the same as %s (linked, not computed again)", name, donor)
-                    tokens[name] = _parent_token(stamp, path)
-                    continue
-            if executor is None:
-                # Before the first stage that does work: will it fit in memory and on disk?
-                check_resources(config, images, run_dir, needed[needed.index(name):])
-                executor = make_executor(common_params(config).executor)
-            _remove_previous_outputs(path, stamp)
-            _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet)
+                _execute(method, config, run_dir, name, path, inputs, stamp, images, executor, quiet, previous)
+            finally:
+                if previous is not None:
+                    with contextlib.suppress(OSError):
+                        previous.unlink()
             tokens[name] = _parent_token(stamp, path)
     finally:
         if executor is not None:
             executor.close()
     return run_dir / f"{stage}.h5"
+
+
+def _keep_previous(path: Path) -> Path | None:
+    """A second name (a hard link, hidden, temporary) for the artifact at ``path`` while its
+    stage runs again, where this very code wrote it; else None.
+
+    Why: a stage re-run on other inputs first deletes its previous artifact (so a failure
+    leaves no stale result), yet its rows for the images that did not change are still
+    right; the link keeps them readable for the engine until the stage ends, then goes.
+    Left behind by a killed run, it is removed as any temporary file (remove_stale_tmp)."""
+    try:
+        with h5py.File(path, "r") as f:
+            code = f.attrs.get("placeloc_code")
+    except OSError:  # missing or unreadable
+        return None
+    if (code.decode() if isinstance(code, bytes) else code) != code_fingerprint():
+        return None
+    keep = path.with_name(f".{path.name}.previous{TMP_MARK}{os.getpid()}")
+    try:
+        with contextlib.suppress(FileNotFoundError):
+            keep.unlink()
+        os.link(path, keep)
+    except OSError as exc:  # no hard links here: every image is described, as before
+        log.debug("%s: not kept for its rows (%s)", path, exc)
+        return None
+    return keep
 
 
 def _reuse(path: Path, stamp: str, donors: Sequence[Path]) -> Path | None:
@@ -618,7 +657,7 @@ def _log_to_file_only(run_dir: Path, line: str) -> None:
 
 def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, path: Path,
              inputs: dict[str, Any], stamp: str, images: dict[str, ImageSet], executor: Executor,
-             quiet: bool) -> None:
+             quiet: bool, previous_artifact: Path | None = None) -> None:
     declared = method.stages.get(name)
     fn = declared.run if declared is not None else None
     note = "" if fn is not None else f"{method.name} has no work in {name}: input passed through"
@@ -646,7 +685,8 @@ def _execute(method: Method, config: dict[str, Any], run_dir: Path, name: str, p
             ctx = StageContext(stage=name, method=method, config=config, run_dir=run_dir, out=f,
                                executor=executor, quiet=quiet, images=images if sees_images(method, name) else {},
                                params=method.build_params(config), common=common_params(config),
-                               staging=staging, reads=method.stage_ancestors(name))
+                               staging=staging, reads=method.stage_ancestors(name),
+                               previous=previous_artifact)
             before = _run_files(run_dir)
             _run_stage_fn(fn, ctx, run_dir, name)
             f.attrs["seconds"] = time.perf_counter() - t0

@@ -261,19 +261,20 @@ def test_the_code_fingerprint_follows_the_source(tmp_path, monkeypatch):
     # by path and content: a copy of the package fingerprints alike, an edited file does not
     import shutil
 
-    from placeloc.core import runner
+    from placeloc.core import runner, source
 
-    src = Path(runner.__file__).resolve().parent.parent
+    assert runner.code_fingerprint is source.code_fingerprint   # the runner's is the leaf module's
+    src = Path(source.__file__).resolve().parent.parent
     copy = tmp_path / "placeloc"
     shutil.copytree(src, copy, ignore=shutil.ignore_patterns("__pycache__"))
 
     def fingerprint_of(root: Path) -> str:
-        runner.code_fingerprint.cache_clear()
-        monkeypatch.setattr(runner, "__file__", str(root / "core" / "runner.py"))
+        source.code_fingerprint.cache_clear()
+        monkeypatch.setattr(source, "__file__", str(root / "core" / "source.py"))
         try:
-            return runner.code_fingerprint()
+            return source.code_fingerprint()
         finally:
-            runner.code_fingerprint.cache_clear()
+            source.code_fingerprint.cache_clear()
 
     original = fingerprint_of(src)
     assert fingerprint_of(copy) == original

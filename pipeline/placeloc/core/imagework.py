@@ -87,6 +87,7 @@ import numpy as np
 from placeloc.core.errors import StageError
 from placeloc.core.executor import usable_cores
 from placeloc.core.images import ImageError, ImageSet, image_size, read_gray
+from placeloc.core.source import code_fingerprint
 
 if TYPE_CHECKING:  # the writer's side only: pool workers never import h5py for this module
     import h5py
@@ -499,7 +500,6 @@ def previous_rows(previous: h5py.File | None, name: str, work: ImageWork, identi
                   keys: list[str | None]) -> PreviousRows | None:
     """The rows of ``previous[name]`` this run may take (see the module's documentation), or
     None: another code or work, an artifact from before the keys, or nothing matches."""
-    from placeloc.core.runner import code_fingerprint  # here: the runner imports the methods, which import this
 
     if previous is None or identity is None:
         return None

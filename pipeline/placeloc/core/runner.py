@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import functools
-import hashlib
 import json
 import logging
 import os
@@ -50,6 +48,7 @@ from placeloc.core.limits import check_inputs, check_resources
 from placeloc.core.methods import BASE_SECTIONS, STAGES, Method, get_method
 from placeloc.core.params import from_section
 from placeloc.core.safe_io import UnsafeInputError, open_run_file, read_run_file
+from placeloc.core.source import code_fingerprint  # noqa: F401 - re-exported: placeloc.core.runner.code_fingerprint
 
 try:
     import fcntl
@@ -428,25 +427,6 @@ def _reuse(path: Path, stamp: str, donors: Sequence[Path]) -> Path | None:
             continue
         return src
     return None
-
-
-@functools.lru_cache(maxsize=1)
-def code_fingerprint() -> str:
-    """SHA-256 of placeloc's own source (every ``.py`` file of the package, by path and
-    content), part of every stage's stamp. Why: the version number stays the same between
-    commits, so an artifact written by older code was taken as up to date after the code
-    changed (a run folder kept an ``extract.h5`` from before a change of the line images).
-    About 6 ms once a process (131 files, 1.6 MB)."""
-    root = Path(__file__).resolve().parent.parent
-    digest = hashlib.sha256()
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
-        for name in sorted(f for f in filenames if f.endswith(".py")):
-            path = os.path.join(dirpath, name)
-            digest.update(os.path.relpath(path, root).replace(os.sep, "/").encode() + b"\0")
-            with open(path, "rb") as f:
-                digest.update(f.read())
-    return digest.hexdigest()
 
 
 def _written_by_other_code(path: Path) -> str | None:

@@ -157,7 +157,7 @@ def test_engine_takes_unchanged_rows_and_equals_a_full_write(tmp_path, monkeypat
     assert_same_artifact(tmp_path / "pool.h5", tmp_path / "full.h5")
 
 
-def test_a_first_image_of_a_new_size_skips_the_old_rows_of_the_old_size(tmp_path, monkeypatch):
+def test_a_first_image_of_a_new_size_skips_the_old_rows_of_the_old_size(tmp_path, monkeypatch, caplog):
     # same_size: f0 now has another size, so every image taken from the previous run is of
     # another size than the first: skipped with the message a full run gives
     d = tmp_path / "frames"
@@ -170,8 +170,11 @@ def test_a_first_image_of_a_new_size_skips_the_old_rows_of_the_old_size(tmp_path
     _bump_mtime(d / "f0.png")
     counting = _Counting()
     monkeypatch.setattr(imagework, "describe_chunk", counting)
-    new = _write(d, tmp_path / "new.h5", work, InlineExecutor(), previous=tmp_path / "old.h5")
+    with caplog.at_level("INFO", logger="placeloc"):
+        new = _write(d, tmp_path / "new.h5", work, InlineExecutor(), previous=tmp_path / "old.h5")
     assert counting.paths == ["f0.png"]
+    # the 4 rows read are then skipped for their size: none counts as taken
+    assert "extract reference: 0 of 5 images taken from the previous extract.h5 (unchanged), 1 described" in caplog.text
     _write(d, tmp_path / "full.h5", work, InlineExecutor())
     assert_same_artifact(tmp_path / "new.h5", tmp_path / "full.h5")
     assert new.names == ["f0.png"] and len(new.skipped) == 4 and new.first_shape == (10, 12)

@@ -611,18 +611,21 @@ def write_images(group: h5py.Group, stream: ImageStream, fold: Callable[[ImageRe
                 counts.append(res.counts)
                 shapes.extend(res.shapes)
                 fixed_names.update(dict.fromkeys(res.fixed))
-            taken = len(stream.previous.rows) if stream.previous is not None else 0
+            # rows read from the previous artifact, and of those the kept ones (same_size may drop
+            # some: an image of another size than a new first one)
+            read = len(stream.previous.rows) if stream.previous is not None else 0
+            taken = sum(i in stream.previous.rows for i in index) if stream.previous is not None else 0
         finally:
             stream.previous = None
             if previous is not None:
                 previous.close()
-        if taken:
+        if read:
             stage = getattr(stream.ctx, "stage", "extract")
             # the traverse by its role (a group at the artifact's root, as UMap's, has no name)
             role = next((r for r, s in (getattr(stream.ctx, "images", None) or {}).items() if s.source == stream.images.source),
                         group.name.strip("/") or stream.images.source)
             log.info("%s %s: %d of %d images taken from the previous %s.h5 (unchanged), %d described",
-                     stage, role, taken, n, stage, n - taken)
+                     stage, role, taken, n, stage, n - read)
         if identity is not None and index and all(keys[i] is not None for i in index):
             import h5py
 

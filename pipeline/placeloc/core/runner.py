@@ -93,8 +93,8 @@ class StageContext:
     staging: Path | None = None
     # This stage's previous artifact, kept under a temporary name while the stage runs (the
     # runner removes RUN_DIR/<stage>.h5 before a re-run on other inputs): the per-image
-    # engine takes the rows of unchanged images from it (placeloc.core.imagework). None:
-    # none, forced, or written by other code.
+    # engine takes the rows of unchanged images from it where the same code wrote them
+    # (placeloc.core.imagework). None: none, damaged, or the run forced.
     previous: Path | None = None
 
     @property
@@ -309,7 +309,8 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
     method = get_method(config["method"])
     # the stage and those it depends on (every one before it, unless stages name fewer parents:
     # `placeloc index` of UMap draws the map without reading a photo)
-    needed = [n for n in STAGES[: STAGES.index(stage) + 1] if n == stage or n in method.stage_ancestors(stage)]
+    ancestors = method.stage_ancestors(stage)
+    needed = [n for n in STAGES[: STAGES.index(stage) + 1] if n == stage or n in ancestors]
     images = image_sets(config) if method.uses_images and any(sees_images(method, n) for n in needed) else {}
     check_inputs(config, images)
     tokens: dict[str, str] = {}   # each stage brought up to date: what its children record of it
@@ -363,18 +364,15 @@ def _run_locked(config: dict[str, Any], run_dir: Path, stage: str, force: bool, 
 
 def _keep_previous(path: Path) -> Path | None:
     """A second name (a hard link, hidden, temporary) for the artifact at ``path`` while its
-    stage runs again, where this very code wrote it; else None.
+    stage runs again; None where there is none.
 
     Why: a stage re-run on other inputs first deletes its previous artifact (so a failure
     leaves no stale result), yet its rows for the images that did not change are still
     right; the link keeps them readable for the engine until the stage ends, then goes.
-    Left behind by a killed run, it is removed as any temporary file (remove_stale_tmp)."""
-    try:
-        with h5py.File(path, "r") as f:
-            code = f.attrs.get("placeloc_code")
-    except OSError:  # missing or unreadable
-        return None
-    if (code.decode() if isinstance(code, bytes) else code) != code_fingerprint():
+    Whether they may be taken (the same code, work and image) the engine alone decides
+    (:func:`placeloc.core.imagework.previous_rows`). Left behind by a killed run, it is
+    removed as any temporary file (remove_stale_tmp)."""
+    if not path.is_file():
         return None
     keep = path.with_name(f".{path.name}.previous{TMP_MARK}{os.getpid()}")
     try:

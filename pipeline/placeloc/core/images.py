@@ -59,8 +59,10 @@ class ImageSet:
     # "stat": names, sizes and modification times (cheap; misses an edit that keeps both);
     # "content": a BLAKE2b hash of every file's bytes (reads every image once per run).
     fingerprint_mode: str = "stat"
-    # One stat per file per process: every stage's stamp in a run sees the same listing.
+    # One stat per file per process: every stage's stamp in a run sees the same listing, and
+    # the per-image keys the extract stores (image_keys) are those the stamp hashed.
     _stat_digest: str | None = field(default=None, repr=False, compare=False)
+    _stats: list[tuple[int, int]] | None = field(default=None, repr=False, compare=False)
     # fingerprint_mode "content": each file's hash, once per listing, shared by the stamp
     # (fingerprint) and the per-image keys the extract stores (image_keys), so a run reads
     # every image's bytes for hashing once, not twice.
@@ -82,11 +84,16 @@ class ImageSet:
                 h.update(f"{p.name}\0{self._content_hash(p)}\n".encode())
             return h.hexdigest()
         if self._stat_digest is None:
-            for p in self.paths:
-                st = os.stat(p)
-                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            for p, (size, mtime_ns) in zip(self.paths, self._file_stats()):
+                h.update(f"{p.name}\0{size}\0{mtime_ns}\n".encode())
             self._stat_digest = h.hexdigest()
         return self._stat_digest
+
+    def _file_stats(self) -> list[tuple[int, int]]:
+        """(size, mtime_ns) of every listed file, once per listing."""
+        if self._stats is None:
+            self._stats = [(st.st_size, st.st_mtime_ns) for st in map(os.stat, self.paths)]
+        return self._stats
 
     def _content_hash(self, path: Path) -> str:
         if self._content_hashes is None:
@@ -103,6 +110,11 @@ class ImageSet:
         (:mod:`placeloc.core.imagework`). None for a file that cannot be stat'ed or read
         now: it is described (and its error reported) as usual. Fields are joined by "/",
         which no file name holds (HDF5 strings end at a NUL)."""
+        if self.fingerprint_mode != "content":
+            try:
+                return [f"{p.name}/{size}/{mtime_ns}" for p, (size, mtime_ns) in zip(self.paths, self._file_stats())]
+            except OSError:   # a file gone since the listing: each one alone below
+                pass
         keys: list[str | None] = []
         for p in self.paths:
             try:
@@ -158,7 +170,7 @@ def _copy_listing(images: ImageSet) -> ImageSet:
     Its fingerprint is taken afresh: an image edited in place keeps the folder's listing but
     must still change the stamp."""
     return replace(images, paths=list(images.paths), skipped=list(images.skipped), not_read=list(images.not_read),
-                   others=list(images.others), _stat_digest=None, _content_hashes=None)
+                   others=list(images.others), _stat_digest=None, _stats=None, _content_hashes=None)
 
 
 def _list_images(spec: str, on_error: str, fingerprint: str) -> ImageSet:

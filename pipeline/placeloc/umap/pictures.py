@@ -147,25 +147,30 @@ def _show_counts(judged: bool, sample: int | None, failures: int | None) -> tupl
     return (DEFAULT_COUNT if failures is None else failures), (DEFAULT_COUNT if sample is None else sample)
 
 
-def _known(loc: Any, judged: Any = None) -> dict[str, Any]:
+def _known(loc: Any, err: np.ndarray | None = None, yaw_err: np.ndarray | None = None) -> dict[str, Any]:
     """What the choice of pictures and their captions read of each answer: from the localize
-    artifact ``loc`` whether it is doubtful and its margin; from the evaluate artifact
-    ``judged`` (None: not evaluated) whether it is wrong, its position and heading errors as
-    evaluate wrote them (evaluate chose its pictures from the same numbers)."""
+    artifact ``loc`` whether it is doubtful and its margin; with the position errors ``err``
+    (None: not evaluated) and heading errors ``yaw_err`` evaluate measured, whether it is
+    wrong and those errors."""
     known: dict[str, Any] = {"doubtful": loc["doubtful"][()] if "doubtful" in loc else None,
                              "margin": loc["margin"][()] if "margin" in loc else None}
-    if judged is not None and "error_m" in judged:
-        err = judged["error_m"][()]
-        yaw_err = judged["yaw_error_deg"][()] if "yaw_error_deg" in judged else None
+    if err is not None:
         known.update(wrong=~right_answers(err, yaw_err) & np.isfinite(err), error_m=err, yaw_error_deg=yaw_err)
     return known
+
+
+def _judged(judged: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The position and heading errors the evaluate artifact ``judged`` wrote (evaluate chose
+    its pictures from the same numbers), or None for each it lacks."""
+    err = judged["error_m"][()] if "error_m" in judged else None
+    return err, judged["yaw_error_deg"][()] if err is not None and "yaw_error_deg" in judged else None
 
 
 def panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray, err: np.ndarray,
                        yaw_err: np.ndarray | None) -> MethodPictures:
     names = read_strings(loc["names"])
     # the numbers in memory that evaluate.h5 keeps (report_pictures reads them back: the same choice)
-    known = {**_known(loc), "wrong": ~right_answers(err, yaw_err) & np.isfinite(err), "error_m": err, "yaw_error_deg": yaw_err}
+    known = _known(loc, err, yaw_err)
     frames = ranked_panoramas(len(names), wrong=known["wrong"], error_m=err, doubtful=known["doubtful"],
                               margin=known["margin"])
     _draw_judged(ctx.output, ex, plan, loc, float(ctx.artifact("index")["poses"][0, 2]), gt, rows, err, frames)
@@ -224,7 +229,7 @@ def _chosen(run_dir: Path, loc: Any, evaluated: bool, sample: int | None, failur
     names = read_strings(loc["names"])
     if evaluated:
         with h5py.File(Path(run_dir) / "evaluate.h5", "r") as judged:
-            known = _known(loc, judged)
+            known = _known(loc, *_judged(judged))
     else:
         known = _known(loc)
     counts = _show_counts("wrong" in known, sample, failures)

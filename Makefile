@@ -22,6 +22,7 @@ help:
 	@echo "make experiment-umap-plan   UMap with a plan whose ceiling height is not known (test homes, ~15 min)"
 	@echo "make experiment-umap-halves UMap's score halves weighted otherwise: chosen on 13 homes, checked on 5 (~25 min)"
 	@echo "make experiment-umap-lines  UMap's shortest photo line kept: chosen on 13 homes, checked on 5 (~20 min)"
+	@echo "make experiment-umap-contrast UMap's photo contrast equalised before LSD: chosen on 13 homes, checked on 5 (~25 min)"
 	@echo "make bench-umap         UMap database rendering and scoring speed"
 	@echo "make experiment-coembed co-embedding vs Isomap vs PCAMD (simulation, tears-of-steel)"
 	@echo "make bench-coembed      co-embedding sparse solve at 10,000 x 2,000"

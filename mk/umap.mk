@@ -1,7 +1,7 @@
 # UMap: synthetic corridor experiment, the generated homes (defaults chosen on development
 # homes, reported on others) and the benchmarks (36k-view database, real-scale floor,
 # whole-panorama search against the search before it, per panorama).
-.PHONY: experiment-umap experiment-umap-homes experiment-umap-phone experiment-umap-plan experiment-umap-halves experiment-umap-lines bench-umap
+.PHONY: experiment-umap experiment-umap-homes experiment-umap-phone experiment-umap-plan experiment-umap-halves experiment-umap-lines experiment-umap-contrast bench-umap
 
 experiment-umap: $(STAMP)
 	$(PL) experiment umap
@@ -23,3 +23,6 @@ experiment-umap-halves: $(STAMP)
 
 experiment-umap-lines: $(STAMP)
 	$(PL) experiment umap-lines
+
+experiment-umap-contrast: $(STAMP)
+	$(PL) experiment umap-contrast

@@ -137,12 +137,13 @@ def test_the_default_changes_only_where_the_chosen_weight_holds_on_the_test_home
 
 
 def test_each_setting_experiment_sweeps_from_the_parameters_default():
-    # umap-halves and umap-lines compare against the default a user gets: their Setting's
-    # default is the parameter's, and the sweeps (full and quick) include it
+    # umap-halves, umap-lines and umap-contrast compare against the default a user gets:
+    # their Setting's default is the parameter's, and the sweeps (full and quick) include it
+    from placeloc.experiments.umap_contrast import CONTRAST
     from placeloc.experiments.umap_halves import HALVES
     from placeloc.experiments.umap_lines import LINES
     from placeloc.umap.params import PanoramaParams
 
-    for setting in (HALVES, LINES):
+    for setting in (HALVES, LINES, CONTRAST):
         assert getattr(PanoramaParams(), setting.key) == setting.default, setting.key
         assert setting.default in setting.values and set(setting.quick) <= set(setting.values), setting.key

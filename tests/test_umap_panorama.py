@@ -125,12 +125,14 @@ def test_panoramas_localized_with_unknown_yaw(tmp_path, score, bins):
         assert abs((float(r["heading_deg"]) - t[3] + 180) % 360 - 180) <= 2.5
         # the L-shaped room has no look-alike: each answer beats every other place and heading,
         # and the margin is its score minus its rival's, the score taken before the final
-        # search's polish of the last centimetres (at most a few hundredths)
+        # search of the last centimetres (which moves it by at most a few hundredths: up, its
+        # polish; or a little down, as its end is the answer whatever it scores when it starts
+        # from the plan's lattice, refine_final_radius_m)
         assert float(r["rival_score"]) < float(r["score"])
         # doubtful_margin is in the chamfer score's units (the IoU's margins here are 0.016-0.03)
         assert score == "iou" or r["doubtful"] == "false"
         ahead = float(r["score"]) - float(r["rival_score"])
-        assert ahead - 0.02 <= float(r["margin"]) <= ahead + 2e-5
+        assert ahead - 0.02 <= float(r["margin"]) <= ahead + 0.005
     # the margin reaches evaluate as the poses contract's confidence
     assert m["kept_at_100_precision"] == 1.0 and m["confidence_average_precision"] == 1.0
     scored = list(csv.DictReader(open(tmp_path / "run" / "per_query.csv")))

@@ -471,14 +471,36 @@ def _face_rays(u: np.ndarray, v: np.ndarray, cam: Camera, heading_deg: float, pi
 CUBE_FACES = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (0.0, 90.0), (0.0, -90.0))
 
 
-def panorama_lines(pano: np.ndarray, *, face_px: int, min_length: float) -> list[np.ndarray]:
+# CLAHE's tile, in face pixels (:func:`panorama_lines`): 8 x 8 tiles on the default 256-pixel
+# face, OpenCV's default grid; a tile about as wide as a door at 2-3 m, so that one bright
+# window does not set the contrast of a whole wall
+EQUALIZE_TILE_PX = 32
+
+
+def equalized(face: np.ndarray, clip: float) -> np.ndarray:
+    """A grey 8-bit image with its contrast equalised locally (CLAHE: tiles of
+    :data:`EQUALIZE_TILE_PX` pixels, each tile's histogram clipped at ``clip`` times its
+    mean bin before equalising, so that flat, noisy areas are not stretched without
+    bound). Why: LSD keeps a pixel only where the gradient passes a fixed threshold (about 5
+    grey levels at its defaults), so a junction of two surfaces painted alike (a white wall
+    under a white ceiling) is missed whatever its length, while a busy kitchen's edges are
+    found; equalised, a faint junction's contrast is raised toward its tile's range."""
+    face = face if face.dtype == np.uint8 else np.clip(face, 0, 255).astype(np.uint8)
+    tiles = max(1, round(max(face.shape[:2]) / EQUALIZE_TILE_PX))
+    return cv2.createCLAHE(clipLimit=float(clip), tileGridSize=(tiles, tiles)).apply(face)
+
+
+def panorama_lines(pano: np.ndarray, *, face_px: int, min_length: float, equalize_clip: float = 0.0) -> list[np.ndarray]:
     """LSD segments of a grey equirectangular panorama, found on its six cube faces (where
     world lines are straight) and returned per face as (N, 4) pixel rows of a ``face_px``
-    square 90 degree view; segments shorter than ``min_length`` face pixels are dropped."""
+    square 90 degree view; segments shorter than ``min_length`` face pixels are dropped.
+    ``equalize_clip`` > 0: each face's contrast is first equalised locally at that clip
+    limit (:func:`equalized`)."""
     cam = Camera(face_px, face_px, 90.0)
     out = []
     for hd, pitch in CUBE_FACES:
-        segs = detect_segments(equirect_to_pinhole(pano, hd, cam, pitch))
+        face = equirect_to_pinhole(pano, hd, cam, pitch)
+        segs = detect_segments(equalized(face, equalize_clip) if equalize_clip > 0 else face)
         out.append(segs[np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) >= min_length])
     return out
 

@@ -306,7 +306,7 @@ def photo_at(model: Model, x: float, y: float, z: float, photo: str | Path) -> P
     except ImageError as exc:   # its words, without the advice for a run's image folders
         raise ValueError(str(exc).split("; remove or replace it")[0] + "; give a JPEG or PNG of the photo") from None
     got = panorama_arrays(gray, width=w, height=h, face_px=pp.face_px, min_length=pp.lsd_min_length_px,
-                          level_max_deg=pp.level_max_deg, path=str(photo))
+                          level_max_deg=pp.level_max_deg, equalize_clip=pp.equalize_clip, path=str(photo))
     lines = unpack(got["lines"], h, w)[0]
     packed = render_panoramas(model.segments, model.faces, np.array([[x, y, z, 0.0]]), width=w, height=h, hidden=True)
     drawn = unpack(packed, h, w)

@@ -50,7 +50,8 @@ def query_arrays(gray: np.ndarray, *, camera: tuple[int, int, float], kind: str,
 
 
 def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, min_length: float,
-                    orientation_bins: int = 1, level_max_deg: float = 0.0, path: str = "") -> dict[str, np.ndarray]:
+                    orientation_bins: int = 1, level_max_deg: float = 0.0, equalize_clip: float = 0.0,
+                    path: str = "") -> dict[str, np.ndarray]:
     """One grey equirectangular panorama -> ``lines`` (B, n_words) uint64: its line image, or
     with ``orientation_bins`` B > 1 its B oriented channels
     (:func:`placeloc.umap.panorama.orientation_channels`), and ``tilt_deg`` (a float32
@@ -59,7 +60,9 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
     but carries Photo Sphere metadata (GPano: a phone's photo sphere stored cropped to what it
     covered) is placed in its whole panorama first, and only its lines are drawn
     (:func:`placeloc.geometry.panorama.whole_panorama`); ``coverage`` (4,) float32 says what
-    part of the sphere it covers (left, top, width, height as fractions; 0 0 1 1: all)."""
+    part of the sphere it covers (left, top, width, height as fractions; 0 0 1 1: all).
+    ``equalize_clip`` > 0: each cube face's contrast is equalised locally before LSD
+    (:func:`placeloc.geometry.panorama.equalized`)."""
     coverage = WHOLE
     h, w = gray.shape[:2]
     if abs(w / h - 2.0) > ASPECT_TOLERANCE * 2.0 and path:
@@ -68,7 +71,7 @@ def panorama_arrays(gray: np.ndarray, *, width: int, height: int, face_px: int, 
         if crop is not None:
             gray, coverage = whole_panorama(gray, crop, path)
     check_query_size(path, gray.shape, None, Camera(2, 2, 90.0), "equirect")
-    faces = panorama_lines(gray, face_px=face_px, min_length=min_length)
+    faces = panorama_lines(gray, face_px=face_px, min_length=min_length, equalize_clip=equalize_clip)
     rotation, tilt = upright_rotation(*segment_normals(faces, face_px, coverage), max_tilt_deg=level_max_deg)
     drawn = draw_line_image(faces, face_px=face_px, width=width, height=height,
                             orientation_bins=orientation_bins if orientation_bins > 1 else 0,

@@ -348,7 +348,8 @@ def _extract_panoramas(ctx: Any) -> None:
     work = ImageWork(fn=panorama_arrays, settings={"width": pp.width, "height": pp.height, "face_px": pp.face_px,
                                                    "min_length": pp.lsd_min_length_px,
                                                    "orientation_bins": int(pp.orientation_bins),
-                                                   "level_max_deg": float(pp.level_max_deg)},
+                                                   "level_max_deg": float(pp.level_max_deg),
+                                                   "equalize_clip": float(pp.equalize_clip)},
                      with_path=True)   # sizes may differ: each panorama's lines are drawn at one size
     table = write_images(ctx.out, ImageStream(ctx, ctx.images["query"], work, desc="LSD on cube faces"))
     write_tree(ctx.out, {"view_heading": np.asarray([math.nan]), "kp_pts": np.zeros((0, 2), np.float32),
@@ -753,7 +754,7 @@ METHOD = Method(
         "extract": Stage(extract, keys=("camera", "query_kind", "lsd_min_length_px", "query_thickness_px", "ca.akaze_threshold",
                                         "grid.headings", "panorama.width", "panorama.height", "panorama.face_px",
                                         "panorama.lsd_min_length_px", "panorama.orientation_bins",
-                                        "panorama.level_max_deg")),
+                                        "panorama.level_max_deg", "panorama.equalize_clip")),
         # the map database and its index are drawn from the plan alone: a photo added or changed
         # re-runs extract and localize, not these (0.7-1 GB and seconds of renders at a home's size)
         "build-dictionary": Stage(build_dictionary, parents=(), keys=("model", "floor", "camera", "grid", "near_m", "hidden_lines", "query_kind",

@@ -471,9 +471,9 @@ def _face_rays(u: np.ndarray, v: np.ndarray, cam: Camera, heading_deg: float, pi
 CUBE_FACES = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (0.0, 90.0), (0.0, -90.0))
 
 
-# CLAHE's tile, in face pixels (:func:`panorama_lines`): 8 x 8 tiles on the default 256-pixel
-# face, OpenCV's default grid; a tile about as wide as a door at 2-3 m, so that one bright
-# window does not set the contrast of a whole wall
+# CLAHE's tile, in face pixels (:func:`equalized`): OpenCV's default grid of 8 x 8 tiles on
+# the default 256-pixel face, not tuned. A tile spans 11 degrees (half a metre of wall at
+# 2.5 m): local, so that a bright window does not set the contrast of the wall around it
 EQUALIZE_TILE_PX = 32
 
 

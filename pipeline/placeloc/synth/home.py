@@ -568,6 +568,12 @@ def scene_arrays(fp: dict[str, Any], clutter: dict[str, Any], rng: np.random.Gen
 REAL_HOME_STATS = {"detected_on_map": 0.43, "map_detected": 0.66, "off_map_below_60": 0.26, "detected_on_map_lowest": 0.20}
 
 
+# how the line statistics' detected lines are found: as the real home's were, LSD on the
+# photos as they are, not as localize finds them (umap.panorama.equalize_clip, 1 by default,
+# equalises each face's contrast first and detects more of the map's lines)
+LINES_AS_MEASURED = "LSD on the photos as they are (8 px or longer, contrast not equalised), as the real home's were measured"
+
+
 def line_agreement(query_lines: np.ndarray, map_lines: np.ndarray) -> tuple[float, float, float]:
     """(share of detected line pixels within one pixel of a map line, share of map line
     pixels within one pixel of a detected line, share of the detected pixels off the map
@@ -799,11 +805,12 @@ def generate(out_dir: Path, seed: int = 0, panoramas: int = 20, width: int = 102
              "rooms_of_panoramas": where, "near_wall_panoramas": min(n_wall, max(0, len(cand) - n_door)),
              "cabinet_panoramas": len(cabinets),
              "doorway_panoramas": min(n_door, len(cand)), "at": f"{stats_width}x{sh} equirectangular, within 1 px",
+             "lines": LINES_AS_MEASURED,
              "real_home": REAL_HOME_STATS}
     (out_dir / "line_stats.json").write_text(json.dumps(stats, indent=2) + "\n")
     real = REAL_HOME_STATS
     return {"out": str(out_dir), "panoramas": len(cand), "in doorways": stats["doorway_panoramas"], "rooms": len(fp["rooms"]),
-            "segments": len(model.segments), "faces": len(model.faces),
+            "segments": len(model.segments), "faces": len(model.faces), "line statistics": LINES_AS_MEASURED,
             "detected line pixels on map lines (median; real home)": f"{stats['detected_on_map']:.0%} ({real['detected_on_map']:.0%})",
             "map line pixels detected (median; real home)": f"{stats['map_detected']:.0%} ({real['map_detected']:.0%})",
             "off-map pixels > 60 deg below the horizon (median; real home)":

@@ -173,4 +173,6 @@ def test_near_tied_places_are_compared_after_their_final_search():
     assert east[0.02] == [0, 0, 5, 0]
     assert np.all(answers[0.02] == answers[0.02][:1])
     assert np.hypot(*(answers[0.02][:, 3] - truth[3, :2]).T).max() <= 0.02
-    assert PanoramaParams().refine_final_ties == 0.02 == PanoramaParams().doubtful_margin
+    # chosen equal to the doubtful margin of its day (0.02); that margin is a reporting
+    # threshold re-derived since (0.05), the near-tied places' search was not re-measured
+    assert PanoramaParams().refine_final_ties == 0.02

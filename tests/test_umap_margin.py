@@ -137,7 +137,7 @@ def test_answers_in_a_twin_room_are_marked_doubtful_end_to_end(tmp_path, caplog,
         (row,) = list(csv.DictReader(open(d / "run" / "estimates.csv")))
         doubtful = name == "twins"
         assert row["doubtful"] == ("true" if doubtful else "false"), row
-        assert (float(row["margin"]) < 0.02) == doubtful
+        assert (float(row["margin"]) < PanoramaParams().doubtful_margin) == doubtful
         assert ("1 of 1 answers are doubtful" in caplog.text) == doubtful
         est, rival = np.array([float(row["x"]), float(row["y"])]), np.array([float(row["rival_x"]), float(row["rival_y"])])
         result = read_result(d / "run" / "localize.h5")

@@ -142,7 +142,7 @@ SWEEP.update({
     "oriented chamfer, 6 bins, spread 1, precision within 75 deg, 32 cells, beam's cells whole, final search from the "
     "best point of the plan's lattice within 0.24 m": {**_ORIENTED6, "refine_final_m": 0.01, "refine_final_start_m": 0.08,
                                                         "refine_final_radius_m": 0.24},
-    # and the same search from every pose of the beam within the doubtful margin (0.02) of its
+    # and the same search from every pose of the beam within 0.02 (the doubtful margin of its day) of its
     # best, the best end the answer (refine_final_ties)
     "oriented chamfer, 6 bins, spread 1, precision within 75 deg, 32 cells, beam's cells whole, final search from the "
     "best point of the plan's lattice within 0.24 m, near-tied places too": {

@@ -204,11 +204,14 @@ class PanoramaParams(Params):
                                           "score minus the best score the search saw of a rival: a pose more than "
                                           "this far away, or nearer at a heading more than margin_yaw_deg off")
     margin_yaw_deg: float = param(30.0, min=0.0, max=180.0, help="see margin_distance_m")
-    doubtful_margin: float = param(0.02, min=0.0, help="answers whose margin is below this are marked doubtful in "
+    doubtful_margin: float = param(0.05, min=0.0, help="answers whose margin is below this are marked doubtful in "
                                                         "estimates.csv and named in the log (in the score's units: "
-                                                        "0.02 flags 5 % of the right answers of the default chamfer "
-                                                        "score on generated homes, docs/umap.md; the IoU score's "
-                                                        "margins are smaller: set your own)")
+                                                        "the 5th percentile of the right answers' margins on "
+                                                        "generated development homes, rounded, so that about 1 in 20 "
+                                                        "right answers is flagged: 0.05 since the photos' contrast is "
+                                                        "equalised, which raised the margins; 0.02 before. "
+                                                        "docs/umap.md; the IoU score's margins are smaller: set your "
+                                                        "own)")
     height_layers: int = param(0, min=0, help="with several umap.grid.heights (chamfer score): each panorama is "
                                               "searched whole in only this many layers, those whose grid table "
                                               "(every position and yaw) scores it best (0: every layer)")
@@ -249,7 +252,8 @@ class UMapParams(Params):
                                                          "wall line); kept small, as twin rooms share a wall")
     room_hint_check: float = param(0.02, min=0.0, help="umap.room_hints: warn where the best grid place outside a "
                                                        "photo's named room scores more than this above its answer "
-                                                       "inside it: the name may be wrong (0.02, as "
-                                                       "panorama.doubtful_margin: an outside place that far ahead is "
+                                                       "inside it: the name may be wrong (0.02, the "
+                                                       "doubtful margin when it was measured, before the photos' "
+                                                       "contrast was equalised: an outside place that far ahead is "
                                                        "no near tie; docs/umap.md)")
     ca: CAParams = section(CAParams)

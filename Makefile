@@ -18,7 +18,7 @@ help:
 	@echo "make bench-seqslam-peer PEER_BIN=path [LOAD=2] [PAIRS=5]  whole run beside the C++ peer (TimQuelch/seqslam), 5 alternating pairs"
 	@echo "make seqslam-presets    SeqSLAM presets: chosen on one part of nordland-dev/corridor, reported on the other"
 	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building, panoramas in 5 generated homes"
-	@echo "make experiment-umap-phone  UMap on photos taken by hand: tilted, cropped photo spheres (test homes, ~8 min)"
+	@echo "make experiment-umap-phone  UMap on photos taken by hand: tilted, cropped photo spheres (test homes, ~4 min)"
 	@echo "make experiment-umap-plan   UMap with a plan whose ceiling height is not known (test homes, ~15 min)"
 	@echo "make experiment-umap-halves UMap's score halves weighted otherwise: chosen on 13 homes, checked on 5 (~25 min)"
 	@echo "make experiment-umap-lines  UMap's shortest photo line kept: chosen on 13 homes, checked on 5 (~20 min)"

@@ -171,19 +171,18 @@ def panorama_pictures(ctx: Any, ex: Any, plan: Any, loc: Any, gt: Any, rows: np.
     names = read_strings(loc["names"])
     # the numbers in memory that evaluate.h5 keeps (report_pictures reads them back: the same choice)
     known = _known(loc, err, yaw_err)
-    frames = ranked_panoramas(len(names), wrong=known["wrong"], error_m=err, doubtful=known["doubtful"],
-                              margin=known["margin"])
-    _draw_judged(ctx.output, ex, plan, loc, float(ctx.artifact("index")["poses"][0, 2]), gt, rows, err, frames)
+    frames = _ranked(len(names), known)
+    _draw_judged(ctx.output, ex, plan, loc, gt, rows, err, frames)
     return _report_of(names, frames, _choice_note(len(names), True, None, None), **known)
 
 
-def _draw_judged(output: Callable[[str], Path], ex: Any, plan: Any, loc: Any, z: float, gt: Any, rows: np.ndarray,
+def _draw_judged(output: Callable[[str], Path], ex: Any, plan: Any, loc: Any, gt: Any, rows: np.ndarray,
                  err: np.ndarray, frames: list[int]) -> list[Path]:
     """The pictures of the panoramas ``frames`` of an evaluated run, each answer's render
     against the truth's, at ``output(file name)``."""
     h, w = int(ex.attrs["height"]), int(ex.attrs["width"])
     segs, faces = answer_model(plan, loc)
-    zs = _answer_heights(loc, z)
+    zs = _answer_heights(loc, plan)
     names = read_strings(loc["names"])
     est_h = loc["heading_deg"][()]
     out = []
@@ -233,9 +232,15 @@ def _chosen(run_dir: Path, loc: Any, evaluated: bool, sample: int | None, failur
     else:
         known = _known(loc)
     counts = _show_counts("wrong" in known, sample, failures)
-    frames = ranked_panoramas(len(names), wrong=known.get("wrong"), error_m=known.get("error_m"),
-                              doubtful=known["doubtful"], margin=known["margin"], failures=counts[0], sample=counts[1])
-    return names, known, frames, counts
+    return names, known, _ranked(len(names), known, *counts), counts
+
+
+def _ranked(n: int, known: dict[str, Any], failures: int | None = None, sample: int | None = None) -> list[int]:
+    """:func:`ranked_panoramas` of ``n`` answers from what is ``known`` of them
+    (:func:`_known`): the one call behind evaluate's pictures and show's, so both choose
+    alike."""
+    return ranked_panoramas(n, wrong=known.get("wrong"), error_m=known.get("error_m"), doubtful=known["doubtful"],
+                            margin=known["margin"], failures=failures, sample=sample)
 
 
 def show_extra(run_dir: Path, res: Any, out_dir: Path, *, evaluated: bool = False, sample: int | None = None,
@@ -272,15 +277,13 @@ def show_extra(run_dir: Path, res: Any, out_dir: Path, *, evaluated: bool = Fals
 
             cfg = config if config is not None else run_config(run_dir)
             gt, rows = true_poses(cfg["ground_truth"], names)
-            with h5py.File(run_dir / "index.h5", "r") as index:
-                z = float(index["poses"][0, 2])
-            return _draw_judged(lambda name: out_dir / name, ex, plan, loc, z, gt, rows, known["error_m"], frames)
+            return _draw_judged(lambda name: out_dir / name, ex, plan, loc, gt, rows, known["error_m"], frames)
         ceiling = ceiling_picture(out_dir / "ceiling_scores.png", loc)
         if ceiling is not None:
             out.append(ceiling)
         size = (int(ex.attrs["height"]), int(ex.attrs["width"]))
         segs, faces = answer_model(plan, loc)
-        zs = _answer_heights(loc, float(plan["poses"][0, 2]))
+        zs = _answer_heights(loc, plan)
         x, y, heading = loc["x"][()], loc["y"][()], loc["heading_deg"][()]
         (rooms,) = rooms_of_points(plan, np.column_stack([x, y]))
         for k in frames:
@@ -310,10 +313,11 @@ def _tilt_note(loc: Any, k: int) -> str:
     return f", levelled by {float(loc['tilt_deg'][k]):.1f} deg" if "tilt_deg" in loc and loc["tilt_deg"][k] > 0.5 else ""
 
 
-def _answer_heights(loc: Any, z: float) -> np.ndarray:
+def _answer_heights(loc: Any, plan: Any) -> np.ndarray:
     """Each answer's camera height: the one found (``height_m``, where umap.grid.heights
-    searched several), else the grid's ``z``."""
-    return loc["height_m"][()] if "height_m" in loc else np.full(len(loc["x"]), z)
+    searched several), else the grid's, from the build-dictionary artifact ``plan`` (its
+    poses, which the index copies: the index's 0.7 GB file need not be opened for it)."""
+    return loc["height_m"][()] if "height_m" in loc else np.full(len(loc["x"]), float(plan["poses"][0, 2]))
 
 
 def _unseen_rows(ex: Any, k: int, height: int) -> np.ndarray | None:

@@ -102,6 +102,7 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
     from placeloc.core.stage_names import STAGES
 
     chain: list[tuple[str, str, dict[str, Any]]] = []
+    tokens: dict[str, str] = {}   # each stage of the chain -> its token
     for stage in STAGES:
         attrs = _artifact_attrs(run_dir, f"{stage}.h5")
         if attrs is None:
@@ -111,7 +112,6 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
             inputs = load_json(str(attrs.get("inputs") or "{}"), f"{stage}.h5 inputs")
             parents = inputs.get("parents") if "parents" in inputs else \
                 ({chain[-1][0]: inputs.get("parent")} if chain else {})
-            tokens = {name: token for name, token, _ in chain}
             current = isinstance(parents, dict) and all(tokens.get(p) == t for p, t in parents.items())
         except (ValueError, AttributeError):  # not JSON, too deep, not a mapping
             break
@@ -122,7 +122,8 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
             break
         # what a child records of its parent: the stamp and the id of the write (placeloc.core.runner)
         write_id = attrs.get("write_id")
-        chain.append((stage, stamp if write_id is None else f"{stamp}:{write_id}", cfg))
+        tokens[stage] = stamp if write_id is None else f"{stamp}:{write_id}"
+        chain.append((stage, tokens[stage], cfg))
     return chain
 
 

@@ -110,22 +110,28 @@ class ImageSet:
         (:mod:`placeloc.core.imagework`). None for a file that cannot be stat'ed or read
         now: it is described (and its error reported) as usual. Fields are joined by "/",
         which no file name holds (HDF5 strings end at a NUL)."""
-        if self.fingerprint_mode != "content":
-            try:
-                return [f"{p.name}/{size}/{mtime_ns}" for p, (size, mtime_ns) in zip(self.paths, self._file_stats())]
-            except OSError:   # a file gone since the listing: each one alone below
-                pass
-        keys: list[str | None] = []
-        for p in self.paths:
-            try:
-                if self.fingerprint_mode == "content":
+        if self.fingerprint_mode == "content":
+            keys: list[str | None] = []
+            for p in self.paths:
+                try:
                     keys.append(f"{p.name}/{self._content_hash(p)}")
-                else:
-                    st = os.stat(p)
-                    keys.append(f"{p.name}/{st.st_size}/{st.st_mtime_ns}")
-            except (OSError, ImageError):
-                keys.append(None)
-        return keys
+                except (OSError, ImageError):
+                    keys.append(None)
+            return keys
+        try:
+            stats: list[tuple[int, int] | None] = list(self._file_stats())
+        except OSError:   # a file gone since the listing: each one alone
+            stats = [_stat_or_none(p) for p in self.paths]
+        return [None if st is None else f"{p.name}/{st[0]}/{st[1]}" for p, st in zip(self.paths, stats)]
+
+
+def _stat_or_none(path: Path) -> tuple[int, int] | None:
+    """(size, mtime_ns) of a file, or None where it cannot be stat'ed."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
 
 
 def content_hash(path: Path, block: int = 1 << 20) -> str:

@@ -286,6 +286,13 @@ def atomic_open(path: str | Path, newline: str | None = None, mode: str = "w") -
         raise
 
 
+def stamp_token(stamp: str, write_id: Any) -> str:
+    """What a child stage records of a parent artifact (its ``inputs``): the parent's stamp
+    and the id of the write that produced it, so rewriting the parent (even with the same
+    stamp) re-runs the child. The runner records it, the report's chain of stamps checks it."""
+    return stamp if write_id is None else f"{stamp}:{write_id}"
+
+
 def read_write_id(path: Path) -> str | None:
     """The unique id of the write that produced the artifact at ``path`` (None if absent)."""
     try:

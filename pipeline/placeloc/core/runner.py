@@ -35,6 +35,7 @@ from placeloc.core.artifacts import (
     read_write_id,
     remove_stale_tmp,
     stamp_and_reason,
+    stamp_token,
     tmp_path_for,
 )
 from placeloc.core.common_params import CommonParams
@@ -441,10 +442,8 @@ def _written_by_other_code(path: Path) -> str | None:
 
 
 def _parent_token(stamp: str, path: Path) -> str:
-    """What a child records of its parent: the stamp and the id of the write that produced
-    the file, so rewriting the parent (even with the same stamp) re-runs the child."""
-    write_id = read_write_id(path)
-    return stamp if write_id is None else f"{stamp}:{write_id}"
+    """What a child records of its parent at ``path`` (:func:`stamp_token`)."""
+    return stamp_token(stamp, read_write_id(path))
 
 
 def _remove_previous_outputs(path: Path, stamp: str) -> None:

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from placeloc.core.artifacts import atomic_open
+from placeloc.core.artifacts import atomic_open, stamp_token
 from placeloc.core.safe_io import MAX_RUN_TABLE_BYTES, load_json, open_run_file, read_run_file
 
 log = logging.getLogger("placeloc")
@@ -120,9 +120,8 @@ def stamped_configs(run_dir: Path) -> list[tuple[str, str, dict[str, Any]]]:
         cfg = _parse_config(attrs.get("config_yaml"))
         if cfg is None:
             break
-        # what a child records of its parent: the stamp and the id of the write (placeloc.core.runner)
-        write_id = attrs.get("write_id")
-        tokens[stage] = stamp if write_id is None else f"{stamp}:{write_id}"
+        # what a child records of its parent (as the runner records it)
+        tokens[stage] = stamp_token(stamp, attrs.get("write_id"))
         chain.append((stage, tokens[stage], cfg))
     return chain
 

@@ -1,7 +1,7 @@
 # UMap: synthetic corridor experiment, the generated homes (defaults chosen on development
 # homes, reported on others) and the benchmarks (36k-view database, real-scale floor,
 # whole-panorama search against the search before it, per panorama).
-.PHONY: experiment-umap experiment-umap-homes experiment-umap-phone experiment-umap-plan experiment-umap-halves experiment-umap-lines experiment-umap-contrast bench-umap
+.PHONY: experiment-umap experiment-umap-homes experiment-umap-phone experiment-umap-plan experiment-umap-scale experiment-umap-halves experiment-umap-lines experiment-umap-contrast bench-umap
 
 experiment-umap: $(STAMP)
 	$(PL) experiment umap
@@ -17,6 +17,9 @@ experiment-umap-phone: $(STAMP)
 
 experiment-umap-plan: $(STAMP)
 	$(PL) experiment umap-plan
+
+experiment-umap-scale: $(STAMP)
+	$(PL) experiment umap-scale
 
 experiment-umap-halves: $(STAMP)
 	$(PL) experiment umap-halves

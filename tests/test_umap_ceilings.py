@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from placeloc.geometry.floorplan import ModelError, floor_plan_model, load_model, with_ceiling
+from placeloc.geometry.floorplan import ModelError, floor_plan_model, load_model, scaled_plan, with_ceiling
+from placeloc.geometry.panorama import render_panoramas
+from placeloc.umap.bits import unpack
 from placeloc.umap.panorama import CeilingChoice, parabola_peak
 
 # the L-shaped room of tests/test_umap_panorama.py, its ceiling drawn at 2.6 m
@@ -192,3 +194,52 @@ def test_the_ceiling_picture_marks_the_ceiling_found(tmp_path):
     orange = np.all(np.abs(img - np.array([255, 127, 14])) <= 40, axis=2)
     column = int(np.argmax(np.bincount(np.nonzero(orange)[1], minlength=img.shape[1])))
     assert abs(column - (86 + (2.42 - 2.25) / 0.30 * 614)) <= 2, column
+
+
+def test_scaled_plan_scales_positions_not_heights():
+    s = 1.25
+    for plan in (PLAN, ROOMS):
+        big = scaled_plan(plan, s)
+        a, b = floor_plan_model(plan), floor_plan_model(big)
+        # every segment's x and y times s, its heights as drawn: the same segments in order
+        want = a.segments.copy()
+        want[:, [0, 1, 3, 4]] *= s
+        assert np.allclose(b.segments, want)
+        assert np.allclose(b.faces[:, :4], a.faces[:, :4] * s) and np.array_equal(b.faces[:, 4:], a.faces[:, 4:])
+        assert scaled_plan(plan, 1.0) == plan and plan == (PLAN if plan is PLAN else ROOMS)   # a copy; the input kept
+    assert scaled_plan(ROOMS, 2.0)["openings"][0] == {"from": [6.0, 2.0], "to": [6.0, 4.0], "height": 2.0}
+
+
+def test_a_plan_scaled_in_height_too_looks_the_same_from_the_scaled_camera():
+    # the reason docs/umap.md gives for the ceiling search making up a plan's wrong scale: a
+    # world scaled by s in x, y and z, seen from the scaled camera, is the same picture
+    s, cam = 1.25, np.array([[2.0, 1.5, 1.5, 30.0], [1.2, 5.5, 1.5, 200.0]])
+    small = floor_plan_model(PLAN)
+    whole = with_ceiling(scaled_plan(PLAN, s), PLAN["ceiling_z"] * s)
+    whole["doors"] = [{**d, "height": d["height"] * s} for d in whole["doors"]]   # the lintels too
+    big = floor_plan_model(whole)
+    assert np.allclose(big.segments, small.segments * s)
+    seen = cam.copy()
+    seen[:, :3] *= s
+    a = unpack(render_panoramas(small.segments, small.faces, cam, width=256, height=128, hidden=True), 128, 256)
+    b = unpack(render_panoramas(big.segments, big.faces, seen, width=256, height=128, hidden=True), 128, 256)
+    assert a.sum() > 1000 and np.array_equal(a, b)   # to the pixel (1,790 line pixels)
+    # as drawn (heights not scaled) the floor's lines move: not the same picture
+    drawn = floor_plan_model(scaled_plan(PLAN, s))
+    c = unpack(render_panoramas(drawn.segments, drawn.faces, seen, width=256, height=128, hidden=True), 128, 256)
+    assert (a != c).mean() > 0.01                     # 2 % of the pixels differ
+
+
+def test_scaled_home_scales_the_plan_and_the_truth_and_links_the_photos(tmp_path):
+    from placeloc.experiments.umap_scale import scaled_home
+
+    (tmp_path / "panoramas").mkdir()
+    (tmp_path / "line_stats.json").write_text("{}")
+    (tmp_path / "floor_plan.yaml").write_text(yaml.safe_dump(ROOMS))
+    (tmp_path / "poses.csv").write_text("frame,x,y,z,heading_deg\npano_000.png,1.0,2.0,1.5,30.0\n")
+    home = scaled_home(tmp_path, 1.1)
+    assert home == tmp_path / "scale1.1" and scaled_home(tmp_path, 1.1) == home   # made once
+    rows = list(csv.DictReader(open(home / "poses.csv", newline="")))
+    assert rows == [{"frame": "pano_000.png", "x": "1.1000", "y": "2.2000", "z": "1.5", "heading_deg": "30.0"}]
+    assert yaml.safe_load((home / "floor_plan.yaml").read_text()) == scaled_plan(ROOMS, 1.1)
+    assert (home / "panoramas").resolve() == (tmp_path / "panoramas").resolve()

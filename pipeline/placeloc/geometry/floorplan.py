@@ -251,6 +251,37 @@ def with_ceiling(plan: dict[str, Any], ceiling: float | None) -> dict[str, Any]:
     return out
 
 
+def scaled_plan(plan: dict[str, Any], scale: float) -> dict[str, Any]:
+    """``plan`` (either format of the module docstring) with every plan position multiplied
+    by ``scale`` (its outline, obstacles, rooms' polygons and internal blocks, and the ends
+    of its doors, openings and windows); heights (floor, ceiling, camera, lintels, sills)
+    as they were: a plan drawn from a listing's drawing at the wrong scale.
+
+    Why heights stay: a world scaled by ``s`` in x, y *and* z looks the same from the
+    camera's scaled position (every direction is kept), so a plan drawn ``s`` too large is the
+    true home seen with its heights ``s`` too small. The ceiling search makes up most of it:
+    the ceiling's lines, seen from a camera at ``z``, fall back where they were at a ceiling
+    of ``z + s (c - z)`` (docs/umap.md, "A floor plan drawn at the wrong scale")."""
+    s = float(scale)
+
+    def xy(points: Any) -> list[list[float]]:
+        return [[float(p[0]) * s, float(p[1]) * s] for p in points]
+
+    out = dict(plan)
+    if "outline" in plan:
+        out["outline"] = xy(plan["outline"])
+        if plan.get("obstacles"):
+            out["obstacles"] = [xy(p) for p in plan["obstacles"]]
+    if isinstance(plan.get("rooms"), list):
+        out["rooms"] = [{**r, "polygon": xy(r["polygon"]),
+                         **({"internal": [xy(p) for p in r["internal"]]} if r.get("internal") else {})}
+                        for r in plan["rooms"]]
+    for key in ("doors", "openings", "windows"):
+        if plan.get(key):
+            out[key] = [{**o, "from": xy([o["from"]])[0], "to": xy([o["to"]])[0]} for o in plan[key]]
+    return out
+
+
 def floor_plan_model(plan: dict[str, Any], source: str = "floor plan") -> Model:
     """Build the wireframe and wall faces of a floor plan (see the module docstring); the
     plan passes :func:`placeloc.geometry.plan_check.check_plan` first."""

@@ -43,6 +43,8 @@ class GridParams(Params):
                                                 "estimates.csv). The index costs as many times more, times the "
                                                 "heights; localize about a fifth of a search more per ceiling. It "
                                                 "needs about 10 photos of the home (a warning with fewer). "
+                                                "It also makes up most of a plan drawn up to 10 % too large or "
+                                                "too small (the ceiling found is then not the home's). "
                                                 "With the camera's height unknown too, search the ceilings first, "
                                                 "then give the one found alone with the heights ([] = the plan's "
                                                 "own)")

@@ -20,7 +20,7 @@ help:
 	@echo "make experiment-umap    UMap and UMap+CA on the synthetic corridor building, panoramas in 5 generated homes"
 	@echo "make experiment-umap-phone  UMap on photos taken by hand: tilted, cropped photo spheres (test homes, ~4 min)"
 	@echo "make experiment-umap-plan   UMap with a plan whose ceiling height is not known (test homes, ~15 min)"
-	@echo "make experiment-umap-scale  UMap with a plan drawn 5-10 % too small or too large (test homes, ~25 min)"
+	@echo "make experiment-umap-scale  UMap with a plan drawn 5-10 % too small or too large (test homes, ~15 min)"
 	@echo "make experiment-umap-halves UMap's score halves weighted otherwise: chosen on 13 homes, checked on 5 (~25 min)"
 	@echo "make experiment-umap-lines  UMap's shortest photo line kept: chosen on 13 homes, checked on 5 (~20 min)"
 	@echo "make experiment-umap-contrast UMap's photo contrast equalised before LSD: chosen on 13 homes, checked on 5 (~25 min)"

@@ -105,10 +105,16 @@ def test_a_plan_drawn_with_the_wrong_ceiling_is_searched_at_the_right_one(tmp_pa
         runs[name] = list(csv.DictReader(open(d / "run" / "estimates.csv")))
         said = [r.getMessage() for r in caplog.records if "ceiling" in r.getMessage()]
         if name == "three":
-            assert len(said) == 2 and said[0].startswith("ceiling height found (umap.grid.ceilings): "), said
+            assert len(said) == 3 and said[0].startswith("ceiling height found (umap.grid.ceilings): "), said
             assert "; the grid's mean best score at each ceiling searched: 2.50 m 0." in said[0]
             # two photos are few to find a ceiling from: the user is told
             assert said[1].startswith("the ceiling height was found from 2 panoramas: with fewer than 10 it is often")
+            # and the other reading of a ceiling above the plan's: a plan drawn too large, by
+            # (c' - z) / (c - z) - 1 = (2.75 - 1.5) / (2.6 - 1.5) - 1, about 14 %
+            c = float(said[0].split(": ")[1].split(" m;")[0])
+            assert said[2].startswith(f"the plan draws its ceiling at 2.60 m: either the home's is {c:.2f} m, or the plan "
+                                      f"is drawn about {((c - 1.5) / 1.1 - 1) * 100:.0f} % too large (with a camera at "
+                                      "1.50 m"), said[2]
         else:
             assert said == []
     truth = {"a.png": (1.3, 2.2), "b.png": (4.6, 1.9)}
@@ -243,3 +249,18 @@ def test_scaled_home_scales_the_plan_and_the_truth_and_links_the_photos(tmp_path
     assert rows == [{"frame": "pano_000.png", "x": "1.1000", "y": "2.2000", "z": "1.5", "heading_deg": "30.0"}]
     assert yaml.safe_load((home / "floor_plan.yaml").read_text()) == scaled_plan(ROOMS, 1.1)
     assert (home / "panoramas").resolve() == (tmp_path / "panoramas").resolve()
+
+
+def test_drawn_ceiling_is_the_one_every_room_shares():
+    import json
+    from types import SimpleNamespace
+
+    from placeloc.umap.artifacts import drawn_ceiling
+
+    def art(plan):
+        return SimpleNamespace(attrs={"plan_json": json.dumps(plan)})
+
+    assert drawn_ceiling(art(PLAN)) == 2.6                       # an outline's one ceiling
+    assert drawn_ceiling(art(ROOMS)) is None                     # room a at 2.7 m, room b at the plan's 2.5
+    assert drawn_ceiling(art(with_ceiling(ROOMS, 2.44))) == 2.44  # every room at the ceiling searched
+    assert drawn_ceiling(SimpleNamespace(attrs={})) is None      # a wireframe: no plan kept

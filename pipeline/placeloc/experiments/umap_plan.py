@@ -61,6 +61,13 @@ def _home(root: Path, seed: int, ceiling: float) -> Path:
     return d
 
 
+def ceiling_found(run_dir: Path) -> float:
+    """The ceiling height a run's ceiling search found (``ceiling_m`` of its
+    ``estimates.csv``: the run's one, on every row)."""
+    with open(run_dir / "estimates.csv", newline="") as f:
+        return float(next(csv.DictReader(f))["ceiling_m"])
+
+
 def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     out_dir, seeds, origins = homes_scope(out_dir, quick, ORIGINS)
     runs: dict[str, dict[str, Any]] = {}
@@ -78,8 +85,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                     runs[f"{folder}"] = {**m, "setting": label, "ceiling_m": ceiling}
                     shares[(label, ceiling)].setdefault(seed, []).append(m["within_1m_30deg"])
                     if grid:
-                        with open(out_dir / folder / "estimates.csv", newline="") as f:
-                            found[ceiling].append(float(next(csv.DictReader(f))["ceiling_m"]))
+                        found[ceiling].append(ceiling_found(out_dir / folder))
                     _drop_index(out_dir / folder)
     write_summary(out_dir, runs)
     lines = [f"Test homes (seeds {', '.join(map(str, seeds))}, {PANORAMAS} panoramas each) under ceilings of "

@@ -35,7 +35,7 @@ import yaml
 
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap_homes import _drop_index, _home, _run, homes_scope
-from placeloc.experiments.umap_plan import SEARCHED_M
+from placeloc.experiments.umap_plan import SEARCHED_M, ceiling_found
 from placeloc.geometry.floorplan import scaled_plan
 
 log = logging.getLogger("placeloc")
@@ -93,8 +93,7 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                 runs[folder] = {**m, "setting": label, "scale": scale}
                 shares[(scale, label)] = {**shares.get((scale, label), {}), seed: float(m["within_1m_30deg"])}
                 if grid:
-                    with open(out_dir / folder / "estimates.csv", newline="") as f:
-                        found[scale].append(float(next(csv.DictReader(f))["ceiling_m"]))
+                    found[scale].append(ceiling_found(out_dir / folder))
                 _drop_index(out_dir / folder)
     write_summary(out_dir, runs)
     lines = [f"Test homes (seeds {', '.join(map(str, seeds))}, 20 panoramas each), every plan position times the "

@@ -23,6 +23,23 @@ def model_at_ceiling(plan: Any, ceiling: float) -> tuple[np.ndarray, np.ndarray]
     return m.segments, m.faces
 
 
+def drawn_ceiling(plan: Any) -> float | None:
+    """The ceiling height the build-dictionary artifact ``plan``'s floor plan gives every
+    room (its ``ceiling_z``, or each room's own where all agree within 1 cm); None where the
+    rooms differ, or the artifact keeps no plan (a wireframe)."""
+    if "plan_json" not in plan.attrs:
+        return None
+    fp = json.loads(str(plan.attrs["plan_json"]))
+    top = fp.get("ceiling_z")
+    rooms = fp.get("rooms") if isinstance(fp.get("rooms"), list) else []
+    heights = [float(r.get("ceiling_z", top)) for r in rooms if isinstance(r, dict) and r.get("ceiling_z", top) is not None]
+    if not rooms and top is not None:
+        heights = [float(top)]
+    if not heights or max(heights) - min(heights) > 0.01:
+        return None
+    return float(np.median(heights))
+
+
 def answer_model(plan: Any, loc: Any) -> tuple[np.ndarray, np.ndarray]:
     """The (segments, faces) the run's answers were found with: the build-dictionary
     artifact's, at the ceiling height found where umap.grid.ceilings searched several."""

@@ -38,7 +38,7 @@ from placeloc.geometry.floorplan import (
     with_ceiling,
 )
 from placeloc.umap import resources as umap_resources
-from placeloc.umap.artifacts import model_at_ceiling, plan_rooms, query_seen_rows, rooms_of_points
+from placeloc.umap.artifacts import drawn_ceiling, model_at_ceiling, plan_rooms, query_seen_rows, rooms_of_points
 from placeloc.umap.bits import pack, popcount_rows, unpack
 from placeloc.umap.panorama import (
     CeilingChoice,
@@ -568,6 +568,30 @@ CEILING_PANORAMAS = 10
 
 _ADVISED: list[bool] = []   # the room_hints advice given in this process (said once)
 
+# the ceiling search's own error: within 0.02 m of the ceiling on generated homes, so a
+# scale told from it within about 2 % where the ceiling stands 1 m above the camera
+# (docs/umap.md, "A floor plan drawn at the wrong scale"); a smaller difference is not said
+SCALE_HINT = 0.04
+
+
+def _scale_hint(ctx: Any, found: float, camera_z: np.ndarray) -> None:
+    """Where the ceiling found differs from the one the plan draws, say the other reading:
+    a plan drawn ``s`` times the home's size puts the ceiling's lines where a ceiling of
+    ``z + s (c - z)`` would, seen from a camera at ``z``."""
+    drawn = drawn_ceiling(ctx.artifact("build-dictionary"))
+    heights = np.unique(camera_z)
+    if drawn is None or len(heights) != 1 or drawn - float(heights[0]) < 0.3:
+        return   # the rooms' ceilings differ, or the camera's height was searched too: no one reading
+    z = float(heights[0])
+    s = (float(found) - z) / (drawn - z)
+    if abs(s - 1.0) < SCALE_HINT:
+        return
+    log.info("the plan draws its ceiling at %.2f m: either the home's is %.2f m, or the plan is drawn about %.0f %% too "
+             "%s (with a camera at %.2f m, a plan s times the home's size shows the ceiling's lines where a ceiling of "
+             "z + s (c - z) would); where you measured the ceiling, check the plan's scale on one long wall "
+             "(docs/umap.md, \"A floor plan drawn at the wrong scale\")", drawn, found, abs(s - 1.0) * 100.0,
+             "large" if s > 1.0 else "small", z)
+
 
 def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], found: PanoramaAnswers,
                               tilt: np.ndarray | None = None, ceiling: CeilingChoice | None = None,
@@ -627,6 +651,7 @@ def _write_panorama_estimates(ctx: Any, poses: np.ndarray, names: list[str], fou
                         "more off (docs/umap.md, \"How many photos the ceiling needs\"); give the ceiling if you can "
                         "measure it, or localize more photos of the home together", n, "" if n == 1 else "s",
                         CEILING_PANORAMAS)
+        _scale_hint(ctx, found_ceiling[0], poses[:, 2])
         if ceiling.at_edge:
             lowest = ceiling.layer == min(ceiling.means)
             log.warning("the ceiling found, %.2f m, is the %s of umap.grid.ceilings: the home's may lie beyond them; "

@@ -264,3 +264,20 @@ def test_drawn_ceiling_is_the_one_every_room_shares():
     assert drawn_ceiling(art(ROOMS)) is None                     # room a at 2.7 m, room b at the plan's 2.5
     assert drawn_ceiling(art(with_ceiling(ROOMS, 2.44))) == 2.44  # every room at the ceiling searched
     assert drawn_ceiling(SimpleNamespace(attrs={})) is None      # a wireframe: no plan kept
+
+
+def test_the_scale_experiments_table_by_hand():
+    from placeloc.experiments.umap_scale import table
+
+    def run(seed, scale, setting, share, err, found=None):
+        return {"seed": seed, "scale": scale, "setting": setting, "within_1m_30deg": share, "median_error_m": err,
+                "ceiling_found_m": found, "ceiling_derived_m": 1.5 + scale * 1.0}
+
+    runs = {"a": run(21, 1.1, "as drawn", 0.95, 0.056), "b": run(20, 1.1, "as drawn", 1.0, 0.040),
+            "c": run(20, 1.1, "ceilings 2.3-3.0 searched", 1.0, 0.020, 2.61),
+            "d": run(21, 1.1, "ceilings 2.3-3.0 searched", 1.0, 0.030, 2.59)}
+    lines = table(runs)
+    assert lines[2] == "| plan's scale | plan | home 20 | home 21 | all | median error, range over the homes |"
+    assert lines[4] == "| 1.1 | as drawn | 100% | 95% | 97.5% | 0.040-0.056 m |"
+    assert lines[5] == "| 1.1 | ceilings 2.3-3.0 searched | 100% | 100% | 100.0% | 0.020-0.030 m |"
+    assert lines[-1].endswith("scale 1.1: 2.61 (2.60), 2.59 (2.60).")   # the homes in order, each beside z + s (c - z)

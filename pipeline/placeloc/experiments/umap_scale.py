@@ -76,13 +76,10 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
     out_dir, seeds, _ = homes_scope(out_dir, quick, (0.0,))
     scales = QUICK_SCALES if quick else SCALES
     runs: dict[str, dict[str, Any]] = {}
-    shares: dict[tuple[float, str], dict[int, float]] = {}
-    found: dict[float, list[float]] = {s: [] for s in scales}
-    plan_z: dict[int, tuple[float, float]] = {}       # each home's camera and ceiling heights as drawn
     for seed in seeds:
         data = _home(out_dir, seed)
         fp = yaml.safe_load((data / "floor_plan.yaml").read_text())
-        plan_z[seed] = (float(fp["camera_z"]), float(fp["ceiling_z"]))
+        camera, ceiling = float(fp["camera_z"]), float(fp["ceiling_z"])
         for scale in scales:
             home = scaled_home(data, scale)
             for label, grid in SETTINGS:
@@ -90,23 +87,41 @@ def main(out_dir: Path, quick: bool = False, quiet: bool = False) -> Path:
                     continue
                 folder = f"home{seed}-scale{scale:g}" + ("-ceilings" if grid else "")
                 m = _run(out_dir, folder, home, {}, 0.0, quiet, grid=grid)
-                runs[folder] = {**m, "setting": label, "scale": scale}
-                shares[(scale, label)] = {**shares.get((scale, label), {}), seed: float(m["within_1m_30deg"])}
-                if grid:
-                    found[scale].append(ceiling_found(out_dir / folder))
+                runs[folder] = {**m, "seed": seed, "setting": label, "scale": scale,
+                                "ceiling_found_m": ceiling_found(out_dir / folder) if grid else None,
+                                "ceiling_derived_m": camera + scale * (ceiling - camera)}
                 _drop_index(out_dir / folder)
     write_summary(out_dir, runs)
-    lines = [f"Test homes (seeds {', '.join(map(str, seeds))}, 20 panoramas each), every plan position times the "
-             "scale, heights as drawn, the truth scaled with the plan; grid origin 0; share within 1 m and 30 deg:", "",
-             "| plan's scale | plan | " + " | ".join(f"home {s}" for s in seeds) + " | all |",
-             "|---|---|" + "---|" * (len(seeds) + 1)]
-    for (scale, label), per in sorted(shares.items(), key=lambda kv: (kv[0][0], kv[0][1] != SETTINGS[0][0])):
-        lines.append(f"| {scale:g} | {label} | " + " | ".join(f"{per[s]:.0%}" for s in seeds)
-                     + f" | {np.mean(list(per.values())):.1%} |")
-    lines += ["", "Ceilings found by the search (homes in order), against z + s (c - z) of each home's plan: " + "; ".join(
-        f"scale {s:g}: " + ", ".join(f"{x:.2f} ({plan_z[seed][0] + s * (plan_z[seed][1] - plan_z[seed][0]):.2f})"
-                                     for seed, x in zip(seeds, found[s])) for s in scales if found[s]) + "."]
+    lines = table(runs)
     (out_dir / "table.md").write_text("\n".join(lines) + "\n")
     if not quiet:
         print("\n".join(lines))
     return out_dir / "summary.json"
+
+
+def table(runs: dict[str, dict[str, Any]]) -> list[str]:
+    """``table.md``'s lines from the runs of :func:`main` (each with its ``seed``, ``scale``,
+    ``setting``, share, median error and, searched, the ceiling found and the ceiling
+    ``z + s (c - z)`` derived from the plan): a row per scale and setting, the homes in
+    columns, then the share over them and the range of their median errors; then the
+    ceilings found against those derived."""
+    seeds = sorted({int(m["seed"]) for m in runs.values()})
+    rows: dict[tuple[float, str], dict[int, dict[str, Any]]] = {}
+    for m in runs.values():
+        rows.setdefault((float(m["scale"]), str(m["setting"])), {})[int(m["seed"])] = m
+    lines = [f"Test homes (seeds {', '.join(map(str, seeds))}, 20 panoramas each), every plan position times the "
+             "scale, heights as drawn, the truth scaled with the plan; grid origin 0; share within 1 m and 30 deg:", "",
+             "| plan's scale | plan | " + " | ".join(f"home {s}" for s in seeds) + " | all | median error, range over "
+             "the homes |", "|---|---|" + "---|" * (len(seeds) + 2)]
+    for (scale, label), per in sorted(rows.items(), key=lambda kv: (kv[0][0], kv[0][1] != SETTINGS[0][0])):
+        errors = [float(m["median_error_m"]) for m in per.values()]
+        lines.append(f"| {scale:g} | {label} | " + " | ".join(f"{per[s]['within_1m_30deg']:.0%}" if s in per else ""
+                                                              for s in seeds)
+                     + f" | {np.mean([m['within_1m_30deg'] for m in per.values()]):.1%} | "
+                     f"{min(errors):.3f}-{max(errors):.3f} m |")
+    found = [(scale, [per[s] for s in seeds if s in per]) for (scale, label), per in sorted(rows.items())
+             if label != SETTINGS[0][0]]
+    lines += ["", "Ceilings found by the search (homes in order), against z + s (c - z) of each home's plan: " + "; ".join(
+        f"scale {scale:g}: " + ", ".join(f"{m['ceiling_found_m']:.2f} ({m['ceiling_derived_m']:.2f})" for m in ms)
+        for scale, ms in found) + "."]
+    return lines

@@ -25,7 +25,6 @@ measured by ``placeloc experiment umap-contrast`` and ``umap-homes``. Writes
 from __future__ import annotations
 
 import csv
-import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -33,12 +32,11 @@ from typing import Any
 import numpy as np
 import yaml
 
+from placeloc.core.artifacts import atomic_open
 from placeloc.experiments import write_summary
 from placeloc.experiments.umap_homes import _drop_index, _home, _run, homes_scope
 from placeloc.experiments.umap_plan import SEARCHED_M, ceiling_found
 from placeloc.geometry.floorplan import scaled_plan
-
-log = logging.getLogger("placeloc")
 
 SCALES = (0.9, 0.95, 1.0, 1.05, 1.1)
 QUICK_SCALES = (0.9, 1.1)
@@ -63,12 +61,10 @@ def scaled_home(data: Path, scale: float) -> Path:
             os.symlink(data / name, out / name)
     with open(data / "poses.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    tmp = out / "poses.csv.tmp"
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(out / "poses.csv", newline="") as f:   # last: its presence says the folder is whole
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows({**r, "x": f"{float(r['x']) * scale:.4f}", "y": f"{float(r['y']) * scale:.4f}"} for r in rows)
-    tmp.replace(out / "poses.csv")   # last: its presence says the folder is whole
     return out
 
 

@@ -32,9 +32,8 @@ def drawn_ceiling(plan: Any) -> float | None:
     fp = json.loads(str(plan.attrs["plan_json"]))
     top = fp.get("ceiling_z")
     rooms = fp.get("rooms") if isinstance(fp.get("rooms"), list) else []
-    heights = [float(r.get("ceiling_z", top)) for r in rooms if isinstance(r, dict) and r.get("ceiling_z", top) is not None]
-    if not rooms and top is not None:
-        heights = [float(top)]
+    declared = [r.get("ceiling_z", top) for r in rooms if isinstance(r, dict)] if rooms else [top]
+    heights = [float(h) for h in declared if h is not None]
     if not heights or max(heights) - min(heights) > 0.01:
         return None
     return float(np.median(heights))

@@ -581,7 +581,9 @@ def _scale_hint(ctx: Any, found: float, camera_z: np.ndarray) -> None:
     drawn = drawn_ceiling(ctx.artifact("build-dictionary"))
     heights = np.unique(camera_z)
     if drawn is None or len(heights) != 1 or drawn - float(heights[0]) < 0.3:
-        return   # the rooms' ceilings differ, or the camera's height was searched too: no one reading
+        # the rooms' ceilings differ, or the camera's height was searched too: no one reading;
+        # a ceiling within 0.3 m of the camera: the ratio says nothing (its error dominates)
+        return
     z = float(heights[0])
     s = (float(found) - z) / (drawn - z)
     if abs(s - 1.0) < SCALE_HINT:
